@@ -1,0 +1,227 @@
+"""Pure mathematics of the CRHF estimator (seed 000, Sec. 2.4, 2.7 and 2.8).
+
+Camera and Range sensor Homogeneous Fusion: four ToF sensors around a downward camera give four
+touch points on the deck; the plane through them, together with focal lengths and principal point
+measured from the touch points' pixels, lifts the tag's detected corners to 3-D, and Arun's SVD
+method turns the 3-D corners into the tag pose X_CT.
+
+Frames and units: everything is expressed in the camera frame C (+z along the optical axis, +x right,
++y down in the image), in metres. Pixels follow OpenCV: u right, v down, pixel centres at integers.
+The tag frame T is OpenCV's marker frame (origin at the tag centre, z out of the tag face); see
+`tag_corners_T`.
+"""
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+
+# "AngleCam2Sensors is assumed to be 45 degrees" (seed 000, text under Eq. 21-24).
+SENSOR_ANGLE_RAD = np.pi / 4
+
+
+def tof_sensor_positions(radius, angle: float = SENSOR_ANGLE_RAD) -> np.ndarray:
+    """Positions p_CS of the four ToF sensors in C, metres, shape (4, 3) (Eq. 21-24).
+
+    radius: distance a_i of each sensor from the camera axis (scalar, or four values a_1..a_4).
+    The sensors lie in the camera's z = 0 plane, sensor i = 1..4 in quadrants (-x, -y), (-x, +y),
+    (+x, +y), (+x, -y) as Eq. 21-24 order them. The paper writes a*cos(angle) for both components;
+    at its 45 degrees that equals a*sin(angle), which is what we use so `radius` stays the distance
+    from the axis at any angle.
+    """
+    a = np.broadcast_to(np.asarray(radius, dtype=float), (4,))
+    signs = np.array([[-1.0, -1.0], [-1.0, 1.0], [1.0, 1.0], [1.0, -1.0]])
+    p = np.zeros((4, 3))
+    p[:, 0] = signs[:, 0] * a * np.cos(angle)
+    p[:, 1] = signs[:, 1] * a * np.sin(angle)
+    return p
+
+
+def touch_points(p_C_sensors: np.ndarray, ranges: np.ndarray) -> np.ndarray:
+    """Touch points on the deck in C, metres, shape (N, 3) (Eq. 26: p_st = [p_s,xy, d_i]).
+
+    p_C_sensors: (N, 3) sensor positions in C; ranges: (N,) ranges in metres measured along +z_C
+    (the sensors point along the camera axis). Non-finite ranges give non-finite rows.
+    """
+    p = np.array(p_C_sensors, dtype=float)
+    p[:, 2] += np.asarray(ranges, dtype=float)
+    return p
+
+
+class PlaneFit(NamedTuple):
+    """A plane {p : normal . p = offset} in C (the form of Eq. 27).
+
+    normal: (3,) unit normal, oriented away from the camera origin so that offset >= 0.
+    offset: distance d of the plane from the camera origin, metres.
+    rms_residual: RMS orthogonal distance of the fitted points from the plane, metres.
+    degenerate: True when the points do not fix a plane (fewer than three, non-finite, coincident
+        or collinear); normal and offset are then NaN.
+    """
+
+    normal: np.ndarray
+    offset: float
+    rms_residual: float
+    degenerate: bool
+
+
+def fit_plane(points: np.ndarray, rel_tol: float = 1e-6, abs_tol: float = 1e-9) -> PlaneFit:
+    """Least-squares plane through (N, 3) points in metres (replaces Eq. 25-27).
+
+    The paper takes the normal from one cross product of three touch points (Eq. 25) and d from an
+    average; here all points enter a total-least-squares fit: the normal is the right singular
+    vector of the centred points with the smallest singular value, and d = n . centroid. With
+    singular values s0 >= s1 >= s2, the points are coincident when s0 <= abs_tol (metres) and
+    collinear when s1 <= rel_tol * s0.
+    """
+    p = np.asarray(points, dtype=float)
+    nan = np.full(3, np.nan)
+    if p.shape[0] < 3 or not np.all(np.isfinite(p)):
+        return PlaneFit(nan, np.nan, np.nan, True)
+    centroid = p.mean(axis=0)
+    _, s, vt = np.linalg.svd(p - centroid)
+    if s[0] <= abs_tol or s[1] <= rel_tol * s[0]:
+        return PlaneFit(nan, np.nan, np.nan, True)
+    n = vt[2]
+    d = float(n @ centroid)
+    if d < 0:
+        n, d = -n, -d
+    return PlaneFit(n, d, float(s[2] / np.sqrt(len(p))), False)
+
+
+def principal_point_from_touch_points(p_C_touch: np.ndarray, uv_touch: np.ndarray) -> np.ndarray:
+    """Principal point (cx, cy) in pixels from the touch points and their pixels (Eq. 45).
+
+    p_C_touch: (4, 3) touch points in C, metres; uv_touch: (4, 2) their pixel coordinates.
+    Eq. 45 weights each touch pixel by the sensor's range d_i; we weight by the touch point's depth
+    Z_i, which is d_i for sensors in the camera's z = 0 plane (Eq. 21-24). Since
+    Z_i * u_i = Z_i * cx + fx * X_i, the weighted mean is exactly (cx, cy) whenever the sensors'
+    lateral offsets sum to zero, as they do for the symmetric layout of Eq. 21-24.
+    """
+    z = np.asarray(p_C_touch, dtype=float)[:, 2]
+    return z @ np.asarray(uv_touch, dtype=float) / z.sum()
+
+
+def focal_lengths_from_touch_points(
+    p_C_touch: np.ndarray, uv_touch: np.ndarray, principal_point: np.ndarray
+) -> np.ndarray:
+    """Focal lengths (fx, fy) in pixels from the touch points (Eq. 40-44).
+
+    Each touch point gives fx_i = (u_i - cx) * Z_i / X_i and fy_i = (v_i - cy) * Z_i / Y_i
+    (Eq. 40-43 solved for the focal length, pixels measured from the principal point); Eq. 44
+    averages the four. p_C_touch: (4, 3) in C, metres; uv_touch: (4, 2) pixels;
+    principal_point: (cx, cy) pixels. Raises ValueError if a sensor lies on a camera axis
+    (X_i or Y_i zero), which the 45-degree layout of Eq. 21-24 never does.
+    """
+    p = np.asarray(p_C_touch, dtype=float)
+    if np.any(np.abs(p[:, :2]) < 1e-9):
+        raise ValueError("a touch point lies on the camera's x or y axis; its focal length is undefined")
+    centred = np.asarray(uv_touch, dtype=float) - np.asarray(principal_point, dtype=float)
+    return np.mean(centred * p[:, 2:3] / p[:, :2], axis=0)
+
+
+def intersect_pixel_rays_with_plane(
+    uv: np.ndarray, focal_lengths: np.ndarray, principal_point: np.ndarray, plane: PlaneFit
+) -> tuple[np.ndarray, np.ndarray]:
+    """3-D points in C, metres, where the pixels' viewing rays meet the plane (Eq. 46-53).
+
+    uv: (N, 2) pixels; focal_lengths (fx, fy) and principal_point (cx, cy) in pixels.
+    Each pixel's ray is r = [(u - cx)/fx, (v - cy)/fy, 1]; the point Z * r on n . p = d has
+    Z = d / (n . r), which is Eq. 46-49 with the normalised coordinates written as (u - cx)/fx;
+    X = Z (u - cx)/fx and Y = Z (v - cy)/fy is Eq. 50-53.
+    Returns (points (N, 3), valid (N,)); a row is invalid (and NaN) when the plane is degenerate,
+    the input is non-finite, or the ray is parallel to the plane or meets it behind the camera.
+    """
+    uv = np.asarray(uv, dtype=float)
+    rays = np.column_stack(
+        [(uv - np.asarray(principal_point, dtype=float)) / np.asarray(focal_lengths, dtype=float),
+         np.ones(len(uv))]
+    )
+    with np.errstate(invalid="ignore", divide="ignore"):
+        denominator = rays @ plane.normal
+        z = plane.offset / denominator
+        valid = np.isfinite(z) & (denominator > 1e-12) & (z > 0)
+        points = np.where(valid[:, None], z[:, None] * rays, np.nan)
+    return points, valid
+
+
+def tag_corners_T(tag_size: float) -> np.ndarray:
+    """The tag's corners in its own frame T, metres, shape (4, 3) (the static points of Eq. 62).
+
+    tag_size: side of the tag's black square, metres. Order and frame are OpenCV's for
+    cv2.aruco/AprilTag detections and SOLVEPNP_IPPE_SQUARE: top-left, top-right, bottom-right,
+    bottom-left as the tag is seen upright; T has x right and y up in the tag image and z out of the
+    tag face, so a face-up tag seen by a downward camera has X_CT ~ diag(1, -1, -1).
+    """
+    h = tag_size / 2
+    return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
+
+
+def arun_rigid_transform(p_AQ: np.ndarray, p_BQ: np.ndarray) -> RigidTransform:
+    """X_BA minimising sum |p_BQ - X_BA p_AQ|^2 over rotations (Arun et al.; Eq. 54-61).
+
+    p_AQ, p_BQ: (N, 3) corresponding points Q measured in frames A and B, N >= 3 and not all
+    collinear. Centroids (Eq. 54-55), centred points (Eq. 56-57), H = sum of a_i b_i^T (Eq. 58),
+    H = U S V^T (Eq. 59), R = V diag(1, 1, sign det(V U^T)) U^T (Eq. 60; the last entry is the
+    reflection guard, needed e.g. for coplanar points such as a tag's corners), t = c_B - R c_A
+    (Eq. 61).
+    """
+    p_AQ = np.asarray(p_AQ, dtype=float)
+    p_BQ = np.asarray(p_BQ, dtype=float)
+    if p_AQ.shape != p_BQ.shape or p_AQ.ndim != 2 or p_AQ.shape[1] != 3 or len(p_AQ) < 3:
+        raise ValueError(f"need two (N, 3) point sets with N >= 3, got {p_AQ.shape} and {p_BQ.shape}")
+    c_A = p_AQ.mean(axis=0)
+    c_B = p_BQ.mean(axis=0)
+    H = (p_AQ - c_A).T @ (p_BQ - c_B)
+    U, _, Vt = np.linalg.svd(H)
+    guard = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ guard @ U.T
+    return RigidTransform(RotationMatrix(R), c_B - R @ c_A)
+
+
+@dataclass(frozen=True)
+class CrhfEstimate:
+    """One CRHF frame: the tag pose and the intermediate quantities behind it.
+
+    X_CT: tag pose in C (identity when not valid). valid: every step succeeded.
+    plane: the deck plane from the touch points. focal_lengths (fx, fy) and
+    principal_point (cx, cy): pixels, measured this frame from the touch points.
+    p_C_corners: (4, 3) tag corners in C, metres (NaN rows where a ray missed the plane).
+    """
+
+    X_CT: RigidTransform
+    valid: bool
+    plane: PlaneFit
+    focal_lengths: np.ndarray
+    principal_point: np.ndarray
+    p_C_corners: np.ndarray
+
+
+def crhf_tag_pose(
+    p_C_sensors: np.ndarray,
+    ranges: np.ndarray,
+    uv_touch: np.ndarray,
+    uv_corners: np.ndarray,
+    p_T_corners: np.ndarray,
+) -> CrhfEstimate:
+    """The CRHF pipeline of Sec. 2.4-2.8 for one frame.
+
+    p_C_sensors: (4, 3) sensor positions in C, metres (`tof_sensor_positions`).
+    ranges: (4,) ToF ranges, metres (NaN for a sensor that returned nothing).
+    uv_touch: (4, 2) pixels of the touch points (from the pad calibration, Sec. 2.3).
+    uv_corners: (4, 2) detected (or filtered) tag corners, pixels.
+    p_T_corners: (4, 3) the same corners in the tag frame T, metres (`tag_corners_T`, Eq. 62).
+    Never raises on bad measurements: the estimate is then flagged invalid.
+    """
+    p_C_touch = touch_points(p_C_sensors, ranges)
+    plane = fit_plane(p_C_touch)
+    nan2 = np.full(2, np.nan)
+    finite = np.all(np.isfinite(uv_touch)) and np.all(np.isfinite(uv_corners))
+    if plane.degenerate or not finite:
+        return CrhfEstimate(RigidTransform(), False, plane, nan2, nan2, np.full((4, 3), np.nan))
+    principal_point = principal_point_from_touch_points(p_C_touch, uv_touch)
+    focal_lengths = focal_lengths_from_touch_points(p_C_touch, uv_touch, principal_point)
+    p_C_corners, hit = intersect_pixel_rays_with_plane(uv_corners, focal_lengths, principal_point, plane)
+    valid = bool(np.all(hit) and np.all(focal_lengths > 0))
+    X_CT = arun_rigid_transform(p_T_corners, p_C_corners) if valid else RigidTransform()
+    return CrhfEstimate(X_CT, valid, plane, focal_lengths, principal_point, p_C_corners)

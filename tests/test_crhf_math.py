@@ -1,0 +1,250 @@
+"""Tests of the CRHF mathematics against analytic cases, OpenCV and SciPy."""
+
+import cv2
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from scipy.spatial.transform import Rotation
+
+from systems.estimators.crhf_math import (
+    arun_rigid_transform,
+    crhf_tag_pose,
+    fit_plane,
+    focal_lengths_from_touch_points,
+    intersect_pixel_rays_with_plane,
+    principal_point_from_touch_points,
+    tag_corners_T,
+    tof_sensor_positions,
+    touch_points,
+)
+
+# Camera intrinsics of seed 000, Eq. 10 (printed transposed there, MATLAB style).
+FX, FY, CX, CY = 458.5, 457.855, 258.7735, 252.308
+K = np.array([[FX, 0.0, CX], [0.0, FY, CY], [0.0, 0.0, 1.0]])
+SENSOR_RADIUS = 0.137  # m; Table 4's a = 44.43 px = fx * 0.0969 m per axis, 0.0969 * sqrt(2)
+TAG_SIZE = 0.16  # m
+
+# A tilted deck: the tag pose in the camera, tag face towards the camera.
+X_CT = RigidTransform(RollPitchYaw(np.pi + 0.2, -0.15, 0.3), [0.05, -0.03, 1.2])
+
+
+def deck_plane(X_CT):
+    """The plane n . p = d of the tag's face, n pointing away from the camera."""
+    n = -X_CT.rotation().matrix()[:, 2]
+    return n, float(n @ X_CT.translation())
+
+
+def ranges_to_plane(p_C_sensors, n, d):
+    """Ranges along +z_C from each sensor to the plane n . p = d."""
+    return (d - p_C_sensors @ n) / n[2]
+
+
+def project(p_C):
+    """Pixels of points in C through K, with OpenCV's projectPoints as the reference projection."""
+    uv, _ = cv2.projectPoints(p_C.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, None)
+    return uv.reshape(-1, 2)
+
+
+def test_sensor_positions_follow_eq_21_to_24():
+    p = tof_sensor_positions(SENSOR_RADIUS)
+    np.testing.assert_allclose(np.linalg.norm(p[:, :2], axis=1), SENSOR_RADIUS)
+    np.testing.assert_array_equal(p[:, 2], 0.0)
+    np.testing.assert_array_equal(np.sign(p[:, :2]), [[-1, -1], [-1, 1], [1, 1], [1, -1]])
+    np.testing.assert_allclose(p.sum(axis=0), 0.0, atol=1e-15)
+
+
+def test_touch_points_add_the_range_along_the_camera_axis():
+    p_s = tof_sensor_positions(0.1)
+    p_t = touch_points(p_s, [1.0, 2.0, 3.0, 4.0])
+    np.testing.assert_array_equal(p_t[:, :2], p_s[:, :2])
+    np.testing.assert_array_equal(p_t[:, 2], [1.0, 2.0, 3.0, 4.0])
+
+
+def test_plane_fit_recovers_an_exact_tilted_plane_from_four_touch_points():
+    n, d = deck_plane(X_CT)
+    p_s = tof_sensor_positions(SENSOR_RADIUS)
+    plane = fit_plane(touch_points(p_s, ranges_to_plane(p_s, n, d)))
+    assert not plane.degenerate
+    np.testing.assert_allclose(plane.normal, n, atol=1e-12)
+    assert plane.offset == pytest.approx(d, abs=1e-12)
+    assert plane.rms_residual < 1e-12
+
+
+def test_plane_fit_orients_the_normal_away_from_the_camera():
+    points = np.array([[0, 0, 2.0], [1, 0, 2.0], [0, 1, 2.0], [1, 1, 2.0]])
+    plane = fit_plane(points)
+    np.testing.assert_allclose(plane.normal, [0, 0, 1], atol=1e-15)
+    assert plane.offset == pytest.approx(2.0)
+
+
+def test_plane_fit_with_noise_is_close_and_reports_the_residual():
+    rng = np.random.default_rng(0)
+    n, d = deck_plane(X_CT)
+    e1 = np.cross(n, [1.0, 0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    st = rng.uniform(-0.5, 0.5, size=(2000, 2))
+    sigma = 1e-3
+    points = d * n + st[:, :1] * e1 + st[:, 1:] * e2 + sigma * rng.standard_normal((2000, 1)) * n
+    plane = fit_plane(points)
+    assert np.degrees(np.arccos(plane.normal @ n)) < 0.05
+    assert plane.offset == pytest.approx(d, abs=2e-4)
+    assert plane.rms_residual == pytest.approx(sigma, rel=0.1)
+
+
+@pytest.mark.parametrize(
+    "points",
+    [
+        np.array([[0, 0, 1.0], [1, 1, 2.0], [2, 2, 3.0], [3, 3, 4.0]]),  # collinear
+        np.array([[0, 0, 1.0], [1, 1, 2.0], [2, 2, 3.0 + 1e-12], [3, 3, 4.0]]),  # collinear to 1e-12
+        np.ones((4, 3)),  # coincident
+        np.array([[0, 0, 1.0], [1, 0, 1.0]]),  # too few
+        np.array([[0, 0, 1.0], [1, 0, 1.0], [0, 1, np.nan], [1, 1, 1.0]]),  # a missing range
+    ],
+)
+def test_plane_fit_flags_degenerate_points(points):
+    plane = fit_plane(points)
+    assert plane.degenerate
+    assert np.all(np.isnan(plane.normal)) and np.isnan(plane.offset)
+
+
+def test_intrinsics_from_touch_points_recover_the_camera_on_a_tilted_deck():
+    n, d = deck_plane(X_CT)
+    p_s = tof_sensor_positions(SENSOR_RADIUS)
+    p_t = touch_points(p_s, ranges_to_plane(p_s, n, d))
+    assert np.ptp(p_t[:, 2]) > 0.02  # the ranges really differ
+    uv = project(p_t)
+    c = principal_point_from_touch_points(p_t, uv)
+    np.testing.assert_allclose(c, [CX, CY], atol=1e-9)
+    f = focal_lengths_from_touch_points(p_t, uv, c)
+    np.testing.assert_allclose(f, [FX, FY], atol=1e-9)
+
+
+def test_focal_length_needs_sensors_off_the_axes():
+    p_t = np.array([[0.0, 0.1, 1.0], [-0.1, 0.1, 1.0], [0.1, 0.1, 1.0], [0.1, -0.1, 1.0]])
+    with pytest.raises(ValueError, match="axis"):
+        focal_lengths_from_touch_points(p_t, np.zeros((4, 2)), [CX, CY])
+
+
+def test_ray_plane_intersection_recovers_tag_corners_exactly():
+    p_C_corners = np.array([X_CT.multiply(p) for p in tag_corners_T(TAG_SIZE)])
+    n, d = deck_plane(X_CT)
+    plane = fit_plane(p_C_corners)  # same plane as the deck
+    np.testing.assert_allclose(plane.normal, n, atol=1e-12)
+    points, valid = intersect_pixel_rays_with_plane(project(p_C_corners), [FX, FY], [CX, CY], plane)
+    assert np.all(valid)
+    np.testing.assert_allclose(points, p_C_corners, atol=1e-9)
+
+
+def test_ray_plane_intersection_flags_rays_that_miss():
+    # A vertical plane x = 1: the optical axis is parallel to it and rays to the left meet it behind.
+    plane = fit_plane(np.array([[1.0, 0, 1], [1, 1, 1], [1, 0, 2], [1, 1, 2]]))
+    points, valid = intersect_pixel_rays_with_plane(
+        np.array([[CX, CY], [CX - 100, CY], [CX + 100, CY]]), [FX, FY], [CX, CY], plane
+    )
+    np.testing.assert_array_equal(valid, [False, False, True])
+    assert np.all(np.isnan(points[:2]))
+    assert points[2, 0] == pytest.approx(1.0)
+
+
+def test_tag_corner_order_is_opencvs():
+    """IPPE_SQUARE only accepts OpenCV's corner order; the ArUco detector reports that order."""
+    uv = project(np.array([X_CT.multiply(p) for p in tag_corners_T(TAG_SIZE)]))
+    ok, rvec, tvec = cv2.solvePnP(
+        tag_corners_T(TAG_SIZE), uv, K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
+    )
+    assert ok
+    np.testing.assert_allclose(cv2.Rodrigues(rvec)[0], X_CT.rotation().matrix(), atol=1e-8)
+    np.testing.assert_allclose(tvec.ravel(), X_CT.translation(), atol=1e-8)
+
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
+    image = np.full((200, 200), 255, np.uint8)
+    image[50:150, 50:150] = cv2.aruco.generateImageMarker(dictionary, 3, 100)
+    corners, _, _ = cv2.aruco.ArucoDetector(dictionary).detectMarkers(image)
+    top_left, top_right, bottom_right, bottom_left = corners[0].reshape(4, 2)
+    assert top_left[0] < top_right[0] and top_left[1] < bottom_left[1]
+    assert bottom_right[0] > bottom_left[0] and bottom_right[1] > top_right[1]
+
+
+def test_arun_recovers_a_known_transform_and_agrees_with_opencv_and_scipy():
+    rng = np.random.default_rng(1)
+    R = Rotation.random(random_state=2).as_matrix()
+    t = np.array([0.3, -0.2, 1.5])
+    p_A = rng.normal(size=(10, 3))
+    X_BA = arun_rigid_transform(p_A, p_A @ R.T + t)
+    np.testing.assert_allclose(X_BA.rotation().matrix(), R, atol=1e-12)
+    np.testing.assert_allclose(X_BA.translation(), t, atol=1e-12)
+
+    p_B = p_A @ R.T + t + 0.01 * rng.normal(size=p_A.shape)
+    X_BA = arun_rigid_transform(p_A, p_B)
+    # OpenCV's binding always fits Umeyama's scale too, so only its rotation is comparable.
+    opencv, _ = cv2.estimateAffine3D(p_A, p_B, force_rotation=True)
+    np.testing.assert_allclose(X_BA.rotation().matrix(), opencv[:, :3], atol=1e-9)
+    scipy_R, _ = Rotation.align_vectors(p_B - p_B.mean(0), p_A - p_A.mean(0))
+    np.testing.assert_allclose(X_BA.rotation().matrix(), scipy_R.as_matrix(), atol=1e-9)
+
+
+def naive_rotation(p_A, p_B):
+    """Arun's rotation without the reflection guard."""
+    H = (p_A - p_A.mean(0)).T @ (p_B - p_B.mean(0))
+    U, _, Vt = np.linalg.svd(H)
+    return Vt.T @ U.T
+
+
+def test_arun_reflection_guard_on_coplanar_tag_corners():
+    p_T = tag_corners_T(TAG_SIZE)
+    naive_dets = []
+    for seed in range(20):
+        R = Rotation.random(random_state=seed).as_matrix()
+        p_C = p_T @ R.T + [0.1, 0.2, 1.0]
+        naive_dets.append(np.linalg.det(naive_rotation(p_T, p_C)))
+        X_CT = arun_rigid_transform(p_T, p_C)
+        np.testing.assert_allclose(X_CT.rotation().matrix(), R, atol=1e-9)
+        np.testing.assert_allclose(X_CT.translation(), [0.1, 0.2, 1.0], atol=1e-12)
+    assert min(naive_dets) == pytest.approx(-1.0)  # the guard was exercised
+
+
+def test_arun_returns_a_rotation_for_mirrored_points_like_scipy():
+    rng = np.random.default_rng(3)
+    p_A = rng.normal(size=(8, 3))
+    p_B = p_A * [1.0, 1.0, -1.0]  # a mirror image: the best orthogonal map is a reflection
+    assert np.linalg.det(naive_rotation(p_A, p_B)) == pytest.approx(-1.0)
+    R = arun_rigid_transform(p_A, p_B).rotation().matrix()
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    scipy_R, _ = Rotation.align_vectors(p_B - p_B.mean(0), p_A - p_A.mean(0))
+    np.testing.assert_allclose(R, scipy_R.as_matrix(), atol=1e-9)
+
+
+def test_arun_rejects_mismatched_inputs():
+    with pytest.raises(ValueError, match="N >= 3"):
+        arun_rigid_transform(np.zeros((2, 3)), np.zeros((2, 3)))
+
+
+@pytest.mark.parametrize(
+    "X_CT_true",
+    [
+        X_CT,
+        # The paper's static test (Sec. 4.1): face-up tag 2 m straight below the camera.
+        RigidTransform(RotationMatrix(np.diag([1.0, -1.0, -1.0])), [0.0, 0.0, 2.0]),
+    ],
+)
+def test_crhf_pipeline_recovers_the_tag_pose(X_CT_true):
+    p_s = tof_sensor_positions(SENSOR_RADIUS)
+    n, d = deck_plane(X_CT_true)
+    p_t = touch_points(p_s, ranges_to_plane(p_s, n, d))
+    p_T = tag_corners_T(TAG_SIZE)
+    uv_corners = project(np.array([X_CT_true.multiply(p) for p in p_T]))
+    estimate = crhf_tag_pose(p_s, p_t[:, 2], project(p_t), uv_corners, p_T)
+    assert estimate.valid
+    np.testing.assert_allclose(estimate.focal_lengths, [FX, FY], atol=1e-8)
+    np.testing.assert_allclose(estimate.X_CT.GetAsMatrix4(), X_CT_true.GetAsMatrix4(), atol=1e-9)
+
+
+def test_crhf_pipeline_flags_a_missing_range_without_raising():
+    p_s = tof_sensor_positions(SENSOR_RADIUS)
+    estimate = crhf_tag_pose(
+        p_s, [1.0, np.nan, 1.0, 1.0], np.full((4, 2), 100.0), np.full((4, 2), 100.0),
+        tag_corners_T(TAG_SIZE),
+    )
+    assert not estimate.valid and estimate.plane.degenerate
+    assert estimate.X_CT.IsExactlyIdentity()
