@@ -1,0 +1,170 @@
+"""The seed 000 scene: a quadrotor hovering over a Stewart-platform deck carrying an AprilTag, with a
+downward camera, four ToF range sensors and an IMU; ground truth and measurements logged at the
+camera rate.
+
+    from diagrams.stewart_scene import build_stewart_scene, StewartSceneConfig
+    diagram, handles = build_stewart_scene(StewartSceneConfig())
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.geometry import (
+    Meshcat,
+    MeshcatVisualizer,
+    MeshcatVisualizerParams,
+    RenderEngineVtkParams,
+    Role,
+    SceneGraph,
+    MakeRenderEngineVtk,
+)
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
+
+from systems.config import require
+from systems.perception.apriltag import TagDetectorSystem
+from systems.platforms.stewart import StewartPlatform, StewartPlatformConfig
+from systems.sensors.camera import CameraConfig, NoisyCamera, make_camera
+from systems.sensors.ground_truth import RelativePose
+from systems.sensors.imu import Imu, ImuConfig
+from systems.sensors.tof import TofConfig, TofSensors, make_ray_sensor, sensor_positions_C
+from systems.sensors.video import VideoRecorder
+from systems.vehicles.airframe import AirframeConfig, AirframeGeometry, HoverPose
+
+
+@dataclass
+class HoverConfig:
+    """Where the drone hovers: the camera `height_above_deck_m` above the deck's nominal top surface,
+    offset horizontally by `offset_xy_m`, heading `yaw_deg`, level unless `roll_deg`/`pitch_deg`."""
+
+    height_above_deck_m: float = 2.0  # seed 000 section 4.1: tag 2 m below the camera
+    offset_xy_m: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    roll_deg: float = 0.0
+    pitch_deg: float = 0.0
+    yaw_deg: float = 0.0
+
+    def validate(self, prefix: str = "hover") -> None:
+        require(self.height_above_deck_m > 0.1, f"{prefix}.height_above_deck_m must exceed 0.1 m")
+        require(len(self.offset_xy_m) == 2, f"{prefix}.offset_xy_m needs 2 numbers")
+
+
+@dataclass
+class StewartSceneConfig:
+    seed: int = 0
+    platform: StewartPlatformConfig = field(default_factory=StewartPlatformConfig)
+    uav: AirframeConfig = field(default_factory=AirframeConfig)
+    hover: HoverConfig = field(default_factory=HoverConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    tof: TofConfig = field(default_factory=TofConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)
+
+    def validate(self) -> None:
+        for name in ("platform", "uav", "hover", "camera", "tof", "imu"):
+            getattr(self, name).validate(name)
+
+
+@dataclass
+class StewartSceneHandles:
+    """The systems and ports of a built scene that callers use."""
+
+    scene_graph: SceneGraph
+    platform: StewartPlatform
+    airframe: AirframeGeometry
+    body: object  # the system whose X_WB, V_WB, A_WB outputs drive the airframe (HoverPose here)
+    camera: object  # RgbdSensor
+    noisy_camera: NoisyCamera
+    tof: TofSensors
+    imu: Imu
+    detector: TagDetectorSystem
+    truth: RelativePose
+    loggers: dict[str, VectorLogSink]
+    X_BC: RigidTransform
+    meshcat_visualizer: MeshcatVisualizer | None = None
+    video: VideoRecorder | None = None
+
+    @property
+    def color_image(self):
+        """The (noisy) camera image output port: evaluate it only at the camera rate."""
+        return self.noisy_camera.GetOutputPort("color_image")
+
+
+def hover_pose(config: StewartSceneConfig, platform: StewartPlatform) -> RigidTransform:
+    """X_WB that puts the camera `height_above_deck_m` above the deck's nominal top surface."""
+    h = config.hover
+    p_deck = platform.geometry.X_SP0.translation()
+    p_WB = p_deck + [h.offset_xy_m[0], h.offset_xy_m[1], h.height_above_deck_m - config.camera.mount_xyz_m[2]]
+    return RigidTransform(RollPitchYaw(np.deg2rad([h.roll_deg, h.pitch_deg, h.yaw_deg])), p_WB)
+
+
+def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshcat: Meshcat | None = None,
+                      video_path=None) -> StewartSceneHandles:
+    """Adds the scene's systems to `builder` and returns their handles."""
+    config.validate()
+    scene_graph = builder.AddSystem(SceneGraph())
+    scene_graph.AddRenderer("vtk", MakeRenderEngineVtk(RenderEngineVtkParams(default_clear_color=[0.85, 0.88, 0.9])))
+
+    platform = builder.AddSystem(StewartPlatform(config.platform, scene_graph, config.seed))
+    builder.Connect(platform.GetOutputPort("geometry_pose"), scene_graph.get_source_pose_port(platform.source_id))
+
+    airframe = builder.AddSystem(AirframeGeometry(config.uav, scene_graph))
+    body = builder.AddSystem(HoverPose(hover_pose(config, platform)))
+    builder.Connect(body.GetOutputPort("X_WB"), airframe.get_input_port())
+    builder.Connect(airframe.GetOutputPort("geometry_pose"), scene_graph.get_source_pose_port(airframe.source_id))
+
+    X_BC = config.camera.X_BC
+    camera = builder.AddSystem(make_camera(config.camera, airframe.body_frame_id, X_BC))
+    builder.Connect(scene_graph.get_query_output_port(), camera.query_object_input_port())
+    noisy_camera = builder.AddSystem(NoisyCamera(config.camera, config.seed))
+    builder.Connect(camera.color_image_output_port(), noisy_camera.get_input_port())
+
+    tof = builder.AddSystem(TofSensors(config.tof, config.seed))
+    for i, p_CS in enumerate(sensor_positions_C(config.tof.arm_m, config.tof.angle_deg)):
+        ray = builder.AddSystem(make_ray_sensor(airframe.body_frame_id, X_BC.multiply(RigidTransform(p_CS))))
+        builder.Connect(scene_graph.get_query_output_port(), ray.query_object_input_port())
+        builder.Connect(ray.depth_image_32F_output_port(), tof.get_input_port(i))
+
+    imu = builder.AddSystem(Imu(config.imu, config.seed))
+    for name in ("X_WB", "V_WB", "A_WB"):
+        builder.Connect(body.GetOutputPort(name), imu.GetInputPort(name))
+
+    detector = builder.AddSystem(TagDetectorSystem(config.platform.tag_id, config.camera.width, config.camera.height))
+    builder.Connect(noisy_camera.get_output_port(), detector.get_input_port())
+
+    truth = builder.AddSystem(RelativePose(X_BC))
+    builder.Connect(body.GetOutputPort("X_WB"), truth.GetInputPort("X_WB"))
+    builder.Connect(platform.GetOutputPort("X_WP"), truth.GetInputPort("X_WP"))
+
+    period = config.camera.period_s
+    loggers = {name: LogVectorOutput(port, builder, period) for name, port in {
+        "X_CP": truth.GetOutputPort("X_CP_vector"),
+        "ranges": tof.GetOutputPort("ranges"),
+        "ranges_valid": tof.GetOutputPort("ranges_valid"),
+        "true_ranges": tof.GetOutputPort("true_ranges"),
+        "tag_corners": detector.GetOutputPort("tag_corners"),
+        "leg_lengths": platform.GetOutputPort("leg_lengths"),
+        "stroke_exceeded": platform.GetOutputPort("stroke_exceeded"),
+    }.items()}
+    loggers["imu"] = LogVectorOutput(imu.get_output_port(), builder, config.imu.period_s)
+
+    visualizer = None
+    if meshcat is not None:
+        visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat,
+                                                    MeshcatVisualizerParams(role=Role.kIllustration))
+    video = None
+    if video_path is not None:
+        video = builder.AddSystem(VideoRecorder(video_path, period, config.camera.width, config.camera.height))
+        builder.Connect(noisy_camera.get_output_port(), video.get_input_port())
+
+    return StewartSceneHandles(scene_graph, platform, airframe, body, camera, noisy_camera, tof, imu, detector,
+                               truth, loggers, X_BC, visualizer, video)
+
+
+def build_stewart_scene(config: StewartSceneConfig, meshcat: Meshcat | None = None,
+                        video_path=None) -> tuple[Diagram, StewartSceneHandles]:
+    """Builds the scene as a Diagram; returns it with the handles of its systems."""
+    builder = DiagramBuilder()
+    handles = add_stewart_scene(builder, config, meshcat, video_path)
+    diagram = builder.Build()
+    diagram.set_name("stewart_scene")
+    return diagram, handles

@@ -1,0 +1,73 @@
+"""AprilTag 36h11 detection with OpenCV's ArUco module (cv2.aruco.DICT_APRILTAG_36h11)."""
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+from pydrake.systems.sensors import ImageRgba8U
+
+from systems.sensors.camera import image_to_numpy
+
+
+@dataclass(frozen=True)
+class TagDetection:
+    """The tag's four corners in pixels (4x2, OpenCV convention), in ArUco order: top-left,
+    top-right, bottom-right, bottom-left of the tag as printed; None when not detected."""
+
+    time: float = 0.0
+    corners: np.ndarray | None = None
+
+    @property
+    def detected(self) -> bool:
+        return self.corners is not None
+
+
+class AprilTagDetector:
+    """Finds one tag36h11 by id, corners refined with CORNER_REFINE_SUBPIX. (CORNER_REFINE_APRILTAG
+    returned whole-pixel corners on rendered frames and took 50 ms on a noisy 512x512 frame, against
+    1.3 ms for SUBPIX.)"""
+
+    def __init__(self, tag_id: int):
+        self.tag_id = tag_id
+        parameters = cv2.aruco.DetectorParameters()
+        parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+        self._detector = cv2.aruco.ArucoDetector(
+            cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), parameters)
+
+    def detect(self, rgb: np.ndarray) -> np.ndarray | None:
+        """Corners (4x2 px) of the tag in an RGB or RGBA uint8 image, or None."""
+        gray = cv2.cvtColor(rgb, cv2.COLOR_RGBA2GRAY if rgb.shape[2] == 4 else cv2.COLOR_RGB2GRAY)
+        corners, ids, _ = self._detector.detectMarkers(gray)
+        if ids is None:
+            return None
+        matches = np.flatnonzero(ids.ravel() == self.tag_id)
+        return corners[matches[0]].reshape(4, 2).astype(float) if len(matches) == 1 else None
+
+
+class TagDetectorSystem(LeafSystem):
+    """Detects the tag in `color_image` (ImageRgba8U) whenever a consumer evaluates its outputs.
+
+    Outputs: tag_detection (TagDetection), tag_corners (8: u0, v0, ..., u3, v3 in px, NaN when not
+    detected) and tag_detected ([1.0] or [0.0])."""
+
+    def __init__(self, tag_id: int, width: int, height: int):
+        super().__init__()
+        self._detector = AprilTagDetector(tag_id)
+        self.DeclareAbstractInputPort("color_image", AbstractValue.Make(ImageRgba8U(width, height)))
+        detection = self.DeclareAbstractOutputPort("tag_detection", lambda: AbstractValue.Make(TagDetection()),
+                                                   self._calc_detection)
+        self.DeclareVectorOutputPort("tag_corners", 8, lambda c, o: o.SetFromVector(self._corners(c, detection)))
+        self.DeclareVectorOutputPort(
+            "tag_detected", 1,
+            lambda c, o: o.SetFromVector([float(detection.Eval(c).detected)]))
+
+    def _calc_detection(self, context, output):
+        corners = self._detector.detect(image_to_numpy(self.get_input_port().Eval(context)))
+        output.set_value(TagDetection(context.get_time(), corners))
+
+    @staticmethod
+    def _corners(context, detection_port) -> np.ndarray:
+        detection = detection_port.Eval(context)
+        return detection.corners.ravel() if detection.detected else np.full(8, np.nan)

@@ -1,0 +1,292 @@
+"""Stewart platform: the moving landing deck of seed 000 (section 3, Figures 19 and 21).
+
+The deck frame P sits at the centre of the deck's top surface (z up); the base frame S is the
+world frame W (the base stands on the ground at the origin). The deck moves about its nominal
+pose X_SP0 by a 6-DOF motion: translations (x, y, z in S's axes, m) and roll, pitch, yaw about the
+deck centre (rad). Legs connect base joints b_i (in S) to deck joints q_i (in P):
+    L_i = | p_SP + R_SP q_i - b_i |                      (inverse kinematics)
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import Box, Cylinder, FramePoseVector, GeometryFrame, Mesh, SceneGraph
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.systems.framework import LeafSystem
+from scipy.interpolate import PchipInterpolator
+from scipy.optimize import least_squares
+
+from models.apriltag import tag_mesh_path, tag_plate_scale
+from systems.config import require, require_positive
+from systems.geometry import frame_between, register_visual
+from systems.noise import sample_rng
+
+AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+MOTION_MODES = ("static", "sinusoid", "random_walk")
+TAG_ABOVE_DECK_M = 0.0005  # the tag plate floats this far above the deck surface (no z-fighting)
+
+
+def _axis_unit(axis: str) -> str:
+    return "m" if axis in ("x", "y", "z") else "deg"
+
+
+@dataclass
+class StewartPlatformConfig:
+    """Geometry, tag and motion of the Stewart platform. Lengths in m, angles in deg."""
+
+    # Joint circles: six base joints (in S, at z = base_joint_height_m) and six deck joints (in P,
+    # on the deck's underside). Leg i joins base joint i to deck joint i.
+    base_radius_m: float = 0.5
+    platform_radius_m: float = 0.35
+    base_joint_angles_deg: list[float] = field(default_factory=lambda: [-15.0, 15.0, 105.0, 135.0, 225.0, 255.0])
+    platform_joint_angles_deg: list[float] = field(default_factory=lambda: [-45.0, 45.0, 75.0, 165.0, 195.0, 285.0])
+    base_joint_height_m: float = 0.05
+    nominal_height_m: float = 0.6  # vertical distance between the joint planes at the nominal pose
+    leg_min_m: float = 0.50  # actuator stroke
+    leg_max_m: float = 0.85
+    deck_size_m: float = 1.0
+    deck_thickness_m: float = 0.04
+    # AprilTag 36h11 on the deck: tag_size_m is the edge of the black square (AprilTag convention).
+    # 0.5 m fills about 115 px of the 512x512 image at 2 m with the Eq. (10) intrinsics.
+    tag_id: int = 0
+    tag_size_m: float = 0.5
+    # Motion about the nominal pose. Per axis, a sum of sinusoids A_j sin(2 pi f_j t + phi_j);
+    # in random_walk mode each axis is a seeded, mean-reverting random walk bounded by sum(A_j).
+    motion: str = "static"
+    x_amplitude_m: list[float] = field(default_factory=list)
+    x_frequency_hz: list[float] = field(default_factory=list)
+    x_phase_deg: list[float] = field(default_factory=list)
+    y_amplitude_m: list[float] = field(default_factory=list)
+    y_frequency_hz: list[float] = field(default_factory=list)
+    y_phase_deg: list[float] = field(default_factory=list)
+    z_amplitude_m: list[float] = field(default_factory=list)
+    z_frequency_hz: list[float] = field(default_factory=list)
+    z_phase_deg: list[float] = field(default_factory=list)
+    roll_amplitude_deg: list[float] = field(default_factory=list)
+    roll_frequency_hz: list[float] = field(default_factory=list)
+    roll_phase_deg: list[float] = field(default_factory=list)
+    pitch_amplitude_deg: list[float] = field(default_factory=list)
+    pitch_frequency_hz: list[float] = field(default_factory=list)
+    pitch_phase_deg: list[float] = field(default_factory=list)
+    yaw_amplitude_deg: list[float] = field(default_factory=list)
+    yaw_frequency_hz: list[float] = field(default_factory=list)
+    yaw_phase_deg: list[float] = field(default_factory=list)
+    random_walk_time_constant_s: float = 4.0  # correlation time of the random walk
+    random_walk_knot_interval_s: float = 0.25
+
+    def validate(self, prefix: str = "platform") -> None:
+        for name in ("base_radius_m", "platform_radius_m", "nominal_height_m", "leg_min_m", "deck_size_m",
+                     "deck_thickness_m", "tag_size_m", "random_walk_time_constant_s",
+                     "random_walk_knot_interval_s"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        require(len(self.base_joint_angles_deg) == 6, f"{prefix}.base_joint_angles_deg needs 6 angles")
+        require(len(self.platform_joint_angles_deg) == 6, f"{prefix}.platform_joint_angles_deg needs 6 angles")
+        require(self.leg_max_m > self.leg_min_m, f"{prefix}.leg_max_m must exceed {prefix}.leg_min_m")
+        require(self.motion in MOTION_MODES, f"{prefix}.motion must be one of {', '.join(MOTION_MODES)}, "
+                f"got '{self.motion}'")
+        require(0 <= self.tag_id < 587, f"{prefix}.tag_id must be in [0, 586] for tag36h11")
+        require(tag_plate_scale(self.tag_size_m) <= self.deck_size_m,
+                f"{prefix}.tag_size_m = {self.tag_size_m} m does not fit on the deck: the tag with its white "
+                f"border is {tag_plate_scale(self.tag_size_m):.3f} m wide but {prefix}.deck_size_m is "
+                f"{self.deck_size_m} m")
+        for axis in AXES:
+            unit = _axis_unit(axis)
+            lengths = {len(getattr(self, f"{axis}_{part}")) for part in (f"amplitude_{unit}", "frequency_hz")}
+            require(len(lengths) == 1, f"{prefix}.{axis}_amplitude_{unit} and {prefix}.{axis}_frequency_hz "
+                    "must have the same length (one entry per sinusoid)")
+            n_phase = len(getattr(self, f"{axis}_phase_deg"))
+            require(n_phase in (0, *lengths), f"{prefix}.{axis}_phase_deg must be empty or have one entry "
+                    "per sinusoid")
+            require(all(f >= 0 for f in getattr(self, f"{axis}_frequency_hz")),
+                    f"{prefix}.{axis}_frequency_hz must not be negative")
+
+
+@dataclass(frozen=True)
+class StewartGeometry:
+    """Joint positions: b_S (6x3) base joints in S, q_P (6x3) deck joints in P; nominal deck pose."""
+
+    b_S: np.ndarray
+    q_P: np.ndarray
+    X_SP0: RigidTransform
+    leg_min_m: float
+    leg_max_m: float
+
+    @staticmethod
+    def from_config(config: StewartPlatformConfig) -> "StewartGeometry":
+        def circle(radius, angles_deg, z):
+            a = np.deg2rad(angles_deg)
+            return np.column_stack([radius * np.cos(a), radius * np.sin(a), np.full(6, z)])
+
+        b_S = circle(config.base_radius_m, config.base_joint_angles_deg, config.base_joint_height_m)
+        q_P = circle(config.platform_radius_m, config.platform_joint_angles_deg, -config.deck_thickness_m)
+        deck_top_z = config.base_joint_height_m + config.nominal_height_m + config.deck_thickness_m
+        return StewartGeometry(b_S, q_P, RigidTransform([0.0, 0.0, deck_top_z]), config.leg_min_m, config.leg_max_m)
+
+
+def leg_lengths(X_SP: RigidTransform, geometry: StewartGeometry) -> np.ndarray:
+    """Inverse kinematics: the six leg lengths (m) for the deck pose X_SP."""
+    q_S = X_SP.multiply(geometry.q_P.T).T
+    return np.linalg.norm(q_S - geometry.b_S, axis=1)
+
+
+def within_stroke(lengths: np.ndarray, geometry: StewartGeometry) -> bool:
+    return bool(np.all((lengths >= geometry.leg_min_m) & (lengths <= geometry.leg_max_m)))
+
+
+def forward_kinematics(lengths: np.ndarray, geometry: StewartGeometry,
+                       X_SP_guess: RigidTransform | None = None) -> RigidTransform:
+    """Forward kinematics by nonlinear least squares: the deck pose X_SP whose legs have `lengths`.
+
+    Starts from X_SP_guess (default: the nominal pose); Stewart FK has several solutions, and the one
+    nearest the guess is returned.
+    """
+    guess = X_SP_guess or geometry.X_SP0
+
+    def pose(v):
+        return RigidTransform(RollPitchYaw(v[3:]), v[:3])
+
+    v0 = np.concatenate([guess.translation(), RollPitchYaw(guess.rotation()).vector()])
+    fit = least_squares(lambda v: leg_lengths(pose(v), geometry) - lengths, v0, xtol=1e-14, ftol=1e-14)
+    return pose(fit.x)
+
+
+class StewartMotion:
+    """The deck's offset from its nominal pose as a function of time: [x, y, z (m), roll, pitch, yaw (rad)]."""
+
+    def __init__(self, config: StewartPlatformConfig, seed: int = 0):
+        self._mode = config.motion
+        self._amplitude, self._omega, self._phase = [], [], []
+        for axis in AXES:
+            unit = _axis_unit(axis)
+            scale = 1.0 if unit == "m" else np.pi / 180.0
+            amplitude = np.asarray(getattr(config, f"{axis}_amplitude_{unit}"), dtype=float) * scale
+            phase = np.deg2rad(getattr(config, f"{axis}_phase_deg")) if getattr(config, f"{axis}_phase_deg") \
+                else np.zeros_like(amplitude)
+            self._amplitude.append(amplitude)
+            self._omega.append(2 * np.pi * np.asarray(getattr(config, f"{axis}_frequency_hz"), dtype=float))
+            self._phase.append(np.asarray(phase, dtype=float))
+        self._bound = np.array([np.sum(np.abs(a)) for a in self._amplitude])
+        self._seed = seed
+        self._tau = config.random_walk_time_constant_s
+        self._h = config.random_walk_knot_interval_s
+        self._knots = np.zeros((1, 6))  # random-walk state at t = 0, 1 h, 2 h, ...
+        self._interpolant = None
+
+    def __call__(self, t: float) -> np.ndarray:
+        if self._mode == "static":
+            return np.zeros(6)
+        if self._mode == "sinusoid":
+            return np.array([np.sum(a * np.sin(w * t + p))
+                             for a, w, p in zip(self._amplitude, self._omega, self._phase)])
+        return self._random_walk(t)
+
+    def _random_walk(self, t: float) -> np.ndarray:
+        # An Ornstein-Uhlenbeck walk with unit stationary variance, sampled at knots, extended in
+        # chunks drawn in order from the seed, interpolated shape-preservingly, and squashed into
+        # +-bound by tanh so the deck never leaves its configured envelope.
+        while t > (len(self._knots) - 2) * self._h:
+            chunk = len(self._knots) // 256
+            rng = sample_rng(self._seed, "stewart_random_walk", chunk)
+            decay = np.exp(-self._h / self._tau)
+            steps = rng.standard_normal((256, 6)) * np.sqrt(1 - decay**2)
+            new = np.empty((256, 6))
+            state = self._knots[-1]
+            for i in range(256):
+                state = decay * state + steps[i]
+                new[i] = state
+            self._knots = np.vstack([self._knots, new])
+            self._interpolant = PchipInterpolator(self._h * np.arange(len(self._knots)), self._knots)
+        return self._bound * np.tanh(0.5 * self._interpolant(t))
+
+    def X_SP(self, t: float, geometry: StewartGeometry) -> RigidTransform:
+        """The deck pose in the base frame at time t (s)."""
+        offset = self(t)
+        return RigidTransform(RollPitchYaw(offset[3:]), geometry.X_SP0.translation() + offset[:3])
+
+
+class StewartPlatform(LeafSystem):
+    """The Stewart platform as a kinematic source, with its geometry registered in SceneGraph.
+
+    Output ports:
+      X_WP: deck pose in world (RigidTransform); the deck's top surface centre, z up.
+      leg_lengths: the six leg lengths (m) from inverse kinematics.
+      stroke_exceeded: [1.0] when any leg is outside [leg_min_m, leg_max_m], else [0.0].
+      geometry_pose: FramePoseVector for SceneGraph (connect to its source pose port).
+    """
+
+    def __init__(self, config: StewartPlatformConfig, scene_graph: SceneGraph, seed: int = 0):
+        super().__init__()
+        config.validate()
+        self.config = config
+        self.geometry = StewartGeometry.from_config(config)
+        self.motion = StewartMotion(config, seed)
+        self.source_id = scene_graph.RegisterSource("stewart_platform")
+        self._register_geometry(scene_graph)
+
+        self.DeclareAbstractOutputPort("X_WP", lambda: AbstractValue.Make(RigidTransform()), self._calc_X_WP)
+        self.DeclareVectorOutputPort("leg_lengths", 6, self._calc_leg_lengths)
+        self.DeclareVectorOutputPort("stroke_exceeded", 1, self._calc_stroke_exceeded)
+        self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()),
+                                       self._calc_geometry_pose)
+
+    @property
+    def X_PT(self) -> RigidTransform:
+        """Pose of the tag frame T in the deck frame P: tag centre, x right, y up in the tag image,
+        z out of the deck (OpenCV's IPPE_SQUARE object-point convention)."""
+        return RigidTransform([0.0, 0.0, TAG_ABOVE_DECK_M])
+
+    def tag_corners_T(self) -> np.ndarray:
+        """The tag's four black-square corners in T (4x3, m), in OpenCV/ArUco corner order."""
+        s = self.config.tag_size_m / 2
+        return np.array([[-s, s, 0.0], [s, s, 0.0], [s, -s, 0.0], [-s, -s, 0.0]])
+
+    def _register_geometry(self, scene_graph: SceneGraph) -> None:
+        c, world = self.config, scene_graph.world_frame_id()
+        grey, steel, deck_grey = (0.35, 0.35, 0.38, 1.0), (0.75, 0.75, 0.78, 1.0), (0.55, 0.58, 0.62, 1.0)
+        register_visual(scene_graph, self.source_id, world,
+                        RigidTransform([0, 0, c.base_joint_height_m / 2]),
+                        Cylinder(c.base_radius_m * 1.15, c.base_joint_height_m), "stewart_base", grey,
+                        collidable=True)
+        self._deck_frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame("stewart_deck"))
+        register_visual(scene_graph, self.source_id, self._deck_frame,
+                        RigidTransform([0, 0, -c.deck_thickness_m / 2]),
+                        Box(c.deck_size_m, c.deck_size_m, c.deck_thickness_m), "stewart_deck", deck_grey,
+                        collidable=True)
+        register_visual(scene_graph, self.source_id, self._deck_frame, self.X_PT,
+                        Mesh(str(tag_mesh_path(c.tag_id)), tag_plate_scale(c.tag_size_m)), "apriltag", rgba=None)
+        # Each leg is a telescoping actuator: a cylinder from the base joint towards the deck joint
+        # and a thinner rod from the deck joint towards the base joint.
+        half = 0.6 * c.leg_max_m
+        self._leg_frames = []
+        for i in range(6):
+            lower = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"leg{i}_cylinder"))
+            upper = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"leg{i}_rod"))
+            register_visual(scene_graph, self.source_id, lower, RigidTransform([0, 0, half / 2]),
+                            Cylinder(0.025, half), f"leg{i}_cylinder", grey)
+            register_visual(scene_graph, self.source_id, upper, RigidTransform([0, 0, half / 2]),
+                            Cylinder(0.014, half), f"leg{i}_rod", steel)
+            self._leg_frames.append((lower, upper))
+
+    def X_WP(self, t: float) -> RigidTransform:
+        return self.motion.X_SP(t, self.geometry)
+
+    def _calc_X_WP(self, context, output):
+        output.set_value(self.X_WP(context.get_time()))
+
+    def _calc_leg_lengths(self, context, output):
+        output.SetFromVector(leg_lengths(self.X_WP(context.get_time()), self.geometry))
+
+    def _calc_stroke_exceeded(self, context, output):
+        lengths = leg_lengths(self.X_WP(context.get_time()), self.geometry)
+        output.SetFromVector([0.0 if within_stroke(lengths, self.geometry) else 1.0])
+
+    def _calc_geometry_pose(self, context, output):
+        X_WP = self.X_WP(context.get_time())
+        poses = output.get_mutable_value()
+        poses.clear()
+        poses.set_value(self._deck_frame, X_WP)
+        q_W = X_WP.multiply(self.geometry.q_P.T).T
+        for (lower, upper), b_W, q in zip(self._leg_frames, self.geometry.b_S, q_W):
+            poses.set_value(lower, frame_between(b_W, q))
+            poses.set_value(upper, frame_between(q, b_W))

@@ -1,0 +1,31 @@
+"""Ground truth: the pose of a target frame P (e.g. the deck) in the camera frame C."""
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import LeafSystem
+
+
+def pose_vector(X: RigidTransform) -> np.ndarray:
+    """[x, y, z (m), qw, qx, qy, qz] of a pose (Drake's w-first quaternion)."""
+    return np.concatenate([X.translation(), X.rotation().ToQuaternion().wxyz()])
+
+
+class RelativePose(LeafSystem):
+    """X_CP = (X_WB X_BC)^-1 X_WP for a camera C mounted at X_BC on a body B.
+
+    Inputs: X_WB (body pose), X_WP (target pose). Outputs: X_CP (RigidTransform) and
+    X_CP_vector ([x, y, z, qw, qx, qy, qz], for logging)."""
+
+    def __init__(self, X_BC: RigidTransform):
+        super().__init__()
+        self._X_BC = X_BC
+        self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
+        self.DeclareAbstractInputPort("X_WP", AbstractValue.Make(RigidTransform()))
+        self.DeclareAbstractOutputPort("X_CP", lambda: AbstractValue.Make(RigidTransform()),
+                                       lambda c, o: o.set_value(self.X_CP(c)))
+        self.DeclareVectorOutputPort("X_CP_vector", 7, lambda c, o: o.SetFromVector(pose_vector(self.X_CP(c))))
+
+    def X_CP(self, context) -> RigidTransform:
+        X_WC = self.get_input_port(0).Eval(context).multiply(self._X_BC)
+        return X_WC.InvertAndCompose(self.get_input_port(1).Eval(context))

@@ -1,0 +1,94 @@
+"""A strapdown IMU: accelerometer (specific force) and gyroscope of a body, sampled at a fixed rate.
+
+Defaults are the Xsens MTi-G-700 of seed 001 Table 1: 100-400 Hz, gyroscope full range 450 deg/s and
+noise density 0.01 deg/s/sqrt(Hz), accelerometer full range 50 m/s^2 and noise density
+80 ug/sqrt(Hz). Table 1 gives no biases; the bias defaults are the in-run bias stability of Xsens'
+MTi 100-series datasheet (gyroscope 10 deg/h, accelerometer 40 ug), drawn once per run from the seed
+as a constant turn-on bias per axis.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from systems.config import require, require_positive
+from systems.noise import sample_index, sample_rng
+
+STANDARD_GRAVITY = 9.80665  # m/s^2
+G_W = np.array([0.0, 0.0, -STANDARD_GRAVITY])  # gravity in the z-up world frame
+
+
+@dataclass
+class ImuConfig:
+    rate_hz: float = 200.0  # seed 001 Table 1: 100~400 Hz
+    gyro_noise_density_deg_s_rthz: float = 0.01  # seed 001 Table 1
+    accel_noise_density_ug_rthz: float = 80.0  # seed 001 Table 1
+    gyro_range_deg_s: float = 450.0  # seed 001 Table 1
+    accel_range_m_s2: float = 50.0  # seed 001 Table 1
+    gyro_bias_std_deg_h: float = 10.0  # Xsens MTi 100-series datasheet, in-run bias stability
+    accel_bias_std_ug: float = 40.0  # Xsens MTi 100-series datasheet, in-run bias stability
+
+    def validate(self, prefix: str = "imu") -> None:
+        for name in ("rate_hz", "gyro_range_deg_s", "accel_range_m_s2"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        for name in ("gyro_noise_density_deg_s_rthz", "accel_noise_density_ug_rthz", "gyro_bias_std_deg_h",
+                     "accel_bias_std_ug"):
+            require(getattr(self, name) >= 0, f"{prefix}.{name} must not be negative")
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @property
+    def gyro_sample_std_rad_s(self) -> float:
+        """Per-sample white-noise std: density * sqrt(sample rate)."""
+        return np.deg2rad(self.gyro_noise_density_deg_s_rthz) * np.sqrt(self.rate_hz)
+
+    @property
+    def accel_sample_std_m_s2(self) -> float:
+        return self.accel_noise_density_ug_rthz * 1e-6 * STANDARD_GRAVITY * np.sqrt(self.rate_hz)
+
+
+def ideal_imu(R_WB, w_WB_W: np.ndarray, a_WB_W: np.ndarray):
+    """Noise-free (specific force f_B in m/s^2, angular velocity w_B in rad/s), both in body axes.
+
+    f_B = R_BW (a_WB - g_W): at rest on a z-up world it reads +9.81 m/s^2 along the body's up axis."""
+    R_BW = R_WB.inverse().matrix()
+    return R_BW @ (np.asarray(a_WB_W) - G_W), R_BW @ np.asarray(w_WB_W)
+
+
+class Imu(LeafSystem):
+    """Samples the body's kinematics at `rate_hz` and outputs `imu` = [f_B (m/s^2), w_B (rad/s)].
+
+    Inputs: X_WB (RigidTransform), V_WB ([w; v] in W), A_WB ([alpha; a] in W).
+    The output holds the last sample (a zero-order hold): a sample taken at t is seen after t."""
+
+    def __init__(self, config: ImuConfig, seed: int = 0):
+        super().__init__()
+        config.validate()
+        self._config, self._seed = config, seed
+        bias_rng = sample_rng(seed, "imu_bias", 0)
+        self.accel_bias = bias_rng.standard_normal(3) * config.accel_bias_std_ug * 1e-6 * STANDARD_GRAVITY
+        self.gyro_bias = bias_rng.standard_normal(3) * np.deg2rad(config.gyro_bias_std_deg_h / 3600.0)
+        self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
+        self.DeclareVectorInputPort("V_WB", 6)
+        self.DeclareVectorInputPort("A_WB", 6)
+        state = self.DeclareDiscreteState(BasicVector(np.concatenate([-G_W, np.zeros(3)])))
+        self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._sample)
+        self.DeclareStateOutputPort("imu", state)
+
+    def _sample(self, context, discrete_state):
+        c = self._config
+        X_WB = self.get_input_port(0).Eval(context)
+        w_WB = self.get_input_port(1).Eval(context)[:3]
+        a_WB = self.get_input_port(2).Eval(context)[3:]
+        f_B, w_B = ideal_imu(X_WB.rotation(), w_WB, a_WB)
+        noise = sample_rng(self._seed, "imu", sample_index(context.get_time(), c.period_s)).standard_normal(6)
+        f_B = np.clip(f_B + self.accel_bias + noise[:3] * c.accel_sample_std_m_s2,
+                      -c.accel_range_m_s2, c.accel_range_m_s2)
+        w_B = np.clip(w_B + self.gyro_bias + noise[3:] * c.gyro_sample_std_rad_s,
+                      -np.deg2rad(c.gyro_range_deg_s), np.deg2rad(c.gyro_range_deg_s))
+        discrete_state.get_mutable_vector().SetFromVector(np.concatenate([f_B, w_B]))
