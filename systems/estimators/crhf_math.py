@@ -5,10 +5,10 @@ touch points on the deck; the plane through them, together with focal lengths an
 measured from the touch points' pixels, lifts the tag's detected corners to 3-D, and Arun's SVD
 method turns the 3-D corners into the tag pose X_CT.
 
-Frames and units: everything is expressed in the camera frame C (+z along the optical axis, +x right,
-+y down in the image), in metres. Pixels follow OpenCV: u right, v down, pixel centres at integers.
-The tag frame T is OpenCV's marker frame (origin at the tag centre, z out of the tag face); see
-`tag_corners_T`.
+Frames and units: everything is expressed in the camera frame C (+z along the optical axis,
++x right, +y down in the image), in metres. Pixels follow OpenCV: u right, v down, pixel centres
+at integers. The tag frame T is OpenCV's marker frame (origin at the tag centre, z out of the tag
+face); see `tag_corners_T`.
 """
 
 from dataclasses import dataclass
@@ -115,7 +115,7 @@ def focal_lengths_from_touch_points(
     """
     p = np.asarray(p_C_touch, dtype=float)
     if np.any(np.abs(p[:, :2]) < 1e-9):
-        raise ValueError("a touch point lies on the camera's x or y axis; its focal length is undefined")
+        raise ValueError("a touch point lies on the camera's x or y axis: focal length undefined")
     centred = np.asarray(uv_touch, dtype=float) - np.asarray(principal_point, dtype=float)
     return np.mean(centred * p[:, 2:3] / p[:, :2], axis=0)
 
@@ -169,7 +169,7 @@ def arun_rigid_transform(p_AQ: np.ndarray, p_BQ: np.ndarray) -> RigidTransform:
     p_AQ = np.asarray(p_AQ, dtype=float)
     p_BQ = np.asarray(p_BQ, dtype=float)
     if p_AQ.shape != p_BQ.shape or p_AQ.ndim != 2 or p_AQ.shape[1] != 3 or len(p_AQ) < 3:
-        raise ValueError(f"need two (N, 3) point sets with N >= 3, got {p_AQ.shape} and {p_BQ.shape}")
+        raise ValueError(f"need two (N, 3) point sets, N >= 3, got {p_AQ.shape} and {p_BQ.shape}")
     c_A = p_AQ.mean(axis=0)
     c_B = p_BQ.mean(axis=0)
     H = (p_AQ - c_A).T @ (p_BQ - c_B)
@@ -221,7 +221,9 @@ def crhf_tag_pose(
         return CrhfEstimate(RigidTransform(), False, plane, nan2, nan2, np.full((4, 3), np.nan))
     principal_point = principal_point_from_touch_points(p_C_touch, uv_touch)
     focal_lengths = focal_lengths_from_touch_points(p_C_touch, uv_touch, principal_point)
-    p_C_corners, hit = intersect_pixel_rays_with_plane(uv_corners, focal_lengths, principal_point, plane)
+    p_C_corners, hit = intersect_pixel_rays_with_plane(
+        uv_corners, focal_lengths, principal_point, plane
+    )
     valid = bool(np.all(hit) and np.all(focal_lengths > 0))
     X_CT = arun_rigid_transform(p_T_corners, p_C_corners) if valid else RigidTransform()
     return CrhfEstimate(X_CT, valid, plane, focal_lengths, principal_point, p_C_corners)
