@@ -96,7 +96,7 @@ def test_plane_fit_with_noise_is_close_and_reports_the_residual():
     "points",
     [
         np.array([[0, 0, 1.0], [1, 1, 2.0], [2, 2, 3.0], [3, 3, 4.0]]),  # collinear
-        np.array([[0, 0, 1.0], [1, 1, 2.0], [2, 2, 3.0 + 1e-12], [3, 3, 4.0]]),  # collinear to 1e-12
+        np.array([[0, 0, 1.0], [1, 1, 2.0], [2, 2, 3.0 + 1e-12], [3, 3, 4.0]]),  # nearly collinear
         np.ones((4, 3)),  # coincident
         np.array([[0, 0, 1.0], [1, 0, 1.0]]),  # too few
         np.array([[0, 0, 1.0], [1, 0, 1.0], [0, 1, np.nan], [1, 1, 1.0]]),  # a missing range
@@ -137,7 +137,7 @@ def test_ray_plane_intersection_recovers_tag_corners_exactly():
 
 
 def test_ray_plane_intersection_flags_rays_that_miss():
-    # A vertical plane x = 1: the optical axis is parallel to it and rays to the left meet it behind.
+    # A vertical plane x = 1: the optical axis is parallel to it, rays to the left meet it behind.
     plane = fit_plane(np.array([[1.0, 0, 1], [1, 1, 1], [1, 0, 2], [1, 1, 2]]))
     points, valid = intersect_pixel_rays_with_plane(
         np.array([[CX, CY], [CX - 100, CY], [CX + 100, CY]]), [FX, FY], [CX, CY], plane
