@@ -71,3 +71,12 @@ class TagDetectorSystem(LeafSystem):
     def _corners(context, detection_port) -> np.ndarray:
         detection = detection_port.Eval(context)
         return detection.corners.ravel() if detection.detected else np.full(8, np.nan)
+
+
+def project_points(K: np.ndarray, X_CT, points_T: np.ndarray) -> np.ndarray:
+    """Pixels (Nx2, OpenCV convention) of points given in frame T, seen by an undistorted pinhole
+    camera C with intrinsics K; projected by cv2.projectPoints."""
+    X = X_CT.GetAsMatrix4()
+    rvec, _ = cv2.Rodrigues(X[:3, :3])
+    pixels, _ = cv2.projectPoints(np.asarray(points_T, dtype=float), rvec, X[:3, 3], K, None)
+    return pixels.reshape(-1, 2)

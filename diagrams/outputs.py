@@ -1,0 +1,83 @@
+"""What a run leaves behind, written atomically: every file goes to a temporary name in the output
+directory and is renamed into place, so an interrupted run never leaves a half-written file."""
+
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from systems.config import ConfigError  # noqa: E402
+
+
+def check_writable(out_dir: Path) -> None:
+    """Raises ConfigError unless `out_dir` exists as a writable directory or can be created.
+
+    Probes by creating and removing a temporary directory in the nearest existing ancestor, which
+    also catches read-only file systems and root-owned locations that os.access misjudges."""
+    out_dir = Path(out_dir).absolute()
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ConfigError(f"output path {out_dir} exists and is not a directory")
+    ancestor = out_dir
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise ConfigError(f"cannot create output directory {out_dir}: {ancestor} is not a directory")
+    try:
+        os.rmdir(tempfile.mkdtemp(dir=ancestor, prefix=".landing-sim-probe-"))
+    except OSError as e:
+        raise ConfigError(f"cannot write to output directory {out_dir}: {e.strerror} ({ancestor})") from None
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file the usual mode
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")
+
+
+def write_json(path: Path, data: dict) -> None:
+    _write_bytes(Path(path), (json.dumps(data, indent=2, default=_json_default) + "\n").encode())
+
+
+def write_npz(path: Path, **arrays) -> None:
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    _write_bytes(Path(path), buffer.getvalue())
+
+
+def write_text(path: Path, text: str) -> None:
+    _write_bytes(Path(path), text.encode())
+
+
+def save_figure(fig, path: Path) -> None:
+    """Saves a matplotlib figure as PNG and closes it."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    _write_bytes(Path(path), buffer.getvalue())

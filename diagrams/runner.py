@@ -1,0 +1,121 @@
+"""Running a scenario: load it, build its diagram, simulate, and write what DESIGN.md says a run
+leaves behind (metrics.json, log.npz, plots, and on request a Meshcat recording and a video)."""
+
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from pydrake.geometry import Meshcat, MeshcatParams
+from pydrake.systems.analysis import Simulator
+from tqdm import tqdm
+
+from diagrams.outputs import check_writable, write_text
+from diagrams.scenario import load_typed, normalise, read_yaml, scenario_path, set_override
+from systems.config import ConfigError
+
+
+@dataclass
+class RunOptions:
+    """How to run, as opposed to what to simulate (that is the scenario)."""
+
+    meshcat: bool = False  # serve the live scene in Meshcat
+    meshcat_host: str = "localhost"
+    meshcat_port: int | None = None
+    record: bool = False  # write meshcat.html, a self-contained recording
+    video: bool = False  # write camera.mp4, the camera stream
+    progress: bool = True
+
+
+@dataclass
+class RunContext:
+    """What a diagram's run function gets besides its scenario."""
+
+    name: str
+    out_dir: Path
+    options: RunOptions
+    meshcat: Meshcat | None
+
+
+def _diagrams():
+    # Imported here so that `landing-sim list` and scenario errors do not wait for every diagram.
+    from diagrams import stewart_run
+
+    return {"stewart_scene": stewart_run}
+
+
+def load_scenario(name: str | None = None, config_path: str | Path | None = None, overrides=(),
+                  duration_s: float | None = None, seed: int | None = None):
+    """(scenario name, typed scenario) from a named scenario or a YAML file, with `--set` overrides."""
+    path = Path(config_path) if config_path else scenario_path(name)
+    raw = read_yaml(path)
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path} must hold a mapping of keys to values")
+    for assignment in overrides:
+        set_override(raw, assignment)
+    if duration_s is not None:
+        raw["duration_s"] = duration_s
+    if seed is not None:
+        raw["seed"] = seed
+    diagrams = _diagrams()
+    diagram = raw.get("diagram", "stewart_scene")
+    if diagram not in diagrams:
+        raise ConfigError(f"{path}: unknown diagram '{diagram}' (known: {', '.join(diagrams)})")
+    schema = diagrams[diagram].Scenario
+    scenario = load_typed(normalise(raw, schema), schema, str(path))
+    scenario.validate()
+    return path.stem, scenario
+
+
+def make_meshcat(options: RunOptions) -> Meshcat | None:
+    """A Meshcat server when the run shows or records the scene; bound to localhost by default."""
+    if not (options.meshcat or options.record):
+        return None
+    return Meshcat(MeshcatParams(host=options.meshcat_host, port=options.meshcat_port))
+
+
+def simulate(diagram, duration_s: float, options: RunOptions, visualizer=None):
+    """Simulates `diagram` for `duration_s`; returns (wall time in s, the final root context).
+    Real time when Meshcat is live, as fast as possible otherwise; records for `--record`."""
+    simulator = Simulator(diagram)
+    if options.meshcat:
+        simulator.set_target_realtime_rate(1.0)
+    if visualizer is not None and options.record:
+        visualizer.StartRecording()
+    simulator.Initialize()
+    steps = max(1, int(round(duration_s / 0.5)))
+    start = time.perf_counter()
+    with tqdm(total=duration_s, unit="sim s", disable=not options.progress, leave=False,
+              bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim s [{elapsed}<{remaining}]") as bar:
+        for k in range(1, steps + 1):
+            target = duration_s * k / steps
+            simulator.AdvanceTo(target)
+            bar.update(target - bar.n)
+    wall = time.perf_counter() - start
+    if visualizer is not None and options.record:
+        visualizer.StopRecording()
+        visualizer.PublishRecording()
+    return wall, simulator.get_context()
+
+
+def write_recording(meshcat: Meshcat, out_dir: Path) -> Path:
+    path = out_dir / "meshcat.html"
+    write_text(path, meshcat.StaticHtml())
+    return path
+
+
+def run(name: str, scenario, out_dir: str | Path, options: RunOptions) -> dict:
+    """Runs a loaded scenario, writing its outputs to `out_dir`; returns its metrics."""
+    out_dir = Path(out_dir)
+    check_writable(out_dir)
+    created = not out_dir.exists()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        meshcat = make_meshcat(options)
+        if meshcat is not None and options.meshcat:
+            print(f"Meshcat is serving the scene at {meshcat.web_url()}", flush=True)
+        return _diagrams()[scenario.diagram].run(scenario, RunContext(name, out_dir, options, meshcat))
+    except BaseException:
+        if created and not any(out_dir.iterdir()):
+            shutil.rmtree(out_dir, ignore_errors=True)
+        raise

@@ -1,0 +1,103 @@
+"""Scenarios: YAML files in scenarios/ loaded into typed dataclasses, with command-line overrides.
+
+A scenario file names the diagram that runs it (`diagram:`) and sets any field of that diagram's
+scenario dataclass; fields it leaves out keep their defaults. Loading goes through
+`pydrake.common.yaml.yaml_load_typed` (Drake's scenario idiom) after a check that names any
+unknown key by its full dotted path.
+"""
+
+import dataclasses
+import difflib
+import typing
+from pathlib import Path
+
+import yaml
+from pydrake.common.yaml import yaml_load_typed
+
+from systems.config import ConfigError
+
+SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+
+
+@dataclasses.dataclass
+class RunSettings:
+    """Fields every scenario has, whatever its diagram."""
+
+    diagram: str = "stewart_scene"
+    description: str = ""
+    duration_s: float = 20.0
+
+
+def scenario_names() -> list[str]:
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
+
+
+def scenario_path(name: str) -> Path:
+    path = SCENARIO_DIR / f"{name}.yaml"
+    if not path.is_file():
+        known = ", ".join(scenario_names())
+        raise ConfigError(f"unknown scenario '{name}' (known: {known}; or pass --config FILE)")
+    return path
+
+
+def _field_types(schema) -> dict[str, type]:
+    hints = typing.get_type_hints(schema)
+    return {f.name: hints[f.name] for f in dataclasses.fields(schema)}
+
+
+def normalise(raw: dict, schema, path: str = "") -> dict:
+    """Checks `raw` (plain YAML data) against a dataclass schema: an unknown key is a ConfigError
+    naming its dotted path; a scalar given for a list field becomes a one-element list."""
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path or 'the scenario'} must be a mapping of keys to values, got {raw!r}")
+    types = _field_types(schema)
+    out = {}
+    for key, value in raw.items():
+        dotted = f"{path}{key}"
+        if key not in types:
+            close = difflib.get_close_matches(str(key), types, n=1)
+            hint = f" (did you mean '{path}{close[0]}'?)" if close else ""
+            raise ConfigError(f"unknown key '{dotted}'{hint}")
+        kind = types[key]
+        if dataclasses.is_dataclass(kind):
+            value = normalise(value, kind, dotted + ".")
+        elif typing.get_origin(kind) is list and not isinstance(value, list):
+            value = [value]
+        out[key] = value
+    return out
+
+
+def set_override(raw: dict, assignment: str) -> None:
+    """Applies one `--set a.b.c=value` to the raw data; the value is parsed as YAML."""
+    key, sep, text = assignment.partition("=")
+    if not sep or not key:
+        raise ConfigError(f"--set expects key=value, got '{assignment}'")
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        raise ConfigError(f"--set {key}: cannot parse the value '{text}'") from None
+    node = raw
+    parts = key.split(".")
+    for part in parts[:-1]:
+        node = node.setdefault(part, {})
+        if not isinstance(node, dict):
+            raise ConfigError(f"--set {key}: '{part}' is not a group of settings")
+    node[parts[-1]] = value
+
+
+def load_typed(raw: dict, schema, source: str):
+    """The dataclass for `raw` data (already normalised), with Drake's typed YAML loader."""
+    try:
+        return yaml_load_typed(schema=schema, data=yaml.safe_dump(raw) if raw else "{}")
+    except (RuntimeError, ValueError, TypeError) as e:
+        raise ConfigError(f"{source}: {e}") from None
+
+
+def read_yaml(path: Path) -> dict:
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except OSError as e:
+        raise ConfigError(f"cannot read scenario file {path}: {e.strerror}") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path} is not valid YAML: {str(e).splitlines()[0]}") from None
+    return raw or {}

@@ -1,0 +1,145 @@
+"""Running the Stewart scene: simulate it and write metrics.json, log.npz and plots."""
+
+from dataclasses import dataclass
+
+import matplotlib.pyplot as plt
+import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RigidTransform, RollPitchYaw
+
+from diagrams.outputs import save_figure, write_json, write_npz
+from diagrams.scenario import RunSettings
+from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
+from systems.config import require_positive
+from systems.perception.apriltag import project_points
+
+
+@dataclass
+class Scenario(RunSettings, StewartSceneConfig):
+    """A Stewart-scene scenario file: the scene's configuration plus the run settings."""
+
+    def validate(self) -> None:
+        require_positive(self.duration_s, "duration_s")
+        StewartSceneConfig.validate(self)
+
+
+def pose_from_vector(v: np.ndarray) -> RigidTransform:
+    """Inverse of `pose_vector`: [x, y, z, qw, qx, qy, qz] -> RigidTransform."""
+    return RigidTransform(Quaternion(v[3:] / np.linalg.norm(v[3:])), v[:3])
+
+
+def collect_log(handles, context, config: StewartSceneConfig) -> dict[str, np.ndarray]:
+    """The run's logs as arrays, one row per camera frame (IMU: per IMU sample)."""
+    log = {name: logger.FindLog(context) for name, logger in handles.loggers.items()}
+    arrays = {name: entry.data().T.copy() for name, entry in log.items()}
+    arrays["t"] = log["X_CP"].sample_times().copy()
+    arrays["t_imu"] = log["imu"].sample_times().copy()
+    X_CT = [pose_from_vector(v).multiply(handles.platform.X_PT) for v in arrays["X_CP"]]
+    arrays["true_tag_corners"] = np.array(
+        [project_points(config.camera.K, X, handles.platform.tag_corners_T()).ravel() for X in X_CT])
+    arrays["X_CP_xyz_rpy"] = np.array(
+        [np.concatenate([v[:3], RollPitchYaw(pose_from_vector(v).rotation()).vector()]) for v in arrays["X_CP"]])
+    arrays["K"] = config.camera.K
+    arrays["X_BC"] = handles.X_BC.GetAsMatrix4()
+    arrays["X_PT"] = handles.platform.X_PT.GetAsMatrix4()
+    return arrays
+
+
+def scene_metrics(log: dict[str, np.ndarray]) -> dict:
+    """Perception, sensor and platform figures of a run (no estimators in the bare scene)."""
+    detected = np.all(np.isfinite(log["tag_corners"]), axis=1)
+    corner_error = np.linalg.norm((log["tag_corners"] - log["true_tag_corners"]).reshape(-1, 4, 2), axis=2)
+    valid = log["ranges_valid"] > 0.5
+    range_error = np.where(valid, log["ranges"] - log["true_ranges"], np.nan)
+    return {
+        "perception": {
+            "tag_detected_fraction": float(np.mean(detected)),
+            "corner_error_px_mean": float(np.mean(corner_error[detected])) if detected.any() else None,
+            "corner_error_px_max": float(np.max(corner_error[detected])) if detected.any() else None,
+        },
+        "sensors": {
+            "tof_valid_fraction": np.mean(valid, axis=0).tolist(),
+            "tof_error_m_rmse": [float(np.sqrt(np.nanmean(e**2))) if np.isfinite(e).any() else None
+                                 for e in range_error.T],
+        },
+        "platform": {
+            "stroke_exceeded_fraction": float(np.mean(log["stroke_exceeded"])),
+            "leg_length_min_m": float(log["leg_lengths"].min()),
+            "leg_length_max_m": float(log["leg_lengths"].max()),
+        },
+    }
+
+
+def plot_scene(log: dict[str, np.ndarray], config: StewartSceneConfig, out_dir) -> None:
+    t = log["t"]
+    fig, axes = plt.subplots(3, 2, figsize=(11, 7), sharex=True)
+    labels = ["x (m)", "y (m)", "z (m)", "roll (deg)", "pitch (deg)", "yaw (deg)"]
+    for i, ax in enumerate(axes.T.ravel()):
+        value = log["X_CP_xyz_rpy"][:, i] * (1 if i < 3 else 180 / np.pi)
+        ax.plot(t, value, "k-", lw=1, label="ground truth")
+        ax.set_ylabel(labels[i])
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_title("Deck pose in the camera frame, X_CP")
+    axes[-1, 0].set_xlabel("time (s)")
+    axes[-1, 1].set_xlabel("time (s)")
+    save_figure(fig, out_dir / "deck_pose.png")
+
+    fig, axes = plt.subplots(4, 1, figsize=(10, 8), sharex=True)
+    for i, ax in enumerate(axes):
+        ax.plot(t, log["true_ranges"][:, i], "k-", lw=1, label="true")
+        ax.plot(t, log["ranges"][:, i], ".", ms=2, label="measured")
+        ax.axhline(config.tof.max_range_m, color="r", ls=":", lw=1)
+        ax.set_ylabel(f"ToF {i + 1} (m)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right")
+    axes[-1].set_xlabel("time (s)")
+    save_figure(fig, out_dir / "tof_ranges.png")
+
+    fig, ax = plt.subplots(figsize=(10, 4))
+    ax.plot(t, log["leg_lengths"], lw=1)
+    for limit in (config.platform.leg_min_m, config.platform.leg_max_m):
+        ax.axhline(limit, color="r", ls="--", lw=1)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("leg length (m)")
+    ax.set_title("Stewart platform legs (dashed: stroke limits)")
+    ax.grid(alpha=0.3)
+    save_figure(fig, out_dir / "stewart_legs.png")
+
+    fig, ax = plt.subplots(figsize=(10, 3.5))
+    error = np.linalg.norm((log["tag_corners"] - log["true_tag_corners"]).reshape(-1, 4, 2), axis=2)
+    ax.plot(t, error, ".", ms=2)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("corner error (px)")
+    ax.set_title("Detected tag corners against the projection of the true corners")
+    ax.grid(alpha=0.3)
+    save_figure(fig, out_dir / "tag_corners.png")
+
+
+def run(scenario: Scenario, ctx) -> dict:
+    from diagrams.runner import simulate, write_recording
+
+    video_path = ctx.out_dir / "camera.mp4" if ctx.options.video else None
+    diagram, handles = build_stewart_scene(scenario, ctx.meshcat, video_path)
+    try:
+        wall, context = simulate(diagram, scenario.duration_s, ctx.options, handles.meshcat_visualizer)
+    except BaseException:
+        if handles.video is not None:
+            handles.video.discard()
+        raise
+    log = collect_log(handles, context, scenario)
+    metrics = {
+        "scenario": ctx.name,
+        "seed": scenario.seed,
+        "sim_time_s": scenario.duration_s,
+        "wall_time_s": wall,
+        "realtime_factor": scenario.duration_s / wall,
+        **scene_metrics(log),
+    }
+    write_npz(ctx.out_dir / "log.npz", **log)
+    plot_scene(log, scenario, ctx.out_dir)
+    if handles.video is not None:
+        handles.video.finish()
+    if ctx.options.record:
+        write_recording(ctx.meshcat, ctx.out_dir)
+    write_json(ctx.out_dir / "metrics.json", metrics)
+    return metrics

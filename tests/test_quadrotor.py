@@ -1,0 +1,232 @@
+import numpy as np
+import pytest
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.examples import QuadrotorPlant
+from pydrake.math import RollPitchYaw, RotationMatrix
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource
+
+from systems.vehicles.quadrotor import (
+    P_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state,
+    make_quadrotor_dynamics, mixer_matrix, quadrotor_state, quadrotor_state_derivative,
+    quaternion_rate, rotation_from_quaternion,
+)
+
+# pydrake filters numpy's "invalid value" warnings from symbolic object arrays when imported;
+# pytest resets warning filters per test, so restore that one here.
+pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+
+PARAMS = QuadrotorParams()
+
+
+def simulate_constant_commands(params, state0, commands, duration):
+    """Runs the Quadrotor diagram with constant rotor speed commands; returns the final state."""
+    builder = DiagramBuilder()
+    quad = builder.AddSystem(Quadrotor(params))
+    source = builder.AddSystem(ConstantVectorSource(np.asarray(commands, dtype=float)))
+    builder.Connect(source.get_output_port(), quad.GetInputPort("rotor_speed_commands"))
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.get_mutable_integrator().set_target_accuracy(1e-10)
+    root = simulator.get_mutable_context()
+    quad.GetMyMutableContextFromRoot(root).SetContinuousState(state0)
+    simulator.AdvanceTo(duration)
+    return quad.GetOutputPort("state").Eval(quad.GetMyContextFromRoot(root))
+
+
+def rotor_speeds_for(params, collective, torque_B):
+    """Rotor speeds whose thrusts produce the given collective thrust (N) and body torque (N m)."""
+    thrusts = np.linalg.solve(mixer_matrix(params), np.concatenate([[collective], torque_B]))
+    assert np.all(thrusts > 0)
+    return np.sqrt(thrusts / params.thrust_coefficient)
+
+
+def test_table1_hover_speed_is_plausible():
+    # 4 k_t w^2 = m g with Table 1's k_t = 1.28e-5 N s^2/rad^2 and m = 1.2 kg.
+    assert PARAMS.hover_rotor_speed() == pytest.approx(479.5, abs=0.1)
+
+
+@pytest.mark.parametrize("field, value", [
+    ("mass", 0.0), ("inertia_zz", -1.0), ("motor_time_constant", 0.0),
+    ("thrust_coefficient", 0.0), ("arm_lateral", -0.1), ("max_rotor_speed", 0.0),
+])
+def test_nonpositive_fields_are_rejected_by_name(field, value):
+    with pytest.raises(ValueError, match=field):
+        QuadrotorParams(**{field: value})
+
+
+def test_paper_inertia_as_printed_is_rejected():
+    # Table 1 prints Jx = 0.15, which no rigid body can have with Jy = 0.015, Jz = 0.03.
+    with pytest.raises(ValueError, match="triangle inequality"):
+        QuadrotorParams(inertia_xx=0.15)
+
+
+def test_motor_limit_below_hover_is_rejected():
+    with pytest.raises(ValueError, match="max_rotor_speed"):
+        QuadrotorParams(max_rotor_speed=400.0)
+
+
+def test_yaml_loaded_params_are_validated_when_built():
+    params = yaml_load_typed(schema=QuadrotorParams, data="mass: -2.0")
+    with pytest.raises(ValueError, match="mass"):
+        Quadrotor(params)
+
+
+def test_mixer_matches_rotor_positions():
+    # Eq. (8) read as rotors at (+l2, +l1), (+l2, -l1), (-l2, -l1), (-l2, +l1): the torque of a
+    # thrust f along +Bz at r = (x, y, 0) is r x [0, 0, f] = (y f, -x f, 0).
+    l1, l2 = 0.2, 0.3
+    params = QuadrotorParams(arm_lateral=l1, arm_longitudinal=l2)
+    positions = np.array([[l2, l1], [l2, -l1], [-l2, -l1], [-l2, l1]])
+    M = mixer_matrix(params)
+    np.testing.assert_allclose(M[1], positions[:, 1])
+    np.testing.assert_allclose(M[2], -positions[:, 0])
+    np.testing.assert_allclose(M[3] * params.thrust_coefficient,
+                               params.drag_torque_coefficient * np.array([1, -1, 1, -1]))
+
+
+def test_quaternion_rate_matches_body_angular_velocity():
+    q = RotationMatrix(RollPitchYaw(0.3, -0.2, 1.1)).ToQuaternion().wxyz()
+    w_B = np.array([0.4, -0.7, 1.3])
+    dt = 1e-7
+    R_dot = (rotation_from_quaternion(q + dt * quaternion_rate(q, w_B))
+             - rotation_from_quaternion(q)) / dt
+    R = rotation_from_quaternion(q)
+    w_hat = np.array([[0, -w_B[2], w_B[1]], [w_B[2], 0, -w_B[0]], [-w_B[1], w_B[0], 0]])
+    np.testing.assert_allclose(R_dot, R @ w_hat, atol=1e-5)
+
+
+def test_hover_equilibrium_holds_still():
+    state0 = hover_state(PARAMS, p_WB=[1.0, -2.0, 10.0], yaw=0.7)
+    w_hover = PARAMS.hover_rotor_speed() / PARAMS.motor_gain
+    np.testing.assert_allclose(
+        quadrotor_state_derivative(state0, np.full(4, w_hover), PARAMS),
+        np.zeros(STATE_SIZE), atol=1e-12)
+    final = simulate_constant_commands(PARAMS, state0, np.full(4, w_hover), duration=5.0)
+    np.testing.assert_allclose(final, state0, atol=1e-9)
+
+
+def test_yaw_torque_step_gives_expected_angular_acceleration():
+    tau_z = 0.05  # N m
+    rotor_speeds = rotor_speeds_for(PARAMS, PARAMS.mass * PARAMS.gravity, [0.0, 0.0, tau_z])
+    state0 = quadrotor_state(p_WB=[0, 0, 5], rotor_speeds=rotor_speeds)
+    commands = rotor_speeds / PARAMS.motor_gain
+
+    derivative = quadrotor_state_derivative(state0, commands, PARAMS)
+    np.testing.assert_allclose(derivative[W_WB_B], [0.0, 0.0, tau_z / PARAMS.inertia_zz])
+    np.testing.assert_allclose(derivative[V_WB], np.zeros(3), atol=1e-12)
+
+    duration = 0.5
+    final = simulate_constant_commands(PARAMS, state0, commands, duration)
+    np.testing.assert_allclose(final[W_WB_B], [0.0, 0.0, tau_z / PARAMS.inertia_zz * duration],
+                               rtol=1e-8, atol=1e-9)
+    np.testing.assert_allclose(final[P_WB], [0, 0, 5], atol=1e-9)
+
+
+def test_free_fall_with_rotors_off():
+    state0 = quadrotor_state(p_WB=[0, 0, 20])
+    final = simulate_constant_commands(PARAMS, state0, np.zeros(4), duration=1.0)
+    g = PARAMS.gravity
+    np.testing.assert_allclose(final[P_WB], [0, 0, 20 - 0.5 * g], atol=1e-9)
+    np.testing.assert_allclose(final[V_WB], [0, 0, -g], atol=1e-9)
+    np.testing.assert_allclose(final[ROTOR_SPEEDS], np.zeros(4))
+
+
+def test_motor_lag_and_saturation():
+    state0 = hover_state(PARAMS, p_WB=[0, 0, 50])
+    w0 = PARAMS.hover_rotor_speed()
+    tau = PARAMS.motor_time_constant
+    # Above the limit: each rotor relaxes towards w_max with time constant tau_m.
+    final = simulate_constant_commands(PARAMS, state0, np.full(4, 1e4), duration=tau)
+    expected = PARAMS.max_rotor_speed + (w0 - PARAMS.max_rotor_speed) * np.exp(-1.0)
+    np.testing.assert_allclose(final[ROTOR_SPEEDS], np.full(4, expected), rtol=1e-7)
+    # A negative command is clipped at zero speed.
+    final = simulate_constant_commands(PARAMS, state0, np.full(4, -1e4), duration=tau)
+    np.testing.assert_allclose(final[ROTOR_SPEEDS], np.full(4, w0 * np.exp(-1.0)), rtol=1e-7)
+
+
+class SinusoidalRotorCommands(LeafSystem):
+    """Test source: hover plus distinct sinusoids per rotor (enough to roll, pitch and yaw).
+    Output `ours` gives our rotor speed commands; `drake` gives QuadrotorPlant's inputs u."""
+
+    AMPLITUDES = np.array([6.0, -4.0, 5.0, -7.0])  # rad/s
+    FREQUENCIES = np.array([1.3, 2.1, 0.7, 1.7])  # rad/s
+    DRAKE_ORDER = [0, 3, 2, 1]  # our rotor for Drake's rotor 0, 1, 2, 3
+
+    def __init__(self, params):
+        super().__init__()
+        self._params = params
+        self.DeclareVectorOutputPort("ours", 4, lambda c, y: y.SetFromVector(self.at(c.get_time())))
+        self.DeclareVectorOutputPort("drake", 4, self._calc_drake)
+
+    def at(self, time):
+        phase = self.FREQUENCIES * time
+        return (self._params.hover_rotor_speed()
+                + self.AMPLITUDES * np.sin(phase) + 2.0 * np.cos(3.0 * phase))
+
+    def _calc_drake(self, context, output):
+        rotor_speeds = self._params.motor_gain * self.at(context.get_time())
+        output.SetFromVector(rotor_speeds[self.DRAKE_ORDER] ** 2)
+
+
+def test_matches_drake_quadrotor_plant():
+    """Same airframe, same rotor speeds, nearly no motor lag: same trajectory as Drake's
+    QuadrotorPlant (a '+' airframe with roll-pitch-yaw state).
+
+    Map: Drake's body frame D is ours yawed by +45 deg, so Drake's rotors 0, 1, 2, 3 (at +x_D,
+    +y_D, -x_D, -y_D, arm L) are our rotors 1, 4, 3, 2 (arm L = sqrt(l1^2 + l2^2) needs
+    l1 = l2); its input u_i with kF = k_t, kM = k_d is our w^2, and its yaw signs (+, -, +, -)
+    match ours rotor by rotor."""
+    params = QuadrotorParams(motor_time_constant=1e-4)
+    assert params.arm_lateral == params.arm_longitudinal
+    R_BD = RotationMatrix.MakeZRotation(np.pi / 4)
+    inertia_D = R_BD.inverse().matrix() @ np.diag(params.inertia_diagonal) @ R_BD.matrix()
+    drake_plant = QuadrotorPlant(
+        params.mass, np.hypot(params.arm_lateral, params.arm_longitudinal), inertia_D,
+        params.thrust_coefficient, params.drag_torque_coefficient)
+    assert drake_plant.g() == params.gravity
+
+    builder = DiagramBuilder()
+    ours = builder.AddSystem(Quadrotor(params))
+    theirs = builder.AddSystem(drake_plant)
+    source = builder.AddSystem(SinusoidalRotorCommands(params))
+    builder.Connect(source.GetOutputPort("ours"), ours.GetInputPort("rotor_speed_commands"))
+    builder.Connect(source.GetOutputPort("drake"), theirs.get_input_port())
+    diagram = builder.Build()
+
+    simulator = Simulator(diagram)
+    simulator.get_mutable_integrator().set_target_accuracy(1e-10)
+    root = simulator.get_mutable_context()
+    p0 = np.array([1.0, 2.0, 10.0])
+    R_WB0 = RotationMatrix(RollPitchYaw(0.05, -0.03, 0.4))
+    ours.GetMyMutableContextFromRoot(root).SetContinuousState(quadrotor_state(
+        p_WB=p0, R_WB=R_WB0, rotor_speeds=params.motor_gain * source.at(0.0)))
+    theirs.GetMyMutableContextFromRoot(root).SetContinuousState(np.concatenate(
+        [p0, RollPitchYaw(R_WB0 @ R_BD).vector(), np.zeros(6)]))
+
+    max_position_error = max_angle_error = 0.0
+    for time in np.linspace(0.1, 3.0, 30):
+        simulator.AdvanceTo(time)
+        our_pose = ours.GetOutputPort("X_WB").Eval(ours.GetMyContextFromRoot(root))
+        their_state = theirs.get_output_port().Eval(theirs.GetMyContextFromRoot(root))
+        R_WB_theirs = RotationMatrix(RollPitchYaw(their_state[3:6])) @ R_BD.inverse()
+        max_position_error = max(max_position_error,
+                                 np.linalg.norm(our_pose.translation() - their_state[:3]))
+        max_angle_error = max(max_angle_error, (our_pose.rotation().inverse() @ R_WB_theirs)
+                              .ToAngleAxis().angle())
+    travelled = np.linalg.norm(our_pose.translation() - p0)
+    tilt = np.arccos(our_pose.rotation().matrix()[2, 2])
+    print(f"\nQuadrotorPlant cross-check over 3 s ({travelled:.2f} m travelled, final tilt "
+          f"{np.degrees(tilt):.1f} deg): max position error {max_position_error:.2e} m, "
+          f"max attitude error {max_angle_error:.2e} rad")
+    assert travelled > 0.5 and tilt > 0.05  # the trajectory is not trivial
+    assert max_position_error < 1e-4
+    assert max_angle_error < 1e-4
+
+
+def test_dynamics_system_shape():
+    system = make_quadrotor_dynamics(PARAMS)
+    assert system.num_continuous_states() == STATE_SIZE
+    assert system.get_input_port().size() == 4
+    assert system.get_output_port().size() == STATE_SIZE
