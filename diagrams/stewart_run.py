@@ -5,12 +5,13 @@ from dataclasses import dataclass
 import matplotlib.pyplot as plt
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
-from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.math import RigidTransform
 
 from diagrams.outputs import save_figure, write_json, write_npz
 from diagrams.scenario import RunSettings
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import require_positive
+from systems.geometry import pose_to_xyz_rpy
 from systems.perception.apriltag import project_points
 
 
@@ -37,8 +38,7 @@ def collect_log(handles, context, config: StewartSceneConfig) -> dict[str, np.nd
     X_CT = [pose_from_vector(v).multiply(handles.platform.X_PT) for v in arrays["X_CP"]]
     arrays["true_tag_corners"] = np.array(
         [project_points(config.camera.K, X, handles.platform.tag_corners_T()).ravel() for X in X_CT])
-    arrays["X_CP_xyz_rpy"] = np.array(
-        [np.concatenate([v[:3], RollPitchYaw(pose_from_vector(v).rotation()).vector()]) for v in arrays["X_CP"]])
+    arrays["X_CT_xyz_rpy"] = np.array([pose_to_xyz_rpy(X) for X in X_CT])
     arrays["K"] = config.camera.K
     arrays["X_BC"] = handles.X_BC.GetAsMatrix4()
     arrays["X_PT"] = handles.platform.X_PT.GetAsMatrix4()
@@ -75,14 +75,14 @@ def plot_scene(log: dict[str, np.ndarray], config: StewartSceneConfig, out_dir) 
     fig, axes = plt.subplots(3, 2, figsize=(11, 7), sharex=True)
     labels = ["x (m)", "y (m)", "z (m)", "roll (deg)", "pitch (deg)", "yaw (deg)"]
     for i, ax in enumerate(axes.T.ravel()):
-        value = log["X_CP_xyz_rpy"][:, i] * (1 if i < 3 else 180 / np.pi)
+        value = log["X_CT_xyz_rpy"][:, i] * (1 if i < 3 else 180 / np.pi)
         ax.plot(t, value, "k-", lw=1, label="ground truth")
         ax.set_ylabel(labels[i])
         ax.grid(alpha=0.3)
-    axes[0, 0].set_title("Deck pose in the camera frame, X_CP")
+    axes[0, 0].set_title("Tag pose in the camera frame, X_CT (ground truth)")
     axes[-1, 0].set_xlabel("time (s)")
     axes[-1, 1].set_xlabel("time (s)")
-    save_figure(fig, out_dir / "deck_pose.png")
+    save_figure(fig, out_dir / "tag_pose.png")
 
     fig, axes = plt.subplots(4, 1, figsize=(10, 8), sharex=True)
     for i, ax in enumerate(axes):

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import Box, Cylinder, FramePoseVector, GeometryFrame, Mesh, SceneGraph
-from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 from scipy.interpolate import PchipInterpolator
 from scipy.optimize import least_squares
@@ -232,14 +232,16 @@ class StewartPlatform(LeafSystem):
 
     @property
     def X_PT(self) -> RigidTransform:
-        """Pose of the tag frame T in the deck frame P: tag centre, x right, y up in the tag image,
-        z out of the deck (OpenCV's IPPE_SQUARE object-point convention)."""
-        return RigidTransform([0.0, 0.0, TAG_ABOVE_DECK_M])
+        """Pose of the tag frame T in the deck frame P. T is the paper's camera-facing convention
+        (seed 000 section 4.1): origin at the tag centre, x right and y down in the upright tag's
+        image, z into the deck; a level deck under a level camera gives X_CT = [I, (0, 0, h)]."""
+        return RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.0, 0.0, TAG_ABOVE_DECK_M])
 
     def tag_corners_T(self) -> np.ndarray:
-        """The tag's four black-square corners in T (4x3, m), in OpenCV/ArUco corner order."""
+        """The tag's four black-square corners in T (4x3, m), in ArUco's corner order: top-left,
+        top-right, bottom-right, bottom-left of the tag as printed."""
         s = self.config.tag_size_m / 2
-        return np.array([[-s, s, 0.0], [s, s, 0.0], [s, -s, 0.0], [-s, -s, 0.0]])
+        return np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
 
     def _register_geometry(self, scene_graph: SceneGraph) -> None:
         c, world = self.config, scene_graph.world_frame_id()
@@ -253,7 +255,7 @@ class StewartPlatform(LeafSystem):
                         RigidTransform([0, 0, -c.deck_thickness_m / 2]),
                         Box(c.deck_size_m, c.deck_size_m, c.deck_thickness_m), "stewart_deck", deck_grey,
                         collidable=True)
-        register_visual(scene_graph, self.source_id, self._deck_frame, self.X_PT,
+        register_visual(scene_graph, self.source_id, self._deck_frame, RigidTransform(self.X_PT.translation()),
                         Mesh(str(tag_mesh_path(c.tag_id)), tag_plate_scale(c.tag_size_m)), "apriltag", rgba=None)
         # Each leg is a telescoping actuator: a cylinder from the base joint towards the deck joint
         # and a thinner rod from the deck joint towards the base joint.
