@@ -2,14 +2,14 @@ import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.examples import QuadrotorPlant
-from pydrake.math import RollPitchYaw, RotationMatrix
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Adder, ConstantVectorSource, Sine
 
 from systems.vehicles.quadrotor import (
     P_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state,
-    make_quadrotor_dynamics, mixer_matrix, quadrotor_state, quadrotor_state_derivative,
+    mixer_matrix, quadrotor_state, quadrotor_state_derivative,
     quaternion_rate, rotation_from_quaternion,
 )
 
@@ -48,28 +48,28 @@ def test_table1_hover_speed_is_plausible():
 
 
 @pytest.mark.parametrize("field, value", [
-    ("mass", 0.0), ("inertia_zz", -1.0), ("motor_time_constant", 0.0),
-    ("thrust_coefficient", 0.0), ("arm_lateral", -0.1), ("max_rotor_speed", 0.0),
+    ("mass_kg", 0.0), ("inertia_zz_kg_m2", -1.0), ("motor_time_constant_s", 0.0),
+    ("thrust_coefficient", 0.0), ("arm_lateral_m", -0.1), ("max_rotor_speed_rad_s", 0.0),
 ])
 def test_nonpositive_fields_are_rejected_by_name(field, value):
-    with pytest.raises(ValueError, match=field):
-        QuadrotorParams(**{field: value})
+    with pytest.raises(ValueError, match=f"quadrotor.{field} must be positive"):
+        QuadrotorParams(**{field: value}).validate()
 
 
 def test_paper_inertia_as_printed_is_rejected():
     # Table 1 prints Jx = 0.15, which no rigid body can have with Jy = 0.015, Jz = 0.03.
     with pytest.raises(ValueError, match="triangle inequality"):
-        QuadrotorParams(inertia_xx=0.15)
+        QuadrotorParams(inertia_xx_kg_m2=0.15).validate()
 
 
 def test_motor_limit_below_hover_is_rejected():
-    with pytest.raises(ValueError, match="max_rotor_speed"):
-        QuadrotorParams(max_rotor_speed=400.0)
+    with pytest.raises(ValueError, match="max_rotor_speed_rad_s"):
+        QuadrotorParams(max_rotor_speed_rad_s=400.0).validate()
 
 
 def test_yaml_loaded_params_are_validated_when_built():
-    params = yaml_load_typed(schema=QuadrotorParams, data="mass: -2.0")
-    with pytest.raises(ValueError, match="mass"):
+    params = yaml_load_typed(schema=QuadrotorParams, data="mass_kg: -2.0")
+    with pytest.raises(ValueError, match="mass_kg"):
         Quadrotor(params)
 
 
@@ -77,7 +77,7 @@ def test_mixer_matches_rotor_positions():
     # Eq. (8) read as rotors at (+l2, +l1), (+l2, -l1), (-l2, -l1), (-l2, +l1): the torque of a
     # thrust f along +Bz at r = (x, y, 0) is r x [0, 0, f] = (y f, -x f, 0).
     l1, l2 = 0.2, 0.3
-    params = QuadrotorParams(arm_lateral=l1, arm_longitudinal=l2)
+    params = QuadrotorParams(arm_lateral_m=l1, arm_longitudinal_m=l2)
     positions = np.array([[l2, l1], [l2, -l1], [-l2, -l1], [-l2, l1]])
     M = mixer_matrix(params)
     np.testing.assert_allclose(M[1], positions[:, 1])
@@ -109,17 +109,17 @@ def test_hover_equilibrium_holds_still():
 
 def test_yaw_torque_step_gives_expected_angular_acceleration():
     tau_z = 0.05  # N m
-    rotor_speeds = rotor_speeds_for(PARAMS, PARAMS.mass * PARAMS.gravity, [0.0, 0.0, tau_z])
+    rotor_speeds = rotor_speeds_for(PARAMS, PARAMS.mass_kg * PARAMS.gravity_m_s2, [0.0, 0.0, tau_z])
     state0 = quadrotor_state(p_WB=[0, 0, 5], rotor_speeds=rotor_speeds)
     commands = rotor_speeds / PARAMS.motor_gain
 
     derivative = quadrotor_state_derivative(state0, commands, PARAMS)
-    np.testing.assert_allclose(derivative[W_WB_B], [0.0, 0.0, tau_z / PARAMS.inertia_zz])
+    np.testing.assert_allclose(derivative[W_WB_B], [0.0, 0.0, tau_z / PARAMS.inertia_zz_kg_m2])
     np.testing.assert_allclose(derivative[V_WB], np.zeros(3), atol=1e-12)
 
     duration = 0.5
     final = simulate_constant_commands(PARAMS, state0, commands, duration)
-    np.testing.assert_allclose(final[W_WB_B], [0.0, 0.0, tau_z / PARAMS.inertia_zz * duration],
+    np.testing.assert_allclose(final[W_WB_B], [0.0, 0.0, tau_z / PARAMS.inertia_zz_kg_m2 * duration],
                                rtol=1e-8, atol=1e-9)
     np.testing.assert_allclose(final[P_WB], [0, 0, 5], atol=1e-9)
 
@@ -127,7 +127,7 @@ def test_yaw_torque_step_gives_expected_angular_acceleration():
 def test_free_fall_with_rotors_off():
     state0 = quadrotor_state(p_WB=[0, 0, 20])
     final = simulate_constant_commands(PARAMS, state0, np.zeros(4), duration=1.0)
-    g = PARAMS.gravity
+    g = PARAMS.gravity_m_s2
     np.testing.assert_allclose(final[P_WB], [0, 0, 20 - 0.5 * g], atol=1e-9)
     np.testing.assert_allclose(final[V_WB], [0, 0, -g], atol=1e-9)
     np.testing.assert_allclose(final[ROTOR_SPEEDS], np.zeros(4))
@@ -136,10 +136,10 @@ def test_free_fall_with_rotors_off():
 def test_motor_lag_and_saturation():
     state0 = hover_state(PARAMS, p_WB=[0, 0, 50])
     w0 = PARAMS.hover_rotor_speed()
-    tau = PARAMS.motor_time_constant
+    tau = PARAMS.motor_time_constant_s
     # Above the limit: each rotor relaxes towards w_max with time constant tau_m.
     final = simulate_constant_commands(PARAMS, state0, np.full(4, 1e4), duration=tau)
-    expected = PARAMS.max_rotor_speed + (w0 - PARAMS.max_rotor_speed) * np.exp(-1.0)
+    expected = PARAMS.max_rotor_speed_rad_s + (w0 - PARAMS.max_rotor_speed_rad_s) * np.exp(-1.0)
     np.testing.assert_allclose(final[ROTOR_SPEEDS], np.full(4, expected), rtol=1e-7)
     # A negative command is clipped at zero speed.
     final = simulate_constant_commands(PARAMS, state0, np.full(4, -1e4), duration=tau)
@@ -168,13 +168,13 @@ def test_matches_drake_quadrotor_plant():
     (+, -, +, -) match ours rotor by rotor. It is driven by our rotor speeds, so the comparison
     covers Eq. (8), thrust, drag torque and the rigid body; the motor lag is tested above."""
     params = PARAMS
-    assert params.arm_lateral == params.arm_longitudinal
+    assert params.arm_lateral_m == params.arm_longitudinal_m
     R_BD = RotationMatrix.MakeZRotation(np.pi / 4)
     inertia_D = R_BD.inverse().matrix() @ np.diag(params.inertia_diagonal) @ R_BD.matrix()
     drake_plant = QuadrotorPlant(
-        params.mass, np.hypot(params.arm_lateral, params.arm_longitudinal), inertia_D,
+        params.mass_kg, np.hypot(params.arm_lateral_m, params.arm_longitudinal_m), inertia_D,
         params.thrust_coefficient, params.drag_torque_coefficient)
-    assert drake_plant.g() == params.gravity
+    assert drake_plant.g() == params.gravity_m_s2
 
     builder = DiagramBuilder()
     ours = builder.AddSystem(Quadrotor(params))
@@ -222,8 +222,22 @@ def test_matches_drake_quadrotor_plant():
     assert max_angle_error < 1e-6
 
 
-def test_dynamics_system_shape():
-    system = make_quadrotor_dynamics(PARAMS)
-    assert system.num_continuous_states() == STATE_SIZE
-    assert system.get_input_port().size() == 4
-    assert system.get_output_port().size() == STATE_SIZE
+def test_pose_and_kinematics_outputs():
+    quad = Quadrotor(PARAMS)
+    context = quad.CreateDefaultContext()
+    R_WB = RotationMatrix(RollPitchYaw(0.2, -0.1, 0.5))
+    p_WB, v_WB, w_WB_B = np.array([1.0, 2.0, 5.0]), np.array([1.0, -2.0, 0.5]), [0.3, -0.2, 0.1]
+    state = quadrotor_state(p_WB=p_WB, R_WB=R_WB, v_WB=v_WB, w_WB_B=w_WB_B,
+                            rotor_speeds=[470.0, 490.0, 480.0, 475.0])
+    context.SetContinuousState(state)
+    quad.GetInputPort("rotor_speed_commands").FixValue(context, np.zeros(4))
+    derivative = quadrotor_state_derivative(state, np.zeros(4), PARAMS)
+
+    X_WB = quad.GetOutputPort("X_WB").Eval(context)
+    assert X_WB.IsNearlyEqualTo(RigidTransform(R_WB, p_WB), 1e-12)
+    np.testing.assert_allclose(quad.GetOutputPort("state").Eval(context), state)
+    np.testing.assert_allclose(quad.GetOutputPort("V_WB").Eval(context),
+                               np.concatenate([R_WB @ w_WB_B, v_WB]), atol=1e-12)
+    np.testing.assert_allclose(quad.GetOutputPort("A_WB").Eval(context),
+                               np.concatenate([R_WB @ derivative[W_WB_B], derivative[V_WB]]),
+                               atol=1e-12)

@@ -22,7 +22,7 @@ Reading of seed 002 Table 1 against Eq. (7)-(8) (what the defaults below assume)
   own start point r0 = [0 0 10] m implies: gravity is [0 0 -m g] N here.
 - Eq. (7) adds the body thrust [0 0 F^C] to a World acceleration without rotating it, and divides
   the torque by J twice; we use R_WB [0 0 F^C] / m and J w_dot = T^C - w x (J w) (Mahony et al.,
-  the paper's reference [8]).
+  the paper's reference [8]), with w the body angular velocity.
 - Eq. (8) as printed makes the roll torque l1 (f1 - f2 - f3 + f4) and the pitch torque
   l2 (-f1 - f2 + f3 + f4), so rotor 1 sits at (x, y) = (+l2, +l1) (front left), 2 at (+l2, -l1)
   (front right), 3 at (-l2, -l1) (back right), 4 at (-l2, +l1) (back left): l1 is the lateral
@@ -40,7 +40,9 @@ from pydrake.common.value import Value
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.symbolic import MakeVectorVariable
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import SymbolicVectorSystem
+from pydrake.systems.primitives import Demultiplexer, SymbolicVectorSystem
+
+from systems.config import require, require_positive
 
 STATE_SIZE = 17
 P_WB = slice(0, 3)
@@ -53,62 +55,53 @@ ROTOR_SPEEDS = slice(13, 17)
 @dataclass
 class QuadrotorParams:
     """Airframe and motor constants of seed 002 Table 1 (see the module docstring for how the
-    table's symbols map onto Eq. (7)-(8)). Call validate() after loading from YAML."""
+    table's symbols map onto Eq. (7)-(8))."""
 
-    mass: float = 1.2  # m [kg], seed 002 Table 1
-    inertia_xx: float = 0.015  # Jx [kg m^2], Table 1 prints 0.15 (see module docstring)
-    inertia_yy: float = 0.015  # Jy [kg m^2], Table 1
-    inertia_zz: float = 0.03  # Jz [kg m^2], Table 1
-    motor_time_constant: float = 0.1  # tau_m [s], Table 1, Eq. (7)
+    mass_kg: float = 1.2  # m, seed 002 Table 1
+    inertia_xx_kg_m2: float = 0.015  # Jx; Table 1 prints 0.15 (see the module docstring)
+    inertia_yy_kg_m2: float = 0.015  # Jy, Table 1
+    inertia_zz_kg_m2: float = 0.03  # Jz, Table 1
+    motor_time_constant_s: float = 0.1  # tau_m, Table 1, Eq. (7)
     motor_gain: float = 1.0  # k_m [-], Eq. (7); Table 1 calls it k_p
     thrust_coefficient: float = 1.28e-5  # k_t [N s^2/rad^2], Eq. (7); Table 1 calls it k_m
     drag_torque_coefficient: float = 3.08e-7  # k_d [N m s^2/rad^2], Table 1, Eq. (7)
-    arm_lateral: float = 0.25  # l1 [m], Table 1; rotor |y| in Eq. (8)
-    arm_longitudinal: float = 0.25  # l2 [m], Table 1; rotor |x| in Eq. (8)
-    # w_max [rad/s]: Eq. (7) names it but Table 1 gives no value; 700 rad/s gives a
-    # thrust-to-weight ratio of 2.1 with the defaults above.
-    max_rotor_speed: float = 700.0
-    gravity: float = 9.81  # g [m/s^2]
+    arm_lateral_m: float = 0.25  # l1, Table 1; rotor |y| in Eq. (8)
+    arm_longitudinal_m: float = 0.25  # l2, Table 1; rotor |x| in Eq. (8)
+    # w_max: Eq. (7) names it but Table 1 gives no value; 700 rad/s gives a thrust-to-weight
+    # ratio of 2.1 with the defaults above.
+    max_rotor_speed_rad_s: float = 700.0
+    gravity_m_s2: float = 9.81  # g; the value of Drake's QuadrotorPlant and MultibodyPlant
 
-    def __post_init__(self):
-        self.validate()
-
-    def validate(self):
-        """Raises ValueError naming the first field that is out of range."""
-        positive = (
-            "mass", "inertia_xx", "inertia_yy", "inertia_zz", "motor_time_constant",
-            "motor_gain", "thrust_coefficient", "drag_torque_coefficient", "arm_lateral",
-            "arm_longitudinal", "max_rotor_speed", "gravity",
-        )
-        for name in positive:
-            value = getattr(self, name)
-            if not value > 0:
-                raise ValueError(f"QuadrotorParams.{name} must be positive, got {value}")
+    def validate(self, prefix: str = "quadrotor") -> None:
+        """Raises ConfigError (a ValueError) naming the first field out of range."""
+        for name in (
+            "mass_kg", "inertia_xx_kg_m2", "inertia_yy_kg_m2", "inertia_zz_kg_m2",
+            "motor_time_constant_s", "motor_gain", "thrust_coefficient",
+            "drag_torque_coefficient", "arm_lateral_m", "arm_longitudinal_m",
+            "max_rotor_speed_rad_s", "gravity_m_s2",
+        ):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
         Jx, Jy, Jz = self.inertia_diagonal
-        if Jx > Jy + Jz or Jy > Jx + Jz or Jz > Jx + Jy:
-            raise ValueError(
-                "QuadrotorParams.inertia_xx/yy/zz violate the triangle inequality "
-                f"(each at most the sum of the other two), got {Jx}, {Jy}, {Jz}"
-            )
-        if self.hover_rotor_speed() >= self.max_rotor_speed:
-            raise ValueError(
-                f"QuadrotorParams.max_rotor_speed {self.max_rotor_speed} rad/s cannot hover "
-                f"(needs {self.hover_rotor_speed():.1f} rad/s)"
-            )
+        require(Jx <= Jy + Jz and Jy <= Jx + Jz and Jz <= Jx + Jy,
+                f"{prefix}.inertia_xx/yy/zz_kg_m2 = {Jx}, {Jy}, {Jz} violate the triangle "
+                "inequality (each must be at most the sum of the other two)")
+        require(self.hover_rotor_speed() < self.max_rotor_speed_rad_s,
+                f"{prefix}.max_rotor_speed_rad_s = {self.max_rotor_speed_rad_s} cannot hover "
+                f"(needs {self.hover_rotor_speed():.1f} rad/s)")
 
     @property
     def inertia_diagonal(self) -> np.ndarray:
         """[Jx, Jy, Jz] in kg m^2, about the body axes."""
-        return np.array([self.inertia_xx, self.inertia_yy, self.inertia_zz])
+        return np.array([self.inertia_xx_kg_m2, self.inertia_yy_kg_m2, self.inertia_zz_kg_m2])
 
     def hover_rotor_speed(self) -> float:
         """Rotor speed [rad/s] at which four rotors carry the weight: 4 k_t w^2 = m g."""
-        return float(np.sqrt(self.mass * self.gravity / (4.0 * self.thrust_coefficient)))
+        return float(np.sqrt(self.mass_kg * self.gravity_m_s2 / (4.0 * self.thrust_coefficient)))
 
 
 def mixer_matrix(params: QuadrotorParams) -> np.ndarray:
     """Seed 002 Eq. (8): maps rotor thrusts f (N) to [F^C (N), T^C_B (N m)], torque in B."""
-    l1, l2 = params.arm_lateral, params.arm_longitudinal
+    l1, l2 = params.arm_lateral_m, params.arm_longitudinal_m
     k_dt = params.drag_torque_coefficient / params.thrust_coefficient
     return np.array([
         [1.0, 1.0, 1.0, 1.0],
@@ -142,33 +135,45 @@ def quaternion_rate(q, w_B):
     ])
 
 
+def rigid_body_accelerations(state, params: QuadrotorParams):
+    """(a_WB in W [m/s^2], alpha_WB_B in B [rad/s^2]) from the rotor speeds in `state`.
+    Works on floats and on pydrake.symbolic Expressions."""
+    w_B = state[W_WB_B]
+    thrusts = params.thrust_coefficient * state[ROTOR_SPEEDS] ** 2
+    wrench = mixer_matrix(params) @ thrusts
+    collective, torque_B = wrench[0], wrench[1:]
+    R_WB = rotation_from_quaternion(state[Q_WB])
+    a_WB = R_WB[:, 2] * collective / params.mass_kg - np.array([0.0, 0.0, params.gravity_m_s2])
+    J = params.inertia_diagonal
+    alpha_WB_B = (torque_B - np.cross(w_B, J * w_B)) / J
+    return a_WB, alpha_WB_B
+
+
 def quadrotor_state_derivative(state, rotor_speed_commands, params: QuadrotorParams):
     """Seed 002 Eq. (7)-(8) (with the corrections in the module docstring).
 
-    state: the 17-vector described in the module docstring; rotor_speed_commands: 4 [rad/s].
-    Returns d(state)/dt. Works on floats and on pydrake.symbolic Expressions."""
-    q = state[Q_WB]
-    v_WB = state[V_WB]
-    w_B = state[W_WB_B]
-    rotor_speeds = state[ROTOR_SPEEDS]
-
+    state: the 17-vector described in the module docstring; rotor_speed_commands: 4 [rad/s],
+    each driving its rotor towards k_m * command clipped to [0, w_max]. Returns d(state)/dt.
+    Works on floats and on pydrake.symbolic Expressions."""
     targets = [
-        dmath.min(dmath.max(params.motor_gain * c, 0.0), params.max_rotor_speed)
+        dmath.min(dmath.max(params.motor_gain * c, 0.0), params.max_rotor_speed_rad_s)
         for c in rotor_speed_commands
     ]
-    rotor_accelerations = (np.array(targets) - rotor_speeds) / params.motor_time_constant
+    rotor_accelerations = (np.array(targets) - state[ROTOR_SPEEDS]) / params.motor_time_constant_s
+    a_WB, alpha_WB_B = rigid_body_accelerations(state, params)
+    return np.concatenate([
+        state[V_WB], quaternion_rate(state[Q_WB], state[W_WB_B]), a_WB, alpha_WB_B,
+        rotor_accelerations,
+    ])
 
-    thrusts = params.thrust_coefficient * rotor_speeds**2
-    wrench = mixer_matrix(params) @ thrusts
-    collective, torque_B = wrench[0], wrench[1:]
 
-    R_WB = rotation_from_quaternion(q)
-    a_WB = R_WB[:, 2] * collective / params.mass - np.array([0.0, 0.0, params.gravity])
-
-    J = params.inertia_diagonal
-    alpha_B = (torque_B - np.cross(w_B, J * w_B)) / J
-
-    return np.concatenate([v_WB, quaternion_rate(q, w_B), a_WB, alpha_B, rotor_accelerations])
+def body_kinematics(state, params: QuadrotorParams):
+    """(V_WB, A_WB) in the layout of the airframe/IMU seam (systems/vehicles/airframe.py):
+    V_WB = [w_WB; v_WB] and A_WB = [alpha_WB; a_WB], all expressed in W."""
+    R_WB = rotation_from_quaternion(state[Q_WB])
+    a_WB, alpha_WB_B = rigid_body_accelerations(state, params)
+    return (np.concatenate([R_WB @ state[W_WB_B], state[V_WB]]),
+            np.concatenate([R_WB @ alpha_WB_B, a_WB]))
 
 
 def quadrotor_state(p_WB=(0.0, 0.0, 0.0), R_WB=None, v_WB=(0.0, 0.0, 0.0),
@@ -197,12 +202,15 @@ def pose_from_state(state) -> RigidTransform:
 
 def make_quadrotor_dynamics(params: QuadrotorParams) -> SymbolicVectorSystem:
     """Eq. (7)-(8) as a SymbolicVectorSystem: input 4 rotor speed commands [rad/s], continuous
-    state and output the 17-vector state. Per-step evaluation stays in C++."""
+    state the 17-vector, output [state (17), V_WB (6), A_WB (6)] (see body_kinematics).
+    Per-step evaluation stays in C++."""
     params.validate()
     x = MakeVectorVariable(STATE_SIZE, "x")
     u = MakeVectorVariable(4, "w_cmd")
+    V_WB, A_WB = body_kinematics(x, params)
     return SymbolicVectorSystem(
-        state=x, input=u, dynamics=quadrotor_state_derivative(x, u, params), output=x)
+        state=x, input=u, dynamics=quadrotor_state_derivative(x, u, params),
+        output=np.concatenate([x, V_WB, A_WB]))
 
 
 class StateToPose(LeafSystem):
@@ -222,8 +230,10 @@ class StateToPose(LeafSystem):
 class Quadrotor(Diagram):
     """Seed 002 quadrotor with named ports.
 
-    Input `rotor_speed_commands` (4, rad/s). Outputs `state` (17, see module docstring) and
-    `X_WB` (abstract RigidTransform). The continuous state of this diagram is the 17-vector:
+    Input `rotor_speed_commands` (4, rad/s). Outputs `state` (17, see the module docstring),
+    `X_WB` (abstract RigidTransform), `V_WB` and `A_WB` (6 each, see body_kinematics), the
+    kinematics seam that AirframeGeometry and the IMU read. The continuous state of this
+    diagram is the 17-vector:
     `quadrotor.GetMyMutableContextFromRoot(root).SetContinuousState(hover_state(...))`.
     """
 
@@ -232,10 +242,14 @@ class Quadrotor(Diagram):
         self.params = params
         builder = DiagramBuilder()
         dynamics = builder.AddNamedSystem("dynamics", make_quadrotor_dynamics(params))
+        split = builder.AddNamedSystem("split", Demultiplexer([STATE_SIZE, 6, 6]))
         pose = builder.AddNamedSystem("pose", StateToPose())
-        builder.Connect(dynamics.get_output_port(), pose.get_input_port())
+        builder.Connect(dynamics.get_output_port(), split.get_input_port())
+        builder.Connect(split.get_output_port(0), pose.get_input_port())
         builder.ExportInput(dynamics.get_input_port(), "rotor_speed_commands")
-        builder.ExportOutput(dynamics.get_output_port(), "state")
+        builder.ExportOutput(split.get_output_port(0), "state")
         builder.ExportOutput(pose.get_output_port(), "X_WB")
+        builder.ExportOutput(split.get_output_port(1), "V_WB")
+        builder.ExportOutput(split.get_output_port(2), "A_WB")
         builder.BuildInto(self)
         self.set_name("quadrotor")
