@@ -1,0 +1,256 @@
+"""Tests of the colour-pad camera-ToF calibration (seed 000, Sec. 2.3)."""
+
+import re
+
+import cv2
+import numpy as np
+import pytest
+from scipy.interpolate import CubicSpline
+
+from systems.estimators.crhf_math import tof_sensor_positions
+from systems.estimators.pad_calibration import (
+    PAD_COLOURS,
+    PAD_RGB,
+    YCBCR_RANGES,
+    CalibrationError,
+    PadCalibration,
+    SensorCalibration,
+    blob_centroid,
+    fit_hyperbola,
+    pad_centroids,
+    rgb_to_ycbcr,
+    segment_colour,
+)
+
+FX, FY, CX, CY = 458.5, 457.855, 258.7735, 252.308  # seed 000, Eq. 10
+P_C_SENSORS = tof_sensor_positions(0.135)
+GREY = (128, 128, 128)
+
+
+def ycbcr_of(rgb):
+    return rgb_to_ycbcr(np.array([[rgb]], dtype=np.uint8))[0, 0]
+
+
+def colours_matching(rgb):
+    ycbcr = rgb_to_ycbcr(np.array([[rgb]], dtype=np.uint8))
+    return {c for c in YCBCR_RANGES if segment_colour(ycbcr, c)[0, 0]}
+
+
+@pytest.mark.parametrize(
+    "rgb, expected",
+    [  # Eq. 11 by hand; MATLAB's rgb2ycbcr rounds these to [81 90 240], [41 240 110], ...
+        ((255, 0, 0), (16 + 65.481, 128 - 37.797, 128 + 112)),
+        ((0, 0, 255), (16 + 24.966, 128 + 112, 128 - 18.214)),
+        ((255, 255, 255), (235, 128, 128)),
+        ((0, 0, 0), (16, 128, 128)),
+    ],
+)
+def test_eq11_on_known_colours(rgb, expected):
+    np.testing.assert_allclose(ycbcr_of(rgb), expected, atol=1e-3)
+
+
+def test_eq11_is_opencvs_full_range_ycrcb_rescaled_and_reordered():
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, size=(32, 32, 3), dtype=np.uint8)
+    full = cv2.cvtColor(image.astype(np.float32) / 255, cv2.COLOR_RGB2YCrCb)  # Y, Cr, Cb in [0, 1]
+    y, cr, cb = np.moveaxis(full, -1, 0)
+    studio = np.stack([16 + 219 * y, 128 + 224 * (cb - 0.5), 128 + 224 * (cr - 0.5)], axis=-1)
+    np.testing.assert_allclose(rgb_to_ycbcr(image), studio, atol=0.1)
+    rgba = np.dstack([image, np.full((32, 32), 255, np.uint8)])
+    np.testing.assert_array_equal(rgb_to_ycbcr(rgba), rgb_to_ycbcr(image))
+
+
+def test_table1_ranges_separate_the_pad_colours():
+    for colour, rgb in PAD_RGB.items():
+        assert colours_matching(rgb) == {colour}
+    assert colours_matching(GREY) == set()
+    assert colours_matching((0, 255, 0)) == {"green", "yellow"}  # why PAD_RGB's green is darker
+
+
+def draw_pads(rng, centres, hole=None):
+    """A grey 512x512 RGB image with a 30 px disc per pad colour at sub-pixel centres, noise and a
+    stray red speck; `hole` (centre, radius) punches a grey hole into the blue pad."""
+    image = np.full((512, 512, 3), GREY, np.uint8)
+    for colour, (u, v) in zip(PAD_COLOURS, centres):
+        cv2.circle(image, (round(u * 16), round(v * 16)), 30 * 16, PAD_RGB[colour], -1, shift=4)
+    if hole is not None:
+        cv2.circle(image, hole[0], hole[1], GREY, -1)
+    image[20:23, 250:253] = PAD_RGB["red"]
+    noise = rng.normal(0, 6, size=image.shape)
+    return np.clip(image + noise, 0, 255).astype(np.uint8)
+
+
+def test_pad_centroids_find_the_drawn_centres():
+    rng = np.random.default_rng(1)
+    centres = np.array([[113.3, 112.8], [112.5, 400.2], [399.6, 399.9], [400.0, 112.9]])
+    hole = ((410, 120), 10)  # off the blue pad's centre
+    image = draw_pads(rng, centres, hole)
+    found = pad_centroids(image)
+    assert np.abs(found - centres).max() < 0.5
+    # Without the convex hull the hole would drag the blue centroid away.
+    blue = segment_colour(rgb_to_ycbcr(image), "blue")
+    assert np.abs(blob_centroid(blue) - centres[3]).max() > 0.5
+    # RGBA images (Drake's ImageRgba8U) work alike.
+    rgba = np.dstack([image, np.full(image.shape[:2], 255, np.uint8)])
+    np.testing.assert_array_equal(pad_centroids(rgba), found)
+
+
+def test_a_missing_pad_gives_a_nan_row():
+    image = np.full((100, 100, 3), GREY, np.uint8)
+    cv2.circle(image, (50, 50), 10, PAD_RGB["green"], -1)
+    found = pad_centroids(image)
+    np.testing.assert_allclose(found[PAD_COLOURS.index("green")], [50, 50], atol=0.15)
+    assert np.isnan(np.delete(found, PAD_COLOURS.index("green"), axis=0)).all()
+
+
+def test_robust_hyperbola_fit_ignores_outliers():
+    rng = np.random.default_rng(2)
+    a, c = 44.43, 256.6  # Table 4
+    ranges = np.linspace(0.3, 2.0, 40)
+    pixels = a / ranges + c + rng.normal(0, 0.05, size=40)
+    pixels[[5, 17, 30, 36]] += [25.0, -30.0, 20.0, 40.0]  # mis-segmented frames
+    fit = fit_hyperbola(ranges, pixels)
+    assert fit.a == pytest.approx(a, abs=0.1)
+    assert fit.c == pytest.approx(c, abs=0.1)
+    slope, intercept = np.polyfit(1 / ranges, pixels, 1)  # plain least squares does not
+    assert abs(slope - a) + abs(intercept - c) > 1.0
+
+
+def eq19_slopes(x, y):
+    """Eq. 19-20 by hand (with the paper's garbled conditions read as in Fritsch-Carlson):
+    interior slopes are weighted harmonic means of the neighbouring secants when those have the
+    same sign and zero otherwise; end slopes are the one-sided three-point estimate, made
+    shape-preserving as in SciPy's documentation (Moler's pchiptx)."""
+    h = np.diff(x)
+    d = np.diff(y) / h
+    slopes = np.zeros_like(y)
+    for k in range(1, len(x) - 1):
+        if np.sign(d[k]) == np.sign(d[k - 1]) and d[k] != 0:
+            w1, w2 = 2 * h[k] + h[k - 1], h[k] + 2 * h[k - 1]
+            slopes[k] = (w1 + w2) / (w1 / d[k - 1] + w2 / d[k])
+
+    def end(h0, h1, m0, m1):
+        s = ((2 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
+        if np.sign(s) != np.sign(m0):
+            return 0.0
+        if np.sign(m0) != np.sign(m1) and abs(s) > 3 * abs(m0):
+            return 3 * m0
+        return s
+
+    slopes[0] = end(h[0], h[1], d[0], d[1])
+    slopes[-1] = end(h[-1], h[-2], d[-1], d[-2])
+    return slopes
+
+
+@pytest.mark.parametrize(
+    "ranges, u",
+    [
+        # monotone with a plateau and a jump, where a cubic spline overshoots
+        ([0.3, 0.4, 0.5, 0.6, 0.8, 1.0, 1.3], [400.0, 390.0, 389.0, 389.0, 300.0, 295.0, 294.0]),
+        # a local extremum and ends where the three-point estimate needs clipping
+        ([0.3, 0.35, 0.5, 0.6, 0.9, 1.0], [100.0, 150.0, 120.0, 118.0, 130.0, 90.0]),
+    ],
+)
+def test_pchip_interpolant_follows_eq19_and_keeps_shape(ranges, u):
+    ranges, u = np.array(ranges), np.array(u)
+    sensor = SensorCalibration("red", ranges, np.column_stack([u, u[::-1]]))
+    np.testing.assert_allclose(sensor.interpolant(ranges)[:, 0], u)
+    slopes = sensor.interpolant.derivative()(ranges)[:, 0]
+    np.testing.assert_allclose(slopes, eq19_slopes(ranges, u))
+    dense = np.linspace(ranges[0], ranges[-1], 2000)
+    values = sensor.interpolant(dense)[:, 0]
+    # Shape preservation: between nodes the curve stays within its two node values.
+    segment = np.clip(np.searchsorted(ranges, dense, side="right") - 1, 0, len(ranges) - 2)
+    low = np.minimum(u[segment], u[segment + 1])
+    high = np.maximum(u[segment], u[segment + 1])
+    assert np.all((values >= low - 1e-9) & (values <= high + 1e-9))
+    assert np.any(np.diff(CubicSpline(ranges, u)(dense)) > 0)  # the property is not free
+
+
+def synthetic_frames(ranges):
+    """Pad centroids of each sensor projected through Eq. 10's K at the given ranges."""
+    X, Y = P_C_SENSORS[:, 0], P_C_SENSORS[:, 1]
+    z = np.asarray(ranges)[:, None]
+    return np.stack([FX * X / z + CX, FY * Y / z + CY], axis=-1)  # (F, 4, 2)
+
+
+def calibration(ranges=np.linspace(0.3, 2.0, 60)):
+    per_frame = np.tile(np.asarray(ranges)[:, None], 4)
+    return PadCalibration.from_frames(per_frame, synthetic_frames(ranges))
+
+
+def test_touch_pixels_by_pchip_and_by_hyperbola():
+    cal = calibration()
+    ranges = np.array([0.45, 0.9, 1.3, 1.77])
+    truth = np.array([synthetic_frames([r])[0, i] for i, r in enumerate(ranges)])
+    np.testing.assert_allclose(cal.touch_pixels(ranges), truth, atol=0.05)
+    np.testing.assert_allclose(cal.touch_pixels(ranges, method="hyperbola"), truth, atol=1e-6)
+    outside = np.array([0.2, 1.0, 2.5, np.nan])
+    pchip = cal.touch_pixels(outside)
+    assert np.isnan(pchip[[0, 2, 3]]).all() and np.isfinite(pchip[1]).all()
+    assert np.isfinite(cal.touch_pixels(outside[:3], method="hyperbola")).all()
+    with pytest.raises(ValueError, match="unknown touch-pixel method"):
+        cal.touch_pixels(ranges, method="spline")
+
+
+def test_implied_intrinsics_are_the_camera_s():
+    implied = calibration().implied_intrinsics(P_C_SENSORS)
+    np.testing.assert_allclose(implied, np.tile([FX, FY, CX, CY], (4, 1)), rtol=1e-9)
+
+
+def test_from_frames_drops_missing_samples_and_merges_repeated_ranges():
+    ranges = np.tile(np.array([0.3, 0.3, 0.5, 0.7, np.nan])[:, None], 4)  # no range in frame 4
+    good = synthetic_frames([0.3, 0.3, 0.5, 0.7, 1.0])
+    good[0, :, 0] += 1.0  # two readings at 0.3 m, averaging to the truth
+    good[1, :, 0] -= 1.0
+    red = PadCalibration.from_frames(ranges, good).sensors[0]
+    np.testing.assert_array_equal(red.ranges, [0.3, 0.5, 0.7])
+    np.testing.assert_allclose(red.pixels, synthetic_frames([0.3, 0.5, 0.7])[:, 0])
+
+    pixels = good.copy()
+    pixels[[2, 3], 1] = np.nan  # yellow pad missed twice: only 0.3 m is left
+    with pytest.raises(CalibrationError, match="yellow pad: usable samples at 1 distinct ranges"):
+        PadCalibration.from_frames(ranges, pixels)
+
+
+def test_save_load_round_trip(tmp_path):
+    cal = calibration()
+    path = tmp_path / "pads.npz"
+    cal.save(path)
+    assert [p.name for p in tmp_path.iterdir()] == ["pads.npz"]
+    loaded = PadCalibration.load(path)
+    for a, b in zip(cal.sensors, loaded.sensors):
+        assert a.colour == b.colour and a.fit_u == b.fit_u and a.fit_v == b.fit_v
+        np.testing.assert_array_equal(a.ranges, b.ranges)
+        np.testing.assert_array_equal(a.pixels, b.pixels)
+    ranges = [0.5, 0.6, 0.7, 0.8]
+    np.testing.assert_array_equal(loaded.touch_pixels(ranges), cal.touch_pixels(ranges))
+
+
+def test_load_errors_name_the_file_and_the_problem(tmp_path):
+    missing = tmp_path / "none.npz"
+    with pytest.raises(CalibrationError, match=re.escape(f"{missing} does not exist")):
+        PadCalibration.load(missing)
+
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_text("not a calibration")
+    with pytest.raises(CalibrationError, match=re.escape(f"{garbage} is unreadable")):
+        PadCalibration.load(garbage)
+
+    incomplete = tmp_path / "incomplete.npz"
+    np.savez(incomplete, colours=np.array(PAD_COLOURS), ranges_0=np.ones(3))
+    message = f"{incomplete} lacks the arrays ['pixels_0'"
+    with pytest.raises(CalibrationError, match=re.escape(message)):
+        PadCalibration.load(incomplete)
+
+    short = tmp_path / "short.npz"
+    ranges = np.array([0.3, 0.4, 0.5])
+    arrays = {"colours": np.array(PAD_COLOURS)}
+    for i in range(4):
+        keep = slice(2) if PAD_COLOURS[i] == "green" else slice(None)
+        arrays[f"ranges_{i}"] = ranges[keep]
+        arrays[f"pixels_{i}"] = synthetic_frames(ranges)[keep, i]
+    np.savez(short, **arrays)
+    message = f"{short}: green pad: usable samples at 2 distinct ranges"
+    with pytest.raises(CalibrationError, match=re.escape(message)):
+        PadCalibration.load(short)
