@@ -24,13 +24,13 @@ K = np.array([[FX, 0.0, CX], [0.0, FY, CY], [0.0, 0.0, 1.0]])
 SENSOR_RADIUS = 0.137  # m; Table 4's a = 44.43 px = fx * 0.0969 m per axis, 0.0969 * sqrt(2)
 TAG_SIZE = 0.16  # m
 
-# A tilted deck: the tag pose in the camera, tag face towards the camera.
-X_CT = RigidTransform(RollPitchYaw(np.pi + 0.2, -0.15, 0.3), [0.05, -0.03, 1.2])
+# A tilted deck: the tag pose in the camera (T's z points into the tag, away from the camera).
+X_CT = RigidTransform(RollPitchYaw(0.2, -0.15, 0.3), [0.05, -0.03, 1.2])
 
 
 def deck_plane(X_CT):
     """The plane n . p = d of the tag's face, n pointing away from the camera."""
-    n = -X_CT.rotation().matrix()[:, 2]
+    n = X_CT.rotation().matrix()[:, 2]
     return n, float(n @ X_CT.translation())
 
 
@@ -147,23 +147,29 @@ def test_ray_plane_intersection_flags_rays_that_miss():
     assert points[2, 0] == pytest.approx(1.0)
 
 
-def test_tag_corner_order_is_opencvs():
-    """IPPE_SQUARE only accepts OpenCV's corner order; the ArUco detector reports that order."""
-    uv = project(np.array([X_CT.multiply(p) for p in tag_corners_T(TAG_SIZE)]))
-    ok, rvec, tvec = cv2.solvePnP(
-        tag_corners_T(TAG_SIZE), uv, K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
-    )
-    assert ok
-    np.testing.assert_allclose(cv2.Rodrigues(rvec)[0], X_CT.rotation().matrix(), atol=1e-8)
-    np.testing.assert_allclose(tvec.ravel(), X_CT.translation(), atol=1e-8)
-
+def test_tag_corners_are_in_the_detectors_order_and_the_papers_frame():
+    # A level tag under a level camera is upright in the image and X_CT = [I, (0, 0, h)] (Sec. 4.1):
+    # the corners project to top-left, top-right, bottom-right, bottom-left ...
+    uv = project(tag_corners_T(TAG_SIZE) + [0.0, 0.0, 2.0])
+    np.testing.assert_array_equal(np.sign(uv - [CX, CY]), [[-1, -1], [1, -1], [1, 1], [-1, 1]])
+    # ... which is the order the ArUco detector reports ...
     dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
     image = np.full((200, 200), 255, np.uint8)
     image[50:150, 50:150] = cv2.aruco.generateImageMarker(dictionary, 3, 100)
     corners, _, _ = cv2.aruco.ArucoDetector(dictionary).detectMarkers(image)
-    top_left, top_right, bottom_right, bottom_left = corners[0].reshape(4, 2)
-    assert top_left[0] < top_right[0] and top_left[1] < bottom_left[1]
-    assert bottom_right[0] > bottom_left[0] and bottom_right[1] > top_right[1]
+    np.testing.assert_array_equal(
+        np.sign(corners[0].reshape(4, 2) - 99.5), [[-1, -1], [1, -1], [1, 1], [-1, 1]]
+    )
+    # ... and OpenCV's marker frame (IPPE_SQUARE's object points) is T turned by pi about x.
+    square = np.array([[-1, 1, 0], [1, 1, 0], [1, -1, 0], [-1, -1, 0]]) * TAG_SIZE / 2
+    ok, rvec, tvec = cv2.solvePnP(
+        square, project(np.array([X_CT.multiply(p) for p in tag_corners_T(TAG_SIZE)])), K, None,
+        flags=cv2.SOLVEPNP_IPPE_SQUARE,
+    )
+    assert ok
+    X_C_opencv = RigidTransform(RotationMatrix(cv2.Rodrigues(rvec)[0]), tvec.ravel())
+    X_CT_from_opencv = X_C_opencv.multiply(RigidTransform(RotationMatrix.MakeXRotation(np.pi)))
+    np.testing.assert_allclose(X_CT_from_opencv.GetAsMatrix4(), X_CT.GetAsMatrix4(), atol=1e-8)
 
 
 def test_arun_recovers_a_known_transform_and_agrees_with_opencv_and_scipy():
@@ -224,8 +230,8 @@ def test_arun_rejects_mismatched_inputs():
     "X_CT_true",
     [
         X_CT,
-        # The paper's static test (Sec. 4.1): face-up tag 2 m straight below the camera.
-        RigidTransform(RotationMatrix(np.diag([1.0, -1.0, -1.0])), [0.0, 0.0, 2.0]),
+        # The paper's static test (Sec. 4.1): level tag 2 m straight below the camera.
+        RigidTransform([0.0, 0.0, 2.0]),
     ],
 )
 def test_crhf_pipeline_recovers_the_tag_pose(X_CT_true):

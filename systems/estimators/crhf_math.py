@@ -7,8 +7,8 @@ method turns the 3-D corners into the tag pose X_CT.
 
 Frames and units: everything is expressed in the camera frame C (+z along the optical axis,
 +x right, +y down in the image), in metres. Pixels follow OpenCV: u right, v down, pixel centres
-at integers. The tag frame T is OpenCV's marker frame (origin at the tag centre, z out of the tag
-face); see `tag_corners_T`.
+at integers. The tag frame T is the paper's camera-facing one (origin at the tag centre, z into the
+tag face); see `tag_corners_T`.
 """
 
 from dataclasses import dataclass
@@ -148,13 +148,15 @@ def intersect_pixel_rays_with_plane(
 def tag_corners_T(tag_size: float) -> np.ndarray:
     """The tag's corners in its own frame T, metres, shape (4, 3) (the static points of Eq. 62).
 
-    tag_size: side of the tag's black square, metres. Order and frame are OpenCV's for
-    cv2.aruco/AprilTag detections and SOLVEPNP_IPPE_SQUARE: top-left, top-right, bottom-right,
-    bottom-left as the tag is seen upright; T has x right and y up in the tag image and z out of the
-    tag face, so a face-up tag seen by a downward camera has X_CT ~ diag(1, -1, -1).
+    tag_size: side of the tag's black square, metres. T is the paper's: the static points are
+    "fixed in the camera frame and at zero altitude", so a level tag under a level camera has
+    X_CT = [I, (0, 0, h)] (Sec. 4.1): origin at the tag centre, x right and y down in the upright
+    tag's image, z into the tag face. Eq. 62 lists the corners in the AprilTag library's order;
+    here they are in the order cv2.aruco reports them: top-left, top-right, bottom-right,
+    bottom-left. (OpenCV's own marker frame, as in SOLVEPNP_IPPE_SQUARE, is T turned by pi about x.)
     """
     h = tag_size / 2
-    return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
+    return np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]])
 
 
 def arun_rigid_transform(p_AQ: np.ndarray, p_BQ: np.ndarray) -> RigidTransform:
