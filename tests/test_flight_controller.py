@@ -1,0 +1,128 @@
+import time
+
+import numpy as np
+import pytest
+from pydrake.math import RollPitchYaw, RotationMatrix
+from pydrake.symbolic import Evaluate, MakeVectorVariable
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource, VectorLogSink
+
+from systems.control.flight_controller import (
+    FlightController, FlightControllerConfig, rotor_speed_commands,
+)
+from systems.vehicles.quadrotor import (
+    P_WB, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state, pose_from_state,
+)
+
+# pydrake filters numpy's "invalid value" warnings from symbolic object arrays when imported;
+# pytest resets warning filters per test, so restore that one here.
+pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+
+QUAD = QuadrotorParams()
+CONFIG = FlightControllerConfig()
+
+
+def fly(command, state0, duration, log_period=0.01):
+    """Closed loop Quadrotor + FlightController under a constant command.
+    Returns (sample times, states (17 x N), wall time)."""
+    builder = DiagramBuilder()
+    quad = builder.AddSystem(Quadrotor(QUAD))
+    controller = builder.AddSystem(FlightController(QUAD, CONFIG))
+    source = builder.AddSystem(ConstantVectorSource(np.asarray(command, dtype=float)))
+    logger = builder.AddSystem(VectorLogSink(STATE_SIZE, log_period))
+    builder.Connect(quad.GetOutputPort("state"), controller.GetInputPort("state"))
+    builder.Connect(source.get_output_port(), controller.GetInputPort("command"))
+    builder.Connect(controller.GetOutputPort("rotor_speed_commands"),
+                    quad.GetInputPort("rotor_speed_commands"))
+    builder.Connect(quad.GetOutputPort("state"), logger.get_input_port())
+    simulator = Simulator(builder.Build())
+    root = simulator.get_mutable_context()
+    quad.GetMyMutableContextFromRoot(root).SetContinuousState(state0)
+    start = time.perf_counter()
+    simulator.AdvanceTo(duration)
+    wall = time.perf_counter() - start
+    log = logger.FindLog(root)
+    return log.sample_times(), log.data(), wall
+
+
+def yaw_of(state):
+    return RollPitchYaw(pose_from_state(state).rotation()).yaw_angle()
+
+
+def tilt_of(state):
+    return np.arccos(np.clip(pose_from_state(state).rotation().matrix()[2, 2], -1, 1))
+
+
+def test_attitude_gains_place_the_designed_poles():
+    # One axis about hover: tau_a s^3 + s^2 + k_w s + k_R (per unit inertia).
+    k_R, k_w = CONFIG.attitude_gains()
+    tau, zeta = CONFIG.rotor_time_constant_s, CONFIG.attitude_damping
+    for axis, w_n in enumerate([CONFIG.attitude_frequency_rad_s] * 2 + [CONFIG.yaw_frequency_rad_s]):
+        roots = np.roots([tau, 1.0, k_w[axis], k_R[axis]])
+        expected = [-(1 / tau - 2 * zeta * w_n),
+                    complex(-zeta * w_n, w_n * np.sqrt(1 - zeta**2)),
+                    complex(-zeta * w_n, -w_n * np.sqrt(1 - zeta**2))]
+        np.testing.assert_allclose(np.sort_complex(roots), np.sort_complex(expected), rtol=1e-9)
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("rate_hz", 0.0, "rate_hz must be positive"),
+    ("max_tilt_deg", 95.0, "max_tilt_deg"),
+    ("attitude_frequency_rad_s", 40.0, "attitude_frequency_rad_s is too fast"),
+])
+def test_bad_config_is_rejected_by_name(field, value, message):
+    with pytest.raises(ValueError, match=message):
+        FlightController(QUAD, FlightControllerConfig(**{field: value}))
+
+
+def test_law_accepts_symbolic_expressions():
+    x = MakeVectorVariable(STATE_SIZE, "x")
+    c = MakeVectorVariable(4, "c")
+    symbolic = rotor_speed_commands(x, c, QUAD, CONFIG)
+    state = hover_state(QUAD, [0, 0, 3], yaw=0.2)
+    state[V_WB] = [0.3, -0.2, 0.1]
+    state[W_WB_B] = [0.05, -0.1, 0.2]
+    command = np.array([1.0, 0.5, 0.2, 0.3])
+    env = dict(zip(x, state)) | dict(zip(c, command))
+    np.testing.assert_allclose(Evaluate(symbolic, env).ravel(),
+                               rotor_speed_commands(state, command, QUAD, CONFIG), rtol=1e-12)
+
+
+def test_hover_holds():
+    state0 = hover_state(QUAD, [1.0, 2.0, 5.0], yaw=0.3)
+    _, states, _ = fly([0, 0, 0, 0.3], state0, duration=5.0)
+    np.testing.assert_allclose(states[P_WB, -1], [1.0, 2.0, 5.0], atol=1e-6)
+    assert yaw_of(states[:, -1]) == pytest.approx(0.3, abs=1e-6)
+
+
+def test_velocity_and_yaw_step_is_tracked():
+    command = [2.0, -1.0, 0.5, 0.5]
+    times, states, wall = fly(command, hover_state(QUAD, [0, 0, 5]), duration=10.0)
+    print(f"\nquadrotor + flight controller closed loop: {times[-1]:.0f} s simulated in "
+          f"{wall:.2f} s, real-time factor {times[-1] / wall:.1f}")
+    settled = times >= 3.0
+    np.testing.assert_allclose(states[V_WB][:, settled].T, np.tile(command[:3], (settled.sum(), 1)),
+                               atol=0.02)
+    assert yaw_of(states[:, -1]) == pytest.approx(0.5, abs=1e-3)
+    # Well damped: the horizontal speed overshoots its 2.24 m/s step by under 10 %.
+    speed = np.linalg.norm(states[V_WB][:2], axis=0)
+    assert speed.max() < 1.1 * np.hypot(2.0, -1.0)
+
+
+def test_large_step_respects_tilt_limit():
+    _, states, _ = fly([15.0, 0.0, 0.0, 0.0], hover_state(QUAD, [0, 0, 20]), duration=3.0)
+    tilts = np.degrees([tilt_of(x) for x in states.T])
+    assert 25.0 < tilts.max() < CONFIG.max_tilt_deg + 3.0
+    assert abs(states[V_WB][2, -1]) < 0.3  # still holding altitude while tilted
+
+
+def test_recovers_from_tilt_and_spin():
+    state0 = hover_state(QUAD, [0, 0, 10])
+    state0[3:7] = RotationMatrix(RollPitchYaw(0.5, -0.4, 0.0)).ToQuaternion().wxyz()
+    state0[W_WB_B] = [2.0, -1.0, 1.0]
+    _, states, _ = fly([0, 0, 0, 0], state0, duration=6.0)
+    assert tilt_of(states[:, -1]) < 1e-3
+    assert abs(yaw_of(states[:, -1])) < 1e-2
+    assert np.linalg.norm(states[V_WB, -1]) < 1e-2
+    assert states[2].min() > 9.0  # lost under 1 m of height on the way
