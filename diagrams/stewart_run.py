@@ -11,7 +11,9 @@ from diagrams.outputs import save_figure, write_json, write_npz
 from diagrams.scenario import RunSettings
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import require_positive
+from diagrams.metrics import estimator_metrics
 from systems.geometry import pose_to_xyz_rpy
+from systems.sensors.ground_truth import pose_vector
 from systems.perception.apriltag import project_points
 
 
@@ -36,6 +38,7 @@ def collect_log(handles, context, config: StewartSceneConfig) -> dict[str, np.nd
     arrays["t"] = log["X_CP"].sample_times().copy()
     arrays["t_imu"] = log["imu"].sample_times().copy()
     X_CT = [pose_from_vector(v).multiply(handles.platform.X_PT) for v in arrays["X_CP"]]
+    arrays["X_CT"] = np.array([pose_vector(X) for X in X_CT])
     arrays["true_tag_corners"] = np.array(
         [project_points(config.camera.K, X, handles.platform.tag_corners_T()).ravel() for X in X_CT])
     arrays["X_CT_xyz_rpy"] = np.array([pose_to_xyz_rpy(X) for X in X_CT])
@@ -135,6 +138,9 @@ def run(scenario: Scenario, ctx) -> dict:
         "realtime_factor": scenario.duration_s / wall,
         **scene_metrics(log),
     }
+    if scenario.estimators:
+        metrics["estimators"] = {name: estimator_metrics(log["X_CT"], log[f"estimate_{name}"])
+                                 for name in scenario.estimators}
     write_npz(ctx.out_dir / "log.npz", **log)
     plot_scene(log, scenario, ctx.out_dir)
     if handles.video is not None:

@@ -23,6 +23,8 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from systems.config import require
+from systems.estimators.atda import AtdaEstimator
+from systems.estimators.estimate import PoseEstimateToVector
 from systems.perception.apriltag import TagDetectorSystem
 from systems.platforms.stewart import StewartPlatform, StewartPlatformConfig
 from systems.sensors.camera import CameraConfig, NoisyCamera, make_camera
@@ -58,10 +60,17 @@ class StewartSceneConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
     tof: TofConfig = field(default_factory=TofConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
+    # Pose estimators of the tag in the camera, X_CT, run on the same camera stream: "atda".
+    estimators: list[str] = field(default_factory=list)
 
     def validate(self) -> None:
         for name in ("platform", "uav", "hover", "camera", "tof", "imu"):
             getattr(self, name).validate(name)
+        for name in self.estimators:
+            require(name in ESTIMATORS, f"estimators: unknown estimator '{name}' (known: {', '.join(ESTIMATORS)})")
+
+
+ESTIMATORS = ("atda",)
 
 
 @dataclass
@@ -80,6 +89,7 @@ class StewartSceneHandles:
     truth: RelativePose
     loggers: dict[str, VectorLogSink]
     X_BC: RigidTransform
+    estimators: dict[str, object]  # name -> system with an X_CT_estimate (PoseEstimate) output
     meshcat_visualizer: MeshcatVisualizer | None = None
     video: VideoRecorder | None = None
 
@@ -147,6 +157,14 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
     }.items()}
     loggers["imu"] = LogVectorOutput(imu.get_output_port(), builder, config.imu.period_s)
 
+    estimators = {}
+    for name in config.estimators:
+        estimators[name] = estimator = builder.AddSystem(AtdaEstimator(config.camera.K, config.platform.tag_size_m))
+        builder.Connect(detector.GetOutputPort("tag_detection"), estimator.get_input_port())
+        to_vector = builder.AddSystem(PoseEstimateToVector())
+        builder.Connect(estimator.GetOutputPort("X_CT_estimate"), to_vector.get_input_port())
+        loggers[f"estimate_{name}"] = LogVectorOutput(to_vector.get_output_port(), builder, period)
+
     visualizer = None
     if meshcat is not None:
         visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat,
@@ -157,7 +175,7 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
         builder.Connect(noisy_camera.get_output_port(), video.get_input_port())
 
     return StewartSceneHandles(scene_graph, platform, airframe, body, camera, noisy_camera, tof, imu, detector,
-                               truth, loggers, X_BC, visualizer, video)
+                               truth, loggers, X_BC, estimators, visualizer, video)
 
 
 def build_stewart_scene(config: StewartSceneConfig, meshcat: Meshcat | None = None,

@@ -6,6 +6,7 @@ import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from scipy.spatial.transform import Rotation
 
+from systems.sensors.tof import sensor_positions_C
 from systems.estimators.crhf_math import (
     arun_rigid_transform,
     crhf_tag_pose,
@@ -14,7 +15,6 @@ from systems.estimators.crhf_math import (
     intersect_pixel_rays_with_plane,
     principal_point_from_touch_points,
     tag_corners_T,
-    tof_sensor_positions,
     touch_points,
 )
 
@@ -46,7 +46,7 @@ def project(p_C):
 
 
 def test_sensor_positions_follow_eq_21_to_24():
-    p = tof_sensor_positions(SENSOR_RADIUS)
+    p = sensor_positions_C(SENSOR_RADIUS)
     np.testing.assert_allclose(np.linalg.norm(p[:, :2], axis=1), SENSOR_RADIUS)
     np.testing.assert_array_equal(p[:, 2], 0.0)
     np.testing.assert_array_equal(np.sign(p[:, :2]), [[-1, -1], [-1, 1], [1, 1], [1, -1]])
@@ -54,7 +54,7 @@ def test_sensor_positions_follow_eq_21_to_24():
 
 
 def test_touch_points_add_the_range_along_the_camera_axis():
-    p_s = tof_sensor_positions(0.1)
+    p_s = sensor_positions_C(0.1)
     p_t = touch_points(p_s, [1.0, 2.0, 3.0, 4.0])
     np.testing.assert_array_equal(p_t[:, :2], p_s[:, :2])
     np.testing.assert_array_equal(p_t[:, 2], [1.0, 2.0, 3.0, 4.0])
@@ -62,7 +62,7 @@ def test_touch_points_add_the_range_along_the_camera_axis():
 
 def test_plane_fit_recovers_an_exact_tilted_plane_from_four_touch_points():
     n, d = deck_plane(X_CT)
-    p_s = tof_sensor_positions(SENSOR_RADIUS)
+    p_s = sensor_positions_C(SENSOR_RADIUS)
     plane = fit_plane(touch_points(p_s, ranges_to_plane(p_s, n, d)))
     assert not plane.degenerate
     np.testing.assert_allclose(plane.normal, n, atol=1e-12)
@@ -110,7 +110,7 @@ def test_plane_fit_flags_degenerate_points(points):
 
 def test_intrinsics_from_touch_points_recover_the_camera_on_a_tilted_deck():
     n, d = deck_plane(X_CT)
-    p_s = tof_sensor_positions(SENSOR_RADIUS)
+    p_s = sensor_positions_C(SENSOR_RADIUS)
     p_t = touch_points(p_s, ranges_to_plane(p_s, n, d))
     assert np.ptp(p_t[:, 2]) > 0.02  # the ranges really differ
     uv = project(p_t)
@@ -235,7 +235,7 @@ def test_arun_rejects_mismatched_inputs():
     ],
 )
 def test_crhf_pipeline_recovers_the_tag_pose(X_CT_true):
-    p_s = tof_sensor_positions(SENSOR_RADIUS)
+    p_s = sensor_positions_C(SENSOR_RADIUS)
     n, d = deck_plane(X_CT_true)
     p_t = touch_points(p_s, ranges_to_plane(p_s, n, d))
     p_T = tag_corners_T(TAG_SIZE)
@@ -247,7 +247,7 @@ def test_crhf_pipeline_recovers_the_tag_pose(X_CT_true):
 
 
 def test_crhf_pipeline_flags_a_missing_range_without_raising():
-    p_s = tof_sensor_positions(SENSOR_RADIUS)
+    p_s = sensor_positions_C(SENSOR_RADIUS)
     estimate = crhf_tag_pose(
         p_s, [1.0, np.nan, 1.0, 1.0], np.full((4, 2), 100.0), np.full((4, 2), 100.0),
         tag_corners_T(TAG_SIZE),

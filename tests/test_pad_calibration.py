@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
-from systems.estimators.crhf_math import tof_sensor_positions
+from systems.sensors.tof import sensor_positions_C
 from systems.estimators.pad_calibration import (
     PAD_COLOURS,
     PAD_RGB,
@@ -23,7 +23,7 @@ from systems.estimators.pad_calibration import (
 )
 
 FX, FY, CX, CY = 458.5, 457.855, 258.7735, 252.308  # seed 000, Eq. 10
-P_C_SENSORS = tof_sensor_positions(0.135)
+P_C_SENSORS = sensor_positions_C(0.135)
 GREY = (128, 128, 128)
 
 

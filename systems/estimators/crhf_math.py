@@ -17,26 +17,7 @@ from typing import NamedTuple
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
-# "AngleCam2Sensors is assumed to be 45 degrees" (seed 000, text under Eq. 21-24).
-SENSOR_ANGLE_RAD = np.pi / 4
-
-
-def tof_sensor_positions(radius, angle: float = SENSOR_ANGLE_RAD) -> np.ndarray:
-    """Positions p_CS of the four ToF sensors in C, metres, shape (4, 3) (Eq. 21-24).
-
-    radius: distance a_i of each sensor from the camera axis (scalar, or four values a_1..a_4).
-    The sensors lie in the camera's z = 0 plane, sensor i = 1..4 in quadrants (-x, -y), (-x, +y),
-    (+x, +y), (+x, -y) as Eq. 21-24 order them. The paper writes a*cos(angle) for both components;
-    at its 45 degrees that equals a*sin(angle), which is what we use so `radius` stays the distance
-    from the axis at any angle.
-    """
-    a = np.broadcast_to(np.asarray(radius, dtype=float), (4,))
-    signs = np.array([[-1.0, -1.0], [-1.0, 1.0], [1.0, 1.0], [1.0, -1.0]])
-    p = np.zeros((4, 3))
-    p[:, 0] = signs[:, 0] * a * np.cos(angle)
-    p[:, 1] = signs[:, 1] * a * np.sin(angle)
-    return p
-
+from systems.perception.apriltag import tag_corners_T  # noqa: F401  (the static points of Eq. 62)
 
 def touch_points(p_C_sensors: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     """Touch points on the deck in C, metres, shape (N, 3) (Eq. 26: p_st = [p_s,xy, d_i]).
@@ -145,20 +126,6 @@ def intersect_pixel_rays_with_plane(
     return points, valid
 
 
-def tag_corners_T(tag_size: float) -> np.ndarray:
-    """The tag's corners in its own frame T, metres, shape (4, 3) (the static points of Eq. 62).
-
-    tag_size: side of the tag's black square, metres. T is the paper's: the static points are
-    "fixed in the camera frame and at zero altitude", so a level tag under a level camera has
-    X_CT = [I, (0, 0, h)] (Sec. 4.1): origin at the tag centre, x right and y down in the upright
-    tag's image, z into the tag face. Eq. 62 lists the corners in the AprilTag library's order;
-    here they are in the order cv2.aruco reports them: top-left, top-right, bottom-right,
-    bottom-left. (OpenCV's own marker frame, as in SOLVEPNP_IPPE_SQUARE, is T turned by pi about x.)
-    """
-    h = tag_size / 2
-    return np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]])
-
-
 def arun_rigid_transform(p_AQ: np.ndarray, p_BQ: np.ndarray) -> RigidTransform:
     """X_BA minimising sum |p_BQ - X_BA p_AQ|^2 over rotations (Arun et al.; Eq. 54-61).
 
@@ -208,7 +175,7 @@ def crhf_tag_pose(
 ) -> CrhfEstimate:
     """The CRHF pipeline of Sec. 2.4-2.8 for one frame.
 
-    p_C_sensors: (4, 3) sensor positions in C, metres (`tof_sensor_positions`).
+    p_C_sensors: (4, 3) sensor positions in C, metres (`systems.sensors.tof.sensor_positions_C`).
     ranges: (4,) ToF ranges, metres (NaN for a sensor that returned nothing).
     uv_touch: (4, 2) pixels of the touch points (from the pad calibration, Sec. 2.3).
     uv_corners: (4, 2) detected (or filtered) tag corners, pixels.

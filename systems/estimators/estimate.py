@@ -3,7 +3,9 @@
 from dataclasses import dataclass, field
 
 import numpy as np
+from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
+from pydrake.systems.framework import LeafSystem
 
 
 @dataclass(frozen=True)
@@ -24,3 +26,21 @@ class PoseEstimate:
     @staticmethod
     def invalid(time: float) -> "PoseEstimate":
         return PoseEstimate(time=time)
+
+
+def estimate_vector(estimate: PoseEstimate) -> np.ndarray:
+    """[valid, x, y, z, qw, qx, qy, qz] for logging; NaN pose entries when not valid."""
+    if not estimate.valid:
+        return np.concatenate([[0.0], np.full(7, np.nan)])
+    return np.concatenate([[1.0], estimate.X_RT.translation(), estimate.X_RT.rotation().ToQuaternion().wxyz()])
+
+
+class PoseEstimateToVector(LeafSystem):
+    """Input `estimate` (PoseEstimate); output `estimate_vector` (see `estimate_vector`), for
+    Drake's vector loggers."""
+
+    def __init__(self):
+        super().__init__()
+        self.DeclareAbstractInputPort("estimate", AbstractValue.Make(PoseEstimate()))
+        self.DeclareVectorOutputPort("estimate_vector", 8,
+                                     lambda c, o: o.SetFromVector(estimate_vector(self.get_input_port().Eval(c))))

@@ -11,6 +11,18 @@ from pydrake.systems.sensors import ImageRgba8U
 from systems.sensors.camera import image_to_numpy
 
 
+def tag_corners_T(tag_size_m: float) -> np.ndarray:
+    """The black square's four corners (4x3, m) in the tag frame T, in ArUco's corner order:
+    top-left, top-right, bottom-right, bottom-left of the tag as printed.
+
+    T is the paper's camera-facing convention (seed 000 section 4.1): origin at the tag centre, x right
+    and y down in the upright tag's image, z into the tag, so a tag seen head-on and upright by the
+    camera C has R_CT = I. (OpenCV's SOLVEPNP_IPPE_SQUARE frame has y up and z out of the tag: it is
+    T rotated by pi about x.)"""
+    s = tag_size_m / 2
+    return np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
+
+
 @dataclass(frozen=True)
 class TagDetection:
     """The tag's four corners in pixels (4x2, OpenCV convention), in ArUco order: top-left,

@@ -18,6 +18,7 @@ from scipy.interpolate import PchipInterpolator
 from scipy.optimize import least_squares
 
 from models.apriltag import tag_mesh_path, tag_plate_scale
+from systems.perception.apriltag import tag_corners_T
 from systems.config import require, require_positive
 from systems.geometry import frame_between, register_visual
 from systems.noise import sample_rng
@@ -238,10 +239,8 @@ class StewartPlatform(LeafSystem):
         return RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.0, 0.0, TAG_ABOVE_DECK_M])
 
     def tag_corners_T(self) -> np.ndarray:
-        """The tag's four black-square corners in T (4x3, m), in ArUco's corner order: top-left,
-        top-right, bottom-right, bottom-left of the tag as printed."""
-        s = self.config.tag_size_m / 2
-        return np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
+        """The tag's four black-square corners in T (4x3, m), in ArUco's corner order."""
+        return tag_corners_T(self.config.tag_size_m)
 
     def _register_geometry(self, scene_graph: SceneGraph) -> None:
         c, world = self.config, scene_graph.world_frame_id()

@@ -7,7 +7,8 @@ as they are. (A real VL53L1X averages over a 27 degree cone; the paper treats ea
 point on the ray, and so do we.) The sensors' frames S_i have the camera's orientation (+z down
 along the ray) and sit in the camera plane at the positions of Eq. (21)-(24):
     p_CS1 = [-a c, -a c, 0], p_CS2 = [-a c, a c, 0], p_CS3 = [a c, a c, 0], p_CS4 = [a c, -a c, 0]
-with c = cos(AngleCam2Sensors) = cos(45 deg) and a the distance from the camera axis.
+with c = cos(AngleCam2Sensors) = cos(45 deg) and a the distance from the camera axis (see
+`sensor_positions_C`).
 """
 
 from dataclasses import dataclass
@@ -55,10 +56,14 @@ class TofConfig:
         return 1.0 / self.rate_hz
 
 
-def sensor_positions_C(arm_m: float, angle_deg: float) -> np.ndarray:
-    """The four sensor origins in the camera frame (4x3, m), Eq. (21)-(24)."""
-    s = arm_m * np.cos(np.deg2rad(angle_deg))
-    return np.array([[-s, -s, 0.0], [-s, s, 0.0], [s, s, 0.0], [s, -s, 0.0]])
+def sensor_positions_C(arm_m: float, angle_deg: float = 45.0) -> np.ndarray:
+    """The four sensor origins in the camera frame (4x3, m), Eq. (21)-(24): sensors 1..4 in the
+    quadrants (-x, -y), (-x, +y), (+x, +y), (+x, -y). The paper writes a cos(angle) for both
+    components; at its 45 degrees that equals a sin(angle), which keeps `arm_m` the distance from
+    the axis at any angle."""
+    a = np.deg2rad(angle_deg)
+    signs = np.array([[-1.0, -1.0], [-1.0, 1.0], [1.0, 1.0], [1.0, -1.0]])
+    return np.column_stack([signs[:, 0] * arm_m * np.cos(a), signs[:, 1] * arm_m * np.sin(a), np.zeros(4)])
 
 
 def apply_range_limits(true_ranges: np.ndarray, noise: np.ndarray, min_range: float, max_range: float):

@@ -1,0 +1,45 @@
+"""Estimate-against-truth figures, the same for every estimator (DESIGN.md's metrics.json shape)."""
+
+import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RollPitchYaw, RotationMatrix
+
+FLIP_THRESHOLD_DEG = 10.0  # a frame whose rotation error exceeds this counts as a pose flip
+
+
+def _rotation(wxyz: np.ndarray) -> RotationMatrix:
+    return RotationMatrix(Quaternion(wxyz / np.linalg.norm(wxyz)))
+
+
+def pose_errors(truth: np.ndarray, estimate: np.ndarray):
+    """Per-frame errors of valid estimates.
+
+    truth: (N, 7) rows [x, y, z, qw, qx, qy, qz]; estimate: (N, 8) rows [valid, x, y, z, qw, qx, qy, qz].
+    Returns (valid mask (N,), xyz error (M, 3) in m, rpy error (M, 3) in deg, rotation error angle
+    (M,) in deg) for the M valid frames; errors are estimate minus truth, angle differences wrapped
+    to [-180, 180).
+    """
+    valid = estimate[:, 0] > 0.5
+    xyz = estimate[valid, 1:4] - truth[valid, :3]
+    rpy, angle = [], []
+    for q_true, q_est in zip(truth[valid, 3:], estimate[valid, 4:]):
+        R_true, R_est = _rotation(q_true), _rotation(q_est)
+        rpy.append(RollPitchYaw(R_est).vector() - RollPitchYaw(R_true).vector())
+        angle.append(R_true.InvertAndCompose(R_est).ToAngleAxis().angle())
+    rpy = (np.rad2deg(np.reshape(rpy, (-1, 3))) + 180.0) % 360.0 - 180.0
+    return valid, xyz, rpy, np.rad2deg(np.asarray(angle))
+
+
+def estimator_metrics(truth: np.ndarray, estimate: np.ndarray) -> dict:
+    """MAE and RMSE per axis, valid fraction and pose-flip count of one estimator over a run."""
+    valid, xyz, rpy, angle = pose_errors(truth, estimate)
+    if not valid.any():
+        return {"valid_fraction": 0.0, "flips": 0}
+    return {
+        "mae_xyz_m": np.mean(np.abs(xyz), axis=0).tolist(),
+        "mae_rpy_deg": np.mean(np.abs(rpy), axis=0).tolist(),
+        "rmse_xyz_m": np.sqrt(np.mean(xyz**2, axis=0)).tolist(),
+        "rmse_rpy_deg": np.sqrt(np.mean(rpy**2, axis=0)).tolist(),
+        "valid_fraction": float(np.mean(valid)),
+        "flips": int(np.sum(angle > FLIP_THRESHOLD_DEG)),
+    }
