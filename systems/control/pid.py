@@ -1,0 +1,131 @@
+"""Two-stage tracking PID of seed 003 (Sec. 2.3): horizontal offset to the target -> UAV velocity.
+
+Per horizontal World axis, sampled once per vision frame (Eq. 24-25):
+
+    v_ctrl(k) = Kp e(k) + Ki sum_{n<=k} e(n) + Kd (e(k) - e(k-1)),   e(k) = target - UAV position,
+
+with the Table 2 gain set chosen by the UAV's height above the target, and the target's velocity
+fed forward (Eq. 26-27): v_uav = v_ugv + v_ctrl. Kd multiplies the raw difference between frames
+(Eq. 24 folds Kp Td / T into it), so the gains belong to the frame rate they were tuned at; the
+default rate is the paper's. Eq. (24)-(27) act on each horizontal axis alone, so they hold as
+written in our z-up World; seed 003's NED frame (Eq. 20-22) needs no conversion here.
+
+Our choices where the paper is silent: the first sample after a start or a lost target has no
+derivative term (e(-1) = e(0)), a lost target resets the sums, and the commanded speed is limited.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from systems.config import require, require_positive
+
+# Layout of the PID memory vector.
+ERROR_SUM = slice(0, 2)
+PREVIOUS_ERROR = slice(2, 4)
+STARTED = 4
+MEMORY_SIZE = 5
+
+
+@dataclass
+class PidGains:
+    kp: float = 0.0  # [1/s]
+    ki: float = 0.0  # [1/s] per sample
+    kd: float = 0.0  # [1/s] per sample difference
+
+
+@dataclass
+class TrackingPidConfig:
+    # Seed 003 Sec. 3.1.1: AirSim delivered 3-5 frames/s on the TX2, one PID step per frame.
+    rate_hz: float = 4.0
+    switch_height_m: float = 4.0  # seed 003 Table 2, simulation row
+    gains_above: PidGains = field(  # height >= switch_height_m: seed 003 Table 2, simulation
+        default_factory=lambda: PidGains(kp=0.80, ki=0.00, kd=0.35))
+    gains_below: PidGains = field(  # height < switch_height_m: seed 003 Table 2, simulation
+        default_factory=lambda: PidGains(kp=1.50, ki=0.00, kd=0.50))
+    # Not in the paper: above the fastest ground vehicle of seed 002 (12 m/s).
+    max_speed_m_s: float = 15.0
+
+    def validate(self, prefix: str = "pid") -> None:
+        for name in ("rate_hz", "switch_height_m", "max_speed_m_s"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        for group in ("gains_above", "gains_below"):
+            gains = getattr(self, group)
+            for name in ("kp", "ki", "kd"):
+                require(getattr(gains, name) >= 0, f"{prefix}.{group}.{name} must not be negative")
+
+
+def gains_for_height(height: float, config: TrackingPidConfig) -> PidGains:
+    """Seed 003 Table 2: one gain set at or above the switch height [m], the other below it."""
+    return config.gains_above if height >= config.switch_height_m else config.gains_below
+
+
+def initial_memory() -> np.ndarray:
+    return np.zeros(MEMORY_SIZE)
+
+
+def pid_step(memory: np.ndarray, error, height: float, config: TrackingPidConfig):
+    """One sample of Eq. (24): `error` = target minus UAV horizontal position [m] (World x, y),
+    `height` above the target [m]. Returns (v_ctrl [m/s], new memory)."""
+    error = np.asarray(error, dtype=float)
+    previous = memory[PREVIOUS_ERROR] if memory[STARTED] else error
+    error_sum = memory[ERROR_SUM] + error
+    gains = gains_for_height(height, config)
+    v_ctrl = gains.kp * error + gains.ki * error_sum + gains.kd * (error - previous)
+    return v_ctrl, np.concatenate([error_sum, error, [1.0]])
+
+
+def feed_forward(v_ctrl, target_velocity, max_speed: float) -> np.ndarray:
+    """Eq. (26)-(27): v_uav = v_ugv + v_ctrl, scaled down to at most max_speed [m/s]."""
+    v_uav = np.asarray(target_velocity, dtype=float) + v_ctrl
+    speed = np.linalg.norm(v_uav)
+    return v_uav if speed <= max_speed else v_uav * (max_speed / speed)
+
+
+class HeightScheduledPid:
+    """Eq. (24)-(27) for scripts and tests; step() once per frame."""
+
+    def __init__(self, config: TrackingPidConfig):
+        config.validate()
+        self.config = config
+        self.memory = initial_memory()
+
+    def step(self, error, height: float, target_velocity=(0.0, 0.0)) -> np.ndarray:
+        """Horizontal UAV velocity command [m/s] in World."""
+        v_ctrl, self.memory = pid_step(self.memory, error, height, self.config)
+        return feed_forward(v_ctrl, target_velocity, self.config.max_speed_m_s)
+
+
+class TrackingPid(LeafSystem):
+    """Eq. (24)-(27) sampled at `config.rate_hz`.
+
+    Inputs: `target_offset` (2, target minus UAV position in World x-y [m]), `target_velocity`
+    (2, World [m/s]), `height` (1, UAV above the target [m]), `target_valid` (1, nonzero when the
+    target is seen). Output `velocity_command` (2, World x-y [m/s]), held between samples; while
+    the target is not seen it is the target velocity alone and the PID restarts.
+    """
+
+    def __init__(self, config: TrackingPidConfig):
+        super().__init__()
+        config.validate()
+        self._config = config
+        self._offset = self.DeclareVectorInputPort("target_offset", 2)
+        self._velocity = self.DeclareVectorInputPort("target_velocity", 2)
+        self._height = self.DeclareVectorInputPort("height", 1)
+        self._valid = self.DeclareVectorInputPort("target_valid", 1)
+        self._memory = self.DeclareDiscreteState(initial_memory())
+        self._command = self.DeclareDiscreteState(2)
+        self.DeclarePeriodicDiscreteUpdateEvent(1.0 / config.rate_hz, 0.0, self._update)
+        self.DeclareStateOutputPort("velocity_command", self._command)
+
+    def _update(self, context, discrete_state):
+        memory = context.get_discrete_state(self._memory).get_value()
+        if self._valid.Eval(context)[0]:
+            v_ctrl, memory = pid_step(memory, self._offset.Eval(context),
+                                      self._height.Eval(context)[0], self._config)
+        else:
+            v_ctrl, memory = np.zeros(2), initial_memory()
+        discrete_state.set_value(self._memory, memory)
+        discrete_state.set_value(self._command, feed_forward(
+            v_ctrl, self._velocity.Eval(context), self._config.max_speed_m_s))

@@ -1,0 +1,79 @@
+import numpy as np
+import pytest
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.systems.analysis import Simulator
+
+from systems.control.pid import (
+    HeightScheduledPid, PidGains, TrackingPid, TrackingPidConfig, feed_forward, gains_for_height,
+)
+
+
+def test_defaults_are_seed_003_table_2_simulation_row():
+    config = TrackingPidConfig()
+    assert config.switch_height_m == 4.0
+    assert (config.gains_above.kp, config.gains_above.ki, config.gains_above.kd) == (0.80, 0.0, 0.35)
+    assert (config.gains_below.kp, config.gains_below.ki, config.gains_below.kd) == (1.50, 0.0, 0.50)
+
+
+def test_hand_worked_sequence():
+    # Kp 0.5, Ki 0.1, Kd 0.2 on e_x = 1.0, 0.8, 0.5 and e_y = -2, -1, 0:
+    #   k=0: sums (1.0, -2), no difference  -> x 0.5 + 0.10 + 0     = 0.60, y -1.0 - 0.2 + 0   = -1.2
+    #   k=1: sums (1.8, -3), diff (-0.2, 1) -> x 0.4 + 0.18 - 0.04  = 0.54, y -0.5 - 0.3 + 0.2 = -0.6
+    #   k=2: sums (2.3, -3), diff (-0.3, 1) -> x 0.25 + 0.23 - 0.06 = 0.42, y  0.0 - 0.3 + 0.2 = -0.1
+    gains = PidGains(kp=0.5, ki=0.1, kd=0.2)
+    pid = HeightScheduledPid(TrackingPidConfig(gains_above=gains, gains_below=gains))
+    outputs = [pid.step(e, height=5.0) for e in ([1.0, -2.0], [0.8, -1.0], [0.5, 0.0])]
+    np.testing.assert_allclose(outputs, [[0.60, -1.2], [0.54, -0.6], [0.42, -0.1]], atol=1e-12)
+
+
+def test_height_switches_between_table_2_gain_sets():
+    config = TrackingPidConfig()
+    assert gains_for_height(4.0, config) is config.gains_above  # ">= 4 m"
+    assert gains_for_height(3.99, config) is config.gains_below
+    high, low = HeightScheduledPid(config), HeightScheduledPid(config)
+    for pid, height, expected in ((high, 7.5, [0.80, 0.8 * 0.8 - 0.35 * 0.2]),
+                                  (low, 2.0, [1.50, 1.5 * 0.8 - 0.50 * 0.2])):
+        np.testing.assert_allclose([pid.step([1.0, 0.0], height)[0],
+                                    pid.step([0.8, 0.0], height)[0]], expected)
+
+
+def test_target_velocity_is_fed_forward_and_speed_limited():
+    np.testing.assert_allclose(feed_forward(np.array([0.5, -0.2]), [3.0, 1.0], 15.0), [3.5, 0.8])
+    limited = feed_forward(np.array([20.0, 0.0]), [0.0, 15.0], 15.0)
+    assert np.linalg.norm(limited) == pytest.approx(15.0)
+    np.testing.assert_allclose(limited / 15.0, np.array([20.0, 15.0]) / 25.0)
+
+
+def test_negative_gain_is_rejected_by_name():
+    config = yaml_load_typed(schema=TrackingPidConfig, data="gains_below: {kd: -0.1}")
+    with pytest.raises(ValueError, match="pid.gains_below.kd"):
+        TrackingPid(config)
+
+
+def test_system_matches_pure_pid_at_its_rate_and_restarts_on_loss():
+    config = TrackingPidConfig()
+    system = TrackingPid(config)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    ports = {name: system.GetInputPort(name)
+             for name in ("target_offset", "target_velocity", "height", "target_valid")}
+    ports["target_velocity"].FixValue(context, [0.4, 0.1])
+    ports["height"].FixValue(context, [6.0])
+    ports["target_valid"].FixValue(context, [1.0])
+    reference = HeightScheduledPid(config)
+    period = 1.0 / config.rate_hz
+    output = system.GetOutputPort("velocity_command")
+
+    for k, offset in enumerate([[2.0, -1.0], [1.5, -0.5], [1.2, 0.0]]):
+        ports["target_offset"].FixValue(context, offset)
+        simulator.AdvanceTo(k * period + period / 2)  # the sample at k * period has been taken
+        np.testing.assert_allclose(output.Eval(context),
+                                   reference.step(offset, 6.0, target_velocity=[0.4, 0.1]))
+
+    ports["target_valid"].FixValue(context, [0.0])
+    simulator.AdvanceTo(3 * period + period / 2)
+    np.testing.assert_allclose(output.Eval(context), [0.4, 0.1])
+    ports["target_valid"].FixValue(context, [1.0])
+    ports["target_offset"].FixValue(context, [1.0, 1.0])
+    simulator.AdvanceTo(4 * period + period / 2)
+    np.testing.assert_allclose(output.Eval(context), [0.4 + 0.8, 0.1 + 0.8])  # no derivative kick
