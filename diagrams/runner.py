@@ -38,10 +38,16 @@ class RunContext:
 
 
 def _diagrams():
-    # Imported here so that `landing-sim list` and scenario errors do not wait for every diagram.
-    from diagrams import stewart_run
+    """Diagram name -> module with a `Scenario` dataclass and a `run(scenario, ctx)` function.
+    Imported here so that `landing-sim list` and scenario errors do not wait for every diagram."""
+    import importlib
 
-    return {"stewart_scene": stewart_run}
+    return {name: importlib.import_module(module) for name, module in DIAGRAM_MODULES.items()}
+
+
+DIAGRAM_MODULES = {
+    "stewart_scene": "diagrams.stewart_run",
+}
 
 
 def load_scenario(name: str | None = None, config_path: str | Path | None = None, overrides=(),

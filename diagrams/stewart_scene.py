@@ -27,12 +27,12 @@ from systems.estimators.atda import AtdaEstimator
 from systems.estimators.estimate import PoseEstimateToVector
 from systems.perception.apriltag import TagDetectorSystem
 from systems.platforms.stewart import StewartPlatform, StewartPlatformConfig
-from systems.sensors.camera import CameraConfig, NoisyCamera, make_camera
+from systems.sensors.camera import RENDERER_NAME, CameraConfig, NoisyCamera, make_camera
 from systems.sensors.ground_truth import RelativePose
 from systems.sensors.imu import Imu, ImuConfig
 from systems.sensors.tof import TofConfig, TofSensors, make_ray_sensor, sensor_positions_C
 from systems.sensors.video import VideoRecorder
-from systems.vehicles.airframe import AirframeConfig, AirframeGeometry, HoverPose
+from systems.vehicles.airframe import AirframeConfig, AirframeGeometry, PrescribedPose
 
 
 @dataclass
@@ -80,7 +80,7 @@ class StewartSceneHandles:
     scene_graph: SceneGraph
     platform: StewartPlatform
     airframe: AirframeGeometry
-    body: object  # the system whose X_WB, V_WB, A_WB outputs drive the airframe (HoverPose here)
+    body: object  # the system whose X_WB, V_WB, A_WB outputs drive the airframe (PrescribedPose here)
     camera: object  # RgbdSensor
     noisy_camera: NoisyCamera
     tof: TofSensors
@@ -107,32 +107,47 @@ def hover_pose(config: StewartSceneConfig, platform: StewartPlatform) -> RigidTr
     return RigidTransform(RollPitchYaw(np.deg2rad([h.roll_deg, h.pitch_deg, h.yaw_deg])), p_WB)
 
 
+def add_uav_sensors(builder: DiagramBuilder, scene_graph: SceneGraph, body_frame_id, camera_config: CameraConfig,
+                    tof_config: TofConfig, seed: int):
+    """The downward camera (with pixel noise) and the four ToF sensors on the body frame.
+    Returns (RgbdSensor, NoisyCamera, TofSensors)."""
+    X_BC = camera_config.X_BC
+    camera = builder.AddSystem(make_camera(camera_config, body_frame_id, X_BC))
+    builder.Connect(scene_graph.get_query_output_port(), camera.query_object_input_port())
+    noisy_camera = builder.AddSystem(NoisyCamera(camera_config, seed))
+    builder.Connect(camera.color_image_output_port(), noisy_camera.get_input_port())
+    tof = builder.AddSystem(TofSensors(tof_config, seed))
+    for i, p_CS in enumerate(sensor_positions_C(tof_config.arm_m, tof_config.angle_deg)):
+        ray = builder.AddSystem(make_ray_sensor(body_frame_id, X_BC.multiply(RigidTransform(p_CS))))
+        builder.Connect(scene_graph.get_query_output_port(), ray.query_object_input_port())
+        builder.Connect(ray.depth_image_32F_output_port(), tof.get_input_port(i))
+    return camera, noisy_camera, tof
+
+
+def add_renderer(scene_graph: SceneGraph) -> None:
+    """The VTK renderer every camera here uses (headless through EGL)."""
+    scene_graph.AddRenderer(RENDERER_NAME, MakeRenderEngineVtk(RenderEngineVtkParams(
+        default_clear_color=[0.85, 0.88, 0.9])))
+
+
 def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshcat: Meshcat | None = None,
                       video_path=None) -> StewartSceneHandles:
     """Adds the scene's systems to `builder` and returns their handles."""
     config.validate()
     scene_graph = builder.AddSystem(SceneGraph())
-    scene_graph.AddRenderer("vtk", MakeRenderEngineVtk(RenderEngineVtkParams(default_clear_color=[0.85, 0.88, 0.9])))
+    add_renderer(scene_graph)
 
     platform = builder.AddSystem(StewartPlatform(config.platform, scene_graph, config.seed))
     builder.Connect(platform.GetOutputPort("geometry_pose"), scene_graph.get_source_pose_port(platform.source_id))
 
     airframe = builder.AddSystem(AirframeGeometry(config.uav, scene_graph))
-    body = builder.AddSystem(HoverPose(hover_pose(config, platform)))
+    body = builder.AddSystem(PrescribedPose(hover_pose(config, platform)))
     builder.Connect(body.GetOutputPort("X_WB"), airframe.get_input_port())
     builder.Connect(airframe.GetOutputPort("geometry_pose"), scene_graph.get_source_pose_port(airframe.source_id))
 
     X_BC = config.camera.X_BC
-    camera = builder.AddSystem(make_camera(config.camera, airframe.body_frame_id, X_BC))
-    builder.Connect(scene_graph.get_query_output_port(), camera.query_object_input_port())
-    noisy_camera = builder.AddSystem(NoisyCamera(config.camera, config.seed))
-    builder.Connect(camera.color_image_output_port(), noisy_camera.get_input_port())
-
-    tof = builder.AddSystem(TofSensors(config.tof, config.seed))
-    for i, p_CS in enumerate(sensor_positions_C(config.tof.arm_m, config.tof.angle_deg)):
-        ray = builder.AddSystem(make_ray_sensor(airframe.body_frame_id, X_BC.multiply(RigidTransform(p_CS))))
-        builder.Connect(scene_graph.get_query_output_port(), ray.query_object_input_port())
-        builder.Connect(ray.depth_image_32F_output_port(), tof.get_input_port(i))
+    camera, noisy_camera, tof = add_uav_sensors(builder, scene_graph, airframe.body_frame_id, config.camera,
+                                                config.tof, config.seed)
 
     imu = builder.AddSystem(Imu(config.imu, config.seed))
     for name in ("X_WB", "V_WB", "A_WB"):

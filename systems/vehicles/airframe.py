@@ -3,8 +3,8 @@
 The body frame B is at the airframe's centre, x forward, y left, z up (Drake's convention).
 The seam for flight dynamics: anything that outputs the body kinematics ports
   X_WB (RigidTransform), V_WB ([w_WB; v_WB] in W, rad/s and m/s), A_WB ([alpha_WB; a_WB] in W)
-can drive `AirframeGeometry` and the IMU in place of `HoverPose` (seed 000 Fig. 22 assumes a
-stable hovering drone over the moving deck).
+can drive `AirframeGeometry` and the IMU in place of `PrescribedPose` (seed 000 Fig. 22 assumes
+a stable hovering drone over the moving deck).
 """
 
 from dataclasses import dataclass
@@ -34,16 +34,21 @@ class AirframeConfig:
             require_positive(getattr(self, name), f"{prefix}.{name}")
 
 
-class HoverPose(LeafSystem):
-    """A body held still at X_WB: outputs X_WB, and zero V_WB and A_WB."""
+class PrescribedPose(LeafSystem):
+    """A body moving at constant velocity v_WB (m/s, world frame) from X_WB0 at t = 0, without
+    rotating: outputs X_WB, V_WB = [0; v_WB] and A_WB = 0. v_WB = 0 is a hover."""
 
-    def __init__(self, X_WB: RigidTransform):
+    def __init__(self, X_WB0: RigidTransform, v_WB=(0.0, 0.0, 0.0)):
         super().__init__()
-        self._X_WB = X_WB
+        self._X_WB0, self._v_WB = X_WB0, np.asarray(v_WB, dtype=float)
         self.DeclareAbstractOutputPort("X_WB", lambda: AbstractValue.Make(RigidTransform()),
-                                       lambda context, output: output.set_value(self._X_WB))
-        self.DeclareVectorOutputPort("V_WB", 6, lambda context, output: output.SetFromVector(np.zeros(6)))
+                                       lambda context, output: output.set_value(self.X_WB(context.get_time())))
+        self.DeclareVectorOutputPort("V_WB", 6,
+                                     lambda context, output: output.SetFromVector(np.r_[np.zeros(3), self._v_WB]))
         self.DeclareVectorOutputPort("A_WB", 6, lambda context, output: output.SetFromVector(np.zeros(6)))
+
+    def X_WB(self, t: float) -> RigidTransform:
+        return RigidTransform(self._X_WB0.rotation(), self._X_WB0.translation() + self._v_WB * t)
 
 
 class AirframeGeometry(LeafSystem):
