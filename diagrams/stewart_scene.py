@@ -24,6 +24,7 @@ from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from systems.config import require
 from systems.estimators.atda import AtdaEstimator
+from systems.estimators.crhf import CrhfConfig, CrhfEstimator
 from systems.estimators.estimate import PoseEstimateToVector
 from systems.perception.apriltag import TagDetectorSystem
 from systems.platforms.stewart import StewartPlatform, StewartPlatformConfig
@@ -60,8 +61,9 @@ class StewartSceneConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
     tof: TofConfig = field(default_factory=TofConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
-    # Pose estimators of the tag in the camera, X_CT, run on the same camera stream: "atda".
+    # Pose estimators of the tag in the camera, X_CT, run on the same camera stream: "atda", "crhf".
     estimators: list[str] = field(default_factory=list)
+    crhf: CrhfConfig = field(default_factory=CrhfConfig)
 
     def validate(self) -> None:
         for name in ("platform", "uav", "hover", "camera", "tof", "imu"):
@@ -70,7 +72,7 @@ class StewartSceneConfig:
             require(name in ESTIMATORS, f"estimators: unknown estimator '{name}' (known: {', '.join(ESTIMATORS)})")
 
 
-ESTIMATORS = ("atda",)
+ESTIMATORS = ("atda", "crhf")
 
 
 @dataclass
@@ -174,8 +176,15 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
 
     estimators = {}
     for name in config.estimators:
-        estimators[name] = estimator = builder.AddSystem(AtdaEstimator(config.camera.K, config.platform.tag_size_m))
-        builder.Connect(detector.GetOutputPort("tag_detection"), estimator.get_input_port())
+        if name == "atda":
+            estimator = builder.AddSystem(AtdaEstimator(config.camera.K, config.platform.tag_size_m))
+        else:
+            estimator = builder.AddSystem(CrhfEstimator(
+                config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,
+                config.camera.period_s))
+            builder.Connect(tof.GetOutputPort("ranges"), estimator.GetInputPort("ranges"))
+        estimators[name] = estimator
+        builder.Connect(detector.GetOutputPort("tag_detection"), estimator.GetInputPort("tag_detection"))
         to_vector = builder.AddSystem(PoseEstimateToVector())
         builder.Connect(estimator.GetOutputPort("X_CT_estimate"), to_vector.get_input_port())
         loggers[f"estimate_{name}"] = LogVectorOutput(to_vector.get_output_port(), builder, period)

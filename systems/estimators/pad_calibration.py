@@ -18,6 +18,8 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.optimize import least_squares
 
+from systems.config import ConfigError
+
 # Pad colour under sensors 1..4 of Eq. 21-24 (quadrants (-x,-y), (-x,+y), (+x,+y), (+x,-y) in C).
 # Read off Table 2's pixels: red near (113, 113), yellow (112, 400), green (400, 400), blue
 # (400, 113). (The text's "sensor 1 with its blue-coloured pad" contradicts Eq. 21 with Table 2.)
@@ -54,7 +56,7 @@ _YCBCR_MATRIX = np.array(
 MIN_SAMPLES = 3  # distinct ranges per sensor: more than the two parameters of Eq. 18
 
 
-class CalibrationError(ValueError):
+class CalibrationError(ConfigError):
     """A pad calibration that is missing, unreadable or has too few samples."""
 
 
