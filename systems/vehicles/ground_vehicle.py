@@ -1,0 +1,207 @@
+"""Ground vehicle of seed 002 (Sec. 2.2): kinematic bicycle of Eq. (6) with a path follower.
+
+State g = [x, y, alpha, theta]: rear-axle position in World x-y [m], heading alpha [rad] from +x,
+steering angle theta [rad] (first-order lag tau_s towards the command, limited to theta_max).
+The vehicle frame V is on the ground (z = 0) under the rear axle, x forward, z up; a landing
+platform's height above it belongs to the scene.
+
+The follower steers to the named path (paths.py). About a straight path, at speed v, the lateral
+error e, heading error psi and steering theta obey, per distance travelled,
+e' = psi, psi' = theta / d, theta' = (theta_cmd - theta) / (v tau_s). The command
+
+    theta_cmd = theta_ff - k1 e - k2 psi - k3 (theta - theta_ff),  theta_ff = atan(d kappa)
+
+puts all three poles at -a per metre, a = 1 / max(preview_time_s v, min_preview_m):
+k1 = a^3 d l, k2 = 3 a^2 d l, k3 = 3 a l - 1 with l = v tau_s. The curvature kappa is read
+1 / (3 a) ahead, the steering's closed-loop lag distance.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pydrake.math as dmath
+from pydrake.common.value import Value
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.symbolic import MakeVectorVariable
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import Demultiplexer, Multiplexer, SymbolicVectorSystem
+
+from systems.config import require, require_positive
+from systems.vehicles.paths import Path, PathConfig, make_path
+
+STATE_SIZE = 4  # [x, y, alpha, theta]
+
+
+@dataclass
+class PathFollowerConfig:
+    """Not from the seeds (seed 002 does not say how its vehicle follows Eq. 13)."""
+
+    rate_hz: float = 20.0  # steering updates; the 1 s steering lag filters the steps
+    preview_time_s: float = 1.0  # tracking bandwidth a = 1 / max(preview_time_s v, min_preview_m)
+    min_preview_m: float = 5.0
+    search_window_m: float = 10.0  # nearest-point search around the last one
+
+    def validate(self, prefix: str = "ground_vehicle.follower") -> None:
+        for name in ("rate_hz", "preview_time_s", "min_preview_m", "search_window_m"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+
+
+@dataclass
+class GroundVehicleConfig:
+    wheelbase_m: float = 3.5  # d, seed 002 Table 1
+    steering_time_constant_s: float = 1.0  # tau_s, seed 002 Table 1
+    max_steering_deg: float = 20.0  # theta_max, seed 002 Table 1
+    path: PathConfig = field(default_factory=PathConfig)
+    follower: PathFollowerConfig = field(default_factory=PathFollowerConfig)
+
+    def validate(self, prefix: str = "ground_vehicle") -> None:
+        require_positive(self.wheelbase_m, f"{prefix}.wheelbase_m")
+        require_positive(self.steering_time_constant_s, f"{prefix}.steering_time_constant_s")
+        require(0 < self.max_steering_deg < 90,
+                f"{prefix}.max_steering_deg must be in (0, 90), got {self.max_steering_deg}")
+        self.path.validate(f"{prefix}.path")
+        self.follower.validate(f"{prefix}.follower")
+        if self.path.name != "sine":  # Eq. (13) has a fixed shape, at least 40 m in radius
+            require(self.path.radius_m >= self.min_turning_radius_m(),
+                    f"{prefix}.path.radius_m = {self.path.radius_m} is tighter than the vehicle "
+                    f"can turn ({self.min_turning_radius_m():.1f} m at "
+                    f"{prefix}.max_steering_deg = {self.max_steering_deg})")
+
+    @property
+    def max_steering_rad(self) -> float:
+        return np.radians(self.max_steering_deg)
+
+    def min_turning_radius_m(self) -> float:
+        """R = d / tan(theta_max)."""
+        return self.wheelbase_m / np.tan(self.max_steering_rad)
+
+
+def bicycle_state_derivative(state, steering_command, speed, config: GroundVehicleConfig):
+    """Seed 002 Eq. (6), with the command limited to +-theta_max. Works on floats and
+    pydrake.symbolic Expressions."""
+    _, _, alpha, theta = state
+    limit = config.max_steering_rad
+    command = dmath.min(dmath.max(steering_command, -limit), limit)
+    return np.array([
+        speed * dmath.cos(alpha),
+        speed * dmath.sin(alpha),
+        speed * dmath.tan(theta) / config.wheelbase_m,
+        (command - theta) / config.steering_time_constant_s,
+    ])
+
+
+def make_bicycle_dynamics(config: GroundVehicleConfig) -> SymbolicVectorSystem:
+    """Eq. (6) as a SymbolicVectorSystem: input [steering command (rad), speed v (m/s)], state
+    [x, y, alpha, theta], output [x, y, alpha, theta, v_WV (3, m/s)]."""
+    g = MakeVectorVariable(STATE_SIZE, "g")
+    u = MakeVectorVariable(2, "u")
+    v_WV = np.array([u[1] * dmath.cos(g[2]), u[1] * dmath.sin(g[2]), 0.0])
+    return SymbolicVectorSystem(
+        state=g, input=u, dynamics=bicycle_state_derivative(g, u[0], u[1], config),
+        output=np.concatenate([g, v_WV]))
+
+
+def wrap_angle(angle):
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+def steering_command(state, speed: float, path: Path, s: float, config: GroundVehicleConfig):
+    """The follower law of the module docstring for the path point at arc length s [m]."""
+    x, y, alpha, theta = state
+    path_heading = path.heading(s)
+    normal = np.array([-np.sin(path_heading), np.cos(path_heading)])
+    lateral_error = normal @ (np.array([x, y]) - path.position(s))
+    heading_error = wrap_angle(alpha - path_heading)
+
+    follower = config.follower
+    a = 1.0 / max(follower.preview_time_s * abs(speed), follower.min_preview_m)
+    lag = abs(speed) * config.steering_time_constant_s
+    d = config.wheelbase_m
+    k1, k2, k3 = a**3 * d * lag, 3 * a**2 * d * lag, 3 * a * lag - 1
+    feed_forward = np.arctan(d * path.curvature(s + 1.0 / (3 * a)))
+    return feed_forward - k1 * lateral_error - k2 * heading_error - k3 * (theta - feed_forward)
+
+
+def initial_state(path: Path, config: GroundVehicleConfig) -> np.ndarray:
+    """[x, y, alpha, theta] at the start of the path, wheels set to its curvature."""
+    theta = np.arctan(config.wheelbase_m * path.curvature(0.0))
+    return np.array([*path.position(0.0), path.heading(0.0), theta])
+
+
+class PathFollower(LeafSystem):
+    """Inputs `state` (4) and `speed` (1, m/s); output `steering_command` (rad), updated at
+    `follower.rate_hz`. Keeps the arc length of the last nearest path point as its state."""
+
+    def __init__(self, path: Path, config: GroundVehicleConfig):
+        super().__init__()
+        self._path, self._config = path, config
+        self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
+        self._speed = self.DeclareVectorInputPort("speed", 1)
+        self._progress = self.DeclareDiscreteState(1)
+        self._command = self.DeclareDiscreteState(1)
+        self.DeclarePeriodicDiscreteUpdateEvent(1.0 / config.follower.rate_hz, 0.0, self._update)
+        self.DeclareStateOutputPort("steering_command", self._command)
+        self.DeclareStateOutputPort("path_progress", self._progress)
+
+    def _update(self, context, discrete_state):
+        state = self._state.Eval(context)
+        s_hint = context.get_discrete_state(self._progress).get_value()[0]
+        s = self._path.nearest(state[:2], s_hint, self._config.follower.search_window_m)
+        command = steering_command(state, self._speed.Eval(context)[0], self._path, s, self._config)
+        discrete_state.set_value(self._progress, [s])
+        discrete_state.set_value(self._command, [command])
+
+
+def ground_pose(state) -> RigidTransform:
+    """X_WV from [x, y, alpha, theta]: on the ground at (x, y), yawed by alpha."""
+    return RigidTransform(RotationMatrix.MakeZRotation(state[2]), [state[0], state[1], 0.0])
+
+
+class StateToGroundPose(LeafSystem):
+    """Input `state` (4) -> abstract output `X_WV`: at (x, y, 0), yawed by alpha."""
+
+    def __init__(self):
+        super().__init__()
+        state = self.DeclareVectorInputPort("state", STATE_SIZE)
+        self.DeclareAbstractOutputPort(
+            "X_WV", lambda: Value(RigidTransform()),
+            lambda context, output: output.set_value(ground_pose(state.Eval(context))))
+
+
+class GroundVehicle(Diagram):
+    """Bicycle model following its configured path.
+
+    Input `speed` (1, m/s). Outputs `state` (4: x, y, alpha, theta), `v_WV` (3, m/s, in W),
+    `X_WV` (abstract RigidTransform) and `path_progress` (1, arc length [m] of the nearest path
+    point). Start it on the path:
+    `vehicle.GetMyMutableContextFromRoot(root).SetContinuousState(vehicle.initial_state())`.
+    """
+
+    def __init__(self, config: GroundVehicleConfig):
+        super().__init__()
+        config.validate()
+        self.config = config
+        self.path = make_path(config.path)
+        builder = DiagramBuilder()
+        dynamics = builder.AddNamedSystem("dynamics", make_bicycle_dynamics(config))
+        inputs = builder.AddNamedSystem("inputs", Multiplexer([1, 1]))
+        split = builder.AddNamedSystem("split", Demultiplexer([STATE_SIZE, 3]))
+        follower = builder.AddNamedSystem("follower", PathFollower(self.path, config))
+        pose = builder.AddNamedSystem("pose", StateToGroundPose())
+        builder.Connect(follower.GetOutputPort("steering_command"), inputs.get_input_port(0))
+        builder.Connect(inputs.get_output_port(), dynamics.get_input_port())
+        builder.Connect(dynamics.get_output_port(), split.get_input_port())
+        builder.Connect(split.get_output_port(0), follower.GetInputPort("state"))
+        builder.Connect(split.get_output_port(0), pose.get_input_port())
+        builder.ExportInput(inputs.get_input_port(1), "speed")
+        builder.ConnectInput("speed", follower.GetInputPort("speed"))
+        builder.ExportOutput(split.get_output_port(0), "state")
+        builder.ExportOutput(split.get_output_port(1), "v_WV")
+        builder.ExportOutput(pose.get_output_port(), "X_WV")
+        builder.ExportOutput(follower.GetOutputPort("path_progress"), "path_progress")
+        builder.BuildInto(self)
+        self.set_name("ground_vehicle")
+
+    def initial_state(self) -> np.ndarray:
+        """The state at the start of the configured path (see initial_state())."""
+        return initial_state(self.path, self.config)

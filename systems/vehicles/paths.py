@@ -1,0 +1,167 @@
+"""Planar reference paths for the ground vehicle, selected by name, parameterised by arc length.
+
+`sine` is seed 002 Eq. (13); the others are the path shapes of seed 003 Fig. 9 (the paper gives
+no dimensions, so the sizes are configuration). Every path starts at the World origin; all but
+`sine` (which starts along Eq. 13's slope, 45 deg) start heading along +x. Open paths end after
+`length_m`; closed paths (circle, rectangle, figure-eight) repeat. Corners are circular arcs of
+`radius_m`, since a car cannot turn on the spot.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from systems.config import require, require_positive
+
+SAMPLE_SPACING_M = 0.1  # polyline resolution: 0.1 mm chord error on a 15 m radius
+
+
+@dataclass
+class PathConfig:
+    name: str = "sine"  # one of PATH_NAMES
+    length_m: float = 2000.0  # arc length of the open paths
+    radius_m: float = 15.0  # every arc: circle, corners, turns, S and figure-eight lobes
+    lead_m: float = 20.0  # straight run before the turns and the S
+    side_m: float = 60.0  # rectangle: long straight side; the short one is half of it
+
+    def validate(self, prefix: str = "path") -> None:
+        require(self.name in PATH_NAMES,
+                f"{prefix}.name '{self.name}' is not a path (known: {', '.join(PATH_NAMES)})")
+        for name in ("length_m", "radius_m", "lead_m", "side_m"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+
+
+class Path:
+    """A path in World x-y [m] as a polyline, resampled evenly along its arc length s [m] at
+    about SAMPLE_SPACING_M.
+
+    `heading` is the tangent direction [rad] (continuous, not wrapped), `curvature` its rate of
+    change along s [1/m], positive turning left."""
+
+    def __init__(self, s, xy, heading, curvature, closed: bool):
+        self.length = float(s[-1])
+        self.closed = closed
+        count = int(np.ceil(self.length / SAMPLE_SPACING_M))
+        self.spacing = self.length / count
+        self.s = np.linspace(0.0, self.length, count + 1)
+        self.xy = np.column_stack([np.interp(self.s, s, xy[:, 0]), np.interp(self.s, s, xy[:, 1])])
+        self._heading = np.interp(self.s, s, heading)
+        self._curvature = np.interp(self.s, s, curvature)
+
+    def _wrap(self, s):
+        return np.mod(s, self.length) if self.closed else np.clip(s, 0.0, self.length)
+
+    def position(self, s) -> np.ndarray:
+        s = self._wrap(s)
+        return np.array([np.interp(s, self.s, self.xy[:, 0]), np.interp(s, self.s, self.xy[:, 1])])
+
+    def heading(self, s) -> float:
+        return float(np.interp(self._wrap(s), self.s, self._heading))
+
+    def curvature(self, s) -> float:
+        return float(np.interp(self._wrap(s), self.s, self._curvature))
+
+    def nearest(self, p, s_hint: float | None = None, window_m: float = 10.0) -> float:
+        """Arc length of the point nearest to p (2, m). With s_hint, only within window_m of it,
+        so a vehicle keeps to its branch where the path crosses itself (figure-eight)."""
+        p = np.asarray(p, dtype=float)
+        n = len(self.s)
+        if s_hint is None:
+            indices = np.arange(n)
+        else:
+            centre = int(round(self._wrap(s_hint) / self.spacing))
+            half = int(np.ceil(window_m / self.spacing))
+            indices = np.arange(centre - half, centre + half + 1)
+            indices = np.mod(indices, n - 1) if self.closed else indices[(indices >= 0) & (indices < n)]
+        best = indices[np.argmin(np.sum((self.xy[indices] - p) ** 2, axis=1))]
+        return self._project_on_neighbours(p, best)
+
+    def _project_on_neighbours(self, p, i):
+        """Refines sample i to the nearest point on its two adjacent chords."""
+        best_s, best_d = self.s[i], np.inf
+        for j in (i - 1, i):
+            if j < 0 or j + 1 >= len(self.s):
+                continue
+            a, b = self.xy[j], self.xy[j + 1]
+            t = np.clip(np.dot(p - a, b - a) / np.dot(b - a, b - a), 0.0, 1.0)
+            d = np.linalg.norm(a + t * (b - a) - p)
+            if d < best_d:
+                best_s, best_d = self.s[j] + t * (self.s[j + 1] - self.s[j]), d
+        return float(best_s)
+
+
+def from_segments(segments, closed: bool, heading0: float = 0.0) -> Path:
+    """A path from the origin through (length [m], curvature [1/m]) segments: lines and arcs."""
+    s_all, xy_all, heading_all, curvature_all = [np.zeros(1)], [np.zeros((1, 2))], [[heading0]], [[0.0]]
+    s0, xy0, h0 = 0.0, np.zeros(2), heading0
+    for length, k in segments:
+        sigma = np.linspace(0.0, length, max(2, int(np.ceil(length / SAMPLE_SPACING_M)) + 1))[1:]
+        h = h0 + k * sigma
+        if k == 0.0:
+            xy = xy0 + np.outer(sigma, [np.cos(h0), np.sin(h0)])
+        else:
+            xy = xy0 + np.column_stack([np.sin(h) - np.sin(h0), np.cos(h0) - np.cos(h)]) / k
+        s_all.append(s0 + sigma)
+        xy_all.append(xy)
+        heading_all.append(h)
+        curvature_all.append(np.full(len(sigma), k))
+        s0, xy0, h0 = s0 + length, xy[-1], h[-1]
+    curvature_all[0] = [curvature_all[1][0]]
+    return Path(np.concatenate(s_all), np.vstack(xy_all), np.concatenate(heading_all),
+                np.concatenate(curvature_all), closed)
+
+
+def sine_path(length_m: float) -> Path:
+    """Seed 002 Eq. (13): y = 30 sin(2 pi x / 500) + 20 sin(2 pi x / 200) [m], cut at length_m."""
+    a, b = (30.0, 2 * np.pi / 500), (20.0, 2 * np.pi / 200)
+    x = np.arange(0.0, length_m + SAMPLE_SPACING_M, SAMPLE_SPACING_M / 2)  # arc length >= x
+    y = a[0] * np.sin(a[1] * x) + b[0] * np.sin(b[1] * x)
+    dy = a[0] * a[1] * np.cos(a[1] * x) + b[0] * b[1] * np.cos(b[1] * x)
+    ddy = -a[0] * a[1] ** 2 * np.sin(a[1] * x) - b[0] * b[1] ** 2 * np.sin(b[1] * x)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(y)))])
+    keep = s <= length_m
+    return Path(s[keep], np.column_stack([x, y])[keep], np.arctan(dy)[keep],
+                (ddy / (1 + dy**2) ** 1.5)[keep], closed=False)
+
+
+def _open_manoeuvre(config: PathConfig, turns) -> Path:
+    """Straight lead, the given arcs (signed angles, rad), then straight up to length_m."""
+    k = 1.0 / config.radius_m
+    arcs = [(abs(angle) * config.radius_m, np.sign(angle) * k) for angle in turns]
+    used = config.lead_m + sum(length for length, _ in arcs)
+    require(used < config.length_m,
+            f"path.length_m = {config.length_m} is too short for '{config.name}' (needs {used:.0f})")
+    return from_segments([(config.lead_m, 0.0), *arcs, (config.length_m - used, 0.0)], closed=False)
+
+
+def _rectangle(config: PathConfig) -> Path:
+    corner = (np.pi / 2 * config.radius_m, 1.0 / config.radius_m)
+    sides = [(config.side_m, 0.0), corner, (config.side_m / 2, 0.0), corner]
+    return from_segments(sides * 2, closed=True)
+
+
+def _figure_eight(config: PathConfig) -> Path:
+    """Two lobes of radius R joined by straights crossing at the origin at +-45 deg."""
+    R = config.radius_m
+    lobe = 1.5 * np.pi * R
+    return from_segments([(R, 0.0), (lobe, -1.0 / R), (2 * R, 0.0), (lobe, 1.0 / R), (R, 0.0)],
+                         closed=True, heading0=np.pi / 4)
+
+
+_BUILDERS = {
+    "sine": lambda c: sine_path(c.length_m),
+    "straight": lambda c: from_segments([(c.length_m, 0.0)], closed=False),
+    "s-shape": lambda c: _open_manoeuvre(c, [np.pi, -np.pi]),
+    "rectangle": _rectangle,
+    "circle": lambda c: from_segments([(2 * np.pi * c.radius_m, 1.0 / c.radius_m)], closed=True),
+    "figure-eight": _figure_eight,
+    "turn-90": lambda c: _open_manoeuvre(c, [np.pi / 2]),
+    "turn-180": lambda c: _open_manoeuvre(c, [np.pi]),
+}
+PATH_NAMES = tuple(_BUILDERS)
+
+
+def make_path(config: PathConfig) -> Path:
+    """The named path; ConfigError (a ValueError) for an unknown name or a bad size."""
+    config.validate()
+    return _BUILDERS[config.name](config)

@@ -1,0 +1,153 @@
+import numpy as np
+import pytest
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource, VectorLogSink
+
+from systems.vehicles.ground_vehicle import (
+    GroundVehicle, GroundVehicleConfig, ground_pose, make_bicycle_dynamics,
+)
+from systems.vehicles.paths import PATH_NAMES, PathConfig, make_path
+
+# pydrake filters numpy's "invalid value" warnings from symbolic object arrays when imported;
+# pytest resets warning filters per test, so restore that one here.
+pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+
+
+def drive_bicycle(config, state0, steering_command, speed, duration):
+    """Eq. (6) alone under constant inputs; returns the logged states (4 x N)."""
+    builder = DiagramBuilder()
+    bicycle = builder.AddSystem(make_bicycle_dynamics(config))
+    source = builder.AddSystem(ConstantVectorSource([steering_command, speed]))
+    logger = builder.AddSystem(VectorLogSink(7, 0.1))
+    builder.Connect(source.get_output_port(), bicycle.get_input_port())
+    builder.Connect(bicycle.get_output_port(), logger.get_input_port())
+    simulator = Simulator(builder.Build())
+    simulator.get_mutable_integrator().set_target_accuracy(1e-10)
+    root = simulator.get_mutable_context()
+    bicycle.GetMyMutableContextFromRoot(root).SetContinuousState(state0)
+    simulator.AdvanceTo(duration)
+    return logger.FindLog(root).data()
+
+
+def follow(config, speed, distance):
+    """GroundVehicle on its path; returns (logged states 4 x N, final path progress)."""
+    builder = DiagramBuilder()
+    vehicle = builder.AddSystem(GroundVehicle(config))
+    source = builder.AddSystem(ConstantVectorSource([speed]))
+    logger = builder.AddSystem(VectorLogSink(4, 0.1))
+    builder.Connect(source.get_output_port(), vehicle.GetInputPort("speed"))
+    builder.Connect(vehicle.GetOutputPort("state"), logger.get_input_port())
+    simulator = Simulator(builder.Build())
+    root = simulator.get_mutable_context()
+    vehicle.GetMyMutableContextFromRoot(root).SetContinuousState(vehicle.initial_state())
+    simulator.AdvanceTo(distance / speed)
+    vehicle_context = vehicle.GetMyContextFromRoot(root)
+    return logger.FindLog(root).data(), vehicle.GetOutputPort("path_progress").Eval(vehicle_context)[0]
+
+
+def assert_progress(progress, distance, path, config, speed):
+    """The follower's last sample of the arc length matches the distance driven (mod a lap)."""
+    lag = speed / config.follower.rate_hz  # the progress output is up to one sample old
+    gap = distance - progress
+    if path.closed:
+        gap = (gap + path.length / 2) % path.length - path.length / 2
+    assert -0.1 < gap < lag + 0.2
+
+
+def cross_track_errors(path, states):
+    """Distance from each logged position to the path, following the vehicle's branch."""
+    errors, s = [], 0.0
+    for x, y in states[:2].T:
+        s = path.nearest([x, y], s_hint=s)
+        errors.append(np.linalg.norm([x, y] - path.position(s)))
+    return np.array(errors)
+
+
+def test_constant_steering_drives_the_predicted_circle():
+    config = GroundVehicleConfig()
+    delta = np.radians(12.0)
+    radius = config.wheelbase_m / np.tan(delta)  # R = d / tan(delta)
+    alpha0 = 0.3
+    states = drive_bicycle(config, [1.0, 2.0, alpha0, delta], delta, speed=5.0, duration=25.0)
+    centre = np.array([1.0 - radius * np.sin(alpha0), 2.0 + radius * np.cos(alpha0)])
+    np.testing.assert_allclose(np.linalg.norm(states[:2].T - centre, axis=1), radius, rtol=1e-6)
+    assert 5.0 * 25.0 > 2 * np.pi * radius  # went round at least once
+    np.testing.assert_allclose(states[4:6, -1], 5.0 * np.array([np.cos(states[2, -1]),
+                                                                 np.sin(states[2, -1])]))
+
+
+def test_steering_lag_and_limit():
+    config = GroundVehicleConfig()
+    tau = config.steering_time_constant_s
+    states = drive_bicycle(config, [0, 0, 0, 0], steering_command=1.0, speed=1.0, duration=tau)
+    limit = np.radians(config.max_steering_deg)
+    assert states[3, -1] == pytest.approx(limit * (1 - np.exp(-1.0)), rel=1e-6)
+
+
+@pytest.mark.parametrize("yaml, message", [
+    ("wheelbase_m: 0.0", "ground_vehicle.wheelbase_m must be positive"),
+    ("max_steering_deg: 0.0", "ground_vehicle.max_steering_deg must be in"),
+    ("path: {name: zigzag}", "ground_vehicle.path.name 'zigzag' is not a path"),
+    ("path: {name: circle, radius_m: 5.0}", "ground_vehicle.path.radius_m = 5.0 is tighter"),
+    ("path: {name: turn-90, length_m: 30.0}", "path.length_m = 30.0 is too short"),
+])
+def test_bad_config_is_rejected_by_name(yaml, message):
+    config = yaml_load_typed(schema=GroundVehicleConfig, data=yaml)
+    with pytest.raises(ValueError, match=message):
+        GroundVehicle(config)
+
+
+def test_sine_path_is_seed_002_eq_13():
+    path = make_path(PathConfig(name="sine", length_m=800.0))
+    for s in np.linspace(0.0, 800.0, 9):
+        x, y = path.position(s)
+        assert y == pytest.approx(30 * np.sin(2 * np.pi * x / 500) + 20 * np.sin(2 * np.pi * x / 200),
+                                  abs=1e-3)
+    assert path.heading(0.0) == pytest.approx(np.arctan(2 * np.pi * (30 / 500 + 20 / 200)))
+
+
+@pytest.mark.parametrize("name", ["circle", "rectangle", "figure-eight"])
+def test_closed_paths_close_smoothly(name):
+    path = make_path(PathConfig(name=name))
+    assert path.closed
+    np.testing.assert_allclose(path.position(path.length), path.position(0.0), atol=1e-9)
+    assert np.cos(path.heading(path.length - 1e-6) - path.heading(0.0)) == pytest.approx(1.0)
+
+
+def test_nearest_keeps_to_its_branch_where_the_figure_eight_crosses():
+    path = make_path(PathConfig(name="figure-eight"))
+    crossing_again = path.length / 2  # the straight between the lobes crosses the origin mid-way
+    np.testing.assert_allclose(path.position(crossing_again), [0.0, 0.0], atol=1e-6)
+    assert path.nearest([0.01, 0.0], s_hint=1.0) == pytest.approx(0.0, abs=0.02)
+    assert path.nearest([0.01, 0.0], s_hint=crossing_again - 1.0) == pytest.approx(
+        crossing_again, abs=0.02)
+
+
+@pytest.mark.parametrize("name", [n for n in PATH_NAMES if n != "sine"])
+def test_follower_tracks_seed_003_figure_9_paths(name):
+    config = GroundVehicleConfig(path=PathConfig(name=name))
+    path = make_path(config.path)
+    distance = path.length if path.closed else 200.0  # past the manoeuvre
+    states, progress = follow(config, speed=2.0, distance=distance)
+    errors = cross_track_errors(path, states)
+    assert errors.max() < 0.2 and np.sqrt(np.mean(errors**2)) < 0.05
+    assert_progress(progress, distance, path, config, speed=2.0)
+
+
+@pytest.mark.parametrize("speed", [3.0, 6.0, 12.0])  # seed 002 cases C1, C2, C3
+def test_follower_tracks_seed_002_sine_path(speed):
+    config = GroundVehicleConfig(path=PathConfig(name="sine", length_m=700.0))
+    states, progress = follow(config, speed=speed, distance=600.0)
+    path = make_path(config.path)
+    errors = cross_track_errors(path, states)
+    assert errors.max() < 0.1
+    assert_progress(progress, 600.0, path, config, speed)
+    assert np.degrees(np.abs(states[3]).max()) < config.max_steering_deg
+
+
+def test_ground_pose():
+    X_WV = ground_pose([3.0, -4.0, np.pi / 2, 0.1])
+    np.testing.assert_allclose(X_WV.translation(), [3.0, -4.0, 0.0])
+    np.testing.assert_allclose(X_WV.rotation().matrix() @ [1, 0, 0], [0, 1, 0], atol=1e-15)
