@@ -1,0 +1,218 @@
+"""Landing supervisor of seed 003 (Sec. 2.3 and 3): the mode logic around the tracking PID.
+
+The UAV takes off, climbs to the initial altitude IH, follows the target with the PID, descends
+towards it while it is centred in the downward view, and below the landing height LH lands
+vertically without further checks (Sec. 3.1.2: there the target floods the view). If the target
+is lost above LH it holds its altitude, coasting with the target's last velocity, and after a
+while climbs back to IH to search; it never descends while the target is not seen.
+
+Modes and what they command (velocities in World, z up; "hold" is a P loop on altitude):
+
+    TAKEOFF   straight up at climb speed, until takeoff_height_m          -> CLIMB
+    CLIMB     to IH, tracking the target if seen                          -> FOLLOW (seen) / SEARCH
+    FOLLOW    track, hold altitude; target centred                        -> APPROACH
+    APPROACH  track, descend; height above target <= LH                   -> LAND
+              target off centre                                           -> FOLLOW
+    LAND      track (or coast if unseen), descend; touchdown              -> LANDED
+    LANDED    keep the target's velocity, no vertical speed (the run ends)
+    HOLD      target lost in FOLLOW/APPROACH: coast, hold altitude; seen  -> FOLLOW; lost_hold_s -> SEARCH
+    SEARCH    no horizontal speed, climb back to IH (never descend); seen -> FOLLOW
+
+One transition per step; the command is that of the mode after the transition.
+"""
+
+from dataclasses import dataclass, field, replace
+from enum import IntEnum
+
+import numpy as np
+from pydrake.common.value import Value
+from pydrake.systems.framework import LeafSystem
+
+from systems.config import require, require_positive
+
+
+class Mode(IntEnum):
+    TAKEOFF = 0
+    CLIMB = 1
+    FOLLOW = 2
+    APPROACH = 3
+    LAND = 4
+    LANDED = 5
+    HOLD = 6
+    SEARCH = 7
+
+
+@dataclass
+class LandingConfig:
+    rate_hz: float = 50.0  # supervisor update rate (not in the paper)
+    initial_height_m: float = 7.5  # IH, seed 003 Sec. 3.1.2 (simulation)
+    landing_height_m: float = 1.5  # LH, seed 003 Sec. 3.1.2 (simulation)
+    # The rest are not in the paper.
+    takeoff_height_m: float = 1.0  # straight up until clear of the ground
+    climb_speed_m_s: float = 1.0
+    descent_speed_m_s: float = 0.5  # while approaching, above LH
+    landing_speed_m_s: float = 0.5  # final vertical landing, below LH
+    altitude_gain: float = 1.0  # [1/s], altitude hold and climb to IH
+    altitude_tolerance_m: float = 0.2  # IH reached
+    centred_radius_m: float = 0.5  # start descending when the target is this close horizontally
+    off_centre_radius_m: float = 1.0  # stop descending when it is this far (hysteresis)
+    lost_hold_s: float = 1.0  # hold before climbing to search
+    touchdown_height_m: float = 0.1  # height above the landing surface that is touchdown
+    yaw_deg: float = 0.0  # commanded heading
+
+    def validate(self, prefix: str = "landing") -> None:
+        for name in ("rate_hz", "initial_height_m", "landing_height_m", "takeoff_height_m",
+                     "climb_speed_m_s", "descent_speed_m_s", "landing_speed_m_s", "altitude_gain",
+                     "altitude_tolerance_m", "centred_radius_m", "off_centre_radius_m",
+                     "lost_hold_s", "touchdown_height_m"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        require(self.initial_height_m > self.landing_height_m,
+                f"{prefix}.initial_height_m (IH = {self.initial_height_m}) must be above "
+                f"{prefix}.landing_height_m (LH = {self.landing_height_m})")
+        require(self.takeoff_height_m < self.initial_height_m,
+                f"{prefix}.takeoff_height_m must be below {prefix}.initial_height_m")
+        require(self.touchdown_height_m < self.landing_height_m,
+                f"{prefix}.touchdown_height_m must be below {prefix}.landing_height_m")
+        require(self.off_centre_radius_m >= self.centred_radius_m,
+                f"{prefix}.off_centre_radius_m must be at least {prefix}.centred_radius_m")
+
+
+@dataclass
+class SupervisorInputs:
+    """What the supervisor sees at one step. Positions and velocities are World x-y."""
+
+    time_s: float
+    altitude_m: float  # UAV above the ground
+    height_above_target_m: float  # UAV above the landing surface (stereo depth or an estimate)
+    target_valid: bool  # the target is seen
+    target_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(2))  # target - UAV
+    target_velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    tracking_velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(2))  # PID, Eq. 26-27
+
+
+@dataclass(frozen=True)
+class SupervisorMemory:
+    mode: Mode = Mode.TAKEOFF
+    mode_since_s: float = 0.0
+    altitude_hold_m: float = 0.0
+    last_target_velocity_m_s: tuple = (0.0, 0.0)
+
+
+def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: LandingConfig) -> Mode:
+    mode, seen = memory.mode, inputs.target_valid
+    offset = np.linalg.norm(inputs.target_offset_m)
+    if mode == Mode.TAKEOFF and inputs.altitude_m >= config.takeoff_height_m:
+        return Mode.CLIMB
+    if mode == Mode.CLIMB and abs(inputs.altitude_m - config.initial_height_m) <= config.altitude_tolerance_m:
+        return Mode.FOLLOW if seen else Mode.SEARCH
+    if mode in (Mode.FOLLOW, Mode.APPROACH) and not seen:
+        return Mode.HOLD
+    if mode == Mode.FOLLOW and offset <= config.centred_radius_m:
+        return Mode.APPROACH
+    if mode == Mode.APPROACH and inputs.height_above_target_m <= config.landing_height_m:
+        return Mode.LAND
+    if mode == Mode.APPROACH and offset > config.off_centre_radius_m:
+        return Mode.FOLLOW
+    if mode == Mode.LAND and inputs.height_above_target_m <= config.touchdown_height_m:
+        return Mode.LANDED
+    if mode in (Mode.HOLD, Mode.SEARCH) and seen:
+        return Mode.FOLLOW
+    if mode == Mode.HOLD and inputs.time_s - memory.mode_since_s >= config.lost_hold_s:
+        return Mode.SEARCH
+    return mode
+
+
+def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: LandingConfig) -> np.ndarray:
+    """[v_WB_desired (3, m/s), yaw (rad)] for memory.mode."""
+    mode, seen = memory.mode, inputs.target_valid
+    coast = np.asarray(memory.last_target_velocity_m_s)
+    tracking = np.asarray(inputs.tracking_velocity_m_s) if seen else coast
+
+    def towards(altitude):
+        rate = config.altitude_gain * (altitude - inputs.altitude_m)
+        return float(np.clip(rate, -config.descent_speed_m_s, config.climb_speed_m_s))
+
+    horizontal, vertical = {
+        Mode.TAKEOFF: (np.zeros(2), config.climb_speed_m_s),
+        Mode.CLIMB: (tracking if seen else np.zeros(2), towards(config.initial_height_m)),
+        Mode.FOLLOW: (tracking, towards(memory.altitude_hold_m)),
+        Mode.APPROACH: (tracking, -config.descent_speed_m_s),
+        Mode.LAND: (tracking, -config.landing_speed_m_s),
+        Mode.LANDED: (coast, 0.0),
+        Mode.HOLD: (coast, towards(memory.altitude_hold_m)),
+        Mode.SEARCH: (np.zeros(2), towards(config.initial_height_m)),
+    }[mode]
+    if not seen and mode not in (Mode.LAND, Mode.LANDED):
+        vertical = max(vertical, 0.0)  # never descend blind
+    return np.array([*horizontal, vertical, np.radians(config.yaw_deg)])
+
+
+def supervisor_step(memory: SupervisorMemory, inputs: SupervisorInputs, config: LandingConfig):
+    """One step: (new memory, command [v_WB_desired (3), yaw])."""
+    if inputs.target_valid:
+        memory = replace(memory, last_target_velocity_m_s=tuple(inputs.target_velocity_m_s))
+    mode = next_mode(memory, inputs, config)
+    if mode != memory.mode:
+        hold = config.initial_height_m if memory.mode == Mode.CLIMB else inputs.altitude_m
+        memory = replace(memory, mode=mode, mode_since_s=inputs.time_s, altitude_hold_m=hold)
+    return memory, mode_command(memory, inputs, config)
+
+
+class LandingStateMachine:
+    """The supervisor for scripts and tests: step(inputs) -> command."""
+
+    def __init__(self, config: LandingConfig):
+        config.validate()
+        self.config = config
+        self.memory = SupervisorMemory()
+
+    @property
+    def mode(self) -> Mode:
+        return self.memory.mode
+
+    def step(self, inputs: SupervisorInputs) -> np.ndarray:
+        """[v_WB_desired (3, m/s, World), yaw (rad)]: the FlightController `command`."""
+        self.memory, command = supervisor_step(self.memory, inputs, self.config)
+        return command
+
+
+class LandingSupervisor(LeafSystem):
+    """The supervisor sampled at `config.rate_hz`.
+
+    Inputs (World x-y where 2-vectors): `altitude` (1, m), `height_above_target` (1, m),
+    `target_valid` (1, nonzero when seen), `target_offset` (2, target - UAV, m),
+    `target_velocity` (2, m/s), `tracking_velocity` (2, m/s, the TrackingPid output).
+    Outputs: `command` (4, for the FlightController) and `mode` (1, a Mode value), held between
+    samples; `command` starts at zero velocity.
+    """
+
+    def __init__(self, config: LandingConfig):
+        super().__init__()
+        config.validate()
+        self._config = config
+        self._inputs = {name: self.DeclareVectorInputPort(name, size) for name, size in (
+            ("altitude", 1), ("height_above_target", 1), ("target_valid", 1),
+            ("target_offset", 2), ("target_velocity", 2), ("tracking_velocity", 2))}
+        self._memory = self.DeclareAbstractState(Value(SupervisorMemory()))
+        self._command = self.DeclareDiscreteState(np.array([0, 0, 0, np.radians(config.yaw_deg)]))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(1.0 / config.rate_hz, 0.0, self._update)
+        self.DeclareStateOutputPort("command", self._command)
+        self.DeclareVectorOutputPort("mode", 1, self._calc_mode)
+
+    def _read_inputs(self, context) -> SupervisorInputs:
+        value = {name: port.Eval(context) for name, port in self._inputs.items()}
+        return SupervisorInputs(
+            time_s=context.get_time(), altitude_m=value["altitude"][0],
+            height_above_target_m=value["height_above_target"][0],
+            target_valid=bool(value["target_valid"][0]), target_offset_m=value["target_offset"],
+            target_velocity_m_s=value["target_velocity"],
+            tracking_velocity_m_s=value["tracking_velocity"])
+
+    def _update(self, context, state):
+        memory = context.get_abstract_state(self._memory).get_value()
+        memory, command = supervisor_step(memory, self._read_inputs(context), self._config)
+        state.get_mutable_abstract_state(self._memory).set_value(memory)
+        state.get_mutable_discrete_state(self._command).SetFromVector(command)
+
+    def _calc_mode(self, context, output):
+        output.SetFromVector([context.get_abstract_state(self._memory).get_value().mode])

@@ -1,0 +1,151 @@
+import numpy as np
+import pytest
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.systems.analysis import Simulator
+
+from systems.control.landing import (
+    LandingConfig, LandingStateMachine, LandingSupervisor, Mode, SupervisorInputs,
+)
+
+CONFIG = LandingConfig()
+TRACKING = np.array([0.9, -0.3])  # what the PID asks for
+TARGET_VELOCITY = np.array([0.6, -0.2])
+
+
+class Script:
+    """Feeds a LandingStateMachine one step at a time, 20 ms apart, with defaults for the
+    inputs a step does not mention."""
+
+    def __init__(self):
+        self.machine = LandingStateMachine(CONFIG)
+        self.time = 0.0
+
+    def step(self, altitude, seen=True, offset=(0.0, 0.0), height=None):
+        inputs = SupervisorInputs(
+            time_s=self.time, altitude_m=altitude,
+            height_above_target_m=altitude if height is None else height, target_valid=seen,
+            target_offset_m=np.asarray(offset, dtype=float), target_velocity_m_s=TARGET_VELOCITY,
+            tracking_velocity_m_s=TRACKING)
+        self.time += 0.02
+        command = self.machine.step(inputs)
+        return self.machine.mode, command[:2], command[2]
+
+
+def test_nominal_landing_sequence():
+    script = Script()
+    mode, horizontal, vz = script.step(altitude=0.0, seen=False)
+    assert mode == Mode.TAKEOFF and vz == CONFIG.climb_speed_m_s and not horizontal.any()
+
+    mode, horizontal, vz = script.step(altitude=1.0, seen=False)
+    assert mode == Mode.CLIMB and vz == CONFIG.climb_speed_m_s and not horizontal.any()
+
+    mode, horizontal, vz = script.step(altitude=5.0, offset=(4.0, 0.0))
+    assert mode == Mode.CLIMB and vz == CONFIG.climb_speed_m_s  # tracks while it climbs
+    np.testing.assert_allclose(horizontal, TRACKING)
+
+    mode, horizontal, vz = script.step(altitude=7.4, offset=(4.0, 0.0))
+    assert mode == Mode.FOLLOW and vz == pytest.approx(0.1)  # holds IH, not 7.4 m
+    np.testing.assert_allclose(horizontal, TRACKING)
+
+    mode, _, vz = script.step(altitude=7.5, offset=(0.3, 0.2))
+    assert mode == Mode.APPROACH and vz == -CONFIG.descent_speed_m_s
+
+    mode, _, _ = script.step(altitude=6.0, offset=(0.8, 0.0))  # inside the hysteresis band
+    assert mode == Mode.APPROACH
+
+    mode, _, vz = script.step(altitude=5.0, offset=(1.2, 0.0))  # off centre: stop descending
+    assert mode == Mode.FOLLOW
+    mode, _, vz = script.step(altitude=4.9, offset=(1.2, 0.0))
+    assert mode == Mode.FOLLOW and vz == pytest.approx(0.1)  # holds the 5.0 m where it stopped
+
+    script.step(altitude=5.0, offset=(0.1, 0.0))
+    mode, horizontal, vz = script.step(altitude=3.0, offset=(0.1, 0.0), height=1.4)
+    assert mode == Mode.LAND and vz == -CONFIG.landing_speed_m_s
+    np.testing.assert_allclose(horizontal, TRACKING)
+
+    # Below LH the target floods the view: the landing goes on, coasting with its last velocity.
+    mode, horizontal, vz = script.step(altitude=2.5, seen=False, height=0.8)
+    assert mode == Mode.LAND and vz == -CONFIG.landing_speed_m_s
+    np.testing.assert_allclose(horizontal, TARGET_VELOCITY)
+
+    mode, horizontal, vz = script.step(altitude=1.7, seen=False, height=0.05)
+    assert mode == Mode.LANDED and vz == 0.0
+    np.testing.assert_allclose(horizontal, TARGET_VELOCITY)
+    assert script.step(altitude=1.7, seen=True, height=0.05)[0] == Mode.LANDED  # terminal
+
+
+def test_target_lost_holds_then_climbs_to_search_then_resumes():
+    script = Script()
+    for altitude in (1.0, 7.5, 7.5):
+        script.step(altitude=altitude, offset=(0.2, 0.0))
+    assert script.step(altitude=6.0, offset=(0.2, 0.0))[0] == Mode.APPROACH
+
+    lost_at = script.time
+    mode, horizontal, vz = script.step(altitude=4.0, seen=False)
+    assert mode == Mode.HOLD and vz == 0.0
+    np.testing.assert_allclose(horizontal, TARGET_VELOCITY)  # coasts after the target
+    mode, _, vz = script.step(altitude=4.2, seen=False)
+    assert mode == Mode.HOLD and vz == 0.0  # above the held 4.0 m, but no blind descent
+
+    while script.machine.mode == Mode.HOLD:
+        mode, horizontal, vz = script.step(altitude=4.0, seen=False)
+    searched_at = script.time - 0.02
+    assert mode == Mode.SEARCH and searched_at - lost_at == pytest.approx(CONFIG.lost_hold_s)
+    assert vz == CONFIG.climb_speed_m_s and not horizontal.any()
+    mode, _, vz = script.step(altitude=7.9, seen=False)
+    assert mode == Mode.SEARCH and vz == 0.0  # above IH: waits, never descends blind
+
+    mode, horizontal, vz = script.step(altitude=7.9, offset=(2.0, 0.0))
+    assert mode == Mode.FOLLOW and vz == pytest.approx(0.0)  # holds where it found the target
+    np.testing.assert_allclose(horizontal, TRACKING)
+
+
+def test_never_descends_blind():
+    # Random flight above LH (so never LAND, which is committed): unseen means no descent.
+    rng = np.random.default_rng(0)
+    script = Script()
+    visited, seen = set(), True
+    for _ in range(3000):
+        seen ^= rng.random() < 0.02  # seen and unseen spells of about a second
+        mode, _, vz = script.step(altitude=rng.uniform(0.0, 10.0), seen=seen,
+                                  offset=rng.uniform(-1.5, 1.5, 2), height=rng.uniform(1.6, 10.0))
+        visited.add(mode)
+        if not seen:
+            assert vz >= 0.0
+    assert {Mode.CLIMB, Mode.FOLLOW, Mode.APPROACH, Mode.HOLD, Mode.SEARCH} <= visited
+
+
+@pytest.mark.parametrize("yaml, message", [
+    ("initial_height_m: 1.0", r"landing.initial_height_m \(IH = 1.0\) must be above"),
+    ("landing_height_m: 8.0", r"must be above landing.landing_height_m \(LH = 8.0\)"),
+    ("climb_speed_m_s: 0.0", "landing.climb_speed_m_s must be positive"),
+    ("off_centre_radius_m: 0.2", "landing.off_centre_radius_m must be at least"),
+])
+def test_bad_config_is_rejected_by_name(yaml, message):
+    config = yaml_load_typed(schema=LandingConfig, data=yaml)
+    with pytest.raises(ValueError, match=message):
+        LandingSupervisor(config)
+
+
+def test_system_wraps_the_state_machine():
+    system = LandingSupervisor(CONFIG)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    for name, value in (("altitude", [0.0]), ("height_above_target", [0.0]), ("target_valid", [0.0]),
+                        ("target_offset", [0.0, 0.0]), ("target_velocity", TARGET_VELOCITY),
+                        ("tracking_velocity", TRACKING)):
+        system.GetInputPort(name).FixValue(context, value)
+    command, mode = system.GetOutputPort("command"), system.GetOutputPort("mode")
+    assert mode.Eval(context)[0] == Mode.TAKEOFF
+    np.testing.assert_allclose(command.Eval(context), [0, 0, 0, 0])
+
+    simulator.AdvanceTo(0.01)  # the sample at t = 0
+    np.testing.assert_allclose(command.Eval(context), [0, 0, CONFIG.climb_speed_m_s, 0])
+
+    system.GetInputPort("altitude").FixValue(context, [7.5])
+    simulator.AdvanceTo(0.05)  # two samples: TAKEOFF -> CLIMB -> SEARCH (target not seen)
+    assert mode.Eval(context)[0] == Mode.SEARCH
+    system.GetInputPort("target_valid").FixValue(context, [1.0])
+    simulator.AdvanceTo(0.07)
+    assert mode.Eval(context)[0] == Mode.FOLLOW
+    np.testing.assert_allclose(command.Eval(context), [*TRACKING, 0.0, 0.0])
