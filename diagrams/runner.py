@@ -47,6 +47,7 @@ def _diagrams():
 
 DIAGRAM_MODULES = {
     "stewart_scene": "diagrams.stewart_run",
+    "crhf_calibration": "diagrams.crhf_calibration",
 }
 
 

@@ -1,0 +1,155 @@
+"""The colour-pad calibration flight (seed 000 Sec. 2.3): pad segmentation on rendered frames, the
+PadCentroidsSystem, a short calibration run, scenario validation and the command line."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from pydrake.systems.sensors import ImageRgba8U
+
+from diagrams.crhf_calibration import build_calibration_scene
+from diagrams.runner import RunOptions, load_scenario, run
+from systems.config import ConfigError
+from systems.estimators.pad_calibration import PAD_COLOURS, PAD_RGB, PadCalibration, rgb_to_ycbcr, segment_colour
+from systems.perception.color_pads import PadCentroidsSystem
+from systems.sensors.tof import sensor_positions_C
+
+ROOT = Path(__file__).resolve().parent.parent
+EQ10 = np.array([458.5, 457.855, 258.7735, 252.308])  # fx, fy, cx, cy: seed 000 Eq. 10
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """The named scenario's scene (pixel noise 2 levels, ToF noise 5 mm) and a context."""
+    _, scenario = load_scenario("crhf-calibration")
+    diagram, handles = build_calibration_scene(scenario)
+    return scenario, diagram, handles, diagram.CreateDefaultContext()
+
+
+def rendered(scene, t):
+    """(RGBA image, pad_pixels (4, 2)) at time t."""
+    _, _, handles, context = scene
+    context.SetTime(t)
+    image = handles.color_image.Eval(handles.noisy_camera.GetMyContextFromRoot(context)).data.copy()
+    pixels = handles.pads.GetOutputPort("pad_pixels").Eval(handles.pads.GetMyContextFromRoot(context))
+    return image, np.asarray(pixels).reshape(4, 2)
+
+
+def projected_pad_centres(scenario, handles, t):
+    """cv2.projectPoints of the pads' top centres with the scenario's K at time t."""
+    X_CW = handles.X_WC(t).inverse()
+    rvec, _ = cv2.Rodrigues(X_CW.rotation().matrix())
+    points, _ = cv2.projectPoints(handles.p_W_pads, rvec, X_CW.translation(), scenario.camera.K, np.zeros(5))
+    return points.reshape(4, 2)
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.5, 1.0])
+def test_pads_are_found_within_a_pixel_of_their_projection(scene, fraction):
+    scenario, _, handles, _ = scene
+    t = fraction * scenario.duration_s  # the start, the middle and the top of the climb
+    _, found = rendered(scene, t)
+    expected = projected_pad_centres(scenario, handles, t)
+    assert np.all(np.isfinite(found))
+    assert np.abs(found - expected).max() < 1.0
+
+
+def test_rendered_pad_colours_stay_inside_their_table1_range_only(scene):
+    """The renderer's headlight leaves PAD_RGB as it is on the level floor: each pad's pixels
+    segment as its own colour and no other, and the floor as none."""
+    scenario, _, handles, _ = scene
+    image, _ = rendered(scene, 0.0)
+    ycbcr = rgb_to_ycbcr(image)
+    centres = np.round(projected_pad_centres(scenario, handles, 0.0)).astype(int)
+    for colour, (u, v) in zip(PAD_COLOURS, centres):
+        patch = image[v - 10:v + 11, u - 10:u + 11, :3].reshape(-1, 3).astype(float)
+        assert np.abs(patch.mean(axis=0) - PAD_RGB[colour]).max() < 1.5
+        for other in PAD_COLOURS:
+            hit = segment_colour(ycbcr[v - 10:v + 11, u - 10:u + 11], other).mean()
+            assert hit == (1.0 if other == colour else 0.0), (colour, other)
+    floor = ycbcr[240:272, 240:272]
+    assert not any(segment_colour(floor, colour).any() for colour in PAD_COLOURS)
+
+
+def test_pad_centroids_system_orders_pads_and_flags_missing_ones():
+    system = PadCentroidsSystem(64, 48)
+    context = system.CreateDefaultContext()
+    image = ImageRgba8U(64, 48)
+    rgba = np.full((48, 64, 4), 128, np.uint8)
+    rgba[..., 3] = 255
+    cv2.circle(rgba, (16, 20), 6, (*PAD_RGB["green"], 255), -1)
+    cv2.circle(rgba, (45, 30), 6, (*PAD_RGB["red"], 255), -1)
+    image.mutable_data[:] = rgba
+    system.get_input_port().FixValue(context, image)
+    pixels = np.asarray(system.GetOutputPort("pad_pixels").Eval(context)).reshape(4, 2)
+    np.testing.assert_allclose(pixels[PAD_COLOURS.index("red")], [45, 30], atol=0.2)
+    np.testing.assert_allclose(pixels[PAD_COLOURS.index("green")], [16, 20], atol=0.2)
+    assert np.isnan(pixels[[PAD_COLOURS.index("yellow"), PAD_COLOURS.index("blue")]]).all()
+
+
+def test_a_short_calibration_climb_implies_the_camera_intrinsics(tmp_path):
+    name, scenario = load_scenario("crhf-calibration", overrides=["climb_speed_m_s=1.0"], duration_s=2.0)
+    metrics = run(name, scenario, tmp_path, RunOptions(progress=False))
+    calibration = PadCalibration.load(tmp_path / "pad_calibration.npz")
+    assert [s.colour for s in calibration.sensors] == list(PAD_COLOURS)
+    assert all(len(s.ranges) == 41 for s in calibration.sensors)  # 2 s at 20 Hz, both ends
+    implied = calibration.implied_intrinsics(sensor_positions_C(scenario.tof.arm_m, scenario.tof.angle_deg))
+    np.testing.assert_allclose(implied[:, :2], np.tile(EQ10[:2], (4, 1)), rtol=0.02)
+    np.testing.assert_allclose(implied[:, 2:], np.tile(EQ10[2:], (4, 1)), atol=1.0)
+    section = metrics["calibration"]
+    assert section["true_intrinsics"] == dict(zip(("fx", "fy", "cx", "cy"), EQ10.tolist()))
+    for colour in PAD_COLOURS:
+        pad = section["pads"][colour]
+        assert pad["samples"] == 41 and pad["detected_fraction"] == 1.0
+        assert set(pad["hyperbola"]) == {"u", "v"} and set(pad["hyperbola"]["u"]) >= {"a", "c"}
+        assert pad["pchip_leave_one_out_rmse_px"][0] < 5.0
+    for name in ("log.npz", "metrics.json", "calibration_u.png", "calibration_v.png"):
+        assert (tmp_path / name).is_file()
+
+
+@pytest.mark.parametrize("override, field", [
+    ("end_height_m=4.5", "end_height_m"),  # beyond tof.max_range_m
+    ("start_height_m=3.95", "start_height_m"),  # not below end_height_m
+    ("start_height_m=0.02", "start_height_m"),  # below tof.min_range_m
+    ("duration_s=60", "duration_s"),  # runs past end_height_m
+    ("duration_s=0.05", "duration_s"),  # fewer than three frames
+    ("climb_speed_m_s=0", "climb_speed_m_s"),
+    ("pad_radius_m=0.12", "pad_radius_m"),  # neighbouring pads overlap
+    ("pad_radius_m=0.02", "pad_radius_m"),  # too small to segment at the top
+    ("tof.noise_std_m=-1", "tof.noise_std_m"),
+    ("pad_radius=0.1", "pad_radius"),  # unknown key
+])
+def test_bad_scenario_values_are_config_errors_naming_the_field(override, field):
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        load_scenario("crhf-calibration", overrides=[override])
+
+
+def test_command_line_writes_the_calibration_and_metrics(tmp_path):
+    out = tmp_path / "cal"
+    cli = Path(sys.executable).parent / "landing-sim"
+    done = subprocess.run([str(cli), "run", "crhf-calibration", "--duration", "1", "--out", str(out), "--quiet"],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert done.returncode == 0, done.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert {"scenario", "seed", "sim_time_s", "wall_time_s", "realtime_factor", "calibration"} <= set(metrics)
+    assert metrics["scenario"] == "crhf-calibration" and metrics["sim_time_s"] == 1.0
+    assert len(PadCalibration.load(out / "pad_calibration.npz").sensors) == 4
+
+    bad = subprocess.run([str(cli), "run", "crhf-calibration", "--set", "end_height_m=9",
+                         "--out", str(tmp_path / "x")],
+                         capture_output=True, text=True, cwd=tmp_path, timeout=60)
+    assert bad.returncode == 2 and "end_height_m" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()
+
+
+def test_the_committed_default_calibration_matches_eq10():
+    """models/crhf_pad_calibration.npz, the runtime CRHF estimator's default, is a full climb."""
+    calibration = PadCalibration.load(ROOT / "models" / "crhf_pad_calibration.npz")
+    assert [s.colour for s in calibration.sensors] == list(PAD_COLOURS)
+    assert all(s.ranges[0] < 0.35 and s.ranges[-1] > 3.8 for s in calibration.sensors)
+    implied = calibration.implied_intrinsics(sensor_positions_C(0.135))
+    np.testing.assert_allclose(implied[:, :2], np.tile(EQ10[:2], (4, 1)), rtol=0.005)
+    np.testing.assert_allclose(implied[:, 2:], np.tile(EQ10[2:], (4, 1)), atol=0.5)
