@@ -1,0 +1,160 @@
+"""Downward camera: rendered tag corners against the pinhole projection of the true corners, the
+image view helper, and the pixel-noise system on fixed images."""
+
+import cv2
+import numpy as np
+import pytest
+from pydrake.systems.sensors import ImageRgba8U
+
+from systems.config import ConfigError
+from systems.perception.apriltag import AprilTagDetector
+from systems.platforms.stewart import TAG_ABOVE_DECK_M
+from systems.sensors.camera import CameraConfig, NoisyCamera, add_pixel_noise, image_to_numpy
+
+# Seed 000 Eq. (10).
+K_EQ10 = np.array([[458.5, 0.0, 258.7735], [0.0, 457.855, 252.308], [0.0, 0.0, 1.0]])
+
+
+def test_default_intrinsics_are_eq_10():
+    np.testing.assert_array_equal(CameraConfig().K, K_EQ10)
+    assert (CameraConfig().width, CameraConfig().height) == (512, 512)
+
+
+def true_corners_px(scene) -> np.ndarray:
+    """The tag's black-square corners projected with cv2.projectPoints. The corners by hand in the
+    deck frame P: the tag lies TAG_ABOVE_DECK_M above the deck; the camera sees the deck's +x to the
+    right and its +y upwards in the image, so ArUco's top-left corner is at (-s, +s)."""
+    s = scene.config.platform.tag_size_m / 2
+    corners_P = np.array([[-s, s, TAG_ABOVE_DECK_M], [s, s, TAG_ABOVE_DECK_M], [s, -s, TAG_ABOVE_DECK_M],
+                          [-s, -s, TAG_ABOVE_DECK_M]])
+    X_CP = scene.X_WC().inverse().multiply(scene.X_WP_static()).GetAsMatrix4()
+    rvec, _ = cv2.Rodrigues(X_CP[:3, :3])
+    pixels, _ = cv2.projectPoints(corners_P, rvec, X_CP[:3, 3], K_EQ10, None)
+    return pixels.reshape(4, 2)
+
+
+def rendered(scene, t=0.0) -> np.ndarray:
+    context = scene.context(t)
+    return image_to_numpy(scene.eval(scene.handles.camera, "color_image", context)).copy()
+
+
+@pytest.mark.parametrize("scene_name", ["hover_scene", "tilted_scene"])
+def test_detected_corners_match_the_projected_true_corners(scene_name, request):
+    scene = request.getfixturevalue(scene_name)
+    image = rendered(scene)
+    assert image.shape == (512, 512, 4) and image.dtype == np.uint8
+    detected = AprilTagDetector(scene.config.platform.tag_id).detect(image)
+    assert detected is not None
+    expected = true_corners_px(scene)
+    error = np.linalg.norm(detected - expected, axis=1)
+    assert error.max() < 1.0, f"corner errors {error} px"
+    if scene_name == "hover_scene":
+        # Level deck 2 m under a level camera: a square of side fx * tag / (2 m - plate height), centred
+        # on the principal point.
+        side = 458.5 * 0.5 / (2.0 - TAG_ABOVE_DECK_M)
+        np.testing.assert_allclose(expected[1, 0] - expected[0, 0], side, rtol=1e-12)
+        np.testing.assert_allclose(expected.mean(axis=0), [258.7735, 252.308], atol=1e-9)
+    else:
+        # Not a square any more: the tilt and offset move the tag off-centre and change its sides.
+        sides = np.linalg.norm(np.roll(expected, -1, axis=0) - expected, axis=1)
+        assert np.ptp(sides) > 3.0 and np.linalg.norm(expected.mean(axis=0) - K_EQ10[:2, 2]) > 10.0
+
+
+def test_the_stewart_scene_tag_corner_model_agrees(tilted_scene):
+    # The platform's own tag frame and corners, used by the logs, project to the same pixels.
+    from systems.perception.apriltag import project_points
+
+    handles = tilted_scene.handles
+    X_CT = tilted_scene.X_WC().inverse().multiply(tilted_scene.X_WP_static()).multiply(handles.platform.X_PT)
+    np.testing.assert_allclose(project_points(K_EQ10, X_CT, handles.platform.tag_corners_T()),
+                               true_corners_px(tilted_scene), atol=1e-9)
+
+
+def test_image_to_numpy_is_a_view_without_copying():
+    image = ImageRgba8U(5, 3)
+    view = image_to_numpy(image)
+    assert view.shape == (3, 5, 4)
+    assert np.shares_memory(view, image.mutable_data)
+    image.mutable_data[2, 4, 1] = 77
+    assert view[2, 4, 1] == 77
+
+
+def test_image_to_numpy_of_a_rendered_frame_shares_its_memory(hover_scene):
+    context = hover_scene.context()
+    image = hover_scene.eval(hover_scene.handles.camera, "color_image", context)
+    assert np.shares_memory(image_to_numpy(image), image.data)
+
+
+def synthetic_image(width=256, height=192) -> ImageRgba8U:
+    """A smooth RGB gradient kept within 40..215, so noise of a few levels never saturates."""
+    image = ImageRgba8U(width, height)
+    y, x = np.mgrid[0:height, 0:width]
+    image.mutable_data[..., 0] = 40 + (175 * x / width).astype(np.uint8)
+    image.mutable_data[..., 1] = 40 + (175 * y / height).astype(np.uint8)
+    image.mutable_data[..., 2] = 128
+    image.mutable_data[..., 3] = 255
+    return image
+
+
+def noisy_output(std, t, seed=0, image=None):
+    image = image or synthetic_image()
+    config = CameraConfig(width=image.width(), height=image.height(), cx=image.width() / 2, cy=image.height() / 2,
+                          pixel_noise_std=std)
+    camera = NoisyCamera(config, seed)
+    context = camera.CreateDefaultContext()
+    camera.get_input_port().FixValue(context, image)
+    context.SetTime(t)
+    return image_to_numpy(image).astype(float), image_to_numpy(camera.get_output_port().Eval(context)).astype(float)
+
+
+def test_zero_noise_returns_the_rendered_image_unchanged():
+    clean, out = noisy_output(0.0, 0.35)
+    np.testing.assert_array_equal(out, clean)
+
+
+@pytest.mark.parametrize("std", [2.0, 6.0])
+def test_noise_has_the_requested_std(std):
+    clean, out = noisy_output(std, 0.35)
+    diff = out - clean
+    assert np.std(diff[..., :3]) == pytest.approx(std, rel=0.1)
+    assert abs(np.mean(diff[..., :3])) < 0.05 * std
+    np.testing.assert_array_equal(diff[..., 3], 0.0)  # alpha untouched
+    # Independent per pixel and channel: neighbours are uncorrelated.
+    r = diff[..., 0]
+    assert abs(np.corrcoef(r[:, :-1].ravel(), r[:, 1:].ravel())[0, 1]) < 0.05
+    assert abs(np.corrcoef(diff[..., 0].ravel(), diff[..., 1].ravel())[0, 1]) < 0.05
+
+
+def test_same_seed_and_time_give_identical_noise():
+    _, a = noisy_output(3.0, 0.25, seed=1)
+    _, b = noisy_output(3.0, 0.25, seed=1)
+    _, same_frame = noisy_output(3.0, 0.25 + 1e-9, seed=1)  # the same 20 Hz frame index
+    _, next_frame = noisy_output(3.0, 0.30, seed=1)
+    _, other_seed = noisy_output(3.0, 0.25, seed=2)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(a, same_frame)
+    assert np.mean(a != next_frame) > 0.5
+    assert np.mean(a != other_seed) > 0.5
+
+
+def test_add_pixel_noise_saturates_instead_of_wrapping():
+    rgba = np.zeros((64, 64, 4), np.uint8)
+    rgba[:32] = 255
+    noisy = add_pixel_noise(rgba, 20.0, np.random.default_rng(0))
+    assert noisy.dtype == np.uint8
+    # Near 255, noise only goes down (and no wrap to small values); near 0, only up.
+    assert noisy[:32, :, :3].min() > 255 - 6 * 20 and noisy[32:, :, :3].max() < 6 * 20
+    assert 0.3 < np.mean(noisy[:32, :, :3] == 255) < 0.7
+    assert 0.3 < np.mean(noisy[32:, :, :3] == 0) < 0.7
+
+
+@pytest.mark.parametrize("changes, field", [
+    ({"fx": 0.0}, "camera.fx"),
+    ({"rate_hz": -1.0}, "camera.rate_hz"),
+    ({"cx": 600.0}, "camera.cx"),
+    ({"far_m": 0.01}, "camera.far_m"),
+    ({"pixel_noise_std": -1.0}, "camera.pixel_noise_std"),
+])
+def test_invalid_configuration_names_the_field(changes, field):
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        CameraConfig(**changes).validate()

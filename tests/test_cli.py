@@ -1,0 +1,184 @@
+"""The landing-sim command: `list`, a short run and what it leaves behind, and bad input, which must
+give one line on stderr, exit status 2, no traceback and no output files."""
+
+import contextlib
+import io
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from diagrams.cli import main
+
+SYS_OUT = Path("/sys/landing-sim-test/out")  # /sys refuses to create entries, even for root (EPERM)
+
+
+def landing_sim_command() -> list[str]:
+    script = Path(sys.executable).with_name("landing-sim")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "diagrams.cli"]
+
+
+@pytest.fixture(scope="module")
+def console_runs(tmp_path_factory):
+    """The installed command run as a separate process (in parallel, to save start-up time)."""
+    out = tmp_path_factory.mktemp("console") / "out"
+    commands = {"list": ["list"], "bad_name": ["run", "no-such-scenario", "--out", str(out), "--quiet"]}
+    processes = {key: subprocess.Popen(landing_sim_command() + args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                       text=True) for key, args in commands.items()}
+    results = {}
+    for key, process in processes.items():
+        stdout, stderr = process.communicate(timeout=120)
+        results[key] = (process.returncode, stdout, stderr)
+    return results, out
+
+
+def test_list_prints_both_scenarios(console_runs):
+    code, stdout, stderr = console_runs[0]["list"]
+    assert code == 0, stderr
+    names = [line.split()[0] for line in stdout.splitlines() if line.strip()]
+    assert "stewart-hover" in names and "stewart-dynamic" in names
+    # Each line carries the scenario's description.
+    hover = next(line for line in stdout.splitlines() if line.startswith("stewart-hover"))
+    assert "static deck" in hover
+
+
+def test_bad_name_from_the_installed_command(console_runs):
+    results, out = console_runs
+    code, stdout, stderr = results["bad_name"]
+    assert code == 2
+    assert stderr.count("\n") == 1 and "no-such-scenario" in stderr and "Traceback" not in stderr
+    assert stdout == ""
+    assert not out.exists()
+
+
+def run_main(capfd, *args):
+    code = main(list(args))
+    captured = capfd.readouterr()
+    return code, captured.out, captured.err
+
+
+@pytest.fixture
+def bad_config(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("platform:\n  motion: sinusoid\n  rol_amplitude_deg: [8.0]\n")
+    return path
+
+
+@pytest.mark.parametrize("args, named", [
+    (["run", "stewart-hoover"], "stewart-hoover"),
+    (["run", "--config", "{bad_config}"], "platform.rol_amplitude_deg"),
+    (["run", "stewart-hover", "--set", "camera.rate_hz=-1"], "camera.rate_hz"),
+    (["run", "stewart-hover", "--set", "platform.tag_size_m=2"], "platform.tag_size_m"),
+    (["run", "stewart-hover", "--duration", "-1"], "duration_s"),
+    (["run", "stewart-hover", "--set", "camera.rate_hz=fast"], "camera.rate_hz"),
+    (["run", "stewart-hover", "--config", "{bad_config}"], "not both"),
+    (["run", "stewart-hover", "--frobnicate"], "--frobnicate"),
+    (["run", "--config", "{missing}"], "missing.yaml"),
+], ids=["bad-name", "unknown-key", "negative-rate", "tag-too-big", "negative-duration", "type-error",
+        "name-and-config", "unknown-option", "missing-config"])
+def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path, bad_config, args, named):
+    out = tmp_path / "out"
+    args = [a.format(bad_config=bad_config, missing=tmp_path / "missing.yaml") for a in args]
+    code, stdout, stderr = run_main(capfd, *args, "--out", str(out), "--quiet")
+    assert code == 2
+    assert stderr.count("\n") == 1 and stderr.startswith("landing-sim: error: "), stderr
+    assert named in stderr
+    assert "Traceback" not in stderr and stdout == ""
+    assert not out.exists()
+
+
+def test_unwritable_output_directory_under_sys(capfd):
+    assert not SYS_OUT.parent.exists()
+    code, stdout, stderr = run_main(capfd, "run", "stewart-hover", "--duration", "0.5", "--out", str(SYS_OUT),
+                                    "--quiet")
+    assert code == 2
+    assert stderr.count("\n") == 1 and str(SYS_OUT) in stderr and "cannot write" in stderr, stderr
+    assert "Traceback" not in stderr and stdout == ""
+    assert not SYS_OUT.parent.exists()
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into a mode 0500 directory; the /sys test covers root")
+def test_unwritable_output_directory_by_mode(capfd, tmp_path):
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o500)
+    try:
+        code, stdout, stderr = run_main(capfd, "run", "stewart-hover", "--duration", "0.5", "--out",
+                                        str(locked / "out"), "--quiet")
+        assert code == 2
+        assert stderr.count("\n") == 1 and "cannot write" in stderr and "Traceback" not in stderr, stderr
+        assert list(locked.iterdir()) == []
+    finally:
+        locked.chmod(0o700)
+
+
+def test_output_path_that_is_a_file(capfd, tmp_path):
+    path = tmp_path / "a_file"
+    path.write_text("x")
+    code, _, stderr = run_main(capfd, "run", "stewart-hover", "--duration", "0.5", "--out", str(path), "--quiet")
+    assert code == 2 and stderr.count("\n") == 1 and "not a directory" in stderr
+    assert path.read_text() == "x"
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    """`landing-sim run stewart-hover --duration 0.5 --out <tmp>/nested/hover --quiet --video`, in-process."""
+    out = tmp_path_factory.mktemp("run") / "nested" / "hover"  # parents are created
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = main(["run", "stewart-hover", "--duration", "0.5", "--out", str(out), "--quiet", "--video"])
+    return code, out, stdout.getvalue(), stderr.getvalue()
+
+
+def test_a_short_run_succeeds_and_says_where_its_results_are(short_run):
+    code, out, stdout, stderr = short_run
+    assert code == 0, stderr
+    assert stdout.count("\n") == 1 and stdout.startswith("stewart-hover:") and str(out) in stdout
+    assert stderr == ""
+
+
+def test_a_short_run_writes_metrics_log_and_plots(short_run):
+    code, out, _, _ = short_run
+    assert code == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    for key in ("scenario", "seed", "sim_time_s", "wall_time_s", "realtime_factor"):
+        assert key in metrics
+    assert metrics["scenario"] == "stewart-hover" and metrics["seed"] == 0 and metrics["sim_time_s"] == 0.5
+    assert metrics["wall_time_s"] > 0
+    assert metrics["realtime_factor"] == pytest.approx(metrics["sim_time_s"] / metrics["wall_time_s"])
+    with np.load(out / "log.npz") as log:
+        np.testing.assert_allclose(log["t"], np.arange(11) * 0.05, atol=1e-9)
+        assert log["tag_corners"].shape == (11, 8) and np.all(np.isfinite(log["tag_corners"]))
+    plots = sorted(out.glob("*.png"))
+    assert len(plots) >= 1
+    for plot in plots:
+        image = cv2.imread(str(plot))
+        assert image is not None and image.shape[0] > 100 and image.std() > 5, plot.name
+
+
+def test_a_short_run_leaves_no_partial_files(short_run):
+    _, out, _, _ = short_run
+    names = [p.name for p in out.rglob("*")]  # pathlib's glob includes hidden names
+    assert names and not [n for n in names if "partial" in n or n.startswith(".landing-sim-probe")], names
+
+
+def test_video_has_one_frame_per_camera_sample(short_run):
+    _, out, _, _ = short_run
+    video = cv2.VideoCapture(str(out / "camera.mp4"))
+    try:
+        assert video.isOpened()
+        frames = []
+        while True:
+            ok, frame = video.read()
+            if not ok:
+                break
+            frames.append(frame)
+    finally:
+        video.release()
+    assert len(frames) == 11
+    assert frames[0].shape == (512, 512, 3)
+    assert np.std(frames[-1]) > 20  # the tag is in view, not a blank frame

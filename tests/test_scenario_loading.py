@@ -1,0 +1,194 @@
+"""Scenario files: typed loading, unknown keys named by their dotted path, `--set` overrides, and
+errors as ConfigError."""
+
+import dataclasses
+
+import pytest
+import yaml
+
+from diagrams.runner import load_scenario
+from diagrams.scenario import SCENARIO_DIR, normalise, scenario_names, scenario_path, set_override
+from diagrams.stewart_run import Scenario
+from systems.config import ConfigError
+
+
+def write_yaml(tmp_path, data, name="scenario.yaml"):
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data) if not isinstance(data, str) else data)
+    return path
+
+
+def test_the_named_scenarios_are_the_yaml_files():
+    names = scenario_names()
+    assert {"stewart-hover", "stewart-dynamic"} <= set(names)
+    assert names == sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
+    assert scenario_path("stewart-hover") == SCENARIO_DIR / "stewart-hover.yaml"
+
+
+@pytest.mark.parametrize("name", scenario_names())
+def test_every_named_scenario_loads_and_validates(name):
+    loaded_name, scenario = load_scenario(name)
+    raw = yaml.safe_load((SCENARIO_DIR / f"{name}.yaml").read_text())
+    assert loaded_name == name
+    assert dataclasses.is_dataclass(scenario) and scenario.diagram == raw.get("diagram", "stewart_scene")
+    assert scenario.duration_s == raw["duration_s"] and scenario.seed == raw["seed"]
+
+
+def test_fields_the_file_sets_are_loaded_and_the_rest_keep_their_defaults(tmp_path):
+    path = write_yaml(tmp_path, {"duration_s": 3.5, "platform": {"motion": "sinusoid", "roll_amplitude_deg": [4.0, 1.0],
+                                                                 "roll_frequency_hz": [0.1, 0.3]},
+                                 "camera": {"pixel_noise_std": 1.5}})
+    name, scenario = load_scenario(config_path=path)
+    defaults = Scenario()
+    assert name == "scenario"
+    assert scenario.duration_s == 3.5
+    assert scenario.platform.roll_amplitude_deg == [4.0, 1.0]
+    assert scenario.camera.pixel_noise_std == 1.5
+    assert scenario.camera.fx == defaults.camera.fx and scenario.tof == defaults.tof and scenario.hover == defaults.hover
+
+
+def test_unknown_key_names_its_dotted_path_and_suggests_the_right_one(tmp_path):
+    path = write_yaml(tmp_path, {"platform": {"motion": "sinusoid", "rol_amplitude_deg": [8.0]}})
+    with pytest.raises(ConfigError) as error:
+        load_scenario(config_path=path)
+    message = str(error.value)
+    assert "'platform.rol_amplitude_deg'" in message
+    assert "'platform.roll_amplitude_deg'" in message
+
+
+@pytest.mark.parametrize("data, named, suggested", [
+    ({"durations_s": 2.0}, "durations_s", "duration_s"),
+    ({"camera": {"fxx": 400.0}}, "camera.fxx", "camera.fx"),
+    ({"tof": {"noise_std": 0.01}}, "tof.noise_std", "tof.noise_std_m"),
+    ({"hover": {"zzz": 1}}, "hover.zzz", None),
+])
+def test_unknown_keys_at_any_depth(tmp_path, data, named, suggested):
+    with pytest.raises(ConfigError) as error:
+        load_scenario(config_path=write_yaml(tmp_path, data))
+    assert f"'{named}'" in str(error.value)
+    if suggested:
+        assert f"did you mean '{suggested}'" in str(error.value)
+    else:
+        assert "did you mean" not in str(error.value)
+
+
+def test_unknown_key_given_by_set_is_named_too():
+    with pytest.raises(ConfigError, match=r"'platform\.rol_amplitude_deg'.*'platform\.roll_amplitude_deg'"):
+        load_scenario("stewart-dynamic", overrides=["platform.rol_amplitude_deg=8"])
+
+
+def test_set_overrides_a_list_field_with_a_scalar():
+    _, scenario = load_scenario("stewart-hover", overrides=["platform.roll_amplitude_deg=8",
+                                                            "platform.roll_frequency_hz=0.1"])
+    assert scenario.platform.roll_amplitude_deg == [8.0]
+    assert isinstance(scenario.platform.roll_amplitude_deg[0], float)
+    assert scenario.platform.roll_frequency_hz == [0.1]
+    _, default = load_scenario("stewart-hover")
+    assert default.platform.roll_amplitude_deg == []
+
+
+def test_set_accepts_yaml_values_and_later_settings_win():
+    _, scenario = load_scenario("stewart-hover", overrides=[
+        "platform.motion=sinusoid", "platform.x_amplitude_m=[0.1, 0.02]", "platform.x_frequency_hz=[0.1, 0.5]",
+        "camera.rate_hz=10", "camera.rate_hz=25", "hover.offset_xy_m=[0.2, -0.1]", "seed=9"],
+        duration_s=1.5, seed=11)
+    assert scenario.platform.motion == "sinusoid"
+    assert scenario.platform.x_amplitude_m == [0.1, 0.02]
+    assert scenario.camera.rate_hz == 25.0 and isinstance(scenario.camera.rate_hz, float)
+    assert scenario.hover.offset_xy_m == [0.2, -0.1]
+    assert scenario.duration_s == 1.5
+    assert scenario.seed == 11  # the seed argument (--seed) wins over --set seed=
+
+
+def test_set_override_edits_nested_raw_data():
+    raw = {"camera": {"fx": 1.0}}
+    set_override(raw, "camera.fy=2.5")
+    set_override(raw, "tof.noise_std_m=0.01")
+    set_override(raw, "description=a b c")
+    assert raw == {"camera": {"fx": 1.0, "fy": 2.5}, "tof": {"noise_std_m": 0.01}, "description": "a b c"}
+
+
+@pytest.mark.parametrize("assignment", ["platform.roll_amplitude_deg", "=3", "camera.rate_hz=[1, 2"])
+def test_malformed_set_is_a_config_error(assignment):
+    with pytest.raises(ConfigError):
+        set_override({}, assignment)
+
+
+def test_set_into_a_value_that_is_not_a_group_is_a_config_error():
+    with pytest.raises(ConfigError, match="seed"):
+        set_override({"seed": 3}, "seed.x=1")
+
+
+@pytest.mark.parametrize("assignment", ["camera.width=[512]", "platform.roll_amplitude_deg={a: 1}", "hover.roll_deg=yes"])
+def test_type_errors_are_config_errors(assignment):
+    with pytest.raises(ConfigError):
+        load_scenario("stewart-dynamic", overrides=[assignment])
+
+
+@pytest.mark.parametrize("assignment, field", [
+    ("camera.rate_hz=fast", "camera.rate_hz"),
+    ("seed=1.5", "seed"),
+    ("platform.motion=[1, 2]", "platform.motion"),
+    ("platform.roll_amplitude_deg=[1, x]", "platform.roll_amplitude_deg"),
+])
+def test_a_type_error_names_the_field(assignment, field):
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        load_scenario("stewart-dynamic", overrides=[assignment])
+
+
+def test_a_group_given_a_scalar_is_a_config_error():
+    with pytest.raises(ConfigError, match="hover"):
+        load_scenario("stewart-hover", overrides=["hover=3"])
+
+
+def test_a_group_given_a_scalar_is_named_without_a_trailing_dot():
+    with pytest.raises(ConfigError) as error:
+        load_scenario("stewart-hover", overrides=["hover=3"])
+    assert str(error.value).startswith("hover must be ") and "hover." not in str(error.value)
+
+
+@pytest.mark.parametrize("assignment, field", [
+    ("camera.rate_hz=-1", "camera.rate_hz"),
+    ("platform.tag_size_m=2", "platform.tag_size_m"),
+    ("platform.motion=wobble", "platform.motion"),
+    ("tof.max_range_m=0.01", "tof.max_range_m"),
+    ("hover.height_above_deck_m=0.05", "hover.height_above_deck_m"),
+    ("imu.rate_hz=0", "imu.rate_hz"),
+    ("duration_s=0", "duration_s"),
+])
+def test_values_out_of_range_name_the_field(assignment, field):
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        load_scenario("stewart-hover", overrides=[assignment])
+
+
+def test_unknown_scenario_lists_the_known_ones():
+    with pytest.raises(ConfigError) as error:
+        load_scenario("stewart-hoover")
+    assert "'stewart-hoover'" in str(error.value)
+    for name in scenario_names():
+        assert name in str(error.value)
+
+
+@pytest.mark.parametrize("text, fragment", [
+    ("platform: [1, 2\n", "not valid YAML"),
+    ("- 1\n- 2\n", "mapping"),
+    ("diagram: no_such_diagram\n", "no_such_diagram"),
+])
+def test_bad_files_are_config_errors(tmp_path, text, fragment):
+    with pytest.raises(ConfigError, match=fragment):
+        load_scenario(config_path=write_yaml(tmp_path, text))
+
+
+def test_missing_file_is_a_config_error(tmp_path):
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_scenario(config_path=tmp_path / "nope.yaml")
+
+
+def test_an_empty_file_is_the_defaults(tmp_path):
+    _, scenario = load_scenario(config_path=write_yaml(tmp_path, ""))
+    assert scenario == Scenario()
+
+
+def test_normalise_wraps_scalars_for_list_fields_only():
+    out = normalise({"duration_s": 2, "platform": {"x_amplitude_m": 0.1, "motion": "static"}}, Scenario)
+    assert out == {"duration_s": 2, "platform": {"x_amplitude_m": [0.1], "motion": "static"}}

@@ -1,0 +1,231 @@
+"""Stewart platform: inverse and forward kinematics, the motion modes, the LeafSystem's outputs, and
+configuration errors."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.geometry import SceneGraph
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+
+from systems.config import ConfigError
+from systems.platforms.stewart import (
+    StewartGeometry,
+    StewartMotion,
+    StewartPlatform,
+    StewartPlatformConfig,
+    forward_kinematics,
+    leg_lengths,
+    within_stroke,
+)
+
+
+def hand_leg(config: StewartPlatformConfig, i: int, dz: float = 0.0, yaw: float = 0.0) -> float:
+    """Leg i by hand for the deck at its nominal pose lifted by dz and yawed by `yaw` (rad) about its
+    centre: both joints from their circles with explicit cos/sin; the vertical distance between the
+    joint planes is nominal_height_m + dz."""
+    a = math.radians(config.base_joint_angles_deg[i])
+    b = math.radians(config.platform_joint_angles_deg[i]) + yaw
+    bx, by = config.base_radius_m * math.cos(a), config.base_radius_m * math.sin(a)
+    qx, qy = config.platform_radius_m * math.cos(b), config.platform_radius_m * math.sin(b)
+    return math.sqrt((qx - bx) ** 2 + (qy - by) ** 2 + (config.nominal_height_m + dz) ** 2)
+
+
+def nominal_top_z(config: StewartPlatformConfig) -> float:
+    return config.base_joint_height_m + config.nominal_height_m + config.deck_thickness_m
+
+
+def asymmetric_config() -> StewartPlatformConfig:
+    """Unequal joint angles, so the six legs differ at the nominal pose."""
+    return StewartPlatformConfig(base_joint_angles_deg=[-20.0, 10.0, 100.0, 140.0, 220.0, 262.0],
+                                 platform_joint_angles_deg=[-50.0, 40.0, 80.0, 170.0, 190.0, 280.0],
+                                 base_radius_m=0.55, platform_radius_m=0.3, nominal_height_m=0.62)
+
+
+@pytest.mark.parametrize("config", [StewartPlatformConfig(), asymmetric_config()], ids=["default", "asymmetric"])
+def test_leg_lengths_at_nominal_pose_match_hand_computation(config):
+    geometry = StewartGeometry.from_config(config)
+    np.testing.assert_allclose(geometry.X_SP0.translation(), [0.0, 0.0, nominal_top_z(config)], atol=1e-15)
+    np.testing.assert_allclose(leg_lengths(geometry.X_SP0, geometry), [hand_leg(config, i) for i in range(6)],
+                               rtol=0, atol=1e-12)
+
+
+def test_leg_zero_of_default_platform_by_hand():
+    # Base joint at -15 deg on a 0.5 m circle, deck joint at -45 deg on a 0.35 m circle, joint planes 0.6 m apart.
+    c15, s15, c45, s45 = math.cos(math.radians(15)), math.sin(math.radians(15)), math.sqrt(0.5), math.sqrt(0.5)
+    expected = math.sqrt((0.35 * c45 - 0.5 * c15) ** 2 + (-0.35 * s45 + 0.5 * s15) ** 2 + 0.6**2)
+    geometry = StewartGeometry.from_config(StewartPlatformConfig())
+    assert leg_lengths(geometry.X_SP0, geometry)[0] == pytest.approx(expected, abs=1e-12)
+
+
+@pytest.mark.parametrize("dz", [-0.08, 0.05, 0.12])
+def test_vertical_lift_changes_every_leg_to_the_hypotenuse(dz):
+    config = asymmetric_config()
+    geometry = StewartGeometry.from_config(config)
+    horizontal_sq = [hand_leg(config, i) ** 2 - config.nominal_height_m**2 for i in range(6)]
+    X = RigidTransform([0.0, 0.0, nominal_top_z(config) + dz])
+    expected = [math.sqrt(h2 + (config.nominal_height_m + dz) ** 2) for h2 in horizontal_sq]
+    np.testing.assert_allclose(leg_lengths(X, geometry), expected, rtol=0, atol=1e-12)
+
+
+def test_yaw_about_the_deck_centre_follows_the_law_of_cosines():
+    config, yaw = asymmetric_config(), math.radians(7.0)
+    geometry = StewartGeometry.from_config(config)
+    X = RigidTransform(RotationMatrix.MakeZRotation(yaw), geometry.X_SP0.translation())
+    expected = [math.sqrt(config.base_radius_m**2 + config.platform_radius_m**2 - 2 * config.base_radius_m
+                          * config.platform_radius_m * math.cos(math.radians(config.platform_joint_angles_deg[i]
+                                                                               - config.base_joint_angles_deg[i]) + yaw)
+                          + config.nominal_height_m**2) for i in range(6)]
+    np.testing.assert_allclose(leg_lengths(X, geometry), expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(expected, [hand_leg(config, i, yaw=yaw) for i in range(6)], atol=1e-12)
+
+
+def test_forward_kinematics_recovers_random_poses_within_the_stroke():
+    geometry = StewartGeometry.from_config(StewartPlatformConfig())
+    rng = np.random.default_rng(7)
+    tested = 0
+    while tested < 8:
+        offset = rng.uniform(-1, 1, 6) * [0.06, 0.06, 0.06, 0.15, 0.15, 0.2]
+        X = RigidTransform(RollPitchYaw(offset[3:]), geometry.X_SP0.translation() + offset[:3])
+        lengths = leg_lengths(X, geometry)
+        if not within_stroke(lengths, geometry):
+            continue
+        tested += 1
+        X_fk = forward_kinematics(lengths, geometry)
+        assert np.max(np.abs(X_fk.translation() - X.translation())) < 1e-6
+        assert X_fk.rotation().inverse().multiply(X.rotation()).ToAngleAxis().angle() < 1e-6
+        np.testing.assert_allclose(leg_lengths(X_fk, geometry), lengths, atol=1e-9)
+
+
+def test_within_stroke_checks_both_ends():
+    geometry = StewartGeometry.from_config(StewartPlatformConfig(leg_min_m=0.5, leg_max_m=0.85))
+    assert within_stroke(np.full(6, 0.5), geometry) and within_stroke(np.full(6, 0.85), geometry)
+    assert not within_stroke(np.r_[np.full(5, 0.7), 0.86], geometry)
+    assert not within_stroke(np.r_[0.49, np.full(5, 0.7)], geometry)
+
+
+def make_platform(config: StewartPlatformConfig, seed: int = 0):
+    platform = StewartPlatform(config, SceneGraph(), seed)
+    return platform, platform.CreateDefaultContext()
+
+
+def outputs_at(platform, context, t):
+    context.SetTime(t)
+    return (platform.GetOutputPort("X_WP").Eval(context), platform.GetOutputPort("leg_lengths").Eval(context),
+            platform.GetOutputPort("stroke_exceeded").Eval(context)[0])
+
+
+def test_stroke_exceeded_flags_a_big_vertical_excursion():
+    # z = 0.3 sin(2 pi 0.25 t): 0 at t = 0 and 2 s, +0.3 m at t = 1 s, -0.3 m at t = 3 s.
+    config = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[0.3], z_frequency_hz=[0.25])
+    platform, context = make_platform(config)
+    top = nominal_top_z(config)
+    for t, dz, exceeded in ((0.0, 0.0, 0.0), (1.0, 0.3, 1.0), (2.0, 0.0, 0.0), (3.0, -0.3, 1.0)):
+        X_WP, lengths, flag = outputs_at(platform, context, t)
+        np.testing.assert_allclose(X_WP.translation(), [0.0, 0.0, top + dz], atol=1e-12)
+        np.testing.assert_allclose(lengths, [hand_leg(config, i, dz=dz) for i in range(6)], atol=1e-12)
+        expect_outside = lengths.max() > config.leg_max_m or lengths.min() < config.leg_min_m
+        assert expect_outside == bool(exceeded)
+        assert flag == exceeded, f"t = {t}: legs {lengths}"
+
+
+def test_static_mode_holds_the_nominal_pose():
+    config = StewartPlatformConfig()
+    platform, context = make_platform(config)
+    expected_legs = [hand_leg(config, i) for i in range(6)]
+    for t in (0.0, 0.37, 12.5, 199.0):
+        X_WP, lengths, flag = outputs_at(platform, context, t)
+        np.testing.assert_allclose(X_WP.GetAsMatrix4(), RigidTransform([0, 0, nominal_top_z(config)]).GetAsMatrix4(),
+                                   atol=1e-15)
+        np.testing.assert_allclose(lengths, expected_legs, atol=1e-12)
+        assert flag == 0.0
+
+
+def test_sinusoid_mode_sums_the_configured_sinusoids():
+    config = StewartPlatformConfig(motion="sinusoid", x_amplitude_m=[0.02, 0.01], x_frequency_hz=[0.1, 0.35],
+                                   x_phase_deg=[0.0, 30.0], pitch_amplitude_deg=[5.0], pitch_frequency_hz=[0.2])
+    motion = StewartMotion(config)
+    for t in (0.0, 0.8, 3.3):
+        x = 0.02 * math.sin(2 * math.pi * 0.1 * t) + 0.01 * math.sin(2 * math.pi * 0.35 * t + math.radians(30))
+        pitch = math.radians(5.0) * math.sin(2 * math.pi * 0.2 * t)
+        np.testing.assert_allclose(motion(t), [x, 0, 0, 0, pitch, 0], atol=1e-15)
+
+
+def random_walk_config() -> StewartPlatformConfig:
+    return StewartPlatformConfig(motion="random_walk", x_amplitude_m=[0.03, 0.02], x_frequency_hz=[0.1, 0.2],
+                                 z_amplitude_m=[0.04], z_frequency_hz=[0.1],
+                                 roll_amplitude_deg=[6.0], roll_frequency_hz=[0.1],
+                                 yaw_amplitude_deg=[-10.0], yaw_frequency_hz=[0.1])
+
+
+# The walk is drawn in chunks of 256 knots 0.25 s apart (64 s): sample across chunk boundaries.
+TIMES = np.arange(0.0, 150.0, 0.05)
+
+
+def test_random_walk_is_deterministic_for_a_seed():
+    walk = StewartMotion(random_walk_config(), seed=5)
+    same = StewartMotion(random_walk_config(), seed=5)
+    other = StewartMotion(random_walk_config(), seed=6)
+    A = np.array([walk(t) for t in TIMES])
+    B = np.array([same(t) for t in TIMES])
+    C = np.array([other(t) for t in TIMES])
+    np.testing.assert_array_equal(A, B)
+    assert np.max(np.abs(A - C)) > 0.01
+
+
+def test_random_walk_does_not_depend_on_the_order_of_evaluation():
+    forward = StewartMotion(random_walk_config(), seed=2)
+    A = np.array([forward(t) for t in TIMES])
+    shuffled = StewartMotion(random_walk_config(), seed=2)
+    order = np.random.default_rng(0).permutation(len(TIMES))[:200]
+    for i in order:
+        np.testing.assert_array_equal(shuffled(TIMES[i]), A[i])
+
+
+def test_random_walk_stays_inside_its_bound_and_uses_it():
+    config = random_walk_config()
+    bound = np.array([0.05, 0.0, 0.04, math.radians(6.0), 0.0, math.radians(10.0)])
+    for seed in range(3):
+        walk = StewartMotion(config, seed)
+        A = np.array([walk(t) for t in TIMES])
+        assert np.all(np.abs(A) <= bound), f"seed {seed}"
+        moving = bound > 0
+        # It wanders over a good part of its envelope (and so is not stuck at zero).
+        assert np.all(np.max(np.abs(A[:, moving]), axis=0) > 0.3 * bound[moving])
+        assert np.all(A[:, ~moving] == 0.0)
+
+
+def test_random_walk_is_continuous():
+    walk = StewartMotion(random_walk_config(), seed=1)
+    bound = np.array([0.05, 1.0, 0.04, math.radians(6.0), 1.0, math.radians(10.0)])
+    for start in (0.0, 63.5, 127.5):  # includes the chunk boundaries at 64 s and 128 s
+        t = np.arange(start, start + 1.0, 1e-4)
+        A = np.array([walk(ti) for ti in t]) / bound
+        steps = np.abs(np.diff(A, axis=0))
+        # A jump would show as one step far above the rest; a smooth walk moves a tiny fraction of its
+        # bound in 0.1 ms.
+        assert steps.max() < 1e-3, f"largest step {steps.max()} near t = {t[np.argmax(steps.max(axis=1))]}"
+
+
+@pytest.mark.parametrize("changes, field", [
+    ({"tag_size_m": 0.9}, "platform.tag_size_m"),  # 0.9 m black square is 1.125 m with its border: > 1 m deck
+    ({"leg_max_m": 0.5, "leg_min_m": 0.5}, "platform.leg_max_m"),
+    ({"leg_max_m": 0.4}, "platform.leg_max_m"),
+    ({"motion": "wobble"}, "platform.motion"),
+    ({"base_radius_m": 0.0}, "platform.base_radius_m"),
+    ({"base_joint_angles_deg": [0.0] * 5}, "platform.base_joint_angles_deg"),
+    ({"motion": "sinusoid", "roll_amplitude_deg": [5.0]}, "platform.roll_amplitude_deg"),
+    ({"motion": "sinusoid", "y_amplitude_m": [0.1], "y_frequency_hz": [-1.0]}, "platform.y_frequency_hz"),
+    ({"tag_id": 587}, "platform.tag_id"),
+])
+def test_invalid_configuration_raises_config_error_naming_the_field(changes, field):
+    config = StewartPlatformConfig(**changes)
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        config.validate()
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        StewartPlatform(config, SceneGraph())
+
+
+def test_tag_that_just_fits_is_accepted():
+    StewartPlatformConfig(tag_size_m=0.8, deck_size_m=1.0).validate()  # 0.8 m with border is exactly 1.0 m
+    StewartPlatformConfig(motion="random_walk").validate()

@@ -1,0 +1,150 @@
+"""The stewart-dynamic scenario's diagram simulated for 2 s: logs, detection and ground truth."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RigidTransform, RotationMatrix
+from scipy.spatial.transform import Rotation
+
+from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene, hover_pose
+
+AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+
+
+def deck_offset_by_hand(platform, t: float) -> np.ndarray:
+    """The sinusoid offsets [x, y, z (m), roll, pitch, yaw (deg)] of the scenario at time t."""
+    offset = []
+    for axis in AXES:
+        unit = "m" if axis in "xyz" else "deg"
+        amplitudes = getattr(platform, f"{axis}_amplitude_{unit}")
+        frequencies = getattr(platform, f"{axis}_frequency_hz")
+        phases = getattr(platform, f"{axis}_phase_deg") or [0.0] * len(amplitudes)
+        offset.append(sum(a * math.sin(2 * math.pi * f * t + math.radians(p))
+                          for a, f, p in zip(amplitudes, frequencies, phases)))
+    return np.array(offset)
+
+
+def X_WP_by_hand(scene, t: float) -> RigidTransform:
+    p = scene.config.platform
+    offset = deck_offset_by_hand(p, t)
+    R = Rotation.from_euler("xyz", offset[3:], degrees=True).as_matrix()
+    return RigidTransform(RotationMatrix(R), [offset[0], offset[1], scene.nominal_deck_z() + offset[2]])
+
+
+def pose_of(row) -> RigidTransform:
+    return RigidTransform(Quaternion(row[3:] / np.linalg.norm(row[3:])), row[:3])
+
+
+def test_the_scenario_is_the_moving_deck(dynamic_run):
+    scene, _, _ = dynamic_run
+    assert scene.config.platform.motion == "sinusoid"
+    assert scene.config.duration_s == 2.0
+    # Over the 2 s the deck moves by more than the 1 mm and 0.1 deg the pose checks below resolve.
+    change = deck_offset_by_hand(scene.config.platform, 2.0) - deck_offset_by_hand(scene.config.platform, 0.0)
+    assert np.max(np.abs(change[:3])) > 0.005 and np.max(np.abs(change[3:])) > 1.0
+
+
+def test_logs_have_one_row_per_camera_frame(dynamic_run):
+    scene, _, log = dynamic_run
+    assert scene.config.camera.rate_hz == 20.0
+    np.testing.assert_allclose(log["t"], np.arange(41) * 0.05, atol=1e-9)
+    camera_rate_logs = [name for name in scene.handles.loggers if name != "imu"]
+    assert {"X_CP", "ranges", "ranges_valid", "true_ranges", "tag_corners", "leg_lengths",
+            "stroke_exceeded"} <= set(camera_rate_logs)
+    for name in camera_rate_logs + ["true_tag_corners"]:
+        assert log[name].shape[0] == 41, name
+    assert log["X_CP"].shape[1] == 7 and log["tag_corners"].shape[1] == 8 and log["leg_lengths"].shape[1] == 6
+    # The IMU logs at its own 200 Hz.
+    np.testing.assert_allclose(log["t_imu"], np.arange(401) * 0.005, atol=1e-9)
+    assert log["imu"].shape == (401, 6)
+
+
+def test_the_tag_is_detected_in_every_frame_near_its_true_corners(dynamic_run):
+    _, _, log = dynamic_run
+    assert np.all(np.isfinite(log["tag_corners"]))
+    error = np.linalg.norm((log["tag_corners"] - log["true_tag_corners"]).reshape(-1, 4, 2), axis=2)
+    assert error.max() < 1.5, f"worst corner error {error.max():.2f} px"
+
+
+def test_true_X_CP_is_the_deck_pose_seen_from_the_hovering_camera(dynamic_run):
+    scene, _, log = dynamic_run
+    X_WC = scene.X_WC()
+    for t, row in zip(log["t"], log["X_CP"]):
+        X_CP_expected = X_WC.inverse().multiply(X_WP_by_hand(scene, t))
+        X_CP = pose_of(row)
+        np.testing.assert_allclose(X_CP.translation(), X_CP_expected.translation(), atol=1e-9)
+        assert X_CP.rotation().InvertAndCompose(X_CP_expected.rotation()).ToAngleAxis().angle() < 1e-9
+
+
+def test_the_platform_and_hover_pose_agree_with_the_hand_computed_poses(dynamic_run):
+    scene, context, _ = dynamic_run
+    handles = scene.handles
+    t = context.get_time()
+    assert t == pytest.approx(2.0)
+    X_WP = scene.eval(handles.platform, "X_WP", context)
+    np.testing.assert_allclose(X_WP.GetAsMatrix4(), X_WP_by_hand(scene, t).GetAsMatrix4(), atol=1e-12)
+    np.testing.assert_allclose(hover_pose(scene.config, handles.platform).GetAsMatrix4(), scene.X_WB().GetAsMatrix4(),
+                               atol=1e-12)
+    np.testing.assert_allclose(handles.X_BC.GetAsMatrix4(), scene.X_WB().inverse().multiply(scene.X_WC()).GetAsMatrix4(),
+                               atol=1e-12)
+
+
+def test_legs_and_stroke_logs_follow_the_deck(dynamic_run):
+    scene, _, log = dynamic_run
+    p = scene.config.platform
+    assert np.all(log["stroke_exceeded"] == 0.0)
+    assert np.all((log["leg_lengths"] > p.leg_min_m) & (log["leg_lengths"] < p.leg_max_m))
+    assert np.ptp(log["leg_lengths"], axis=0).min() > 1e-4  # every leg moves
+
+
+def test_tof_readings_are_valid_and_scatter_about_the_truth(dynamic_run):
+    scene, _, log = dynamic_run
+    std = scene.config.tof.noise_std_m
+    assert std > 0
+    np.testing.assert_array_equal(log["ranges_valid"], 1.0)
+    error = log["ranges"] - log["true_ranges"]
+    assert np.all(np.abs(error) < 5 * std)
+    assert 0.6 * std < np.std(error) < 1.4 * std
+    # The camera is about 2 m above the deck.
+    assert np.all(np.abs(log["true_ranges"] - 2.0) < 0.3)
+
+
+def test_imu_reads_gravity_while_hovering(dynamic_run):
+    scene, _, log = dynamic_run
+    c = scene.config.imu
+    f_std, w_std = c.accel_sample_std_m_s2, c.gyro_sample_std_rad_s
+    # The first row is the initial state before any sample; the rest are samples.
+    error = log["imu"][1:] - [0.0, 0.0, 9.80665, 0.0, 0.0, 0.0]
+    assert np.all(np.abs(error[:, :3]) < 6 * f_std) and np.all(np.abs(error[:, 3:]) < 6 * w_std)
+    # A sample taken at t is seen after t: the row logged at t_imu[k] is the sample of t_imu[k - 1].
+    context = scene.context()
+    imu_context = scene.handles.imu.GetMyContextFromRoot(context)
+    for k in (1, 2, 200, 400):
+        context.SetTime(log["t_imu"][k - 1])
+        sample = scene.handles.imu.EvalUniquePeriodicDiscreteUpdate(imu_context).get_vector().CopyToVector()
+        np.testing.assert_array_equal(log["imu"][k], sample)
+
+
+def test_the_same_seed_reproduces_the_run_bit_for_bit(dynamic_run):
+    from pydrake.systems.analysis import Simulator
+
+    from diagrams.stewart_run import collect_log
+
+    scene, _, log = dynamic_run
+    diagram, handles = build_stewart_scene(scene.config)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(0.5)
+    again = collect_log(handles, simulator.get_context(), scene.config)
+    n = len(again["t"])
+    assert n == 11
+    for name in ("ranges", "tag_corners", "X_CP"):
+        np.testing.assert_array_equal(again[name], log[name][:n], err_msg=name)
+    np.testing.assert_array_equal(again["imu"], log["imu"][:len(again["imu"])])
+
+
+def test_a_scene_builds_from_the_defaults():
+    diagram, handles = build_stewart_scene(StewartSceneConfig())
+    assert diagram.get_name() == "stewart_scene"
+    assert set(handles.loggers) >= {"X_CP", "ranges", "ranges_valid", "true_ranges", "tag_corners", "imu"}

@@ -1,0 +1,176 @@
+"""ToF range sensors: the range-limit function, the TofSensors system on fixed depth images, and the
+rendered rays against the analytic ray-plane distance to a tilted deck."""
+
+import copy
+import math
+
+import numpy as np
+import pytest
+from pydrake.systems.sensors import ImageDepth32F
+
+from diagrams.stewart_scene import StewartSceneConfig
+from systems.config import ConfigError
+from systems.platforms.stewart import TAG_ABOVE_DECK_M
+from systems.sensors.tof import TofConfig, TofSensors, apply_range_limits, sensor_positions_C
+
+
+def test_sensor_positions_follow_eq_21_to_24():
+    a, c = 0.135, math.cos(math.radians(45.0))
+    expected = [[-a * c, -a * c, 0], [-a * c, a * c, 0], [a * c, a * c, 0], [a * c, -a * c, 0]]
+    np.testing.assert_allclose(sensor_positions_C(0.135, 45.0), expected, atol=1e-15)
+    # At other angles the arm stays the distance from the axis, one sensor per quadrant.
+    p = sensor_positions_C(0.2, 30.0)
+    np.testing.assert_allclose(np.linalg.norm(p[:, :2], axis=1), 0.2)
+    np.testing.assert_allclose(np.abs(p[:, 0]), 0.2 * math.cos(math.radians(30.0)))
+    np.testing.assert_array_equal(np.sign(p[:, :2]), [[-1, -1], [-1, 1], [1, 1], [1, -1]])
+
+
+def test_apply_range_limits():
+    true = np.array([np.nan, np.inf, 0.0, 0.03, 0.04, 1.5, 4.0, 4.01, 3.999])
+    noise = np.array([0.1, 0.1, 0.1, 0.002, -0.003, 0.004, -0.005, 0.006, 0.01])
+    ranges, valid = apply_range_limits(true, noise, 0.04, 4.0)
+    expected_valid = np.array([0, 0, 0, 0, 1, 1, 1, 0, 1], dtype=float)
+    np.testing.assert_array_equal(valid, expected_valid)
+    assert valid.dtype == float
+    ok = expected_valid == 1
+    np.testing.assert_allclose(ranges[ok], true[ok] + noise[ok], rtol=0, atol=1e-15)
+    assert np.all(np.isnan(ranges[~ok]))
+    # Validity is decided on the true range: noise that carries a reading over a limit keeps it valid.
+    assert ranges[-1] == pytest.approx(4.009)
+
+
+def depth_image(value: float) -> ImageDepth32F:
+    image = ImageDepth32F(3, 3)
+    image.mutable_data[:] = value
+    return image
+
+
+def tof_system(true_ranges, seed=0, **config):
+    tof = TofSensors(TofConfig(**config), seed)
+    context = tof.CreateDefaultContext()
+    for i, r in enumerate(true_ranges):
+        tof.get_input_port(i).FixValue(context, depth_image(r))
+    return tof, context
+
+
+def outputs(tof, context, t=0.0):
+    context.SetTime(t)
+    return [tof.GetOutputPort(name).Eval(context).copy() for name in ("ranges", "ranges_valid", "true_ranges")]
+
+
+def test_noise_free_readings_are_the_centre_pixels():
+    true = [0.5, 1.25, 2.0, 3.75]  # exact in float32
+    tof, context = tof_system(true)
+    ranges, valid, truth = outputs(tof, context, 0.35)
+    np.testing.assert_array_equal(truth, true)
+    np.testing.assert_array_equal(ranges, true)
+    np.testing.assert_array_equal(valid, [1, 1, 1, 1])
+
+
+def test_only_the_centre_pixel_counts():
+    tof = TofSensors(TofConfig())
+    context = tof.CreateDefaultContext()
+    for i in range(4):
+        image = depth_image(np.inf)
+        image.mutable_data[1, 1, 0] = 1.0 + i
+        tof.get_input_port(i).FixValue(context, image)
+    np.testing.assert_array_equal(tof.GetOutputPort("true_ranges").Eval(context), [1, 2, 3, 4])
+
+
+def test_out_of_range_and_unseen_give_nan_and_invalid():
+    # Nothing seen (inf), too close for the renderer (0), below the 0.04 m minimum, above the 4 m maximum.
+    tof, context = tof_system([np.inf, 0.0, 0.02, 4.5], noise_std_m=0.01)
+    ranges, valid, truth = outputs(tof, context, 1.0)
+    assert np.all(np.isnan(ranges))
+    np.testing.assert_array_equal(valid, [0, 0, 0, 0])
+    assert truth[0] == np.inf and truth[3] == pytest.approx(4.5)
+
+
+def test_noise_has_the_configured_std_and_is_seeded():
+    std, period = 0.01, 1.0 / 20.0
+    tof, context = tof_system([1.0, 2.0, 3.0, 3.5], noise_std_m=std)
+    truth = np.array([1.0, 2.0, 3.0, 3.5])
+    errors = np.array([outputs(tof, context, k * period)[0] - truth for k in range(1500)])
+    assert np.all(np.abs(errors) < 6 * std)
+    assert np.std(errors) == pytest.approx(std, rel=0.05)
+    assert abs(np.mean(errors)) < 4 * std / math.sqrt(errors.size)
+    # Independent from sensor to sensor and from sample to sample.
+    assert np.max(np.abs(np.corrcoef(errors.T) - np.eye(4))) < 0.12
+    assert abs(np.corrcoef(errors[:-1, 0], errors[1:, 0])[0, 1]) < 0.12
+    # The same time gives the same noise; another seed other noise.
+    np.testing.assert_array_equal(outputs(tof, context, 7 * period)[0] - truth, errors[7])
+    other, other_context = tof_system(truth, seed=1, noise_std_m=std)
+    assert np.all(outputs(other, other_context, 7 * period)[0] - truth != errors[7])
+
+
+@pytest.mark.parametrize("changes, field", [
+    ({"max_range_m": 0.03}, "tof.max_range_m"),
+    ({"max_range_m": 25.0}, "tof.max_range_m"),
+    ({"noise_std_m": -0.1}, "tof.noise_std_m"),
+    ({"rate_hz": 0.0}, "tof.rate_hz"),
+    ({"arm_m": -0.1}, "tof.arm_m"),
+])
+def test_invalid_configuration_names_the_field(changes, field):
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        TofSensors(TofConfig(**changes))
+
+
+def analytic_ranges(scene):
+    """Distance along +z of each sensor frame (at p_CS_i, oriented like the camera) to the tag plate's
+    top plane, TAG_ABOVE_DECK_M above the deck's top surface; and the hit points in the deck frame."""
+    c = scene.config.tof
+    u, v = c.arm_m * math.cos(math.radians(c.angle_deg)), c.arm_m * math.sin(math.radians(c.angle_deg))
+    X_WC, X_WP = scene.X_WC(), scene.X_WP_static()
+    d_W = X_WC.rotation().matrix()[:, 2]
+    n_W = X_WP.rotation().matrix()[:, 2]
+    p_plane = X_WP.multiply(np.array([0.0, 0.0, TAG_ABOVE_DECK_M]))
+    ranges, hits_P = [], []
+    for p_CS in ([-u, -v, 0], [-u, v, 0], [u, v, 0], [u, -v, 0]):
+        p_W = X_WC.multiply(np.array(p_CS, dtype=float))
+        r = n_W @ (p_plane - p_W) / (n_W @ d_W)
+        ranges.append(r)
+        hits_P.append(X_WP.inverse().multiply(p_W + r * d_W))
+    return np.array(ranges), np.array(hits_P)
+
+
+@pytest.mark.parametrize("scene_name", ["hover_scene", "tilted_scene"])
+def test_rendered_ranges_match_the_ray_plane_distance(scene_name, request):
+    scene = request.getfixturevalue(scene_name)
+    expected, hits_P = analytic_ranges(scene)
+    # The rays land on the tag plate (edge tag_size_m * 10/8), so its top plane is the right one.
+    assert np.all(np.abs(hits_P[:, :2]) < scene.config.platform.tag_size_m * 10 / 8 / 2 - 0.02)
+    if scene_name == "tilted_scene":
+        assert np.ptp(expected) > 0.03  # the tilt makes the four ranges differ by centimetres
+    context = scene.context()
+    truth = scene.eval(scene.handles.tof, "true_ranges", context)
+    # 0.1 mm: well below the 0.5 mm the tag plate floats above the deck, and below the ~1 mm error of
+    # a centre pixel that looks half a pixel (0.17 deg) off the sensor axis onto the 12 deg tilted deck.
+    np.testing.assert_allclose(truth, expected, rtol=0, atol=1e-4)
+    np.testing.assert_array_equal(scene.eval(scene.handles.tof, "ranges", context), truth)
+    np.testing.assert_array_equal(scene.eval(scene.handles.tof, "ranges_valid", context), [1, 1, 1, 1])
+
+
+def test_noisy_ranges_scatter_about_the_rendered_truth(tilted_scene, build_scene):
+    config = copy.deepcopy(tilted_scene.config)
+    config.tof.noise_std_m = 0.01
+    scene = build_scene(config)
+    errors = []
+    for k in range(20):
+        context = scene.context(k * config.tof.period_s)
+        errors.append(scene.eval(scene.handles.tof, "ranges", context)
+                      - scene.eval(scene.handles.tof, "true_ranges", context))
+    errors = np.array(errors)
+    assert np.all(np.abs(errors) < 5 * 0.01)
+    assert 0.5 * 0.01 < np.std(errors) < 1.5 * 0.01
+
+
+def test_out_of_range_hover_gives_nan_and_invalid(build_scene):
+    config = StewartSceneConfig()
+    config.hover.height_above_deck_m = 5.0
+    config.tof.max_range_m = 4.0
+    scene = build_scene(config)
+    context = scene.context()
+    truth = scene.eval(scene.handles.tof, "true_ranges", context)
+    np.testing.assert_allclose(truth, 5.0 - TAG_ABOVE_DECK_M, atol=1e-4)
+    assert np.all(np.isnan(scene.eval(scene.handles.tof, "ranges", context)))
+    np.testing.assert_array_equal(scene.eval(scene.handles.tof, "ranges_valid", context), [0, 0, 0, 0])
