@@ -45,24 +45,41 @@ def _field_types(schema) -> dict[str, type]:
     return {f.name: hints[f.name] for f in dataclasses.fields(schema)}
 
 
+_SCALAR_KINDS = {float: ((int, float), "a number"), int: ((int,), "a whole number"), str: ((str,), "text"),
+                 bool: ((bool,), "true or false")}
+
+
+def _check_scalar(value, kind, dotted: str) -> None:
+    """A ConfigError naming the field when a YAML scalar has the wrong type for it."""
+    accepted, description = _SCALAR_KINDS.get(kind, ((object,), ""))
+    if not isinstance(value, accepted) or (kind is not bool and isinstance(value, bool)):
+        raise ConfigError(f"{dotted} must be {description}, got {value!r}")
+
+
 def normalise(raw: dict, schema, path: str = "") -> dict:
-    """Checks `raw` (plain YAML data) against a dataclass schema: an unknown key is a ConfigError
-    naming its dotted path; a scalar given for a list field becomes a one-element list."""
+    """Checks `raw` (plain YAML data) against a dataclass schema: an unknown key or a value of the
+    wrong type is a ConfigError naming its dotted path; a scalar given for a list field becomes a
+    one-element list. `path` is the dotted name of `raw` itself ("" at the top)."""
     if not isinstance(raw, dict):
-        raise ConfigError(f"{path or 'the scenario'} must be a mapping of keys to values, got {raw!r}")
+        raise ConfigError(f"{path or 'the scenario'} must be a group of settings (key: value), got {raw!r}")
+    prefix = f"{path}." if path else ""
     types = _field_types(schema)
     out = {}
     for key, value in raw.items():
-        dotted = f"{path}{key}"
+        dotted = f"{prefix}{key}"
         if key not in types:
             close = difflib.get_close_matches(str(key), types, n=1)
-            hint = f" (did you mean '{path}{close[0]}'?)" if close else ""
+            hint = f" (did you mean '{prefix}{close[0]}'?)" if close else ""
             raise ConfigError(f"unknown key '{dotted}'{hint}")
         kind = types[key]
         if dataclasses.is_dataclass(kind):
-            value = normalise(value, kind, dotted + ".")
-        elif typing.get_origin(kind) is list and not isinstance(value, list):
-            value = [value]
+            value = normalise(value, kind, dotted)
+        elif typing.get_origin(kind) is list:
+            value = value if isinstance(value, list) else [value]
+            for item in value:
+                _check_scalar(item, typing.get_args(kind)[0], dotted)
+        elif kind in _SCALAR_KINDS:
+            _check_scalar(value, kind, dotted)
         out[key] = value
     return out
 

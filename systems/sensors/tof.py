@@ -18,11 +18,11 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import ClippingRange, DepthRange, DepthRenderCamera, RenderCameraCore
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
-from pydrake.systems.sensors import CameraInfo, ImageDepth32F, RgbdSensor
+from pydrake.systems.sensors import ImageDepth32F, RgbdSensor
 
 from systems.config import require, require_positive
 from systems.noise import sample_index, sample_rng
-from systems.sensors.camera import RENDERER_NAME
+from systems.sensors.camera import RENDERER_NAME, camera_info
 
 _PIXELS = 3
 _FOV_RAD = np.deg2rad(1.0)
@@ -77,8 +77,11 @@ def apply_range_limits(true_ranges: np.ndarray, noise: np.ndarray, min_range: fl
 
 def make_ray_sensor(parent_frame_id, X_PS: RigidTransform) -> RgbdSensor:
     """The depth-only RgbdSensor that looks along +z of frame S (pose X_PS in the parent frame)."""
-    core = RenderCameraCore(RENDERER_NAME, CameraInfo(_PIXELS, _PIXELS, _FOV_RAD), ClippingRange(_NEAR_M, _FAR_M),
-                            RigidTransform())
+    # The centre pixel's centre on the principal point, so the centre pixel looks along +z exactly.
+    f = (_PIXELS / 2) / np.tan(_FOV_RAD / 2)
+    centre = (_PIXELS - 1) / 2
+    core = RenderCameraCore(RENDERER_NAME, camera_info(_PIXELS, _PIXELS, f, f, centre, centre),
+                            ClippingRange(_NEAR_M, _FAR_M), RigidTransform())
     return RgbdSensor(parent_frame_id, X_PS, DepthRenderCamera(core, DepthRange(_NEAR_M * 1.01, _FAR_M * 0.99)))
 
 
