@@ -20,14 +20,14 @@ from dataclasses import dataclass, field
 
 import matplotlib.pyplot as plt
 import numpy as np
-from pydrake.geometry import Box, Cylinder, Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph
+from pydrake.geometry import Box, Cylinder, Meshcat, MeshcatVisualizer, SceneGraph
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
-from diagrams.outputs import save_figure, write_json, write_npz
+from diagrams.outputs import save_figure, write_npz
 from diagrams.scenario import RunSettings
-from diagrams.stewart_scene import add_renderer, add_uav_sensors
+from diagrams.stewart_scene import add_renderer, add_uav_sensors, add_viewers
 from systems.config import require, require_positive
 from systems.estimators.pad_calibration import MIN_SAMPLES, PAD_COLOURS, PAD_RGB, PadCalibration
 from systems.geometry import register_visual
@@ -185,14 +185,7 @@ def add_calibration_scene(builder: DiagramBuilder, config: Scenario, meshcat: Me
         "true_ranges": tof.GetOutputPort("true_ranges"),
     }.items()}
 
-    visualizer = None
-    if meshcat is not None:
-        visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat,
-                                                    MeshcatVisualizerParams(role=Role.kIllustration))
-    video = None
-    if video_path is not None:
-        video = builder.AddSystem(VideoRecorder(video_path, period, config.camera.width, config.camera.height))
-        builder.Connect(noisy_camera.get_output_port(), video.get_input_port())
+    visualizer, video = add_viewers(builder, scene_graph, meshcat, noisy_camera, config.camera, video_path)
     p_C_sensors = sensor_positions_C(config.tof.arm_m, config.tof.angle_deg)
     return CalibrationSceneHandles(scene_graph, airframe, body, camera, noisy_camera, tof, pads, loggers,
                                    config.camera.X_BC, p_C_sensors, p_W_pads, visualizer, video)
@@ -335,25 +328,15 @@ def plot_calibration(calibration: PadCalibration, config: Scenario, p_C_sensors:
 
 
 def run(scenario: Scenario, ctx) -> dict:
-    from diagrams.runner import simulate, write_recording
+    from diagrams.runner import finish_run, simulate_scene
 
     video_path = ctx.out_dir / "camera.mp4" if ctx.options.video else None
     diagram, handles = build_calibration_scene(scenario, ctx.meshcat, video_path)
-    try:
-        wall, context = simulate(diagram, scenario.duration_s, ctx.options, handles.meshcat_visualizer)
-    except BaseException:
-        if handles.video is not None:
-            handles.video.discard()
-        raise
+    metrics, context = simulate_scene(diagram, handles, scenario, ctx)
     log = collect_log(handles, context, scenario)
     calibration = PadCalibration.from_frames(log["ranges"], log["pad_pixels"].reshape(-1, 4, 2), PAD_COLOURS)
     valid = np.isfinite(log["ranges"])
-    metrics = {
-        "scenario": ctx.name,
-        "seed": scenario.seed,
-        "sim_time_s": scenario.duration_s,
-        "wall_time_s": wall,
-        "realtime_factor": scenario.duration_s / wall,
+    metrics.update({
         "frames": int(len(log["t"])),
         "height_m": [scenario.start_height_m,
                      scenario.start_height_m + scenario.climb_speed_m_s * float(log["t"][-1])],
@@ -367,14 +350,9 @@ def run(scenario: Scenario, ctx) -> dict:
                 for i in range(4)],
         },
         "calibration": calibration_metrics(calibration, log, scenario, handles.p_C_sensors),
-    }
+    })
     calibration.save(ctx.out_dir / "pad_calibration.npz")  # atomic: written to a temporary name, renamed
     write_npz(ctx.out_dir / "log.npz", **log)
     plot_calibration(calibration, scenario, handles.p_C_sensors, ctx.out_dir)
-    if handles.video is not None:
-        handles.video.finish()
-    if ctx.options.record:
-        write_recording(ctx.meshcat, ctx.out_dir)
-    write_json(ctx.out_dir / "metrics.json", metrics)
-    return metrics
+    return finish_run(handles, ctx, metrics)
 

@@ -10,7 +10,7 @@ from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import Simulator
 from tqdm import tqdm
 
-from diagrams.outputs import check_writable, write_text
+from diagrams.outputs import check_writable, write_json, write_text
 from diagrams.scenario import load_typed, normalise, read_yaml, scenario_path, set_override
 from systems.config import ConfigError
 
@@ -105,10 +105,29 @@ def simulate(diagram, duration_s: float, options: RunOptions, visualizer=None):
     return wall, simulator.get_context()
 
 
-def write_recording(meshcat: Meshcat, out_dir: Path) -> Path:
-    path = out_dir / "meshcat.html"
-    write_text(path, meshcat.StaticHtml())
-    return path
+def simulate_scene(diagram, handles, scenario, ctx: RunContext):
+    """Simulates a scene whose handles carry `meshcat_visualizer` and `video` (see
+    `stewart_scene.add_viewers`); returns (metrics common to every run, final context). A failed
+    run discards its partial video."""
+    try:
+        wall, context = simulate(diagram, scenario.duration_s, ctx.options, handles.meshcat_visualizer)
+    except BaseException:
+        if handles.video is not None:
+            handles.video.discard()
+        raise
+    metrics = {"scenario": ctx.name, "seed": scenario.seed, "sim_time_s": scenario.duration_s, "wall_time_s": wall,
+               "realtime_factor": scenario.duration_s / wall}
+    return metrics, context
+
+
+def finish_run(handles, ctx: RunContext, metrics: dict) -> dict:
+    """Closes the video, writes the Meshcat recording if asked, and metrics.json last."""
+    if handles.video is not None:
+        handles.video.finish()
+    if ctx.options.record:
+        write_text(ctx.out_dir / "meshcat.html", ctx.meshcat.StaticHtml())
+    write_json(ctx.out_dir / "metrics.json", metrics)
+    return metrics
 
 
 def run(name: str, scenario, out_dir: str | Path, options: RunOptions) -> dict:

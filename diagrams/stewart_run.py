@@ -7,7 +7,7 @@ import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RigidTransform
 
-from diagrams.outputs import save_figure, write_json, write_npz
+from diagrams.outputs import save_figure, write_npz
 from diagrams.scenario import RunSettings
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import require_positive
@@ -119,33 +119,16 @@ def plot_scene(log: dict[str, np.ndarray], config: StewartSceneConfig, out_dir) 
 
 
 def run(scenario: Scenario, ctx) -> dict:
-    from diagrams.runner import simulate, write_recording
+    from diagrams.runner import finish_run, simulate_scene
 
     video_path = ctx.out_dir / "camera.mp4" if ctx.options.video else None
     diagram, handles = build_stewart_scene(scenario, ctx.meshcat, video_path)
-    try:
-        wall, context = simulate(diagram, scenario.duration_s, ctx.options, handles.meshcat_visualizer)
-    except BaseException:
-        if handles.video is not None:
-            handles.video.discard()
-        raise
+    metrics, context = simulate_scene(diagram, handles, scenario, ctx)
     log = collect_log(handles, context, scenario)
-    metrics = {
-        "scenario": ctx.name,
-        "seed": scenario.seed,
-        "sim_time_s": scenario.duration_s,
-        "wall_time_s": wall,
-        "realtime_factor": scenario.duration_s / wall,
-        **scene_metrics(log),
-    }
+    metrics.update(scene_metrics(log))
     if scenario.estimators:
         metrics["estimators"] = {name: estimator_metrics(log["X_CT"], log[f"estimate_{name}"])
                                  for name in scenario.estimators}
     write_npz(ctx.out_dir / "log.npz", **log)
     plot_scene(log, scenario, ctx.out_dir)
-    if handles.video is not None:
-        handles.video.finish()
-    if ctx.options.record:
-        write_recording(ctx.meshcat, ctx.out_dir)
-    write_json(ctx.out_dir / "metrics.json", metrics)
-    return metrics
+    return finish_run(handles, ctx, metrics)

@@ -126,6 +126,21 @@ def add_uav_sensors(builder: DiagramBuilder, scene_graph: SceneGraph, body_frame
     return camera, noisy_camera, tof
 
 
+def add_viewers(builder: DiagramBuilder, scene_graph: SceneGraph, meshcat: Meshcat | None, noisy_camera: NoisyCamera,
+                camera_config: CameraConfig, video_path=None):
+    """Meshcat (illustration geometry) when `meshcat` is given, and an MP4 of the camera stream when
+    `video_path` is. Returns (MeshcatVisualizer or None, VideoRecorder or None)."""
+    visualizer = video = None
+    if meshcat is not None:
+        visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat,
+                                                    MeshcatVisualizerParams(role=Role.kIllustration))
+    if video_path is not None:
+        video = builder.AddSystem(VideoRecorder(video_path, camera_config.period_s, camera_config.width,
+                                                camera_config.height))
+        builder.Connect(noisy_camera.get_output_port(), video.get_input_port())
+    return visualizer, video
+
+
 def add_renderer(scene_graph: SceneGraph) -> None:
     """The VTK renderer every camera here uses (headless through EGL)."""
     scene_graph.AddRenderer(RENDERER_NAME, MakeRenderEngineVtk(RenderEngineVtkParams(
@@ -189,15 +204,7 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
         builder.Connect(estimator.GetOutputPort("X_CT_estimate"), to_vector.get_input_port())
         loggers[f"estimate_{name}"] = LogVectorOutput(to_vector.get_output_port(), builder, period)
 
-    visualizer = None
-    if meshcat is not None:
-        visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat,
-                                                    MeshcatVisualizerParams(role=Role.kIllustration))
-    video = None
-    if video_path is not None:
-        video = builder.AddSystem(VideoRecorder(video_path, period, config.camera.width, config.camera.height))
-        builder.Connect(noisy_camera.get_output_port(), video.get_input_port())
-
+    visualizer, video = add_viewers(builder, scene_graph, meshcat, noisy_camera, config.camera, video_path)
     return StewartSceneHandles(scene_graph, platform, airframe, body, camera, noisy_camera, tof, imu, detector,
                                truth, loggers, X_BC, estimators, visualizer, video)
 
