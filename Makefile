@@ -22,6 +22,7 @@ test: $(STAMP) system-deps browser
 
 bench: $(STAMP) system-deps
 	$(VENV)/bin/python benchmarks/realtime.py
+	$(VENV)/bin/python benchmarks/crhf_table5.py
 
 $(STAMP): pyproject.toml
 	@if [ -z "$(PYTHON)" ]; then \
