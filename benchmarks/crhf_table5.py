@@ -5,7 +5,7 @@
 Runs stewart-dynamic (default noise), then unseen motions: random-walk deck motion with three other
 seeds, and the camera at 1.5 m and 3 m. Prints each run's MAE beside the paper's, the pose-flip
 count (frames with rotation error > 10 deg) and CRHF's per-frame compute time (corner filter and
-pose, replayed on the run's own logged corners and ranges: no rendering, no detection).
+filters and pose, replayed on the run's own logged corners and ranges: no rendering, no detection).
 """
 
 import argparse
@@ -17,7 +17,7 @@ import numpy as np
 
 from diagrams.runner import RunOptions, load_scenario, run
 from diagrams.stewart_scene import StewartSceneConfig
-from systems.estimators.corner_filter import CornerTrack, step_corner_track
+from systems.estimators.track_filter import Track
 from systems.estimators.crhf import CrhfEstimator
 from systems.sensors.tof import sensor_positions_C
 
@@ -36,14 +36,13 @@ CASES = {
 
 
 def crhf_compute_ms(config: StewartSceneConfig, log: dict) -> float:
-    """Median ms per frame of CRHF's own work (corner filter step and pose) on logged inputs."""
+    """Median ms per frame of CRHF's own work (both filters and the pose) on logged inputs."""
     crhf = CrhfEstimator(config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg),
                          config.platform.tag_size_m, config.camera.period_s)
-    track, times = CornerTrack(), []
+    tracks, times = (Track(), Track()), []
     for t, corners, ranges in zip(log["t"], log["tag_corners"], log["ranges"]):
         start = time.perf_counter()
-        track = step_corner_track(track, corners.reshape(4, 2), crhf._filter)
-        crhf.estimate(track, ranges, t)
+        tracks, _ = crhf.step(tracks, corners.reshape(4, 2), ranges, t)
         times.append(time.perf_counter() - start)
     return float(np.median(times) * 1e3)
 

@@ -66,7 +66,7 @@ class StewartSceneConfig:
     crhf: CrhfConfig = field(default_factory=CrhfConfig)
 
     def validate(self) -> None:
-        for name in ("platform", "uav", "hover", "camera", "tof", "imu"):
+        for name in ("platform", "uav", "hover", "camera", "tof", "imu", "crhf"):
             getattr(self, name).validate(name)
         for name in self.estimators:
             require(name in ESTIMATORS, f"estimators: unknown estimator '{name}' (known: {', '.join(ESTIMATORS)})")

@@ -1,20 +1,25 @@
-"""Tests of the corner Kalman filter (seed 000, Eq. 28-35)."""
+"""Tests of the tracking Kalman filter (seed 000, Eq. 28-35), on a tag-corner track."""
 
 import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
 
-from systems.estimators.corner_filter import (
-    CornerFilterParams,
-    CornerTrack,
+from systems.estimators.track_filter import (
+    Track,
+    TrackFilterParams,
     constant_velocity_model,
     kalman_update,
-    step_corner_track,
+    step_track,
 )
 
-PARAMS = CornerFilterParams()
+PARAMS = TrackFilterParams()
 START = np.array([[200.0, 200.0], [280.0, 205.0], [275.0, 285.0], [195.0, 280.0]])
 VELOCITY = np.array([40.0, -25.0])  # px/s, every corner alike
+
+
+def corners(track):
+    """The track's (4, 2) corner pixels."""
+    return track.position.reshape(4, 2)
 
 
 def truth(k):
@@ -25,16 +30,16 @@ def run(track, frames, rng, dropped=()):
     """Step the filter over frame indices; returns the track after each frame."""
     tracks = []
     for k in frames:
-        noise = PARAMS.measurement_std_px * rng.standard_normal((4, 2))
+        noise = PARAMS.measurement_std * rng.standard_normal((4, 2))
         z = None if k in dropped else truth(k) + noise
-        track = step_corner_track(track, z, PARAMS)
+        track = step_track(track, z, PARAMS)
         tracks.append(track)
     return tracks
 
 
 def errors(tracks, frames):
     """Largest corner error of each track, px."""
-    return np.array([np.abs(t.corners - truth(k)).max() for t, k in zip(tracks, frames)])
+    return np.array([np.abs(corners(t) - truth(k)).max() for t, k in zip(tracks, frames)])
 
 
 def test_scalar_update_matches_hand_computation():
@@ -45,25 +50,25 @@ def test_scalar_update_matches_hand_computation():
 
 
 def test_no_track_before_the_first_detection():
-    track = step_corner_track(CornerTrack(), None, PARAMS)
+    track = step_track(Track(), None, PARAMS)
     assert not track.valid
-    assert np.all(np.isnan(track.corners))
-    track = step_corner_track(track, START, PARAMS)
+    assert track.position is None
+    track = step_track(track, START, PARAMS)
     assert track.valid and track.coasted_steps == 0
-    np.testing.assert_array_equal(track.corners, START)
+    np.testing.assert_array_equal(corners(track), START)
 
 
 def test_converges_on_a_constant_velocity_track_to_the_riccati_covariance():
     rng = np.random.default_rng(0)
-    tracks = run(CornerTrack(), range(300), rng)
+    tracks = run(Track(), range(300), rng)
     # Filtered corners beat the raw 1 px detections, and the velocity estimate is unbiased.
-    residuals = [t.corners - truth(k) for t, k in zip(tracks[100:], range(100, 300))]
+    residuals = [corners(t) - truth(k) for t, k in zip(tracks[100:], range(100, 300))]
     rms = np.sqrt(np.mean(np.square(residuals)))
-    assert rms < 0.9 * PARAMS.measurement_std_px
+    assert rms < 0.9 * PARAMS.measurement_std
     mean_velocity = np.mean([t.x[8:].reshape(4, 2) for t in tracks[-200:]], axis=0)
     np.testing.assert_allclose(mean_velocity, np.broadcast_to(VELOCITY, (4, 2)), atol=3.0)
     # Steady state: the posterior covariance is the one implied by SciPy's Riccati solution.
-    F, Q, H, R = constant_velocity_model(PARAMS)
+    F, Q, H, R = constant_velocity_model(PARAMS, 8)
     P_prior = solve_discrete_are(F.T, H.T, Q, R)
     P_post = P_prior - P_prior @ H.T @ np.linalg.solve(H @ P_prior @ H.T + R, H @ P_prior)
     np.testing.assert_allclose(tracks[-1].P, P_post, rtol=1e-6, atol=1e-9)
@@ -71,7 +76,7 @@ def test_converges_on_a_constant_velocity_track_to_the_riccati_covariance():
 
 def test_coasts_through_a_three_frame_dropout_with_bounded_error():
     rng = np.random.default_rng(1)
-    track = run(CornerTrack(), range(100), rng)[-1]
+    track = run(Track(), range(100), rng)[-1]
     dropout = [100, 101, 102]
     tracks = run(track, dropout, rng, dropped=set(dropout))
     assert [t.coasted_steps for t in tracks] == [1, 2, 3] and tracks[-1].valid
@@ -85,20 +90,20 @@ def test_coasts_through_a_three_frame_dropout_with_bounded_error():
 
 def test_drops_the_track_after_coasting_too_long_and_restarts():
     rng = np.random.default_rng(2)
-    track = run(CornerTrack(), range(50), rng)[-1]
+    track = run(Track(), range(50), rng)[-1]
     dropout = range(50, 50 + PARAMS.max_coast_steps + 1)
     tracks = run(track, dropout, rng, dropped=set(dropout))
     assert [t.valid for t in tracks] == [True] * PARAMS.max_coast_steps + [False]
     restart = truth(60)
-    track = step_corner_track(tracks[-1], restart, PARAMS)
+    track = step_track(tracks[-1], restart, PARAMS)
     assert track.valid
-    np.testing.assert_array_equal(track.corners, restart)
+    np.testing.assert_array_equal(corners(track), restart)
 
 
 @pytest.mark.parametrize("bad", [np.full((4, 2), np.nan), None])
 def test_missing_or_nan_detections_only_predict(bad):
     rng = np.random.default_rng(3)
-    track = run(CornerTrack(), range(20), rng)[-1]
-    coasted = step_corner_track(track, bad, PARAMS)
+    track = run(Track(), range(20), rng)[-1]
+    coasted = step_track(track, bad, PARAMS)
     assert coasted.valid and coasted.coasted_steps == 1
-    assert np.all(np.isfinite(coasted.corners))
+    assert np.all(np.isfinite(corners(coasted)))
