@@ -11,6 +11,16 @@ def _rotation(wxyz: np.ndarray) -> RotationMatrix:
     return RotationMatrix(Quaternion(wxyz / np.linalg.norm(wxyz)))
 
 
+def xyz_rpy(poses: np.ndarray) -> np.ndarray:
+    """(N, 6) [x, y, z (m), roll, pitch, yaw (rad)] from (N, 7) [x, y, z, qw, qx, qy, qz] rows;
+    NaN rows stay NaN."""
+    out = np.full((len(poses), 6), np.nan)
+    for i, row in enumerate(poses):
+        if np.all(np.isfinite(row)):
+            out[i] = np.r_[row[:3], RollPitchYaw(_rotation(row[3:])).vector()]
+    return out
+
+
 def pose_errors(truth: np.ndarray, estimate: np.ndarray):
     """Per-frame errors of valid estimates.
 
@@ -20,14 +30,11 @@ def pose_errors(truth: np.ndarray, estimate: np.ndarray):
     to [-180, 180).
     """
     valid = estimate[:, 0] > 0.5
-    xyz = estimate[valid, 1:4] - truth[valid, :3]
-    rpy, angle = [], []
-    for q_true, q_est in zip(truth[valid, 3:], estimate[valid, 4:]):
-        R_true, R_est = _rotation(q_true), _rotation(q_est)
-        rpy.append(RollPitchYaw(R_est).vector() - RollPitchYaw(R_true).vector())
-        angle.append(R_true.InvertAndCompose(R_est).ToAngleAxis().angle())
-    rpy = (np.rad2deg(np.reshape(rpy, (-1, 3))) + 180.0) % 360.0 - 180.0
-    return valid, xyz, rpy, np.rad2deg(np.asarray(angle))
+    difference = xyz_rpy(estimate[valid, 1:]) - xyz_rpy(truth[valid])
+    rpy = (np.rad2deg(difference[:, 3:]) + 180.0) % 360.0 - 180.0
+    angle = [_rotation(q_true).InvertAndCompose(_rotation(q_est)).ToAngleAxis().angle()
+             for q_true, q_est in zip(truth[valid, 3:], estimate[valid, 4:])]
+    return valid, difference[:, :3], rpy, np.rad2deg(np.asarray(angle))
 
 
 def estimator_metrics(truth: np.ndarray, estimate: np.ndarray) -> dict:

@@ -12,7 +12,7 @@ from diagrams.scenario import RunSettings
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import require_positive
 from diagrams.metrics import estimator_metrics
-from systems.geometry import pose_to_xyz_rpy
+from diagrams.pose_plots import plot_pose_estimates
 from systems.sensors.ground_truth import pose_vector
 from systems.perception.apriltag import project_points
 
@@ -41,7 +41,6 @@ def collect_log(handles, context, config: StewartSceneConfig) -> dict[str, np.nd
     arrays["X_CT"] = np.array([pose_vector(X) for X in X_CT])
     arrays["true_tag_corners"] = np.array(
         [project_points(config.camera.K, X, handles.platform.tag_corners_T()).ravel() for X in X_CT])
-    arrays["X_CT_xyz_rpy"] = np.array([pose_to_xyz_rpy(X) for X in X_CT])
     arrays["K"] = config.camera.K
     arrays["X_BC"] = handles.X_BC.GetAsMatrix4()
     arrays["X_PT"] = handles.platform.X_PT.GetAsMatrix4()
@@ -75,18 +74,6 @@ def scene_metrics(log: dict[str, np.ndarray]) -> dict:
 
 def plot_scene(log: dict[str, np.ndarray], config: StewartSceneConfig, out_dir) -> None:
     t = log["t"]
-    fig, axes = plt.subplots(3, 2, figsize=(11, 7), sharex=True)
-    labels = ["x (m)", "y (m)", "z (m)", "roll (deg)", "pitch (deg)", "yaw (deg)"]
-    for i, ax in enumerate(axes.T.ravel()):
-        value = log["X_CT_xyz_rpy"][:, i] * (1 if i < 3 else 180 / np.pi)
-        ax.plot(t, value, "k-", lw=1, label="ground truth")
-        ax.set_ylabel(labels[i])
-        ax.grid(alpha=0.3)
-    axes[0, 0].set_title("Tag pose in the camera frame, X_CT (ground truth)")
-    axes[-1, 0].set_xlabel("time (s)")
-    axes[-1, 1].set_xlabel("time (s)")
-    save_figure(fig, out_dir / "tag_pose.png")
-
     fig, axes = plt.subplots(4, 1, figsize=(10, 8), sharex=True)
     for i, ax in enumerate(axes):
         ax.plot(t, log["true_ranges"][:, i], "k-", lw=1, label="true")
@@ -131,4 +118,6 @@ def run(scenario: Scenario, ctx) -> dict:
                                  for name in scenario.estimators}
     write_npz(ctx.out_dir / "log.npz", **log)
     plot_scene(log, scenario, ctx.out_dir)
+    plot_pose_estimates(log["t"], log["X_CT"], {name: log[f"estimate_{name}"] for name in scenario.estimators},
+                        ctx.out_dir)
     return finish_run(handles, ctx, metrics)

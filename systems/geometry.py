@@ -13,7 +13,7 @@ from pydrake.geometry import (
     SceneGraph,
     Shape,
 )
-from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.math import RigidTransform, RotationMatrix
 
 
 def register_visual(
@@ -48,14 +48,3 @@ def register_visual(
 def frame_between(p_A: np.ndarray, p_B: np.ndarray) -> RigidTransform:
     """The pose of a frame at point A whose +z axis points towards point B (both in the same frame)."""
     return RigidTransform(RotationMatrix.MakeFromOneVector(np.asarray(p_B) - np.asarray(p_A), 2), p_A)
-
-
-def pose_to_xyz_rpy(X: RigidTransform) -> np.ndarray:
-    """[x, y, z (m), roll, pitch, yaw (rad)] of a pose; angles about fixed x, y, z."""
-    return np.concatenate([X.translation(), RollPitchYaw(X.rotation()).vector()])
-
-
-def xyz_rpy_to_pose(xyz_rpy) -> RigidTransform:
-    """Inverse of `pose_to_xyz_rpy`."""
-    xyz_rpy = np.asarray(xyz_rpy, dtype=float)
-    return RigidTransform(RollPitchYaw(xyz_rpy[3:]), xyz_rpy[:3])
