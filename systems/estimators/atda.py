@@ -1,11 +1,14 @@
 """ATDA, the baseline of seed 000 (section 2.5): the tag pose from its four detected corners alone.
 
-The pose comes from OpenCV's `solvePnP` with `SOLVEPNP_IPPE_SQUARE` (Collins and Bartoli's
-infinitesimal plane-based pose for a square), fed by the same OpenCV ArUco corners every estimator
-here shares. IPPE computes both poses that a planar square admits and keeps the one with the lower
-reprojection error: this is the pose "flip" that single-tag estimators are known for, and what the
-benchmark counts. (pupil-apriltags would add a second detector and decode the image twice; the
-comparison with CRHF is fairer on identical corners.)
+The pose comes from OpenCV's `solvePnP` on the same OpenCV ArUco corners every estimator here
+shares (pupil-apriltags would add a second detector and decode the image twice; the comparison with
+CRHF is fairer on identical corners). The solver is `SOLVEPNP_SQPNP`, the globally optimal
+minimiser of the reprojection error, not `SOLVEPNP_IPPE_SQUARE`: in OpenCV 5.0 IPPE_SQUARE returns a
+wrong pose whenever the tag is exactly parallel to the image plane (head-on under a hovering camera
+both of its solutions reproject 80 px off; yawed 30 degrees the chosen one is 6.4 degrees off), which
+`tests/test_atda.py` shows. A planar square admits two poses of nearly equal reprojection error
+under noise; taking the smaller one is what makes single-tag poses "flip", and the benchmark counts
+such frames.
 """
 
 import cv2
@@ -17,7 +20,7 @@ from pydrake.systems.framework import LeafSystem
 from systems.estimators.estimate import PoseEstimate
 from systems.perception.apriltag import TagDetection, tag_corners_T
 
-# T (camera-facing: y down, z into the tag) from IPPE's square frame S (y up, z out of the tag).
+# T (camera-facing: y down, z into the tag) from OpenCV's marker frame S (y up, z out of the tag).
 _X_ST = RigidTransform(RotationMatrix.MakeXRotation(np.pi))
 
 
@@ -25,7 +28,7 @@ def atda_pose(corners_px: np.ndarray, K: np.ndarray, tag_size_m: float) -> Rigid
     """X_CT from the tag's four corners (4x2 px, ArUco order), or None if PnP fails."""
     object_points_S = _X_ST.multiply(tag_corners_T(tag_size_m).T).T
     ok, rvec, tvec = cv2.solvePnP(object_points_S, np.asarray(corners_px, dtype=float).reshape(4, 1, 2), K, None,
-                                  flags=cv2.SOLVEPNP_IPPE_SQUARE)
+                                  flags=cv2.SOLVEPNP_SQPNP)
     if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
         return None
     R_CS, _ = cv2.Rodrigues(rvec)

@@ -17,7 +17,7 @@ def tag_corners_T(tag_size_m: float) -> np.ndarray:
 
     T is the paper's camera-facing convention (seed 000 section 4.1): origin at the tag centre, x right
     and y down in the upright tag's image, z into the tag, so a tag seen head-on and upright by the
-    camera C has R_CT = I. (OpenCV's SOLVEPNP_IPPE_SQUARE frame has y up and z out of the tag: it is
+    camera C has R_CT = I. (OpenCV's marker frame for solvePnP has y up and z out of the tag: it is
     T rotated by pi about x.)"""
     s = tag_size_m / 2
     return np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])

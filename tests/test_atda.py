@@ -1,0 +1,51 @@
+"""ATDA: the tag pose from four corners by OpenCV's IPPE_SQUARE, in the project's tag frame T."""
+
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform
+
+from systems.estimators.atda import AtdaEstimator, atda_pose
+from systems.perception.apriltag import TagDetection, project_points, tag_corners_T
+from systems.sensors.camera import CameraConfig
+from tests.conftest import pose
+
+K = CameraConfig().K
+TAG = 0.5
+
+
+@pytest.mark.parametrize("X_CT", [pose([0, 0, 2.0], [0, 0, 0]), pose([0.1, -0.05, 1.8], [12, -9, 30]),
+                                  pose([-0.2, 0.1, 3.0], [-5, 15, -120])])
+def test_exact_corners_give_the_exact_pose(X_CT):
+    corners = project_points(K, X_CT, tag_corners_T(TAG))
+    X = atda_pose(corners, K, TAG)
+    assert np.allclose(X.translation(), X_CT.translation(), atol=1e-6)
+    assert X.rotation().InvertAndCompose(X_CT.rotation()).ToAngleAxis().angle() < 1e-6
+
+
+def test_a_level_tag_under_the_camera_has_identity_rotation():
+    X = atda_pose(project_points(K, RigidTransform([0, 0, 2.0]), tag_corners_T(TAG)), K, TAG)
+    np.testing.assert_allclose(X.rotation().matrix(), np.eye(3), atol=1e-9)
+
+
+def test_the_system_flags_a_missing_detection_invalid():
+    system = AtdaEstimator(K, TAG)
+    context = system.CreateDefaultContext()
+    system.get_input_port().FixValue(context, TagDetection(0.0, None))
+    estimate = system.get_output_port().Eval(context)
+    assert not estimate.valid
+    X_CT = pose([0.05, 0.02, 2.0], [3, -4, 10])
+    system.get_input_port().FixValue(context, TagDetection(0.0, project_points(K, X_CT, tag_corners_T(TAG))))
+    estimate = system.get_output_port().Eval(context)
+    assert estimate.valid
+    assert np.allclose(estimate.X_RT.translation(), X_CT.translation(), atol=1e-6)
+
+
+def test_opencv_ippe_square_fails_head_on_which_is_why_atda_uses_sqpnp():
+    # The reason for the solver choice in atda.py: if OpenCV fixes IPPE_SQUARE, this test says so.
+    import cv2
+
+    corners = project_points(K, RigidTransform([0, 0, 2.0]), tag_corners_T(TAG)).reshape(4, 1, 2)
+    s = TAG / 2
+    square = np.array([[-s, s, 0], [s, s, 0], [s, -s, 0], [-s, -s, 0]])
+    _, _, _, errors = cv2.solvePnPGeneric(square, corners, K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    assert errors.min() > 1.0  # px: both IPPE solutions are wrong for an exactly head-on tag
