@@ -37,10 +37,12 @@ class CrhfConfig:
 
     calibration_file: str = DEFAULT_CALIBRATION
     touch_pixels: str = "pchip"
-    corner_filter: TrackFilterParams = field(default_factory=TrackFilterParams)
-    # VL53L1X-class noise; the deck's range rates change by well under 0.1 m/s^2 at seed 000's motions.
+    # Both filters were tuned on stewart-dynamic (seed 0) and a random-walk deck (seed 1), each 100-200 s
+    # (replaying logged measurements); the benchmark's unseen motions use other seeds.
+    corner_filter: TrackFilterParams = field(default_factory=lambda: TrackFilterParams(
+        measurement_std=1.0, acceleration_std=1000.0, initial_velocity_std=200.0))  # px
     range_filter: TrackFilterParams = field(default_factory=lambda: TrackFilterParams(
-        measurement_std=0.005, acceleration_std=0.1, initial_velocity_std=0.2))
+        measurement_std=0.005, acceleration_std=0.05, initial_velocity_std=0.2))  # m; VL53L1X-class noise
     filter_ranges: bool = True
 
     def validate(self, prefix: str = "crhf") -> None:

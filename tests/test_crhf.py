@@ -1,0 +1,120 @@
+"""The CRHF estimator as a system: on rendered scenes against ground truth, and its failure modes."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from diagrams.metrics import pose_errors
+from diagrams.runner import RunOptions, load_scenario, run
+from diagrams.stewart_run import collect_log
+from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
+from systems.config import ConfigError
+from systems.estimators.crhf import CrhfConfig, CrhfEstimator
+from systems.estimators.pad_calibration import CalibrationError
+from systems.estimators.track_filter import Track
+from systems.perception.apriltag import TagDetection, project_points, tag_corners_T
+from systems.sensors.camera import CameraConfig
+from systems.sensors.tof import sensor_positions_C
+from tests.conftest import constant_offset_platform, pose
+
+K = CameraConfig().K
+P_C_SENSORS = sensor_positions_C(0.135)
+
+
+@pytest.fixture(scope="module")
+def crhf():
+    return CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05)
+
+
+def level_frame(height=2.0):
+    """Exact corners and ranges of a level tag `height` below the camera."""
+    X_CT = pose([0.0, 0.0, height], [0, 0, 0])
+    return project_points(K, X_CT, tag_corners_T(0.5)), np.full(4, height)
+
+
+STATIC_DECKS = [(constant_offset_platform(), 0.0),
+                (constant_offset_platform(x=0.04, y=-0.03, z=0.02, roll=6.0, pitch=-4.0, yaw=25.0), 10.0)]
+
+
+def static_run(platform, hover_yaw_deg, pixel_noise_std, tof_noise_std_m):
+    """CRHF's errors on a static rendered deck over 2 s: (settled-frame mask, xyz (m), angle (deg))."""
+    config = StewartSceneConfig(platform=platform, estimators=["crhf"])
+    config.hover.yaw_deg = hover_yaw_deg
+    config.camera.pixel_noise_std, config.tof.noise_std_m = pixel_noise_std, tof_noise_std_m
+    diagram, handles = build_stewart_scene(config)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(2.0)
+    log = collect_log(handles, simulator.get_context(), config)
+    valid, xyz, _, angle = pose_errors(log["X_CT"], log["estimate_crhf"])
+    assert valid.all()
+    return log["t"] >= 1.0, xyz, angle  # the range filter starts from one frame and settles within 1 s
+
+
+@pytest.mark.parametrize("platform, hover_yaw_deg", STATIC_DECKS)
+def test_crhf_on_a_static_rendered_deck_is_within_1_cm_and_1_degree(platform, hover_yaw_deg):
+    # With the scenarios' noise (2 levels of pixel noise, 5 mm ToF noise): every settled frame within
+    # 1 cm; the rotation within 1 degree on average (single frames reach about 1.5 degrees: the plane
+    # through four ranges 0.19 m apart tilts with their noise).
+    settled, xyz, angle = static_run(platform, hover_yaw_deg, 2.0, 0.005)
+    assert np.abs(xyz[settled]).max() < 0.01
+    assert angle[settled].mean() < 1.0
+    # Exact ranges: every frame within 1 cm and 1 degree.
+    settled, xyz, angle = static_run(platform, hover_yaw_deg, 2.0, 0.0)
+    assert np.abs(xyz[settled]).max() < 0.01
+    assert angle[settled].max() < 1.0
+
+
+def test_a_smoke_run_of_the_dynamic_deck_has_crhf_z_error_below_atda(tmp_path):
+    name, scenario = load_scenario("stewart-dynamic", duration_s=10.0)
+    metrics = run(name, scenario, tmp_path, RunOptions(progress=False))
+    crhf, atda = metrics["estimators"]["crhf"], metrics["estimators"]["atda"]
+    assert crhf["valid_fraction"] == 1.0
+    assert crhf["mae_xyz_m"][2] < atda["mae_xyz_m"][2]
+    for plot in ("pose_translation.png", "pose_angles.png", "pose_trajectory.png", "errors_crhf.png"):
+        assert (tmp_path / plot).stat().st_size > 10_000
+
+
+def test_exact_measurements_give_the_exact_pose(crhf):
+    corners, ranges = level_frame()
+    _, estimate = crhf.step((Track(), Track()), corners, ranges, 0.0)
+    assert estimate.valid
+    np.testing.assert_allclose(estimate.X_RT.translation(), [0, 0, 2.0], atol=2e-3)  # calibration residual
+    assert estimate.X_RT.rotation().ToAngleAxis().angle() < np.deg2rad(0.2)
+
+
+def test_a_short_detection_drop_out_is_bridged_and_a_long_one_is_not(crhf):
+    corners, ranges = level_frame()
+    tracks, estimate = crhf.step((Track(), Track()), corners, ranges, 0.0)
+    for k in range(1, 4):  # three frames without the tag: the corner track coasts
+        tracks, estimate = crhf.step(tracks, None, ranges, 0.05 * k)
+        assert estimate.valid
+    tracks, estimate = crhf.step(tracks, None, ranges, 0.2)
+    assert not estimate.valid
+
+
+@pytest.mark.parametrize("ranges", [[2.0, np.nan, 2.0, 2.0], [20.0, 20.0, 20.0, 20.0]])
+def test_an_invalid_range_or_one_outside_the_calibration_is_flagged_not_nan(crhf, ranges):
+    corners, _ = level_frame()
+    _, estimate = crhf.step((Track(), Track()), corners, np.array(ranges), 0.0)
+    assert not estimate.valid
+
+
+def test_the_system_output_is_this_frames_estimate():
+    system = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05)
+    context = system.CreateDefaultContext()
+    corners, ranges = level_frame(1.5)
+    system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.0, corners))
+    system.GetInputPort("ranges").FixValue(context, ranges)
+    estimate = system.get_output_port().Eval(context)
+    assert estimate.valid and abs(estimate.X_RT.translation()[2] - 1.5) < 2e-3
+    system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.0, None))
+    assert not system.get_output_port().Eval(context).valid
+
+
+def test_missing_calibration_and_bad_settings_are_clear_errors(tmp_path):
+    with pytest.raises(CalibrationError, match="nope.npz"):
+        CrhfEstimator(CrhfConfig(calibration_file=str(tmp_path / "nope.npz")), P_C_SENSORS, 0.5, 0.05)
+    with pytest.raises(ConfigError, match="crhf.touch_pixels"):
+        load_scenario("stewart-dynamic", overrides=["crhf.touch_pixels=spline"])
+    with pytest.raises(ConfigError, match="crhf.range_filter.measurement_std"):
+        load_scenario("stewart-dynamic", overrides=["crhf.range_filter.measurement_std=0"])
