@@ -17,7 +17,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import ClippingRange, DepthRange, DepthRenderCamera, RenderCameraCore
 from pydrake.math import RigidTransform
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import LeafSystem, ValueProducer
 from pydrake.systems.sensors import ImageDepth32F, RgbdSensor
 
 from systems.config import require, require_positive
@@ -101,8 +101,14 @@ class TofSensors(LeafSystem):
         blank = ImageDepth32F(_PIXELS, _PIXELS)
         for i in range(4):
             self.DeclareAbstractInputPort(f"depth_image_{i}", AbstractValue.Make(blank))
-        self.DeclareVectorOutputPort("ranges", 4, lambda c, o: o.SetFromVector(self.readings(c)[0]))
-        self.DeclareVectorOutputPort("ranges_valid", 4, lambda c, o: o.SetFromVector(self.readings(c)[1]))
+        # One reading per frame, shared by the ranges and ranges_valid outputs.
+        readings = self.DeclareCacheEntry("readings", ValueProducer(
+            allocate=lambda: AbstractValue.Make((np.zeros(4), np.zeros(4))),
+            calc=lambda c, value: value.set_value(self.readings(c))))
+        self.DeclareVectorOutputPort("ranges", 4, lambda c, o: o.SetFromVector(readings.Eval(c)[0]),
+                                     {readings.ticket()})
+        self.DeclareVectorOutputPort("ranges_valid", 4, lambda c, o: o.SetFromVector(readings.Eval(c)[1]),
+                                     {readings.ticket()})
         self.DeclareVectorOutputPort("true_ranges", 4, lambda c, o: o.SetFromVector(self.true_ranges(c)))
 
     def true_ranges(self, context) -> np.ndarray:
