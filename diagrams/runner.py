@@ -48,6 +48,7 @@ def _diagrams():
 DIAGRAM_MODULES = {
     "stewart_scene": "diagrams.stewart_run",
     "crhf_calibration": "diagrams.crhf_calibration",
+    "gv_landing": "diagrams.gv_landing_run",
 }
 
 

@@ -1,0 +1,221 @@
+"""The gv-landing diagram (issue 4): a full landing, failures reported in metrics, configuration
+errors naming their field, the perception seam, the C++ flight controller against the law, the
+discrete vehicles against the continuous ones, the pad's markers, Meshcat, and the CLI run."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from pydrake.geometry import Meshcat
+from pydrake.math import RollPitchYaw, RotationMatrix
+
+from diagrams.cli import main
+from diagrams.gv_landing import (
+    HEIGHT, P_BP_B, P_BP_W, V_WP, VALID, GvLandingConfig, LandingMonitor, PerfectPerception,
+    SymbolicFlightController, build_gv_landing, marker_layout, pad_marker_image,
+)
+from diagrams.gv_landing_run import FAILURE_REASONS, fly, simulate_flight
+from diagrams.runner import load_scenario
+from systems.config import ConfigError
+from systems.control.flight_controller import rotor_speed_commands
+from systems.control.landing import Mode
+from systems.vehicles.quadrotor import P_WB, hover_state, quadrotor_state
+
+# pydrake filters numpy's "invalid value" warnings from symbolic object arrays when imported;
+# pytest resets warning filters per test, so restore that one here.
+pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+
+
+@pytest.fixture(scope="module")
+def straight_landing():
+    """The gv-landing scenario as shipped: straight path, 0.5 m/s."""
+    _, scenario = load_scenario("gv-landing")
+    metrics, flight = fly(scenario, scenario.duration_s)
+    return scenario, metrics, flight
+
+
+def test_full_landing_on_a_straight_path_at_half_a_metre_per_second(straight_landing):
+    scenario, metrics, flight = straight_landing
+    assert (scenario.vehicle.path, scenario.vehicle.speed) == ("straight", 0.5)
+    landing = metrics["landing"]
+    assert landing["success"] and landing["failure_reason"] is None
+    assert landing["touchdown_error_m"] < 0.10
+    assert landing["touchdown_rel_speed_mps"] < 0.5
+    assert 10.0 < landing["time_to_land_s"] < scenario.duration_s
+    # The supervisor went through its modes in order, and touchdown is within its threshold.
+    times = landing["mode_entry_times_s"]
+    assert times["takeoff"] < times["climb"] < times["follow"] < times["approach"] < times["land"] < times["landed"]
+    assert 0.0 < landing["touchdown_height_m"] <= scenario.landing.touchdown_height_m
+    # Seed 003 Fig. 8: the tracking error settles to about 0.01 m before the final descent.
+    assert max(metrics["tracking"]["before_final_descent_max_abs_xy_m"]) < 0.01
+    assert flight.status.startswith("landed")
+    assert flight.log["quadrotor_state"].shape[1] == 17 and np.isfinite(flight.log["quadrotor_state"]).all()
+
+
+def test_unstable_gains_end_as_a_failure_in_the_metrics():
+    _, scenario = load_scenario("gv-landing", overrides=["pid.gains_above.kp=8", "pid.gains_below.kp=8"],
+                                duration_s=70.0)
+    metrics, _ = fly(scenario, scenario.duration_s)
+    landing = metrics["landing"]
+    assert not landing["success"] and not landing["meets_targets"]
+    assert landing["failure_reason"] in FAILURE_REASONS and landing["failure_detail"]
+
+
+@pytest.mark.parametrize("assignment, field", [
+    ("landing.initial_height_m=1.0", "landing.initial_height_m"),  # IH below LH
+    ("vehicle.path=zigzag", "vehicle.path"),
+    ("vehicle.wheelbase_m=0", "vehicle.wheelbase_m"),
+    ("vehicle.max_steering_deg=0", "vehicle.max_steering_deg"),
+    ("quadrotor.mass_kg=-1.2", "quadrotor.mass_kg"),
+    ("vehicle.path_radius_m=5", "vehicle.path_radius_m"),  # tighter than the vehicle can turn
+    ("platform.pad_size_m=2.5", "platform.pad_size_m"),
+    ("integration.scheme=runge_kutta9", "integration.scheme"),
+])
+def test_impossible_configuration_is_a_config_error_naming_the_field(assignment, field):
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        load_scenario("gv-landing", overrides=[assignment])
+
+
+def test_a_path_too_short_for_its_manoeuvre_names_the_flattened_field():
+    with pytest.raises(ConfigError, match=r"vehicle\.path_length_m"):
+        load_scenario("gv-landing", overrides=["vehicle.path=s-shape", "vehicle.path_length_m=50"])
+
+
+def test_perception_seam_gives_the_true_relative_state():
+    config = GvLandingConfig()
+    perception = PerfectPerception(config.vehicle, config.platform, config.perception)
+    context = perception.CreateDefaultContext()
+    # Vehicle at (10, 0) heading +y, steering 0.1 rad, 2 m/s; the pad is 1.75 m ahead of the rear axle.
+    steering, speed = 0.1, 2.0
+    perception.GetInputPort("vehicle_state").FixValue(context, [10.0, 0.0, np.pi / 2, steering])
+    perception.GetInputPort("vehicle_speed").FixValue(context, [speed])
+    quad = perception.GetInputPort("quadrotor_state")
+    quad.FixValue(context, hover_state(config.quadrotor, [11.0, 2.0, 5.0], yaw=np.pi / 2))
+    p_WP = np.array([10.0, 1.75, 1.6])
+    out = lambda name: perception.GetOutputPort(name).Eval(context)  # noqa: E731
+    np.testing.assert_allclose(out("p_BP_W"), p_WP - [11.0, 2.0, 5.0], atol=1e-12)
+    np.testing.assert_allclose(out("target_offset"), [-1.0, -0.25], atol=1e-12)
+    np.testing.assert_allclose(out("p_BP_B"), [-0.25, 1.0, -3.4], atol=1e-12)  # yawed 90 deg: x_B = +y_W
+    np.testing.assert_allclose(out("height_above_target"), [3.4], atol=1e-12)
+    # The pad turns about the rear axle at v tan(steering) / d: its velocity gains -w * 1.75 along x.
+    yaw_rate = speed * np.tan(steering) / config.vehicle.wheelbase_m
+    np.testing.assert_allclose(out("target_velocity"), [-yaw_rate * 1.75, speed], atol=1e-12)
+    assert out("target_valid")[0] == 1.0
+    relative = out("relative_state")
+    np.testing.assert_allclose(relative[P_BP_W], out("p_BP_W"))
+    np.testing.assert_allclose(relative[P_BP_B], out("p_BP_B"))
+    assert relative[HEIGHT] == pytest.approx(3.4) and relative[V_WP][2] == 0.0
+    # Rolled 80 deg, the camera cone (150 deg) no longer holds the pad: not valid.
+    quad.FixValue(context, quadrotor_state(p_WB=[11.0, 2.0, 5.0], R_WB=RotationMatrix(RollPitchYaw(1.4, 0, 0))))
+    assert out("target_valid")[0] == 0.0 and relative[VALID] == 1.0
+
+
+def test_symbolic_flight_controller_is_the_law():
+    config = GvLandingConfig()
+    controller = SymbolicFlightController(config.quadrotor, config.controller, held=False)
+    context = controller.CreateDefaultContext()
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        state = hover_state(config.quadrotor, rng.uniform(-5, 5, 3), yaw=rng.uniform(-np.pi, np.pi))
+        state[3:7] = RotationMatrix(RollPitchYaw(*rng.uniform(-0.5, 0.5, 3))).ToQuaternion().wxyz() * rng.uniform(0.9, 1.1)
+        state[7:13] = rng.uniform(-2, 2, 6)
+        state[13:17] = rng.uniform(300, 650, 4)
+        command = np.r_[rng.uniform(-8, 8, 2), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)]
+        controller.GetInputPort("state").FixValue(context, state)
+        controller.GetInputPort("command").FixValue(context, command)
+        np.testing.assert_allclose(controller.GetOutputPort("rotor_speed_commands").Eval(context),
+                                   rotor_speed_commands(state, command, config.quadrotor, config.controller),
+                                   rtol=1e-10)
+
+
+def _positions(overrides, duration_s):
+    _, scenario = load_scenario("gv-landing", overrides=overrides)
+    diagram, handles = build_gv_landing(scenario)
+    flight = simulate_flight(diagram, handles, duration_s)
+    return flight.log["t"], flight.log["quadrotor_state"][:, P_WB], flight.log["vehicle_state"][:, :2]
+
+
+def test_discrete_vehicles_follow_the_continuous_ones():
+    # Take-off, climb and following on a circle: the discretised vehicles (RK3 per 5 ms period)
+    # against the simulator integrating the continuous ones (RK3, error-controlled at 1e-7).
+    path = ["vehicle.path=circle", "vehicle.speed=1.5"]
+    t, uav, ugv = _positions(path, 6.0)
+    t_c, uav_c, ugv_c = _positions(path + ["integration.discrete=false", "integration.error_control=true",
+                                           "integration.accuracy=1.0e-7"], 6.0)
+    np.testing.assert_allclose(t, t_c)
+    assert np.abs(uav - uav_c).max() < 2e-3  # m, after 8 m of flight
+    # The discrete bicycle gets each steering command (20 Hz) 5 ms later: ~1 mm after 9 m on the circle.
+    assert np.abs(ugv - ugv_c).max() < 3e-3
+
+
+def test_python_flight_controller_flies_the_same_as_the_symbolic_one():
+    continuous = ["integration.discrete=false", "integration.error_control=true", "integration.accuracy=1.0e-7"]
+    _, uav, _ = _positions(continuous, 3.0)
+    _, uav_python, _ = _positions(continuous + ["controller_implementation=python"], 3.0)
+    assert np.abs(uav - uav_python).max() < 1e-6
+
+
+def test_monitor_names_each_way_a_run_ends():
+    config = GvLandingConfig()
+    monitor = LandingMonitor(config)
+    quad = hover_state(config.quadrotor, [20.0, 0.0, 5.0])
+    vehicle = np.array([0.0, 0.0, 0.0, 0.0])
+    relative = np.zeros(11)
+
+    def check(quad=quad, mode=Mode.FOLLOW, last_seen=1.0, t=1.0):
+        return monitor.check(t, quad, vehicle, relative, mode, last_seen)
+
+    assert check() is None
+    assert check(mode=Mode.LANDED).startswith("landed")
+    nan = quad.copy()
+    nan[8] = np.nan
+    assert check(quad=nan).startswith("diverged")
+    assert check(quad=hover_state(config.quadrotor, [20.0, 0.0, -0.5])).startswith("crash: hit the ground")
+    assert check(quad=hover_state(config.quadrotor, [2.0, 0.3, 1.0])).startswith("crash: hit the ground vehicle")
+    fast = quad.copy()
+    fast[7] = 100.0
+    assert check(quad=fast).startswith("diverged")
+    assert check(t=30.0, last_seen=5.0).startswith("target_lost")
+
+
+def test_pad_texture_carries_five_detectable_aruco_markers():
+    platform = GvLandingConfig().platform
+    image = pad_marker_image(platform, pixels=800)
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, platform.marker_dictionary))
+    corners, ids, _ = cv2.aruco.ArucoDetector(dictionary).detectMarkers(cv2.copyMakeBorder(
+        image, 40, 40, 40, 40, cv2.BORDER_CONSTANT, value=255))
+    assert ids is not None and sorted(ids.ravel().tolist()) == sorted(platform.marker_ids)
+    # Each detected marker is where marker_layout puts it (image up = +y of the pad, right = +x).
+    scale = 800 / platform.pad_size_m
+    for marker_id, centre, edge in marker_layout(platform):
+        found = corners[list(ids.ravel()).index(marker_id)][0].mean(axis=0) - 40
+        expected = [(centre[0] + platform.pad_size_m / 2) * scale, (platform.pad_size_m / 2 - centre[1]) * scale]
+        np.testing.assert_allclose(found, expected, atol=2.0)
+
+
+def test_meshcat_shows_the_scene_path_and_trail():
+    meshcat = Meshcat()
+    _, scenario = load_scenario("gv-landing", overrides=["vehicle.path=figure-eight"])
+    diagram, handles = build_gv_landing(scenario, meshcat)
+    assert handles.meshcat_visualizer is not None
+    simulate_flight(diagram, handles, 1.0, record=True)
+    for path in ("gv_landing/path", "gv_landing/uav_trail", "/drake/visualizer/uav_body",
+                 "/drake/visualizer/gv_body/gv_pad_markers", "/drake/visualizer/gv_wheel_fl"):
+        assert meshcat.HasPath(path), path
+    assert len(meshcat.StaticHtml()) > 100_000  # the recording, with the pad's texture
+
+
+def test_cli_run_writes_metrics_with_the_landing_section(tmp_path):
+    out = tmp_path / "run"
+    assert main(["run", "gv-landing", "--out", str(out), "--quiet"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["scenario"] == "gv-landing" and metrics["realtime_factor"] > 0
+    landing = metrics["landing"]
+    for key in ("success", "touchdown_error_m", "touchdown_rel_speed_mps", "time_to_land_s", "failure_reason"):
+        assert key in landing
+    assert landing["success"] and landing["touchdown_error_m"] < 0.10
+    log = np.load(out / "log.npz")
+    assert {"t", "quadrotor_state", "vehicle_state", "relative_state", "mode"} <= set(log.files)
+    for name in ("trajectories_3d", "trajectories_top", "altitude", "velocity", "tracking_error"):
+        assert (out / f"{name}.png").stat().st_size > 10_000
