@@ -75,8 +75,8 @@ from systems.vehicles.ground_vehicle import (
 )
 from systems.vehicles.paths import PATH_NAMES, PathConfig, make_path
 from systems.vehicles.quadrotor import (
-    P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, StateToPose, hover_state,
-    make_quadrotor_dynamics, mixer_matrix, rotation_from_quaternion,
+    P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, StateToPose, body_kinematics,
+    hover_state, mixer_matrix, quadrotor_state_derivative, rotation_from_quaternion,
 )
 
 # The perception seam's vector (PerfectPerception's `relative_state` output), all in SI units:
@@ -450,24 +450,32 @@ class SymbolicFlightController(Diagram):
 class DiscreteQuadrotor(Diagram):
     """Quadrotor (systems/vehicles/quadrotor.py) with Eq. (7)-(8) integrated per `period_s`
     (DiscreteTimeApproximation; IntegrationConfig), its input held over each period. The same
-    wiring and ports; its state is the discrete state of `dynamics`. (Discretising Quadrotor as a
-    whole works too, but then every inner derivative evaluation also visits its Python StateToPose.)"""
+    ports; its state is the discrete state of `dynamics`. The discretised system outputs the state
+    alone, and `body_kinematics` (V_WB, A_WB) is a separate stage evaluated only when pulled (in
+    Quadrotor one output carries all three, so every step would evaluate the accelerations again)."""
 
     def __init__(self, params: QuadrotorParams, period_s: float, integration: SimulatorConfig):
         super().__init__()
+        params.validate()
         self.params = params
+        x = MakeVectorVariable(STATE_SIZE, "x")
+        u = MakeVectorVariable(4, "w_cmd")
         builder = DiagramBuilder()
         self.dynamics = dynamics = builder.AddNamedSystem("dynamics", DiscreteTimeApproximation(
-            make_quadrotor_dynamics(params), period_s, integration))
-        split = builder.AddNamedSystem("split", Demultiplexer([STATE_SIZE, 6, 6]))
+            SymbolicVectorSystem(state=x, input=u, dynamics=quadrotor_state_derivative(x, u, params), output=x),
+            period_s, integration))
+        V_WB, A_WB = body_kinematics(x, params)
+        kinematics = builder.AddNamedSystem("kinematics", SymbolicVectorSystem(input=x, output=np.r_[V_WB, A_WB]))
+        split = builder.AddNamedSystem("split", Demultiplexer([6, 6]))
         pose = builder.AddNamedSystem("pose", StateToPose())
-        builder.Connect(dynamics.get_output_port(), split.get_input_port())
-        builder.Connect(split.get_output_port(0), pose.get_input_port())
+        builder.Connect(dynamics.get_output_port(), kinematics.get_input_port())
+        builder.Connect(kinematics.get_output_port(), split.get_input_port())
+        builder.Connect(dynamics.get_output_port(), pose.get_input_port())
         builder.ExportInput(dynamics.get_input_port(), "rotor_speed_commands")
-        builder.ExportOutput(split.get_output_port(0), "state")
+        builder.ExportOutput(dynamics.get_output_port(), "state")
         builder.ExportOutput(pose.get_output_port(), "X_WB")
-        builder.ExportOutput(split.get_output_port(1), "V_WB")
-        builder.ExportOutput(split.get_output_port(2), "A_WB")
+        builder.ExportOutput(split.get_output_port(0), "V_WB")
+        builder.ExportOutput(split.get_output_port(1), "A_WB")
         builder.BuildInto(self)
         self.set_name("quadrotor")
 
@@ -524,8 +532,8 @@ def relative_state(quad_state, vehicle_state, speed: float, vehicle: VehicleConf
     """The perception seam's vector (see RELATIVE_STATE_SIZE) from the true states: quadrotor
     `state` (17), vehicle `state` [x, y, heading, steering] and vehicle speed (m/s). Plain float
     arithmetic: it runs at every supervisor sample."""
-    x, y, heading, steering = (float(v) for v in vehicle_state[:4])
-    px, py, pz, qw, qx, qy, qz = (float(v) for v in quad_state[:7])
+    x, y, heading, steering = vehicle_state[:4].tolist()
+    px, py, pz, qw, qx, qy, qz = quad_state[:7].tolist()
     c, s = math.cos(heading), math.sin(heading)
     r_x, r_y = c * platform.pad_offset_m, s * platform.pad_offset_m  # rear axle to pad centre, in W
     yaw_rate = speed * math.tan(steering) / vehicle.wheelbase_m  # seed 002 Eq. (6)
@@ -539,9 +547,9 @@ def relative_state(quad_state, vehicle_state, speed: float, vehicle: VehicleConf
     # In view: inside the cone about -z_B and in range (the pad centre stands for the pad).
     cos_angle = -bz / distance if distance > 0 else 1.0
     visible = distance <= perception.max_range_m and cos_angle >= math.cos(math.radians(perception.field_of_view_deg / 2))
-    out = np.array([dx, dy, dz, bx, by, bz, speed * c - yaw_rate * r_y, speed * s + yaw_rate * r_x, 0.0, -dz, 0.0])
-    out[VALID] = 1.0 if visible and np.isfinite(out).all() else 0.0
-    return out
+    values = [dx, dy, dz, bx, by, bz, speed * c - yaw_rate * r_y, speed * s + yaw_rate * r_x, 0.0, -dz]
+    finite = math.isfinite(sum(values))
+    return np.array(values + [1.0 if visible and finite else 0.0])
 
 
 class RelativeStateTruth(LeafSystem):
@@ -558,7 +566,7 @@ class RelativeStateTruth(LeafSystem):
 
     def _calc(self, context, output):
         output.SetFromVector(relative_state(self._quad.Eval(context), self._vehicle.Eval(context),
-                                            self._speed.Eval(context)[0], *self._configs))
+                                            float(self._speed.Eval(context)[0]), *self._configs))
 
 
 class PerfectPerception(Diagram):
@@ -610,10 +618,10 @@ class LandingMonitor(LeafSystem):
         self._vehicle = self.DeclareVectorInputPort("vehicle_state", 4)
         self._relative = self.DeclareVectorInputPort("relative_state", RELATIVE_STATE_SIZE)
         self._mode = self.DeclareVectorInputPort("mode", 1)
-        self._last_seen = self.DeclareDiscreteState(1)  # time the target was last seen [s]
+        self._last_seen = self.DeclareDiscreteState([0.0, 0.0])  # [time last seen (s), seen at all (0/1)]
         self.DeclarePeriodicDiscreteUpdateEvent(1.0 / config.termination.rate_hz, 0.0, self._update)
 
-    def check(self, t: float, quad, vehicle, relative, mode: int, last_seen: float) -> str | None:
+    def check(self, t: float, quad, vehicle, relative, mode: int, last_seen: float, seen_ever: bool = True) -> str | None:
         """The termination message for these values, or None to go on."""
         term, platform = self._config.termination, self._config.platform
         if not (np.isfinite(quad).all() and np.isfinite(vehicle).all()):
@@ -638,16 +646,20 @@ class LandingMonitor(LeafSystem):
         if distance > term.max_distance_m:
             return f"diverged: {distance:.0f} m from the pad at t = {t:.2f} s"
         if t - last_seen > term.lost_timeout_s:
+            if not seen_ever:
+                return f"target_lost: the pad was never in view in the first {t:.1f} s"
             return f"target_lost: unseen for {t - last_seen:.1f} s at t = {t:.2f} s"
         return None
 
     def _update(self, context, discrete_state):
         t = context.get_time()
         relative = self._relative.Eval(context)
-        last_seen = t if relative[VALID] > 0.5 else context.get_discrete_state(self._last_seen).get_value()[0]
-        discrete_state.set_value(self._last_seen, [last_seen])
+        last_seen, seen_ever = context.get_discrete_state(self._last_seen).get_value()
+        if relative[VALID] > 0.5:
+            last_seen, seen_ever = t, 1.0
+        discrete_state.set_value(self._last_seen, [last_seen, seen_ever])
         message = self.check(t, self._quad.Eval(context), self._vehicle.Eval(context), relative,
-                             int(round(self._mode.Eval(context)[0])), last_seen)
+                             int(round(self._mode.Eval(context)[0])), last_seen, bool(seen_ever))
         return EventStatus.ReachedTermination(self, message) if message else EventStatus.Succeeded()
 
 
@@ -672,7 +684,7 @@ class GroundVehicleGeometry(LeafSystem):
                         Mesh(str(pad_texture_mesh(p)), p.pad_size_m), "gv_pad_markers", rgba=None)
         wheel = Cylinder(p.wheel_radius_m, p.wheel_width_m)
         R_wheel = RotationMatrix.MakeXRotation(np.pi / 2)  # cylinder axis (z) along the axle (y)
-        y = p.body_width_m / 2 - p.wheel_width_m / 2
+        y = p.body_width_m / 2  # wheels half outside the body (no coplanar faces)
         dark = (0.1, 0.1, 0.1, 1.0)
         for name, side in (("rl", 1), ("rr", -1)):
             register_visual(scene_graph, sid, body, RigidTransform(R_wheel, [0.0, side * y, p.wheel_radius_m]), wheel,
@@ -764,9 +776,12 @@ def add_ground_and_path(scene_graph: SceneGraph, vehicle: VehicleConfig, meshcat
     lo, hi = xy.min(axis=0) - 25.0, xy.max(axis=0) + 25.0
     source_id = scene_graph.RegisterSource("ground")
     register_visual(scene_graph, source_id, scene_graph.world_frame_id(),
-                    RigidTransform([*(lo + hi) / 2, -0.05]), Box(*(hi - lo), 0.1), "ground", (0.55, 0.6, 0.5, 1.0))
+                    RigidTransform([*(lo + hi) / 2, -0.05]), Box(*(hi - lo), 0.1), "ground", (0.8, 0.82, 0.76, 1.0))
     if meshcat is not None:
         meshcat.SetLine("gv_landing/path", np.vstack([xy.T, np.full(len(xy), 0.02)]), 3.0, Rgba(1.0, 0.85, 0.1, 1.0))
+        meshcat.SetProperty("/Grid", "visible", False)  # the ground plane is the floor
+        # Looking at the start of the path from behind and above the UAV's start.
+        meshcat.SetCameraPose(np.array([-14.0, -18.0, 12.0]), np.array([6.0, 2.0, 2.0]))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -50,7 +50,7 @@ class Scenario(RunSettings, GvLandingConfig):
 class Flight:
     """What `simulate_flight` returns."""
 
-    status: str  # the monitor's message ("landed: ...", "crash: ...", ...), or "timeout"
+    status: str  # the monitor's message ("landed: ...", "crash: ...", ...), or "timeout: ..."
     sim_time_s: float
     wall_time_s: float
     log: dict[str, np.ndarray]
@@ -72,7 +72,7 @@ def simulate_flight(diagram, handles: GvLandingHandles, duration_s: float, realt
     visualizer = handles.meshcat_visualizer
     if visualizer is not None and record:
         visualizer.StartRecording()
-    status = "timeout"
+    status = f"timeout: no touchdown within {duration_s:g} s"
     # Objects from imports and the build go to the permanent generation, so the garbage collector's
     # passes during the run do not walk them (~20 % of the run time otherwise).
     gc.freeze()
@@ -141,10 +141,11 @@ def landing_metrics(log: dict[str, np.ndarray], status: str, config: GvLandingCo
             "touchdown_rel_speed_horizontal_mps": float(np.linalg.norm(quad[V_WB][:2] - relative[V_WP][:2])),
             "touchdown_height_m": float(relative[HEIGHT]),
             "vehicle_speed_at_touchdown_m_s": float(log["vehicle_speed"][k]),
-            # The vehicle's turn radius (bicycle: d / tan(steering)) at touchdown; null on a straight.
+            # The vehicle's turn radius (bicycle: d / tan(steering)) at touchdown; null on a straight
+            # (steering under 1 mrad: a radius over 3.5 km).
             "vehicle_turn_radius_at_touchdown_m": (
                 float(abs(config.vehicle.wheelbase_m / np.tan(steering)))
-                if abs(steering := log["vehicle_state"][k, 3]) > 1e-4 else None),
+                if abs(steering := log["vehicle_state"][k, 3]) > 1e-3 else None),
         })
         if not on_pad:
             out["failure_reason"], out["failure_detail"] = "missed_pad", (

@@ -163,8 +163,8 @@ def test_monitor_names_each_way_a_run_ends():
     vehicle = np.array([0.0, 0.0, 0.0, 0.0])
     relative = np.zeros(11)
 
-    def check(quad=quad, mode=Mode.FOLLOW, last_seen=1.0, t=1.0):
-        return monitor.check(t, quad, vehicle, relative, mode, last_seen)
+    def check(quad=quad, mode=Mode.FOLLOW, last_seen=1.0, t=1.0, seen_ever=True):
+        return monitor.check(t, quad, vehicle, relative, mode, last_seen, seen_ever)
 
     assert check() is None
     assert check(mode=Mode.LANDED).startswith("landed")
@@ -176,7 +176,8 @@ def test_monitor_names_each_way_a_run_ends():
     fast = quad.copy()
     fast[7] = 100.0
     assert check(quad=fast).startswith("diverged")
-    assert check(t=30.0, last_seen=5.0).startswith("target_lost")
+    assert check(t=30.0, last_seen=5.0).startswith("target_lost: unseen for 25.0 s")
+    assert check(t=30.0, last_seen=0.0, seen_ever=False).startswith("target_lost: the pad was never in view")
 
 
 def test_pad_texture_carries_five_detectable_aruco_markers():
