@@ -1,0 +1,426 @@
+"""Seed 002 marker EKF (Eq. 11-12) and the constant-turn EKF beside it: models against Drake's
+geometry and finite differences, convergence on analytic drives, drop-outs, bad and late
+measurements, any subset of markers, and the Drake system."""
+
+import copy
+
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource
+
+from systems.estimators.marker_ekf import (FILTERS, ConstantTurnEkf, MarkerEkfConfig, MarkerFilterSystem,
+                                           PaperMarkerEkf)
+from systems.estimators.quaternion import drake_to_paper, xi
+from systems.perception.markers import (MarkerLayout, MarkerMeasurement, SyntheticMarkerSource,
+                                        synthetic_marker_measurements)
+from systems.sensors.camera import CameraConfig
+from tests.conftest import pose
+
+LAYOUT = MarkerLayout()
+X_BC = CameraConfig().X_BC
+TS = 0.035
+BOTH = [PaperMarkerEkf, ConstantTurnEkf]
+PAD_AHEAD_OF_REAR_AXLE_M = 1.75
+
+
+# ---- truth, built here with Drake's RigidTransform, independently of the filters' algebra ------
+
+
+def straight(speed: float, heading: float = np.radians(30.0)):
+    """X_WP(t) of a pad driven straight at constant speed."""
+    direction = np.array([np.cos(heading), np.sin(heading), 0.0])
+    return lambda t: RigidTransform(RotationMatrix.MakeZRotation(heading), [5.0, -3.0, 1.6] + speed * t * direction)
+
+
+def circle(speed: float, radius: float):
+    """X_WP(t) of a pad PAD_AHEAD_OF_REAR_AXLE_M ahead of the rear axle of a car on a circle
+    (the pad is not on the circle: it slips sideways, as on a real car)."""
+    def X_WP(t):
+        heading = speed / radius * t
+        rear = np.array([radius * np.sin(heading), radius * (1 - np.cos(heading)), 1.6])
+        R_WP = RotationMatrix.MakeZRotation(heading)
+        return RigidTransform(R_WP, rear + R_WP.matrix()[:, 0] * PAD_AHEAD_OF_REAR_AXLE_M)
+    return X_WP
+
+
+def uav_over(X_WP: RigidTransform, t: float) -> RigidTransform:
+    """The UAV 3 m above the pad, off centre, tilted and yawed, wandering slowly."""
+    rpy = RollPitchYaw(0.04 * np.sin(t), -0.03, 0.3 + 0.1 * np.cos(0.5 * t))
+    return RigidTransform(rpy, X_WP.translation() + [0.3 * np.sin(0.7 * t), -0.2, 3.0])
+
+
+def measure(truth, t: float, rng, ids=None, time=None) -> list[MarkerMeasurement]:
+    """Seed 002 Sec. 4 measurements of the markers `ids` (default: all) at time t."""
+    X_WP = truth(t)
+    X_CP = uav_over(X_WP, t).multiply(X_BC).InvertAndCompose(X_WP)
+    measurements = synthetic_marker_measurements(X_CP, LAYOUT, rng, time=t if time is None else time)
+    return [m for m in measurements if ids is None or m.marker_id in ids]
+
+
+def drive(marker_filter, truth, steps, seed=0, visible=lambda k: LAYOUT.ids, first=0):
+    """Steps the filter at k TS for k in first..first + steps - 1; returns per step: pad position
+    error norm [m], yaw error [rad], marker position errors (5,) [m], and the estimated velocity
+    (3,) [m/s] of marker 0 (paper) or the pad (ct)."""
+    rng = np.random.default_rng(seed)
+    errors = []
+    for k in range(first, first + steps):
+        t = k * TS
+        marker_filter.step(t, uav_over(truth(t), t), measure(truth, t, rng, visible(k)))
+        errors.append(estimate_errors(marker_filter, truth(t)) + (marker_filter.belief[1][3:6],))
+    return [np.array(e) for e in zip(*errors)]
+
+
+def estimate_errors(marker_filter, X_WP: RigidTransform):
+    estimate = marker_filter.estimate()
+    yaw = RollPitchYaw(X_WP.rotation()).yaw_angle()
+    p_WM = X_WP.multiply(LAYOUT.p_PM.T).T
+    return (np.linalg.norm(estimate.pose.X_RT.translation() - X_WP.translation()),
+            np.angle(np.exp(1j * (estimate.yaw_rad - yaw))), np.linalg.norm(estimate.p_WM - p_WM, axis=1))
+
+
+def rms(values) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+def state_from_truth(cls, X_WP: RigidTransform, v_WP=(3.0, -1.0, 0.1), omega_z=0.2) -> np.ndarray:
+    """A filter state for the pad at X_WP moving at v_WP (every marker alike) turning at omega_z."""
+    if cls is ConstantTurnEkf:
+        return np.r_[X_WP.translation(), v_WP, RollPitchYaw(X_WP.rotation()).yaw_angle(), omega_z]
+    markers = [np.r_[X_WP.multiply(p), v_WP] for p in LAYOUT.p_PM]
+    return np.r_[np.concatenate(markers), drake_to_paper(X_WP.rotation()), 0.01, -0.02, omega_z]
+
+
+def make(cls, **config):
+    return cls(LAYOUT, X_BC, MarkerEkfConfig(**config))
+
+
+# ---- models ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cls, X_WP", [(PaperMarkerEkf, pose([12, -4, 1.6], [0, 0, 35])),
+                                       (PaperMarkerEkf, pose([12, -4, 1.6], [6, -4, 150])),  # a tilted pad
+                                       (ConstantTurnEkf, pose([12, -4, 1.6], [0, 0, 35])),
+                                       (ConstantTurnEkf, pose([-2, 7, 1.6], [0, 0, -120]))])
+def test_measurement_model_is_the_true_geometry(cls, X_WP):
+    marker_filter = make(cls)
+    X_WB = pose([12.5, -3.8, 4.5], [5, -3, 100])
+    slots = np.arange(5)
+    p_CM, q_MC = marker_filter.predict_measurements(state_from_truth(cls, X_WP), slots,
+                                                    marker_filter.camera_at(X_WB))
+    X_WC = X_WB.multiply(X_BC)
+    for i in slots:
+        X_CM = X_WC.InvertAndCompose(X_WP.multiply(RigidTransform(LAYOUT.p_PM[i])))
+        np.testing.assert_allclose(p_CM[i], X_CM.translation(), atol=1e-12)
+        q_true = drake_to_paper(X_CM.rotation())
+        np.testing.assert_allclose(q_MC * np.sign(q_MC @ q_true), q_true, atol=1e-12)
+
+
+@pytest.mark.parametrize("cls", BOTH)
+@pytest.mark.parametrize("slots", [[0, 2, 4], [3], [0, 1, 2, 3, 4]])
+def test_measurement_jacobian_matches_finite_differences(cls, slots):
+    marker_filter = make(cls)
+    camera = marker_filter.camera_at(pose([12.5, -3.8, 4.5], [5, -3, 100]))
+    x0 = state_from_truth(cls, pose([12, -4, 1.6], [0, 0, 35]))
+    slots = np.array(slots)
+    p_CM, q_MC = marker_filter.predict_measurements(x0, slots, camera)
+    q_MC = np.tile(q_MC, (len(slots), 1))
+
+    def innovation(x):
+        return marker_filter.innovations(x, slots, camera, p_CM, q_MC).ravel()
+
+    eps = 1e-6
+    numeric = np.column_stack([-(innovation(x0 + eps * e) - innovation(x0 - eps * e)) / (2 * eps)
+                               for e in np.eye(len(x0))])
+    np.testing.assert_allclose(marker_filter.measurement_jacobian(x0, slots, camera), numeric, atol=1e-7)
+
+
+@pytest.mark.parametrize("cls, omega_z", [(PaperMarkerEkf, 0.3), (ConstantTurnEkf, 0.4), (ConstantTurnEkf, 1e-7),
+                                          (ConstantTurnEkf, 0.0)])
+def test_process_jacobian_matches_finite_differences(cls, omega_z):
+    marker_filter = make(cls)
+    x0 = state_from_truth(cls, pose([12, -4, 1.6], [2, -1, 35]), omega_z=omega_z)
+    eps = 1e-6
+    numeric = np.column_stack([(marker_filter.process(x0 + eps * e, TS)[0] - marker_filter.process(x0 - eps * e, TS)[0])
+                               / (2 * eps) for e in np.eye(len(x0))])
+    np.testing.assert_allclose(marker_filter.process(x0, TS)[1], numeric, atol=1e-8)
+
+
+def test_constant_turn_model_is_exact_for_a_pad_off_the_rear_axle_in_a_steady_turn():
+    truth, marker_filter = circle(12.0, 41.0), make(ConstantTurnEkf)
+
+    def state(t, dt=1e-6):  # the pad's velocity by central differences of the truth
+        v = (truth(t + dt).translation() - truth(t - dt).translation()) / (2 * dt)
+        return state_from_truth(ConstantTurnEkf, truth(t), v, 12.0 / 41.0)
+
+    predicted = marker_filter.process(state(1.0), TS)[0]
+    np.testing.assert_allclose(predicted, state(1.0 + TS), atol=1e-7)
+    v = state(1.0)[3:5]
+    assert abs(v[1] / np.linalg.norm(v) - np.sin(12.0 / 41.0)) > 0.02  # its velocity is not along its heading
+
+
+def test_paper_process_is_eq_11():
+    marker_filter = make(PaperMarkerEkf)
+    x = state_from_truth(PaperMarkerEkf, pose([1, 2, 1.6], [0, 0, 20]))
+    f = marker_filter.process(x, TS)[0]
+    np.testing.assert_allclose(f[0:3], x[0:3] + TS * x[3:6])
+    np.testing.assert_allclose(f[3:6], x[3:6])
+    q, omega = x[30:34], x[34:37]
+    np.testing.assert_allclose(f[30:34], q + TS / 2 * xi(q) @ omega)
+    np.testing.assert_allclose(f[34:37], omega)
+    assert marker_filter.n == 37
+
+
+# ---- convergence -------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_converges_on_a_straight_constant_speed_drive(cls):
+    marker_filter = make(cls)
+    truth = straight(6.0)
+    position, yaw, markers, velocity = drive(marker_filter, truth, steps=400)
+    settled = slice(150, None)  # after 5 s
+    assert rms(position[settled]) < 0.08  # a single marker measurement is off by 0.17 m (3D, rms)
+    assert np.degrees(rms(yaw[settled])) < 1.5
+    assert markers[settled].max() < 0.25
+    estimate = marker_filter.estimate()
+    assert estimate.pose.valid and estimate.pose.covariance.shape == (6, 6)
+    np.testing.assert_allclose(velocity[settled].mean(axis=0),
+                               6.0 * np.array([np.cos(np.radians(30)), np.sin(np.radians(30)), 0]), atol=0.1)
+
+
+def test_constant_turn_filter_converges_on_a_circle_and_beats_the_papers():
+    truth = circle(12.0, 41.0)  # Eq. (13)'s tightest bend, at case C3's speed
+    paper, ct = make(PaperMarkerEkf), make(ConstantTurnEkf)
+    paper_errors = drive(paper, truth, steps=500)
+    ct_errors = drive(ct, truth, steps=500)
+    settled = slice(150, None)
+    assert rms(ct_errors[0][settled]) < 0.05
+    assert rms(paper_errors[0][settled]) > 1.5 * rms(ct_errors[0][settled])
+    assert rms(ct_errors[2][settled]) < rms(paper_errors[2][settled])
+    assert ct.belief[1][ConstantTurnEkf.OMEGA] == pytest.approx(12.0 / 41.0, rel=0.1)
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_without_markers_the_filter_predicts_and_then_reconverges(cls):
+    marker_filter = make(cls)
+    truth = straight(6.0)
+    drive(marker_filter, truth, steps=150)
+    traces = []
+    for k in range(150, 250):  # 3.5 s without markers
+        t = k * TS
+        marker_filter.step(t, uav_over(truth(t), t), [])
+        traces.append(np.trace(marker_filter.belief[2]))
+    assert np.all(np.diff(traces) > 0)
+    coasted = marker_filter.estimate()
+    assert not coasted.pose.valid  # its position is too uncertain
+    assert np.linalg.norm(coasted.pose.X_RT.translation() - truth(249 * TS).translation()) < 2.0  # but predicted
+    position = drive(marker_filter, truth, steps=100, first=250)[0]
+    assert position[-30:].max() < 0.15
+    assert marker_filter.estimate().pose.valid
+    assert marker_filter.stats.gated == 0 and marker_filter.stats.resets == 0
+
+
+# ---- bad, outlying and late measurements -------------------------------------------------------
+
+
+def converged(cls, truth=straight(6.0), steps=60):
+    marker_filter = make(cls)
+    drive(marker_filter, truth, steps=steps)
+    return marker_filter
+
+
+def twins(cls):
+    """Two identical filters (copied as Drake copies state) after the same 60 steps."""
+    a = converged(cls)
+    return a, copy.deepcopy(a)
+
+
+def assert_same_belief(a, b, atol=0.0):
+    (ta, xa, Pa), (tb, xb, Pb) = a.belief, b.belief
+    assert ta == tb
+    np.testing.assert_allclose(xa, xb, atol=atol, rtol=0)
+    np.testing.assert_allclose(Pa, Pb, atol=atol, rtol=0)
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_nan_and_non_unit_measurements_are_rejected_and_counted(cls):
+    a, b = twins(cls)
+    truth, t = straight(6.0), 60 * TS
+    good = measure(truth, t, np.random.default_rng(5))
+    m = good[1]
+    bad = [MarkerMeasurement(t, m.marker_id, [np.nan, 0, 1], m.q_CM),
+           MarkerMeasurement(t, m.marker_id, m.p_CM, [0, np.nan, 0, 1]),
+           MarkerMeasurement(t, m.marker_id, m.p_CM, 1.2 * m.q_CM),  # |q| = 1.2
+           MarkerMeasurement(t, 42, m.p_CM, m.q_CM),  # not a layout marker
+           MarkerMeasurement(t + 1.0, m.marker_id, m.p_CM, m.q_CM),  # from the future
+           "not a measurement"]
+    a.step(t, uav_over(truth(t), t), good + bad)
+    b.step(t, uav_over(truth(t), t), good)
+    assert_same_belief(a, b)
+    assert a.stats.invalid == 6 and b.stats.invalid == 0
+    assert a.stats.accepted == b.stats.accepted
+
+
+@pytest.mark.parametrize("cls", BOTH)
+@pytest.mark.parametrize("outlier", ["moved 1 m", "flipped"])
+def test_the_chi_square_gate_rejects_a_gross_outlier(cls, outlier):
+    a, b = twins(cls)
+    truth, t = straight(6.0), 60 * TS
+    measurements = measure(truth, t, np.random.default_rng(5))
+    m = measurements[2]
+    if outlier == "moved 1 m":
+        wrong = MarkerMeasurement(t, m.marker_id, m.p_CM + [0.6, -0.8, 0.0], m.q_CM)
+    else:  # the attitude upside down, as a planar marker's pose ambiguity can give
+        wrong = MarkerMeasurement(t, m.marker_id, m.p_CM, drake_to_paper(
+            m.X_CM.rotation().multiply(RotationMatrix.MakeXRotation(np.pi))))
+    a.step(t, uav_over(truth(t), t), measurements[:2] + [wrong] + measurements[3:])
+    b.step(t, uav_over(truth(t), t), measurements[:2] + measurements[3:])
+    assert_same_belief(a, b, atol=1e-12)
+    assert a.stats.gated == 1 and b.stats.gated == 0
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_measurements_rejected_for_many_steps_restart_the_filter(cls):
+    marker_filter = converged(cls)
+    moved = lambda t: straight(6.0)(t).multiply(RigidTransform([0.0, 4.0, 0.0]))  # the pad is elsewhere now
+    steps = marker_filter.config.reset_after_rejected_steps
+    drive(marker_filter, moved, steps=steps, first=60)
+    assert marker_filter.stats.resets == 1 and marker_filter.stats.gated == 5 * steps
+    position = drive(marker_filter, moved, steps=60, first=60 + steps)[0]
+    assert position[-1] < 0.15
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_late_measurements_are_fused_as_if_they_had_arrived_on_time(cls):
+    truth = circle(6.0, 41.0)
+    on_time, late = make(cls), make(cls)
+    rng, delays = np.random.default_rng(2), np.random.default_rng(3)
+    arriving = {}  # step -> measurements arriving then
+    for k in range(80):
+        t = k * TS
+        measurements = measure(truth, t, rng)
+        on_time.step(t, uav_over(truth(t), t), measurements)
+        for m in measurements:  # 0 to 3 steps late (the paper's 35 ms budget is one), in any order
+            arriving.setdefault(k + int(delays.integers(0, 4)), []).append(m)
+    for k in range(80):
+        t = k * TS
+        late.step(t, uav_over(truth(t), t), arriving.get(k, [])[::-1])
+    for k in range(80, 84):  # the last ones arrive after the drive; the on-time filter just predicts
+        t = k * TS
+        on_time.step(t, uav_over(truth(t), t), [])
+        late.step(t, uav_over(truth(t), t), arriving.get(k, []))
+    assert_same_belief(on_time, late, atol=1e-9)
+    assert late.stats == on_time.stats
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_a_measurement_between_steps_is_fused_at_its_own_time(cls):
+    """Taken half a step before the step it arrives at, with the UAV moving: the filter interpolates
+    the UAV's pose (exact here: constant velocity and attitude) and fuses it at its own time, as a
+    filter stepped at that time does."""
+    truth = straight(6.0)
+    uav = lambda t: RigidTransform(RollPitchYaw(0.02, -0.01, 0.3), truth(t).translation() + [0.2, 0.1, 3.0])
+    stepped_there, on_grid = make(cls), make(cls)
+    rng = np.random.default_rng(4)
+    for k in range(40):
+        t, t_m = k * TS, (k - 0.5) * TS
+        measurements = []
+        if k:
+            X_CP = uav(t_m).multiply(X_BC).InvertAndCompose(truth(t_m))
+            measurements = synthetic_marker_measurements(X_CP, LAYOUT, rng, time=t_m)
+            stepped_there.step(t_m, uav(t_m), measurements)
+        stepped_there.step(t, uav(t), [])
+        on_grid.step(t, uav(t), measurements)
+    assert_same_belief(stepped_there, on_grid, atol=1e-9)
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_measurements_older_than_the_history_are_counted_too_late(cls):
+    a, b = twins(cls)
+    truth, t = straight(6.0), 60 * TS
+    stale = measure(truth, t - 1.0, np.random.default_rng(6))  # 1 s old; the history keeps 0.5 s
+    a.step(t, uav_over(truth(t), t), stale)
+    b.step(t, uav_over(truth(t), t), [])
+    assert_same_belief(a, b)
+    assert a.stats.too_late == 5
+
+
+# ---- any subset of markers ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cls", BOTH)
+@pytest.mark.parametrize("ids", [[0], [3], [1, 2], [0, 2, 4]])
+def test_any_subset_of_markers(cls, ids):
+    marker_filter = make(cls)
+    position, _, markers, _ = drive(marker_filter, straight(6.0), steps=200, visible=lambda k: ids)
+    seen = [LAYOUT.index(i) for i in ids]
+    assert markers[-50:, seen].max() < 0.25
+    if cls is ConstantTurnEkf or 0 in ids:
+        assert position[-50:].max() < 0.25 and marker_filter.estimate().pose.valid
+    else:  # the paper's markers are independent: the pad (marker 0) is only predicted, and invalid
+        assert not marker_filter.estimate().pose.valid
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_a_different_random_subset_each_step(cls):
+    marker_filter = make(cls)
+    rng = np.random.default_rng(8)
+    visible = lambda k: list(rng.choice(LAYOUT.ids, size=rng.integers(0, 6), replace=False))
+    position, _, markers, _ = drive(marker_filter, straight(6.0), steps=250, visible=visible)
+    assert position[-50:].max() < 0.25 and markers[-50:].max() < 0.3
+
+
+# ---- the Drake system --------------------------------------------------------------------------
+
+
+def filter_diagram(cls, X_WB, X_WP, latency_s=0.0):
+    builder = DiagramBuilder()
+    uav = builder.AddSystem(ConstantValueSource(AbstractValue.Make(X_WB)))
+    pad = builder.AddSystem(ConstantValueSource(AbstractValue.Make(X_WP)))
+    source = builder.AddSystem(SyntheticMarkerSource(LAYOUT, X_BC, TS, seed=1, latency_s=latency_s))
+    estimator = builder.AddSystem(MarkerFilterSystem(make(cls)))
+    builder.Connect(uav.get_output_port(), source.GetInputPort("X_WB"))
+    builder.Connect(pad.get_output_port(), source.GetInputPort("X_WP"))
+    builder.Connect(uav.get_output_port(), estimator.GetInputPort("X_WB"))
+    builder.Connect(source.get_output_port(), estimator.GetInputPort("marker_measurements"))
+    return builder.Build(), estimator
+
+
+@pytest.mark.parametrize("cls", BOTH)
+@pytest.mark.parametrize("latency_s", [0.0, TS])
+def test_filter_system_estimates_a_still_pad(cls, latency_s):
+    X_WB, X_WP = pose([3.2, 1.1, 4.6], [2, -1, 80]), pose([3.0, 1.0, 1.6], [0, 0, 70])
+    diagram, estimator = filter_diagram(cls, X_WB, X_WP, latency_s)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(60 * TS)
+    context = estimator.GetMyContextFromRoot(simulator.get_context())
+    estimate = estimator.GetOutputPort("X_WP_estimate").Eval(context)
+    assert estimate.valid and estimate.time == pytest.approx(60 * TS)
+    assert np.linalg.norm(estimate.X_RT.translation() - X_WP.translation()) < 0.1
+    assert X_WP.rotation().InvertAndCompose(estimate.X_RT.rotation()).ToAngleAxis().angle() < np.radians(3)
+    p_WM = estimator.GetOutputPort("p_WM_estimate").Eval(context).reshape(5, 3)
+    np.testing.assert_allclose(p_WM, X_WP.multiply(LAYOUT.p_PM.T).T, atol=0.2)  # the paper's: 0.06 m std
+    stats = estimator.GetOutputPort("filter_stats").Eval(context)
+    # 60 updates (t = 0 to 59 TS); with latency, the first has nothing yet
+    assert stats.accepted == 5 * (60 - round(latency_s / TS)) and stats.too_late == 0 and stats.invalid == 0
+    simulator.AdvanceTo(60.5 * TS)  # between updates: the outputs are predicted to the context's time
+    assert estimator.GetOutputPort("X_WP_estimate").Eval(context).time == pytest.approx(60.5 * TS)
+
+
+def test_filter_system_contexts_do_not_share_the_filter():
+    X_WB, X_WP = pose([0, 0, 4.6], [0, 0, 0]), pose([0, 0, 1.6], [0, 0, 0])
+    diagram, estimator = filter_diagram(ConstantTurnEkf, X_WB, X_WP)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(10 * TS)
+    clone = simulator.get_context().Clone()
+    simulator.AdvanceTo(20 * TS)
+    stats = lambda c: estimator.GetOutputPort("filter_stats").Eval(estimator.GetMyContextFromRoot(c))
+    assert stats(clone).accepted == 50 and stats(simulator.get_context()).accepted == 100
+
+
+def test_filters_are_registered_by_name():
+    assert FILTERS == {"paper_ekf": PaperMarkerEkf, "ct_ekf": ConstantTurnEkf}

@@ -1,0 +1,225 @@
+"""Seed 002 marker layout, pad texture, synthetic measurements and ArUco detection + per-marker PnP."""
+
+import copy
+
+import cv2
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.sensors import ImageRgba8U
+from scipy.spatial.transform import Rotation
+
+from systems.config import ConfigError
+from systems.estimators.quaternion import drake_to_paper, paper_to_drake
+from systems.noise import sample_rng
+from systems.perception.markers import (MarkerDetectorSystem, MarkerLayout, MarkerMeasurement, SyntheticMarkerSource,
+                                        detect_marker_poses, pad_texture, synthetic_marker_measurements)
+from systems.sensors.camera import CameraConfig
+from tests.conftest import pose
+
+CAMERA = CameraConfig()
+K = CAMERA.K
+LAYOUT = MarkerLayout()
+LOOKING_DOWN = RotationMatrix.MakeXRotation(np.pi)  # R_CP of a level pad under a level downward camera
+
+
+def render_pad(X_CP: RigidTransform, supersample: int = 4, background: int = 90) -> np.ndarray:
+    """The pad texture as the default camera sees it at X_CP (grey, 512x512): the plane's homography
+    at `supersample` times the resolution, averaged down (a renderer's antialiasing)."""
+    texture = pad_texture(LAYOUT)
+    scale, half = texture.shape[0] / LAYOUT.pad_size_m, LAYOUT.pad_size_m / 2
+    texel_to_P = np.array([[1 / scale, 0, 0.5 / scale - half], [0, -1 / scale, half - 0.5 / scale], [0, 0, 1]])
+    K_big = K.copy()
+    K_big[:2] *= supersample
+    K_big[:2, 2] = (K[:2, 2] + 0.5) * supersample - 0.5
+    R, t = X_CP.rotation().matrix(), X_CP.translation()
+    homography = K_big @ np.column_stack([R[:, 0], R[:, 1], t]) @ texel_to_P
+    size = (CAMERA.width * supersample, CAMERA.height * supersample)
+    big = cv2.warpPerspective(texture, homography, size, flags=cv2.INTER_LINEAR, borderValue=background)
+    return cv2.resize(big, (CAMERA.width, CAMERA.height), interpolation=cv2.INTER_AREA)
+
+
+def X_CP_at(height_m: float, xy=(0.03, -0.02), yaw_deg: float = 23.0) -> RigidTransform:
+    return RigidTransform(LOOKING_DOWN.multiply(RotationMatrix.MakeZRotation(np.radians(yaw_deg))), [*xy, height_m])
+
+
+def true_X_CM(X_CP: RigidTransform, marker_id: int) -> RigidTransform:
+    return X_CP.multiply(RigidTransform(LAYOUT.p_PM[LAYOUT.index(marker_id)]))
+
+
+def angle_between(R_a: RotationMatrix, R_b: RotationMatrix) -> float:
+    return R_a.InvertAndCompose(R_b).ToAngleAxis().angle()
+
+
+# ---- layout and texture ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(dictionary="DICT_NOPE"), "dictionary"),
+    (dict(ids=[0, 1, 2, 3, 3]), "ids"),
+    (dict(ids=[0, 1, 2, 3, 50]), "ids"),
+    (dict(sizes_m=[0.2, 0.3, 0.3, 0.3]), "sizes_m"),
+    (dict(offsets_m=[[0.1, 0, 0], [0.3, 0.3, 0], [-0.3, 0.3, 0], [-0.3, -0.3, 0], [0.3, -0.3, 0]]), "offsets_m"),
+])
+def test_layout_validation_names_the_field(change, message):
+    with pytest.raises(ConfigError, match=message):
+        MarkerLayout(**change).validate()
+
+
+def test_pad_texture_places_each_marker_where_the_layout_says():
+    texture = pad_texture(LAYOUT)
+    corners, ids, _ = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)).detectMarkers(
+        texture)
+    assert sorted(ids.ravel()) == LAYOUT.ids
+    scale = texture.shape[0] / LAYOUT.pad_size_m
+    for marker_id, c in zip(ids.ravel(), corners):
+        c = c.reshape(4, 2)
+        i = LAYOUT.index(marker_id)
+        # texel (col, row) -> P: x = (col + 0.5) / scale - 0.5, y = 0.5 - (row + 0.5) / scale
+        centre = np.array([(c[:, 0].mean() + 0.5) / scale - 0.5, 0.5 - (c[:, 1].mean() + 0.5) / scale])
+        np.testing.assert_allclose(centre, LAYOUT.p_PM[i, :2], atol=1.5 / scale)
+        edge = np.linalg.norm(c[1] - c[0]) / scale
+        assert edge == pytest.approx(LAYOUT.sizes_m[i], abs=1.5 / scale)
+        # upright: ArUco's first corner (top-left of the marker) is up and left in the image
+        assert c[0, 0] < c[1, 0] and c[0, 1] < c[3, 1]
+
+
+# ---- synthetic measurements (seed 002 Sec. 4) ------------------------------------------------
+
+
+def test_noise_free_synthetic_measurements_are_the_true_marker_poses():
+    X_CP = pose([0.4, -0.2, 3.0], [175, 4, 60])
+    measurements = synthetic_marker_measurements(X_CP, LAYOUT, np.random.default_rng(0), 0.0, 0.0, time=1.5)
+    assert [m.marker_id for m in measurements] == LAYOUT.ids
+    for m in measurements:
+        X_CM = true_X_CM(X_CP, m.marker_id)
+        np.testing.assert_allclose(m.p_CM, X_CM.translation(), atol=1e-12)
+        assert angle_between(RotationMatrix(paper_to_drake(m.q_CM)), X_CM.rotation()) < 1e-9
+        assert m.time == 1.5 and m.latency_s == 0.0
+
+
+def test_synthetic_noise_has_the_papers_standard_deviations():
+    X_CP = pose([0.1, 0.2, 3.0], [180, 0, 30])
+    rng = np.random.default_rng(1)
+    p_errors, angle_errors = [], []
+    for _ in range(400):
+        for m in synthetic_marker_measurements(X_CP, LAYOUT, rng):
+            X_CM = true_X_CM(X_CP, m.marker_id)
+            p_errors.append(m.p_CM - X_CM.translation())
+            dR = X_CM.rotation().inverse().multiply(RotationMatrix(paper_to_drake(m.q_CM)))  # Exp(dtheta), in M
+            angle_errors.append(Rotation.from_matrix(dR.matrix()).as_rotvec())
+    p_errors, angle_errors = np.array(p_errors), np.degrees(angle_errors)
+    np.testing.assert_allclose(p_errors.mean(axis=0), 0.0, atol=0.01)
+    np.testing.assert_allclose(p_errors.std(axis=0), 0.1, rtol=0.05)
+    np.testing.assert_allclose(angle_errors.mean(axis=0), 0.0, atol=0.5)
+    np.testing.assert_allclose(angle_errors.std(axis=0), 5.0, rtol=0.05)
+
+
+def test_measurements_are_immutable_and_copies_share_them():
+    m = MarkerMeasurement(0.0, 0, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0])
+    with pytest.raises(ValueError):
+        m.p_CM[0] = 1.0
+    assert copy.deepcopy([m])[0] is m
+    np.testing.assert_allclose(m.X_CM.translation(), [0, 0, 1])
+
+
+def fixed_pose_source(source: SyntheticMarkerSource, X_WB: RigidTransform, X_WP: RigidTransform):
+    context = source.CreateDefaultContext()
+    source.GetInputPort("X_WB").FixValue(context, X_WB)
+    source.GetInputPort("X_WP").FixValue(context, X_WP)
+    return context
+
+
+def test_synthetic_source_system_samples_seeded_noise_per_sample():
+    X_WB, X_WP = pose([1.0, 2.0, 5.0], [2, -3, 40]), pose([1.2, 1.9, 1.6], [0, 0, 10])
+    source = SyntheticMarkerSource(LAYOUT, CAMERA.X_BC, period_s=0.035, seed=3)
+    context = fixed_pose_source(source, X_WB, X_WP)
+    context.SetTime(0.35)
+    measurements = source.get_output_port().Eval(context)
+    X_CP = X_WB.multiply(CAMERA.X_BC).InvertAndCompose(X_WP)
+    expected = synthetic_marker_measurements(X_CP, LAYOUT, sample_rng(3, "marker_measurements", 10), time=0.35)
+    for m, e in zip(measurements, expected, strict=True):
+        np.testing.assert_allclose(m.p_CM, e.p_CM, atol=1e-12)
+        np.testing.assert_allclose(m.q_CM, e.q_CM, atol=1e-12)
+        assert m.time == 0.35
+
+
+def test_synthetic_source_delivers_late_measurements_after_their_latency():
+    source = SyntheticMarkerSource(LAYOUT, CAMERA.X_BC, period_s=0.035, latency_s=0.07)
+    context = fixed_pose_source(source, pose([0, 0, 5.0], [0, 0, 0]), pose([0, 0, 1.6], [0, 0, 0]))
+    simulator = Simulator(source, context)
+    for k in range(6):
+        simulator.AdvanceTo(k * 0.035)  # stops before this time's update: what a filter's update here reads
+        measurements = source.get_output_port().Eval(context)
+        if k < 2:
+            assert measurements == []  # nothing has waited 70 ms yet
+        else:
+            assert [m.time for m in measurements] == pytest.approx([(k - 2) * 0.035] * 5)
+            assert all(m.latency_s == pytest.approx(0.07) for m in measurements)
+
+
+def test_synthetic_source_rejects_a_latency_off_its_period():
+    with pytest.raises(ConfigError, match="latency_s"):
+        SyntheticMarkerSource(LAYOUT, CAMERA.X_BC, period_s=0.035, latency_s=0.05)
+
+
+# ---- the real pipeline: ArUco detection and per-marker solvePnP -------------------------------
+
+
+def test_detected_marker_poses_match_the_truth():
+    X_CP = X_CP_at(2.0)
+    measurements = detect_marker_poses(render_pad(X_CP), K, LAYOUT, time=0.7)
+    assert sorted(m.marker_id for m in measurements) == LAYOUT.ids
+    for m in measurements:
+        X_CM = true_X_CM(X_CP, m.marker_id)
+        assert np.linalg.norm(m.p_CM - X_CM.translation()) < 0.02  # m, at 2 m
+        # one small square's tilt is weakly observed (the centre marker spans 46 px here); its yaw is not
+        assert np.degrees(angle_between(m.X_CM.rotation(), X_CM.rotation())) < 5.0
+        R_error = m.X_CM.rotation().matrix() @ X_CM.rotation().matrix().T
+        assert abs(np.degrees(np.arctan2(R_error[1, 0], R_error[0, 0]))) < 1.0
+        assert np.linalg.norm(m.q_CM) == pytest.approx(1.0)
+        assert m.time == 0.7
+
+
+def test_a_tilted_view_gives_the_tilted_pose():
+    X_CP = RigidTransform(LOOKING_DOWN.multiply(RotationMatrix(Rotation.from_euler("xyz", [12, -8, 70], degrees=True)
+                                                               .as_matrix())), [0.1, 0.05, 2.5])
+    measurements = detect_marker_poses(render_pad(X_CP), K, LAYOUT)
+    assert len(measurements) >= 4
+    for m in measurements:
+        assert np.degrees(angle_between(m.X_CM.rotation(), X_CP.rotation())) < 5.0
+
+
+def test_range_of_the_layout_centre_marker_close_up_and_corner_markers_from_10_m():
+    close = detect_marker_poses(render_pad(X_CP_at(0.36)), K, LAYOUT)  # the end of the descent
+    assert [m.marker_id for m in close] == [0]
+    assert np.linalg.norm(close[0].p_CM - true_X_CM(X_CP_at(0.36), 0).translation()) < 0.005
+    far = detect_marker_poses(render_pad(X_CP_at(10.0)), K, LAYOUT)
+    assert {1, 2, 3, 4} <= {m.marker_id for m in far}
+
+
+def test_markers_out_of_view_are_simply_absent():
+    X_CP = X_CP_at(1.0, xy=(0.55, 0.55), yaw_deg=0.0)  # the camera over the rear-right corner of the pad
+    measurements = detect_marker_poses(render_pad(X_CP), K, LAYOUT)
+    seen = {m.marker_id for m in measurements}
+    assert 0 < len(seen) < 5
+    for m in measurements:
+        assert np.linalg.norm(m.p_CM - true_X_CM(X_CP, m.marker_id).translation()) < 0.02
+    assert detect_marker_poses(np.full((512, 512, 3), 128, np.uint8), K, LAYOUT) == []
+
+
+def test_detector_system_reads_the_colour_image():
+    grey = render_pad(X_CP_at(2.0))
+    image = ImageRgba8U(CAMERA.width, CAMERA.height)
+    image.mutable_data[:, :, :3] = grey[:, :, None]
+    image.mutable_data[:, :, 3] = 255
+    system = MarkerDetectorSystem(K, LAYOUT, CAMERA.width, CAMERA.height)
+    context = system.CreateDefaultContext()
+    context.SetTime(1.05)
+    system.get_input_port().FixValue(context, AbstractValue.Make(image))
+    measurements = system.get_output_port().Eval(context)
+    assert sorted(m.marker_id for m in measurements) == LAYOUT.ids
+    assert all(m.time == 1.05 for m in measurements)
+    assert drake_to_paper(measurements[0].X_CM.rotation()) @ measurements[0].q_CM == pytest.approx(1.0, abs=1e-9)
