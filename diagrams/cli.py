@@ -3,6 +3,8 @@
     landing-sim list
     landing-sim run stewart-hover --duration 20 --seed 3 --out results/run1 [--meshcat] [--record] [--video]
     landing-sim run --config my_scenario.yaml --set platform.roll_amplitude_deg=8
+    landing-sim montecarlo gv-marker-ekf --runs 100 --speeds 3 6 12 --workers 2 --out results/mc
+    landing-sim montecarlo gv-marker-ekf --runs 1000 --scheduler tcp://host:8786 --out results/mc
 
 Errors in what the user asked for (a bad name, key, value or output path) print one line and exit
 with status 2, before anything is written.
@@ -43,6 +45,23 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--record", action="store_true", help="write meshcat.html, a self-contained recording")
     run.add_argument("--video", action="store_true", help="write camera.mp4, the camera stream")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    mc = commands.add_parser("montecarlo", help="run a Monte Carlo campaign of a scenario (resumable)")
+    mc.add_argument("scenario", help="the scenario whose campaign to run")
+    mc.add_argument("--runs", type=int, metavar="N", help="runs per case (default: the campaign's)")
+    mc.add_argument("--speeds", "--cases", dest="cases", nargs="+", metavar="CASE",
+                    help="the cases to run, e.g. vehicle speeds in m/s (default: the campaign's)")
+    mc.add_argument("--seed", type=int, default=0, help="base seed; run i of a case always gets the same seed")
+    mc.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append", default=[],
+                    help="override a scenario field in every run (repeatable)")
+    mc.add_argument("--out", metavar="DIR", help="output directory (default: results/<scenario>-mc); "
+                    "running the same command again resumes the campaign there")
+    executors = mc.add_mutually_exclusive_group()
+    executors.add_argument("--workers", type=int, metavar="N",
+                           help="local worker processes (default: one per core; 0: in this process)")
+    executors.add_argument("--scheduler", metavar="ADDRESS",
+                           help="run on an existing Dask distributed cluster, e.g. tcp://host:8786")
+    mc.add_argument("--retry-failed", action="store_true", help="run again the runs recorded as failed")
+    mc.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
@@ -69,12 +88,29 @@ def _run(args) -> None:
         input("Meshcat keeps serving the scene; press Enter to exit. ")
 
 
+def _montecarlo(args) -> None:
+    from diagrams.montecarlo import campaign_definition, campaign_settings, run_campaign
+
+    definition = campaign_definition(args.scenario)
+    settings = campaign_settings(definition, args.scenario, args.cases, args.runs, args.seed, args.overrides)
+    out_dir = args.out or f"results/{args.scenario}-mc"
+    summary = run_campaign(definition, settings, out_dir, workers=args.workers, scheduler=args.scheduler,
+                           progress=not args.quiet, retry_failed=args.retry_failed)
+    runs = summary["runs"]
+    rate = f", {summary['runs_per_s']:.2f} runs/s" if summary["runs_per_s"] else ""
+    print(f"{args.scenario}: {runs['done']} of {runs['requested']} runs done, {runs['failed']} failed "
+          f"({runs['computed_now']} run now in {summary['wall_time_s']:.1f} s{rate}); "
+          f"summary in {out_dir}/summary.json")
+
+
 def main(argv=None) -> int:
     args = None
     try:
         args = _parser().parse_args(argv)
         if args.command == "list":
             _list()
+        elif args.command == "montecarlo":
+            _montecarlo(args)
         else:
             _run(args)
         return 0

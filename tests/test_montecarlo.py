@@ -1,0 +1,375 @@
+"""The Monte Carlo runner (diagrams/montecarlo.py) on small toy campaigns: seeds, identical summaries
+whatever the executor (1 or 2 spawned workers, in-process, a Dask LocalCluster), per-run records,
+failed and crashing runs, resume after an interruption, protection of an output directory holding
+another campaign, an unreachable scheduler, and the `landing-sim montecarlo` command.
+
+The run functions are module-level so that spawned worker processes can import them from here."""
+
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+
+from diagrams import montecarlo as mc
+from diagrams.cli import main
+from diagrams.montecarlo import (
+    CampaignDefinition, RunOutput, RunTask, campaign_settings, parse_number_case, read_records, run_campaign,
+    run_seed,
+)
+from diagrams.outputs import save_figure
+from systems.config import ConfigError
+
+SPEEDS = ("3", "6", "12")
+RUNS = 4
+
+
+# ---- toy run functions (picklable: module level) ------------------------------------------------
+
+def toy_run(task: RunTask) -> RunOutput:
+    """An 'estimator' whose error grows with the speed; a short error series as its arrays."""
+    rng = np.random.default_rng(task.seed)
+    error = rng.normal(0.0, 0.01 * float(task.case), size=50)
+    metrics = {"estimators": {"toy": {"rmse_m": float(np.sqrt(np.mean(error**2))), "valid": bool(error[0] < 0),
+                                      "xy_m": [float(error[0]), float(error[1])]}},
+               "seed": task.seed}
+    return RunOutput(metrics, {"error": error})
+
+
+def crashing_run(task: RunTask):
+    if task.case == "6" and task.index == 2:
+        raise ValueError("the filter diverged at t = 3.2 s")
+    return toy_run(task)
+
+
+def interrupting_run(task: RunTask):
+    """Stands for Ctrl-C in the middle of the campaign."""
+    if task.case == "6" and task.index == 1:
+        time.sleep(0.3)  # let runs in flight elsewhere finish first
+        raise KeyboardInterrupt
+    return toy_run(task)
+
+
+def dying_run(task: RunTask):
+    """A run whose worker process dies (as a segfault in native code would)."""
+    if task.case == "6" and task.index == 1:
+        os._exit(3)
+    return toy_run(task)
+
+
+def drake_run(task: RunTask) -> dict:
+    """A tiny real pydrake run: x' = -x from a seeded start, simulated for 1 s."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.primitives import LinearSystem
+
+    system = LinearSystem(A=[[-1.0]], B=np.zeros((1, 0)), C=[[1.0]], D=np.zeros((1, 0)))
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    x0 = np.random.default_rng(task.seed).normal()
+    context.SetContinuousState([x0])
+    simulator.AdvanceTo(1.0)
+    return {"x0": float(x0), "x1": float(context.get_continuous_state_vector()[0])}
+
+
+def rms_aggregate(done):
+    """A campaign's own aggregation: RMS over runs of each run's RMSE, per case."""
+    return {"toy": {case: {"rms_position_m": float(np.sqrt(np.mean([r.metrics["estimators"]["toy"]["rmse_m"] ** 2
+                                                                  for r in records]))) if records else None,
+                           "runs": len(records)}
+                    for case, records in done.items()}}
+
+
+def plot_errors(settings, done, out_dir):
+    fig, ax = plt.subplots()
+    for case, records in done.items():
+        ax.plot(np.mean([r.arrays()["error"] for r in records], axis=0), label=f"{case} m/s")
+    ax.legend()
+    save_figure(fig, Path(out_dir) / "ensemble_error.png")
+
+
+TOY = CampaignDefinition(run=toy_run, cases=SPEEDS, runs=RUNS, case_name="speed", parse_case=parse_number_case)
+
+
+def toy(run=toy_run, **kwargs) -> CampaignDefinition:
+    return dataclasses.replace(TOY, run=run, **kwargs)
+
+
+def settings(definition=TOY, **kwargs):
+    return campaign_settings(definition, "toy", **kwargs)
+
+
+def snapshot(directory: Path) -> dict:
+    """Every file under `directory` with its modification time and content."""
+    return {str(p.relative_to(directory)): (p.stat().st_mtime_ns, p.read_bytes())
+            for p in sorted(directory.rglob("*")) if p.is_file()}
+
+
+def record_mtimes(out: Path) -> dict:
+    return {str(p.relative_to(out)): p.stat().st_mtime_ns for p in (out / "runs").rglob("*.json")}
+
+
+# ---- seeds and settings -----------------------------------------------------------------------
+
+def test_seeds_are_a_function_of_base_seed_case_and_index():
+    assert run_seed(0, "6", 3) == run_seed(0, "6", 3)
+    seeds = {run_seed(b, c, i) for b in (0, 1) for c in SPEEDS for i in range(50)}
+    assert len(seeds) == 2 * 3 * 50  # all distinct
+    # Whatever the cases asked for, and in whichever order, run i of a case keeps its seed.
+    one = {(t.case, t.index): t.seed for t in settings(cases=["12", "3"]).tasks()}
+    two = {(t.case, t.index): t.seed for t in settings(cases=["3", "6", "12"]).tasks()}
+    assert all(two[key] == seed for key, seed in one.items())
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"cases": ["7"]}, "unknown speed '7'"),
+    ({"cases": ["fast"]}, "speed 'fast' is not a number"),
+    ({"cases": ["6", "6.0"]}, "speed 6 is given twice"),
+    ({"cases": []}, "no speed given"),
+    ({"runs": 0}, "--runs"),
+    ({"base_seed": -1}, "--seed"),
+    ({"overrides": ["vehicle.speed"]}, "key=value"),
+])
+def test_bad_settings_are_config_errors(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        settings(**kwargs)
+
+
+def test_cases_are_canonical():
+    assert settings(cases=["6.0", "3e0"]).cases == ("6", "3")
+
+
+def test_case_key_loads_the_scenario_with_case_overrides_and_seed():
+    definition = toy(case_key="camera.pixel_noise_std", cases=("1", "2"), known_cases=())
+    s = campaign_settings(definition, "stewart-hover", overrides=["hover.height_above_deck_m=3"])
+    task = s.tasks(definition.case_key)[1]
+    name, scenario = task.load_scenario()
+    assert name == "stewart-hover" and scenario.camera.pixel_noise_std == 1.0
+    assert scenario.hover.height_above_deck_m == 3.0 and scenario.seed == task.seed
+    with pytest.raises(ConfigError, match="hover.heigth"):  # checked once per case, before any run
+        campaign_settings(definition, "stewart-hover", overrides=["hover.heigth=3"])
+    with pytest.raises(ConfigError, match="sets camera.pixel_noise_std"):
+        campaign_settings(definition, "stewart-hover", overrides=["camera.pixel_noise_std=3"])
+
+
+# ---- executors give identical summaries --------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def pool_campaigns(tmp_path_factory):
+    """The toy campaign with 1 and 2 spawned worker processes and in this process."""
+    base = tmp_path_factory.mktemp("pools")
+    return {workers: (run_campaign(TOY, settings(), base / f"w{workers}", workers=workers, progress=False),
+                      base / f"w{workers}") for workers in (1, 2, 0)}
+
+
+def test_one_and_two_workers_give_identical_summaries(pool_campaigns):
+    (one, _), (two, _), (inline, _) = pool_campaigns[1], pool_campaigns[2], pool_campaigns[0]
+    assert one["runs"] == {"requested": 12, "done": 12, "failed": 0, "computed_now": 12}
+    assert one["filters"] == two["filters"] == inline["filters"]
+    assert list(one["filters"]["toy"]) == list(SPEEDS)
+    stats = one["filters"]["toy"]["12"]["rmse_m"]
+    assert stats["n"] == RUNS and set(stats) == {"n", "mean", "std", "rms", "min", "max"}
+    assert one["filters"]["toy"]["3"]["rmse_m"]["mean"] < stats["mean"]  # the toy's trend
+    assert len(one["filters"]["toy"]["3"]["xy_m"]["mean"]) == 2  # lists elementwise
+    assert one["runs_per_s"] > 0 and one["wall_time_s"] > 0
+
+
+def test_each_run_leaves_its_record_and_arrays(pool_campaigns):
+    summary, out = pool_campaigns[2]
+    on_disk = json.loads((out / "summary.json").read_text())
+    assert on_disk["runs"] == summary["runs"] and on_disk["filters"] == summary["filters"]
+    assert json.loads((out / "campaign.json").read_text())["cases"] == list(SPEEDS)
+    record = json.loads((out / "runs" / "6" / "00003.json").read_text())
+    assert record["status"] == "done" and record["seed"] == run_seed(0, "6", 3) == record["metrics"]["seed"]
+    assert record["pid"] != os.getpid()  # computed in a worker process
+    with np.load(out / "runs" / "6" / "00003.npz") as arrays:
+        np.testing.assert_array_equal(arrays["error"], toy_run(RunTask("toy", "6", 3, record["seed"])).arrays["error"])
+    names = [p.name for p in out.rglob("*")]
+    assert not [n for n in names if "partial" in n], names
+
+
+def test_pydrake_runs_in_spawned_workers(tmp_path):
+    definition = toy(run=drake_run)
+    s = settings(definition, cases=["3", "6"], runs=2)
+    two = run_campaign(definition, s, tmp_path / "pool", workers=2, progress=False)
+    inline = run_campaign(definition, s, tmp_path / "inline", workers=0, progress=False)
+    assert two["runs"]["done"] == 4 and two["filters"] == inline["filters"]
+    record = read_records(tmp_path / "pool", s)[("6", 1)]
+    assert record.metrics["x1"] == pytest.approx(record.metrics["x0"] * np.exp(-1.0), rel=1e-4)
+
+
+@pytest.fixture(scope="module")
+def local_cluster():
+    from dask.distributed import LocalCluster
+
+    cluster = LocalCluster(processes=False, n_workers=2, threads_per_worker=1, dashboard_address=None)
+    yield cluster
+    cluster.close()
+
+
+def test_dask_local_cluster_gives_the_process_pool_summary(local_cluster, pool_campaigns, tmp_path):
+    summary = run_campaign(TOY, settings(), tmp_path / "dask", scheduler=local_cluster.scheduler_address,
+                           progress=False)
+    assert summary["runs"] == pool_campaigns[1][0]["runs"]
+    assert summary["filters"] == pool_campaigns[1][0]["filters"]
+
+
+def test_a_crashing_run_on_dask_is_recorded_as_failed(local_cluster, tmp_path):
+    summary = run_campaign(toy(run=crashing_run), settings(), tmp_path, scheduler=local_cluster.scheduler_address,
+                           progress=False)
+    assert summary["runs"]["done"] == 11
+    assert [f["reason"] for f in summary["failures"]] == ["ValueError: the filter diverged at t = 3.2 s"]
+
+
+def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path):
+    out = tmp_path / "out"
+    start = time.perf_counter()
+    with pytest.raises(ConfigError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9 within 1 s"):
+        run_campaign(TOY, settings(), out, scheduler="tcp://127.0.0.1:9", connect_timeout_s=1.0, progress=False)
+    assert time.perf_counter() - start < 5
+    with pytest.raises(ConfigError, match="bad Dask scheduler address 'nonsense://x'"):
+        run_campaign(TOY, settings(), out, scheduler="nonsense://x", progress=False)
+    assert not out.exists()
+
+
+# ---- failures, resume, protection --------------------------------------------------------------
+
+def test_a_crashing_run_is_recorded_as_failed_and_the_campaign_goes_on(tmp_path):
+    s = settings()
+    summary = run_campaign(toy(run=crashing_run), s, tmp_path, workers=2, progress=False)
+    assert summary["runs"]["done"] == 11 and summary["runs"]["failed"] == 1
+    assert summary["cases"]["6"] == {"requested": RUNS, "done": RUNS - 1, "failed": 1}
+    assert summary["failures"] == [{"case": "6", "index": 2, "seed": run_seed(0, "6", 2),
+                                    "reason": "ValueError: the filter diverged at t = 3.2 s"}]
+    assert summary["filters"]["toy"]["6"]["rmse_m"]["n"] == RUNS - 1
+    record = json.loads((tmp_path / "runs" / "6" / "00002.json").read_text())
+    assert record["status"] == "failed" and record["error"]["type"] == "ValueError"
+    assert "crashing_run" in record["error"]["traceback"]
+    # Re-running keeps the failure; --retry-failed runs it again (and only it).
+    before = record_mtimes(tmp_path)
+    again = run_campaign(toy(run=crashing_run), s, tmp_path, workers=0, progress=False)
+    assert again["runs"]["computed_now"] == 0 and again["runs"]["failed"] == 1
+    fixed = run_campaign(TOY, s, tmp_path, workers=0, progress=False, retry_failed=True)
+    assert fixed["runs"] == {"requested": 12, "done": 12, "failed": 0, "computed_now": 1}
+    after = record_mtimes(tmp_path)
+    assert [k for k in before if before[k] != after[k]] == [str(Path("runs") / "6" / "00002.json")]
+
+
+def test_a_run_that_kills_its_worker_is_recorded_and_the_campaign_goes_on(tmp_path):
+    summary = run_campaign(toy(run=dying_run), settings(), tmp_path, workers=2, progress=False)
+    assert summary["runs"]["done"] == 11 and summary["runs"]["failed"] == 1
+    (failure,) = summary["failures"]
+    assert (failure["case"], failure["index"]) == ("6", 1) and failure["reason"].startswith("WorkerDied")
+
+
+@pytest.mark.parametrize("workers", [2, 0])
+def test_interrupted_campaign_resumes_without_redoing_finished_runs(tmp_path, pool_campaigns, workers):
+    s = settings()
+    with pytest.raises(KeyboardInterrupt):
+        run_campaign(toy(run=interrupting_run), s, tmp_path, workers=workers, progress=False)
+    finished = read_records(tmp_path, s)
+    assert 0 < len(finished) < 12 and ("6", 1) not in finished
+    assert all(r.status == "done" for r in finished.values())
+    assert not (tmp_path / "summary.json").exists()
+    before = record_mtimes(tmp_path)
+    summary = run_campaign(TOY, s, tmp_path, workers=workers, progress=False)
+    assert summary["runs"]["computed_now"] == 12 - len(finished) and summary["runs"]["done"] == 12
+    after = record_mtimes(tmp_path)
+    assert all(after[k] == v for k, v in before.items())  # finished runs were not written again
+    assert summary["filters"] == pool_campaigns[1][0]["filters"]
+
+
+@pytest.mark.parametrize("change, named", [
+    ({"runs": 5}, "runs: 4 there, 5 asked"),
+    ({"base_seed": 1}, "base_seed"),
+    ({"overrides": ["noise=2"]}, "overrides"),
+    ({"cases": ["3", "6"]}, "cases"),
+])
+def test_an_output_directory_with_another_campaign_is_an_error_and_untouched(pool_campaigns, change, named):
+    _, out = pool_campaigns[0]
+    before = snapshot(out)
+    with pytest.raises(ConfigError, match=named):
+        run_campaign(TOY, settings(**change), out, workers=0, progress=False)
+    assert snapshot(out) == before
+
+
+def test_same_settings_in_another_case_order_resume_the_campaign(pool_campaigns):
+    _, out = pool_campaigns[0]
+    before = snapshot(out / "runs")
+    summary = run_campaign(TOY, settings(cases=["12", "6", "3"]), out, workers=0, progress=False)
+    assert summary["runs"]["computed_now"] == 0 and snapshot(out / "runs") == before
+
+
+def test_a_non_empty_directory_that_is_no_campaign_is_an_error(tmp_path):
+    (tmp_path / "metrics.json").write_text("{}")
+    with pytest.raises(ConfigError, match="holds no campaign.json"):
+        run_campaign(TOY, settings(), tmp_path, workers=0, progress=False)
+    assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]
+
+
+def test_a_run_function_that_cannot_be_pickled_is_refused_up_front(tmp_path):
+    with pytest.raises(TypeError, match="picklable"):
+        run_campaign(toy(run=lambda task: {}), settings(), tmp_path / "out", workers=1, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_campaign_chooses_its_aggregation_and_plots(tmp_path):
+    definition = toy(aggregate=rms_aggregate, plot=plot_errors)
+    summary = run_campaign(definition, settings(definition), tmp_path, workers=0, progress=False)
+    assert set(summary["filters"]) == {"toy"} and list(summary["filters"]["toy"]) == list(SPEEDS)
+    assert summary["filters"]["toy"]["6"]["runs"] == RUNS
+    assert (tmp_path / "ensemble_error.png").stat().st_size > 1000
+
+
+# ---- the command ----------------------------------------------------------------------------
+
+@pytest.fixture
+def toy_registered(monkeypatch):
+    monkeypatch.setitem(mc.CAMPAIGNS, "toy", TOY)
+    monkeypatch.setattr(mc, "DEFAULT_CONNECT_TIMEOUT_S", 1.0)
+
+
+def test_command_runs_a_campaign_and_says_where_its_summary_is(capfd, tmp_path, toy_registered):
+    out = tmp_path / "mc"
+    code = main(["montecarlo", "toy", "--runs", "2", "--speeds", "3", "12", "--workers", "0", "--out", str(out)])
+    captured = capfd.readouterr()
+    assert code == 0, captured.err
+    assert captured.out.count("\n") == 1 and "4 of 4 runs done, 0 failed" in captured.out
+    assert str(out / "summary.json") in captured.out
+    assert "4/4" in captured.err  # the progress bar
+    summary = json.loads((out / "summary.json").read_text())
+    assert list(summary["filters"]["toy"]) == ["3", "12"]
+
+
+@pytest.mark.parametrize("args, named", [
+    (["montecarlo", "no-such-scenario"], "no Monte Carlo campaign for scenario 'no-such-scenario'"),
+    (["montecarlo", "toy", "--speeds", "3", "7"], "unknown speed '7'"),
+    (["montecarlo", "toy", "--runs", "0"], "--runs"),
+    (["montecarlo", "toy", "--speeds", "fast"], "'fast' is not a number"),
+    (["montecarlo", "toy", "--workers", "2", "--scheduler", "tcp://127.0.0.1:9"], "not allowed with"),
+    (["montecarlo", "toy", "--workers", "-1"], "--workers"),
+    (["montecarlo", "toy", "--scheduler", "tcp://127.0.0.1:9"], "cannot reach the Dask scheduler"),
+    (["montecarlo", "toy", "--set", "novalue"], "key=value"),
+    (["montecarlo", "toy", "--runs", "many"], "--runs"),
+], ids=["unknown-scenario", "unknown-speed", "zero-runs", "speed-not-a-number", "workers-and-scheduler",
+        "negative-workers", "unreachable-scheduler", "bad-set", "runs-not-a-number"])
+def test_command_errors_give_one_line_exit_2_and_write_nothing(capfd, tmp_path, toy_registered, args, named):
+    out = tmp_path / "mc"
+    code = main(args + ["--out", str(out), "--quiet"])
+    captured = capfd.readouterr()
+    assert code == 2
+    assert captured.err.count("\n") == 1 and captured.err.startswith("landing-sim: error: "), captured.err
+    assert named in captured.err and captured.out == ""
+    assert not out.exists()
+
+
+def test_command_refuses_a_directory_with_another_campaign(capfd, pool_campaigns, toy_registered):
+    _, out = pool_campaigns[0]
+    before = snapshot(out)
+    code = main(["montecarlo", "toy", "--runs", "7", "--workers", "0", "--out", str(out), "--quiet"])
+    captured = capfd.readouterr()
+    assert code == 2 and captured.err.count("\n") == 1 and "runs: 4 there, 7 asked" in captured.err
+    assert snapshot(out) == before
