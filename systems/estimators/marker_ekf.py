@@ -53,6 +53,7 @@ noise or initial covariance: those defaults are ours, identical for both filters
 """
 
 import copy
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -190,7 +191,7 @@ class MarkerFilter:
         self._R_marker = self.marker_noise(self.config.position_std_m, sigma_q)
         self._gate = chi2.ppf(self.config.gate_probability, self.rows)
         self._R_stacked: dict[int, np.ndarray] = {}  # shared by copies: a cache of constants
-        self._cached_dt = None  # the dt of a subclass's cached constant parts of F and Q
+        self._constants_by_dt: dict[float, object] = {}  # shared by copies, like _R_stacked
         self._I = np.eye(self.n)
         self._history: tuple[_Step, ...] = ()
         self._settled = FilterStats()  # counts no re-run can change: dropped steps', intake rejections
@@ -215,6 +216,10 @@ class MarkerFilter:
 
     def process_noise(self, x: np.ndarray, dt: float) -> np.ndarray:
         """Q over dt seconds."""
+        raise NotImplementedError
+
+    def constant_parts(self, dt: float):
+        """Whatever parts of F and Q depend on dt alone (see `constants`)."""
         raise NotImplementedError
 
     def predict_measurements(self, x: np.ndarray, slots: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
@@ -295,11 +300,11 @@ class MarkerFilter:
     def _usable(self, m: MarkerMeasurement, t: float) -> bool:
         """A known marker, taken by time t, finite, with a unit quaternion (to tolerance)."""
         try:
-            p, q = np.asarray(m.p_CM, dtype=float), np.asarray(m.q_CM, dtype=float)
-            return bool(m.marker_id in self._slot and p.shape == (3,) and q.shape == (4,)
-                        and m.time <= t + TIME_TOLERANCE_S and np.isfinite(p).all() and np.isfinite(q).all()
-                        and abs(np.sqrt(q @ q) - 1.0) <= self.config.max_quaternion_norm_error)
-        except (AttributeError, TypeError, ValueError):
+            p, q = np.asarray(m.p_CM, dtype=float).tolist(), np.asarray(m.q_CM, dtype=float).tolist()
+            return (m.marker_id in self._slot and len(p) == 3 and len(q) == 4 and m.time <= t + TIME_TOLERANCE_S
+                    and all(map(math.isfinite, p + q))
+                    and abs(math.sqrt(sum(v * v for v in q)) - 1.0) <= self.config.max_quaternion_norm_error)
+        except (AttributeError, TypeError, ValueError):  # not a measurement, or nested arrays
             return False
 
     def _step_index(self, time: float, t: float) -> int | None:
@@ -360,10 +365,16 @@ class MarkerFilter:
         return (np.array([self._slot[m.marker_id] for m in group]), np.array([m.p_CM for m in group]),
                 np.array([m.q_CM for m in group]))
 
-    def _is_cached(self, dt: float) -> bool:
-        """Whether a subclass's constant parts of F and Q were cached for this dt (to 1 ns: step times
-        k T_s differ by T_s only to rounding)."""
-        return self._cached_dt is not None and abs(dt - self._cached_dt) < TIME_TOLERANCE_S
+    def constants(self, dt: float):
+        """The model's `constant_parts(dt)`, cached by dt (to 1 ns: step times k T_s differ by T_s
+        only to rounding); shared, so never modified in place."""
+        key = round(dt, 9)
+        parts = self._constants_by_dt.get(key)
+        if parts is None:
+            if len(self._constants_by_dt) >= 8:  # predictions to odd times (outputs between steps)
+                self._constants_by_dt.clear()
+            parts = self._constants_by_dt[key] = self.constant_parts(dt)
+        return parts
 
     def predict(self, x: np.ndarray, P: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Sec. 3's prediction over dt seconds: x = f(x), P = F P F^T + Q."""
@@ -392,11 +403,10 @@ class MarkerFilter:
         if fused == 0:
             return belief, 0
         if fused < k:
-            rows = (d * blocks[keep])[:, None] + np.arange(d)
-            rows = rows.ravel()
-            S, PHt, H = S[np.ix_(rows, rows)], PHt[:, rows], H[rows]
+            rows = ((d * blocks[keep])[:, None] + np.arange(d)).ravel()
+            S, PHt, H, nu = S[np.ix_(rows, rows)], PHt[:, rows], H[rows], nu[keep]
         K = np.linalg.solve(S, PHt.T).T  # K = P^XY (P^Y)^-1
-        x = self.normalized(x + K @ nu[keep].ravel())
+        x = self.normalized(x + K @ nu.ravel())
         I_KH = self._I - K @ H
         P = I_KH @ P @ I_KH.T + K @ self._stacked_noise(fused) @ K.T  # Joseph form, as Sec. 3 writes it
         return _Belief(belief.time, x, (P + P.T) / 2), fused
@@ -488,7 +498,7 @@ class PaperMarkerEkf(MarkerFilter):
         markers[:, :3] += dt * markers[:, 3:]
         q, omega = x[self._q], x[self._w]
         f[self._q] = q + dt / 2 * xi(q) @ omega
-        F = self._linear_parts(dt)[0].copy()
+        F = self.constants(dt)[0].copy()
         F[self._q, self._q] += dt / 2 * omega_matrix(omega)
         F[self._q, self._w] = dt / 2 * xi(q)
         return f, F
@@ -496,7 +506,7 @@ class PaperMarkerEkf(MarkerFilter):
     def process_noise(self, x, dt):
         """Q: white acceleration on each marker axis; white angular acceleration on omega, reaching
         q through Xi(q)/2 (the same [[dt^3/3, dt^2/2], [dt^2/2, dt]] shape)."""
-        Q = self._linear_parts(dt)[1].copy()
+        Q = self.constants(dt)[1].copy()
         G = xi(x[self._q]) / 2
         rotation = cv_noise(self.config.angular_acceleration_psd, dt)
         Q[self._q, self._q] = rotation[0, 0] * G @ G.T
@@ -504,19 +514,16 @@ class PaperMarkerEkf(MarkerFilter):
         Q[self._w, self._q] = rotation[0, 1] * G.T
         return Q
 
-    def _linear_parts(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """F and Q of Eq. (11) without the quaternion's blocks, which depend on the state; cached
-        for the last dt (the filter's period, nearly always)."""
-        if not self._is_cached(dt):
-            c, m = self.config, len(self.p_PM)
-            F = np.eye(self.n)
-            F[:6 * m, :6 * m] = np.kron(np.eye(m), np.kron([[1.0, dt], [0.0, 1.0]], np.eye(3)))
-            psd = np.diag([c.acceleration_psd, c.acceleration_psd, c.vertical_acceleration_psd])
-            Q = np.zeros((self.n, self.n))
-            Q[:6 * m, :6 * m] = np.kron(np.eye(m), np.kron(cv_noise(1.0, dt), psd))
-            Q[self._w, self._w] = cv_noise(c.angular_acceleration_psd, dt)[1, 1] * np.eye(3)
-            self._cached_dt, self._cached_parts = dt, (F, Q)
-        return self._cached_parts
+    def constant_parts(self, dt):
+        """F and Q of Eq. (11) without the quaternion's blocks, which depend on the state."""
+        c, m = self.config, len(self.p_PM)
+        F = np.eye(self.n)
+        F[:6 * m, :6 * m] = np.kron(np.eye(m), np.kron([[1.0, dt], [0.0, 1.0]], np.eye(3)))
+        psd = np.diag([c.acceleration_psd, c.acceleration_psd, c.vertical_acceleration_psd])
+        Q = np.zeros((self.n, self.n))
+        Q[:6 * m, :6 * m] = np.kron(np.eye(m), np.kron(cv_noise(1.0, dt), psd))
+        Q[self._w, self._w] = cv_noise(c.angular_acceleration_psd, dt)[1, 1] * np.eye(3)
+        return F, Q
 
     def predict_measurements(self, x, slots, camera):
         m = len(self.p_PM)
@@ -549,6 +556,12 @@ class PaperMarkerEkf(MarkerFilter):
         return x[:3].copy(), q.copy(), J @ P @ J.T, x[:6 * m].reshape(m, 6)[:, :3].copy()
 
 
+def _rot_z(psi: float) -> np.ndarray:
+    """R_z(psi), a rotation by psi about z (3x3)."""
+    c, s = np.cos(psi), np.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def _yaw_quaternion(psi: float) -> np.ndarray:
     """q^{P/R} of a level pad yawed by psi about W's z."""
     return np.array([0.0, 0.0, np.sin(psi / 2), np.cos(psi / 2)])
@@ -558,12 +571,8 @@ def _turn_terms(theta: float) -> tuple[float, float, float, float]:
     """sin(th)/th, (1 - cos(th))/th and their derivatives in th, with series near th = 0."""
     if abs(theta) < 1e-4:
         return 1 - theta**2 / 6, theta / 2 - theta**3 / 24, -theta / 3, 0.5 - theta**2 / 8
-    s, c = np.sin(theta), np.cos(theta)
+    s, c = math.sin(theta), math.cos(theta)
     return s / theta, (1 - c) / theta, (theta * c - s) / theta**2, (theta * s - (1 - c)) / theta**2
-
-
-_I2 = np.eye(2)
-_J2 = np.array([[0.0, -1.0], [1.0, 0.0]])  # a quarter turn in the horizontal plane
 
 
 class ConstantTurnEkf(MarkerFilter):
@@ -582,49 +591,52 @@ class ConstantTurnEkf(MarkerFilter):
         c = self.config
         R = np.array([dcm(q).T for q in q_MR])  # R_WM of each marker
         psi = np.arctan2(np.sum(R[:, 1, 0]), np.sum(R[:, 0, 0]))  # mean heading
-        p = np.mean(p_WM - self.p_PM[slots] @ RotationMatrix.MakeZRotation(psi).matrix().T, axis=0)
+        p = np.mean(p_WM - self.p_PM[slots] @ _rot_z(psi).T, axis=0)
         x = np.r_[p, 0.0, 0.0, 0.0, psi, 0.0]
         return x, np.diag(np.r_[np.full(3, c.position_std_m**2), np.full(3, c.initial_velocity_std_mps**2),
                                 self._sigma_q**2, c.initial_angular_velocity_std_radps**2])
 
     def process(self, x, dt):
         """Exact coordinated turn over dt: the horizontal velocity turns by omega dt, the position
-        follows the arc, z at constant velocity, psi += omega dt, omega constant."""
-        v, omega = x[3:5], x[self.OMEGA]
+        follows the arc, p_xy += dt [[f1, -f2], [f2, f1]] v_xy with f1 = sin(omega dt)/(omega dt),
+        f2 = (1 - cos(omega dt))/(omega dt); z at constant velocity; psi += omega dt; omega constant."""
+        _, _, _, vx, vy, vz, _, omega = x.tolist()
         f1, f2, d1, d2 = _turn_terms(omega * dt)
-        A = dt * (f1 * _I2 + f2 * _J2)  # p_xy += A v_xy
-        c, s = np.cos(omega * dt), np.sin(omega * dt)
-        rotation = c * _I2 + s * _J2
+        c, s = math.cos(omega * dt), math.sin(omega * dt)
+        a, b = dt * f1, dt * f2
         f = x.copy()
-        f[:2] += A @ v
-        f[3:5] = rotation @ v
-        f[2] += dt * x[5]
+        f[0] += a * vx - b * vy
+        f[1] += b * vx + a * vy
+        f[2] += dt * vz
+        f[3], f[4] = c * vx - s * vy, s * vx + c * vy
         f[self.PSI] += omega * dt
         F = np.eye(8)
-        F[:2, 3:5] = A
-        F[:2, self.OMEGA] = dt**2 * (d1 * _I2 + d2 * _J2) @ v
-        F[3:5, 3:5] = rotation
-        F[3:5, self.OMEGA] = dt * (-s * _I2 + c * _J2) @ v
-        F[2, 5] = dt
-        F[self.PSI, self.OMEGA] = dt
+        F[0, 3], F[0, 4], F[1, 3], F[1, 4] = a, -b, b, a
+        F[0, 7], F[1, 7] = dt * dt * (d1 * vx - d2 * vy), dt * dt * (d2 * vx + d1 * vy)
+        F[3, 3], F[3, 4], F[4, 3], F[4, 4] = c, -s, s, c
+        F[3, 7], F[4, 7] = -dt * (s * vx + c * vy), dt * (c * vx - s * vy)
+        F[2, 5] = F[self.PSI, self.OMEGA] = dt
         return f, F
 
     def process_noise(self, x, dt):
+        return self.constants(dt)
+
+    def constant_parts(self, dt):
         """Q: white acceleration on each axis of the pad (as the paper's filter has on each marker),
-        white angular acceleration on the yaw rate; cached for the last dt."""
-        if not self._is_cached(dt):
-            c = self.config
-            Q = np.zeros((8, 8))
-            for axis, psd in enumerate((c.acceleration_psd, c.acceleration_psd, c.vertical_acceleration_psd)):
-                Q[axis::3, axis::3][:2, :2] = cv_noise(psd, dt)
-            Q[6:, 6:] = cv_noise(c.angular_acceleration_psd, dt)
-            self._cached_dt, self._cached_Q = dt, Q
-        return self._cached_Q
+        white angular acceleration on the yaw rate."""
+        c = self.config
+        Q = np.zeros((8, 8))
+        for axis, psd in enumerate((c.acceleration_psd, c.acceleration_psd, c.vertical_acceleration_psd)):
+            Q[axis::3, axis::3][:2, :2] = cv_noise(psd, dt)
+        Q[6:, 6:] = cv_noise(c.angular_acceleration_psd, dt)
+        return Q
 
     def predict_measurements(self, x, slots, camera):
-        R_WP = RotationMatrix.MakeZRotation(x[self.PSI]).matrix()
-        p_WM = x[:3] + self.p_PM[slots] @ R_WP.T
-        return (p_WM - camera.p_WC) @ camera.R_CW.T, camera.Q_RC @ _yaw_quaternion(x[self.PSI])  # Eq. (12)
+        return self._predict_positions(x, slots, camera), camera.Q_RC @ _yaw_quaternion(x[self.PSI])  # Eq. (12)
+
+    def _predict_positions(self, x, slots, camera):
+        p_WM = x[:3] + self.p_PM[slots] @ _rot_z(x[self.PSI]).T
+        return (p_WM - camera.p_WC) @ camera.R_CW.T
 
     def measurement_jacobian(self, x, slots, camera):
         k = len(slots)
@@ -637,11 +649,9 @@ class ConstantTurnEkf(MarkerFilter):
         return H.reshape(6 * k, 8)
 
     def innovations(self, x, slots, camera, p_CM, q_MC):
-        p_hat, _ = self.predict_measurements(x, slots, camera)
-        q_MR = q_MC @ camera.M_CR.T  # Eq. (5)
-        # q_meas = dq (x) q_pred: dq = q_meas (x) q_pred^-1 = [q_pred^-1 (.)] q_meas
-        dq = q_MR @ odot_matrix(inverse(_yaw_quaternion(x[self.PSI]))).T
-        return np.hstack([p_CM - p_hat, rotation_vector(dq)])
+        # q^{M/R} = [q^{C/R} (.)] q^{M/C} (Eq. 5) = dq (x) q_pred: dq = [q_pred^-1 (.)] q^{M/R}
+        to_error = odot_matrix(inverse(_yaw_quaternion(x[self.PSI]))) @ camera.M_CR
+        return np.hstack([p_CM - self._predict_positions(x, slots, camera), rotation_vector(q_MC @ to_error.T)])
 
     def normalized(self, x):
         x[self.PSI] = (x[self.PSI] + np.pi) % (2 * np.pi) - np.pi
@@ -651,8 +661,7 @@ class ConstantTurnEkf(MarkerFilter):
         J = np.zeros((6, 8))
         J[2, self.PSI] = 1.0  # roll and pitch: level by assumption, zero variance
         J[3:, :3] = np.eye(3)
-        R_WP = RotationMatrix.MakeZRotation(x[self.PSI]).matrix()
-        return x[:3].copy(), _yaw_quaternion(x[self.PSI]), J @ P @ J.T, x[:3] + self.p_PM @ R_WP.T
+        return x[:3].copy(), _yaw_quaternion(x[self.PSI]), J @ P @ J.T, x[:3] + self.p_PM @ _rot_z(x[self.PSI]).T
 
 
 FILTERS = {PaperMarkerEkf.name: PaperMarkerEkf, ConstantTurnEkf.name: ConstantTurnEkf}

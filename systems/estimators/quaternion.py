@@ -100,8 +100,7 @@ def drake_to_paper(rotation: Quaternion | RotationMatrix) -> np.ndarray:
 def rotation_vector(q: np.ndarray) -> np.ndarray:
     """The rotation vector (angle times unit axis, rad) of unit quaternions q (..., 4); the angle
     is in [0, pi] (q and -q give the same vector)."""
-    q = np.where(q[..., 3:] < 0, -q, q)
-    v = q[..., :3]
-    s = np.linalg.norm(v, axis=-1, keepdims=True)
-    angle = 2 * np.arctan2(s, q[..., 3:])
-    return v * np.where(s > 1e-12, angle / np.maximum(s, 1e-12), 2.0)
+    v, w = q[..., :3], q[..., 3:]
+    s = np.sqrt(np.sum(v * v, axis=-1, keepdims=True))  # sin(angle / 2)
+    # angle = 2 atan2(s, |w|) about the axis sign(w) v / s (zero vector when s = 0)
+    return v * np.copysign(2 * np.arctan2(s, np.abs(w)) / np.where(s > 0, s, 1.0), w)

@@ -13,8 +13,8 @@ at the origin of P (the paper's marker 1, whose frame is the pad's), and ids 1-4
 descent, the camera 0.36 m above the pad sees a 0.40 m square, which holds the centre marker (255
 px) with 0.1 m to spare; from 10 m a corner marker spans 14 px (2.3 px per cell of its 6x6 grid)
 and is still detected (tests/test_markers.py shows both). Every marker keeps a white margin of
-one cell (a sixth of its edge) inside the pad, and the corners touch the centre marker's margin
-only at its corners.
+one cell (a sixth of its edge) clear of other markers and inside the pad; a corner marker's margin
+meets the centre marker at one corner point.
 
 Sources, interchangeable, both giving `MarkerMeasurement`s:
 - `synthetic_marker_measurements`: the paper's (Sec. 4): the true pose of each marker in the
@@ -163,14 +163,15 @@ def marker_corners_M(size_m: float) -> np.ndarray:
     return np.array([[-s, s, 0.0], [s, s, 0.0], [s, -s, 0.0], [-s, -s, 0.0]])
 
 
-def detect_marker_poses(image: np.ndarray, K: np.ndarray, layout: MarkerLayout, time: float = 0.0,
+def detect_marker_poses(rgb: np.ndarray, K: np.ndarray, layout: MarkerLayout, time: float = 0.0,
                         latency_s: float = 0.0) -> list[MarkerMeasurement]:
-    """X_CM of every layout marker found in an RGB, RGBA or grey uint8 image from an undistorted
-    pinhole camera with intrinsics K (OpenCV convention). Markers not found, found twice, or whose
-    PnP fails are absent."""
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_RGBA2GRAY if image.shape[2] == 4 else cv2.COLOR_RGB2GRAY)
-    corners, ids, _ = _detector(layout.dictionary).detectMarkers(image)
+    """X_CM of every layout marker found in an RGB, RGBA (or grey) uint8 image from an undistorted
+    pinhole camera with intrinsics K (OpenCV convention), stamped `time` [s]. Markers not found,
+    found twice, or whose PnP fails are absent."""
+    grey = rgb
+    if rgb.ndim == 3:
+        grey = cv2.cvtColor(rgb, cv2.COLOR_RGBA2GRAY if rgb.shape[2] == 4 else cv2.COLOR_RGB2GRAY)
+    corners, ids, _ = _detector(layout.dictionary).detectMarkers(grey)
     if ids is None:
         return []
     ids = ids.ravel()
