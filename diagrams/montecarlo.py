@@ -356,7 +356,7 @@ class CampaignDefinition:
 
 # Scenario name -> its campaign: a CampaignDefinition or "module:attribute" (imported when used, so
 # the command starts without importing every scenario). The gv-marker-ekf integration adds its line.
-CAMPAIGNS: dict[str, CampaignDefinition | str] = {}
+CAMPAIGNS: dict[str, CampaignDefinition | str] = {"gv-marker-ekf": "diagrams.gv_marker_ekf_mc:CAMPAIGN"}
 
 
 def register_campaign(name: str, definition: CampaignDefinition | str) -> None:

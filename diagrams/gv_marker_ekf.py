@@ -1,0 +1,527 @@
+"""gv-marker-ekf: seed 002 section 4, the pose of the landing platform on a ground vehicle
+estimated from five ArUco markers by the paper's EKF and by our constant-turn EKF, side by side.
+
+    landing-sim run gv-marker-ekf --set vehicle.speed=6 [--meshcat]
+
+The scene (scenarios/gv-marker-ekf.yaml). The vehicle drives Eq. (13)'s sine path at
+`vehicle.speed` (C1 = 3, C2 = 6, C3 = 12 m/s); the pad's top is 1.6 m above the ground. The UAV
+starts hovering at (0, 0, 10) m, follows the vehicle and descends to 0.4 m above the pad, where it
+holds: this is the gv-landing diagram (diagrams/gv_landing.py, perfect perception) used through its
+public builder, with the supervisor's initial height IH = 10 m (so it starts in FOLLOW), its
+"touchdown" height set to 0.4 m and `termination.stop_on_landed: false` (LANDED then commands no
+vertical speed and keeps the vehicle's velocity: the hold). Vehicle and UAV integrate their
+equations with Drake's RK5 over each 5 ms controller period (gv_landing.IntegrationConfig: its
+error matches seed 002's RK4 at h = 1 ms). The UAV steers on the TRUE relative state; the filters
+only watch.
+
+Run length: `duration_s: 0` (the default) means 500 m of driving, one period of Eq. (13)'s long
+wave in distance: 500 / speed seconds, 166.7 s at 3 m/s, 83.3 s at 6 and 41.7 s at 12.
+
+Measurements (section 4): at every T_s = 35 ms sample t_k the camera "acquires" the pose of each of
+the five markers in the camera frame, the truth plus zero-mean Gaussian noise (0.1 m per axis, 5 deg
+per axis of a rotation vector), exactly as `systems.perception.markers.synthetic_marker_measurements`
+does, but drawn for the whole run at once (vectorised, `synthetic_stream`). Latency: seed 002 budgets
+25 ms to acquire and 10 ms to process a frame, so the measurements of t_k reach the filters at
+t_{k+1} (`estimation.latency_periods: 1`); the filters fuse them at their acquisition time (their
+history re-run) and their estimate at t_{k+1} is compared with the truth at t_{k+1}. Both filters
+get the IDENTICAL list of MarkerMeasurement objects at every step.
+
+Truth and noise are separate: the flight depends on the scenario, not on the measurement noise
+(perfect perception steers the UAV), so `fly_truth` simulates it once per scenario settings and
+caches it in the process (`truth_cache_key`: the scenario without its seed and estimation settings);
+each run then draws its stream from one numpy Generator seeded by the scenario's seed and runs both
+filters over it. This is what makes the Monte Carlo campaign (diagrams/gv_marker_ekf_mc.py) cheap:
+a worker simulates each speed once, not once per run.
+
+Errors are estimate minus truth after `estimation.settle_s` (the first filter steps, from an
+unknown velocity, are left out): the pad frame P's position (the paper's S_P, at marker 0), its
+heading (yaw; roll and pitch are zero for both filters and the truth), and each marker's centre.
+"""
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import matplotlib.pyplot as plt
+import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorStatus
+
+from diagrams.gv_landing import GvLandingConfig, build_gv_landing, path_polyline
+from diagrams.outputs import save_figure, write_npz
+from diagrams.scenario import RunSettings
+from systems.config import ConfigError, require, require_positive
+from systems.estimators.marker_ekf import FILTERS, MarkerEkfConfig
+from systems.perception.markers import MarkerLayout, MarkerMeasurement
+from systems.vehicles.quadrotor import P_WB, Q_WB, hover_state
+
+LONG_WAVE_M = 500.0  # seed 002 Eq. (13): the long wave's period in x
+START_XYZ_M = (0.0, 0.0, 10.0)  # seed 002 Sec. 4: r_0
+
+
+@dataclass
+class MarkerEstimationConfig:
+    """The measurement source and the filters (seed 002 Sec. 3-4)."""
+
+    filters: list[str] = field(default_factory=lambda: ["paper_ekf", "ct_ekf"])  # names in FILTERS
+    source: str = "synthetic"  # the paper's measurements (Sec. 4); the only source of this scenario yet
+    sigma_p_m: float = 0.1  # seed 002 Sec. 4
+    sigma_deg: float = 5.0  # seed 002 Sec. 4
+    latency_periods: int = 1  # seed 002 Sec. 4: 25 ms acquire + 10 ms process = one T_s late
+    settle_s: float = 2.0  # errors are taken from this time on (filter start-up left out)
+    camera_mount_xyz_m: list[float] = field(default_factory=lambda: [0.0, 0.0, -0.04])  # C in B, optical axis down
+    ekf: MarkerEkfConfig = field(default_factory=MarkerEkfConfig)  # shared by both filters (T_s = 35 ms)
+    markers: MarkerLayout = field(default_factory=MarkerLayout)
+
+    def validate(self, prefix: str = "estimation") -> None:
+        require(len(self.filters) >= 1 and all(f in FILTERS for f in self.filters)
+                and len(set(self.filters)) == len(self.filters),
+                f"{prefix}.filters must be different names from: {', '.join(FILTERS)}")
+        require(self.source == "synthetic", f"{prefix}.source '{self.source}' is not supported (known: synthetic)")
+        require(self.sigma_p_m >= 0 and self.sigma_deg >= 0, f"{prefix}.sigma_p_m and sigma_deg must not be negative")
+        require(self.latency_periods >= 0, f"{prefix}.latency_periods must not be negative")
+        require(self.settle_s >= 0, f"{prefix}.settle_s must not be negative")
+        require(len(self.camera_mount_xyz_m) == 3, f"{prefix}.camera_mount_xyz_m needs 3 numbers")
+        self.ekf.validate(f"{prefix}.ekf")
+        self.markers.validate(f"{prefix}.markers")
+
+    @property
+    def X_BC(self) -> RigidTransform:
+        """The camera C in the UAV body B: optical axis down (+z_C = -z_B), +x_C = +x_B."""
+        return RigidTransform(RotationMatrix.MakeXRotation(np.pi), self.camera_mount_xyz_m)
+
+
+@dataclass
+class Scenario(RunSettings, GvLandingConfig):
+    """A gv-marker-ekf scenario file: the gv-landing flight plus the estimation settings.
+    duration_s 0: 500 m of driving (LONG_WAVE_M / vehicle.speed)."""
+
+    diagram: str = "gv_marker_ekf"
+    duration_s: float = 0.0
+    estimation: MarkerEstimationConfig = field(default_factory=MarkerEstimationConfig)
+
+    def validate(self) -> None:
+        require(self.duration_s >= 0, "duration_s must not be negative (0: 500 m of driving)")
+        require_positive(self.vehicle.speed, "vehicle.speed")
+        require(not self.vehicle.speed_schedule_times_s, "vehicle.speed_schedule_* is not used by gv-marker-ekf")
+        GvLandingConfig.validate(self)
+        self.estimation.validate()
+        require(self.platform.height_m < START_XYZ_M[2] and self.landing.initial_height_m < START_XYZ_M[2],
+                f"platform.height_m and landing.initial_height_m must be below the start at {START_XYZ_M[2]} m")
+
+    @property
+    def run_length_s(self) -> float:
+        return self.duration_s if self.duration_s > 0 else LONG_WAVE_M / self.vehicle.speed
+
+    @property
+    def sample_times(self) -> np.ndarray:
+        """The filter steps t_k = k T_s up to the run length."""
+        ts = self.estimation.ekf.period_s
+        return np.arange(int(np.floor(self.run_length_s / ts + 1e-9)) + 1) * ts
+
+
+# ----------------------------------------------------------------------------------------------
+# Truth: the flight, once per scenario settings
+
+
+@dataclass(frozen=True)
+class Truth:
+    """The flight sampled at the filter steps t (N): UAV p_WB (N, 3) and quaternion q_WB (N, 4,
+    Drake's w, x, y, z), pad p_WP (N, 3) (P at the pad top's centre, marker 0) and its heading
+    yaw (N); the vehicle's state (N, 4); the supervisor's status line at the end."""
+
+    t: np.ndarray
+    p_WB: np.ndarray
+    q_WB: np.ndarray
+    p_WP: np.ndarray
+    yaw: np.ndarray
+    vehicle_state: np.ndarray
+    status: str
+    wall_time_s: float
+
+
+def truth_cache_key(scenario: Scenario) -> str:
+    """What the flight depends on: the scenario without its seed, description and estimation
+    settings (the filter period stays: it sets the samples)."""
+    data = dataclasses.asdict(scenario)
+    for key in ("seed", "description", "estimation"):
+        data.pop(key, None)
+    return repr((data, scenario.estimation.ekf.period_s, scenario.run_length_s))
+
+
+_TRUTH_CACHE: dict[str, Truth] = {}
+_TRUTH_CACHE_SIZE = 4
+
+
+def fly_truth(scenario: Scenario, meshcat=None, realtime: bool = False, cache: bool = True) -> Truth:
+    """Simulates the flight (or takes it from this process's cache) and samples it at the filter steps."""
+    key = truth_cache_key(scenario)
+    if cache and meshcat is None and key in _TRUTH_CACHE:
+        return _TRUTH_CACHE[key]
+    diagram, handles = build_gv_landing(scenario, meshcat)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    handles.initialize(context)
+    # Seed 002 Sec. 4: the UAV starts at r_0 = (0, 0, 10) m (hovering), not on the ground.
+    quad = getattr(handles.quadrotor, "dynamics", handles.quadrotor)
+    quad_context = quad.GetMyMutableContextFromRoot(context)
+    x0 = hover_state(scenario.quadrotor, list(START_XYZ_M), yaw=np.radians(scenario.landing.yaw_deg))
+    if quad_context.num_continuous_states():
+        quad_context.SetContinuousState(x0)
+    else:
+        quad_context.SetDiscreteState(x0)
+    if not scenario.integration.discrete:
+        ApplySimulatorConfig(scenario.integration.simulator_config(), simulator)
+    if realtime:
+        simulator.set_target_realtime_rate(1.0)
+    quad_port = handles.quadrotor.GetOutputPort("state")
+    vehicle_port = handles.vehicle.GetOutputPort("state")
+    quad_ctx = handles.quadrotor.GetMyContextFromRoot(context)
+    vehicle_ctx = handles.vehicle.GetMyContextFromRoot(context)
+    times = scenario.sample_times
+    quad_states = np.empty((len(times), 17))
+    vehicle_states = np.empty((len(times), 4))
+    status = f"held 0.4 m above the pad for the run ({times[-1]:.1f} s)"
+    start = time.perf_counter()
+    simulator.Initialize()
+    for k, t in enumerate(times):
+        if t > 0:
+            result = simulator.AdvanceTo(t)
+            if result.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+                raise RuntimeError(f"the flight ended at t = {context.get_time():.2f} s: {result.message()}")
+        quad_states[k] = quad_port.Eval(quad_ctx)
+        vehicle_states[k] = vehicle_port.Eval(vehicle_ctx)[:4]
+    wall = time.perf_counter() - start
+    heading = vehicle_states[:, 2]
+    offset = scenario.platform.pad_offset_m
+    p_WP = np.column_stack([vehicle_states[:, 0] + offset * np.cos(heading),
+                            vehicle_states[:, 1] + offset * np.sin(heading),
+                            np.full(len(times), scenario.platform.height_m)])
+    q = quad_states[:, Q_WB]
+    truth = Truth(times, quad_states[:, P_WB].copy(), q / np.linalg.norm(q, axis=1, keepdims=True), p_WP,
+                  np.unwrap(heading), vehicle_states, status, wall)
+    if cache and meshcat is None:
+        if len(_TRUTH_CACHE) >= _TRUTH_CACHE_SIZE:
+            _TRUTH_CACHE.pop(next(iter(_TRUTH_CACHE)))
+        _TRUTH_CACHE[key] = truth
+    return truth
+
+
+# ----------------------------------------------------------------------------------------------
+# Measurements: the paper's synthetic source, vectorised over the run
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of (..., 4) quaternions [w, x, y, z] (Drake's order): R(a b) = R(a) R(b)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices of unit quaternions (..., 4) [w, x, y, z]."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+@dataclass(frozen=True)
+class MarkerStream:
+    """Synthetic measurements of every marker at every sample: p_CM (N, n, 3) [m] and q_CM
+    (N, n, 4) (the paper's scalar-last q^{M/C}), taken at t (N)."""
+
+    t: np.ndarray
+    p_CM: np.ndarray
+    q_CM: np.ndarray
+
+
+def synthetic_stream(truth: Truth, layout: MarkerLayout, X_BC: RigidTransform, rng: np.random.Generator,
+                     sigma_p: float = 0.1, sigma_deg: float = 5.0) -> MarkerStream:
+    """Seed 002 Sec. 4 for the whole run: every marker's true pose in C plus noise, as
+    `synthetic_marker_measurements` (sigma_p on each axis of p_CM; R_CM = R_CP Exp(dtheta), dtheta
+    ~ N(0, sigma_deg^2 I3)), in two draws from `rng`: positions (N, n, 3), then angles (N, n, 3)."""
+    N, n = len(truth.t), len(layout.ids)
+    q_BC = np.array(X_BC.rotation().ToQuaternion().wxyz())
+    R_WB = quat_to_matrix(truth.q_WB)
+    q_WC = quat_multiply(truth.q_WB, q_BC)
+    p_WC = truth.p_WB + R_WB @ X_BC.translation()
+    half = truth.yaw / 2
+    q_WP = np.column_stack([np.cos(half), np.zeros(N), np.zeros(N), np.sin(half)])
+    q_CP = quat_multiply(q_WC * np.array([1, -1, -1, -1]), q_WP)
+    c, s = np.cos(truth.yaw), np.sin(truth.yaw)
+    R_WP = np.zeros((N, 3, 3))
+    R_WP[:, 0, 0], R_WP[:, 0, 1], R_WP[:, 1, 0], R_WP[:, 1, 1], R_WP[:, 2, 2] = c, -s, s, c, 1.0
+    p_WM = truth.p_WP[:, None, :] + np.einsum("kij,mj->kmi", R_WP, layout.p_PM)
+    R_CW = np.swapaxes(quat_to_matrix(q_WC), 1, 2)
+    p_CM = np.einsum("kij,kmj->kmi", R_CW, p_WM - p_WC[:, None, :])
+    p_CM = p_CM + rng.normal(0.0, sigma_p, (N, n, 3))
+    dtheta = rng.normal(0.0, np.radians(sigma_deg), (N, n, 3))
+    angle = np.linalg.norm(dtheta, axis=-1, keepdims=True)
+    dq = np.concatenate([np.cos(angle / 2), np.sinc(angle / (2 * np.pi)) * dtheta / 2], axis=-1)  # [w, x, y, z]
+    q = quat_multiply(np.broadcast_to(q_CP[:, None, :], dq.shape), dq)
+    return MarkerStream(truth.t, p_CM, np.concatenate([q[..., 1:], q[..., :1]], axis=-1))
+
+
+def arrivals(stream: MarkerStream, layout: MarkerLayout, k: int, latency_periods: int) -> list[MarkerMeasurement]:
+    """The measurements that reach the filters at step k: those acquired at step k - latency."""
+    j = k - latency_periods
+    if j < 0:
+        return []
+    period = float(stream.t[1] - stream.t[0]) if len(stream.t) > 1 else 0.0
+    latency = latency_periods * period
+    return [MarkerMeasurement(float(stream.t[j]), marker_id, stream.p_CM[j, i], stream.q_CM[j, i], latency)
+            for i, marker_id in enumerate(layout.ids)]
+
+
+# ----------------------------------------------------------------------------------------------
+# Filters over a stream
+
+
+@dataclass
+class FilterTrace:
+    """One filter's estimates at every step (NaN before it starts): p_WP (N, 3), yaw (N),
+    p_WM (N, n, 3), valid (N); its counts and its cost per step."""
+
+    p_WP: np.ndarray
+    yaw: np.ndarray
+    p_WM: np.ndarray
+    valid: np.ndarray
+    stats: dict
+    per_step_ms: float
+
+
+def run_filters(truth: Truth, stream: MarkerStream, estimation: MarkerEstimationConfig,
+                inputs_log: list | None = None) -> dict[str, FilterTrace]:
+    """Runs every filter of `estimation.filters` over the same stream: at each step the same list
+    of measurements (appended to `inputs_log` when given, for tests) and the UAV's true pose."""
+    layout = estimation.markers
+    filters = {name: FILTERS[name](layout, estimation.X_BC, estimation.ekf) for name in estimation.filters}
+    N, n = len(truth.t), len(layout.ids)
+    traces = {name: FilterTrace(np.full((N, 3), np.nan), np.full(N, np.nan), np.full((N, n, 3), np.nan),
+                                np.zeros(N, bool), {}, 0.0) for name in filters}
+    cost = dict.fromkeys(filters, 0.0)
+    for k in range(N):
+        t = float(truth.t[k])
+        X_WB = RigidTransform(Quaternion(truth.q_WB[k]), truth.p_WB[k])
+        measurements = arrivals(stream, layout, k, estimation.latency_periods)
+        if inputs_log is not None:
+            inputs_log.append(measurements)
+        for name, f in filters.items():
+            start = time.perf_counter()
+            f.step(t, X_WB, measurements)
+            cost[name] += time.perf_counter() - start
+            if f.started:
+                e = f.estimate(t)
+                trace = traces[name]
+                trace.p_WP[k] = e.pose.X_RT.translation()
+                trace.yaw[k] = e.yaw_rad
+                trace.p_WM[k] = e.p_WM
+                trace.valid[k] = e.pose.valid
+    for name, f in filters.items():
+        traces[name].stats = dataclasses.asdict(f.stats)
+        traces[name].per_step_ms = 1e3 * cost[name] / max(N, 1)
+    return traces
+
+
+def true_marker_positions(truth: Truth, layout: MarkerLayout) -> np.ndarray:
+    """(N, n, 3) marker centres in W."""
+    c, s = np.cos(truth.yaw), np.sin(truth.yaw)
+    p = layout.p_PM
+    return truth.p_WP[:, None, :] + np.stack([c[:, None] * p[:, 0] - s[:, None] * p[:, 1],
+                                              s[:, None] * p[:, 0] + c[:, None] * p[:, 1],
+                                              np.broadcast_to(p[:, 2], (len(c), len(p)))], axis=-1)
+
+
+def wrap(angle: np.ndarray) -> np.ndarray:
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+@dataclass
+class Errors:
+    """Estimate minus truth per step (NaN where the filter has not started)."""
+
+    position: np.ndarray  # (N, 3) pad P
+    heading: np.ndarray  # (N,) rad
+    markers: np.ndarray  # (N, n) norm of each marker's position error
+
+
+def filter_errors(truth: Truth, trace: FilterTrace, p_WM_true: np.ndarray) -> Errors:
+    return Errors(trace.p_WP - truth.p_WP, wrap(trace.yaw - truth.yaw),
+                  np.linalg.norm(trace.p_WM - p_WM_true, axis=-1))
+
+
+def error_metrics(truth: Truth, trace: FilterTrace, errors: Errors, settle_s: float) -> dict:
+    """One filter's figures (DESIGN.md's estimator shape plus the seed 002 ones) over t >= settle_s."""
+    window = (truth.t >= settle_s) & np.isfinite(errors.heading)
+    e, h, m = errors.position[window], errors.heading[window], errors.markers[window]
+    if not window.any():
+        return {"valid_fraction": 0.0, "steps": 0, **trace.stats}
+    rpy = np.column_stack([np.zeros_like(h), np.zeros_like(h), np.degrees(h)])
+    return {
+        "rms_position_m": float(np.sqrt(np.mean(np.sum(e**2, axis=1)))),
+        "rms_position_xy_m": float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))),
+        "rms_heading_deg": float(np.degrees(np.sqrt(np.mean(h**2)))),
+        "rms_marker_position_m": np.sqrt(np.mean(m**2, axis=0)).tolist(),
+        "mae_xyz_m": np.mean(np.abs(e), axis=0).tolist(),
+        "rmse_xyz_m": np.sqrt(np.mean(e**2, axis=0)).tolist(),
+        "mae_rpy_deg": np.mean(np.abs(rpy), axis=0).tolist(),
+        "rmse_rpy_deg": np.sqrt(np.mean(rpy**2, axis=0)).tolist(),
+        "max_position_m": float(np.max(np.linalg.norm(e, axis=1))),
+        "valid_fraction": float(np.mean(trace.valid)),
+        "steps": int(window.sum()),
+        "per_frame_ms": trace.per_step_ms,
+        "measurements": trace.stats,  # accepted, gated, invalid, too_late, resets
+    }
+
+
+@dataclass
+class Estimation:
+    """One run's estimation: the stream, every filter's trace, errors and metrics."""
+
+    truth: Truth
+    stream: MarkerStream
+    traces: dict[str, FilterTrace]
+    errors: dict[str, Errors]
+    metrics: dict[str, dict]
+    wall_time_s: float
+
+
+def estimate_run(scenario: Scenario, truth: Truth | None = None, inputs_log: list | None = None) -> Estimation:
+    """One run: the flight (cached), a stream from default_rng(scenario.seed), both filters."""
+    truth = fly_truth(scenario) if truth is None else truth
+    start = time.perf_counter()
+    est = scenario.estimation
+    rng = np.random.default_rng(scenario.seed)
+    stream = synthetic_stream(truth, est.markers, est.X_BC, rng, est.sigma_p_m, est.sigma_deg)
+    traces = run_filters(truth, stream, est, inputs_log)
+    p_WM_true = true_marker_positions(truth, est.markers)
+    errors = {name: filter_errors(truth, trace, p_WM_true) for name, trace in traces.items()}
+    metrics = {name: error_metrics(truth, traces[name], errors[name], est.settle_s) for name in traces}
+    return Estimation(truth, stream, traces, errors, metrics, time.perf_counter() - start)
+
+
+# ----------------------------------------------------------------------------------------------
+# Plots (seed 002 Fig. 3-5)
+
+FILTER_STYLE = {"paper_ekf": ("tab:red", "paper EKF"), "ct_ekf": ("tab:green", "constant-turn EKF")}
+
+
+def style(name: str) -> tuple[str, str]:
+    return FILTER_STYLE.get(name, ("tab:purple", name))
+
+
+def plot_path(ax, reference_xy, true_xy, estimates: dict[str, np.ndarray], title: str) -> None:
+    """Fig. 3: reference path, true pad path, estimated pad path per filter."""
+    near = reference_xy[:, 0] <= np.nanmax(true_xy[:, 0]) + 10.0
+    ax.plot(*reference_xy[near].T, "-", color="0.75", lw=4, label="reference (Eq. 13)")
+    ax.plot(*true_xy.T, "-", color="k", lw=1.2, label="true (pad P)")
+    for name, xy in estimates.items():
+        colour, label = style(name)
+        ax.plot(*xy.T, "--", color=colour, lw=1, label=f"estimated, {label}")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=7)
+
+
+def plot_heading(axes, t, yaw_true, yaws: dict[str, np.ndarray], title: str) -> None:
+    """Fig. 4: true and estimated heading, and the error."""
+    axes[0].plot(t, np.degrees(wrap(yaw_true)), "-", color="k", lw=1.2, label="true")
+    for name, yaw in yaws.items():
+        colour, label = style(name)
+        axes[0].plot(t, np.degrees(wrap(yaw)), "--", color=colour, lw=1, label=label)
+        axes[1].plot(t, np.degrees(wrap(yaw - yaw_true)), "-", color=colour, lw=0.8, label=label)
+    axes[0].set_ylabel("heading (deg)")
+    axes[1].set_ylabel("error (deg)")
+    axes[0].set_title(title)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="best", fontsize=7)
+
+
+def plot_markers(axes, t, marker_errors: dict[str, np.ndarray], ids, title: str, ylabel="error (m)") -> None:
+    """Fig. 5: each marker's position error over time, one axis per filter."""
+    for ax, (name, err) in zip(axes, marker_errors.items()):
+        for i, marker_id in enumerate(ids):
+            ax.plot(t, err[:, i], lw=0.8, label=f"marker {marker_id}")
+        ax.set_title(f"{title}: {style(name)[1]}", fontsize=9)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="best", fontsize=7, ncol=5)
+
+
+def plot_run(scenario: Scenario, est: Estimation, out_dir) -> None:
+    truth = est.truth
+    title = f"{scenario.vehicle.speed:g} m/s"
+    reference = path_polyline(scenario.vehicle, max_length_m=1e9)
+    fig, ax = plt.subplots(figsize=(9, 6))
+    plot_path(ax, reference, truth.p_WP[:, :2], {n: tr.p_WP[:, :2] for n, tr in est.traces.items()},
+              f"Pad path ({title}, Fig. 3)")
+    save_figure(fig, out_dir / "path.png")
+    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    plot_heading(axes, truth.t, truth.yaw, {n: tr.yaw for n, tr in est.traces.items()}, f"Heading ({title}, Fig. 4)")
+    axes[-1].set_xlabel("time (s)")
+    save_figure(fig, out_dir / "heading.png")
+    fig, axes = plt.subplots(len(est.traces), 1, figsize=(10, 3 * len(est.traces)), sharex=True, squeeze=False)
+    plot_markers(axes[:, 0], truth.t, {n: e.markers for n, e in est.errors.items()}, scenario.estimation.markers.ids,
+                 f"Marker position error ({title}, Fig. 5)")
+    axes[-1, 0].set_xlabel("time (s)")
+    save_figure(fig, out_dir / "marker_errors.png")
+
+
+# ----------------------------------------------------------------------------------------------
+# landing-sim run
+
+
+def run(scenario: Scenario, ctx) -> dict:
+    from diagrams.runner import finish_run
+
+    start = time.perf_counter()
+    truth = fly_truth(scenario, ctx.meshcat, realtime=ctx.options.meshcat, cache=False)
+    if ctx.meshcat is not None and ctx.options.record:
+        pass  # the recording is the live scene; nothing else is recorded here
+    est = estimate_run(scenario, truth)
+    wall = time.perf_counter() - start
+    sim_time = float(truth.t[-1])
+    metrics = {
+        "scenario": ctx.name, "seed": scenario.seed, "sim_time_s": sim_time, "wall_time_s": wall,
+        "realtime_factor": sim_time / wall if wall > 0 else None,
+        "vehicle": {"path": scenario.vehicle.path, "speed_m_s": scenario.vehicle.speed,
+                    "run_length_s": scenario.run_length_s, "distance_m": scenario.vehicle.speed * sim_time},
+        "flight": {"wall_time_s": truth.wall_time_s, "end": truth.status,
+                   "final_height_above_pad_m": float(truth.p_WB[-1, 2] - truth.p_WP[-1, 2]),
+                   "final_horizontal_offset_m": float(np.linalg.norm(truth.p_WB[-1, :2] - truth.p_WP[-1, :2]))},
+        "measurements": {"source": scenario.estimation.source, "sigma_p_m": scenario.estimation.sigma_p_m,
+                         "sigma_deg": scenario.estimation.sigma_deg, "period_s": scenario.estimation.ekf.period_s,
+                         "latency_s": scenario.estimation.latency_periods * scenario.estimation.ekf.period_s,
+                         "settle_s": scenario.estimation.settle_s},
+        "estimators": est.metrics,
+    }
+    arrays = {"t": truth.t, "p_WB": truth.p_WB, "q_WB": truth.q_WB, "p_WP": truth.p_WP, "yaw": truth.yaw,
+              "vehicle_state": truth.vehicle_state, "p_CM": est.stream.p_CM, "q_CM": est.stream.q_CM}
+    for name, trace in est.traces.items():
+        arrays.update({f"{name}_p_WP": trace.p_WP, f"{name}_yaw": trace.yaw, f"{name}_p_WM": trace.p_WM,
+                       f"{name}_valid": trace.valid, f"{name}_marker_error": est.errors[name].markers})
+    write_npz(ctx.out_dir / "log.npz", **arrays)
+    plot_run(scenario, est, ctx.out_dir)
+    for name, m in est.metrics.items():
+        if "rms_position_m" in m:
+            print(f"{ctx.name}: {name}: RMS position {m['rms_position_m']:.3f} m, heading "
+                  f"{m['rms_heading_deg']:.2f} deg ({m['measurements']['gated']} gated, "
+                  f"{m['measurements']['invalid']} invalid)")
+    return finish_run(_Handles(), ctx, metrics)
+
+
+class _Handles:
+    """What runner.finish_run reads."""
+
+    video = None
+    meshcat_visualizer = None
+
+
+__all__ = ["Scenario", "MarkerEstimationConfig", "fly_truth", "synthetic_stream", "run_filters", "estimate_run",
+           "ConfigError"]

@@ -1,0 +1,159 @@
+"""The gv-marker-ekf Monte Carlo campaign (seed 002 section 4: 100 runs at each of 3, 6, 12 m/s).
+
+    landing-sim montecarlo gv-marker-ekf --runs 100 --speeds 3 6 12 --workers 2 --out results/mc
+
+A run (`run_task`) is one seeded synthetic measurement stream through both filters. The flight
+(vehicle and UAV) does not depend on the measurement noise (perfect perception steers the UAV), so
+each worker process simulates it once per speed and keeps it (diagrams/gv_marker_ekf.fly_truth's
+cache, keyed by the scenario settings without the seed); a run draws its stream from
+numpy.random.default_rng(run seed), vectorised over the whole run, and steps both filters over the
+identical list of measurements. The loaded scenario is cached per (case, overrides) too; only its
+seed changes from run to run.
+
+Each run keeps its metrics (per filter: RMS position and heading error, per-marker RMS, counts)
+and, every DECIMATE-th step as float32, the true and estimated pad path, heading and marker errors.
+
+summary.json's "filters": {filter: {speed: {"rms_position_m", "rms_heading_deg", ...}}}, where
+rms_* is the RMS over every run and every step after settle_s (the ensemble RMS error), and
+"ensemble_mean_*" is the paper's epsilon: the error of the ensemble-mean estimate at each step,
+RMS over the steps. Plots (seed 002 Fig. 3-5, one row per speed): mc_path.png (reference, true and
+ensemble-mean estimated path), mc_heading.png (true and ensemble-mean heading, and its error),
+mc_marker_errors.png (the ensemble RMS position error of each marker over time, per filter).
+"""
+
+import dataclasses
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from diagrams.gv_landing import path_polyline
+from diagrams.montecarlo import CampaignDefinition, RunOutput, RunTask, parse_number_case
+from diagrams.outputs import save_figure
+
+DECIMATE = 4  # keep every 4th step (140 ms) of the time series
+SPEEDS = ("3", "6", "12")  # seed 002 Sec. 4: C1, C2, C3 [m/s]
+
+_SCENARIOS: dict = {}
+
+
+def _scenario(task: RunTask):
+    key = (task.scenario, task.case, task.overrides)
+    if key not in _SCENARIOS:
+        _SCENARIOS[key] = task.load_scenario()[1]
+    return dataclasses.replace(_SCENARIOS[key], seed=task.seed)
+
+
+def run_task(task: RunTask) -> RunOutput:
+    """One run of the campaign (module docstring)."""
+    from diagrams.gv_marker_ekf import estimate_run
+
+    scenario = _scenario(task)
+    est = estimate_run(scenario)
+    keep = slice(None, None, DECIMATE)
+    truth = est.truth
+    arrays = {"t": truth.t[keep].astype(np.float32), "true_xy": truth.p_WP[keep, :2].astype(np.float32),
+              "true_yaw": truth.yaw[keep].astype(np.float32)}
+    for name, trace in est.traces.items():
+        arrays[f"{name}_xy"] = trace.p_WP[keep, :2].astype(np.float32)
+        arrays[f"{name}_yaw"] = trace.yaw[keep].astype(np.float32)
+        arrays[f"{name}_marker_error"] = est.errors[name].markers[keep].astype(np.float32)
+    metrics = {"speed_m_s": scenario.vehicle.speed, "seed": scenario.seed, "sim_time_s": float(truth.t[-1]),
+               "estimation_wall_time_s": est.wall_time_s, "settle_s": scenario.estimation.settle_s,
+               "estimators": est.metrics}
+    return RunOutput(metrics, arrays)
+
+
+def _filters(records) -> list[str]:
+    names = []
+    for r in records:
+        for name in r.metrics.get("estimators", {}):
+            if name not in names:
+                names.append(name)
+    return names
+
+
+def _ensemble(records, name: str, settle_s: float):
+    """(t, true_xy, true_yaw, mean xy, mean yaw, RMS marker error over the runs) of one filter."""
+    data = [r.arrays() for r in records]
+    t = data[0]["t"].astype(float)
+    xy = np.mean([d[f"{name}_xy"] for d in data], axis=0)
+    yaw_runs = np.array([d[f"{name}_yaw"] for d in data], dtype=float)
+    true_yaw = data[0]["true_yaw"].astype(float)
+    yaw = true_yaw + np.arctan2(np.mean(np.sin(yaw_runs - true_yaw), axis=0), np.mean(np.cos(yaw_runs - true_yaw), axis=0))
+    markers = np.sqrt(np.mean([d[f"{name}_marker_error"].astype(float) ** 2 for d in data], axis=0))
+    return t, data[0]["true_xy"].astype(float), true_yaw, xy, yaw, markers
+
+
+def aggregate(done: dict) -> dict:
+    """summary.json's "filters" (module docstring)."""
+    out: dict = {}
+    for case, records in done.items():
+        if not records:
+            continue
+        settle = float(records[0].metrics.get("settle_s", 0.0))
+        for name in _filters(records):
+            ms = [r.metrics["estimators"][name] for r in records if "rms_position_m" in r.metrics["estimators"].get(name, {})]
+            if not ms:
+                continue
+            t, true_xy, true_yaw, xy, yaw, _ = _ensemble(records, name, settle)
+            window = (t >= settle) & np.all(np.isfinite(xy), axis=1)
+            out.setdefault(name, {})[case] = {
+                "rms_position_m": float(np.sqrt(np.mean([m["rms_position_m"] ** 2 for m in ms]))),
+                "rms_heading_deg": float(np.sqrt(np.mean([m["rms_heading_deg"] ** 2 for m in ms]))),
+                "rms_position_xy_m": float(np.sqrt(np.mean([m["rms_position_xy_m"] ** 2 for m in ms]))),
+                "rms_marker_position_m": np.sqrt(np.mean([np.square(m["rms_marker_position_m"]) for m in ms],
+                                                         axis=0)).tolist(),
+                "ensemble_mean_position_xy_m": float(np.sqrt(np.mean(np.sum((xy - true_xy)[window] ** 2, axis=1)))),
+                "ensemble_mean_heading_deg": float(np.degrees(np.sqrt(np.mean(((yaw - true_yaw)[window]) ** 2)))),
+                "runs": len(ms),
+                "gated": int(sum(m["measurements"]["gated"] for m in ms)),
+                "invalid": int(sum(m["measurements"]["invalid"] for m in ms)),
+                "resets": int(sum(m["measurements"]["resets"] for m in ms)),
+                "per_frame_ms": float(np.mean([m["per_frame_ms"] for m in ms])),
+            }
+    return out
+
+
+def plot(settings, done: dict, out_dir: Path) -> None:
+    """Seed 002 Fig. 3-5 over the ensemble, one row per speed."""
+    from diagrams.gv_marker_ekf import plot_heading, plot_markers, plot_path
+    from diagrams.runner import load_scenario
+
+    cases = [c for c in settings.cases if done.get(c)]
+    if not cases:
+        return
+    names = _filters(done[cases[0]])
+    scenario = load_scenario(settings.scenario, None, list(settings.overrides))[1]
+    reference = path_polyline(scenario.vehicle, max_length_m=1e9)
+    ensembles = {c: {n: _ensemble(done[c], n, 0.0) for n in names} for c in cases}
+    fig, axes = plt.subplots(len(cases), 1, figsize=(9, 4.5 * len(cases)), squeeze=False)
+    for ax, c in zip(axes[:, 0], cases):
+        e = ensembles[c]
+        first = e[names[0]]
+        plot_path(ax, reference, first[1], {n: e[n][3] for n in names},
+                  f"{c} m/s: ensemble mean of {len(done[c])} runs (Fig. 3)")
+    save_figure(fig, out_dir / "mc_path.png")
+    fig, axes = plt.subplots(2 * len(cases), 1, figsize=(10, 4.5 * len(cases)), squeeze=False)
+    for i, c in enumerate(cases):
+        e = ensembles[c]
+        first = e[names[0]]
+        plot_heading(axes[2 * i:2 * i + 2, 0], first[0], first[2], {n: e[n][4] for n in names},
+                     f"{c} m/s: heading, ensemble mean (Fig. 4)")
+    axes[-1, 0].set_xlabel("time (s)")
+    save_figure(fig, out_dir / "mc_heading.png")
+    fig, axes = plt.subplots(len(cases), len(names), figsize=(6 * len(names), 3.2 * len(cases)), squeeze=False,
+                             sharey="row")
+    for i, c in enumerate(cases):
+        e = ensembles[c]
+        plot_markers(axes[i, :], e[names[0]][0], {n: e[n][5] for n in names}, scenario.estimation.markers.ids,
+                     f"{c} m/s", ylabel="ensemble RMS error (m)")
+    for ax in axes[-1, :]:
+        ax.set_xlabel("time (s)")
+    save_figure(fig, out_dir / "mc_marker_errors.png")
+
+
+CAMPAIGN = CampaignDefinition(
+    run=run_task, cases=SPEEDS, runs=100, case_name="speed", case_key="vehicle.speed",
+    known_cases=SPEEDS, parse_case=parse_number_case, aggregate=aggregate, plot=plot,
+    description="seed 002 section 4: paper_ekf and ct_ekf on identical synthetic marker streams at 3, 6, 12 m/s")
