@@ -52,7 +52,7 @@ from pydrake.geometry import (
 )
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.symbolic import MakeVectorVariable
-from pydrake.systems.analysis import DiscreteTimeApproximation, GetIntegrationSchemes, SimulatorConfig
+from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 from pydrake.systems.framework import Diagram, DiagramBuilder, EventStatus, LeafSystem
 from pydrake.systems.primitives import (
     ConstantVectorSource, Demultiplexer, LogVectorOutput, Multiplexer, SymbolicVectorSystem, TrajectorySource,
@@ -70,13 +70,12 @@ from systems.control.pid import TrackingPid, TrackingPidConfig
 from systems.geometry import register_visual
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry
 from systems.vehicles.ground_vehicle import (
-    GroundVehicle, GroundVehicleConfig, PathFollower, PathFollowerConfig, StateToGroundPose, initial_state,
-    make_bicycle_dynamics,
+    GroundVehicle, GroundVehicleConfig, PathFollowerConfig,
 )
 from systems.vehicles.paths import PATH_NAMES, PathConfig, make_path
 from systems.vehicles.quadrotor import (
-    P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, StateToPose, body_kinematics,
-    hover_state, mixer_matrix, quadrotor_state_derivative, rotation_from_quaternion,
+    P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state, mixer_matrix,
+    rotation_from_quaternion,
 )
 
 # The perception seam's vector (PerfectPerception's `relative_state` output), all in SI units:
@@ -259,8 +258,8 @@ def _table1_airframe() -> AirframeConfig:
 class IntegrationConfig:
     """How the vehicles' continuous dynamics (seed 002 Eq. 6-8) are integrated.
 
-    discrete (the default): each vehicle becomes a discrete system (Drake's DiscreteTimeApproximation)
-    that integrates its equations over one flight-controller period with `scheme`, holding its input
+    discrete (the default): each vehicle is built with `time_period` = the flight-controller period
+    (systems/vehicles/integration.py) and integrates its equations over it with `scheme`, holding its input
     over the period; the rotor commands are held so anyway, so this is exact up to the integrator.
     The diagram then has no continuous state, and the simulator never evaluates derivatives of the
     whole diagram (each evaluation visits every Python LeafSystem, ~4.7 us apiece).
@@ -445,86 +444,6 @@ class SymbolicFlightController(Diagram):
         """Holds the hover command until the first sample, as FlightController does."""
         if self.hold is not None:
             self.hold.SetVectorState(self.hold.GetMyMutableContextFromRoot(root_context), self._initial)
-
-
-class DiscreteQuadrotor(Diagram):
-    """Quadrotor (systems/vehicles/quadrotor.py) with Eq. (7)-(8) integrated per `period_s`
-    (DiscreteTimeApproximation; IntegrationConfig), its input held over each period. The same
-    ports; its state is the discrete state of `dynamics`. The discretised system outputs the state
-    alone, and `body_kinematics` (V_WB, A_WB) is a separate stage evaluated only when pulled (in
-    Quadrotor one output carries all three, so every step would evaluate the accelerations again)."""
-
-    def __init__(self, params: QuadrotorParams, period_s: float, integration: SimulatorConfig):
-        super().__init__()
-        params.validate()
-        self.params = params
-        x = MakeVectorVariable(STATE_SIZE, "x")
-        u = MakeVectorVariable(4, "w_cmd")
-        builder = DiagramBuilder()
-        self.dynamics = dynamics = builder.AddNamedSystem("dynamics", DiscreteTimeApproximation(
-            SymbolicVectorSystem(state=x, input=u, dynamics=quadrotor_state_derivative(x, u, params), output=x),
-            period_s, integration))
-        V_WB, A_WB = body_kinematics(x, params)
-        kinematics = builder.AddNamedSystem("kinematics", SymbolicVectorSystem(input=x, output=np.r_[V_WB, A_WB]))
-        split = builder.AddNamedSystem("split", Demultiplexer([6, 6]))
-        pose = builder.AddNamedSystem("pose", StateToPose())
-        builder.Connect(dynamics.get_output_port(), kinematics.get_input_port())
-        builder.Connect(kinematics.get_output_port(), split.get_input_port())
-        builder.Connect(dynamics.get_output_port(), pose.get_input_port())
-        builder.ExportInput(dynamics.get_input_port(), "rotor_speed_commands")
-        builder.ExportOutput(dynamics.get_output_port(), "state")
-        builder.ExportOutput(pose.get_output_port(), "X_WB")
-        builder.ExportOutput(split.get_output_port(0), "V_WB")
-        builder.ExportOutput(split.get_output_port(1), "A_WB")
-        builder.BuildInto(self)
-        self.set_name("quadrotor")
-
-
-class DiscreteGroundVehicle(Diagram):
-    """GroundVehicle (systems/vehicles/ground_vehicle.py) with the bicycle of Eq. (6) integrated per
-    `period_s` (DiscreteTimeApproximation; IntegrationConfig). The same wiring, ports, `path` and
-    `initial_state()`; its state is the discrete state of `dynamics`. The steering
-    command (20 Hz) reaches the bicycle up to one period later than in GroundVehicle."""
-
-    def __init__(self, config: GroundVehicleConfig, period_s: float, integration: SimulatorConfig):
-        super().__init__()
-        config.validate()
-        self.config = config
-        self.path = make_path(config.path)
-        builder = DiagramBuilder()
-        self.dynamics = dynamics = builder.AddNamedSystem("dynamics", DiscreteTimeApproximation(
-            make_bicycle_dynamics(config), period_s, integration))
-        inputs = builder.AddNamedSystem("inputs", Multiplexer([1, 1]))
-        split = builder.AddNamedSystem("split", Demultiplexer([4, 3]))
-        follower = builder.AddNamedSystem("follower", PathFollower(self.path, config))
-        pose = builder.AddNamedSystem("pose", StateToGroundPose())
-        builder.Connect(follower.GetOutputPort("steering_command"), inputs.get_input_port(0))
-        builder.Connect(inputs.get_output_port(), dynamics.get_input_port())
-        builder.Connect(dynamics.get_output_port(), split.get_input_port())
-        builder.Connect(split.get_output_port(0), follower.GetInputPort("state"))
-        builder.Connect(split.get_output_port(0), pose.get_input_port())
-        builder.ExportInput(inputs.get_input_port(1), "speed")
-        builder.ConnectInput("speed", follower.GetInputPort("speed"))
-        builder.ExportOutput(split.get_output_port(0), "state")
-        builder.ExportOutput(split.get_output_port(1), "v_WV")
-        builder.ExportOutput(pose.get_output_port(), "X_WV")
-        builder.ExportOutput(follower.GetOutputPort("path_progress"), "path_progress")
-        builder.BuildInto(self)
-        self.set_name("ground_vehicle")
-
-    def initial_state(self) -> np.ndarray:
-        return initial_state(self.path, self.config)
-
-
-def _set_state(system, root_context, x) -> None:
-    """Sets the (continuous or discrete) state of `system` inside a root context."""
-    if isinstance(system, (DiscreteQuadrotor, DiscreteGroundVehicle)):
-        system = system.dynamics
-    context = system.GetMyMutableContextFromRoot(root_context)
-    if context.num_continuous_states():
-        context.SetContinuousState(x)
-    else:
-        context.SetDiscreteState(x)
 
 
 def relative_state(quad_state, vehicle_state, speed: float, vehicle: VehicleConfig, platform: PlatformConfig,
@@ -793,8 +712,8 @@ class GvLandingHandles:
     """The systems and ports of a built gv-landing diagram that callers use."""
 
     config: GvLandingConfig
-    quadrotor: object  # Quadrotor or DiscreteQuadrotor (the same ports)
-    vehicle: object  # GroundVehicle or DiscreteGroundVehicle (the same ports)
+    quadrotor: Quadrotor  # discretised per controller period with integration.discrete
+    vehicle: GroundVehicle  # likewise
     speed_source: object  # ConstantVectorSource or TrajectorySource of the vehicle speed (1)
     perception: PerfectPerception  # the seam
     pid: TrackingPid
@@ -812,9 +731,9 @@ class GvLandingHandles:
         """Sets the initial conditions in a context of the built diagram: the UAV at rest on the
         ground at `start` with its rotors at hover speed, the vehicle at the start of its path."""
         c = self.config
-        _set_state(self.quadrotor, root_context,
-                   hover_state(c.quadrotor, [*c.start.xy_m, 0.0], yaw=np.radians(c.start.yaw_deg)))
-        _set_state(self.vehicle, root_context, self.vehicle.initial_state())
+        self.quadrotor.set_state(root_context,
+                                 hover_state(c.quadrotor, [*c.start.xy_m, 0.0], yaw=np.radians(c.start.yaw_deg)))
+        self.vehicle.set_state(root_context, self.vehicle.initial_state())
         if isinstance(self.controller, SymbolicFlightController):
             self.controller.initialize(root_context)
 
@@ -829,14 +748,10 @@ def build_gv_landing(config: GvLandingConfig, meshcat: Meshcat | None = None) ->
     config.validate()
     builder = DiagramBuilder()
     discrete = config.integration.discrete
-    if discrete:
-        integration = config.integration.simulator_config()
-        quad = builder.AddNamedSystem("quadrotor", DiscreteQuadrotor(config.quadrotor, config.period_s, integration))
-        vehicle = builder.AddNamedSystem("ground_vehicle", DiscreteGroundVehicle(
-            config.vehicle.ground_vehicle_config(), config.period_s, integration))
-    else:
-        quad = builder.AddNamedSystem("quadrotor", Quadrotor(config.quadrotor))
-        vehicle = builder.AddNamedSystem("ground_vehicle", GroundVehicle(config.vehicle.ground_vehicle_config()))
+    period, integration = (config.period_s, config.integration.simulator_config()) if discrete else (None, None)
+    quad = builder.AddNamedSystem("quadrotor", Quadrotor(config.quadrotor, period, integration))
+    vehicle = builder.AddNamedSystem("ground_vehicle", GroundVehicle(
+        config.vehicle.ground_vehicle_config(), period, integration))
     profile = config.vehicle.speed_profile()
     speed = builder.AddNamedSystem("vehicle_speed", ConstantVectorSource([config.vehicle.speed]) if profile is None
                                    else TrajectorySource(profile, 0, True))

@@ -20,17 +20,18 @@ pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:Runtim
 PARAMS = QuadrotorParams()
 
 
-def simulate_constant_commands(params, state0, commands, duration):
-    """Runs the Quadrotor diagram with constant rotor speed commands; returns the final state."""
+def simulate_constant_commands(params, state0, commands, duration, time_period=None):
+    """Runs the Quadrotor diagram (discretised with `time_period`) with constant rotor speed
+    commands; returns the final state."""
     builder = DiagramBuilder()
-    quad = builder.AddSystem(Quadrotor(params))
+    quad = builder.AddSystem(Quadrotor(params, time_period))
     source = builder.AddSystem(ConstantVectorSource(np.asarray(commands, dtype=float)))
     builder.Connect(source.get_output_port(), quad.GetInputPort("rotor_speed_commands"))
     diagram = builder.Build()
     simulator = Simulator(diagram)
     simulator.get_mutable_integrator().set_target_accuracy(1e-10)
     root = simulator.get_mutable_context()
-    quad.GetMyMutableContextFromRoot(root).SetContinuousState(state0)
+    quad.set_state(root, state0)
     simulator.AdvanceTo(duration)
     return quad.GetOutputPort("state").Eval(quad.GetMyContextFromRoot(root))
 
@@ -241,3 +242,31 @@ def test_pose_and_kinematics_outputs():
     np.testing.assert_allclose(quad.GetOutputPort("A_WB").Eval(context),
                                np.concatenate([R_WB @ derivative[W_WB_B], derivative[V_WB]]),
                                atol=1e-12)
+
+
+def test_discretised_quadrotor_matches_the_continuous_one():
+    # RK5 over each 5 ms period (the gv-landing default) against error-controlled integration.
+    state0 = quadrotor_state(p_WB=[0.0, 0.0, 10.0], R_WB=RotationMatrix(RollPitchYaw(0.1, -0.05, 0.3)),
+                             v_WB=[1.0, 0.5, 0.0], w_WB_B=[0.2, -0.1, 0.3],
+                             rotor_speeds=np.full(4, PARAMS.hover_rotor_speed()))
+    commands = PARAMS.hover_rotor_speed() + np.array([3.0, -2.0, 1.0, -1.5])
+    continuous = simulate_constant_commands(PARAMS, state0, commands, 2.0)
+    discrete = simulate_constant_commands(PARAMS, state0, commands, 2.0, time_period=0.005)
+    assert np.linalg.norm(continuous[P_WB] - state0[P_WB]) > 1.0  # it went somewhere
+    np.testing.assert_allclose(discrete, continuous, rtol=1e-8, atol=1e-8)
+
+
+def test_discretised_quadrotor_outputs_the_same_kinematics():
+    state = quadrotor_state(p_WB=[1.0, 2.0, 5.0], R_WB=RotationMatrix(RollPitchYaw(0.2, -0.1, 0.5)),
+                            v_WB=[1.0, -2.0, 0.5], w_WB_B=[0.3, -0.2, 0.1], rotor_speeds=[470.0, 490.0, 480.0, 475.0])
+    values = []
+    for time_period in (None, 0.005):
+        quad = Quadrotor(PARAMS, time_period)
+        context = quad.CreateDefaultContext()
+        quad.set_state(context, state)
+        quad.GetInputPort("rotor_speed_commands").FixValue(context, np.zeros(4))
+        assert context.num_continuous_states() == (STATE_SIZE if time_period is None else 0)
+        values.append([quad.GetOutputPort(name).Eval(context) for name in ("state", "V_WB", "A_WB")])
+        assert quad.GetOutputPort("X_WB").Eval(context).translation() == pytest.approx([1.0, 2.0, 5.0])
+    for continuous, discrete in zip(*values):
+        np.testing.assert_allclose(discrete, continuous, atol=1e-12)

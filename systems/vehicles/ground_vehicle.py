@@ -23,10 +23,12 @@ import pydrake.math as dmath
 from pydrake.common.value import Value
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.symbolic import MakeVectorVariable
+from pydrake.systems.analysis import SimulatorConfig
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, Multiplexer, SymbolicVectorSystem
 
 from systems.config import require, require_positive
+from systems.vehicles.integration import discretise, set_vehicle_state
 from systems.vehicles.paths import Path, PathConfig, make_path
 
 STATE_SIZE = 4  # [x, y, alpha, theta]
@@ -172,18 +174,28 @@ class GroundVehicle(Diagram):
     """Bicycle model following its configured path.
 
     Input `speed` (1, m/s). Outputs `state` (4: x, y, alpha, theta), `v_WV` (3, m/s, in W),
-    `X_WV` (abstract RigidTransform) and `path_progress` (1, arc length [m] of the nearest path
-    point). Start it on the path:
-    `vehicle.GetMyMutableContextFromRoot(root).SetContinuousState(vehicle.initial_state())`.
+    `X_WV` (abstract RigidTransform), `steering_command` (1, rad, the follower's) and
+    `path_progress` (1, arc length [m] of the nearest path point).
+
+    `time_period` None: the state is the continuous state of the subsystem `dynamics`.
+    `time_period` T: Eq. (6) is integrated over each period T in C++ with `integration`
+    (systems/vehicles/integration.py), its inputs held over the period, so a steering command
+    reaches the bicycle up to T later. Either way, start it on the path with
+    `vehicle.set_state(root_context, vehicle.initial_state())`.
     """
 
-    def __init__(self, config: GroundVehicleConfig):
+    def __init__(self, config: GroundVehicleConfig, time_period: float | None = None,
+                 integration: SimulatorConfig | None = None):
         super().__init__()
         config.validate()
         self.config = config
+        self.time_period = time_period
         self.path = make_path(config.path)
         builder = DiagramBuilder()
-        dynamics = builder.AddNamedSystem("dynamics", make_bicycle_dynamics(config))
+        bicycle = make_bicycle_dynamics(config)
+        if time_period is not None:
+            bicycle = discretise(bicycle, time_period, integration, "ground vehicle")
+        self.dynamics = dynamics = builder.AddNamedSystem("dynamics", bicycle)
         inputs = builder.AddNamedSystem("inputs", Multiplexer([1, 1]))
         split = builder.AddNamedSystem("split", Demultiplexer([STATE_SIZE, 3]))
         follower = builder.AddNamedSystem("follower", PathFollower(self.path, config))
@@ -198,6 +210,7 @@ class GroundVehicle(Diagram):
         builder.ExportOutput(split.get_output_port(0), "state")
         builder.ExportOutput(split.get_output_port(1), "v_WV")
         builder.ExportOutput(pose.get_output_port(), "X_WV")
+        builder.ExportOutput(follower.GetOutputPort("steering_command"), "steering_command")
         builder.ExportOutput(follower.GetOutputPort("path_progress"), "path_progress")
         builder.BuildInto(self)
         self.set_name("ground_vehicle")
@@ -205,3 +218,7 @@ class GroundVehicle(Diagram):
     def initial_state(self) -> np.ndarray:
         """The state at the start of the configured path (see initial_state())."""
         return initial_state(self.path, self.config)
+
+    def set_state(self, root_context, x) -> None:
+        """Sets the state [x, y, alpha, theta] in a context of a diagram that contains this system."""
+        set_vehicle_state(self, root_context, x)

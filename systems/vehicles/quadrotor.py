@@ -39,10 +39,12 @@ from pydrake.common.eigen_geometry import Quaternion
 from pydrake.common.value import Value
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.symbolic import MakeVectorVariable
+from pydrake.systems.analysis import SimulatorConfig
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, SymbolicVectorSystem
 
 from systems.config import require, require_positive
+from systems.vehicles.integration import discretise, set_vehicle_state
 
 STATE_SIZE = 17
 P_WB = slice(0, 3)
@@ -232,24 +234,51 @@ class Quadrotor(Diagram):
 
     Input `rotor_speed_commands` (4, rad/s). Outputs `state` (17, see the module docstring),
     `X_WB` (abstract RigidTransform), `V_WB` and `A_WB` (6 each, see body_kinematics), the
-    kinematics seam that AirframeGeometry and the IMU read. The continuous state of this
-    diagram is the 17-vector:
-    `quadrotor.GetMyMutableContextFromRoot(root).SetContinuousState(hover_state(...))`.
+    kinematics seam that AirframeGeometry and the IMU read.
+
+    `time_period` None: the state is the continuous state of the subsystem `dynamics`.
+    `time_period` T: Eq. (7)-(8) are integrated over each period T in C++ with `integration`
+    (systems/vehicles/integration.py), the input held over the period; the state is then the
+    discrete state of `dynamics`. Discretised, `V_WB` and `A_WB` are a separate stateless stage,
+    evaluated only when pulled (Drake 1.58 aborts on such a stage in a diagram with continuous
+    state, so use the discretised quadrotor in diagrams without any). Either way:
+    `quadrotor.set_state(root_context, hover_state(...))`.
     """
 
-    def __init__(self, params: QuadrotorParams):
+    def __init__(self, params: QuadrotorParams, time_period: float | None = None,
+                 integration: SimulatorConfig | None = None):
         super().__init__()
+        params.validate()
         self.params = params
+        self.time_period = time_period
         builder = DiagramBuilder()
-        dynamics = builder.AddNamedSystem("dynamics", make_quadrotor_dynamics(params))
-        split = builder.AddNamedSystem("split", Demultiplexer([STATE_SIZE, 6, 6]))
         pose = builder.AddNamedSystem("pose", StateToPose())
-        builder.Connect(dynamics.get_output_port(), split.get_input_port())
-        builder.Connect(split.get_output_port(0), pose.get_input_port())
+        if time_period is None:
+            self.dynamics = dynamics = builder.AddNamedSystem("dynamics", make_quadrotor_dynamics(params))
+            split = builder.AddNamedSystem("split", Demultiplexer([STATE_SIZE, 6, 6]))
+            builder.Connect(dynamics.get_output_port(), split.get_input_port())
+            state, V_WB, A_WB = (split.get_output_port(i) for i in range(3))
+        else:
+            x = MakeVectorVariable(STATE_SIZE, "x")
+            u = MakeVectorVariable(4, "w_cmd")
+            self.dynamics = dynamics = builder.AddNamedSystem("dynamics", discretise(
+                SymbolicVectorSystem(state=x, input=u, dynamics=quadrotor_state_derivative(x, u, params), output=x),
+                time_period, integration, "quadrotor"))
+            kinematics = builder.AddNamedSystem("kinematics", SymbolicVectorSystem(
+                input=x, output=np.concatenate(body_kinematics(x, params))))
+            split = builder.AddNamedSystem("split", Demultiplexer([6, 6]))
+            builder.Connect(dynamics.get_output_port(), kinematics.get_input_port())
+            builder.Connect(kinematics.get_output_port(), split.get_input_port())
+            state, V_WB, A_WB = dynamics.get_output_port(), split.get_output_port(0), split.get_output_port(1)
+        builder.Connect(state, pose.get_input_port())
         builder.ExportInput(dynamics.get_input_port(), "rotor_speed_commands")
-        builder.ExportOutput(split.get_output_port(0), "state")
+        builder.ExportOutput(state, "state")
         builder.ExportOutput(pose.get_output_port(), "X_WB")
-        builder.ExportOutput(split.get_output_port(1), "V_WB")
-        builder.ExportOutput(split.get_output_port(2), "A_WB")
+        builder.ExportOutput(V_WB, "V_WB")
+        builder.ExportOutput(A_WB, "A_WB")
         builder.BuildInto(self)
         self.set_name("quadrotor")
+
+    def set_state(self, root_context, x) -> None:
+        """Sets the 17-vector state in a context of a diagram that contains this system."""
+        set_vehicle_state(self, root_context, x)
