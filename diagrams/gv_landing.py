@@ -24,10 +24,9 @@ of the per-step path:
    controller period (IntegrationConfig): with no continuous state in the diagram the simulator
    never evaluates whole-diagram derivatives, each of which would call into every Python
    LeafSystem (~4.7 us apiece, ~10 of them, several evaluations per step).
-2. The flight controller is `SymbolicFlightController`: the law of
-   systems/control/flight_controller.py in small C++ stages (~15 us a sample against ~170 us for the
-   `FlightController` LeafSystem, mostly numpy.cross on 3-vectors); `controller_implementation:
-   python` selects the LeafSystem.
+2. The flight controller is systems/control/flight_controller.py's C++ backend
+   (`SymbolicFlightController`, ~10 us a sample); `controller_implementation: python` selects its
+   Python backend (`FlightController`, the same law, ~15 us a sample plus a Python call).
 3. `gv_landing_run.simulate_flight` freezes the garbage collector's view of the objects from imports and the
    build (gc.freeze), which otherwise costs ~20 % of the run.
 Python remains at the rates the systems declare: the supervisor (50 Hz), the perception (pulled at
@@ -44,39 +43,31 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-import pydrake.math as dmath
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
     Box, Cylinder, FramePoseVector, GeometryFrame, Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Mesh, Rgba,
     Role, SceneGraph,
 )
 from pydrake.math import RigidTransform, RotationMatrix
-from pydrake.symbolic import MakeVectorVariable
 from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 from pydrake.systems.framework import Diagram, DiagramBuilder, EventStatus, LeafSystem
 from pydrake.systems.primitives import (
-    ConstantVectorSource, Demultiplexer, LogVectorOutput, Multiplexer, SymbolicVectorSystem, TrajectorySource,
-    VectorLogSink, ZeroOrderHold,
+    ConstantVectorSource, Demultiplexer, LogVectorOutput, TrajectorySource, VectorLogSink,
 )
 from pydrake.trajectories import PiecewisePolynomial
 
 from models.apriltag import textured_quad_mesh
 from systems.config import ConfigError, require, require_positive
 from systems.control.flight_controller import (
-    FlightController, FlightControllerConfig, desired_thrust, normalized, vee,
+    BACKENDS, FlightController, FlightControllerConfig, SymbolicFlightController, make_flight_controller,
 )
 from systems.control.landing import LandingConfig, LandingSupervisor, Mode
 from systems.control.pid import TrackingPid, TrackingPidConfig
 from systems.geometry import register_visual
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry
-from systems.vehicles.ground_vehicle import (
-    GroundVehicle, GroundVehicleConfig, PathFollowerConfig,
-)
+from systems.vehicles.ground_vehicle import GroundVehicle, GroundVehicleConfig, PathFollowerConfig
 from systems.vehicles.paths import PATH_NAMES, PathConfig, make_path
-from systems.vehicles.quadrotor import (
-    P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state, mixer_matrix,
-    rotation_from_quaternion,
-)
+from systems.vehicles.quadrotor import P_WB, STATE_SIZE, Quadrotor, QuadrotorParams, hover_state
 
 # The perception seam's vector (PerfectPerception's `relative_state` output), all in SI units:
 P_BP_W = slice(0, 3)  # pad centre minus UAV (body origin), in W [m]
@@ -285,9 +276,6 @@ class IntegrationConfig:
                                use_error_control=self.error_control, accuracy=self.accuracy)
 
 
-CONTROLLER_IMPLEMENTATIONS = ("symbolic", "python")
-
-
 @dataclass
 class GvLandingConfig:
     seed: int = 0  # nothing is random yet (perfect perception); kept for the metrics and later noise
@@ -295,9 +283,8 @@ class GvLandingConfig:
     platform: PlatformConfig = field(default_factory=PlatformConfig)
     quadrotor: QuadrotorParams = field(default_factory=QuadrotorParams)
     controller: FlightControllerConfig = field(default_factory=FlightControllerConfig)
-    # "symbolic": SymbolicFlightController (C++, the default); "python": the FlightController
-    # LeafSystem (the same law in Python, ~170 us a sample; with integration.discrete its held output
-    # reaches the discretised quadrotor one period late).
+    # The flight controller's backend (systems/control/flight_controller.py): "symbolic" (C++, the
+    # default) or "python" (the same law in a LeafSystem).
     controller_implementation: str = "symbolic"
     pid: TrackingPidConfig = field(default_factory=TrackingPidConfig)
     landing: LandingConfig = field(default_factory=LandingConfig)
@@ -311,9 +298,8 @@ class GvLandingConfig:
         for name in ("vehicle", "platform", "quadrotor", "controller", "pid", "landing", "perception", "start",
                      "termination", "integration", "uav"):
             getattr(self, name).validate(name)
-        require(self.controller_implementation in CONTROLLER_IMPLEMENTATIONS,
-                f"controller_implementation '{self.controller_implementation}' is not one of "
-                f"{', '.join(CONTROLLER_IMPLEMENTATIONS)}")
+        require(self.controller_implementation in BACKENDS,
+                f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
         require(self.controller.max_vertical_accel_m_s2 < self.quadrotor.gravity_m_s2,
                 "controller.max_vertical_accel_m_s2 must be below quadrotor.gravity_m_s2")
 
@@ -325,125 +311,6 @@ class GvLandingConfig:
 
 # ----------------------------------------------------------------------------------------------
 # Systems of this diagram
-
-
-def _stage(inputs, outputs, dummy_state: bool) -> SymbolicVectorSystem:
-    """A stateless SymbolicVectorSystem y = f(u). Drake 1.58 aborts in DoCalcTimeDerivatives for a
-    SymbolicVectorSystem without continuous state inside a diagram with continuous state, so in such
-    a diagram (`dummy_state`) it carries one constant dummy state (derivative 0)."""
-    if not dummy_state:
-        return SymbolicVectorSystem(input=inputs, output=outputs)
-    unused = MakeVectorVariable(1, "unused")
-    return SymbolicVectorSystem(state=unused, dynamics=[0.0 * unused[0]], input=inputs, output=outputs)
-
-
-class _SymbolicChain:
-    """Wires stateless SymbolicVectorSystem stages into a DiagramBuilder by signal name: each stage
-    takes named signals (vector output ports), sees each as a vector of symbolic variables, and
-    adds its output as a new signal. Small stages with few inputs keep Drake's tree-walking
-    evaluation (which repeats shared subexpressions) and its variable look-ups cheap."""
-
-    def __init__(self, builder: DiagramBuilder, dummy_state: bool):
-        self._builder, self._dummy_state = builder, dummy_state
-        self.signals = {}  # name -> OutputPort
-
-    def split(self, port, names_sizes) -> None:
-        """Adds the pieces of a vector port as signals."""
-        demux = self._builder.AddNamedSystem(f"split_{'_'.join(n for n, _ in names_sizes)}",
-                                             Demultiplexer([size for _, size in names_sizes]))
-        self._builder.Connect(port, demux.get_input_port())
-        for i, (name, _) in enumerate(names_sizes):
-            self.signals[name] = demux.get_output_port(i)
-
-    def stage(self, name: str, inputs: list[str], function) -> SymbolicVectorSystem:
-        """Adds signal `name` = function(*input signals as variable vectors)."""
-        ports = [self.signals[n] for n in inputs]
-        variables = [MakeVectorVariable(p.size(), n) for n, p in zip(inputs, ports)]
-        output = np.asarray(function(*variables)).ravel()
-        system = self._builder.AddNamedSystem(name, _stage(np.concatenate(variables), output, self._dummy_state))
-        if len(ports) == 1:
-            self._builder.Connect(ports[0], system.get_input_port())
-        else:
-            mux = self._builder.AddNamedSystem(f"{name}_inputs", Multiplexer([p.size() for p in ports]))
-            for i, port in enumerate(ports):
-                self._builder.Connect(port, mux.get_input_port(i))
-            self._builder.Connect(mux.get_output_port(), system.get_input_port())
-        self.signals[name] = system.get_output_port()
-        return system
-
-
-class SymbolicFlightController(Diagram):
-    """The law of systems/control/flight_controller.py (`rotor_speed_commands`) evaluated in C++,
-    with FlightController's ports: inputs `state` (17) and `command` (4), output
-    `rotor_speed_commands` (4). The law as one SymbolicVectorSystem is 95,000 characters per rotor
-    and takes 0.7 ms to evaluate; split into stages by the module's own functions it takes ~10 us:
-
-      R_WB = rotation_from_quaternion(q)            f_W = desired_thrust(v_WB, v_des)
-      z = normalized(f_W)                           R_des = desired_attitude(z, yaw) (in two stages)
-      torque_B = J (-k_R e_R - k_w w_B) + w_B x J w_B,  e_R = vee(R_des^T R_WB - R_WB^T R_des) / 2
-      rotor commands = (w + (tau_m / tau_a) (w_des - w)) / k_m,  w_des from Eq. (8) inverted
-
-    `held` (for a continuous quadrotor): the output is sampled and held at `config.rate_hz` from
-    the hover command on, exactly as FlightController does (call `initialize`). Not held (for the
-    discretised quadrotor of IntegrationConfig, which holds its input over the same period): the
-    output is the law at the current state, evaluated only when the quadrotor samples it.
-    tests/test_gv_landing.py checks it against `rotor_speed_commands`."""
-
-    def __init__(self, quad: QuadrotorParams, config: FlightControllerConfig, held: bool = True):
-        super().__init__()
-        quad.validate()
-        config.validate()
-        self._initial = np.full(4, quad.hover_rotor_speed() / quad.motor_gain)
-        builder = DiagramBuilder()
-        chain = _SymbolicChain(builder, dummy_state=held)
-        state = builder.AddNamedSystem("state", Demultiplexer([STATE_SIZE]))  # named input ports
-        command = builder.AddNamedSystem("command", Demultiplexer([4]))
-        builder.ExportInput(state.get_input_port(), "state")
-        builder.ExportInput(command.get_input_port(), "command")
-        assert (P_WB.stop, Q_WB.stop, V_WB.stop, W_WB_B.stop, ROTOR_SPEEDS.stop) == (3, 7, 10, 13, 17)
-        chain.split(state.get_output_port(0), [("p_WB", 3), ("q_WB", 4), ("v_WB", 3), ("w_WB_B", 3),
-                                              ("rotor_speeds", 4)])
-        chain.split(command.get_output_port(0), [("v_WB_desired", 3), ("yaw_desired", 1)])
-
-        k_R, k_w = config.attitude_gains()
-        J = quad.inertia_diagonal
-        M_inverse = np.linalg.inv(mixer_matrix(quad))
-        lag_ratio = quad.motor_time_constant_s / config.rotor_time_constant_s
-
-        def torque(R, R_des, w_B):
-            R, R_des = R.reshape(3, 3), R_des.reshape(3, 3)
-            e_R = 0.5 * vee(R_des.T @ R - R.T @ R_des)
-            return J * (-k_R * e_R - k_w * w_B) + np.cross(w_B, J * w_B)
-
-        def commands(f_W, R, torque_B, rotor_speeds):
-            thrusts = M_inverse @ np.concatenate([[f_W @ R.reshape(3, 3)[:, 2]], torque_B])
-            w_des = np.array([dmath.sqrt(dmath.max(f, 0.0) / quad.thrust_coefficient) for f in thrusts])
-            return (rotor_speeds + lag_ratio * (w_des - rotor_speeds)) / quad.motor_gain
-
-        chain.stage("R_WB", ["q_WB"], rotation_from_quaternion)
-        chain.stage("f_W", ["v_WB", "v_WB_desired"], lambda v, v_des: desired_thrust(v, v_des, quad, config))
-        chain.stage("z_desired", ["f_W"], normalized)
-        # desired_attitude(z, yaw) in two stages: its normalized(z) is the identity on the unit z.
-        chain.stage("y_desired", ["z_desired", "yaw_desired"],
-                    lambda z, yaw: normalized(np.cross(z, [dmath.cos(yaw[0]), dmath.sin(yaw[0]), 0.0])))
-        chain.stage("R_WB_desired", ["y_desired", "z_desired"], lambda y, z: np.column_stack([np.cross(y, z), y, z]))
-        chain.stage("torque_B", ["R_WB", "R_WB_desired", "w_WB_B"], torque)
-        law = chain.stage("law", ["f_W", "R_WB", "torque_B", "rotor_speeds"], commands).get_output_port()
-        self.hold = None
-        if held:
-            self.hold = builder.AddNamedSystem("hold", ZeroOrderHold(1.0 / config.rate_hz, 4))
-            builder.Connect(law, self.hold.get_input_port())
-            builder.ExportOutput(self.hold.get_output_port(), "rotor_speed_commands")
-        else:
-            builder.ExportOutput(law, "rotor_speed_commands")
-        builder.ExportOutput(law, "law")  # the unheld law
-        builder.BuildInto(self)
-        self.set_name("flight_controller")
-
-    def initialize(self, root_context) -> None:
-        """Holds the hover command until the first sample, as FlightController does."""
-        if self.hold is not None:
-            self.hold.SetVectorState(self.hold.GetMyMutableContextFromRoot(root_context), self._initial)
 
 
 def relative_state(quad_state, vehicle_state, speed: float, vehicle: VehicleConfig, platform: PlatformConfig,
@@ -718,7 +585,7 @@ class GvLandingHandles:
     perception: PerfectPerception  # the seam
     pid: TrackingPid
     supervisor: LandingSupervisor
-    controller: object  # SymbolicFlightController or FlightController
+    controller: SymbolicFlightController | FlightController
     monitor: LandingMonitor
     scene_graph: SceneGraph
     airframe: AirframeGeometry
@@ -734,8 +601,7 @@ class GvLandingHandles:
         self.quadrotor.set_state(root_context,
                                  hover_state(c.quadrotor, [*c.start.xy_m, 0.0], yaw=np.radians(c.start.yaw_deg)))
         self.vehicle.set_state(root_context, self.vehicle.initial_state())
-        if isinstance(self.controller, SymbolicFlightController):
-            self.controller.initialize(root_context)
+        self.controller.initialize(root_context)
 
 
 LOG_NAMES = ("quadrotor_state", "vehicle_state", "relative_state", "mode", "command", "tracking_velocity",
@@ -758,10 +624,9 @@ def build_gv_landing(config: GvLandingConfig, meshcat: Meshcat | None = None) ->
     perception = builder.AddSystem(PerfectPerception(config.vehicle, config.platform, config.perception))
     pid = builder.AddNamedSystem("tracking_pid", TrackingPid(config.pid))
     supervisor = builder.AddNamedSystem("landing_supervisor", LandingSupervisor(config.landing))
-    if config.controller_implementation == "symbolic":
-        controller = builder.AddSystem(SymbolicFlightController(config.quadrotor, config.controller, held=not discrete))
-    else:
-        controller = builder.AddNamedSystem("flight_controller", FlightController(config.quadrotor, config.controller))
+    # Not held with the discretised quadrotor: it samples and holds the law at the period itself.
+    controller = builder.AddNamedSystem("flight_controller", make_flight_controller(
+        config.quadrotor, config.controller, config.controller_implementation, held=not discrete))
     monitor = builder.AddNamedSystem("monitor", LandingMonitor(config))
     altitude = builder.AddNamedSystem("altitude", Demultiplexer([2, 1, STATE_SIZE - 3]))
 

@@ -9,7 +9,8 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, VectorLogSink
 
 from systems.control.flight_controller import (
-    FlightController, FlightControllerConfig, rotor_speed_commands,
+    FlightController, FlightControllerConfig, FlightLaw, SymbolicFlightController, make_flight_controller,
+    rotor_speed_commands,
 )
 from systems.vehicles.quadrotor import (
     P_WB, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state, pose_from_state,
@@ -23,12 +24,12 @@ QUAD = QuadrotorParams()
 CONFIG = FlightControllerConfig()
 
 
-def fly(command, state0, duration, log_period=0.01):
-    """Closed loop Quadrotor + FlightController under a constant command.
+def fly(command, state0, duration, log_period=0.01, backend="python"):
+    """Closed loop Quadrotor + flight controller (held at its rate) under a constant command.
     Returns (sample times, states (17 x N), wall time)."""
     builder = DiagramBuilder()
     quad = builder.AddSystem(Quadrotor(QUAD))
-    controller = builder.AddSystem(FlightController(QUAD, CONFIG))
+    controller = builder.AddSystem(make_flight_controller(QUAD, CONFIG, backend))
     source = builder.AddSystem(ConstantVectorSource(np.asarray(command, dtype=float)))
     logger = builder.AddSystem(VectorLogSink(STATE_SIZE, log_period))
     builder.Connect(quad.GetOutputPort("state"), controller.GetInputPort("state"))
@@ -38,7 +39,8 @@ def fly(command, state0, duration, log_period=0.01):
     builder.Connect(quad.GetOutputPort("state"), logger.get_input_port())
     simulator = Simulator(builder.Build())
     root = simulator.get_mutable_context()
-    quad.GetMyMutableContextFromRoot(root).SetContinuousState(state0)
+    quad.set_state(root, state0)
+    controller.initialize(root)
     start = time.perf_counter()
     simulator.AdvanceTo(duration)
     wall = time.perf_counter() - start
@@ -87,6 +89,43 @@ def test_law_accepts_symbolic_expressions():
     env = dict(zip(x, state)) | dict(zip(c, command))
     np.testing.assert_allclose(Evaluate(symbolic, env).ravel(),
                                rotor_speed_commands(state, command, QUAD, CONFIG), rtol=1e-12)
+
+
+def random_states_and_commands(count, seed=4):
+    """Tilted, moving, spinning states with uneven rotor speeds, and commands up to the limits."""
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        state = hover_state(QUAD, rng.uniform(-5, 5, 3), yaw=rng.uniform(-np.pi, np.pi))
+        state[3:7] = RotationMatrix(RollPitchYaw(*rng.uniform(-0.5, 0.5, 3))).ToQuaternion().wxyz() * rng.uniform(0.9, 1.1)
+        state[7:13] = rng.uniform(-2, 2, 6)
+        state[13:17] = rng.uniform(300, 650, 4)
+        yield state, np.r_[rng.uniform(-8, 8, 2), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)]
+
+
+@pytest.mark.parametrize("held", [False, True])
+def test_the_two_backends_compute_the_same_law(held):
+    python, symbolic = FlightController(QUAD, CONFIG, held=held), SymbolicFlightController(QUAD, CONFIG, held=held)
+    contexts = [system.CreateDefaultContext() for system in (python, symbolic)]
+    law = FlightLaw(QUAD, CONFIG)
+    for state, command in random_states_and_commands(20):
+        outputs = []
+        for system, context in zip((python, symbolic), contexts):
+            system.GetInputPort("state").FixValue(context, state)
+            system.GetInputPort("command").FixValue(context, command)
+            if held:  # the sample the periodic update would hold
+                outputs.append(python.EvalUniquePeriodicDiscreteUpdate(context).get_vector().CopyToVector()
+                               if system is python else system.GetOutputPort("law").Eval(context))
+            else:
+                outputs.append(system.GetOutputPort("rotor_speed_commands").Eval(context))
+        np.testing.assert_allclose(outputs[0], law(state, command), rtol=1e-13)
+        np.testing.assert_allclose(outputs[1], outputs[0], rtol=1e-10)
+
+
+def test_the_two_backends_fly_alike():
+    command, state0 = [2.0, -1.0, 0.5, 0.5], hover_state(QUAD, [0, 0, 5])
+    _, python, _ = fly(command, state0, duration=3.0)
+    _, symbolic, _ = fly(command, state0, duration=3.0, backend="symbolic")
+    assert np.abs(python[P_WB] - symbolic[P_WB]).max() < 1e-6
 
 
 def test_hover_holds():

@@ -1,5 +1,5 @@
 """The gv-landing diagram (issue 4): a full landing, failures reported in metrics, configuration
-errors naming their field, the perception seam, the C++ flight controller against the law, the
+errors naming their field, the perception seam, the two flight controller backends flying alike, the
 discrete vehicles against the continuous ones, the pad's markers, Meshcat, and the CLI run."""
 
 import json
@@ -12,13 +12,12 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 
 from diagrams.cli import main
 from diagrams.gv_landing import (
-    HEIGHT, P_BP_B, P_BP_W, V_WP, VALID, GvLandingConfig, LandingMonitor, PerfectPerception,
-    SymbolicFlightController, build_gv_landing, marker_layout, pad_marker_image,
+    HEIGHT, P_BP_B, P_BP_W, V_WP, VALID, GvLandingConfig, LandingMonitor, PerfectPerception, build_gv_landing,
+    marker_layout, pad_marker_image,
 )
 from diagrams.gv_landing_run import FAILURE_REASONS, fly, simulate_flight
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
-from systems.control.flight_controller import rotor_speed_commands
 from systems.control.landing import Mode
 from systems.vehicles.quadrotor import P_WB, hover_state, quadrotor_state
 
@@ -111,24 +110,6 @@ def test_perception_seam_gives_the_true_relative_state():
     assert out("target_valid")[0] == 0.0 and relative[VALID] == 1.0
 
 
-def test_symbolic_flight_controller_is_the_law():
-    config = GvLandingConfig()
-    controller = SymbolicFlightController(config.quadrotor, config.controller, held=False)
-    context = controller.CreateDefaultContext()
-    rng = np.random.default_rng(4)
-    for _ in range(20):
-        state = hover_state(config.quadrotor, rng.uniform(-5, 5, 3), yaw=rng.uniform(-np.pi, np.pi))
-        state[3:7] = RotationMatrix(RollPitchYaw(*rng.uniform(-0.5, 0.5, 3))).ToQuaternion().wxyz() * rng.uniform(0.9, 1.1)
-        state[7:13] = rng.uniform(-2, 2, 6)
-        state[13:17] = rng.uniform(300, 650, 4)
-        command = np.r_[rng.uniform(-8, 8, 2), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)]
-        controller.GetInputPort("state").FixValue(context, state)
-        controller.GetInputPort("command").FixValue(context, command)
-        np.testing.assert_allclose(controller.GetOutputPort("rotor_speed_commands").Eval(context),
-                                   rotor_speed_commands(state, command, config.quadrotor, config.controller),
-                                   rtol=1e-10)
-
-
 def _positions(overrides, duration_s):
     _, scenario = load_scenario("gv-landing", overrides=overrides)
     diagram, handles = build_gv_landing(scenario)
@@ -149,10 +130,13 @@ def test_discrete_vehicles_follow_the_continuous_ones():
     assert np.abs(ugv - ugv_c).max() < 3e-3
 
 
-def test_python_flight_controller_flies_the_same_as_the_symbolic_one():
-    continuous = ["integration.discrete=false", "integration.error_control=true", "integration.accuracy=1.0e-7"]
-    _, uav, _ = _positions(continuous, 3.0)
-    _, uav_python, _ = _positions(continuous + ["controller_implementation=python"], 3.0)
+@pytest.mark.parametrize("integration", [
+    [],  # discretised vehicles, the law evaluated when the quadrotor samples it
+    ["integration.discrete=false", "integration.error_control=true", "integration.accuracy=1.0e-7"],  # held
+])
+def test_python_flight_controller_flies_the_same_as_the_symbolic_one(integration):
+    _, uav, _ = _positions(integration, 3.0)
+    _, uav_python, _ = _positions(integration + ["controller_implementation=python"], 3.0)
     assert np.abs(uav - uav_python).max() < 1e-6
 
 

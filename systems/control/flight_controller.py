@@ -13,23 +13,28 @@ The attitude gains come from pole placement on J tau_a s^3 + J s^2 + J k_w s + J
 about hover, with the compensated rotor lag tau_a): a complex pair of natural frequency w_n and
 damping zeta, and a real pole at -(1/tau_a - 2 zeta w_n).
 
-`FlightController` samples the law at `rate_hz` in Python, about 0.1 ms a sample (2 % of real
-time at 200 Hz). A discrete SymbolicVectorSystem would keep it in C++, and the law is written to
-accept pydrake.symbolic Expressions for that, but Drake 1.58 aborts in
-SymbolicVectorSystem::DoCalcTimeDerivatives when a SymbolicVectorSystem without continuous state
-sits in a diagram that has continuous state.
+One law, two backends. `FlightLaw` is the law, written once in scalar arithmetic that works on
+floats and on pydrake.symbolic Expressions alike, with its constants (gains, the inverse mixer)
+computed once:
+- `FlightController` (Python): a LeafSystem calling `FlightLaw` on floats, ~15 us a sample;
+- `SymbolicFlightController` (C++): the same `FlightLaw` stages traced into Expressions, one small
+  SymbolicVectorSystem per stage, ~10 us a sample with no Python in the loop. tests check that the
+  two give the same commands.
+Both either sample and hold at `rate_hz` (`held`, for a continuous quadrotor) or compute the law
+when pulled (for a quadrotor discretised per controller period, which holds its input itself).
 """
 
 from dataclasses import dataclass
 
 import numpy as np
 import pydrake.math as dmath
-from pydrake.systems.framework import LeafSystem
+from pydrake.symbolic import MakeVectorVariable
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import Demultiplexer, Multiplexer, SymbolicVectorSystem, ZeroOrderHold
 
 from systems.config import require, require_positive
 from systems.vehicles.quadrotor import (
-    Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, QuadrotorParams, mixer_matrix,
-    rotation_from_quaternion,
+    P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, QuadrotorParams, mixer_matrix, rotation_from_quaternion,
 )
 
 COMMAND_SIZE = 4  # [v_WB_desired (3, m/s, in W), yaw_desired (rad)]
@@ -70,75 +75,251 @@ class FlightControllerConfig:
         return tau * real_pole * w_n**2, tau * (w_n**2 + 2.0 * zeta * w_n * real_pole)
 
 
-def vee(M):
-    """[M21, M02, M10] of a skew-symmetric 3x3 matrix."""
-    return np.array([M[2, 1], M[0, 2], M[1, 0]])
+def _cross(a, b):
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
 
-def normalized(v):
-    return v / dmath.sqrt(v @ v)
+def _normalized(v):
+    n = dmath.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return [v[0] / n, v[1] / n, v[2] / n]
 
 
-def desired_thrust(v_WB, v_WB_desired, quad: QuadrotorParams, config: FlightControllerConfig):
-    """Velocity loop: the thrust vector f_W [N] that gives the limited desired acceleration."""
-    k_xy, k_z = config.velocity_gain_xy, config.velocity_gain_z
-    a_max = config.max_vertical_accel_m_s2
-    a_z = dmath.min(dmath.max(k_z * (v_WB_desired[2] - v_WB[2]), -a_max), a_max)
-    a_xy = k_xy * (v_WB_desired[:2] - v_WB[:2])
-    a_xy_max = (quad.gravity_m_s2 + a_z) * np.tan(np.radians(config.max_tilt_deg))
-    scale = a_xy_max / dmath.max(dmath.sqrt(a_xy @ a_xy), a_xy_max)
-    return quad.mass_kg * np.array([scale * a_xy[0], scale * a_xy[1], quad.gravity_m_s2 + a_z])
+def _as_list(v) -> list:
+    return v.tolist() if isinstance(v, np.ndarray) else list(v)
 
 
-def desired_attitude(f_W, yaw):
-    """R_WB_des: body z along the thrust f_W, body x towards heading `yaw` (rad)."""
-    z = normalized(f_W)
-    y = normalized(np.cross(z, np.array([dmath.cos(yaw), dmath.sin(yaw), 0.0])))
-    return np.column_stack([np.cross(y, z), y, z])
+class FlightLaw:
+    """The control law of the module docstring with its constants computed once.
 
-
-def rotor_speed_commands(state, command, quad: QuadrotorParams, config: FlightControllerConfig):
-    """The control law: quadrotor `state` (17) and `command` [v_WB_desired (3), yaw] -> rotor
-    speed commands (4, rad/s). Works on floats and on pydrake.symbolic Expressions."""
-    R_WB = rotation_from_quaternion(state[Q_WB])
-    w_B = state[W_WB_B]
-    rotor_speeds = state[ROTOR_SPEEDS]
-
-    f_W = desired_thrust(state[V_WB], command[:3], quad, config)
-    R_des = desired_attitude(f_W, command[3])
-    e_R = 0.5 * vee(R_des.T @ R_WB - R_WB.T @ R_des)
-    k_R, k_w = config.attitude_gains()
-    J = quad.inertia_diagonal
-    torque_B = J * (-k_R * e_R - k_w * w_B) + np.cross(w_B, J * w_B)
-
-    thrusts = np.linalg.inv(mixer_matrix(quad)) @ np.concatenate(
-        [[f_W @ R_WB[:, 2]], torque_B])
-    w_des = np.array([dmath.sqrt(dmath.max(f, 0.0) / quad.thrust_coefficient) for f in thrusts])
-    lag_ratio = quad.motor_time_constant_s / config.rotor_time_constant_s
-    return (rotor_speeds + lag_ratio * (w_des - rotor_speeds)) / quad.motor_gain
-
-
-class FlightController(LeafSystem):
-    """Velocity and yaw controller for the seed 002 quadrotor, sampled at `config.rate_hz`.
-
-    Inputs `state` (17, the Quadrotor `state` output) and `command` (4: desired velocity of B in
-    W [m/s], desired yaw [rad]). Output `rotor_speed_commands` (4, rad/s), held between samples;
-    it starts at the hover speed.
-    """
+    Each stage takes and returns plain lists (rotations as 9 entries, row-major) of floats or of
+    pydrake.symbolic Expressions: the Python backend calls it on floats, the C++ backend traces
+    each stage into a SymbolicVectorSystem."""
 
     def __init__(self, quad: QuadrotorParams, config: FlightControllerConfig):
-        super().__init__()
         quad.validate()
         config.validate()
         require(config.max_vertical_accel_m_s2 < quad.gravity_m_s2,
                 "flight_controller.max_vertical_accel_m_s2 must be below gravity")
-        self._quad, self._config = quad, config
+        self.quad, self.config = quad, config
+        k_R, k_w = config.attitude_gains()
+        J = quad.inertia_diagonal
+        self._J = J.tolist()
+        self._J_k_R, self._J_k_w = (J * k_R).tolist(), (J * k_w).tolist()
+        self._mixer_inverse = np.linalg.inv(mixer_matrix(quad)).tolist()
+        self._lag_ratio = quad.motor_time_constant_s / config.rotor_time_constant_s
+        self._tan_tilt = float(np.tan(np.radians(config.max_tilt_deg)))
+
+    def rotation(self, q_WB) -> list:
+        """R_WB (9, row-major) from the quaternion of the state (rotation_from_quaternion)."""
+        return rotation_from_quaternion(_as_list(q_WB)).ravel().tolist()
+
+    def thrust(self, v_WB, v_WB_desired) -> list:
+        """Velocity loop: the thrust vector f_W [N] that gives the limited desired acceleration."""
+        quad, config = self.quad, self.config
+        g, a_max = quad.gravity_m_s2, config.max_vertical_accel_m_s2
+        a_z = dmath.min(dmath.max(config.velocity_gain_z * (v_WB_desired[2] - v_WB[2]), -a_max), a_max)
+        a_x = config.velocity_gain_xy * (v_WB_desired[0] - v_WB[0])
+        a_y = config.velocity_gain_xy * (v_WB_desired[1] - v_WB[1])
+        a_xy_max = (g + a_z) * self._tan_tilt
+        scale = quad.mass_kg * a_xy_max / dmath.max(dmath.sqrt(a_x * a_x + a_y * a_y), a_xy_max)
+        return [scale * a_x, scale * a_y, quad.mass_kg * (g + a_z)]
+
+    @staticmethod
+    def thrust_direction(f_W) -> list:
+        """z_B desired: along the thrust."""
+        return _normalized(f_W)
+
+    @staticmethod
+    def lateral_axis(z_desired, yaw) -> list:
+        """y_B desired: normal to z_desired and to the heading `yaw` (rad)."""
+        return _normalized(_cross(z_desired, [dmath.cos(yaw), dmath.sin(yaw), 0.0]))
+
+    @staticmethod
+    def desired_rotation(y_desired, z_desired) -> list:
+        """R_WB_des (9, row-major): columns x = y x z, y, z."""
+        x = _cross(y_desired, z_desired)
+        return [x[0], y_desired[0], z_desired[0], x[1], y_desired[1], z_desired[1],
+                x[2], y_desired[2], z_desired[2]]
+
+    def torque(self, R, R_desired, w_B) -> list:
+        """Attitude loop: T_B = J (-k_R e_R - k_w w_B) + w_B x J w_B,
+        e_R = vee(R_des^T R - R^T R_des) / 2."""
+        def m(i, j):  # (R_des^T R)_ij
+            return R_desired[i] * R[j] + R_desired[3 + i] * R[3 + j] + R_desired[6 + i] * R[6 + j]
+
+        e_R = [0.5 * (m(2, 1) - m(1, 2)), 0.5 * (m(0, 2) - m(2, 0)), 0.5 * (m(1, 0) - m(0, 1))]
+        J, w = self._J, _as_list(w_B)
+        gyroscopic = _cross(w, [J[0] * w[0], J[1] * w[1], J[2] * w[2]])
+        return [-self._J_k_R[i] * e_R[i] - self._J_k_w[i] * w[i] + gyroscopic[i] for i in range(3)]
+
+    def rotor_commands(self, f_W, R, torque_B, rotor_speeds) -> list:
+        """Eq. (8) inverted for the collective thrust f_W . z_B and the torque, rotor speeds
+        w_des, and the commands that make the motor lag reach them with tau_a."""
+        quad = self.quad
+        wrench = [f_W[0] * R[2] + f_W[1] * R[5] + f_W[2] * R[8], *torque_B]
+        out = []
+        for row, w in zip(self._mixer_inverse, _as_list(rotor_speeds)):
+            f = row[0] * wrench[0] + row[1] * wrench[1] + row[2] * wrench[2] + row[3] * wrench[3]
+            w_des = dmath.sqrt(dmath.max(f, 0.0) / quad.thrust_coefficient)
+            out.append((w + self._lag_ratio * (w_des - w)) / quad.motor_gain)
+        return out
+
+    def __call__(self, state, command) -> np.ndarray:
+        """Quadrotor `state` (17) and `command` [v_WB_desired (3), yaw] -> rotor speed commands (4)."""
+        x, c = _as_list(state), _as_list(command)
+        R = self.rotation(x[Q_WB])
+        f_W = self.thrust(x[V_WB], c[0:3])
+        z = self.thrust_direction(f_W)
+        R_desired = self.desired_rotation(self.lateral_axis(z, c[3]), z)
+        torque_B = self.torque(R, R_desired, x[W_WB_B])
+        return np.array(self.rotor_commands(f_W, R, torque_B, x[ROTOR_SPEEDS]))
+
+
+def rotor_speed_commands(state, command, quad: QuadrotorParams, config: FlightControllerConfig):
+    """The control law once: quadrotor `state` (17) and `command` [v_WB_desired (3), yaw] ->
+    rotor speed commands (4, rad/s). Works on floats and on pydrake.symbolic Expressions. Systems
+    keep a FlightLaw instead (its constants computed once)."""
+    return FlightLaw(quad, config)(state, command)
+
+
+def hover_command(quad: QuadrotorParams) -> np.ndarray:
+    """The rotor speed commands that hold hover (the controllers' output before their first sample)."""
+    return np.full(4, quad.hover_rotor_speed() / quad.motor_gain)
+
+
+class FlightController(LeafSystem):
+    """The Python backend: velocity and yaw controller for the seed 002 quadrotor.
+
+    Inputs `state` (17, the Quadrotor `state` output) and `command` (4: desired velocity of B in
+    W [m/s], desired yaw [rad]). Output `rotor_speed_commands` (4, rad/s).
+    `held`: sampled at `config.rate_hz` and held, starting at hover (for a continuous quadrotor).
+    Not held: the law at the current inputs, computed when pulled (for a quadrotor discretised per
+    controller period, which samples and holds it itself).
+    """
+
+    def __init__(self, quad: QuadrotorParams, config: FlightControllerConfig, held: bool = True):
+        super().__init__()
+        self.law = FlightLaw(quad, config)
         self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
         self._command = self.DeclareVectorInputPort("command", COMMAND_SIZE)
-        held = self.DeclareDiscreteState(np.full(4, quad.hover_rotor_speed() / quad.motor_gain))
-        self.DeclarePeriodicDiscreteUpdateEvent(1.0 / config.rate_hz, 0.0, self._update)
-        self.DeclareStateOutputPort("rotor_speed_commands", held)
+        if held:
+            held_state = self.DeclareDiscreteState(hover_command(quad))
+            self.DeclarePeriodicDiscreteUpdateEvent(1.0 / config.rate_hz, 0.0, self._update)
+            self.DeclareStateOutputPort("rotor_speed_commands", held_state)
+        else:
+            self.DeclareVectorOutputPort("rotor_speed_commands", 4, self._calc)
 
     def _update(self, context, discrete_state):
-        discrete_state.set_value(rotor_speed_commands(
-            self._state.Eval(context), self._command.Eval(context), self._quad, self._config))
+        discrete_state.set_value(self.law(self._state.Eval(context), self._command.Eval(context)))
+
+    def _calc(self, context, output):
+        output.SetFromVector(self.law(self._state.Eval(context), self._command.Eval(context)))
+
+    def initialize(self, root_context) -> None:
+        """Nothing to do (the held command starts at hover); for symmetry with SymbolicFlightController."""
+
+
+def _stage(inputs, outputs, dummy_state: bool) -> SymbolicVectorSystem:
+    """A stateless SymbolicVectorSystem y = f(u). Drake 1.58 aborts in DoCalcTimeDerivatives for a
+    SymbolicVectorSystem without continuous state inside a diagram with continuous state, so in such
+    a diagram (`dummy_state`) it carries one constant dummy state (derivative 0)."""
+    if not dummy_state:
+        return SymbolicVectorSystem(input=inputs, output=outputs)
+    unused = MakeVectorVariable(1, "unused")
+    return SymbolicVectorSystem(state=unused, dynamics=[0.0 * unused[0]], input=inputs, output=outputs)
+
+
+class _SymbolicChain:
+    """Wires stateless SymbolicVectorSystem stages into a DiagramBuilder by signal name: each stage
+    takes named signals (vector output ports), sees each as a vector of symbolic variables, and
+    adds its output as a new signal. Small stages with few inputs keep Drake's tree-walking
+    evaluation (which repeats shared subexpressions) and its variable look-ups cheap."""
+
+    def __init__(self, builder: DiagramBuilder, dummy_state: bool):
+        self._builder, self._dummy_state = builder, dummy_state
+        self.signals = {}  # name -> OutputPort
+
+    def split(self, port, names_sizes) -> None:
+        """Adds the pieces of a vector port as signals."""
+        demux = self._builder.AddNamedSystem(f"split_{'_'.join(n for n, _ in names_sizes)}",
+                                             Demultiplexer([size for _, size in names_sizes]))
+        self._builder.Connect(port, demux.get_input_port())
+        for i, (name, _) in enumerate(names_sizes):
+            self.signals[name] = demux.get_output_port(i)
+
+    def stage(self, name: str, inputs: list[str], function) -> SymbolicVectorSystem:
+        """Adds signal `name` = function(*input signals as variable vectors)."""
+        ports = [self.signals[n] for n in inputs]
+        variables = [MakeVectorVariable(p.size(), n) for n, p in zip(inputs, ports)]
+        output = np.asarray(function(*variables)).ravel()
+        system = self._builder.AddNamedSystem(name, _stage(np.concatenate(variables), output, self._dummy_state))
+        if len(ports) == 1:
+            self._builder.Connect(ports[0], system.get_input_port())
+        else:
+            mux = self._builder.AddNamedSystem(f"{name}_inputs", Multiplexer([p.size() for p in ports]))
+            for i, port in enumerate(ports):
+                self._builder.Connect(port, mux.get_input_port(i))
+            self._builder.Connect(mux.get_output_port(), system.get_input_port())
+        self.signals[name] = system.get_output_port()
+        return system
+
+
+class SymbolicFlightController(Diagram):
+    """The C++ backend: `FlightLaw` evaluated by SymbolicVectorSystems, with FlightController's
+    ports (inputs `state` (17) and `command` (4), output `rotor_speed_commands` (4)). The law as one
+    SymbolicVectorSystem is 95,000 characters per rotor and takes 0.7 ms to evaluate; as one
+    SymbolicVectorSystem per FlightLaw stage it takes ~10 us.
+
+    `held` (for a continuous quadrotor): the output is sampled and held at `config.rate_hz` from
+    the hover command on, exactly as FlightController does (call `initialize`). Not held: the law at
+    the current inputs, evaluated only when pulled. A second output `law` is always the unheld law.
+    """
+
+    def __init__(self, quad: QuadrotorParams, config: FlightControllerConfig, held: bool = True):
+        super().__init__()
+        self.law = law = FlightLaw(quad, config)
+        self._initial = hover_command(quad)
+        builder = DiagramBuilder()
+        chain = _SymbolicChain(builder, dummy_state=held)
+        state = builder.AddNamedSystem("state", Demultiplexer([STATE_SIZE]))  # named input ports
+        command = builder.AddNamedSystem("command", Demultiplexer([COMMAND_SIZE]))
+        builder.ExportInput(state.get_input_port(), "state")
+        builder.ExportInput(command.get_input_port(), "command")
+        assert (P_WB.stop, Q_WB.stop, V_WB.stop, W_WB_B.stop, ROTOR_SPEEDS.stop) == (3, 7, 10, 13, 17)
+        chain.split(state.get_output_port(0), [("p_WB", 3), ("q_WB", 4), ("v_WB", 3), ("w_WB_B", 3),
+                                              ("rotor_speeds", 4)])
+        chain.split(command.get_output_port(0), [("v_WB_desired", 3), ("yaw_desired", 1)])
+        # The stages of FlightLaw.__call__, in its order.
+        chain.stage("R_WB", ["q_WB"], law.rotation)
+        chain.stage("f_W", ["v_WB", "v_WB_desired"], law.thrust)
+        chain.stage("z_desired", ["f_W"], law.thrust_direction)
+        chain.stage("y_desired", ["z_desired", "yaw_desired"], lambda z, yaw: law.lateral_axis(z, yaw[0]))
+        chain.stage("R_WB_desired", ["y_desired", "z_desired"], law.desired_rotation)
+        chain.stage("torque_B", ["R_WB", "R_WB_desired", "w_WB_B"], law.torque)
+        output = chain.stage("law", ["f_W", "R_WB", "torque_B", "rotor_speeds"], law.rotor_commands).get_output_port()
+        self.hold = None
+        if held:
+            self.hold = builder.AddNamedSystem("hold", ZeroOrderHold(1.0 / config.rate_hz, 4))
+            builder.Connect(output, self.hold.get_input_port())
+            builder.ExportOutput(self.hold.get_output_port(), "rotor_speed_commands")
+        else:
+            builder.ExportOutput(output, "rotor_speed_commands")
+        builder.ExportOutput(output, "law")
+        builder.BuildInto(self)
+        self.set_name("flight_controller")
+
+    def initialize(self, root_context) -> None:
+        """Holds the hover command until the first sample, as FlightController does."""
+        if self.hold is not None:
+            self.hold.SetVectorState(self.hold.GetMyMutableContextFromRoot(root_context), self._initial)
+
+
+BACKENDS = ("symbolic", "python")
+
+
+def make_flight_controller(quad: QuadrotorParams, config: FlightControllerConfig, backend: str = "symbolic",
+                           held: bool = True):
+    """SymbolicFlightController ("symbolic", C++) or FlightController ("python"): the same law and ports."""
+    require(backend in BACKENDS, f"flight controller backend '{backend}' is not one of {', '.join(BACKENDS)}")
+    cls = SymbolicFlightController if backend == "symbolic" else FlightController
+    return cls(quad, config, held=held)
