@@ -65,7 +65,9 @@ from systems.control.landing import LandingConfig, LandingSupervisor, Mode
 from systems.control.pid import TrackingPid, TrackingPidConfig
 from systems.geometry import register_visual
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry
-from systems.vehicles.ground_vehicle import GroundVehicle, GroundVehicleConfig, PathFollowerConfig
+from systems.vehicles.ground_vehicle import (
+    GroundVehicle, GroundVehicleConfig, PathFollowerConfig, bicycle_state_derivative,
+)
 from systems.vehicles.paths import PATH_NAMES, PathConfig, make_path
 from systems.vehicles.quadrotor import P_WB, STATE_SIZE, Quadrotor, QuadrotorParams, hover_state
 
@@ -75,7 +77,8 @@ P_BP_B = slice(3, 6)  # the same, in the UAV body frame B [m]
 V_WP = slice(6, 9)  # velocity of the pad centre in W [m/s]
 HEIGHT = 9  # UAV above the pad's top surface [m]
 VALID = 10  # 1 when the pad is in view, else 0
-RELATIVE_STATE_SIZE = 11
+A_WP = slice(11, 14)  # acceleration of the pad centre in W [m/s^2]
+RELATIVE_STATE_SIZE = 14
 
 # Layout of the `state` output of the ground vehicle (systems/vehicles/ground_vehicle.py).
 GV_X, GV_Y, GV_HEADING, GV_STEERING = range(4)
@@ -314,15 +317,20 @@ class GvLandingConfig:
 
 
 def relative_state(quad_state, vehicle_state, speed: float, vehicle: VehicleConfig, platform: PlatformConfig,
-                   perception: PerceptionConfig) -> np.ndarray:
+                   perception: PerceptionConfig, speed_rate: float = 0.0, steering_rate: float = 0.0) -> np.ndarray:
     """The perception seam's vector (see RELATIVE_STATE_SIZE) from the true states: quadrotor
-    `state` (17), vehicle `state` [x, y, heading, steering] and vehicle speed (m/s). Plain float
+    `state` (17), vehicle `state` [x, y, heading, steering], vehicle speed (m/s), and for the pad's
+    acceleration the rates of the speed (m/s^2) and of the steering angle (rad/s). Plain float
     arithmetic: it runs at every supervisor sample."""
     x, y, heading, steering = vehicle_state[:4].tolist()
     px, py, pz, qw, qx, qy, qz = quad_state[:7].tolist()
     c, s = math.cos(heading), math.sin(heading)
-    r_x, r_y = c * platform.pad_offset_m, s * platform.pad_offset_m  # rear axle to pad centre, in W
-    yaw_rate = speed * math.tan(steering) / vehicle.wheelbase_m  # seed 002 Eq. (6)
+    r = platform.pad_offset_m  # rear axle to pad centre, along the heading
+    r_x, r_y = c * r, s * r
+    # Seed 002 Eq. (6): yaw rate w = v tan(steering) / d, and its rate.
+    tan_steering = math.tan(steering)
+    yaw_rate = speed * tan_steering / vehicle.wheelbase_m
+    yaw_accel = (speed_rate * tan_steering + speed * steering_rate * (1.0 + tan_steering**2)) / vehicle.wheelbase_m
     dx, dy, dz = x + r_x - px, y + r_y - py, platform.height_m - pz  # p_BP_W
     # p_BP_B = R_WB^T p_BP_W, R_WB from the (not necessarily unit) quaternion as rotation_from_quaternion.
     n = qw * qw + qx * qx + qy * qy + qz * qz
@@ -333,35 +341,50 @@ def relative_state(quad_state, vehicle_state, speed: float, vehicle: VehicleConf
     # In view: inside the cone about -z_B and in range (the pad centre stands for the pad).
     cos_angle = -bz / distance if distance > 0 else 1.0
     visible = distance <= perception.max_range_m and cos_angle >= math.cos(math.radians(perception.field_of_view_deg / 2))
-    values = [dx, dy, dz, bx, by, bz, speed * c - yaw_rate * r_y, speed * s + yaw_rate * r_x, 0.0, -dz]
+    # The pad at r along the heading h = (c, s), n = (-s, c): v_P = v h + r w n and
+    # a_P = (dv/dt - r w^2) h + (v w + r dw/dt) n.
+    along, across = speed_rate - r * yaw_rate**2, speed * yaw_rate + r * yaw_accel
+    values = [dx, dy, dz, bx, by, bz, speed * c - yaw_rate * r_y, speed * s + yaw_rate * r_x, 0.0, -dz, 0.0,
+              along * c - across * s, along * s + across * c, 0.0]
     finite = math.isfinite(sum(values))
-    return np.array(values + [1.0 if visible and finite else 0.0])
+    values[VALID] = 1.0 if visible and finite else 0.0
+    return np.array(values)
 
 
 class RelativeStateTruth(LeafSystem):
-    """Inputs `quadrotor_state` (17), `vehicle_state` (4), `vehicle_speed` (1); output
-    `relative_state` (RELATIVE_STATE_SIZE), computed from the truth when pulled."""
+    """Inputs `quadrotor_state` (17), `vehicle_state` (4), `vehicle_speed` (2: speed [m/s] and its
+    rate [m/s^2]), `vehicle_steering_command` (1, rad); output `relative_state`
+    (RELATIVE_STATE_SIZE), computed from the truth when pulled."""
 
     def __init__(self, vehicle: VehicleConfig, platform: PlatformConfig, perception: PerceptionConfig):
         super().__init__()
         self._configs = vehicle, platform, perception
+        self._ground_vehicle = vehicle.ground_vehicle_config()
         self._quad = self.DeclareVectorInputPort("quadrotor_state", STATE_SIZE)
         self._vehicle = self.DeclareVectorInputPort("vehicle_state", 4)
-        self._speed = self.DeclareVectorInputPort("vehicle_speed", 1)
+        self._speed = self.DeclareVectorInputPort("vehicle_speed", 2)
+        self._steering = self.DeclareVectorInputPort("vehicle_steering_command", 1)
         self.DeclareVectorOutputPort("relative_state", RELATIVE_STATE_SIZE, self._calc)
 
     def _calc(self, context, output):
-        output.SetFromVector(relative_state(self._quad.Eval(context), self._vehicle.Eval(context),
-                                            float(self._speed.Eval(context)[0]), *self._configs))
+        vehicle_state = self._vehicle.Eval(context)
+        speed, speed_rate = self._speed.Eval(context).tolist()
+        steering_rate = float(bicycle_state_derivative(vehicle_state, float(self._steering.Eval(context)[0]), speed,
+                                                       self._ground_vehicle)[GV_STEERING])
+        output.SetFromVector(relative_state(self._quad.Eval(context), vehicle_state, speed, *self._configs,
+                                            speed_rate=speed_rate, steering_rate=steering_rate))
 
 
 class PerfectPerception(Diagram):
     """The perception seam, with perfect perception behind it.
 
-    Inputs: `quadrotor_state` (17), `vehicle_state` (4), `vehicle_speed` (1) -- the truth.
+    Inputs -- the truth: `quadrotor_state` (17), `vehicle_state` (4), `vehicle_speed` (2: speed
+    [m/s] and its rate [m/s^2]), `vehicle_steering_command` (1, rad, for the steering rate).
     Outputs (what an estimator replacing this system must provide, in SI units, World W z up):
       `target_offset` (2): pad centre minus UAV, World x-y (the TrackingPid's error);
       `target_velocity` (2): the pad's velocity, World x-y;
+      `target_acceleration` (2): the pad's acceleration, World x-y (the rate of its velocity, for
+          the feed-forward; an estimator may give its velocity's rate);
       `height_above_target` (1): UAV above the pad's top surface;
       `target_valid` (1): 1 when the pad is seen;
       `p_BP_W` (3), `p_BP_B` (3): pad relative to the UAV in W and in the body frame B;
@@ -372,20 +395,17 @@ class PerfectPerception(Diagram):
         super().__init__()
         builder = DiagramBuilder()
         truth = builder.AddNamedSystem("truth", RelativeStateTruth(vehicle, platform, perception))
-        split = builder.AddNamedSystem("split", Demultiplexer([2, 1, 3, 2, 1, 1, 1]))  # see the names below
-        builder.Connect(truth.get_output_port(), split.get_input_port())
-        for name in ("quadrotor_state", "vehicle_state", "vehicle_speed"):
-            builder.ExportInput(truth.GetInputPort(name), name)
-        for index, name in ((0, "target_offset"), (5, "height_above_target"), (6, "target_valid")):
-            builder.ExportOutput(split.get_output_port(index), name)
-        velocity = builder.AddNamedSystem("velocity_xy", Demultiplexer([6, 2, 3]))
-        in_b = builder.AddNamedSystem("in_body", Demultiplexer([3, 3, 5]))
-        in_w = builder.AddNamedSystem("in_world", Demultiplexer([3, 8]))
-        for demux in (velocity, in_b, in_w):
+        # The layout of RELATIVE_STATE_SIZE, in pieces: see the names below.
+        split = builder.AddNamedSystem("split", Demultiplexer([2, 1, 3, 2, 1, 1, 1, 2, 1]))
+        in_w = builder.AddNamedSystem("in_world", Demultiplexer([3, RELATIVE_STATE_SIZE - 3]))
+        for demux in (split, in_w):
             builder.Connect(truth.get_output_port(), demux.get_input_port())
-        builder.ExportOutput(velocity.get_output_port(1), "target_velocity")
+        for name in ("quadrotor_state", "vehicle_state", "vehicle_speed", "vehicle_steering_command"):
+            builder.ExportInput(truth.GetInputPort(name), name)
+        for index, name in ((0, "target_offset"), (2, "p_BP_B"), (3, "target_velocity"), (5, "height_above_target"),
+                            (6, "target_valid"), (7, "target_acceleration")):
+            builder.ExportOutput(split.get_output_port(index), name)
         builder.ExportOutput(in_w.get_output_port(0), "p_BP_W")
-        builder.ExportOutput(in_b.get_output_port(1), "p_BP_B")
         builder.ExportOutput(truth.get_output_port(), "relative_state")
         builder.BuildInto(self)
         self.set_name("perception")
@@ -581,7 +601,7 @@ class GvLandingHandles:
     config: GvLandingConfig
     quadrotor: Quadrotor  # discretised per controller period with integration.discrete
     vehicle: GroundVehicle  # likewise
-    speed_source: object  # ConstantVectorSource or TrajectorySource of the vehicle speed (1)
+    speed_source: object  # ConstantVectorSource or TrajectorySource of the vehicle speed and its rate (2)
     perception: PerfectPerception  # the seam
     pid: TrackingPid
     supervisor: LandingSupervisor
@@ -618,9 +638,11 @@ def build_gv_landing(config: GvLandingConfig, meshcat: Meshcat | None = None) ->
     quad = builder.AddNamedSystem("quadrotor", Quadrotor(config.quadrotor, period, integration))
     vehicle = builder.AddNamedSystem("ground_vehicle", GroundVehicle(
         config.vehicle.ground_vehicle_config(), period, integration))
+    # The vehicle's speed and its rate: [v (m/s), dv/dt (m/s^2)].
     profile = config.vehicle.speed_profile()
-    speed = builder.AddNamedSystem("vehicle_speed", ConstantVectorSource([config.vehicle.speed]) if profile is None
-                                   else TrajectorySource(profile, 0, True))
+    speed = builder.AddNamedSystem("vehicle_speed", ConstantVectorSource([config.vehicle.speed, 0.0])
+                                   if profile is None else TrajectorySource(profile, 1, True))
+    speed_split = builder.AddNamedSystem("vehicle_speed_split", Demultiplexer([1, 1]))
     perception = builder.AddSystem(PerfectPerception(config.vehicle, config.platform, config.perception))
     pid = builder.AddNamedSystem("tracking_pid", TrackingPid(config.pid))
     supervisor = builder.AddNamedSystem("landing_supervisor", LandingSupervisor(config.landing))
@@ -631,18 +653,22 @@ def build_gv_landing(config: GvLandingConfig, meshcat: Meshcat | None = None) ->
     altitude = builder.AddNamedSystem("altitude", Demultiplexer([2, 1, STATE_SIZE - 3]))
 
     quad_state, vehicle_state = quad.GetOutputPort("state"), vehicle.GetOutputPort("state")
-    builder.Connect(speed.get_output_port(), vehicle.GetInputPort("speed"))
+    builder.Connect(speed.get_output_port(), speed_split.get_input_port())
+    builder.Connect(speed_split.get_output_port(0), vehicle.GetInputPort("speed"))
     builder.Connect(speed.get_output_port(), perception.GetInputPort("vehicle_speed"))
+    builder.Connect(vehicle.GetOutputPort("steering_command"), perception.GetInputPort("vehicle_steering_command"))
     builder.Connect(quad_state, perception.GetInputPort("quadrotor_state"))
     builder.Connect(vehicle_state, perception.GetInputPort("vehicle_state"))
     builder.Connect(quad_state, altitude.get_input_port())
     for name in ("target_offset", "target_velocity", "target_valid"):
         builder.Connect(perception.GetOutputPort(name), pid.GetInputPort(name))
         builder.Connect(perception.GetOutputPort(name), supervisor.GetInputPort(name))
+    builder.Connect(perception.GetOutputPort("target_acceleration"), pid.GetInputPort("target_acceleration"))
     builder.Connect(perception.GetOutputPort("height_above_target"), pid.GetInputPort("height"))
     builder.Connect(perception.GetOutputPort("height_above_target"), supervisor.GetInputPort("height_above_target"))
     builder.Connect(altitude.get_output_port(1), supervisor.GetInputPort("altitude"))
     builder.Connect(pid.GetOutputPort("velocity_command"), supervisor.GetInputPort("tracking_velocity"))
+    builder.Connect(pid.GetOutputPort("acceleration_command"), supervisor.GetInputPort("tracking_acceleration"))
     builder.Connect(supervisor.GetOutputPort("command"), controller.GetInputPort("command"))
     builder.Connect(quad_state, controller.GetInputPort("state"))
     builder.Connect(controller.GetOutputPort("rotor_speed_commands"), quad.GetInputPort("rotor_speed_commands"))

@@ -6,11 +6,12 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 from pydrake.symbolic import Evaluate, MakeVectorVariable
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ConstantVectorSource, VectorLogSink
+from pydrake.systems.primitives import ConstantVectorSource, TrajectorySource, VectorLogSink
+from pydrake.trajectories import PiecewisePolynomial
 
 from systems.control.flight_controller import (
-    FlightController, FlightControllerConfig, FlightLaw, SymbolicFlightController, make_flight_controller,
-    rotor_speed_commands,
+    COMMAND_SIZE, FlightController, FlightControllerConfig, FlightLaw, SymbolicFlightController, flight_command,
+    make_flight_controller, rotor_speed_commands,
 )
 from systems.vehicles.quadrotor import (
     P_WB, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state, pose_from_state,
@@ -25,12 +26,14 @@ CONFIG = FlightControllerConfig()
 
 
 def fly(command, state0, duration, log_period=0.01, backend="python"):
-    """Closed loop Quadrotor + flight controller (held at its rate) under a constant command.
+    """Closed loop Quadrotor + flight controller (held at its rate) under a constant command
+    ([v_WB_desired, yaw], no feed-forward) or a command trajectory (COMMAND_SIZE rows).
     Returns (sample times, states (17 x N), wall time)."""
     builder = DiagramBuilder()
     quad = builder.AddSystem(Quadrotor(QUAD))
     controller = builder.AddSystem(make_flight_controller(QUAD, CONFIG, backend))
-    source = builder.AddSystem(ConstantVectorSource(np.asarray(command, dtype=float)))
+    source = builder.AddSystem(TrajectorySource(command) if isinstance(command, PiecewisePolynomial)
+                               else ConstantVectorSource(flight_command(command[:3], command[3])))
     logger = builder.AddSystem(VectorLogSink(STATE_SIZE, log_period))
     builder.Connect(quad.GetOutputPort("state"), controller.GetInputPort("state"))
     builder.Connect(source.get_output_port(), controller.GetInputPort("command"))
@@ -80,12 +83,12 @@ def test_bad_config_is_rejected_by_name(field, value, message):
 
 def test_law_accepts_symbolic_expressions():
     x = MakeVectorVariable(STATE_SIZE, "x")
-    c = MakeVectorVariable(4, "c")
+    c = MakeVectorVariable(COMMAND_SIZE, "c")
     symbolic = rotor_speed_commands(x, c, QUAD, CONFIG)
     state = hover_state(QUAD, [0, 0, 3], yaw=0.2)
     state[V_WB] = [0.3, -0.2, 0.1]
     state[W_WB_B] = [0.05, -0.1, 0.2]
-    command = np.array([1.0, 0.5, 0.2, 0.3])
+    command = flight_command([1.0, 0.5, 0.2], 0.3, [0.4, -0.3, 0.2])
     env = dict(zip(x, state)) | dict(zip(c, command))
     np.testing.assert_allclose(Evaluate(symbolic, env).ravel(),
                                rotor_speed_commands(state, command, QUAD, CONFIG), rtol=1e-12)
@@ -99,7 +102,8 @@ def random_states_and_commands(count, seed=4):
         state[3:7] = RotationMatrix(RollPitchYaw(*rng.uniform(-0.5, 0.5, 3))).ToQuaternion().wxyz() * rng.uniform(0.9, 1.1)
         state[7:13] = rng.uniform(-2, 2, 6)
         state[13:17] = rng.uniform(300, 650, 4)
-        yield state, np.r_[rng.uniform(-8, 8, 2), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)]
+        yield state, flight_command(np.r_[rng.uniform(-8, 8, 2), rng.uniform(-2, 2)], rng.uniform(-np.pi, np.pi),
+                                    rng.uniform(-2, 2, 3))
 
 
 @pytest.mark.parametrize("held", [False, True])
@@ -126,6 +130,28 @@ def test_the_two_backends_fly_alike():
     _, python, _ = fly(command, state0, duration=3.0)
     _, symbolic, _ = fly(command, state0, duration=3.0, backend="symbolic")
     assert np.abs(python[P_WB] - symbolic[P_WB]).max() < 1e-6
+
+
+def test_acceleration_feed_forward_is_added_to_the_velocity_loop():
+    law = FlightLaw(QUAD, CONFIG)
+    v = [1.0, -0.5, 0.2]
+    f_W = law.thrust(v, v, [0.8, -0.4, 0.5])  # no velocity error: the feed-forward alone
+    np.testing.assert_allclose(f_W, QUAD.mass_kg * np.array([0.8, -0.4, QUAD.gravity_m_s2 + 0.5]), rtol=1e-14)
+
+
+@pytest.mark.parametrize("feed_forward", [True, False])
+def test_a_ramp_in_velocity_is_tracked_without_lag_with_its_acceleration_fed_forward(feed_forward):
+    # v_des = a t along x for 4 s: without the feed-forward the velocity lags by a / K_v.
+    a, times = 0.5, np.array([0.0, 4.0])
+    commands = np.array([flight_command([a * t, 0.0, 0.0], 0.0, [a if feed_forward else 0.0, 0.0, 0.0])
+                         for t in times]).T
+    t, states, _ = fly(PiecewisePolynomial.FirstOrderHold(times, commands), hover_state(QUAD, [0, 0, 5]), 4.0)
+    late = t >= 2.5
+    lag = a * t[late] - states[V_WB.start, late]
+    if feed_forward:
+        assert np.abs(lag).max() < 0.01
+    else:
+        np.testing.assert_allclose(lag, a / CONFIG.velocity_gain_xy, rtol=0.05)
 
 
 def test_hover_holds():

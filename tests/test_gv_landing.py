@@ -12,7 +12,7 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 
 from diagrams.cli import main
 from diagrams.gv_landing import (
-    HEIGHT, P_BP_B, P_BP_W, V_WP, VALID, GvLandingConfig, LandingMonitor, PerfectPerception, build_gv_landing,
+    A_WP, HEIGHT, P_BP_B, P_BP_W, V_WP, VALID, GvLandingConfig, LandingMonitor, PerfectPerception, build_gv_landing,
     marker_layout, pad_marker_image,
 )
 from diagrams.gv_landing_run import FAILURE_REASONS, fly, simulate_flight
@@ -85,10 +85,12 @@ def test_perception_seam_gives_the_true_relative_state():
     config = GvLandingConfig()
     perception = PerfectPerception(config.vehicle, config.platform, config.perception)
     context = perception.CreateDefaultContext()
-    # Vehicle at (10, 0) heading +y, steering 0.1 rad, 2 m/s; the pad is 1.75 m ahead of the rear axle.
+    # Vehicle at (10, 0) heading +y, steering 0.1 rad (and commanded there: no steering rate),
+    # 2 m/s at constant speed; the pad is 1.75 m ahead of the rear axle.
     steering, speed = 0.1, 2.0
     perception.GetInputPort("vehicle_state").FixValue(context, [10.0, 0.0, np.pi / 2, steering])
-    perception.GetInputPort("vehicle_speed").FixValue(context, [speed])
+    perception.GetInputPort("vehicle_speed").FixValue(context, [speed, 0.0])
+    perception.GetInputPort("vehicle_steering_command").FixValue(context, [steering])
     quad = perception.GetInputPort("quadrotor_state")
     quad.FixValue(context, hover_state(config.quadrotor, [11.0, 2.0, 5.0], yaw=np.pi / 2))
     p_WP = np.array([10.0, 1.75, 1.6])
@@ -100,14 +102,37 @@ def test_perception_seam_gives_the_true_relative_state():
     # The pad turns about the rear axle at v tan(steering) / d: its velocity gains -w * 1.75 along x.
     yaw_rate = speed * np.tan(steering) / config.vehicle.wheelbase_m
     np.testing.assert_allclose(out("target_velocity"), [-yaw_rate * 1.75, speed], atol=1e-12)
+    # On a circle about the turn centre (d / tan(steering) left of the rear axle), the pad's
+    # acceleration is centripetal: |v_P|^2 / radius, towards the centre.
+    centre = np.array([10.0 - config.vehicle.wheelbase_m / np.tan(steering), 0.0])
+    to_centre = centre - p_WP[:2]
+    v_P = np.hypot(speed, yaw_rate * 1.75)
+    np.testing.assert_allclose(out("target_acceleration"), v_P**2 / np.linalg.norm(to_centre)**2 * to_centre,
+                               atol=1e-12)
     assert out("target_valid")[0] == 1.0
     relative = out("relative_state")
     np.testing.assert_allclose(relative[P_BP_W], out("p_BP_W"))
     np.testing.assert_allclose(relative[P_BP_B], out("p_BP_B"))
-    assert relative[HEIGHT] == pytest.approx(3.4) and relative[V_WP][2] == 0.0
+    assert relative[HEIGHT] == pytest.approx(3.4) and relative[V_WP][2] == 0.0 and relative[A_WP][2] == 0.0
+    np.testing.assert_allclose(relative[A_WP][:2], out("target_acceleration"))
     # Rolled 80 deg, the camera cone (150 deg) no longer holds the pad: not valid.
     quad.FixValue(context, quadrotor_state(p_WB=[11.0, 2.0, 5.0], R_WB=RotationMatrix(RollPitchYaw(1.4, 0, 0))))
     assert out("target_valid")[0] == 0.0 and relative[VALID] == 1.0
+
+
+def test_the_pads_acceleration_is_the_rate_of_its_velocity():
+    # Along an S with the speed scheduled up and down: the seam's acceleration against the
+    # central difference of its velocity at 50 Hz (they differ only where the speed's rate jumps).
+    _, scenario = load_scenario("gv-landing", overrides=[
+        "vehicle.path=s-shape", "vehicle.path_lead_m=2", "vehicle.speed_schedule_times_s=[0, 5, 10]",
+        "vehicle.speed_schedule_m_s=[0, 3, 2]", "termination.stop_on_landed=false"])
+    diagram, handles = build_gv_landing(scenario)
+    flight = simulate_flight(diagram, handles, 20.0)
+    t, relative = flight.log["t"], flight.log["relative_state"]
+    acceleration = relative[:, A_WP]
+    difference = np.abs(np.gradient(relative[:, V_WP], t, axis=0) - acceleration)
+    assert np.abs(acceleration[:, :2]).max() > 0.5 and not acceleration[:, 2].any()
+    assert np.percentile(difference, 95) < 2e-3 and np.median(difference) < 1e-4
 
 
 def _positions(overrides, duration_s):
@@ -145,7 +170,7 @@ def test_monitor_names_each_way_a_run_ends():
     monitor = LandingMonitor(config)
     quad = hover_state(config.quadrotor, [20.0, 0.0, 5.0])
     vehicle = np.array([0.0, 0.0, 0.0, 0.0])
-    relative = np.zeros(11)
+    relative = np.zeros(14)
 
     def check(quad=quad, mode=Mode.FOLLOW, last_seen=1.0, t=1.0, seen_ever=True):
         return monitor.check(t, quad, vehicle, relative, mode, last_seen, seen_ever)

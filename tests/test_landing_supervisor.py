@@ -9,6 +9,7 @@ from systems.control.landing import (
 
 CONFIG = LandingConfig()
 TRACKING = np.array([0.9, -0.3])  # what the PID asks for
+TRACKING_ACCELERATION = np.array([0.05, 0.12])  # and its acceleration feed-forward
 TARGET_VELOCITY = np.array([0.6, -0.2])
 
 
@@ -25,10 +26,15 @@ class Script:
             time_s=self.time, altitude_m=altitude,
             height_above_target_m=altitude if height is None else height, target_valid=seen,
             target_offset_m=np.asarray(offset, dtype=float), target_velocity_m_s=TARGET_VELOCITY,
-            tracking_velocity_m_s=TRACKING)
+            tracking_velocity_m_s=TRACKING, tracking_acceleration_m_s2=TRACKING_ACCELERATION)
         self.time += 0.02
-        command = self.machine.step(inputs)
-        return self.machine.mode, command[:2], command[2]
+        self.command = self.machine.step(inputs)
+        return self.machine.mode, self.command[:2], self.command[2]
+
+    @property
+    def acceleration(self):
+        """The acceleration feed-forward of the last command."""
+        return self.command[4:7]
 
 
 def test_nominal_landing_sequence():
@@ -39,9 +45,11 @@ def test_nominal_landing_sequence():
     mode, horizontal, vz = script.step(altitude=1.0, seen=False)
     assert mode == Mode.CLIMB and vz == CONFIG.climb_speed_m_s and not horizontal.any()
 
+    assert not script.acceleration.any()
     mode, horizontal, vz = script.step(altitude=5.0, offset=(4.0, 0.0))
     assert mode == Mode.CLIMB and vz == CONFIG.climb_speed_m_s  # tracks while it climbs
     np.testing.assert_allclose(horizontal, TRACKING)
+    np.testing.assert_allclose(script.acceleration, [*TRACKING_ACCELERATION, 0.0])
 
     mode, horizontal, vz = script.step(altitude=7.4, offset=(4.0, 0.0))
     assert mode == Mode.FOLLOW and vz == pytest.approx(0.1)  # holds IH, not 7.4 m
@@ -62,11 +70,14 @@ def test_nominal_landing_sequence():
     mode, horizontal, vz = script.step(altitude=3.0, offset=(0.1, 0.0), height=1.4)
     assert mode == Mode.LAND and vz == -CONFIG.landing_speed_m_s
     np.testing.assert_allclose(horizontal, TRACKING)
+    np.testing.assert_allclose(script.acceleration, [*TRACKING_ACCELERATION, 0.0])
 
-    # Below LH the target floods the view: the landing goes on, coasting with its last velocity.
+    # Below LH the target floods the view: the landing goes on, coasting with its last velocity
+    # (and no acceleration feed-forward).
     mode, horizontal, vz = script.step(altitude=2.5, seen=False, height=0.8)
     assert mode == Mode.LAND and vz == -CONFIG.landing_speed_m_s
     np.testing.assert_allclose(horizontal, TARGET_VELOCITY)
+    assert not script.acceleration.any()
 
     mode, horizontal, vz = script.step(altitude=1.7, seen=False, height=0.05)
     assert mode == Mode.LANDED and vz == 0.0
@@ -84,6 +95,7 @@ def test_target_lost_holds_then_climbs_to_search_then_resumes():
     mode, horizontal, vz = script.step(altitude=4.0, seen=False)
     assert mode == Mode.HOLD and vz == 0.0
     np.testing.assert_allclose(horizontal, TARGET_VELOCITY)  # coasts after the target
+    assert not script.acceleration.any()
     mode, _, vz = script.step(altitude=4.2, seen=False)
     assert mode == Mode.HOLD and vz == 0.0  # above the held 4.0 m, but no blind descent
 
@@ -133,14 +145,14 @@ def test_system_wraps_the_state_machine():
     context = simulator.get_mutable_context()
     for name, value in (("altitude", [0.0]), ("height_above_target", [0.0]), ("target_valid", [0.0]),
                         ("target_offset", [0.0, 0.0]), ("target_velocity", TARGET_VELOCITY),
-                        ("tracking_velocity", TRACKING)):
+                        ("tracking_velocity", TRACKING), ("tracking_acceleration", TRACKING_ACCELERATION)):
         system.GetInputPort(name).FixValue(context, value)
     command, mode = system.GetOutputPort("command"), system.GetOutputPort("mode")
     assert mode.Eval(context)[0] == Mode.TAKEOFF
-    np.testing.assert_allclose(command.Eval(context), [0, 0, 0, 0])
+    np.testing.assert_allclose(command.Eval(context), np.zeros(7))
 
     simulator.AdvanceTo(0.01)  # the sample at t = 0
-    np.testing.assert_allclose(command.Eval(context), [0, 0, CONFIG.climb_speed_m_s, 0])
+    np.testing.assert_allclose(command.Eval(context), [0, 0, CONFIG.climb_speed_m_s, 0, 0, 0, 0])
 
     system.GetInputPort("altitude").FixValue(context, [7.5])
     simulator.AdvanceTo(0.05)  # two samples: TAKEOFF -> CLIMB -> SEARCH (target not seen)
@@ -148,4 +160,4 @@ def test_system_wraps_the_state_machine():
     system.GetInputPort("target_valid").FixValue(context, [1.0])
     simulator.AdvanceTo(0.07)
     assert mode.Eval(context)[0] == Mode.FOLLOW
-    np.testing.assert_allclose(command.Eval(context), [*TRACKING, 0.0, 0.0])
+    np.testing.assert_allclose(command.Eval(context), [*TRACKING, 0.0, 0.0, *TRACKING_ACCELERATION, 0.0])

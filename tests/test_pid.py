@@ -77,3 +77,24 @@ def test_system_matches_pure_pid_at_its_rate_and_restarts_on_loss():
     ports["target_offset"].FixValue(context, [1.0, 1.0])
     simulator.AdvanceTo(4 * period + period / 2)
     np.testing.assert_allclose(output.Eval(context), [0.4 + 0.8, 0.1 + 0.8])  # no derivative kick
+
+
+@pytest.mark.parametrize("latest, acceleration", [(True, True), (False, False)])
+def test_feed_forwards_between_samples(latest, acceleration):
+    # Ours beyond Eq. (24)-(27): the latest target velocity and the target's acceleration (on), or
+    # the velocity of the last sample and no acceleration (off: the paper's loop alone).
+    config = TrackingPidConfig(latest_feed_forward=latest, acceleration_feed_forward=acceleration)
+    system = TrackingPid(config)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    for name, value in (("target_offset", [1.0, 0.0]), ("target_velocity", [0.4, 0.1]),
+                        ("target_acceleration", [0.05, -0.02]), ("height", [6.0]), ("target_valid", [1.0])):
+        system.GetInputPort(name).FixValue(context, value)
+    velocity, accel = system.GetOutputPort("velocity_command"), system.GetOutputPort("acceleration_command")
+    simulator.AdvanceTo(0.1)  # the sample at t = 0: v_ctrl = Kp e = 0.8 along x
+    np.testing.assert_allclose(velocity.Eval(context), [0.4 + 0.8, 0.1])
+    np.testing.assert_allclose(accel.Eval(context), [0.05, -0.02] if acceleration else [0.0, 0.0])
+    system.GetInputPort("target_velocity").FixValue(context, [0.5, 0.2])  # between samples
+    np.testing.assert_allclose(velocity.Eval(context), [0.5 + 0.8, 0.2] if latest else [0.4 + 0.8, 0.1])
+    system.GetInputPort("target_valid").FixValue(context, [0.0])
+    np.testing.assert_allclose(accel.Eval(context), [0.0, 0.0])  # no feed-forward of an unseen target

@@ -1,9 +1,11 @@
-"""Cascaded flight controller: desired World velocity and yaw -> rotor speed commands.
+"""Cascaded flight controller: desired World velocity, yaw and acceleration feed-forward -> rotor
+speed commands.
 
 Three loops, tuned for the seed 002 Table 1 airframe (systems/vehicles/quadrotor.py):
-1. velocity: a_des = K_v (v_des - v_WB), limited in climb/sink and in tilt, plus gravity, gives
-   the desired thrust vector; its direction and the desired yaw give R_WB_des, its projection on
-   the current body z axis gives the collective thrust;
+1. velocity: a_des = a_ff + K_v (v_des - v_WB), limited in climb/sink and in tilt, plus gravity,
+   gives the desired thrust vector; its direction and the desired yaw give R_WB_des, its projection
+   on the current body z axis gives the collective thrust. a_ff is the acceleration the velocity
+   setpoint itself has (a curving target's): without it the loop lags the setpoint by a_ff / K_v;
 2. attitude on SO(3) (Lee, Leok & McClamroch 2010): T_B = J (-k_R e_R - k_w w_B) + w_B x J w_B;
 3. rotors: Eq. (8) inverted gives the rotor thrusts and speeds w_des, and the command
    w_cmd = (w + (tau_m / tau_a) (w_des - w)) / k_m makes the first-order motor lag of Eq. (7)
@@ -37,7 +39,13 @@ from systems.vehicles.quadrotor import (
     P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, QuadrotorParams, mixer_matrix, rotation_from_quaternion,
 )
 
-COMMAND_SIZE = 4  # [v_WB_desired (3, m/s, in W), yaw_desired (rad)]
+# The `command` input: [v_WB_desired (3, m/s, in W), yaw_desired (rad), a_WB_feed_forward (3, m/s^2, in W)].
+COMMAND_SIZE = 7
+
+
+def flight_command(v_WB_desired, yaw: float = 0.0, a_WB_feed_forward=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Packs a `command` vector."""
+    return np.array([*v_WB_desired, yaw, *a_WB_feed_forward], dtype=float)
 
 
 @dataclass
@@ -113,13 +121,13 @@ class FlightLaw:
         """R_WB (9, row-major) from the quaternion of the state (rotation_from_quaternion)."""
         return rotation_from_quaternion(_as_list(q_WB)).ravel().tolist()
 
-    def thrust(self, v_WB, v_WB_desired) -> list:
+    def thrust(self, v_WB, v_WB_desired, a_WB_feed_forward) -> list:
         """Velocity loop: the thrust vector f_W [N] that gives the limited desired acceleration."""
         quad, config = self.quad, self.config
-        g, a_max = quad.gravity_m_s2, config.max_vertical_accel_m_s2
-        a_z = dmath.min(dmath.max(config.velocity_gain_z * (v_WB_desired[2] - v_WB[2]), -a_max), a_max)
-        a_x = config.velocity_gain_xy * (v_WB_desired[0] - v_WB[0])
-        a_y = config.velocity_gain_xy * (v_WB_desired[1] - v_WB[1])
+        g, a_max, a_ff = quad.gravity_m_s2, config.max_vertical_accel_m_s2, a_WB_feed_forward
+        a_z = dmath.min(dmath.max(a_ff[2] + config.velocity_gain_z * (v_WB_desired[2] - v_WB[2]), -a_max), a_max)
+        a_x = a_ff[0] + config.velocity_gain_xy * (v_WB_desired[0] - v_WB[0])
+        a_y = a_ff[1] + config.velocity_gain_xy * (v_WB_desired[1] - v_WB[1])
         a_xy_max = (g + a_z) * self._tan_tilt
         scale = quad.mass_kg * a_xy_max / dmath.max(dmath.sqrt(a_x * a_x + a_y * a_y), a_xy_max)
         return [scale * a_x, scale * a_y, quad.mass_kg * (g + a_z)]
@@ -165,10 +173,11 @@ class FlightLaw:
         return out
 
     def __call__(self, state, command) -> np.ndarray:
-        """Quadrotor `state` (17) and `command` [v_WB_desired (3), yaw] -> rotor speed commands (4)."""
+        """Quadrotor `state` (17) and `command` (COMMAND_SIZE; the first 4 alone: no feed-forward)
+        -> rotor speed commands (4)."""
         x, c = _as_list(state), _as_list(command)
         R = self.rotation(x[Q_WB])
-        f_W = self.thrust(x[V_WB], c[0:3])
+        f_W = self.thrust(x[V_WB], c[0:3], c[4:7] if len(c) > 4 else (0.0, 0.0, 0.0))
         z = self.thrust_direction(f_W)
         R_desired = self.desired_rotation(self.lateral_axis(z, c[3]), z)
         torque_B = self.torque(R, R_desired, x[W_WB_B])
@@ -176,8 +185,8 @@ class FlightLaw:
 
 
 def rotor_speed_commands(state, command, quad: QuadrotorParams, config: FlightControllerConfig):
-    """The control law once: quadrotor `state` (17) and `command` [v_WB_desired (3), yaw] ->
-    rotor speed commands (4, rad/s). Works on floats and on pydrake.symbolic Expressions. Systems
+    """The control law once: quadrotor `state` (17) and `command` (see COMMAND_SIZE) -> rotor speed
+    commands (4, rad/s). Works on floats and on pydrake.symbolic Expressions. Systems
     keep a FlightLaw instead (its constants computed once)."""
     return FlightLaw(quad, config)(state, command)
 
@@ -190,8 +199,9 @@ def hover_command(quad: QuadrotorParams) -> np.ndarray:
 class FlightController(LeafSystem):
     """The Python backend: velocity and yaw controller for the seed 002 quadrotor.
 
-    Inputs `state` (17, the Quadrotor `state` output) and `command` (4: desired velocity of B in
-    W [m/s], desired yaw [rad]). Output `rotor_speed_commands` (4, rad/s).
+    Inputs `state` (17, the Quadrotor `state` output) and `command` (7: desired velocity of B in
+    W [m/s], desired yaw [rad], acceleration feed-forward in W [m/s^2]; see flight_command).
+    Output `rotor_speed_commands` (4, rad/s).
     `held`: sampled at `config.rate_hz` and held, starting at hover (for a continuous quadrotor).
     Not held: the law at the current inputs, computed when pulled (for a quadrotor discretised per
     controller period, which samples and holds it itself).
@@ -266,7 +276,7 @@ class _SymbolicChain:
 
 class SymbolicFlightController(Diagram):
     """The C++ backend: `FlightLaw` evaluated by SymbolicVectorSystems, with FlightController's
-    ports (inputs `state` (17) and `command` (4), output `rotor_speed_commands` (4)). The law as one
+    ports (inputs `state` (17) and `command` (7), output `rotor_speed_commands` (4)). The law as one
     SymbolicVectorSystem is 95,000 characters per rotor and takes 0.7 ms to evaluate; as one
     SymbolicVectorSystem per FlightLaw stage it takes ~10 us.
 
@@ -288,10 +298,10 @@ class SymbolicFlightController(Diagram):
         assert (P_WB.stop, Q_WB.stop, V_WB.stop, W_WB_B.stop, ROTOR_SPEEDS.stop) == (3, 7, 10, 13, 17)
         chain.split(state.get_output_port(0), [("p_WB", 3), ("q_WB", 4), ("v_WB", 3), ("w_WB_B", 3),
                                               ("rotor_speeds", 4)])
-        chain.split(command.get_output_port(0), [("v_WB_desired", 3), ("yaw_desired", 1)])
+        chain.split(command.get_output_port(0), [("v_WB_desired", 3), ("yaw_desired", 1), ("a_WB_feed_forward", 3)])
         # The stages of FlightLaw.__call__, in its order.
         chain.stage("R_WB", ["q_WB"], law.rotation)
-        chain.stage("f_W", ["v_WB", "v_WB_desired"], law.thrust)
+        chain.stage("f_W", ["v_WB", "v_WB_desired", "a_WB_feed_forward"], law.thrust)
         chain.stage("z_desired", ["f_W"], law.thrust_direction)
         chain.stage("y_desired", ["z_desired", "yaw_desired"], lambda z, yaw: law.lateral_axis(z, yaw[0]))
         chain.stage("R_WB_desired", ["y_desired", "z_desired"], law.desired_rotation)

@@ -21,11 +21,12 @@ Modes and what they command (velocities in World, z up; "hold" is a P loop on al
 One transition per step; the command is that of the mode after the transition.
 """
 
-from dataclasses import dataclass, field, replace
+import math
+from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
-from pydrake.common.value import Value
 from pydrake.systems.framework import LeafSystem
 
 from systems.config import require, require_positive
@@ -79,7 +80,7 @@ class LandingConfig:
 
 @dataclass
 class SupervisorInputs:
-    """What the supervisor sees at one step. Positions and velocities are World x-y."""
+    """What the supervisor sees at one step. Positions, velocities and accelerations are World x-y."""
 
     time_s: float
     altitude_m: float  # UAV above the ground
@@ -88,10 +89,10 @@ class SupervisorInputs:
     target_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(2))  # target - UAV
     target_velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(2))
     tracking_velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(2))  # PID, Eq. 26-27
+    tracking_acceleration_m_s2: np.ndarray = field(default_factory=lambda: np.zeros(2))  # PID's feed-forward
 
 
-@dataclass(frozen=True)
-class SupervisorMemory:
+class SupervisorMemory(NamedTuple):
     mode: Mode = Mode.TAKEOFF
     mode_since_s: float = 0.0
     altitude_hold_m: float = 0.0
@@ -100,7 +101,7 @@ class SupervisorMemory:
 
 def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: LandingConfig) -> Mode:
     mode, seen = memory.mode, inputs.target_valid
-    offset = np.linalg.norm(inputs.target_offset_m)
+    offset = math.hypot(inputs.target_offset_m[0], inputs.target_offset_m[1])
     if mode == Mode.TAKEOFF and inputs.altitude_m >= config.takeoff_height_m:
         return Mode.CLIMB
     if mode == Mode.CLIMB and abs(inputs.altitude_m - config.initial_height_m) <= config.altitude_tolerance_m:
@@ -122,39 +123,57 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
     return mode
 
 
+_ZERO = (0.0, 0.0)
+
+
 def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: LandingConfig) -> np.ndarray:
-    """[v_WB_desired (3, m/s), yaw (rad)] for memory.mode."""
+    """The FlightController command for memory.mode: [v_WB_desired (3, m/s), yaw (rad),
+    a_WB_feed_forward (3, m/s^2)]. The acceleration feed-forward is the tracking PID's while it
+    tracks a seen target, else zero (coasting keeps the last target velocity, not its acceleration)."""
     mode, seen = memory.mode, inputs.target_valid
-    coast = np.asarray(memory.last_target_velocity_m_s)
-    tracking = np.asarray(inputs.tracking_velocity_m_s) if seen else coast
+    coast = memory.last_target_velocity_m_s
+    if seen:
+        tracking, acceleration = inputs.tracking_velocity_m_s, inputs.tracking_acceleration_m_s2
+    else:
+        tracking, acceleration = coast, _ZERO
 
     def towards(altitude):
         rate = config.altitude_gain * (altitude - inputs.altitude_m)
-        return float(np.clip(rate, -config.descent_speed_m_s, config.climb_speed_m_s))
+        return min(max(rate, -config.descent_speed_m_s), config.climb_speed_m_s)
 
-    horizontal, vertical = {
-        Mode.TAKEOFF: (np.zeros(2), config.climb_speed_m_s),
-        Mode.CLIMB: (tracking if seen else np.zeros(2), towards(config.initial_height_m)),
-        Mode.FOLLOW: (tracking, towards(memory.altitude_hold_m)),
-        Mode.APPROACH: (tracking, -config.descent_speed_m_s),
-        Mode.LAND: (tracking, -config.landing_speed_m_s),
-        Mode.LANDED: (coast, 0.0),
-        Mode.HOLD: (coast, towards(memory.altitude_hold_m)),
-        Mode.SEARCH: (np.zeros(2), towards(config.initial_height_m)),
-    }[mode]
+    if mode == Mode.TAKEOFF:
+        horizontal, acceleration, vertical = _ZERO, _ZERO, config.climb_speed_m_s
+    elif mode == Mode.CLIMB:
+        if not seen:
+            tracking = _ZERO
+        horizontal, vertical = tracking, towards(config.initial_height_m)
+    elif mode == Mode.FOLLOW:
+        horizontal, vertical = tracking, towards(memory.altitude_hold_m)
+    elif mode == Mode.APPROACH:
+        horizontal, vertical = tracking, -config.descent_speed_m_s
+    elif mode == Mode.LAND:
+        horizontal, vertical = tracking, -config.landing_speed_m_s
+    elif mode == Mode.LANDED:
+        horizontal, acceleration, vertical = coast, _ZERO, 0.0
+    elif mode == Mode.HOLD:
+        horizontal, acceleration, vertical = coast, _ZERO, towards(memory.altitude_hold_m)
+    else:  # SEARCH
+        horizontal, acceleration, vertical = _ZERO, _ZERO, towards(config.initial_height_m)
     if not seen and mode not in (Mode.LAND, Mode.LANDED):
         vertical = max(vertical, 0.0)  # never descend blind
-    return np.array([*horizontal, vertical, np.radians(config.yaw_deg)])
+    return np.array([horizontal[0], horizontal[1], vertical, math.radians(config.yaw_deg),
+                     acceleration[0], acceleration[1], 0.0], dtype=float)
 
 
 def supervisor_step(memory: SupervisorMemory, inputs: SupervisorInputs, config: LandingConfig):
-    """One step: (new memory, command [v_WB_desired (3), yaw])."""
+    """One step: (new memory, command [v_WB_desired (3), yaw, a_WB_feed_forward (3)])."""
     if inputs.target_valid:
-        memory = replace(memory, last_target_velocity_m_s=tuple(inputs.target_velocity_m_s))
+        velocity = inputs.target_velocity_m_s
+        memory = memory._replace(last_target_velocity_m_s=(float(velocity[0]), float(velocity[1])))
     mode = next_mode(memory, inputs, config)
     if mode != memory.mode:
         hold = config.initial_height_m if memory.mode == Mode.CLIMB else inputs.altitude_m
-        memory = replace(memory, mode=mode, mode_since_s=inputs.time_s, altitude_hold_m=hold)
+        memory = memory._replace(mode=mode, mode_since_s=inputs.time_s, altitude_hold_m=hold)
     return memory, mode_command(memory, inputs, config)
 
 
@@ -171,7 +190,8 @@ class LandingStateMachine:
         return self.memory.mode
 
     def step(self, inputs: SupervisorInputs) -> np.ndarray:
-        """[v_WB_desired (3, m/s, World), yaw (rad)]: the FlightController `command`."""
+        """[v_WB_desired (3, m/s, World), yaw (rad), a_WB_feed_forward (3, m/s^2)]: the
+        FlightController `command`."""
         self.memory, command = supervisor_step(self.memory, inputs, self.config)
         return command
 
@@ -181,38 +201,42 @@ class LandingSupervisor(LeafSystem):
 
     Inputs (World x-y where 2-vectors): `altitude` (1, m), `height_above_target` (1, m),
     `target_valid` (1, nonzero when seen), `target_offset` (2, target - UAV, m),
-    `target_velocity` (2, m/s), `tracking_velocity` (2, m/s, the TrackingPid output).
-    Outputs: `command` (4, for the FlightController) and `mode` (1, a Mode value), held between
-    samples; `command` starts at zero velocity.
+    `target_velocity` (2, m/s), `tracking_velocity` (2, m/s) and `tracking_acceleration` (2, m/s^2),
+    the TrackingPid outputs.
+    Outputs: `command` (7, for the FlightController) and `mode` (1, a Mode value), held between
+    samples; `command` starts at zero velocity. The memory is discrete state (a vector, so Drake
+    copies it without Python).
     """
 
     def __init__(self, config: LandingConfig):
         super().__init__()
         config.validate()
         self._config = config
-        self._inputs = {name: self.DeclareVectorInputPort(name, size) for name, size in (
-            ("altitude", 1), ("height_above_target", 1), ("target_valid", 1),
-            ("target_offset", 2), ("target_velocity", 2), ("tracking_velocity", 2))}
-        self._memory = self.DeclareAbstractState(Value(SupervisorMemory()))
-        self._command = self.DeclareDiscreteState(np.array([0, 0, 0, np.radians(config.yaw_deg)]))
-        self.DeclarePeriodicUnrestrictedUpdateEvent(1.0 / config.rate_hz, 0.0, self._update)
+        ports = [self.DeclareVectorInputPort(name, size) for name, size in (
+            ("altitude", 1), ("height_above_target", 1), ("target_valid", 1), ("target_offset", 2),
+            ("target_velocity", 2), ("tracking_velocity", 2), ("tracking_acceleration", 2))]
+        (self._altitude, self._height, self._valid, self._offset, self._target_velocity, self._tracking_velocity,
+         self._tracking_acceleration) = ports
+        # [mode_since_s, altitude_hold_m, last target velocity (2)]; the mode is its own group (an output).
+        self._memory = self.DeclareDiscreteState(4)
+        self._mode = self.DeclareDiscreteState([float(Mode.TAKEOFF)])
+        self._command = self.DeclareDiscreteState(np.array([0, 0, 0, np.radians(config.yaw_deg), 0, 0, 0]))
+        self.DeclarePeriodicDiscreteUpdateEvent(1.0 / config.rate_hz, 0.0, self._update)
         self.DeclareStateOutputPort("command", self._command)
-        self.DeclareVectorOutputPort("mode", 1, self._calc_mode)
+        self.DeclareStateOutputPort("mode", self._mode)
 
     def _read_inputs(self, context) -> SupervisorInputs:
-        value = {name: port.Eval(context) for name, port in self._inputs.items()}
         return SupervisorInputs(
-            time_s=context.get_time(), altitude_m=value["altitude"][0],
-            height_above_target_m=value["height_above_target"][0],
-            target_valid=bool(value["target_valid"][0]), target_offset_m=value["target_offset"],
-            target_velocity_m_s=value["target_velocity"],
-            tracking_velocity_m_s=value["tracking_velocity"])
+            context.get_time(), float(self._altitude.Eval(context)[0]), float(self._height.Eval(context)[0]),
+            bool(self._valid.Eval(context)[0]), self._offset.Eval(context), self._target_velocity.Eval(context),
+            self._tracking_velocity.Eval(context), self._tracking_acceleration.Eval(context))
 
-    def _update(self, context, state):
-        memory = context.get_abstract_state(self._memory).get_value()
-        memory, command = supervisor_step(memory, self._read_inputs(context), self._config)
-        state.get_mutable_abstract_state(self._memory).set_value(memory)
-        state.get_mutable_discrete_state(self._command).SetFromVector(command)
-
-    def _calc_mode(self, context, output):
-        output.SetFromVector([context.get_abstract_state(self._memory).get_value().mode])
+    def _update(self, context, discrete_state):
+        since, hold, vx, vy = context.get_discrete_state(self._memory).get_value().tolist()
+        mode = Mode(int(context.get_discrete_state(self._mode).get_value()[0]))
+        memory, command = supervisor_step(SupervisorMemory(mode, since, hold, (vx, vy)),
+                                          self._read_inputs(context), self._config)
+        discrete_state.set_value(self._memory, [memory.mode_since_s, memory.altitude_hold_m,
+                                                *memory.last_target_velocity_m_s])
+        discrete_state.set_value(self._mode, [float(memory.mode)])
+        discrete_state.set_value(self._command, command)
