@@ -226,10 +226,13 @@ class LandingSupervisor(LeafSystem):
         self.DeclareStateOutputPort("mode", self._mode)
 
     def _read_inputs(self, context) -> SupervisorInputs:
+        def scalar(port):  # without the copy that Eval makes
+            return port.EvalBasicVector(context).GetAtIndex(0)
+
         return SupervisorInputs(
-            context.get_time(), float(self._altitude.Eval(context)[0]), float(self._height.Eval(context)[0]),
-            bool(self._valid.Eval(context)[0]), self._offset.Eval(context), self._target_velocity.Eval(context),
-            self._tracking_velocity.Eval(context), self._tracking_acceleration.Eval(context))
+            context.get_time(), scalar(self._altitude), scalar(self._height), bool(scalar(self._valid)),
+            self._offset.Eval(context), self._target_velocity.Eval(context), self._tracking_velocity.Eval(context),
+            self._tracking_acceleration.Eval(context))
 
     def _update(self, context, discrete_state):
         since, hold, vx, vy = context.get_discrete_state(self._memory).get_value().tolist()

@@ -23,6 +23,7 @@ Ours, beyond Eq. (24)-(27) (both can be switched off to get the paper's loop alo
   (Ki = 0 in Table 2) leaves as a position error of a / (K_v Kp): 5 cm at 1.5 m/s on a 15 m arc.
 """
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -90,9 +91,10 @@ def pid_step(memory: np.ndarray, error, height: float, config: TrackingPidConfig
 
 def feed_forward(v_ctrl, target_velocity, max_speed: float) -> np.ndarray:
     """Eq. (26)-(27): v_uav = v_ugv + v_ctrl, scaled down to at most max_speed [m/s]."""
-    v_uav = np.asarray(target_velocity, dtype=float) + v_ctrl
-    speed = np.linalg.norm(v_uav)
-    return v_uav if speed <= max_speed else v_uav * (max_speed / speed)
+    vx, vy = float(target_velocity[0]) + float(v_ctrl[0]), float(target_velocity[1]) + float(v_ctrl[1])
+    speed = math.hypot(vx, vy)
+    scale = 1.0 if speed <= max_speed else max_speed / speed
+    return np.array([vx * scale, vy * scale])
 
 
 class HeightScheduledPid:

@@ -16,6 +16,7 @@ k1 = a^3 d l, k2 = 3 a^2 d l, k3 = 3 a l - 1 with l = v tau_s. The curvature kap
 1 / (3 a) ahead, the steering's closed-loop lag distance.
 """
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -107,12 +108,12 @@ def wrap_angle(angle):
     return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
-def steering_command(state, speed: float, path: Path, s: float, config: GroundVehicleConfig):
-    """The follower law of the module docstring for the path point at arc length s [m]."""
-    x, y, alpha, theta = state
-    path_heading = path.heading(s)
-    normal = np.array([-np.sin(path_heading), np.cos(path_heading)])
-    lateral_error = normal @ (np.array([x, y]) - path.position(s))
+def steering_command(state, speed: float, path: Path, s: float, config: GroundVehicleConfig) -> float:
+    """The follower law of the module docstring for the path point at arc length s [m]. Plain
+    float arithmetic: it runs at every follower update."""
+    x, y, alpha, theta = (float(v) for v in state[:4])
+    px, py, path_heading, _ = path.sample(s)
+    lateral_error = -math.sin(path_heading) * (x - px) + math.cos(path_heading) * (y - py)
     heading_error = wrap_angle(alpha - path_heading)
 
     follower = config.follower
@@ -120,7 +121,7 @@ def steering_command(state, speed: float, path: Path, s: float, config: GroundVe
     lag = abs(speed) * config.steering_time_constant_s
     d = config.wheelbase_m
     k1, k2, k3 = a**3 * d * lag, 3 * a**2 * d * lag, 3 * a * lag - 1
-    feed_forward = np.arctan(d * path.curvature(s + 1.0 / (3 * a)))
+    feed_forward = math.atan(d * path.sample(s + 1.0 / (3 * a))[3])
     return feed_forward - k1 * lateral_error - k2 * heading_error - k3 * (theta - feed_forward)
 
 
@@ -146,9 +147,9 @@ class PathFollower(LeafSystem):
         self.DeclareStateOutputPort("path_progress", self._progress)
 
     def _update(self, context, discrete_state):
-        state = self._state.Eval(context)
-        s_hint = context.get_discrete_state(self._progress).get_value()[0]
-        s = self._path.nearest(state[:2], s_hint, self._config.follower.search_window_m)
+        state = self._state.Eval(context).tolist()
+        s_hint = context.get_discrete_state(self._progress).GetAtIndex(0)
+        s = self._path.nearest(state, s_hint, self._config.follower.search_window_m)
         command = steering_command(state, self._speed.Eval(context)[0], self._path, s, self._config)
         discrete_state.set_value(self._progress, [s])
         discrete_state.set_value(self._command, [command])

@@ -47,6 +47,8 @@ class Path:
         self.xy = np.column_stack([np.interp(self.s, s, xy[:, 0]), np.interp(self.s, s, xy[:, 1])])
         self._heading = np.interp(self.s, s, heading)
         self._curvature = np.interp(self.s, s, curvature)
+        self._last = count - 1  # the last sample that starts an interval
+        self._lists = None  # the samples as lists, for sample(); made on first use
 
     def _wrap(self, s):
         return np.mod(s, self.length) if self.closed else np.clip(s, 0.0, self.length)
@@ -61,33 +63,54 @@ class Path:
     def curvature(self, s) -> float:
         return float(np.interp(self._wrap(s), self.s, self._curvature))
 
+    def sample(self, s: float) -> tuple[float, float, float, float]:
+        """(x, y, heading, curvature) at one arc length s [m]: position(), heading() and
+        curvature() in one look-up, in plain floats (the path follower's per-update path)."""
+        s = float(s)
+        s = s % self.length if self.closed else min(max(s, 0.0), self.length)
+        u = s / self.spacing
+        i = min(int(u), self._last)
+        f = u - i
+        lists = self._lists
+        if lists is None:
+            lists = self._lists = (self.xy[:, 0].tolist(), self.xy[:, 1].tolist(), self._heading.tolist(),
+                                   self._curvature.tolist())
+        return tuple(v[i] + f * (v[i + 1] - v[i]) for v in lists)
+
     def nearest(self, p, s_hint: float | None = None, window_m: float = 10.0) -> float:
         """Arc length of the point nearest to p (2, m). With s_hint, only within window_m of it,
         so a vehicle keeps to its branch where the path crosses itself (figure-eight)."""
-        p = np.asarray(p, dtype=float)
+        px, py = float(p[0]), float(p[1])
         n = len(self.s)
         if s_hint is None:
-            indices = np.arange(n)
+            first, candidates = 0, self.xy
         else:
-            centre = int(round(self._wrap(s_hint) / self.spacing))
+            centre = int(round(float(self._wrap(s_hint)) / self.spacing))
             half = int(np.ceil(window_m / self.spacing))
-            indices = np.arange(centre - half, centre + half + 1)
-            indices = np.mod(indices, n - 1) if self.closed else indices[(indices >= 0) & (indices < n)]
-        best = indices[np.argmin(np.sum((self.xy[indices] - p) ** 2, axis=1))]
-        return self._project_on_neighbours(p, best)
+            first, stop = centre - half, centre + half + 1
+            if self.closed and (first < 0 or stop > n - 1):  # across the closing point
+                indices = np.mod(np.arange(first, stop), n - 1)
+                d = (self.xy[indices, 0] - px) ** 2 + (self.xy[indices, 1] - py) ** 2
+                return self._project_on_neighbours(px, py, int(indices[np.argmin(d)]))
+            first, candidates = max(first, 0), self.xy[max(first, 0):min(stop, n)]
+        d = (candidates[:, 0] - px) ** 2 + (candidates[:, 1] - py) ** 2
+        return self._project_on_neighbours(px, py, first + int(np.argmin(d)))
 
-    def _project_on_neighbours(self, p, i):
+    def _project_on_neighbours(self, px: float, py: float, i: int) -> float:
         """Refines sample i to the nearest point on its two adjacent chords."""
-        best_s, best_d = self.s[i], np.inf
+        best_s, best_d = float(self.s[i]), np.inf
         for j in (i - 1, i):
             if j < 0 or j + 1 >= len(self.s):
                 continue
-            a, b = self.xy[j], self.xy[j + 1]
-            t = np.clip(np.dot(p - a, b - a) / np.dot(b - a, b - a), 0.0, 1.0)
-            d = np.linalg.norm(a + t * (b - a) - p)
+            ax, ay = self.xy[j].tolist()
+            bx, by = self.xy[j + 1].tolist()
+            ex, ey = bx - ax, by - ay
+            t = min(max(((px - ax) * ex + (py - ay) * ey) / (ex * ex + ey * ey), 0.0), 1.0)
+            d = (ax + t * ex - px) ** 2 + (ay + t * ey - py) ** 2
             if d < best_d:
-                best_s, best_d = self.s[j] + t * (self.s[j + 1] - self.s[j]), d
-        return float(best_s)
+                s0, s1 = self.s[j].item(), self.s[j + 1].item()
+                best_s, best_d = s0 + t * (s1 - s0), d
+        return best_s
 
 
 def from_segments(segments, closed: bool, heading0: float = 0.0) -> Path:
