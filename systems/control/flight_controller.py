@@ -261,7 +261,8 @@ class _SymbolicChain:
         """Adds signal `name` = function(*input signals as variable vectors)."""
         ports = [self.signals[n] for n in inputs]
         variables = [MakeVectorVariable(p.size(), n) for n, p in zip(inputs, ports)]
-        output = np.asarray(function(*variables)).ravel()
+        with np.errstate(invalid="ignore"):  # numpy's float-flag check on arrays of Expressions
+            output = np.asarray(function(*variables)).ravel()
         system = self._builder.AddNamedSystem(name, _stage(np.concatenate(variables), output, self._dummy_state))
         if len(ports) == 1:
             self._builder.Connect(ports[0], system.get_input_port())

@@ -209,10 +209,10 @@ def make_quadrotor_dynamics(params: QuadrotorParams) -> SymbolicVectorSystem:
     params.validate()
     x = MakeVectorVariable(STATE_SIZE, "x")
     u = MakeVectorVariable(4, "w_cmd")
-    V_WB, A_WB = body_kinematics(x, params)
-    return SymbolicVectorSystem(
-        state=x, input=u, dynamics=quadrotor_state_derivative(x, u, params),
-        output=np.concatenate([x, V_WB, A_WB]))
+    with np.errstate(invalid="ignore"):  # numpy's float-flag check on arrays of Expressions
+        V_WB, A_WB = body_kinematics(x, params)
+        dynamics = quadrotor_state_derivative(x, u, params)
+    return SymbolicVectorSystem(state=x, input=u, dynamics=dynamics, output=np.concatenate([x, V_WB, A_WB]))
 
 
 class StateToPose(LeafSystem):
@@ -261,11 +261,13 @@ class Quadrotor(Diagram):
         else:
             x = MakeVectorVariable(STATE_SIZE, "x")
             u = MakeVectorVariable(4, "w_cmd")
+            with np.errstate(invalid="ignore"):  # numpy's float-flag check on arrays of Expressions
+                derivative, kinematics = quadrotor_state_derivative(x, u, params), body_kinematics(x, params)
             self.dynamics = dynamics = builder.AddNamedSystem("dynamics", discretise(
-                SymbolicVectorSystem(state=x, input=u, dynamics=quadrotor_state_derivative(x, u, params), output=x),
-                time_period, integration, "quadrotor"))
+                SymbolicVectorSystem(state=x, input=u, dynamics=derivative, output=x), time_period, integration,
+                "quadrotor"))
             kinematics = builder.AddNamedSystem("kinematics", SymbolicVectorSystem(
-                input=x, output=np.concatenate(body_kinematics(x, params))))
+                input=x, output=np.concatenate(kinematics)))
             split = builder.AddNamedSystem("split", Demultiplexer([6, 6]))
             builder.Connect(dynamics.get_output_port(), kinematics.get_input_port())
             builder.Connect(kinematics.get_output_port(), split.get_input_port())
