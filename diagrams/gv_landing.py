@@ -10,23 +10,24 @@ The closed loop, all in World W (z up):
 
     ground vehicle (bicycle, path follower) --state, speed--> perception --> tracking PID (4 Hz)
     quadrotor --state------------------------------------------^        \--> landing supervisor (50 Hz)
-    landing supervisor --command [v_WB_desired, yaw]--> flight controller (200 Hz) --> quadrotor
+    landing supervisor --command [v_WB_desired, yaw, a_WB_feed_forward]--> flight controller (200 Hz)
+    flight controller --rotor speed commands--> quadrotor
 
 **The perception seam.** `PerfectPerception` turns the true states into what the controller
 needs (the layout RELATIVE_STATE: pad position relative to the UAV in W and in B, pad velocity,
-height above the pad, a valid flag); the vision estimators of later issues replace it with a
+height above the pad, a valid flag, pad acceleration); the vision estimators of later issues replace it with a
 system that has the same output ports. "Valid" is the pad inside the downward camera's cone
 (seed 003's 150 deg fisheye) and range, so a UAV that strays loses the target as a real one would.
 
 **Speed** (no cameras here; benchmarks/landing_sweep.py measures it). Three things keep Python out
 of the per-step path:
-1. Both vehicles are discrete systems that integrate their equations in C++ over each 5 ms
-   controller period (IntegrationConfig): with no continuous state in the diagram the simulator
+1. Both vehicles are built with `time_period` = the 5 ms controller period and integrate their
+   equations over it in C++ (IntegrationConfig): with no continuous state in the diagram the simulator
    never evaluates whole-diagram derivatives, each of which would call into every Python
    LeafSystem (~4.7 us apiece, ~10 of them, several evaluations per step).
 2. The flight controller is systems/control/flight_controller.py's C++ backend
-   (`SymbolicFlightController`, ~10 us a sample); `controller_implementation: python` selects its
-   Python backend (`FlightController`, the same law, ~15 us a sample plus a Python call).
+   (`SymbolicFlightController`); `controller_implementation: python` selects its Python backend
+   (`FlightController`, the same law), which runs as fast (~15 us a sample either way).
 3. `gv_landing_run.simulate_flight` freezes the garbage collector's view of the objects from imports and the
    build (gc.freeze), which otherwise costs ~20 % of the run.
 Python remains at the rates the systems declare: the supervisor (50 Hz), the perception (pulled at
