@@ -57,7 +57,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from diagrams.outputs import check_writable, write_json, write_npz
+from diagrams.outputs import check_writable, json_default, write_json, write_npz
 from systems.config import ConfigError
 from systems.noise import stream_id
 
@@ -174,21 +174,13 @@ def _execute(run: Callable, task: RunTask) -> _Outcome:
             metrics, arrays = dict(out), {}
         else:
             raise TypeError(f"a run function returns a dict or a RunOutput, not {type(out).__name__}")
-        json.dumps(metrics, default=_json_default)  # fail here, as this run's failure, if it cannot be kept
+        json.dumps(metrics, default=json_default)  # fail here, as this run's failure, if it cannot be kept
         arrays = {str(k): np.asarray(v) for k, v in arrays.items()}
         status, error = "done", None
     except Exception as e:
         metrics, arrays, status = {}, {}, "failed"
         error = {"type": type(e).__name__, "message": str(e), "traceback": traceback.format_exc(limit=20)}
     return _Outcome(status, metrics, arrays, error, time.perf_counter() - start, socket.gethostname(), os.getpid())
-
-
-def _json_default(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"cannot write {type(value).__name__} to JSON")
 
 
 @dataclasses.dataclass

@@ -53,7 +53,8 @@ def _write_bytes(path: Path, data: bytes) -> None:
         raise
 
 
-def _json_default(value):
+def json_default(value):
+    """`json.dumps` default for numpy scalars and arrays."""
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
@@ -62,7 +63,7 @@ def _json_default(value):
 
 
 def write_json(path: Path, data: dict) -> None:
-    _write_bytes(Path(path), (json.dumps(data, indent=2, default=_json_default) + "\n").encode())
+    _write_bytes(Path(path), (json.dumps(data, indent=2, default=json_default) + "\n").encode())
 
 
 def write_npz(path: Path, **arrays) -> None:
