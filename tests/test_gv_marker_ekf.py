@@ -58,6 +58,16 @@ def test_flight_starts_at_10_m_and_holds_0_4_m_above_the_pad():
     assert np.linalg.norm(truth.p_WB[-1, :2] - truth.p_WP[-1, :2]) < 0.5
 
 
+def test_flight_at_12_m_s_never_goes_below_the_pad_and_keeps_up():
+    s = load_scenario("gv-marker-ekf", None, ["vehicle.speed=12"])[1]  # the full 500 m (42 s)
+    truth = fly_truth(s, cache=False)
+    height = truth.p_WB[:, 2] - truth.p_WP[:, 2]
+    offset = np.linalg.norm(truth.p_WB[:, :2] - truth.p_WP[:, :2], axis=1)
+    assert height.min() > 0.3 and abs(height[-1] - 0.4) < 0.05
+    caught_up = truth.t >= 20.0  # the UAV starts hovering and needs ~15 s to reach 12 m/s and catch up
+    assert offset[caught_up].max() < 0.3
+
+
 def test_both_filters_get_the_identical_stream():
     s = scenario()
     truth = fly_truth(s)
