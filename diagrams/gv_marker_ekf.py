@@ -313,13 +313,10 @@ def run_filters(truth: Truth, stream: MarkerStream, estimation: MarkerEstimation
             start = time.perf_counter()
             f.step(t, X_WB, measurements)
             cost[name] += time.perf_counter() - start
-            if f.started:
-                e = f.estimate(t)
+            values = f.estimate_values(t)  # estimate(t)'s figures without its Drake objects
+            if values is not None:
                 trace = traces[name]
-                trace.p_WP[k] = e.pose.X_RT.translation()
-                trace.yaw[k] = e.yaw_rad
-                trace.p_WM[k] = e.p_WM
-                trace.valid[k] = e.pose.valid
+                trace.p_WP[k], trace.yaw[k], trace.p_WM[k], trace.valid[k] = values
     for name, f in filters.items():
         traces[name].stats = dataclasses.asdict(f.stats)
         traces[name].per_step_ms = 1e3 * cost[name] / max(N, 1)

@@ -192,6 +192,10 @@ class MarkerFilter:
         self._gate = chi2.ppf(self.config.gate_probability, self.rows)
         self._R_stacked: dict[int, np.ndarray] = {}  # shared by copies: a cache of constants
         self._constants_by_dt: dict[float, object] = {}  # shared by copies, like _R_stacked
+        # Predictions already made, by (id of the prior belief, time): a late measurement re-runs
+        # the step it belongs to from the same prior to the same time (a pure function of both).
+        # Holds the prior, so its id stays its own while cached; shared by copies like the above.
+        self._predictions: dict[tuple[int, float], tuple[_Belief, _Belief]] = {}
         self._I = np.eye(self.n)
         self._history: tuple[_Step, ...] = ()
         self._settled = FilterStats()  # counts no re-run can change: dropped steps', intake rejections
@@ -300,7 +304,10 @@ class MarkerFilter:
     def _usable(self, m: MarkerMeasurement, t: float) -> bool:
         """A known marker, taken by time t, finite, with a unit quaternion (to tolerance)."""
         try:
-            p, q = np.asarray(m.p_CM, dtype=float).tolist(), np.asarray(m.q_CM, dtype=float).tolist()
+            if type(m) is MarkerMeasurement:  # its __post_init__ made p_CM and q_CM float arrays
+                p, q = m.p_CM.tolist(), m.q_CM.tolist()
+            else:
+                p, q = np.asarray(m.p_CM, dtype=float).tolist(), np.asarray(m.q_CM, dtype=float).tolist()
             return (m.marker_id in self._slot and len(p) == 3 and len(q) == 4 and m.time <= t + TIME_TOLERANCE_S
                     and all(map(math.isfinite, p + q))
                     and abs(math.sqrt(sum(v * v for v in q)) - 1.0) <= self.config.max_quaternion_norm_error)
@@ -383,7 +390,17 @@ class MarkerFilter:
 
     def _predict_to(self, belief: _Belief, time: float) -> _Belief:
         dt = time - belief.time
-        return belief if dt <= TIME_TOLERANCE_S else _Belief(time, *self.predict(belief.x, belief.P, dt))
+        if dt <= TIME_TOLERANCE_S:
+            return belief
+        key = (id(belief), time)
+        cached = self._predictions.get(key)
+        if cached is not None and cached[0] is belief:
+            return cached[1]
+        predicted = _Belief(time, *self.predict(belief.x, belief.P, dt))
+        if len(self._predictions) >= 16:
+            self._predictions.clear()
+        self._predictions[key] = (belief, predicted)
+        return predicted
 
     def _update(self, belief: _Belief, group, camera: Camera) -> tuple[_Belief, int]:
         """Sec. 3's update on the stacked rows of the markers that pass the gate; (belief, count fused)."""
@@ -443,16 +460,29 @@ class MarkerFilter:
         if not self.started:
             time = 0.0 if t is None else t
             return MarkerFilterEstimate(PoseEstimate.invalid(time), np.full((len(self.p_PM), 3), np.nan), np.nan)
+        time, p_WP, q_PR, covariance, p_WM, valid, yaw = self._summary(t)
+        R_WP = RotationMatrix(paper_to_drake(q_PR))
+        return MarkerFilterEstimate(PoseEstimate(time, RigidTransform(R_WP, p_WP), valid, covariance), p_WM, yaw)
+
+    def estimate_values(self, t: float | None = None) -> tuple[np.ndarray, float, np.ndarray, bool] | None:
+        """`estimate(t)`'s (p_WP, yaw, p_WM, valid) without building its Drake objects (for loops
+        over many steps, e.g. the Monte Carlo runs); None before the filter has started."""
+        if not self.started:
+            return None
+        _, p_WP, _, _, p_WM, valid, yaw = self._summary(t)
+        return p_WP, yaw, p_WM, valid
+
+    def _summary(self, t: float | None):
+        """(time, p_WP, unit q^{P/R}, covariance, p_WM, valid, yaw) of the latest posterior predicted to t."""
         belief = self._history[-1].belief
         if t is not None:
             belief = self._predict_to(belief, t)
         p_WP, q_PR, covariance, p_WM = self.platform(belief.x, belief.P)
         q_PR = q_PR / np.linalg.norm(q_PR)
-        valid = np.sqrt(np.trace(covariance[3:, 3:])) <= self.config.max_valid_position_std_m
-        R_WP = RotationMatrix(paper_to_drake(q_PR))
-        yaw = float(np.arctan2(R_WP.matrix()[1, 0], R_WP.matrix()[0, 0]))
-        return MarkerFilterEstimate(PoseEstimate(belief.time, RigidTransform(R_WP, p_WP), bool(valid), covariance),
-                                    p_WM, yaw)
+        valid = bool(np.sqrt(np.trace(covariance[3:, 3:])) <= self.config.max_valid_position_std_m)
+        x, y, z, w = q_PR.tolist()  # scalar last; yaw = atan2(R_WP[1, 0], R_WP[0, 0])
+        yaw = math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
+        return belief.time, p_WP, q_PR, covariance, p_WM, valid, yaw
 
 
 class PaperMarkerEkf(MarkerFilter):
