@@ -23,6 +23,8 @@ test: $(STAMP) system-deps browser
 bench: $(STAMP) system-deps
 	$(VENV)/bin/python benchmarks/realtime.py
 	$(VENV)/bin/python benchmarks/crhf_table5.py
+	$(VENV)/bin/python benchmarks/landing_sweep.py
+	$(VENV)/bin/python benchmarks/marker_ekf_mc.py
 
 $(STAMP): pyproject.toml
 	@if [ -z "$(PYTHON)" ]; then \
