@@ -27,12 +27,12 @@ from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from diagrams.outputs import save_figure, write_npz
 from diagrams.scenario import RunSettings
-from diagrams.stewart_scene import add_renderer, add_uav_sensors, add_viewers
+from diagrams.stewart_scene import add_uav_sensors, add_viewers
 from systems.config import require, require_positive
 from systems.estimators.pad_calibration import MIN_SAMPLES, PAD_COLOURS, PAD_RGB, PadCalibration
 from systems.geometry import register_visual
 from systems.perception.color_pads import PadCentroidsSystem
-from systems.sensors.camera import CameraConfig, NoisyCamera
+from systems.sensors.camera import CameraConfig, NoisyCamera, add_renderer
 from systems.sensors.tof import TofConfig, TofSensors, sensor_positions_C
 from systems.sensors.video import VideoRecorder
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry, PrescribedPose

@@ -39,10 +39,10 @@ LANDED, the UAV hits the ground or the vehicle, the state diverges or turns non-
 target stays unseen for `termination.lost_timeout_s`.
 """
 
+import hashlib
 import math
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
@@ -65,6 +65,7 @@ from systems.control.flight_controller import (
 from systems.control.landing import LandingConfig, LandingSupervisor, Mode
 from systems.control.pid import TrackingPid, TrackingPidConfig
 from systems.geometry import register_visual
+from systems.perception.markers import MarkerLayout, pad_texture
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry
 from systems.vehicles.ground_vehicle import (
     GroundVehicle, GroundVehicleConfig, PathFollowerConfig, bicycle_state_derivative,
@@ -164,10 +165,9 @@ class PlatformConfig:
     pad_size_m: float = 1.0  # square pad, seed 003 Sec. 3.2.1 (1.0 x 1.0 m PVC pad)
     pad_thickness_m: float = 0.02
     pad_offset_m: float = 1.75  # pad centre ahead of the rear axle (half of seed 002's wheelbase)
-    # Five ArUco markers (seed 002 Fig. 1c; seed 003's UGV carries an ArUco marker too): a large one in
-    # the centre and four small ones in the corners. The paper gives no dictionary or sizes.
-    marker_dictionary: str = "DICT_4X4_50"
-    marker_ids: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])  # centre, then corners
+    # Five ArUco markers (seed 002 Fig. 1c; seed 003's UGV carries an ArUco marker too), textured on
+    # the pad; systems/perception/markers.py gives the default layout and why.
+    markers: MarkerLayout = field(default_factory=MarkerLayout)
     # The visible body (not in the papers: a car the size of seed 002's 3.5 m wheelbase).
     body_length_m: float = 4.6
     body_width_m: float = 1.8
@@ -189,12 +189,7 @@ class PlatformConfig:
         require(rear <= self.pad_offset_m - self.pad_size_m / 2 and self.pad_offset_m + self.pad_size_m / 2 <= front,
                 f"{prefix}.pad_offset_m ({self.pad_offset_m}) puts the pad off the roof "
                 f"(the body spans {rear:g} to {front:g} m along the vehicle)")
-        require(hasattr(cv2.aruco, self.marker_dictionary),
-                f"{prefix}.marker_dictionary '{self.marker_dictionary}' is not an OpenCV ArUco dictionary")
-        require(len(self.marker_ids) == 5, f"{prefix}.marker_ids needs 5 ids (centre and four corners)")
-        size = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.marker_dictionary)).bytesList.shape[0]
-        require(all(0 <= i < size for i in self.marker_ids) and len(set(self.marker_ids)) == 5,
-                f"{prefix}.marker_ids must be 5 different ids below {size}")
+        self.markers.validate(f"{prefix}.markers", self.pad_size_m)
 
     @property
     def p_VP(self) -> np.ndarray:
@@ -540,34 +535,11 @@ class MeshcatTrail(LeafSystem):
 # Assets
 
 
-def marker_layout(platform: PlatformConfig) -> list[tuple[int, np.ndarray, float]]:
-    """(ArUco id, centre in the pad frame P [m] (x, y; on the top surface), edge [m]) of the five
-    markers: one of 0.4 pad edges in the centre, four of 0.2 in the corners, 0.04 from the edges."""
-    size = platform.pad_size_m
-    corner = 0.5 - 0.04 - 0.1  # centre of a corner marker, in pad edges
-    centres = [(0.0, 0.0), (corner, corner), (-corner, corner), (-corner, -corner), (corner, -corner)]
-    edges = [0.4, 0.2, 0.2, 0.2, 0.2]
-    return [(i, np.array(c) * size, e * size) for i, c, e in zip(platform.marker_ids, centres, edges)]
-
-
-def pad_marker_image(platform: PlatformConfig, pixels: int = 1000) -> np.ndarray:
-    """The pad's texture: white with the five ArUco markers of `marker_layout`, seen from above
-    (image up = +y of P, image right = +x of P), `pixels` square."""
-    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, platform.marker_dictionary))
-    image = np.full((pixels, pixels), 255, np.uint8)
-    scale = pixels / platform.pad_size_m
-    for marker_id, (x, y), edge in marker_layout(platform):
-        side = int(round(edge * scale))
-        col = int(round((x + platform.pad_size_m / 2) * scale - side / 2))
-        row = int(round((platform.pad_size_m / 2 - y) * scale - side / 2))
-        image[row:row + side, col:col + side] = cv2.aruco.generateImageMarker(dictionary, marker_id, side)
-    return image
-
-
 def pad_texture_mesh(platform: PlatformConfig):
-    """The unit textured quad (models/generated) carrying `pad_marker_image`; generated on first use."""
-    ids = "-".join(str(i) for i in platform.marker_ids)
-    return textured_quad_mesh(f"gv_pad_{platform.marker_dictionary.lower()}_{ids}", pad_marker_image(platform))
+    """The unit textured quad (models/generated) carrying the pad's markers (`pad_texture`),
+    generated on first use and named by its content."""
+    image = pad_texture(platform.markers, platform.pad_size_m)
+    return textured_quad_mesh(f"gv_pad_{hashlib.sha1(image.tobytes()).hexdigest()[:12]}", image)
 
 
 def path_polyline(vehicle: VehicleConfig, max_length_m: float = 400.0) -> np.ndarray:
@@ -632,8 +604,17 @@ LOG_NAMES = ("quadrotor_state", "vehicle_state", "relative_state", "mode", "comm
 def build_gv_landing(config: GvLandingConfig, meshcat: Meshcat | None = None) -> tuple[Diagram, GvLandingHandles]:
     """Builds the gv-landing diagram; returns it with the handles of its systems. Call
     `handles.initialize(context)` on the simulator's context before simulating."""
-    config.validate()
     builder = DiagramBuilder()
+    handles = add_gv_landing(builder, config, meshcat)
+    diagram = builder.Build()
+    diagram.set_name("gv_landing")
+    return diagram, handles
+
+
+def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Meshcat | None = None) -> GvLandingHandles:
+    """Adds the gv-landing systems to `builder` (for diagrams that add more, such as a camera on the
+    airframe's body frame); returns their handles."""
+    config.validate()
     discrete = config.integration.discrete
     period, integration = (config.period_s, config.integration.simulator_config()) if discrete else (None, None)
     quad = builder.AddNamedSystem("quadrotor", Quadrotor(config.quadrotor, period, integration))
@@ -702,8 +683,5 @@ def build_gv_landing(config: GvLandingConfig, meshcat: Meshcat | None = None) ->
         trail = builder.AddNamedSystem("uav_trail", MeshcatTrail(meshcat))
         builder.Connect(quad_state, trail.get_input_port())
 
-    diagram = builder.Build()
-    diagram.set_name("gv_landing")
-    handles = GvLandingHandles(config, quad, vehicle, speed, perception, pid, supervisor, controller, monitor,
-                               scene_graph, airframe, vehicle_geometry, loggers, visualizer)
-    return diagram, handles
+    return GvLandingHandles(config, quad, vehicle, speed, perception, pid, supervisor, controller, monitor,
+                            scene_graph, airframe, vehicle_geometry, loggers, visualizer)

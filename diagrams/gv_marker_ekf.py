@@ -1,7 +1,8 @@
 """gv-marker-ekf: seed 002 section 4, the pose of the landing platform on a ground vehicle
 estimated from five ArUco markers by the paper's EKF and by our constant-turn EKF, side by side.
 
-    landing-sim run gv-marker-ekf --set vehicle.speed=6 [--meshcat]
+    landing-sim run gv-marker-ekf --set vehicle.speed=6 [--meshcat] [--record]
+    landing-sim run gv-marker-ekf --set estimation.source=detector [--video]   # the rendered camera
 
 The scene (scenarios/gv-marker-ekf.yaml). The vehicle drives Eq. (13)'s sine path at
 `vehicle.speed` (C1 = 3, C2 = 6, C3 = 12 m/s); the pad's top is 1.6 m above the ground. The UAV
@@ -17,21 +18,31 @@ only watch.
 Run length: `duration_s: 0` (the default) means 500 m of driving, one period of Eq. (13)'s long
 wave in distance: 500 / speed seconds, 166.7 s at 3 m/s, 83.3 s at 6 and 41.7 s at 12.
 
-Measurements (section 4): at every T_s = 35 ms sample t_k the camera "acquires" the pose of each of
-the five markers in the camera frame, the truth plus zero-mean Gaussian noise (0.1 m per axis, 5 deg
-per axis of a rotation vector), exactly as `systems.perception.markers.synthetic_marker_measurements`
-does, but drawn for the whole run at once (vectorised, `synthetic_stream`). Latency: seed 002 budgets
+Measurements, two interchangeable sources (`estimation.source`), one `MarkerStream` each. The five
+markers are `platform.markers` (systems/perception/markers.py), textured on the pad.
+- "synthetic", the paper's (section 4): at every T_s = 35 ms sample t_k the camera "acquires" the
+  pose of each marker in the camera frame, the truth plus zero-mean Gaussian noise (0.1 m per axis,
+  5 deg per axis of a rotation vector), exactly as `synthetic_marker_measurements` does, but drawn
+  for the whole run at once (vectorised, `synthetic_stream`).
+- "detector", the real pipeline: the downward camera (`estimation.camera`, at one frame per T_s,
+  with seeded pixel noise) on the UAV renders the gv-landing scene (`build_marker_flight`) and
+  `MarkerDetectorSystem` finds the markers (OpenCV ArUco) and solves each one's pose (solvePnP);
+  a marker not detected at t_k is not measured. The camera's 58 deg view loses the pad while the
+  UAV, starting at 10 m, catches up with the vehicle (at 6 m/s from 0.3 to 2.3 s), and sees only
+  the centre marker once it holds 0.4 m above it: the filters coast and use the markers they get.
+Each run's metrics carry the source's own accuracy per marker (`measurement_metrics`). Latency: seed 002 budgets
 25 ms to acquire and 10 ms to process a frame, so the measurements of t_k reach the filters at
 t_{k+1} (`estimation.latency_periods: 1`); the filters fuse them at their acquisition time (their
 history re-run) and their estimate at t_{k+1} is compared with the truth at t_{k+1}. Both filters
 get the IDENTICAL list of MarkerMeasurement objects at every step.
 
 Truth and noise are separate: the flight depends on the scenario, not on the measurement noise
-(perfect perception steers the UAV), so `fly_truth` simulates it once per scenario settings and
-caches it in the process (`truth_cache_key`: the scenario without its seed and estimation settings);
-each run then draws its stream from one numpy Generator seeded by the scenario's seed and runs both
-filters over it. This is what makes the Monte Carlo campaign (diagrams/gv_marker_ekf_mc.py) cheap:
-a worker simulates each speed once, not once per run.
+(perfect perception steers the UAV), so with the synthetic source `fly_truth` simulates it once per
+scenario settings and caches it in the process (`truth_cache_key`: the scenario without its seed and
+estimation settings); each run then draws its stream from one numpy Generator seeded by the
+scenario's seed and runs both filters over it. This is what makes the Monte Carlo campaign
+(diagrams/gv_marker_ekf_mc.py) cheap: a worker simulates each speed once, not once per run. The
+detector's stream comes from the flight itself (`fly` with the camera), once per run.
 
 Errors are estimate minus truth after `estimation.settle_s` (the first filter steps, from an
 unknown velocity, are left out): the pad frame P's position (the paper's S_P, at marker 0), its
@@ -42,54 +53,75 @@ import dataclasses
 import time
 from dataclasses import dataclass, field
 
+import matplotlib.colors
 import matplotlib.pyplot as plt
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
-from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.geometry import Rgba
+from pydrake.math import RigidTransform
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorStatus
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from tqdm import tqdm
 
-from diagrams.gv_landing import GvLandingConfig, build_gv_landing, path_polyline
+from diagrams.gv_landing import GvLandingConfig, GvLandingHandles, add_gv_landing, path_polyline
 from diagrams.outputs import save_figure, write_npz
 from diagrams.scenario import RunSettings
 from systems.config import ConfigError, require, require_positive
 from systems.estimators.marker_ekf import FILTERS, MarkerEkfConfig
-from systems.perception.markers import MarkerLayout, MarkerMeasurement
+from systems.perception.markers import MarkerDetectorSystem, MarkerLayout, MarkerMeasurement
+from systems.sensors.camera import CameraConfig, add_camera, add_renderer
+from systems.sensors.video import VideoRecorder
 from systems.vehicles.quadrotor import P_WB, Q_WB, hover_state
 
 LONG_WAVE_M = 500.0  # seed 002 Eq. (13): the long wave's period in x
 START_XYZ_M = (0.0, 0.0, 10.0)  # seed 002 Sec. 4: r_0
 
 
+SOURCES = ("synthetic", "detector")
+
+
+def default_marker_camera() -> CameraConfig:
+    """The project's downward camera (systems/sensors/camera.py: 512 px, 58 deg, 0.04 m under the
+    body, optical axis down) at one frame per filter step T_s = 35 ms, with the pixel noise of the
+    Stewart scenes (2 levels)."""
+    return CameraConfig(rate_hz=1.0 / MarkerEkfConfig.period_s, pixel_noise_std=2.0)
+
+
 @dataclass
 class MarkerEstimationConfig:
-    """The measurement source and the filters (seed 002 Sec. 3-4)."""
+    """The measurement source and the filters (seed 002 Sec. 3-4).
+
+    source "synthetic": the paper's measurements (Sec. 4), truth plus sigma_p_m / sigma_deg noise.
+    source "detector": the camera renders the scene, OpenCV's ArUco detector finds the markers
+    and solvePnP gives each one's pose; a marker not detected is not measured."""
 
     filters: list[str] = field(default_factory=lambda: ["paper_ekf", "ct_ekf"])  # names in FILTERS
-    source: str = "synthetic"  # the paper's measurements (Sec. 4); the only source of this scenario yet
-    sigma_p_m: float = 0.1  # seed 002 Sec. 4
-    sigma_deg: float = 5.0  # seed 002 Sec. 4
+    source: str = "synthetic"  # one of SOURCES
+    sigma_p_m: float = 0.1  # seed 002 Sec. 4 (synthetic source)
+    sigma_deg: float = 5.0  # seed 002 Sec. 4 (synthetic source)
     latency_periods: int = 1  # seed 002 Sec. 4: 25 ms acquire + 10 ms process = one T_s late
     settle_s: float = 2.0  # errors are taken from this time on (filter start-up left out)
-    camera_mount_xyz_m: list[float] = field(default_factory=lambda: [0.0, 0.0, -0.04])  # C in B, optical axis down
+    camera: CameraConfig = field(default_factory=default_marker_camera)  # its mount for both sources
     ekf: MarkerEkfConfig = field(default_factory=MarkerEkfConfig)  # shared by both filters (T_s = 35 ms)
-    markers: MarkerLayout = field(default_factory=MarkerLayout)
 
     def validate(self, prefix: str = "estimation") -> None:
         require(len(self.filters) >= 1 and all(f in FILTERS for f in self.filters)
                 and len(set(self.filters)) == len(self.filters),
                 f"{prefix}.filters must be different names from: {', '.join(FILTERS)}")
-        require(self.source == "synthetic", f"{prefix}.source '{self.source}' is not supported (known: synthetic)")
+        require(self.source in SOURCES, f"{prefix}.source '{self.source}' is not one of: {', '.join(SOURCES)}")
         require(self.sigma_p_m >= 0 and self.sigma_deg >= 0, f"{prefix}.sigma_p_m and sigma_deg must not be negative")
         require(self.latency_periods >= 0, f"{prefix}.latency_periods must not be negative")
         require(self.settle_s >= 0, f"{prefix}.settle_s must not be negative")
-        require(len(self.camera_mount_xyz_m) == 3, f"{prefix}.camera_mount_xyz_m needs 3 numbers")
+        self.camera.validate(f"{prefix}.camera")
         self.ekf.validate(f"{prefix}.ekf")
-        self.markers.validate(f"{prefix}.markers")
+        require(abs(self.camera.period_s - self.ekf.period_s) < 1e-9,
+                f"{prefix}.camera.rate_hz ({self.camera.rate_hz:g}) must be 1 / {prefix}.ekf.period_s "
+                f"({1 / self.ekf.period_s:g} Hz): the camera gives one frame per filter step")
 
     @property
     def X_BC(self) -> RigidTransform:
         """The camera C in the UAV body B: optical axis down (+z_C = -z_B), +x_C = +x_B."""
-        return RigidTransform(RotationMatrix.MakeXRotation(np.pi), self.camera_mount_xyz_m)
+        return self.camera.X_BC
 
 
 @dataclass
@@ -154,17 +186,53 @@ _TRUTH_CACHE: dict[str, Truth] = {}
 _TRUTH_CACHE_SIZE = 4
 
 
-def fly_truth(scenario: Scenario, meshcat=None, realtime: bool = False, cache: bool = True) -> Truth:
-    """Simulates the flight (or takes it from this process's cache) and samples it at the filter steps."""
-    key = truth_cache_key(scenario)
-    if cache and meshcat is None and key in _TRUTH_CACHE:
-        return _TRUTH_CACHE[key]
-    diagram, handles = build_gv_landing(scenario, meshcat)
+@dataclass
+class MarkerFlightHandles:
+    """The gv-landing systems, plus with the camera the marker detector on its images and a video
+    recorder of them."""
+
+    gv: GvLandingHandles
+    detector: MarkerDetectorSystem | None = None
+    video: VideoRecorder | None = None
+
+    @property
+    def meshcat_visualizer(self):
+        return self.gv.meshcat_visualizer
+
+
+def build_marker_flight(scenario: Scenario, meshcat=None, camera: bool = False,
+                        video_path=None) -> tuple[Diagram, MarkerFlightHandles]:
+    """The gv-landing flight; with `camera`, the downward camera (estimation.camera, pixel noise
+    seeded by scenario.seed) on the airframe's body frame renders the scene (ground, vehicle, the
+    pad with platform.markers) and `MarkerDetectorSystem` reads its images; `video_path` records them."""
+    builder = DiagramBuilder()
+    handles = MarkerFlightHandles(add_gv_landing(builder, scenario, meshcat))
+    if camera:
+        config, gv = scenario.estimation.camera, handles.gv
+        add_renderer(gv.scene_graph)
+        _, noisy_camera = add_camera(builder, gv.scene_graph, gv.airframe.body_frame_id, config, scenario.seed)
+        handles.detector = builder.AddNamedSystem("marker_detector", MarkerDetectorSystem(
+            config.K, scenario.platform.markers, config.width, config.height))
+        builder.Connect(noisy_camera.get_output_port(), handles.detector.get_input_port())
+        if video_path is not None:
+            handles.video = builder.AddSystem(VideoRecorder(video_path, config.period_s, config.width, config.height))
+            builder.Connect(noisy_camera.get_output_port(), handles.video.get_input_port())
+    diagram = builder.Build()
+    diagram.set_name("gv_marker_ekf")
+    return diagram, handles
+
+
+def fly(scenario: Scenario, meshcat=None, camera: bool = False, realtime: bool = False, progress: bool = False,
+        record: bool = False, video_path=None) -> tuple[Truth, "MarkerStream | None", MarkerFlightHandles]:
+    """Simulates the flight and samples it at the filter steps: (truth, the camera's detections at
+    the same steps when `camera`, else None, the handles). `record` records it in Meshcat."""
+    diagram, handles = build_marker_flight(scenario, meshcat, camera, video_path)
+    gv = handles.gv
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
-    handles.initialize(context)
+    gv.initialize(context)
     # Seed 002 Sec. 4: the UAV starts at r_0 = (0, 0, 10) m (hovering), not on the ground.
-    quad = getattr(handles.quadrotor, "dynamics", handles.quadrotor)
+    quad = getattr(gv.quadrotor, "dynamics", gv.quadrotor)
     quad_context = quad.GetMyMutableContextFromRoot(context)
     x0 = hover_state(scenario.quadrotor, list(START_XYZ_M), yaw=np.radians(scenario.landing.yaw_deg))
     if quad_context.num_continuous_states():
@@ -175,24 +243,38 @@ def fly_truth(scenario: Scenario, meshcat=None, realtime: bool = False, cache: b
         ApplySimulatorConfig(scenario.integration.simulator_config(), simulator)
     if realtime:
         simulator.set_target_realtime_rate(1.0)
-    quad_port = handles.quadrotor.GetOutputPort("state")
-    vehicle_port = handles.vehicle.GetOutputPort("state")
-    quad_ctx = handles.quadrotor.GetMyContextFromRoot(context)
-    vehicle_ctx = handles.vehicle.GetMyContextFromRoot(context)
+    quad_port, vehicle_port = gv.quadrotor.GetOutputPort("state"), gv.vehicle.GetOutputPort("state")
+    quad_ctx, vehicle_ctx = gv.quadrotor.GetMyContextFromRoot(context), gv.vehicle.GetMyContextFromRoot(context)
     times = scenario.sample_times
-    quad_states = np.empty((len(times), 17))
-    vehicle_states = np.empty((len(times), 4))
+    layout = scenario.platform.markers
+    quad_states, vehicle_states = np.empty((len(times), 17)), np.empty((len(times), 4))
+    p_CM, q_CM = np.full((len(times), len(layout.ids), 3), np.nan), np.full((len(times), len(layout.ids), 4), np.nan)
+    detector_ctx = handles.detector.GetMyContextFromRoot(context) if camera else None
     status = f"held 0.4 m above the pad for the run ({times[-1]:.1f} s)"
+    if handles.meshcat_visualizer is not None and record:
+        handles.meshcat_visualizer.StartRecording()
     start = time.perf_counter()
-    simulator.Initialize()
-    for k, t in enumerate(times):
-        if t > 0:
-            result = simulator.AdvanceTo(t)
-            if result.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
-                raise RuntimeError(f"the flight ended at t = {context.get_time():.2f} s: {result.message()}")
-        quad_states[k] = quad_port.Eval(quad_ctx)
-        vehicle_states[k] = vehicle_port.Eval(vehicle_ctx)[:4]
+    try:
+        simulator.Initialize()
+        for k, t in enumerate(tqdm(times, disable=not progress, leave=False, unit="step")):
+            if t > 0:
+                result = simulator.AdvanceTo(t)
+                if result.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+                    raise RuntimeError(f"the flight ended at t = {context.get_time():.2f} s: {result.message()}")
+            quad_states[k] = quad_port.Eval(quad_ctx)
+            vehicle_states[k] = vehicle_port.Eval(vehicle_ctx)[:4]
+            if camera:
+                for m in handles.detector.get_output_port().Eval(detector_ctx):
+                    i = layout.index(m.marker_id)
+                    p_CM[k, i], q_CM[k, i] = m.p_CM, m.q_CM
+    except BaseException:
+        if handles.video is not None:
+            handles.video.discard()
+        raise
     wall = time.perf_counter() - start
+    if handles.meshcat_visualizer is not None and record:
+        handles.meshcat_visualizer.StopRecording()
+        handles.meshcat_visualizer.PublishRecording()
     heading = vehicle_states[:, 2]
     offset = scenario.platform.pad_offset_m
     p_WP = np.column_stack([vehicle_states[:, 0] + offset * np.cos(heading),
@@ -201,7 +283,17 @@ def fly_truth(scenario: Scenario, meshcat=None, realtime: bool = False, cache: b
     q = quad_states[:, Q_WB]
     truth = Truth(times, quad_states[:, P_WB].copy(), q / np.linalg.norm(q, axis=1, keepdims=True), p_WP,
                   np.unwrap(heading), vehicle_states, status, wall)
-    if cache and meshcat is None:
+    return truth, (MarkerStream(times, p_CM, q_CM) if camera else None), handles
+
+
+def fly_truth(scenario: Scenario, cache: bool = True) -> Truth:
+    """The flight's truth without a camera, from this process's cache when it has flown these
+    settings (`truth_cache_key`) before."""
+    key = truth_cache_key(scenario)
+    if cache and key in _TRUTH_CACHE:
+        return _TRUTH_CACHE[key]
+    truth = fly(scenario)[0]
+    if cache:
         if len(_TRUTH_CACHE) >= _TRUTH_CACHE_SIZE:
             _TRUTH_CACHE.pop(next(iter(_TRUTH_CACHE)))
         _TRUTH_CACHE[key] = truth
@@ -209,7 +301,7 @@ def fly_truth(scenario: Scenario, meshcat=None, realtime: bool = False, cache: b
 
 
 # ----------------------------------------------------------------------------------------------
-# Measurements: the paper's synthetic source, vectorised over the run
+# Measurements: the paper's synthetic source vectorised over the run, or the camera's detections
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -230,20 +322,19 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class MarkerStream:
-    """Synthetic measurements of every marker at every sample: p_CM (N, n, 3) [m] and q_CM
-    (N, n, 4) (the paper's scalar-last q^{M/C}), taken at t (N)."""
+    """Measurements of the markers at every sample: p_CM (N, n, 3) [m] and q_CM (N, n, 4) (the
+    paper's scalar-last q^{M/C}), acquired at t (N); NaN where a marker was not measured (not
+    detected)."""
 
     t: np.ndarray
     p_CM: np.ndarray
     q_CM: np.ndarray
 
 
-def synthetic_stream(truth: Truth, layout: MarkerLayout, X_BC: RigidTransform, rng: np.random.Generator,
-                     sigma_p: float = 0.1, sigma_deg: float = 5.0) -> MarkerStream:
-    """Seed 002 Sec. 4 for the whole run: every marker's true pose in C plus noise, as
-    `synthetic_marker_measurements` (sigma_p on each axis of p_CM; R_CM = R_CP Exp(dtheta), dtheta
-    ~ N(0, sigma_deg^2 I3)), in two draws from `rng`: positions (N, n, 3), then angles (N, n, 3)."""
-    N, n = len(truth.t), len(layout.ids)
+def true_marker_poses_C(truth: Truth, layout: MarkerLayout, X_BC: RigidTransform) -> tuple[np.ndarray, np.ndarray]:
+    """Every marker's true pose in the camera frame C at every sample: p_CM (N, n, 3) [m] and q_CP
+    (N, 4), Drake's [w, x, y, z] of R_CP, every marker's attitude (they are aligned with P)."""
+    N = len(truth.t)
     q_BC = np.array(X_BC.rotation().ToQuaternion().wxyz())
     R_WB = quat_to_matrix(truth.q_WB)
     q_WC = quat_multiply(truth.q_WB, q_BC)
@@ -256,7 +347,16 @@ def synthetic_stream(truth: Truth, layout: MarkerLayout, X_BC: RigidTransform, r
     R_WP[:, 0, 0], R_WP[:, 0, 1], R_WP[:, 1, 0], R_WP[:, 1, 1], R_WP[:, 2, 2] = c, -s, s, c, 1.0
     p_WM = truth.p_WP[:, None, :] + np.einsum("kij,mj->kmi", R_WP, layout.p_PM)
     R_CW = np.swapaxes(quat_to_matrix(q_WC), 1, 2)
-    p_CM = np.einsum("kij,kmj->kmi", R_CW, p_WM - p_WC[:, None, :])
+    return np.einsum("kij,kmj->kmi", R_CW, p_WM - p_WC[:, None, :]), q_CP
+
+
+def synthetic_stream(truth: Truth, layout: MarkerLayout, X_BC: RigidTransform, rng: np.random.Generator,
+                     sigma_p: float = 0.1, sigma_deg: float = 5.0) -> MarkerStream:
+    """Seed 002 Sec. 4 for the whole run: every marker's true pose in C plus noise, as
+    `synthetic_marker_measurements` (sigma_p on each axis of p_CM; R_CM = R_CP Exp(dtheta), dtheta
+    ~ N(0, sigma_deg^2 I3)), in two draws from `rng`: positions (N, n, 3), then angles (N, n, 3)."""
+    N, n = len(truth.t), len(layout.ids)
+    p_CM, q_CP = true_marker_poses_C(truth, layout, X_BC)
     p_CM = p_CM + rng.normal(0.0, sigma_p, (N, n, 3))
     dtheta = rng.normal(0.0, np.radians(sigma_deg), (N, n, 3))
     angle = np.linalg.norm(dtheta, axis=-1, keepdims=True)
@@ -266,14 +366,35 @@ def synthetic_stream(truth: Truth, layout: MarkerLayout, X_BC: RigidTransform, r
 
 
 def arrivals(stream: MarkerStream, layout: MarkerLayout, k: int, latency_periods: int) -> list[MarkerMeasurement]:
-    """The measurements that reach the filters at step k: those acquired at step k - latency."""
+    """The measurements that reach the filters at step k: those acquired at step k - latency, of
+    the markers measured then."""
     j = k - latency_periods
     if j < 0:
         return []
     period = float(stream.t[1] - stream.t[0]) if len(stream.t) > 1 else 0.0
     latency = latency_periods * period
+    measured = ~np.isnan(stream.p_CM[j, :, 0])
     return [MarkerMeasurement(float(stream.t[j]), marker_id, stream.p_CM[j, i], stream.q_CM[j, i], latency)
-            for i, marker_id in enumerate(layout.ids)]
+            for i, marker_id in enumerate(layout.ids) if measured[i]]
+
+
+def measurement_metrics(truth: Truth, stream: MarkerStream, layout: MarkerLayout, X_BC: RigidTransform) -> dict:
+    """The source's own accuracy, per marker: the share of samples with a measurement, and the RMS
+    position error [m] and RMS attitude error [deg] of those measurements against the truth (None
+    for a marker never measured)."""
+    p_true, q_CP = true_marker_poses_C(truth, layout, X_BC)
+    measured = ~np.isnan(stream.p_CM[..., 0])
+    position = np.linalg.norm(stream.p_CM - p_true, axis=-1)
+    q_CM = np.concatenate([stream.q_CM[..., 3:], stream.q_CM[..., :3]], axis=-1)  # to [w, x, y, z]
+    q_CM = q_CM / np.linalg.norm(q_CM, axis=-1, keepdims=True)
+    cos_half = np.abs(np.einsum("kmi,ki->km", q_CM, q_CP))
+    attitude = np.degrees(2 * np.arccos(np.clip(cos_half, 0.0, 1.0)))
+
+    def rms(errors: np.ndarray) -> list:
+        return [float(np.sqrt(np.mean(e[m] ** 2))) if m.any() else None for e, m in zip(errors.T, measured.T)]
+
+    return {"measured_fraction": measured.mean(axis=0).tolist(), "rms_position_m": rms(position),
+            "rms_attitude_deg": rms(attitude)}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -293,11 +414,11 @@ class FilterTrace:
     per_step_ms: float
 
 
-def run_filters(truth: Truth, stream: MarkerStream, estimation: MarkerEstimationConfig,
+def run_filters(truth: Truth, stream: MarkerStream, estimation: MarkerEstimationConfig, layout: MarkerLayout,
                 inputs_log: list | None = None) -> dict[str, FilterTrace]:
-    """Runs every filter of `estimation.filters` over the same stream: at each step the same list
-    of measurements (appended to `inputs_log` when given, for tests) and the UAV's true pose."""
-    layout = estimation.markers
+    """Runs every filter of `estimation.filters` over the same stream of `layout`'s markers: at
+    each step the same list of measurements (appended to `inputs_log` when given, for tests) and
+    the UAV's true pose."""
     filters = {name: FILTERS[name](layout, estimation.X_BC, estimation.ekf) for name in estimation.filters}
     N, n = len(truth.t), len(layout.ids)
     traces = {name: FilterTrace(np.full((N, 3), np.nan), np.full(N, np.nan), np.full((N, n, 3), np.nan),
@@ -351,11 +472,14 @@ def filter_errors(truth: Truth, trace: FilterTrace, p_WM_true: np.ndarray) -> Er
 
 
 def error_metrics(truth: Truth, trace: FilterTrace, errors: Errors, settle_s: float) -> dict:
-    """One filter's figures (DESIGN.md's estimator shape plus the seed 002 ones) over t >= settle_s."""
-    window = (truth.t >= settle_s) & np.isfinite(errors.heading)
+    """One filter's figures (DESIGN.md's estimator shape plus the seed 002 ones) over its valid
+    estimates from settle_s on (a filter coasting without measurements flags its estimate invalid
+    once the pad's position std passes MarkerEkfConfig.max_valid_position_std_m); valid_fraction
+    is the share of all steps with a valid estimate."""
+    window = (truth.t >= settle_s) & trace.valid & np.isfinite(errors.heading)
     e, h, m = errors.position[window], errors.heading[window], errors.markers[window]
     if not window.any():
-        return {"valid_fraction": 0.0, "steps": 0, **trace.stats}
+        return {"valid_fraction": float(np.mean(trace.valid)), "steps": 0, "measurements": trace.stats}
     rpy = np.column_stack([np.zeros_like(h), np.zeros_like(h), np.degrees(h)])
     return {
         "rms_position_m": float(np.sqrt(np.mean(np.sum(e**2, axis=1)))),
@@ -376,28 +500,38 @@ def error_metrics(truth: Truth, trace: FilterTrace, errors: Errors, settle_s: fl
 
 @dataclass
 class Estimation:
-    """One run's estimation: the stream, every filter's trace, errors and metrics."""
+    """One run's estimation: the stream and its own accuracy (`measurement_metrics`), every
+    filter's trace, errors and metrics."""
 
     truth: Truth
     stream: MarkerStream
+    measurements: dict
     traces: dict[str, FilterTrace]
     errors: dict[str, Errors]
     metrics: dict[str, dict]
     wall_time_s: float
 
 
-def estimate_run(scenario: Scenario, truth: Truth | None = None, inputs_log: list | None = None) -> Estimation:
-    """One run: the flight (cached), a stream from default_rng(scenario.seed), both filters."""
+def estimate_run(scenario: Scenario, truth: Truth | None = None, stream: MarkerStream | None = None,
+                 inputs_log: list | None = None) -> Estimation:
+    """One run of both filters. Without `truth`, the flight: with the synthetic source from the
+    cache (`fly_truth`), with the detector flown with its camera (its detections are the stream).
+    Without `stream`, the synthetic one drawn from default_rng(scenario.seed)."""
+    est, layout = scenario.estimation, scenario.platform.markers
+    if truth is None and est.source == "detector":
+        truth, stream, _ = fly(scenario, camera=True)
     truth = fly_truth(scenario) if truth is None else truth
     start = time.perf_counter()
-    est = scenario.estimation
-    rng = np.random.default_rng(scenario.seed)
-    stream = synthetic_stream(truth, est.markers, est.X_BC, rng, est.sigma_p_m, est.sigma_deg)
-    traces = run_filters(truth, stream, est, inputs_log)
-    p_WM_true = true_marker_positions(truth, est.markers)
+    if stream is None:
+        require(est.source == "synthetic", "the detector's stream comes from a flight with the camera (fly)")
+        stream = synthetic_stream(truth, layout, est.X_BC, np.random.default_rng(scenario.seed), est.sigma_p_m,
+                                  est.sigma_deg)
+    traces = run_filters(truth, stream, est, layout, inputs_log)
+    p_WM_true = true_marker_positions(truth, layout)
     errors = {name: filter_errors(truth, trace, p_WM_true) for name, trace in traces.items()}
     metrics = {name: error_metrics(truth, traces[name], errors[name], est.settle_s) for name in traces}
-    return Estimation(truth, stream, traces, errors, metrics, time.perf_counter() - start)
+    return Estimation(truth, stream, measurement_metrics(truth, stream, layout, est.X_BC), traces, errors, metrics,
+                      time.perf_counter() - start)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -464,7 +598,7 @@ def plot_run(scenario: Scenario, est: Estimation, out_dir) -> None:
     axes[-1].set_xlabel("time (s)")
     save_figure(fig, out_dir / "heading.png")
     fig, axes = plt.subplots(len(est.traces), 1, figsize=(10, 3 * len(est.traces)), sharex=True, squeeze=False)
-    plot_markers(axes[:, 0], truth.t, {n: e.markers for n, e in est.errors.items()}, scenario.estimation.markers.ids,
+    plot_markers(axes[:, 0], truth.t, {n: e.markers for n, e in est.errors.items()}, scenario.platform.markers.ids,
                  f"Marker position error ({title}, Fig. 5)")
     axes[-1, 0].set_xlabel("time (s)")
     save_figure(fig, out_dir / "marker_errors.png")
@@ -474,16 +608,37 @@ def plot_run(scenario: Scenario, est: Estimation, out_dir) -> None:
 # landing-sim run
 
 
+def show_estimates(meshcat, est: Estimation) -> None:
+    """Each filter's estimated pad path as a line in Meshcat, beside the live scene's UAV trail."""
+    for name, trace in est.traces.items():
+        p = trace.p_WP[trace.valid]
+        if len(p) >= 2:
+            colour = matplotlib.colors.to_rgba(style(name)[0])
+            meshcat.SetLine(f"gv_marker_ekf/{name}_pad_path", p.T, 2.0, Rgba(*colour))
+
+
 def run(scenario: Scenario, ctx) -> dict:
     from diagrams.runner import finish_run
 
+    camera = scenario.estimation.source == "detector"
+    if ctx.options.video and not camera:
+        raise ConfigError("--video records the camera, which only the detector source has "
+                          "(--set estimation.source=detector)")
     start = time.perf_counter()
-    truth = fly_truth(scenario, ctx.meshcat, realtime=ctx.options.meshcat, cache=False)
-    if ctx.meshcat is not None and ctx.options.record:
-        pass  # the recording is the live scene; nothing else is recorded here
-    est = estimate_run(scenario, truth)
+    truth, stream, handles = fly(scenario, ctx.meshcat, camera, realtime=ctx.options.meshcat,
+                                 progress=ctx.options.progress, record=ctx.options.record,
+                                 video_path=ctx.out_dir / "camera.mp4" if ctx.options.video else None)
+    est = estimate_run(scenario, truth, stream)
+    if ctx.meshcat is not None:
+        show_estimates(ctx.meshcat, est)
     wall = time.perf_counter() - start
     sim_time = float(truth.t[-1])
+    source = scenario.estimation
+    measurements = {"source": source.source, "period_s": source.ekf.period_s,
+                    "latency_s": source.latency_periods * source.ekf.period_s, "settle_s": source.settle_s,
+                    **({"pixel_noise_std": source.camera.pixel_noise_std} if camera else
+                       {"sigma_p_m": source.sigma_p_m, "sigma_deg": source.sigma_deg}),
+                    "marker_ids": scenario.platform.markers.ids, **est.measurements}
     metrics = {
         "scenario": ctx.name, "seed": scenario.seed, "sim_time_s": sim_time, "wall_time_s": wall,
         "realtime_factor": sim_time / wall if wall > 0 else None,
@@ -492,10 +647,7 @@ def run(scenario: Scenario, ctx) -> dict:
         "flight": {"wall_time_s": truth.wall_time_s, "end": truth.status,
                    "final_height_above_pad_m": float(truth.p_WB[-1, 2] - truth.p_WP[-1, 2]),
                    "final_horizontal_offset_m": float(np.linalg.norm(truth.p_WB[-1, :2] - truth.p_WP[-1, :2]))},
-        "measurements": {"source": scenario.estimation.source, "sigma_p_m": scenario.estimation.sigma_p_m,
-                         "sigma_deg": scenario.estimation.sigma_deg, "period_s": scenario.estimation.ekf.period_s,
-                         "latency_s": scenario.estimation.latency_periods * scenario.estimation.ekf.period_s,
-                         "settle_s": scenario.estimation.settle_s},
+        "measurements": measurements,
         "estimators": est.metrics,
     }
     arrays = {"t": truth.t, "p_WB": truth.p_WB, "q_WB": truth.q_WB, "p_WP": truth.p_WP, "yaw": truth.yaw,
@@ -505,20 +657,15 @@ def run(scenario: Scenario, ctx) -> dict:
                        f"{name}_valid": trace.valid, f"{name}_marker_error": est.errors[name].markers})
     write_npz(ctx.out_dir / "log.npz", **arrays)
     plot_run(scenario, est, ctx.out_dir)
+    seen = ", ".join(f"{i}: {f:.0%}" for i, f in zip(scenario.platform.markers.ids, est.measurements["measured_fraction"]))
+    print(f"{ctx.name}: {source.source} measurements, markers measured in {seen} of the frames")
     for name, m in est.metrics.items():
         if "rms_position_m" in m:
             print(f"{ctx.name}: {name}: RMS position {m['rms_position_m']:.3f} m, heading "
                   f"{m['rms_heading_deg']:.2f} deg ({m['measurements']['gated']} gated, "
                   f"{m['measurements']['invalid']} invalid)")
-    return finish_run(_Handles(), ctx, metrics)
+    return finish_run(handles, ctx, metrics)
 
 
-class _Handles:
-    """What runner.finish_run reads."""
-
-    video = None
-    meshcat_visualizer = None
-
-
-__all__ = ["Scenario", "MarkerEstimationConfig", "fly_truth", "synthetic_stream", "run_filters", "estimate_run",
+__all__ = ["Scenario", "MarkerEstimationConfig", "fly", "fly_truth", "synthetic_stream", "run_filters", "estimate_run",
            "ConfigError"]

@@ -9,15 +9,7 @@ camera rate.
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydrake.geometry import (
-    Meshcat,
-    MeshcatVisualizer,
-    MeshcatVisualizerParams,
-    RenderEngineVtkParams,
-    Role,
-    SceneGraph,
-    MakeRenderEngineVtk,
-)
+from pydrake.geometry import Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
@@ -28,7 +20,7 @@ from systems.estimators.crhf import CrhfConfig, CrhfEstimator
 from systems.estimators.estimate import PoseEstimateToVector
 from systems.perception.apriltag import TagDetectorSystem
 from systems.platforms.stewart import StewartPlatform, StewartPlatformConfig
-from systems.sensors.camera import RENDERER_NAME, CameraConfig, NoisyCamera, make_camera
+from systems.sensors.camera import CameraConfig, NoisyCamera, add_camera, add_renderer
 from systems.sensors.ground_truth import RelativePose
 from systems.sensors.imu import Imu, ImuConfig
 from systems.sensors.tof import TofConfig, TofSensors, make_ray_sensor, sensor_positions_C
@@ -114,10 +106,7 @@ def add_uav_sensors(builder: DiagramBuilder, scene_graph: SceneGraph, body_frame
     """The downward camera (with pixel noise) and the four ToF sensors on the body frame.
     Returns (RgbdSensor, NoisyCamera, TofSensors)."""
     X_BC = camera_config.X_BC
-    camera = builder.AddSystem(make_camera(camera_config, body_frame_id, X_BC))
-    builder.Connect(scene_graph.get_query_output_port(), camera.query_object_input_port())
-    noisy_camera = builder.AddSystem(NoisyCamera(camera_config, seed))
-    builder.Connect(camera.color_image_output_port(), noisy_camera.get_input_port())
+    camera, noisy_camera = add_camera(builder, scene_graph, body_frame_id, camera_config, seed)
     tof = builder.AddSystem(TofSensors(tof_config, seed))
     for i, p_CS in enumerate(sensor_positions_C(tof_config.arm_m, tof_config.angle_deg)):
         ray = builder.AddSystem(make_ray_sensor(body_frame_id, X_BC.multiply(RigidTransform(p_CS))))
@@ -139,12 +128,6 @@ def add_viewers(builder: DiagramBuilder, scene_graph: SceneGraph, meshcat: Meshc
                                                 camera_config.height))
         builder.Connect(noisy_camera.get_output_port(), video.get_input_port())
     return visualizer, video
-
-
-def add_renderer(scene_graph: SceneGraph) -> None:
-    """The VTK renderer every camera here uses (headless through EGL)."""
-    scene_graph.AddRenderer(RENDERER_NAME, MakeRenderEngineVtk(RenderEngineVtkParams(
-        default_clear_color=[0.85, 0.88, 0.9])))
 
 
 def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshcat: Meshcat | None = None,

@@ -1,18 +1,21 @@
 """gv-marker-ekf (diagrams/gv_marker_ekf.py) and its campaign (diagrams/gv_marker_ekf_mc.py) on
 short runs: the command writes its metrics, both filters see the identical measurement stream, the
-vectorised stream matches `synthetic_marker_measurements`, the campaign gives identical summaries
-with 1 and 2 workers, and bad settings are one-line errors."""
+vectorised stream matches `synthetic_marker_measurements`, the detector source measures the markers
+the camera renders in the scene and the filters track the pad on it, Meshcat records the flight,
+the campaign gives identical summaries with 1 and 2 workers, and bad settings are one-line errors."""
 
 import json
 
 import numpy as np
 import pytest
 from pydrake.common.eigen_geometry import Quaternion
+from pydrake.geometry import Meshcat
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from diagrams.cli import main
 from diagrams.gv_marker_ekf import (
-    Truth, arrivals, estimate_run, fly_truth, quat_multiply, run_filters, synthetic_stream,
+    Truth, arrivals, estimate_run, fly, fly_truth, measurement_metrics, quat_multiply, show_estimates, synthetic_stream,
+    true_marker_poses_C,
 )
 from diagrams.montecarlo import campaign_definition, campaign_settings, run_campaign
 from diagrams.runner import load_scenario
@@ -85,7 +88,7 @@ def test_both_filters_get_the_identical_stream():
 
 def test_vectorised_stream_matches_the_synthetic_source_geometry():
     s = scenario()
-    layout, X_BC = s.estimation.markers, s.estimation.X_BC
+    layout, X_BC = s.platform.markers, s.estimation.X_BC
     t = np.array([0.0, 0.035])
     X_WB = [RigidTransform(RollPitchYaw(0.1, -0.05, 0.4), [1, 2, 5]), RigidTransform(RollPitchYaw(0, 0.2, -1), [0, 1, 3])]
     yaw = np.array([0.3, -2.0])
@@ -103,6 +106,80 @@ def test_vectorised_stream_matches_the_synthetic_source_geometry():
             assert abs(abs(q @ m.q_CM) - 1) < 1e-12
     a = np.array([0.5, 0.5, 0.5, 0.5])
     np.testing.assert_allclose(quat_multiply(a, a), (Quaternion(a).multiply(Quaternion(a))).wxyz())
+
+
+def test_synthetic_measurements_have_the_papers_accuracy():
+    s = scenario(6)
+    est = estimate_run(s, fly_truth(s))
+    m = est.measurements
+    assert m["measured_fraction"] == [1.0] * 5
+    # 0.1 m on each of 3 axes, 5 deg on each of 3 axes of a rotation vector
+    np.testing.assert_allclose(m["rms_position_m"], 0.1 * np.sqrt(3), rtol=0.08)
+    np.testing.assert_allclose(m["rms_attitude_deg"], 5.0 * np.sqrt(3), rtol=0.08)
+
+
+@pytest.fixture(scope="module")
+def detector_run():
+    """4 s at 3 m/s with the camera: the pad is in view, leaves it (0.3-1.2 s) and returns."""
+    s = scenario(3, 0, "estimation.source=detector")
+    truth, stream, _ = fly(s, camera=True)
+    return s, truth, stream
+
+
+def test_detector_measures_the_markers_the_camera_renders(detector_run):
+    s, truth, stream = detector_run
+    layout = s.platform.markers
+    m = measurement_metrics(truth, stream, layout, s.estimation.X_BC)
+    assert min(m["measured_fraction"]) > 0.5  # from 8 m up, the UAV hovering behind the vehicle
+    assert max(m["rms_position_m"]) < 0.2  # m, 14-24 px markers 8 m away
+    p_CM, q_CP = true_marker_poses_C(truth, layout, s.estimation.X_BC)
+    seen = ~np.isnan(stream.p_CM[..., 0])
+    # The rendered texture, the camera mount and the intrinsics agree with the layout: bearings to a
+    # fraction of a pixel, ranges to a few per cent, and each marker's heading about the optical axis.
+    bearing = (stream.p_CM[..., :2] / stream.p_CM[..., 2:] - p_CM[..., :2] / p_CM[..., 2:])[seen]
+    assert np.sqrt(np.mean(np.sum(bearing**2, axis=1))) < 1.0 / s.estimation.camera.fx
+    ratio = np.linalg.norm(stream.p_CM[seen], axis=1) / np.linalg.norm(p_CM[seen], axis=1)
+    assert abs(np.mean(ratio) - 1) < 0.03
+    for k, i in zip(*np.nonzero(seen)):
+        R_error = (Quaternion(q_CP[k]).rotation().T
+                   @ Quaternion(np.r_[stream.q_CM[k, i, 3], stream.q_CM[k, i, :3]]).rotation())
+        assert abs(np.degrees(np.arctan2(R_error[1, 0], R_error[0, 0]))) < 5.0
+    # The pad leaves the 58 deg view while the UAV catches up: those frames measure nothing.
+    blind = ~seen.any(axis=1)
+    assert 10 < blind.sum() < len(truth.t) / 2
+    k = int(np.argmax(blind))
+    assert arrivals(stream, layout, k + s.estimation.latency_periods, s.estimation.latency_periods) == []
+
+
+def test_filters_track_the_pad_on_the_detector_stream(detector_run):
+    s, truth, stream = detector_run
+    est = estimate_run(s, truth, stream)
+    for name in ("paper_ekf", "ct_ekf"):
+        m = est.metrics[name]
+        assert m["rms_position_m"] < 0.1 and m["rms_heading_deg"] < 1.0
+        assert m["steps"] > 40 and m["measurements"]["invalid"] == 0
+    np.testing.assert_array_equal(est.stream.p_CM, stream.p_CM)
+
+
+def test_video_needs_the_camera(capfd, tmp_path):
+    out = tmp_path / "video"
+    code = main(["run", "gv-marker-ekf", "--set", "duration_s=1", "--video", "--out", str(out), "--quiet"])
+    _, err = capfd.readouterr()
+    assert code == 2 and "estimation.source=detector" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_meshcat_records_the_flight_and_shows_the_estimates():
+    sizes = []
+    for duration in ("1", "3"):
+        meshcat = Meshcat()
+        s = scenario(6, 0, f"duration_s={duration}")
+        truth, _, handles = fly(s, meshcat, record=True)
+        sizes.append(len(meshcat.StaticHtml()))
+    assert sizes[1] > sizes[0] + 10_000  # the recording holds the whole flight, not its last frame
+    show_estimates(meshcat, estimate_run(s, truth))
+    for name in ("paper_ekf", "ct_ekf"):
+        assert meshcat.HasPath(f"gv_marker_ekf/{name}_pad_path")
 
 
 def campaign(tmp_path, workers, runs=2, speeds=("3", "12")):
@@ -143,3 +220,7 @@ def test_bad_scenario_values():
         scenario(12, 0, "estimation.filters=[nope]")
     with pytest.raises(ConfigError, match="vehicle.speed"):
         scenario(0)
+    with pytest.raises(ConfigError, match="estimation.source 'camera' is not one of: synthetic, detector"):
+        scenario(12, 0, "estimation.source=camera")
+    with pytest.raises(ConfigError, match=r"estimation.camera.rate_hz \(20\) must be 1 / estimation.ekf.period_s"):
+        scenario(12, 0, "estimation.camera.rate_hz=20")

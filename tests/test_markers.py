@@ -22,14 +22,15 @@ from tests.conftest import pose
 CAMERA = CameraConfig()
 K = CAMERA.K
 LAYOUT = MarkerLayout()
+PAD_M = 1.0  # the default pad's edge (diagrams/gv_landing.PlatformConfig)
 LOOKING_DOWN = RotationMatrix.MakeXRotation(np.pi)  # R_CP of a level pad under a level downward camera
 
 
 def render_pad(X_CP: RigidTransform, supersample: int = 4, background: int = 90) -> np.ndarray:
     """The pad texture as the default camera sees it at X_CP (grey, 512x512): the plane's homography
     at `supersample` times the resolution, averaged down (a renderer's antialiasing)."""
-    texture = pad_texture(LAYOUT)
-    scale, half = texture.shape[0] / LAYOUT.pad_size_m, LAYOUT.pad_size_m / 2
+    texture = pad_texture(LAYOUT, PAD_M)
+    scale, half = texture.shape[0] / PAD_M, PAD_M / 2
     texel_to_P = np.array([[1 / scale, 0, 0.5 / scale - half], [0, -1 / scale, half - 0.5 / scale], [0, 0, 1]])
     K_big = K.copy()
     K_big[:2] *= supersample
@@ -68,12 +69,18 @@ def test_layout_validation_names_the_field(change, message):
         MarkerLayout(**change).validate()
 
 
+def test_layout_must_fit_the_pad_with_its_margins():
+    LAYOUT.validate(pad_size_m=PAD_M)  # corner markers' margins reach the pad's edge exactly
+    with pytest.raises(ConfigError, match="marker 1 with its margin reaches 0.500 m from the centre, off the 0.99 m pad"):
+        LAYOUT.validate(pad_size_m=0.99)
+
+
 def test_pad_texture_places_each_marker_where_the_layout_says():
-    texture = pad_texture(LAYOUT)
+    texture = pad_texture(LAYOUT, PAD_M)
     corners, ids, _ = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)).detectMarkers(
         texture)
     assert sorted(ids.ravel()) == LAYOUT.ids
-    scale = texture.shape[0] / LAYOUT.pad_size_m
+    scale = texture.shape[0] / PAD_M
     for marker_id, c in zip(ids.ravel(), corners):
         c = c.reshape(4, 2)
         i = LAYOUT.index(marker_id)

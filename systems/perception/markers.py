@@ -52,9 +52,10 @@ class MarkerLayout:
     offsets_m: list[list[float]] = field(default_factory=lambda: [  # p_PM_i, m
         [0.0, 0.0, 0.0], [0.3, 0.3, 0.0], [-0.3, 0.3, 0.0], [-0.3, -0.3, 0.0], [0.3, -0.3, 0.0]])
     sizes_m: list[float] = field(default_factory=lambda: [0.2, 0.3, 0.3, 0.3, 0.3])  # black square's edge
-    pad_size_m: float = 1.0  # square pad's edge
 
-    def validate(self, prefix: str = "markers") -> None:
+    def validate(self, prefix: str = "markers", pad_size_m: float | None = None) -> None:
+        """Checks the layout; with `pad_size_m`, also that every marker and its one-cell white margin
+        lie on the square pad of that edge (m)."""
         require(hasattr(cv2.aruco, self.dictionary),
                 f"{prefix}.dictionary '{self.dictionary}' is not an OpenCV ArUco dictionary")
         size = aruco_dictionary(self.dictionary).bytesList.shape[0]
@@ -67,7 +68,12 @@ class MarkerLayout:
                 f"{prefix}.sizes_m needs one positive size per id")
         require(np.allclose(self.offsets_m[0], 0.0),
                 f"{prefix}.offsets_m[0] must be [0, 0, 0]: marker 0 is the pad frame")
-        require_positive(self.pad_size_m, f"{prefix}.pad_size_m")
+        if pad_size_m is not None:
+            for marker_id, p, size in zip(self.ids, self.p_PM, self.sizes_m):
+                reach = np.abs(p[:2]) + size / 2 * (1 + 2 / MARKER_CELLS)
+                require(np.all(reach <= pad_size_m / 2 + 1e-9),
+                        f"{prefix}: marker {marker_id} with its margin reaches {reach.max():.3f} m from the centre, "
+                        f"off the {pad_size_m:g} m pad")
 
     @property
     def p_PM(self) -> np.ndarray:
@@ -84,18 +90,19 @@ def aruco_dictionary(name: str):
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
 
 
-def pad_texture(layout: MarkerLayout, pixels: int = 1200) -> np.ndarray:
-    """The pad seen from above as a `pixels`-square grey image: white, with each marker upright
-    (image up = +y_P, right = +x_P), for models.apriltag.textured_quad_mesh scaled by pad_size_m.
-    The default 1200 px puts the default markers on whole pixels per cell."""
-    scale = pixels / layout.pad_size_m
+def pad_texture(layout: MarkerLayout, pad_size_m: float = 1.0, pixels: int = 1200) -> np.ndarray:
+    """The square pad of edge `pad_size_m` seen from above as a `pixels`-square grey image: white,
+    with each marker upright (image up = +y_P, right = +x_P), for
+    models.apriltag.textured_quad_mesh scaled by pad_size_m. The default 1200 px puts the default
+    markers on the default 1 m pad on whole pixels per cell."""
+    scale = pixels / pad_size_m
     image = np.full((pixels, pixels), 255, np.uint8)
     for marker_id, (x, y, _), size in zip(layout.ids, layout.p_PM, layout.sizes_m):
         side = int(round(size * scale))
-        col = int(round((x + layout.pad_size_m / 2) * scale - side / 2))
-        row = int(round((layout.pad_size_m / 2 - y) * scale - side / 2))
+        col = int(round((x + pad_size_m / 2) * scale - side / 2))
+        row = int(round((pad_size_m / 2 - y) * scale - side / 2))
         require(0 <= row and row + side <= pixels and 0 <= col and col + side <= pixels,
-                f"marker {marker_id} does not fit on the {layout.pad_size_m} m pad")
+                f"marker {marker_id} does not fit on the {pad_size_m:g} m pad")
         image[row:row + side, col:col + side] = cv2.aruco.generateImageMarker(
             aruco_dictionary(layout.dictionary), marker_id, side, borderBits=1)
     return image

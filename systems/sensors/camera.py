@@ -11,9 +11,12 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import ClippingRange, ColorRenderCamera, DepthRange, DepthRenderCamera, RenderCameraCore
+from pydrake.geometry import (
+    ClippingRange, ColorRenderCamera, DepthRange, DepthRenderCamera, MakeRenderEngineVtk, RenderCameraCore,
+    RenderEngineVtkParams, SceneGraph,
+)
 from pydrake.math import RigidTransform, RotationMatrix
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.sensors import CameraInfo, ImageRgba8U, RgbdSensor
 from scipy.stats import norm
 
@@ -78,6 +81,24 @@ def make_camera(config: CameraConfig, parent_frame_id, X_PC: RigidTransform) -> 
                             ClippingRange(config.near_m, config.far_m), RigidTransform())
     return RgbdSensor(parent_frame_id, X_PC, ColorRenderCamera(core, False),
                       DepthRenderCamera(core, DepthRange(config.near_m * 1.01, config.far_m * 0.99)))
+
+
+def add_renderer(scene_graph: SceneGraph) -> None:
+    """The VTK renderer every camera here uses (headless through EGL)."""
+    scene_graph.AddRenderer(RENDERER_NAME, MakeRenderEngineVtk(RenderEngineVtkParams(
+        default_clear_color=[0.85, 0.88, 0.9])))
+
+
+def add_camera(builder: DiagramBuilder, scene_graph: SceneGraph, body_frame_id, config: CameraConfig,
+               seed: int) -> tuple[RgbdSensor, "NoisyCamera"]:
+    """The camera at config.X_BC on the SceneGraph frame `body_frame_id`, its images with seeded
+    pixel noise: (RgbdSensor, NoisyCamera whose output is the camera stream). The scene graph needs
+    `add_renderer`."""
+    camera = builder.AddSystem(make_camera(config, body_frame_id, config.X_BC))
+    builder.Connect(scene_graph.get_query_output_port(), camera.query_object_input_port())
+    noisy_camera = builder.AddSystem(NoisyCamera(config, seed))
+    builder.Connect(camera.color_image_output_port(), noisy_camera.get_input_port())
+    return camera, noisy_camera
 
 
 def image_to_numpy(image) -> np.ndarray:
