@@ -24,6 +24,7 @@ mc_marker_errors.png (the ensemble RMS position error of each marker over time, 
 """
 
 import dataclasses
+import warnings
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -57,9 +58,11 @@ def run_task(task: RunTask) -> RunOutput:
     arrays = {"t": truth.t[keep].astype(np.float32), "true_xy": truth.p_WP[keep, :2].astype(np.float32),
               "true_yaw": truth.yaw[keep].astype(np.float32)}
     for name, trace in est.traces.items():
-        arrays[f"{name}_xy"] = trace.p_WP[keep, :2].astype(np.float32)
-        arrays[f"{name}_yaw"] = trace.yaw[keep].astype(np.float32)
-        arrays[f"{name}_marker_error"] = est.errors[name].markers[keep].astype(np.float32)
+        invalid = ~trace.valid[keep]  # NaN where the filter flags its estimate, as its metrics leave it out
+        for key, values in (("xy", trace.p_WP[keep, :2]), ("yaw", trace.yaw[keep]),
+                            ("marker_error", est.errors[name].markers[keep])):
+            arrays[f"{name}_{key}"] = np.where(invalid.reshape(-1, *[1] * (values.ndim - 1)), np.nan,
+                                               values).astype(np.float32)
     metrics = {"speed_m_s": scenario.vehicle.speed, "seed": scenario.seed, "sim_time_s": float(truth.t[-1]),
                "estimation_wall_time_s": est.wall_time_s, "settle_s": scenario.estimation.settle_s,
                "source": scenario.estimation.source, "measurements": est.measurements, "estimators": est.metrics}
@@ -76,14 +79,17 @@ def _filters(records) -> list[str]:
 
 
 def _ensemble(records, name: str, settle_s: float):
-    """(t, true_xy, true_yaw, mean xy, mean yaw, RMS marker error over the runs) of one filter."""
+    """(t, true_xy, true_yaw, mean xy, mean yaw, RMS marker error over the runs) of one filter,
+    each over the runs with a valid estimate at that step (NaN where none has one)."""
     data = [r.arrays() for r in records]
     t = data[0]["t"].astype(float)
-    xy = np.mean([d[f"{name}_xy"] for d in data], axis=0)
-    yaw_runs = np.array([d[f"{name}_yaw"] for d in data], dtype=float)
     true_yaw = data[0]["true_yaw"].astype(float)
-    yaw = true_yaw + np.arctan2(np.mean(np.sin(yaw_runs - true_yaw), axis=0), np.mean(np.cos(yaw_runs - true_yaw), axis=0))
-    markers = np.sqrt(np.mean([d[f"{name}_marker_error"].astype(float) ** 2 for d in data], axis=0))
+    yaw_error = np.array([d[f"{name}_yaw"] for d in data], dtype=float) - true_yaw
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
+        xy = np.nanmean([d[f"{name}_xy"] for d in data], axis=0)
+        yaw = true_yaw + np.arctan2(np.nanmean(np.sin(yaw_error), axis=0), np.nanmean(np.cos(yaw_error), axis=0))
+        markers = np.sqrt(np.nanmean([d[f"{name}_marker_error"].astype(float) ** 2 for d in data], axis=0))
     return t, data[0]["true_xy"].astype(float), true_yaw, xy, yaw, markers
 
 

@@ -202,6 +202,22 @@ def test_campaign_identical_with_1_and_2_workers(tmp_path):
         assert (tmp_path / "mc1" / png).is_file()
 
 
+def test_detector_campaign_leaves_out_what_the_filters_flag(tmp_path):
+    # At 12 m/s the pad leaves the camera's view 0.2 s in and the filters coast until they flag
+    # their estimates invalid: the figures are over the valid ones (from t = 0 here).
+    definition = campaign_definition("gv-marker-ekf")
+    settings = campaign_settings(definition, "gv-marker-ekf", ["12"], 1,
+                                 overrides=[*SHORT, "estimation.source=detector", "estimation.settle_s=0"])
+    summary = run_campaign(definition, settings, tmp_path / "detector", workers=0, progress=False)
+    assert summary["runs"]["done"] == 1
+    record = json.loads((tmp_path / "detector" / "runs" / "12" / "00000.json").read_text())
+    ct = record["metrics"]["estimators"]["ct_ekf"]
+    assert 0 < ct["valid_fraction"] < 0.5 and record["metrics"]["measurements"]["measured_fraction"][0] < 0.2
+    for name in ("paper_ekf", "ct_ekf"):
+        c = summary["filters"][name]["12"]
+        assert np.isfinite(c["ensemble_mean_position_xy_m"]) and c["ensemble_mean_position_xy_m"] < 1.0
+
+
 @pytest.mark.parametrize("args, message", [
     (["--speeds", "5"], "unknown speed '5'"),
     (["--runs", "0"], "--runs must be"),
