@@ -8,13 +8,20 @@ from scipy.spatial.transform import Rotation
 
 from systems.sensors.tof import sensor_positions_C
 from systems.estimators.crhf_math import (
+    NORMAL_GATE,
+    CornerNormal,
     arun_rigid_transform,
+    corner_normal,
     crhf_tag_pose,
     fit_plane,
     focal_lengths_from_touch_points,
+    fuse_gaussian,
+    fuse_normals,
     intersect_pixel_rays_with_plane,
+    plane_tilt_covariance,
     principal_point_from_touch_points,
     tag_corners_T,
+    tangent_basis,
     touch_points,
 )
 
@@ -254,3 +261,133 @@ def test_crhf_pipeline_flags_a_missing_range_without_raising():
     )
     assert not estimate.valid and estimate.plane.degenerate
     assert estimate.X_CT.IsExactlyIdentity()
+
+
+@pytest.mark.parametrize("normal", [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.3, -0.2, 0.9], [-0.6, 0.7, 0.2]])
+def test_tangent_basis_is_orthonormal_and_perpendicular_to_the_normal(normal):
+    n = np.asarray(normal) / np.linalg.norm(normal)
+    E = tangent_basis(n)
+    np.testing.assert_allclose(E @ E.T, np.eye(2), atol=1e-15)
+    np.testing.assert_allclose(E @ n, 0.0, atol=1e-15)
+
+
+def tilt(n_ref, E, n):
+    """Gnomonic tilt of the unit vector n about n_ref in the basis E."""
+    return E @ n / (n_ref @ n)
+
+
+@pytest.mark.parametrize("correlated", [False, True])
+def test_plane_tilt_covariance_matches_monte_carlo(correlated):
+    rng = np.random.default_rng(4)
+    n, d = deck_plane(X_CT)
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    true_ranges = ranges_to_plane(p_s, n, d)
+    cov = 0.002**2 * (np.eye(4) + (0.5 * (np.ones((4, 4)) - np.eye(4)) if correlated else 0.0))
+    E = tangent_basis(n)
+    draws = rng.multivariate_normal(true_ranges, cov, size=20000)
+    tilts = np.array([tilt(n, E, fit_plane(touch_points(p_s, r)).normal) for r in draws])
+    predicted = plane_tilt_covariance(touch_points(p_s, true_ranges), fit_plane(touch_points(p_s, true_ranges)),
+                                      cov, E)
+    np.testing.assert_allclose(tilts.mean(axis=0), 0.0, atol=3e-4)
+    np.testing.assert_allclose(np.cov(tilts.T), predicted, rtol=0.05, atol=0.05 * np.abs(predicted).max())
+
+
+def test_corner_normal_is_exact_on_exact_corners_and_its_covariance_matches_monte_carlo():
+    p_T = tag_corners_T(TAG_SIZE)
+    uv = project(np.array([X_CT.multiply(p) for p in p_T]))
+    exact = corner_normal(uv, [FX, FY], [CX, CY], p_T)
+    n = X_CT.rotation().matrix()[:, 2]
+    np.testing.assert_allclose(exact.normal, n, atol=1e-9)
+    assert exact.residual_px2 < 1e-12
+    np.testing.assert_allclose(exact.unit_covariance @ n, 0.0, atol=1e-12)  # no spread along n
+
+    rng = np.random.default_rng(5)
+    sigma = 0.1  # px: first order holds (at 0.3 px this 60 px tag's mirror pose appears in the tail)
+    E = tangent_basis(n)
+    draws = [corner_normal(uv + sigma * rng.standard_normal(uv.shape), [FX, FY], [CX, CY], p_T)
+             for _ in range(5000)]
+    tilts = np.array([tilt(n, E, c.normal) for c in draws])
+    predicted = sigma**2 * E @ exact.unit_covariance @ E.T
+    np.testing.assert_allclose(np.cov(tilts.T), predicted, rtol=0.1, atol=0.1 * np.abs(predicted).max())
+    # The residual has 2 N - 6 = 2 degrees of freedom: its mean over draws is 2 sigma^2.
+    assert np.mean([c.residual_px2 for c in draws]) == pytest.approx(2 * sigma**2, rel=0.1)
+
+
+def test_fuse_gaussian_in_one_dimension_by_hand():
+    fused = fuse_gaussian([0.0], [[1.0]], [2.0], [[3.0]])
+    # weights 3/4 and 1/4; variance (1 * 3) / (1 + 3); distance 2^2 / (1 + 3)
+    np.testing.assert_allclose(fused.mean, [0.5])
+    np.testing.assert_allclose(fused.covariance, [[0.75]])
+    assert fused.mahalanobis2 == pytest.approx(1.0)
+
+
+def test_fuse_gaussian_equals_the_information_form_and_lets_an_exact_estimate_win():
+    rng = np.random.default_rng(6)
+    M1, M2 = rng.normal(size=(2, 2, 2))
+    A, B = M1 @ M1.T + 0.1 * np.eye(2), M2 @ M2.T + 0.1 * np.eye(2)
+    a, b = rng.normal(size=(2, 2))
+    fused = fuse_gaussian(a, A, b, B)
+    info = np.linalg.inv(A) + np.linalg.inv(B)
+    np.testing.assert_allclose(fused.covariance, np.linalg.inv(info), atol=1e-12)
+    np.testing.assert_allclose(fused.mean, np.linalg.solve(info, np.linalg.solve(A, a) + np.linalg.solve(B, b)),
+                               atol=1e-12)
+    equal = fuse_gaussian(a, A, b, A)
+    np.testing.assert_allclose(equal.mean, (a + b) / 2, atol=1e-12)
+    np.testing.assert_allclose(equal.covariance, A / 2, atol=1e-12)
+    np.testing.assert_allclose(fuse_gaussian(a, A, b, np.zeros((2, 2))).mean, b, atol=1e-12)
+
+
+def corner_normal_at(n):
+    """A corner normal with the given direction and an isotropic unit covariance of 1e-4 rad^2."""
+    n = np.asarray(n) / np.linalg.norm(n)
+    return n, (1e-4 * (np.eye(3) - np.outer(n, n)))
+
+
+def fusion_case(corner_direction):
+    """A level deck 2 m below the camera, its range covariance giving the same tilt variance 1e-4
+    rad^2 on both axes as the corner normal's at a corner variance of 1 px^2."""
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    p_t = touch_points(p_s, np.full(4, 2.0))
+    plane = fit_plane(p_t)
+    unit = plane_tilt_covariance(p_t, plane, np.eye(4), tangent_basis(plane.normal))[0, 0]
+    normal, covariance = corner_normal_at(corner_direction)
+    return plane, p_t, 1e-4 / unit * np.eye(4), CornerNormal(normal, covariance, 0.0)
+
+
+def test_fusing_equally_certain_normals_takes_the_mid_tilt_and_keeps_the_ranges_depth():
+    plane, p_t, range_covariance, corners = fusion_case([0.02, -0.01, 1.0])
+    fused = fuse_normals(plane, p_t, range_covariance, corners, 1.0)
+    expected = np.array([0.01, -0.005, 1.0])
+    # Exact up to the chart's second order: the corners' covariance grows by (1 + tilt^2) in it.
+    np.testing.assert_allclose(fused.normal, expected / np.linalg.norm(expected), atol=1e-5)
+    assert fused.normal @ p_t.mean(axis=0) == pytest.approx(fused.offset)  # through the touch points' centroid
+    assert fused.offset / fused.normal[2] == pytest.approx(2.0)  # depth on the optical axis kept
+    # A corner variance 3 times the unit weighs the corners by 1/4: a quarter of the tilt.
+    quarter = fuse_normals(plane, p_t, range_covariance, corners, 3.0)
+    expected = np.array([0.005, -0.0025, 1.0])
+    np.testing.assert_allclose(quarter.normal, expected / np.linalg.norm(expected), atol=1e-5)
+
+
+def test_a_corner_normal_beyond_the_gate_leaves_the_range_plane_alone():
+    plane, p_t, range_covariance, corners = fusion_case([0.2, 0.0, 1.0])  # 11 degrees off, sigma 10 mrad
+    assert 0.2**2 / 2e-4 > NORMAL_GATE
+    assert fuse_normals(plane, p_t, range_covariance, corners, 1.0) is plane
+
+
+def test_crhf_pipeline_with_fusion_and_given_intrinsics_recovers_the_tag_pose():
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    n, d = deck_plane(X_CT)
+    p_t = touch_points(p_s, ranges_to_plane(p_s, n, d))
+    p_T = tag_corners_T(TAG_SIZE)
+    uv_corners = project(np.array([X_CT.multiply(p) for p in p_T]))
+    uv_touch = project(p_t)
+    for variance in (None, 0.1):
+        estimate = crhf_tag_pose(p_s, p_t[:, 2], uv_touch, uv_corners, p_T,
+                                 range_covariance=0.005**2 * np.eye(4), corner_variance_px2=variance)
+        assert estimate.valid and estimate.corner_residual_px2 < 1e-12
+        np.testing.assert_allclose(estimate.X_CT.GetAsMatrix4(), X_CT.GetAsMatrix4(), atol=1e-9)
+    # Intrinsics given: the corners are lifted with them; the frame's own are still reported.
+    wrong = crhf_tag_pose(p_s, p_t[:, 2], uv_touch, uv_corners, p_T, intrinsics=([FX * 1.01, FY], [CX, CY]))
+    np.testing.assert_allclose(wrong.focal_lengths, [FX, FY], atol=1e-8)
+    assert np.isnan(wrong.corner_residual_px2)
+    assert not np.allclose(wrong.X_CT.translation(), X_CT.translation(), atol=1e-4)

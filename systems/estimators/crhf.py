@@ -7,10 +7,22 @@ about a degree from frame to frame), give the touch points and the deck plane (E
 pad calibration (section 2.3) gives the touch points' pixels, from which the frame's focal lengths
 and principal point follow (Eq. 40-45); the corners are lifted onto the plane (Eq. 46-53) and
 Arun's method gives X_CT (Eq. 54-62). The mathematics is in `crhf_math`; this wraps it.
+
+Two more additions of ours, each with a switch in `CrhfConfig`:
+- fuse_corner_normal: the deck plane's normal from the four ranges (its covariance from the range
+  track's) is fused with the tag's normal from the tracked corners (a PnP solution; its covariance
+  from the reprojection Jacobian and the corner noise), so the orientation improves as the tag
+  grows in the image; the plane keeps the ranges' offset. The corner noise is not a setting: it is
+  the pooled variance of the PnP reprojection residuals over the frames so far (residual sum of
+  squares over degrees of freedom), and the first frame uses the ranges' plane alone.
+- average_intrinsics: the focal lengths and principal point of Eq. 40-45 describe a fixed lens,
+  so the corners are lifted with the mean of the earlier frames' measurements (this frame's for
+  the first), which averages out the calibration curve's wiggles that each frame's carry.
 """
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -18,7 +30,7 @@ from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from systems.config import require, require_positive
 
-from systems.estimators.crhf_math import crhf_tag_pose
+from systems.estimators.crhf_math import CrhfEstimate, crhf_tag_pose
 from systems.estimators.estimate import PoseEstimate
 from systems.estimators.pad_calibration import PadCalibration
 from systems.estimators.track_filter import Track, TrackFilterParams, step_track
@@ -33,7 +45,9 @@ class CrhfConfig:
     """calibration_file: the pad calibration (relative paths are tried from the working directory,
     then from the project root). touch_pixels: "pchip" (the paper's choice) or "hyperbola".
     corner_filter (px) and range_filter (m): the two Kalman filters; their dt_s is the camera
-    period. filter_ranges: False feeds each frame's raw ranges to the plane fit, as the paper does."""
+    period. filter_ranges: False feeds each frame's raw ranges to the plane fit, as the paper does.
+    fuse_corner_normal and average_intrinsics: our additions (module docstring); False for the
+    paper's plane and per-frame intrinsics."""
 
     calibration_file: str = DEFAULT_CALIBRATION
     touch_pixels: str = "pchip"
@@ -44,6 +58,8 @@ class CrhfConfig:
     range_filter: TrackFilterParams = field(default_factory=lambda: TrackFilterParams(
         measurement_std=0.005, acceleration_std=0.05, initial_velocity_std=0.2))  # m; VL53L1X-class noise
     filter_ranges: bool = True
+    fuse_corner_normal: bool = True
+    average_intrinsics: bool = True
 
     def validate(self, prefix: str = "crhf") -> None:
         require(self.touch_pixels in ("pchip", "hyperbola"),
@@ -60,15 +76,45 @@ class CrhfConfig:
         return PACKAGE_ROOT / path
 
 
+class RunningMean(NamedTuple):
+    """A mean accumulated over frames: total of the weighted samples and the total weight."""
+
+    total: np.ndarray | float = 0.0
+    weight: float = 0.0
+
+    def add(self, sample, weight: float = 1.0) -> "RunningMean":
+        return RunningMean(self.total + weight * np.asarray(sample, dtype=float), self.weight + weight)
+
+    @property
+    def mean(self):
+        """The mean, or None before the first sample."""
+        return self.total / self.weight if self.weight > 0 else None
+
+
+@dataclass(frozen=True)
+class CrhfState:
+    """What CRHF carries from frame to frame.
+
+    corners: the corner track (px); ranges: the range track (m); intrinsics: mean of the valid
+    frames' [fx, fy, cx, cy] (px); corner_variance: pooled variance of one corner coordinate
+    (px^2), the PnP residuals' sum of squares over their degrees of freedom (2 per frame)."""
+
+    corners: Track = Track()
+    ranges: Track = Track()
+    intrinsics: RunningMean = RunningMean()
+    corner_variance: RunningMean = RunningMean()
+
+
 class CrhfEstimator(LeafSystem):
     """Inputs: tag_detection (TagDetection), ranges (4, m, NaN when invalid). Output:
     X_CT_estimate (PoseEstimate) for the frame at the context's time; invalid when the corner track
     is lost, a range is invalid, the touch points are degenerate or a touch pixel is outside the
     calibration.
 
-    The filters' tracks are state, advanced by a periodic update at `period_s`; the output is the
-    estimate from the previous frame's tracks and this frame's measurements, computed once per
-    frame in a cache entry that the output and the update share. So the estimate logged at a frame
+    The filters' tracks and the running means (`CrhfState`) are state, advanced by a periodic
+    update at `period_s`; the output is the estimate from the previous frame's state and this
+    frame's measurements, computed once per frame in a cache entry that the output and the update
+    share. So the estimate logged at a frame
     is that frame's (no one-frame lag); evaluate it only at frame times."""
 
     def __init__(self, config: CrhfConfig, p_C_sensors: np.ndarray, tag_size_m: float, period_s: float):
@@ -78,41 +124,66 @@ class CrhfEstimator(LeafSystem):
         self._touch_method = config.touch_pixels
         self._corner_filter = replace(config.corner_filter, dt_s=period_s)
         self._range_filter = replace(config.range_filter, dt_s=period_s) if config.filter_ranges else None
+        self._range_variance = config.range_filter.measurement_std**2  # raw ranges' covariance / I
+        self._fuse = config.fuse_corner_normal
+        self._average_intrinsics = config.average_intrinsics
         self._p_C_sensors = np.asarray(p_C_sensors, dtype=float)
         self._p_T_corners = tag_corners_T(tag_size_m)
         self.DeclareAbstractInputPort("tag_detection", AbstractValue.Make(TagDetection()))
         self.DeclareVectorInputPort("ranges", 4)
-        self._tracks = self.DeclareAbstractState(AbstractValue.Make((Track(), Track())))
+        self._state = self.DeclareAbstractState(AbstractValue.Make(CrhfState()))
         self._frame = self.DeclareCacheEntry(
-            "frame", ValueProducer(allocate=lambda: AbstractValue.Make(((Track(), Track()), PoseEstimate())),
+            "frame", ValueProducer(allocate=lambda: AbstractValue.Make((CrhfState(), PoseEstimate())),
                                    calc=self._calc_frame))
         self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, 0.0, self._update)
         self.DeclareAbstractOutputPort("X_CT_estimate", lambda: AbstractValue.Make(PoseEstimate()),
                                        lambda c, o: o.set_value(self._frame.Eval(c)[1]),
                                        {self._frame.ticket()})
 
-    def step(self, tracks: tuple[Track, Track], corners: np.ndarray | None, ranges: np.ndarray, time: float):
-        """One frame: ((corner track, range track), PoseEstimate) from the previous tracks, the
-        detected corners (4x2 px or None) and the ranges (4, m, NaN when invalid)."""
-        corner_track = step_track(tracks[0], corners, self._corner_filter)
-        range_track = step_track(tracks[1], ranges, self._range_filter) if self._range_filter else Track()
-        if self._range_filter is not None:
-            ranges = range_track.position if range_track.valid and np.all(np.isfinite(ranges)) else None
-        return (corner_track, range_track), self.estimate(corner_track, ranges, time)
+    def step(self, state: CrhfState, corners: np.ndarray | None, ranges: np.ndarray, time: float):
+        """One frame: (next CrhfState, PoseEstimate) from the previous state, the detected corners
+        (4x2 px or None) and the ranges (4, m, NaN when invalid)."""
+        corner_track = step_track(state.corners, corners, self._corner_filter)
+        if self._range_filter is None:
+            range_track, range_covariance = Track(), self._range_variance * np.eye(4)
+        else:
+            range_track = step_track(state.ranges, ranges, self._range_filter)
+            valid = range_track.valid and np.all(np.isfinite(ranges))
+            ranges = range_track.position if valid else None
+            range_covariance = range_track.P[:4, :4] if valid else None
+        result = self.estimate(corner_track, ranges, range_covariance, state)
+        state = replace(state, corners=corner_track, ranges=range_track)
+        if result is None or not result.valid:
+            return state, PoseEstimate.invalid(time)
+        return self._remember(state, result), PoseEstimate(time, result.X_CT, True)
 
-    def estimate(self, corner_track: Track, ranges: np.ndarray | None, time: float) -> PoseEstimate:
-        """The CRHF pose from the tracked corners and four ranges (m); invalid if either is missing."""
+    def estimate(self, corner_track: Track, ranges: np.ndarray | None, range_covariance: np.ndarray | None,
+                 state: CrhfState) -> CrhfEstimate | None:
+        """The CRHF frame from the tracked corners, four ranges (m) and their covariance (m^2), with
+        the intrinsics and corner noise remembered in `state`; None if corners or ranges are missing."""
         if not corner_track.valid or ranges is None or not np.all(np.isfinite(ranges)):
-            return PoseEstimate.invalid(time)
+            return None
         uv_touch = self._calibration.touch_pixels(ranges, self._touch_method)
-        result = crhf_tag_pose(self._p_C_sensors, ranges, uv_touch, corner_track.position.reshape(4, 2),
-                               self._p_T_corners)
-        return PoseEstimate(time, result.X_CT, True) if result.valid else PoseEstimate.invalid(time)
+        intrinsics = state.intrinsics.mean if self._average_intrinsics else None
+        return crhf_tag_pose(
+            self._p_C_sensors, ranges, uv_touch, corner_track.position.reshape(4, 2), self._p_T_corners,
+            intrinsics=None if intrinsics is None else (intrinsics[:2], intrinsics[2:]),
+            range_covariance=range_covariance if self._fuse else None,
+            corner_variance_px2=state.corner_variance.mean)
+
+    @staticmethod
+    def _remember(state: CrhfState, result: CrhfEstimate) -> CrhfState:
+        """The state with a valid frame's intrinsics and PnP residual (2 degrees of freedom) added."""
+        intrinsics = state.intrinsics.add(np.r_[result.focal_lengths, result.principal_point])
+        variance = state.corner_variance
+        if np.isfinite(result.corner_residual_px2):
+            variance = variance.add(result.corner_residual_px2 / 2.0, 2.0)
+        return replace(state, intrinsics=intrinsics, corner_variance=variance)
 
     def _calc_frame(self, context, value):
-        tracks = context.get_abstract_state(self._tracks).get_value()
-        value.set_value(self.step(tracks, self.get_input_port(0).Eval(context).corners,
+        state = context.get_abstract_state(self._state).get_value()
+        value.set_value(self.step(state, self.get_input_port(0).Eval(context).corners,
                                   self.get_input_port(1).Eval(context), context.get_time()))
 
     def _update(self, context, state):
-        state.get_mutable_abstract_state(self._tracks).set_value(self._frame.Eval(context)[0])
+        state.get_mutable_abstract_state(self._state).set_value(self._frame.Eval(context)[0])

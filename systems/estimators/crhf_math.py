@@ -5,6 +5,12 @@ touch points on the deck; the plane through them, together with focal lengths an
 measured from the touch points' pixels, lifts the tag's detected corners to 3-D, and Arun's SVD
 method turns the 3-D corners into the tag pose X_CT.
 
+Our addition (not in the paper): the plane's normal from the four ranges does not improve as the
+tag grows in the image, while the tag's normal from its corners does. Both normals come with a
+covariance (first-order propagation of the range covariance through the plane fit, and of the
+corner noise through the perspective-n-point solution), and their information-weighted mean in the
+plane's tangent space replaces the range normal before the corners are lifted (`fuse_normals`).
+
 Frames and units: everything is expressed in the camera frame C (+z along the optical axis,
 +x right, +y down in the image), in metres. Pixels follow OpenCV: u right, v down, pixel centres
 at integers. The tag frame T is the paper's camera-facing one (origin at the tag centre, z into the
@@ -14,6 +20,7 @@ tag face); see `tag_corners_T`.
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
@@ -68,6 +75,150 @@ def fit_plane(points: np.ndarray, rel_tol: float = 1e-6, abs_tol: float = 1e-9) 
     if d < 0:
         n, d = -n, -d
     return PlaneFit(n, d, float(s[2] / np.sqrt(len(p))), False)
+
+
+def tangent_basis(normal: np.ndarray) -> np.ndarray:
+    """(2, 3) orthonormal rows spanning the plane perpendicular to the unit vector `normal`.
+
+    Tilts of a normal are expressed in this basis: the gnomonic chart n + E^T theta (normalised)
+    maps a tilt theta (2,), in radians to first order, to a unit vector near n.
+    """
+    n = np.asarray(normal, dtype=float)
+    helper = np.eye(3)[np.argmin(np.abs(n))]  # the axis least aligned with n
+    e1 = np.cross(n, helper)
+    e1 /= np.linalg.norm(e1)
+    return np.array([e1, np.cross(n, e1)])
+
+
+def plane_tilt_covariance(
+    p_C_touch: np.ndarray, plane: PlaneFit, range_covariance: np.ndarray, basis: np.ndarray
+) -> np.ndarray:
+    """(2, 2) covariance, rad^2, of the fitted plane's normal tilt in `basis` (our addition).
+
+    p_C_touch: (N, 3) touch points in C, metres, that `fit_plane` turned into `plane`;
+    range_covariance: (N, N) covariance of their ranges, m^2 (errors along +z_C, Eq. 26);
+    basis: (2, 3) tangent basis of the plane's normal (`tangent_basis`).
+    First order: a range error dr_i moves touch point i by n_z dr_i across the plane, and the
+    total-least-squares normal tilts by minus the least-squares slope of those offsets over the
+    points' centred in-plane coordinates Q (N, 2): theta = -n_z B dr with B = (Q^T Q)^-1 Q^T, so
+    the covariance is n_z^2 B Sigma_r B^T.
+    """
+    p = np.asarray(p_C_touch, dtype=float)
+    Q = (p - p.mean(axis=0)) @ basis.T
+    B = np.linalg.solve(Q.T @ Q, Q.T)
+    return plane.normal[2] ** 2 * B @ np.asarray(range_covariance, dtype=float) @ B.T
+
+
+class CornerNormal(NamedTuple):
+    """The tag's normal from its corners alone (a perspective-n-point solution), in C.
+
+    normal: (3,) unit normal of the tag face, pointing into the tag (away from the camera), i.e.
+        the z axis of R_CT. unit_covariance: (3, 3) its covariance per px^2 of corner noise
+        (multiply by the variance of one corner coordinate). residual_px2: sum of squared
+        reprojection residuals over the corners, px^2, with 2 N - 6 degrees of freedom.
+    """
+
+    normal: np.ndarray
+    unit_covariance: np.ndarray
+    residual_px2: float
+
+
+def corner_normal(
+    uv_corners: np.ndarray, focal_lengths: np.ndarray, principal_point: np.ndarray, p_T_corners: np.ndarray
+) -> CornerNormal | None:
+    """The tag normal from its corners and its first-order covariance (our addition).
+
+    uv_corners: (N, 2) pixels; focal_lengths (fx, fy) and principal_point (cx, cy) in pixels;
+    p_T_corners: (N, 3) the corners in T, metres. OpenCV's SQPnP gives rvec, tvec of X_CT;
+    projectPoints gives the reprojection Jacobian J = d(uv)/d(rvec, tvec) (2N x 6), so with
+    independent corner noise of variance s^2 per coordinate cov(rvec, tvec) = s^2 (J^T J)^-1;
+    Rodrigues' Jacobian carries the rvec block to the normal R_CT[:, 2]. None if PnP fails.
+    """
+    fx, fy = focal_lengths
+    cx, cy = principal_point
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    p_T = np.asarray(p_T_corners, dtype=float)
+    uv = np.asarray(uv_corners, dtype=float).reshape(-1, 2)
+    ok, rvec, tvec = cv2.solvePnP(p_T, uv.reshape(-1, 1, 2), K, None, flags=cv2.SOLVEPNP_SQPNP)
+    if not ok or not np.all(np.isfinite(rvec)):
+        return None
+    uv_model, J = cv2.projectPoints(p_T, rvec, tvec, K, None)
+    J = J[:, :6]
+    R, dR = cv2.Rodrigues(rvec)  # dR[i, 3 r + c] = d R[r, c] / d rvec[i]
+    dn = dR[:, 2::3].T  # d R[:, 2] / d rvec, (3, 3)
+    cov_rvec = np.linalg.inv(J.T @ J)[:3, :3]
+    residual = float(np.sum((uv_model.reshape(-1, 2) - uv) ** 2))
+    return CornerNormal(R[:, 2], dn @ cov_rvec @ dn.T, residual)
+
+
+class Fusion(NamedTuple):
+    """Information-weighted mean of two Gaussian estimates of one quantity.
+
+    mean, covariance: the fused estimate. mahalanobis2: squared Mahalanobis distance between the
+    two estimates over the sum of their covariances (chi-square with dim degrees of freedom when
+    both are right).
+    """
+
+    mean: np.ndarray
+    covariance: np.ndarray
+    mahalanobis2: float
+
+
+def fuse_gaussian(mean_a, cov_a, mean_b, cov_b) -> Fusion:
+    """Fuse two independent Gaussian estimates (our addition; the paper fuses no covariances).
+
+    The information form (A^-1 + B^-1)^-1 (A^-1 a + B^-1 b) written as a Kalman update,
+    a + A (A + B)^-1 (b - a) with covariance A - A (A + B)^-1 A, so that either covariance may be
+    singular (an exact estimate wins outright) as long as their sum is not.
+    """
+    a, b = np.asarray(mean_a, dtype=float), np.asarray(mean_b, dtype=float)
+    A, B = np.asarray(cov_a, dtype=float), np.asarray(cov_b, dtype=float)
+    S = A + B
+    difference = b - a
+    gain = np.linalg.solve(S, A).T  # A S^-1, both symmetric
+    covariance = A - gain @ A
+    return Fusion(a + gain @ difference, (covariance + covariance.T) / 2,
+                  float(difference @ np.linalg.solve(S, difference)))
+
+
+# Gate on the two normals' disagreement: the chi-square quantile with 2 degrees of freedom at
+# 0.999 (its survival function is exp(-x / 2)). Beyond it the corners' normal is not the same
+# plane's within noise (e.g. the mirror solution of a planar PnP) and the range plane is kept.
+NORMAL_GATE = -2.0 * np.log(1e-3)
+
+
+def fuse_normals(
+    plane: PlaneFit, p_C_touch: np.ndarray, range_covariance: np.ndarray, corners: CornerNormal,
+    corner_variance_px2: float,
+) -> PlaneFit:
+    """The deck plane with its normal fused from the ranges and the corners (our addition).
+
+    plane: `fit_plane` of the touch points p_C_touch (N, 3, m, in C); range_covariance (N, N, m^2);
+    corners: the corner normal; corner_variance_px2: variance of one corner coordinate, px^2.
+    Both normals become tilts in the range normal's tangent basis E: the range plane's is 0 with
+    `plane_tilt_covariance`; the corners' normal m maps through the gnomonic chart,
+    theta = E m / (n . m), whose Jacobian (E - theta n^T) / (n . m) carries its covariance. The
+    fused tilt gives the normal; the plane keeps passing through the touch points' centroid, so
+    its offset (and the estimate's depth) stays the ranges'. Beyond `NORMAL_GATE` the range plane
+    is returned unchanged.
+    """
+    n, m = plane.normal, corners.normal
+    E = tangent_basis(n)
+    cosine = float(n @ m)
+    if cosine <= 0.0:
+        return plane
+    theta = E @ m / cosine
+    chart = (E - np.outer(theta, n)) / cosine
+    cov_corners = corner_variance_px2 * chart @ corners.unit_covariance @ chart.T
+    cov_ranges = plane_tilt_covariance(p_C_touch, plane, range_covariance, E)
+    fused = fuse_gaussian(np.zeros(2), cov_ranges, theta, cov_corners)
+    if fused.mahalanobis2 > NORMAL_GATE:
+        return plane
+    normal = n + E.T @ fused.mean
+    normal /= np.linalg.norm(normal)
+    p = np.asarray(p_C_touch, dtype=float)
+    offset = float(normal @ p.mean(axis=0))
+    return PlaneFit(normal, offset, float(np.sqrt(np.mean((p @ normal - offset) ** 2))), False)
 
 
 def principal_point_from_touch_points(p_C_touch: np.ndarray, uv_touch: np.ndarray) -> np.ndarray:
@@ -153,9 +304,13 @@ class CrhfEstimate:
     """One CRHF frame: the tag pose and the intermediate quantities behind it.
 
     X_CT: tag pose in C (identity when not valid). valid: every step succeeded.
-    plane: the deck plane from the touch points. focal_lengths (fx, fy) and
-    principal_point (cx, cy): pixels, measured this frame from the touch points.
+    plane: the deck plane the corners were lifted onto: the touch points' plane, its normal fused
+    with the corners' (`fuse_normals`) when a corner variance was given and the gate passed.
+    focal_lengths (fx, fy) and principal_point (cx, cy): pixels, measured this frame from the
+    touch points (Eq. 40-45), whichever intrinsics the corners were lifted with.
     p_C_corners: (4, 3) tag corners in C, metres (NaN rows where a ray missed the plane).
+    corner_residual_px2: the corners' PnP reprojection residual, px^2, 2 degrees of freedom (NaN
+    when the corners' normal was not computed).
     """
 
     X_CT: RigidTransform
@@ -164,6 +319,7 @@ class CrhfEstimate:
     focal_lengths: np.ndarray
     principal_point: np.ndarray
     p_C_corners: np.ndarray
+    corner_residual_px2: float = np.nan
 
 
 def crhf_tag_pose(
@@ -172,6 +328,10 @@ def crhf_tag_pose(
     uv_touch: np.ndarray,
     uv_corners: np.ndarray,
     p_T_corners: np.ndarray,
+    *,
+    intrinsics: tuple[np.ndarray, np.ndarray] | None = None,
+    range_covariance: np.ndarray | None = None,
+    corner_variance_px2: float | None = None,
 ) -> CrhfEstimate:
     """The CRHF pipeline of Sec. 2.4-2.8 for one frame.
 
@@ -180,6 +340,11 @@ def crhf_tag_pose(
     uv_touch: (4, 2) pixels of the touch points (from the pad calibration, Sec. 2.3).
     uv_corners: (4, 2) detected (or filtered) tag corners, pixels.
     p_T_corners: (4, 3) the same corners in the tag frame T, metres (`tag_corners_T`, Eq. 62).
+    Our additions, each off when None: intrinsics, ((fx, fy), (cx, cy)) in pixels to lift the
+    corners with instead of this frame's Eq. 40-45 (e.g. their mean over earlier frames);
+    range_covariance, (4, 4) m^2 of the ranges: the corners' own normal is computed and its
+    residual reported, and with corner_variance_px2 (variance of one corner coordinate, px^2) it
+    is fused with the touch points' normal (`fuse_normals`).
     Never raises on bad measurements: the estimate is then flagged invalid.
     """
     p_C_touch = touch_points(p_C_sensors, ranges)
@@ -190,9 +355,15 @@ def crhf_tag_pose(
         return CrhfEstimate(RigidTransform(), False, plane, nan2, nan2, np.full((4, 3), np.nan))
     principal_point = principal_point_from_touch_points(p_C_touch, uv_touch)
     focal_lengths = focal_lengths_from_touch_points(p_C_touch, uv_touch, principal_point)
-    p_C_corners, hit = intersect_pixel_rays_with_plane(
-        uv_corners, focal_lengths, principal_point, plane
-    )
-    valid = bool(np.all(hit) and np.all(focal_lengths > 0))
+    f, c = (focal_lengths, principal_point) if intrinsics is None else intrinsics
+    valid = bool(np.all(focal_lengths > 0) and np.all(np.asarray(f) > 0))
+    residual = np.nan
+    if valid and range_covariance is not None:
+        corners = corner_normal(uv_corners, f, c, p_T_corners)
+        residual = np.nan if corners is None else corners.residual_px2
+        if corners is not None and corner_variance_px2 is not None:
+            plane = fuse_normals(plane, p_C_touch, range_covariance, corners, corner_variance_px2)
+    p_C_corners, hit = intersect_pixel_rays_with_plane(uv_corners, f, c, plane)
+    valid = valid and bool(np.all(hit))
     X_CT = arun_rigid_transform(p_T_corners, p_C_corners) if valid else RigidTransform()
-    return CrhfEstimate(X_CT, valid, plane, focal_lengths, principal_point, p_C_corners)
+    return CrhfEstimate(X_CT, valid, plane, focal_lengths, principal_point, p_C_corners, residual)
