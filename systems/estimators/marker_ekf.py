@@ -242,8 +242,12 @@ class MarkerFilter:
     def normalized(self, x: np.ndarray) -> np.ndarray:
         return x
 
-    def platform(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(p_WP, q^{P/R}, 6x6 covariance of [roll, pitch, yaw, x, y, z], p_WM (n, 3))."""
+    def platform(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(p_WP, q^{P/R}, p_WM (n, 3)) of the state x; p_WP is x[:3] in every model."""
+        raise NotImplementedError
+
+    def platform_covariance(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """6x6 covariance of [roll, pitch, yaw, x, y, z] of the pad frame P."""
         raise NotImplementedError
 
     # ---- camera ------------------------------------------------------------------------------
@@ -265,10 +269,11 @@ class MarkerFilter:
 
     # ---- filter steps ------------------------------------------------------------------------
 
-    def step(self, t: float, X_WB: RigidTransform, measurements) -> None:
+    def step(self, t: float, X_WB: RigidTransform, measurements, camera: Camera | None = None) -> None:
         """Advances the filter to time t [s], later than the previous step's, with the UAV at X_WB
         (at t) and the marker measurements that arrived since the previous step (any order, late
-        ones included)."""
+        ones included). `camera`: `camera_at(X_WB)` when the caller has it already (filters with
+        the same camera mount can share one)."""
         history = self._history
         if history and t <= history[-1].time + TIME_TOLERANCE_S:
             raise ValueError(f"step at t = {t} s does not follow the previous step at {history[-1].time} s")
@@ -288,7 +293,8 @@ class MarkerFilter:
             old = history[j]
             steps.append(self._run(steps[-1] if steps else None, old.time, old.camera,
                                    old.measurements + tuple(late.get(j, ()))))
-        steps.append(self._run(steps[-1] if steps else None, t, self.camera_at(X_WB), tuple(current)))
+        camera = self.camera_at(X_WB) if camera is None else camera
+        steps.append(self._run(steps[-1] if steps else None, t, camera, tuple(current)))
         while len(steps) > 1 and steps[0].time < t - self.config.history_s - TIME_TOLERANCE_S:
             settled += steps.pop(0).stats
             self._has_evicted = True
@@ -304,13 +310,10 @@ class MarkerFilter:
     def _usable(self, m: MarkerMeasurement, t: float) -> bool:
         """A known marker, taken by time t, finite, with a unit quaternion (to tolerance)."""
         try:
-            if type(m) is MarkerMeasurement:  # its __post_init__ made p_CM and q_CM float arrays
-                p, q = m.p_CM.tolist(), m.q_CM.tolist()
-            else:
-                p, q = np.asarray(m.p_CM, dtype=float).tolist(), np.asarray(m.q_CM, dtype=float).tolist()
-            return (m.marker_id in self._slot and len(p) == 3 and len(q) == 4 and m.time <= t + TIME_TOLERANCE_S
-                    and all(map(math.isfinite, p + q))
-                    and abs(math.sqrt(sum(v * v for v in q)) - 1.0) <= self.config.max_quaternion_norm_error)
+            if type(m) is not MarkerMeasurement:
+                m = MarkerMeasurement(m.time, m.marker_id, m.p_CM, m.q_CM)
+            return (m.marker_id in self._slot and m.time <= t + TIME_TOLERANCE_S
+                    and abs(m.quaternion_norm - 1.0) <= self.config.max_quaternion_norm_error)
         except (AttributeError, TypeError, ValueError):  # not a measurement, or nested arrays
             return False
 
@@ -460,29 +463,31 @@ class MarkerFilter:
         if not self.started:
             time = 0.0 if t is None else t
             return MarkerFilterEstimate(PoseEstimate.invalid(time), np.full((len(self.p_PM), 3), np.nan), np.nan)
-        time, p_WP, q_PR, covariance, p_WM, valid, yaw = self._summary(t)
+        belief, p_WP, q_PR, p_WM, valid, yaw = self._summary(t)
         R_WP = RotationMatrix(paper_to_drake(q_PR))
-        return MarkerFilterEstimate(PoseEstimate(time, RigidTransform(R_WP, p_WP), valid, covariance), p_WM, yaw)
+        covariance = self.platform_covariance(belief.x, belief.P)
+        return MarkerFilterEstimate(PoseEstimate(belief.time, RigidTransform(R_WP, p_WP), valid, covariance), p_WM,
+                                    yaw)
 
     def estimate_values(self, t: float | None = None) -> tuple[np.ndarray, float, np.ndarray, bool] | None:
         """`estimate(t)`'s (p_WP, yaw, p_WM, valid) without building its Drake objects (for loops
         over many steps, e.g. the Monte Carlo runs); None before the filter has started."""
         if not self.started:
             return None
-        _, p_WP, _, _, p_WM, valid, yaw = self._summary(t)
+        _, p_WP, _, p_WM, valid, yaw = self._summary(t)
         return p_WP, yaw, p_WM, valid
 
     def _summary(self, t: float | None):
-        """(time, p_WP, unit q^{P/R}, covariance, p_WM, valid, yaw) of the latest posterior predicted to t."""
+        """(belief, p_WP, unit q^{P/R}, p_WM, valid, yaw) of the latest posterior predicted to t."""
         belief = self._history[-1].belief
         if t is not None:
             belief = self._predict_to(belief, t)
-        p_WP, q_PR, covariance, p_WM = self.platform(belief.x, belief.P)
+        p_WP, q_PR, p_WM = self.platform(belief.x)
         q_PR = q_PR / np.linalg.norm(q_PR)
-        valid = bool(np.sqrt(np.trace(covariance[3:, 3:])) <= self.config.max_valid_position_std_m)
+        valid = bool(np.sqrt(np.trace(belief.P[:3, :3])) <= self.config.max_valid_position_std_m)  # p_WP = x[:3]
         x, y, z, w = q_PR.tolist()  # scalar last; yaw = atan2(R_WP[1, 0], R_WP[0, 0])
         yaw = math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
-        return belief.time, p_WP, q_PR, covariance, p_WM, valid, yaw
+        return belief, p_WP, q_PR, p_WM, valid, yaw
 
 
 class PaperMarkerEkf(MarkerFilter):
@@ -577,13 +582,15 @@ class PaperMarkerEkf(MarkerFilter):
         x[self._q] /= np.linalg.norm(x[self._q])
         return x
 
-    def platform(self, x, P):
+    def platform(self, x):
         m = len(self.p_PM)
-        q = x[self._q]
+        return x[:3].copy(), x[self._q].copy(), x[:6 * m].reshape(m, 6)[:, :3].copy()
+
+    def platform_covariance(self, x, P):
         J = np.zeros((6, self.n))  # [small rotation in P; position of marker 0] from x
-        J[:3, self._q] = 2 * xi(q).T  # dtheta = 2 Xi(q)^T dq (Markley & Crassidis)
+        J[:3, self._q] = 2 * xi(x[self._q]).T  # dtheta = 2 Xi(q)^T dq (Markley & Crassidis)
         J[3:, :3] = np.eye(3)
-        return x[:3].copy(), q.copy(), J @ P @ J.T, x[:6 * m].reshape(m, 6)[:, :3].copy()
+        return J @ P @ J.T
 
 
 def _rot_z(psi: float) -> np.ndarray:
@@ -687,11 +694,14 @@ class ConstantTurnEkf(MarkerFilter):
         x[self.PSI] = (x[self.PSI] + np.pi) % (2 * np.pi) - np.pi
         return x
 
-    def platform(self, x, P):
+    def platform(self, x):
+        return x[:3].copy(), _yaw_quaternion(x[self.PSI]), x[:3] + self.p_PM @ _rot_z(x[self.PSI]).T
+
+    def platform_covariance(self, x, P):
         J = np.zeros((6, 8))
         J[2, self.PSI] = 1.0  # roll and pitch: level by assumption, zero variance
         J[3:, :3] = np.eye(3)
-        return x[:3].copy(), _yaw_quaternion(x[self.PSI]), J @ P @ J.T, x[:3] + self.p_PM @ _rot_z(x[self.PSI]).T
+        return J @ P @ J.T
 
 
 FILTERS = {PaperMarkerEkf.name: PaperMarkerEkf, ConstantTurnEkf.name: ConstantTurnEkf}

@@ -25,8 +25,9 @@ Sources, interchangeable, both giving `MarkerMeasurement`s:
   systems/estimators/atda.py); markers not detected are simply absent.
 """
 
+import math
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import cv2
 import numpy as np
@@ -132,6 +133,15 @@ class MarkerMeasurement:
             array = np.array(getattr(self, name), dtype=float)
             array.flags.writeable = False
             object.__setattr__(self, name, array)
+
+    @cached_property
+    def quaternion_norm(self) -> float:
+        """|q_CM|, NaN unless p_CM (3) and q_CM (4) are well-formed and finite: one check that
+        every filter reading the measurement shares."""
+        if self.p_CM.shape != (3,) or self.q_CM.shape != (4,):
+            return math.nan
+        p, q = self.p_CM.tolist(), self.q_CM.tolist()
+        return math.sqrt(sum(v * v for v in q)) if all(map(math.isfinite, p + q)) else math.nan
 
     def __deepcopy__(self, memo):
         return self
