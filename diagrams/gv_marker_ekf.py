@@ -30,11 +30,12 @@ markers are `platform.markers` (systems/perception/markers.py), textured on the 
   a marker not detected at t_k is not measured. The camera's 58 deg view loses the pad while the
   UAV, starting at 10 m, catches up with the vehicle (at 6 m/s from 0.3 to 2.3 s), and sees only
   the centre marker once it holds 0.4 m above it: the filters coast and use the markers they get.
-Each run's metrics carry the source's own accuracy per marker (`measurement_metrics`). Latency: seed 002 budgets
-25 ms to acquire and 10 ms to process a frame, so the measurements of t_k reach the filters at
-t_{k+1} (`estimation.latency_periods: 1`); the filters fuse them at their acquisition time (their
-history re-run) and their estimate at t_{k+1} is compared with the truth at t_{k+1}. Both filters
-get the IDENTICAL list of MarkerMeasurement objects at every step.
+Each run's metrics carry the source's own accuracy per marker (`measurement_metrics`).
+
+Latency: seed 002 budgets 25 ms to acquire and 10 ms to process a frame, so the measurements of
+t_k reach the filters at t_{k+1} (`estimation.latency_periods: 1`); the filters fuse them at their
+acquisition time (their history re-run) and their estimate at t_{k+1} is compared with the truth
+at t_{k+1}. Both filters get the IDENTICAL list of MarkerMeasurement objects at every step.
 
 Truth and noise are separate: the flight depends on the scenario, not on the measurement noise
 (perfect perception steers the UAV), so with the synthetic source `fly_truth` simulates it once per
@@ -44,8 +45,9 @@ scenario's seed and runs both filters over it. This is what makes the Monte Carl
 (diagrams/gv_marker_ekf_mc.py) cheap: a worker simulates each speed once, not once per run. The
 detector's stream comes from the flight itself (`fly` with the camera), once per run.
 
-Errors are estimate minus truth after `estimation.settle_s` (the first filter steps, from an
-unknown velocity, are left out): the pad frame P's position (the paper's S_P, at marker 0), its
+Errors are estimate minus truth over the valid estimates after `estimation.settle_s` (the first
+filter steps, from an unknown velocity, are left out; so are the steps where a filter coasting
+without measurements flags its estimate invalid): the pad frame P's position (the paper's S_P, at marker 0), its
 heading (yaw; roll and pitch are zero for both filters and the truth), and each marker's centre.
 """
 
@@ -661,7 +663,8 @@ def run(scenario: Scenario, ctx) -> dict:
                        f"{name}_valid": trace.valid, f"{name}_marker_error": est.errors[name].markers})
     write_npz(ctx.out_dir / "log.npz", **arrays)
     plot_run(scenario, est, ctx.out_dir)
-    seen = ", ".join(f"{i}: {f:.0%}" for i, f in zip(scenario.platform.markers.ids, est.measurements["measured_fraction"]))
+    seen = ", ".join(f"{i}: {f:.0%}"
+                     for i, f in zip(scenario.platform.markers.ids, est.measurements["measured_fraction"]))
     print(f"{ctx.name}: {source.source} measurements, markers measured in {seen} of the frames")
     for name, m in est.metrics.items():
         if "rms_position_m" in m:
