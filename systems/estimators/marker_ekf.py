@@ -326,13 +326,11 @@ class MarkerFilter:
             return 0 if time >= t - TIME_TOLERANCE_S else None
         if time > history[-1].time + TIME_TOLERANCE_S:
             return len(history)
-        for j, s in enumerate(history):
-            if time <= s.time + TIME_TOLERANCE_S:
-                if j > 0:
-                    return j
-                # The oldest step re-runs only while it is the filter's first, and for its own time.
-                return 0 if not self._has_evicted and time >= s.time - TIME_TOLERANCE_S else None
-        return None
+        for j in range(len(history) - 1, 0, -1):  # newest first: late measurements are mostly one step late
+            if time > history[j - 1].time + TIME_TOLERANCE_S:
+                return j
+        # The oldest step re-runs only while it is the filter's first, and for its own time.
+        return 0 if not self._has_evicted and time >= history[0].time - TIME_TOLERANCE_S else None
 
     def _run(self, previous: _Step | None, time: float, camera: Camera, measurements: tuple) -> _Step:
         """One step from the previous step's posterior: the measurements in time order, each group
