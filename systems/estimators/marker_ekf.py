@@ -20,8 +20,7 @@ Measurements (`MarkerMeasurement`): the pose of marker i in the camera frame C. 
 mounted at X_BC on the UAV body B whose pose X_WB (the UAV's own estimate) is a filter input: the
 measurement model is Eq. (12) with the camera offset c of Eq. (4) included (the paper has c = 0):
 p_CM = (D^{B/C})^T (D^{B/R} (p_WM - r) - c_B) and q^{M/C} = q^{B/C} (.) (q^{B/R})^-1 (.) q^{P/R}.
-The paper's Eq. (12) labels these rows p^i_R; they are the camera-frame s^i_C of Eq. (4). A
-measured quaternion is sign-aligned with the prediction (q and -q are the same attitude) before
+A measured quaternion is sign-aligned with the prediction (q and -q are the same attitude) before
 the paper's additive innovation; `ConstantTurnEkf` takes the attitude innovation as the rotation
 vector of q_meas (x) q_pred^-1 (both W-relative, Eq. 5) instead.
 
@@ -134,9 +133,13 @@ class Camera(NamedTuple):
     q_BR: np.ndarray  # q^{B/R}, the UAV attitude (paper quaternion of R_WB)
     R_CW: np.ndarray  # (D^{B/C})^T D^{B/R}
     p_WC: np.ndarray  # r + c: the camera's position in W [m]
-    Q_RC: np.ndarray  # [q^{B/C} (.)] [(q^{B/R})^-1 (.)]: q^{M/C} = Q_RC q^{M/R}, Eq. (12)
-    M_CR: np.ndarray  # [q^{C/R} (.)]: q^{M/R} = q^{M/C} (x) q^{C/R} = M_CR q^{M/C}, Eq. (5), with
-    #                   q^{C/R} = (q^{B/C})^-1 (x) q^{B/R} = (q^{R/C})^-1
+    Q_RC: np.ndarray  # [q^{B/C} (.)] [(q^{B/R})^-1 (.)] = [q^{R/C} (.)]: q^{M/C} = Q_RC q^{M/R}, Eq. (12)
+
+    @property
+    def M_CR(self) -> np.ndarray:
+        """[q^{C/R} (.)]: q^{M/R} = q^{M/C} (x) q^{C/R} = M_CR q^{M/C}, Eq. (5), with q^{C/R} =
+        (q^{R/C})^-1; [q^-1 (.)] = [q (.)]^T, so it is Q_RC^T."""
+        return self.Q_RC.T
 
 
 class _Belief(NamedTuple):
@@ -256,8 +259,7 @@ class MarkerFilter:
         """The camera's pose for the UAV at p_WB with attitude q^{B/R}."""
         D_BR = dcm(q_BR)
         q_RC = self._odot_q_BC @ inverse(q_BR)  # q^{B/C} (.) (q^{B/R})^-1 of Eq. (12), = q^{R/C}
-        return Camera(p_WB, q_BR, self._D_CB @ D_BR, p_WB + self._c_B @ D_BR,
-                      odot_matrix(q_RC), odot_matrix(inverse(q_RC)))
+        return Camera(p_WB, q_BR, self._D_CB @ D_BR, p_WB + self._c_B @ D_BR, odot_matrix(q_RC))
 
     def camera_at(self, X_WB: RigidTransform) -> Camera:
         return self.camera(X_WB.translation().copy(), drake_to_paper(X_WB.rotation()))

@@ -11,6 +11,7 @@ State x (2n,): the n coordinates followed by their rates, in the measurement's u
 """
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -31,16 +32,21 @@ def constant_velocity_model(params: TrackFilterParams, n: int):
     """(F, Q, H, R) of Eq. 28-29 for the 2n-state constant-velocity model of n coordinates.
 
     Q is the piecewise-constant white-acceleration model: per coordinate
-    std^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]].
+    std^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]. Built once per setting (the tracks step every frame
+    with the same one): the arrays are shared and read-only.
     """
-    dt = params.dt_s
+    return _constant_velocity_model(params.dt_s, params.acceleration_std, params.measurement_std, n)
+
+
+@lru_cache(maxsize=16)
+def _constant_velocity_model(dt: float, acceleration_std: float, measurement_std: float, n: int):
     eye = np.eye(n)
     F = np.kron([[1.0, dt], [0.0, 1.0]], eye)
-    Q = params.acceleration_std**2 * np.kron(
-        [[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]], eye
-    )
+    Q = acceleration_std**2 * np.kron([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]], eye)
     H = np.kron([[1.0, 0.0]], eye)
-    R = params.measurement_std**2 * eye
+    R = measurement_std**2 * eye
+    for array in (F, Q, H, R):
+        array.flags.writeable = False
     return F, Q, H, R
 
 
