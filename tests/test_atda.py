@@ -1,4 +1,4 @@
-"""ATDA: the tag pose from four corners by OpenCV's IPPE_SQUARE, in the project's tag frame T."""
+"""ATDA: the tag pose from four corners by OpenCV's SQPnP, in the project's tag frame T (and why not IPPE_SQUARE)."""
 
 import numpy as np
 import pytest

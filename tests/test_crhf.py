@@ -51,16 +51,16 @@ def static_run(platform, hover_yaw_deg, pixel_noise_std, tof_noise_std_m):
 
 @pytest.mark.parametrize("platform, hover_yaw_deg", STATIC_DECKS)
 def test_crhf_on_a_static_rendered_deck_is_within_1_cm_and_1_degree(platform, hover_yaw_deg):
-    # With the scenarios' noise (2 levels of pixel noise, 5 mm ToF noise): every settled frame within
-    # 1 cm; the rotation within 1 degree on average (single frames reach about 1.5 degrees: the plane
-    # through four ranges 0.19 m apart tilts with their noise).
+    # The issue's bound is 1 cm and 1 degree; CRHF does several times better, and these bounds
+    # (about twice what it reaches) catch a regression. With the scenarios' noise (2 levels of pixel
+    # noise, 5 mm ToF noise): every settled frame within 3 mm and 1 degree, 0.5 degree on average.
     settled, xyz, angle = static_run(platform, hover_yaw_deg, 2.0, 0.005)
-    assert np.abs(xyz[settled]).max() < 0.01
-    assert angle[settled].mean() < 1.0
-    # Exact ranges: every frame within 1 cm and 1 degree.
+    assert np.abs(xyz[settled]).max() < 0.003
+    assert angle[settled].mean() < 0.5 and angle[settled].max() < 1.0
+    # Exact ranges: every frame within 1 mm and 0.5 degree.
     settled, xyz, angle = static_run(platform, hover_yaw_deg, 2.0, 0.0)
-    assert np.abs(xyz[settled]).max() < 0.01
-    assert angle[settled].max() < 1.0
+    assert np.abs(xyz[settled]).max() < 0.001
+    assert angle[settled].max() < 0.5
 
 
 def test_a_smoke_run_of_the_dynamic_deck_has_crhf_z_error_below_atda(tmp_path):

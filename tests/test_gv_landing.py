@@ -126,7 +126,7 @@ def test_perception_seam_gives_the_true_relative_state():
     np.testing.assert_allclose(relative[A_WP][:2], out("target_acceleration"))
     # Rolled 80 deg, the camera cone (150 deg) no longer holds the pad: not valid.
     quad.FixValue(context, quadrotor_state(p_WB=[11.0, 2.0, 5.0], R_WB=RotationMatrix(RollPitchYaw(1.4, 0, 0))))
-    assert out("target_valid")[0] == 0.0 and relative[VALID] == 1.0
+    assert out("target_valid")[0] == 0.0 and out("relative_state")[VALID] == 0.0
 
 
 def test_the_pads_acceleration_is_the_rate_of_its_velocity():

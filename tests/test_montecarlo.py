@@ -23,6 +23,7 @@ from diagrams.montecarlo import (
 )
 from diagrams.outputs import save_figure
 from systems.config import ConfigError
+from systems.noise import stream_id
 
 SPEEDS = ("3", "6", "12")
 RUNS = 4
@@ -115,7 +116,8 @@ def record_mtimes(out: Path) -> dict:
 # ---- seeds and settings -----------------------------------------------------------------------
 
 def test_seeds_are_a_function_of_base_seed_case_and_index():
-    assert run_seed(0, "6", 3) == run_seed(0, "6", 3)
+    # Pinned: the same in every process and release (Python's hash() of "6" would differ per process).
+    assert stream_id("6") == 498629140 and run_seed(0, "6", 3) == 831844793
     seeds = {run_seed(b, c, i) for b in (0, 1) for c in SPEEDS for i in range(50)}
     assert len(seeds) == 2 * 3 * 50  # all distinct
     # Whatever the cases asked for, and in whichever order, run i of a case keeps its seed.
