@@ -211,13 +211,16 @@ class PerceptionConfig:
 
 @dataclass
 class StartConfig:
-    """Where the UAV waits on the ground at t = 0 (the vehicle starts at the World origin)."""
+    """Where the UAV is at t = 0, its rotors at hover speed: on the ground (height_m 0) or hovering
+    height_m above it (the vehicle starts at the World origin)."""
 
     xy_m: list[float] = field(default_factory=lambda: [-3.0, -4.0])
+    height_m: float = 0.0
     yaw_deg: float = 0.0
 
     def validate(self, prefix: str = "start") -> None:
         require(len(self.xy_m) == 2, f"{prefix}.xy_m needs 2 numbers")
+        require(self.height_m >= 0, f"{prefix}.height_m must not be negative")
 
 
 @dataclass
@@ -588,11 +591,12 @@ class GvLandingHandles:
     video: None = None  # no cameras here; runner.finish_run reads it
 
     def initialize(self, root_context) -> None:
-        """Sets the initial conditions in a context of the built diagram: the UAV at rest on the
-        ground at `start` with its rotors at hover speed, the vehicle at the start of its path."""
+        """Sets the initial conditions in a context of the built diagram: the UAV at rest at `start`
+        (on the ground, or hovering) with its rotors at hover speed, the vehicle at the start of its path."""
         c = self.config
         self.quadrotor.set_state(root_context,
-                                 hover_state(c.quadrotor, [*c.start.xy_m, 0.0], yaw=np.radians(c.start.yaw_deg)))
+                                 hover_state(c.quadrotor, [*c.start.xy_m, c.start.height_m],
+                                             yaw=np.radians(c.start.yaw_deg)))
         self.vehicle.set_state(root_context, self.vehicle.initial_state())
         self.controller.initialize(root_context)
 

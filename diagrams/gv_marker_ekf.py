@@ -6,11 +6,12 @@ estimated from five ArUco markers by the paper's EKF and by our constant-turn EK
 
 The scene (scenarios/gv-marker-ekf.yaml). The vehicle drives Eq. (13)'s sine path at
 `vehicle.speed` (C1 = 3, C2 = 6, C3 = 12 m/s); the pad's top is 1.6 m above the ground. The UAV
-starts hovering at (0, 0, 10) m, follows the vehicle and descends to 0.4 m above the pad, where it
-holds: this is the gv-landing diagram (diagrams/gv_landing.py, perfect perception) used through its
-public builder, with the supervisor's initial height IH = 10 m (so it starts in FOLLOW), its
-"touchdown" height set to 0.4 m and `termination.stop_on_landed: false` (LANDED then commands no
-vertical speed and keeps the vehicle's velocity: the hold). Vehicle and UAV integrate their
+starts hovering at (0, 0, 10) m (`start.height_m`), follows the vehicle and descends to 0.4 m above
+the pad, where it holds: this is the gv-landing diagram (diagrams/gv_landing.py, perfect
+perception) added through its public `add_gv_landing`, its supervisor's initial height IH set to
+2.0 m (0.4 m above the pad) and `landing.centred_radius_m` to 1e-6 m: after TAKEOFF, CLIMB takes
+it down to IH while tracking the pad, and FOLLOW then tracks and holds that altitude; APPROACH,
+landing and touchdown never come. Vehicle and UAV integrate their
 equations with Drake's RK5 over each 5 ms controller period (gv_landing.IntegrationConfig: its
 error matches seed 002's RK4 at h = 1 ms). The UAV steers on the TRUE relative state; the filters
 only watch.
@@ -65,7 +66,7 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorS
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from tqdm import tqdm
 
-from diagrams.gv_landing import GvLandingConfig, GvLandingHandles, add_gv_landing, path_polyline
+from diagrams.gv_landing import GvLandingConfig, GvLandingHandles, StartConfig, add_gv_landing, path_polyline
 from diagrams.outputs import save_figure, write_npz
 from diagrams.scenario import RunSettings
 from systems.config import ConfigError, require, require_positive
@@ -73,10 +74,10 @@ from systems.estimators.marker_ekf import FILTERS, MarkerEkfConfig
 from systems.perception.markers import MarkerDetectorSystem, MarkerLayout, MarkerMeasurement
 from systems.sensors.camera import CameraConfig, add_camera, add_renderer
 from systems.sensors.video import VideoRecorder
-from systems.vehicles.quadrotor import P_WB, Q_WB, hover_state
+from systems.geometry import wrap_angle
+from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
 
 LONG_WAVE_M = 500.0  # seed 002 Eq. (13): the long wave's period in x
-START_XYZ_M = (0.0, 0.0, 10.0)  # seed 002 Sec. 4: r_0
 
 
 SOURCES = ("synthetic", "detector")
@@ -132,6 +133,7 @@ class Scenario(RunSettings, GvLandingConfig):
     duration_s 0: 500 m of driving (LONG_WAVE_M / vehicle.speed)."""
 
     diagram: str = "gv_marker_ekf"
+    start: StartConfig = field(default_factory=lambda: StartConfig(xy_m=[0.0, 0.0], height_m=10.0))  # seed 002 r_0
     duration_s: float = 0.0
     estimation: MarkerEstimationConfig = field(default_factory=MarkerEstimationConfig)
 
@@ -141,8 +143,8 @@ class Scenario(RunSettings, GvLandingConfig):
         require(not self.vehicle.speed_schedule_times_s, "vehicle.speed_schedule_* is not used by gv-marker-ekf")
         GvLandingConfig.validate(self)
         self.estimation.validate()
-        require(self.platform.height_m < START_XYZ_M[2] and self.landing.initial_height_m < START_XYZ_M[2],
-                f"platform.height_m and landing.initial_height_m must be below the start at {START_XYZ_M[2]} m")
+        require(self.platform.height_m < self.start.height_m and self.landing.initial_height_m < self.start.height_m,
+                f"platform.height_m and landing.initial_height_m must be below start.height_m ({self.start.height_m} m)")
 
     @property
     def run_length_s(self) -> float:
@@ -232,15 +234,7 @@ def fly(scenario: Scenario, meshcat=None, camera: bool = False, realtime: bool =
     gv = handles.gv
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
-    gv.initialize(context)
-    # Seed 002 Sec. 4: the UAV starts at r_0 = (0, 0, 10) m (hovering), not on the ground.
-    quad = getattr(gv.quadrotor, "dynamics", gv.quadrotor)
-    quad_context = quad.GetMyMutableContextFromRoot(context)
-    x0 = hover_state(scenario.quadrotor, list(START_XYZ_M), yaw=np.radians(scenario.landing.yaw_deg))
-    if quad_context.num_continuous_states():
-        quad_context.SetContinuousState(x0)
-    else:
-        quad_context.SetDiscreteState(x0)
+    gv.initialize(context)  # the UAV hovering at start.height_m: seed 002 Sec. 4's r_0 = (0, 0, 10) m
     if not scenario.integration.discrete:
         ApplySimulatorConfig(scenario.integration.simulator_config(), simulator)
     if realtime:
@@ -249,10 +243,11 @@ def fly(scenario: Scenario, meshcat=None, camera: bool = False, realtime: bool =
     quad_ctx, vehicle_ctx = gv.quadrotor.GetMyContextFromRoot(context), gv.vehicle.GetMyContextFromRoot(context)
     times = scenario.sample_times
     layout = scenario.platform.markers
-    quad_states, vehicle_states = np.empty((len(times), 17)), np.empty((len(times), 4))
+    quad_states, vehicle_states = np.empty((len(times), STATE_SIZE)), np.empty((len(times), 4))
     p_CM, q_CM = np.full((len(times), len(layout.ids), 3), np.nan), np.full((len(times), len(layout.ids), 4), np.nan)
     detector_ctx = handles.detector.GetMyContextFromRoot(context) if camera else None
-    status = f"held 0.4 m above the pad for the run ({times[-1]:.1f} s)"
+    status = (f"held {scenario.landing.initial_height_m - scenario.platform.height_m:.2g} m above the pad "
+              f"for the run ({times[-1]:.1f} s)")
     if handles.meshcat_visualizer is not None and record:
         handles.meshcat_visualizer.StartRecording()
     start = time.perf_counter()
@@ -333,6 +328,15 @@ class MarkerStream:
     q_CM: np.ndarray
 
 
+def true_marker_positions(truth: Truth, layout: MarkerLayout) -> np.ndarray:
+    """(N, n, 3) marker centres in W."""
+    c, s = np.cos(truth.yaw), np.sin(truth.yaw)
+    p = layout.p_PM
+    return truth.p_WP[:, None, :] + np.stack([c[:, None] * p[:, 0] - s[:, None] * p[:, 1],
+                                              s[:, None] * p[:, 0] + c[:, None] * p[:, 1],
+                                              np.broadcast_to(p[:, 2], (len(c), len(p)))], axis=-1)
+
+
 def true_marker_poses_C(truth: Truth, layout: MarkerLayout, X_BC: RigidTransform) -> tuple[np.ndarray, np.ndarray]:
     """Every marker's true pose in the camera frame C at every sample: p_CM (N, n, 3) [m] and q_CP
     (N, 4), Drake's [w, x, y, z] of R_CP, every marker's attitude (they are aligned with P)."""
@@ -344,10 +348,7 @@ def true_marker_poses_C(truth: Truth, layout: MarkerLayout, X_BC: RigidTransform
     half = truth.yaw / 2
     q_WP = np.column_stack([np.cos(half), np.zeros(N), np.zeros(N), np.sin(half)])
     q_CP = quat_multiply(q_WC * np.array([1, -1, -1, -1]), q_WP)
-    c, s = np.cos(truth.yaw), np.sin(truth.yaw)
-    R_WP = np.zeros((N, 3, 3))
-    R_WP[:, 0, 0], R_WP[:, 0, 1], R_WP[:, 1, 0], R_WP[:, 1, 1], R_WP[:, 2, 2] = c, -s, s, c, 1.0
-    p_WM = truth.p_WP[:, None, :] + np.einsum("kij,mj->kmi", R_WP, layout.p_PM)
+    p_WM = true_marker_positions(truth, layout)
     R_CW = np.swapaxes(quat_to_matrix(q_WC), 1, 2)
     return np.einsum("kij,kmj->kmi", R_CW, p_WM - p_WC[:, None, :]), q_CP
 
@@ -450,19 +451,6 @@ def run_filters(truth: Truth, stream: MarkerStream, estimation: MarkerEstimation
     return traces
 
 
-def true_marker_positions(truth: Truth, layout: MarkerLayout) -> np.ndarray:
-    """(N, n, 3) marker centres in W."""
-    c, s = np.cos(truth.yaw), np.sin(truth.yaw)
-    p = layout.p_PM
-    return truth.p_WP[:, None, :] + np.stack([c[:, None] * p[:, 0] - s[:, None] * p[:, 1],
-                                              s[:, None] * p[:, 0] + c[:, None] * p[:, 1],
-                                              np.broadcast_to(p[:, 2], (len(c), len(p)))], axis=-1)
-
-
-def wrap(angle: np.ndarray) -> np.ndarray:
-    return (angle + np.pi) % (2 * np.pi) - np.pi
-
-
 @dataclass
 class Errors:
     """Estimate minus truth per step (NaN where the filter has not started)."""
@@ -473,7 +461,7 @@ class Errors:
 
 
 def filter_errors(truth: Truth, trace: FilterTrace, p_WM_true: np.ndarray) -> Errors:
-    return Errors(trace.p_WP - truth.p_WP, wrap(trace.yaw - truth.yaw),
+    return Errors(trace.p_WP - truth.p_WP, wrap_angle(trace.yaw - truth.yaw),
                   np.linalg.norm(trace.p_WM - p_WM_true, axis=-1))
 
 
@@ -567,11 +555,11 @@ def plot_path(ax, reference_xy, true_xy, estimates: dict[str, np.ndarray], title
 
 def plot_heading(axes, t, yaw_true, yaws: dict[str, np.ndarray], title: str) -> None:
     """Fig. 4: true and estimated heading, and the error."""
-    axes[0].plot(t, np.degrees(wrap(yaw_true)), "-", color="k", lw=1.2, label="true")
+    axes[0].plot(t, np.degrees(wrap_angle(yaw_true)), "-", color="k", lw=1.2, label="true")
     for name, yaw in yaws.items():
         colour, label = style(name)
-        axes[0].plot(t, np.degrees(wrap(yaw)), "--", color=colour, lw=1, label=label)
-        axes[1].plot(t, np.degrees(wrap(yaw - yaw_true)), "-", color=colour, lw=0.8, label=label)
+        axes[0].plot(t, np.degrees(wrap_angle(yaw)), "--", color=colour, lw=1, label=label)
+        axes[1].plot(t, np.degrees(wrap_angle(yaw - yaw_true)), "-", color=colour, lw=0.8, label=label)
     axes[0].set_ylabel("heading (deg)")
     axes[1].set_ylabel("error (deg)")
     axes[0].set_title(title)

@@ -78,7 +78,7 @@ def _filters(records) -> list[str]:
     return names
 
 
-def _ensemble(records, name: str, settle_s: float):
+def _ensemble(records, name: str):
     """(t, true_xy, true_yaw, mean xy, mean yaw, RMS marker error over the runs) of one filter,
     each over the runs with a valid estimate at that step (NaN where none has one)."""
     data = [r.arrays() for r in records]
@@ -104,7 +104,7 @@ def aggregate(done: dict) -> dict:
             ms = [r.metrics["estimators"][name] for r in records if "rms_position_m" in r.metrics["estimators"].get(name, {})]
             if not ms:
                 continue
-            t, true_xy, true_yaw, xy, yaw, _ = _ensemble(records, name, settle)
+            t, true_xy, true_yaw, xy, yaw, _ = _ensemble(records, name)
             window = (t >= settle) & np.all(np.isfinite(xy), axis=1)
             out.setdefault(name, {})[case] = {
                 "rms_position_m": float(np.sqrt(np.mean([m["rms_position_m"] ** 2 for m in ms]))),
@@ -137,7 +137,7 @@ def plot(settings, done: dict, out_dir: Path) -> None:
     names = _filters(done[cases[0]])
     scenario = load_scenario(settings.scenario, None, list(settings.overrides))[1]
     reference = path_polyline(scenario.vehicle, max_length_m=1e9)
-    ensembles = {c: {n: _ensemble(done[c], n, 0.0) for n in names} for c in cases}
+    ensembles = {c: {n: _ensemble(done[c], n) for n in names} for c in cases}
     fig, axes = plt.subplots(len(cases), 1, figsize=(9, 4.5 * len(cases)), squeeze=False)
     for ax, c in zip(axes[:, 0], cases):
         e = ensembles[c]

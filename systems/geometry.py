@@ -45,6 +45,11 @@ def register_visual(
     return geometry_id
 
 
+def wrap_angle(angle):
+    """An angle (rad; a number or an array) wrapped to [-pi, pi)."""
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
 def frame_between(p_A: np.ndarray, p_B: np.ndarray) -> RigidTransform:
     """The pose of a frame at point A whose +z axis points towards point B (both in the same frame)."""
     return RigidTransform(RotationMatrix.MakeFromOneVector(np.asarray(p_B) - np.asarray(p_A), 2), p_A)

@@ -20,10 +20,10 @@ from systems.estimators.crhf_math import (
     intersect_pixel_rays_with_plane,
     plane_tilt_covariance,
     principal_point_from_touch_points,
-    tag_corners_T,
     tangent_basis,
     touch_points,
 )
+from systems.perception.apriltag import tag_corners_T
 
 # Camera intrinsics of seed 000, Eq. 10 (printed transposed there, MATLAB style).
 FX, FY, CX, CY = 458.5, 457.855, 258.7735, 252.308

@@ -24,7 +24,6 @@ import cv2
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
-from systems.perception.apriltag import tag_corners_T  # noqa: F401  (the static points of Eq. 62)
 
 def touch_points(p_C_sensors: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     """Touch points on the deck in C, metres, shape (N, 3) (Eq. 26: p_st = [p_s,xy, d_i]).

@@ -64,6 +64,7 @@ from scipy.stats import chi2
 
 from systems.config import require, require_positive
 from systems.estimators.estimate import PoseEstimate
+from systems.geometry import wrap_angle
 from systems.estimators.quaternion import (dcm, drake_to_paper, inverse, odot_matrix, omega_matrix, paper_to_drake,
                                            rotation_vector, xi)
 from systems.perception.markers import MarkerLayout, MarkerMeasurement
@@ -691,7 +692,7 @@ class ConstantTurnEkf(MarkerFilter):
         return np.hstack([p_CM - self._predict_positions(x, slots, camera), rotation_vector(q_MC @ to_error.T)])
 
     def normalized(self, x):
-        x[self.PSI] = (x[self.PSI] + np.pi) % (2 * np.pi) - np.pi
+        x[self.PSI] = wrap_angle(x[self.PSI])
         return x
 
     def platform(self, x):

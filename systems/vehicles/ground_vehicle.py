@@ -29,6 +29,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, Multiplexer, SymbolicVectorSystem
 
 from systems.config import require, require_positive
+from systems.geometry import wrap_angle
 from systems.vehicles.integration import discretise, set_vehicle_state
 from systems.vehicles.paths import Path, PathConfig, make_path
 
@@ -102,10 +103,6 @@ def make_bicycle_dynamics(config: GroundVehicleConfig) -> SymbolicVectorSystem:
     return SymbolicVectorSystem(
         state=g, input=u, dynamics=bicycle_state_derivative(g, u[0], u[1], config),
         output=np.concatenate([g, v_WV]))
-
-
-def wrap_angle(angle):
-    return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
 def steering_command(state, speed: float, path: Path, s: float, config: GroundVehicleConfig) -> float:
