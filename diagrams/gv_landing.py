@@ -124,9 +124,6 @@ class VehicleConfig:
             times, speeds = np.r_[times, times + 1.0], np.r_[speeds, speeds]
         return PiecewisePolynomial.FirstOrderHold(times, speeds.reshape(1, -1))
 
-    def max_speed(self) -> float:
-        return float(max(self.speed_schedule_m_s)) if self.speed_schedule_times_s else self.speed
-
     def validate(self, prefix: str = "vehicle") -> None:
         require(self.path in PATH_NAMES, f"{prefix}.path '{self.path}' is not a path (known: {', '.join(PATH_NAMES)})")
         require(self.speed >= 0, f"{prefix}.speed must not be negative, got {self.speed}")
@@ -412,7 +409,7 @@ class PerfectPerception(Diagram):
 
 class LandingMonitor(LeafSystem):
     """Ends the run: a periodic update that returns EventStatus.ReachedTermination with a message
-    "<reason>: <details>", reason one of landed, crash, diverged, target_lost (see RunOutcome).
+    "<reason>: <details>", reason one of landed, crash, diverged, target_lost (gv_landing_run.FAILURE_REASONS).
 
     Inputs `quadrotor_state` (17), `vehicle_state` (4), `relative_state`, `mode` (1)."""
 

@@ -337,8 +337,6 @@ class CampaignDefinition:
     case_key: str | None = None  # the scenario field a case sets, e.g. "vehicle.speed" (RunTask.load_scenario)
     known_cases: tuple[str, ...] | None = None  # accepted cases; None: `cases`; () : any that parses
     parse_case: Callable[[str], str] = _plain_case  # a case as typed -> its canonical name (ConfigError if bad)
-    check: Callable[[CampaignSettings], None] | None = None  # raises ConfigError for bad settings, in the main
-    #   process before anything is written; default: with `case_key`, load the scenario once per case
     aggregate: Callable[[dict[str, list[RunRecord]]], dict] = default_aggregate  # done runs by case ->
     #   summary.json's "filters": {filter name: {case: {figure: value}}}
     plot: Callable[[CampaignSettings, dict[str, list[RunRecord]], Path], None] | None = None  # draws PNGs
@@ -349,10 +347,6 @@ class CampaignDefinition:
 # Scenario name -> its campaign: a CampaignDefinition or "module:attribute" (imported when used, so
 # the command starts without importing every scenario). The gv-marker-ekf integration adds its line.
 CAMPAIGNS: dict[str, CampaignDefinition | str] = {"gv-marker-ekf": "diagrams.gv_marker_ekf_mc:CAMPAIGN"}
-
-
-def register_campaign(name: str, definition: CampaignDefinition | str) -> None:
-    CAMPAIGNS[name] = definition
 
 
 def campaign_definition(name: str) -> CampaignDefinition:
@@ -400,9 +394,7 @@ def campaign_settings(definition: CampaignDefinition, scenario: str, cases: Sequ
         if definition.case_key is not None and key == definition.case_key:
             raise ConfigError(f"--set {key}: the campaign sets {key} from its {name}s")
     settings = CampaignSettings(scenario, tuple(parsed), runs, base_seed, tuple(overrides))
-    if definition.check is not None:
-        definition.check(settings)
-    elif definition.case_key is not None:
+    if definition.case_key is not None:  # bad settings fail here, before anything is written
         for task in settings.tasks(definition.case_key)[::runs]:  # one per case
             task.load_scenario()
     return settings
@@ -539,7 +531,7 @@ def _check_executor(workers: int | None, scheduler: str | None) -> None:
 
 
 def _open_executor(workers: int | None, scheduler: str | None, connect_timeout_s: float):
-    _check_executor(workers, scheduler)
+    """The executor for settings `_check_executor` passed."""
     if scheduler is not None:
         return _DaskCluster(scheduler, connect_timeout_s)
     workers = default_workers() if workers is None else workers
@@ -558,12 +550,11 @@ def default_workers() -> int:
 # Running a campaign
 # ------------------------------------------------------------------------------------------------
 
-def _check_out_dir(out_dir: Path, settings: CampaignSettings) -> bool:
-    """Raises ConfigError unless `out_dir` is new, empty, or holds this very campaign; True when it
-    holds it (a resume)."""
+def _check_out_dir(out_dir: Path, settings: CampaignSettings) -> None:
+    """Raises ConfigError unless `out_dir` is new, empty, or holds this very campaign (a resume)."""
     check_writable(out_dir)
     if not out_dir.exists() or not any(out_dir.iterdir()):
-        return False
+        return
     saved_path = out_dir / "campaign.json"
     if not saved_path.is_file():
         raise ConfigError(f"output directory {out_dir} is not empty and holds no campaign.json; "
@@ -576,7 +567,6 @@ def _check_out_dir(out_dir: Path, settings: CampaignSettings) -> bool:
     if differences:
         raise ConfigError(f"{out_dir} holds a campaign with other settings ({'; '.join(differences)}); "
                           f"give another --out or the same settings to resume it")
-    return True
 
 
 def _check_picklable(run) -> None:

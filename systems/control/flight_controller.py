@@ -173,11 +173,10 @@ class FlightLaw:
         return out
 
     def __call__(self, state, command) -> np.ndarray:
-        """Quadrotor `state` (17) and `command` (COMMAND_SIZE; the first 4 alone: no feed-forward)
-        -> rotor speed commands (4)."""
+        """Quadrotor `state` (17) and `command` (COMMAND_SIZE) -> rotor speed commands (4)."""
         x, c = _as_list(state), _as_list(command)
         R = self.rotation(x[Q_WB])
-        f_W = self.thrust(x[V_WB], c[0:3], c[4:7] if len(c) > 4 else (0.0, 0.0, 0.0))
+        f_W = self.thrust(x[V_WB], c[0:3], c[4:7])
         z = self.thrust_direction(f_W)
         R_desired = self.desired_rotation(self.lateral_axis(z, c[3]), z)
         torque_B = self.torque(R, R_desired, x[W_WB_B])

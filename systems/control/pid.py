@@ -134,8 +134,8 @@ class TrackingPid(LeafSystem):
         self._height = self.DeclareVectorInputPort("height", 1)
         self._valid = self.DeclareVectorInputPort("target_valid", 1)
         self._memory = self.DeclareDiscreteState(initial_memory())
-        # [v_ctrl (2), v_ugv at the sample (2), seen at the sample (1)]
-        self._sample = self.DeclareDiscreteState(5)
+        # [v_ctrl (2), v_ugv at the sample (2)]
+        self._sample = self.DeclareDiscreteState(4)
         self.DeclarePeriodicDiscreteUpdateEvent(1.0 / config.rate_hz, 0.0, self._update)
         self.DeclareVectorOutputPort("velocity_command", 2, self._calc_velocity)
         self.DeclareVectorOutputPort("acceleration_command", 2, self._calc_acceleration)
@@ -149,7 +149,7 @@ class TrackingPid(LeafSystem):
         else:
             v_ctrl, memory = np.zeros(2), initial_memory()
         discrete_state.set_value(self._memory, memory)
-        discrete_state.set_value(self._sample, np.r_[v_ctrl, self._velocity.Eval(context), float(seen)])
+        discrete_state.set_value(self._sample, np.r_[v_ctrl, self._velocity.Eval(context)])
 
     def _calc_velocity(self, context, output):
         sample = context.get_discrete_state(self._sample).get_value()

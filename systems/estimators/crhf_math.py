@@ -198,8 +198,8 @@ def fuse_normals(
     `plane_tilt_covariance`; the corners' normal m maps through the gnomonic chart,
     theta = E m / (n . m), whose Jacobian (E - theta n^T) / (n . m) carries its covariance. The
     fused tilt gives the normal; the plane keeps passing through the touch points' centroid, so
-    its offset (and the estimate's depth) stays the ranges'. Beyond `NORMAL_GATE` the range plane
-    is returned unchanged.
+    its offset (and the estimate's depth) stays the ranges'. Beyond `NORMAL_GATE`, or when the two
+    normals point into opposite half-spaces, the range plane is returned unchanged.
     """
     n, m = plane.normal, corners.normal
     E = tangent_basis(n)

@@ -14,7 +14,8 @@ class PoseEstimate:
 
     time: seconds of simulation time the estimate refers to.
     X_RT: the estimated pose; meaningful only when `valid` is True.
-    valid: False when the estimator could not produce an estimate (then X_RT is identity).
+    valid: False when the estimator has no trustworthy estimate (none at all, or one it coasted too
+      long to trust); X_RT is then identity or that untrusted estimate.
     covariance: 6x6 covariance of [roll, pitch, yaw (rad); x, y, z (m)], or None if unknown.
     """
 

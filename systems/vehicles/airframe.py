@@ -21,7 +21,7 @@ from systems.geometry import register_visual
 
 @dataclass
 class AirframeConfig:
-    """Visual dimensions of the quadrotor (m): rotors sit at 45 degrees, `rotor_radius_m` from the
+    """Visual dimensions of the quadrotor (m): rotors sit at 45 degrees, `rotor_arm_m` from the
     camera axis, so the ToF sensors of seed 000 (Fig. 20) hang under the propellers."""
 
     body_size_m: float = 0.12
@@ -74,7 +74,7 @@ class AirframeGeometry(LeafSystem):
             register_visual(scene_graph, self.source_id, frame,
                             RigidTransform(direction * config.rotor_arm_m + [0, 0, top]),
                             Cylinder(config.propeller_radius_m, 0.004), f"uav_propeller{i}",
-                            red if i < 2 else prop)
+                            red if i in (0, 3) else prop)  # red: the two front rotors (+x_B)
         self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
         self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()),
                                        self._calc_geometry_pose)

@@ -187,7 +187,6 @@ class GroundVehicle(Diagram):
         super().__init__()
         config.validate()
         self.config = config
-        self.time_period = time_period
         self.path = make_path(config.path)
         builder = DiagramBuilder()
         bicycle = make_bicycle_dynamics(config)

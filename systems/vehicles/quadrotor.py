@@ -250,7 +250,6 @@ class Quadrotor(Diagram):
         super().__init__()
         params.validate()
         self.params = params
-        self.time_period = time_period
         builder = DiagramBuilder()
         pose = builder.AddNamedSystem("pose", StateToPose())
         if time_period is None:
