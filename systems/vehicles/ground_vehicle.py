@@ -26,7 +26,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.symbolic import MakeVectorVariable
 from pydrake.systems.analysis import SimulatorConfig
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import Demultiplexer, Multiplexer, SymbolicVectorSystem
+from pydrake.systems.primitives import Multiplexer, SymbolicVectorSystem
 
 from systems.config import require, require_positive
 from systems.geometry import wrap_angle
@@ -95,14 +95,12 @@ def bicycle_state_derivative(state, steering_command, speed, config: GroundVehic
 
 
 def make_bicycle_dynamics(config: GroundVehicleConfig) -> SymbolicVectorSystem:
-    """Eq. (6) as a SymbolicVectorSystem: input [steering command (rad), speed v (m/s)], state
-    [x, y, alpha, theta], output [x, y, alpha, theta, v_WV (3, m/s)]."""
+    """Eq. (6) as a SymbolicVectorSystem: input [steering command (rad), speed v (m/s)], state and
+    output [x, y, alpha, theta] (no direct feedthrough of the speed)."""
     g = MakeVectorVariable(STATE_SIZE, "g")
     u = MakeVectorVariable(2, "u")
-    v_WV = np.array([u[1] * dmath.cos(g[2]), u[1] * dmath.sin(g[2]), 0.0])
-    return SymbolicVectorSystem(
-        state=g, input=u, dynamics=bicycle_state_derivative(g, u[0], u[1], config),
-        output=np.concatenate([g, v_WV]))
+    return SymbolicVectorSystem(state=g, input=u, dynamics=bicycle_state_derivative(g, u[0], u[1], config),
+                                output=g)
 
 
 def steering_command(state, speed: float, path: Path, s: float, config: GroundVehicleConfig) -> float:
@@ -171,8 +169,7 @@ class StateToGroundPose(LeafSystem):
 class GroundVehicle(Diagram):
     """Bicycle model following its configured path.
 
-    Input `speed` (1, m/s). Outputs `state` (4: x, y, alpha, theta), `v_WV` (3, m/s, in W),
-    `X_WV` (abstract RigidTransform), `steering_command` (1, rad, the follower's) and
+    Input `speed` (1, m/s). Outputs `state` (4: x, y, alpha, theta), `X_WV` (abstract RigidTransform), `steering_command` (1, rad, the follower's) and
     `path_progress` (1, arc length [m] of the nearest path point).
 
     `time_period` None: the state is the continuous state of the subsystem `dynamics`.
@@ -194,18 +191,15 @@ class GroundVehicle(Diagram):
             bicycle = discretise(bicycle, time_period, integration, "ground vehicle")
         self.dynamics = dynamics = builder.AddNamedSystem("dynamics", bicycle)
         inputs = builder.AddNamedSystem("inputs", Multiplexer([1, 1]))
-        split = builder.AddNamedSystem("split", Demultiplexer([STATE_SIZE, 3]))
         follower = builder.AddNamedSystem("follower", PathFollower(self.path, config))
         pose = builder.AddNamedSystem("pose", StateToGroundPose())
         builder.Connect(follower.GetOutputPort("steering_command"), inputs.get_input_port(0))
         builder.Connect(inputs.get_output_port(), dynamics.get_input_port())
-        builder.Connect(dynamics.get_output_port(), split.get_input_port())
-        builder.Connect(split.get_output_port(0), follower.GetInputPort("state"))
-        builder.Connect(split.get_output_port(0), pose.get_input_port())
+        builder.Connect(dynamics.get_output_port(), follower.GetInputPort("state"))
+        builder.Connect(dynamics.get_output_port(), pose.get_input_port())
         builder.ExportInput(inputs.get_input_port(1), "speed")
         builder.ConnectInput("speed", follower.GetInputPort("speed"))
-        builder.ExportOutput(split.get_output_port(0), "state")
-        builder.ExportOutput(split.get_output_port(1), "v_WV")
+        builder.ExportOutput(dynamics.get_output_port(), "state")
         builder.ExportOutput(pose.get_output_port(), "X_WV")
         builder.ExportOutput(follower.GetOutputPort("steering_command"), "steering_command")
         builder.ExportOutput(follower.GetOutputPort("path_progress"), "path_progress")
