@@ -225,8 +225,10 @@ class StewartPlatform(LeafSystem):
         self.source_id = scene_graph.RegisterSource("stewart_platform")
         self._register_geometry(scene_graph)
 
-        self.DeclareAbstractOutputPort("X_WP", lambda: AbstractValue.Make(RigidTransform()), self._calc_X_WP)
-        self.DeclareVectorOutputPort("leg_lengths", 6, self._calc_leg_lengths)
+        # X_WP is computed once per time (output ports are cached); the other outputs read it.
+        self._X_WP_port = self.DeclareAbstractOutputPort("X_WP", lambda: AbstractValue.Make(RigidTransform()),
+                                                         self._calc_X_WP)
+        self._leg_lengths_port = self.DeclareVectorOutputPort("leg_lengths", 6, self._calc_leg_lengths)
         self.DeclareVectorOutputPort("stroke_exceeded", 1, self._calc_stroke_exceeded)
         self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()),
                                        self._calc_geometry_pose)
@@ -276,14 +278,14 @@ class StewartPlatform(LeafSystem):
         output.set_value(self.X_WP(context.get_time()))
 
     def _calc_leg_lengths(self, context, output):
-        output.SetFromVector(leg_lengths(self.X_WP(context.get_time()), self.geometry))
+        output.SetFromVector(leg_lengths(self._X_WP_port.Eval(context), self.geometry))
 
     def _calc_stroke_exceeded(self, context, output):
-        lengths = leg_lengths(self.X_WP(context.get_time()), self.geometry)
+        lengths = self._leg_lengths_port.Eval(context)
         output.SetFromVector([0.0 if within_stroke(lengths, self.geometry) else 1.0])
 
     def _calc_geometry_pose(self, context, output):
-        X_WP = self.X_WP(context.get_time())
+        X_WP = self._X_WP_port.Eval(context)
         poses = output.get_mutable_value()
         poses.clear()
         poses.set_value(self._deck_frame, X_WP)
