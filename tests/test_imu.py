@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 from systems.config import ConfigError
 from systems.sensors.imu import Imu, ImuConfig, ideal_imu
 
-G = 9.80665  # standard gravity, m/s^2
+G = ImuConfig().gravity_m_s2  # the world's g, m/s^2 (the quadrotor's)
+STANDARD_G = 9.80665  # the g of the datasheet's ug
 
 
 def ideal_config(**changes) -> ImuConfig:
@@ -77,7 +78,7 @@ def test_a_general_attitude_against_scipy():
     reading = sample(imu, context)
     np.testing.assert_allclose(reading[:3], rotation.inv().apply(a_W + [0.0, 0.0, G]), atol=1e-12)
     np.testing.assert_allclose(reading[3:], rotation.inv().apply(w_W), atol=1e-12)
-    f_B, w_B = ideal_imu(RotationMatrix(rotation.as_matrix()), w_W, a_W)
+    f_B, w_B = ideal_imu(RotationMatrix(rotation.as_matrix()), w_W, a_W, G)
     np.testing.assert_allclose(np.r_[f_B, w_B], reading, atol=1e-12)
 
 
@@ -98,12 +99,12 @@ def test_readings_saturate_at_full_range():
 
 def test_noise_per_sample_is_density_times_root_rate():
     config = ImuConfig()  # seed 001 Table 1: 0.01 deg/s/sqrt(Hz), 80 ug/sqrt(Hz), at 200 Hz
-    accel_std = 80e-6 * G * math.sqrt(200.0)
+    accel_std = 80e-6 * STANDARD_G * math.sqrt(200.0)
     gyro_std = math.radians(0.01) * math.sqrt(200.0)
     assert config.accel_sample_std_m_s2 == pytest.approx(accel_std)
     assert config.gyro_sample_std_rad_s == pytest.approx(gyro_std)
     imu, context = imu_with_inputs(config, R_WB=RotationMatrix.MakeYRotation(0.3), w_WB_W=(0.1, 0.2, -0.3))
-    f_ideal, w_ideal = ideal_imu(RotationMatrix.MakeYRotation(0.3), np.array([0.1, 0.2, -0.3]), np.zeros(3))
+    f_ideal, w_ideal = ideal_imu(RotationMatrix.MakeYRotation(0.3), np.array([0.1, 0.2, -0.3]), np.zeros(3), G)
     readings = np.array([sample(imu, context, k * config.period_s) for k in range(3000)])
     errors = readings - np.r_[f_ideal, w_ideal]
     # The constant turn-on bias is the mean of the error; the rest is white noise of the per-sample std.
@@ -117,7 +118,7 @@ def test_noise_per_sample_is_density_times_root_rate():
 def test_biases_have_the_configured_spread():
     config = ImuConfig(gyro_bias_std_deg_h=10.0, accel_bias_std_ug=40.0)
     biases = np.array([np.r_[imu.accel_bias, imu.gyro_bias] for imu in (Imu(config, seed) for seed in range(400))])
-    np.testing.assert_allclose(biases[:, :3].std(), 40e-6 * G, rtol=0.1)
+    np.testing.assert_allclose(biases[:, :3].std(), 40e-6 * STANDARD_G, rtol=0.1)
     np.testing.assert_allclose(biases[:, 3:].std(), math.radians(10.0 / 3600.0), rtol=0.1)
     # Constant through a run: the same system gives the same bias at any time.
     imu, context = imu_with_inputs(ImuConfig(gyro_noise_density_deg_s_rthz=0.0, accel_noise_density_ug_rthz=0.0))
@@ -144,3 +145,9 @@ def test_same_seed_same_readings_other_seed_other_readings():
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         Imu(ImuConfig(**changes))
+
+
+def test_the_imu_and_the_quadrotor_share_the_worlds_gravity():
+    from systems.vehicles.quadrotor import QuadrotorParams
+
+    assert ImuConfig().gravity_m_s2 == QuadrotorParams().gravity_m_s2

@@ -17,8 +17,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from systems.config import require, require_positive
 from systems.noise import sample_index, sample_rng
 
-STANDARD_GRAVITY = 9.80665  # m/s^2
-G_W = np.array([0.0, 0.0, -STANDARD_GRAVITY])  # gravity in the z-up world frame
+STANDARD_GRAVITY = 9.80665  # m/s^2, the g of datasheet units (ug)
 
 
 @dataclass
@@ -30,9 +29,10 @@ class ImuConfig:
     accel_range_m_s2: float = 50.0  # seed 001 Table 1
     gyro_bias_std_deg_h: float = 10.0  # Xsens MTi 100-series datasheet, in-run bias stability
     accel_bias_std_ug: float = 40.0  # Xsens MTi 100-series datasheet, in-run bias stability
+    gravity_m_s2: float = 9.81  # the world's g: QuadrotorParams.gravity_m_s2, so a flown IMU reads its gravity
 
     def validate(self, prefix: str = "imu") -> None:
-        for name in ("rate_hz", "gyro_range_deg_s", "accel_range_m_s2"):
+        for name in ("rate_hz", "gyro_range_deg_s", "accel_range_m_s2", "gravity_m_s2"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
         for name in ("gyro_noise_density_deg_s_rthz", "accel_noise_density_ug_rthz", "gyro_bias_std_deg_h",
                      "accel_bias_std_ug"):
@@ -52,12 +52,13 @@ class ImuConfig:
         return self.accel_noise_density_ug_rthz * 1e-6 * STANDARD_GRAVITY * np.sqrt(self.rate_hz)
 
 
-def ideal_imu(R_WB, w_WB_W: np.ndarray, a_WB_W: np.ndarray):
+def ideal_imu(R_WB, w_WB_W: np.ndarray, a_WB_W: np.ndarray, gravity_m_s2: float):
     """Noise-free (specific force f_B in m/s^2, angular velocity w_B in rad/s), both in body axes.
 
-    f_B = R_BW (a_WB - g_W): at rest on a z-up world it reads +9.81 m/s^2 along the body's up axis."""
+    f_B = R_BW (a_WB - g_W), g_W = [0, 0, -gravity_m_s2]: at rest on a z-up world it reads
+    +gravity_m_s2 along the body's up axis."""
     R_BW = R_WB.inverse().matrix()
-    return R_BW @ (np.asarray(a_WB_W) - G_W), R_BW @ np.asarray(w_WB_W)
+    return R_BW @ (np.asarray(a_WB_W) + [0.0, 0.0, gravity_m_s2]), R_BW @ np.asarray(w_WB_W)
 
 
 class Imu(LeafSystem):
@@ -76,7 +77,7 @@ class Imu(LeafSystem):
         self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
         self.DeclareVectorInputPort("V_WB", 6)
         self.DeclareVectorInputPort("A_WB", 6)
-        state = self.DeclareDiscreteState(BasicVector(np.concatenate([-G_W, np.zeros(3)])))
+        state = self.DeclareDiscreteState(BasicVector([0.0, 0.0, config.gravity_m_s2, 0.0, 0.0, 0.0]))
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._sample)
         self.DeclareStateOutputPort("imu", state)
 
@@ -85,7 +86,7 @@ class Imu(LeafSystem):
         X_WB = self.get_input_port(0).Eval(context)
         w_WB = self.get_input_port(1).Eval(context)[:3]
         a_WB = self.get_input_port(2).Eval(context)[3:]
-        f_B, w_B = ideal_imu(X_WB.rotation(), w_WB, a_WB)
+        f_B, w_B = ideal_imu(X_WB.rotation(), w_WB, a_WB, c.gravity_m_s2)
         noise = sample_rng(self._seed, "imu", sample_index(context.get_time(), c.period_s)).standard_normal(6)
         f_B = np.clip(f_B + self.accel_bias + noise[:3] * c.accel_sample_std_m_s2,
                       -c.accel_range_m_s2, c.accel_range_m_s2)
