@@ -8,6 +8,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
+from systems.perception.aruco import subpix_detector, to_grey
 from systems.sensors.camera import image_to_numpy
 
 
@@ -37,21 +38,15 @@ class TagDetection:
 
 
 class AprilTagDetector:
-    """Finds one tag36h11 by id, corners refined with CORNER_REFINE_SUBPIX. (CORNER_REFINE_APRILTAG
-    returned whole-pixel corners on rendered frames and took 50 ms on a noisy 512x512 frame, against
-    1.3 ms for SUBPIX.)"""
+    """Finds one tag36h11 by id, corners refined with CORNER_REFINE_SUBPIX (`aruco.subpix_detector`)."""
 
     def __init__(self, tag_id: int):
         self.tag_id = tag_id
-        parameters = cv2.aruco.DetectorParameters()
-        parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-        self._detector = cv2.aruco.ArucoDetector(
-            cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), parameters)
+        self._detector = subpix_detector("DICT_APRILTAG_36h11")
 
     def detect(self, rgb: np.ndarray) -> np.ndarray | None:
-        """Corners (4x2 px) of the tag in an RGB or RGBA uint8 image, or None."""
-        gray = cv2.cvtColor(rgb, cv2.COLOR_RGBA2GRAY if rgb.shape[2] == 4 else cv2.COLOR_RGB2GRAY)
-        corners, ids, _ = self._detector.detectMarkers(gray)
+        """Corners (4x2 px) of the tag in an RGB, RGBA or grey uint8 image, or None."""
+        corners, ids, _ = self._detector.detectMarkers(to_grey(rgb))
         if ids is None:
             return None
         matches = np.flatnonzero(ids.ravel() == self.tag_id)

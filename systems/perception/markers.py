@@ -27,7 +27,7 @@ Sources, interchangeable, both giving `MarkerMeasurement`s:
 
 import math
 from dataclasses import dataclass, field
-from functools import cached_property, lru_cache
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -39,6 +39,7 @@ from pydrake.systems.sensors import ImageRgba8U
 from systems.config import require, require_positive
 from systems.estimators.quaternion import drake_to_paper, odot_matrix, paper_to_drake
 from systems.noise import sample_index, sample_rng
+from systems.perception.aruco import aruco_dictionary, subpix_detector, to_grey
 from systems.sensors.camera import image_to_numpy
 
 MARKER_CELLS = 6  # a 4x4 ArUco marker: 4 data cells plus a one-cell black border on each side
@@ -84,11 +85,6 @@ class MarkerLayout:
     def index(self, marker_id: int) -> int | None:
         """Position of `marker_id` in the layout, or None if it is not one of its markers."""
         return self.ids.index(marker_id) if marker_id in self.ids else None
-
-
-@lru_cache(maxsize=None)
-def aruco_dictionary(name: str):
-    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
 
 
 def pad_texture(layout: MarkerLayout, pad_size_m: float = 1.0, pixels: int = 1200) -> np.ndarray:
@@ -166,13 +162,6 @@ def synthetic_marker_measurements(X_CP: RigidTransform, layout: MarkerLayout, rn
     return [MarkerMeasurement(time, marker_id, p, q, latency_s) for marker_id, p, q in zip(layout.ids, p_CM, q_CM)]
 
 
-@lru_cache(maxsize=None)
-def _detector(dictionary: str) -> cv2.aruco.ArucoDetector:
-    parameters = cv2.aruco.DetectorParameters()
-    parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    return cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), parameters)
-
-
 def marker_corners_M(size_m: float) -> np.ndarray:
     """The black square's corners (4x3, m) in the marker frame M, in ArUco's order: top-left,
     top-right, bottom-right, bottom-left of the marker as printed (M: x right, y up, z out)."""
@@ -185,10 +174,7 @@ def detect_marker_poses(rgb: np.ndarray, K: np.ndarray, layout: MarkerLayout, ti
     """X_CM of every layout marker found in an RGB, RGBA (or grey) uint8 image from an undistorted
     pinhole camera with intrinsics K (OpenCV convention), stamped `time` [s]. Markers not found,
     found twice, or whose PnP fails are absent."""
-    grey = rgb
-    if rgb.ndim == 3:
-        grey = cv2.cvtColor(rgb, cv2.COLOR_RGBA2GRAY if rgb.shape[2] == 4 else cv2.COLOR_RGB2GRAY)
-    corners, ids, _ = _detector(layout.dictionary).detectMarkers(grey)
+    corners, ids, _ = subpix_detector(layout.dictionary).detectMarkers(to_grey(rgb))
     if ids is None:
         return []
     ids = ids.ravel()
