@@ -31,6 +31,7 @@ from diagrams.stewart_scene import add_uav_sensors, add_viewers
 from systems.config import require, require_positive
 from systems.estimators.pad_calibration import MIN_SAMPLES, PAD_COLOURS, PAD_RGB, PadCalibration
 from systems.geometry import register_visual
+from systems.perception.apriltag import project_points
 from systems.perception.color_pads import PadCentroidsSystem
 from systems.sensors.camera import CameraConfig, NoisyCamera, add_renderer
 from systems.sensors.tof import TofConfig, TofSensors, sensor_positions_C
@@ -203,12 +204,7 @@ def build_calibration_scene(config: Scenario, meshcat: Meshcat | None = None,
 
 def true_pad_pixels(handles: CalibrationSceneHandles, K: np.ndarray, times: np.ndarray) -> np.ndarray:
     """(F, 4, 2) projections through K of the pads' top centres at the given times."""
-    out = np.empty((len(times), len(handles.p_W_pads), 2))
-    for k, t in enumerate(times):
-        p_C = handles.X_WC(float(t)).inverse().multiply(handles.p_W_pads.T).T  # (4, 3)
-        uvw = p_C @ K.T
-        out[k] = uvw[:, :2] / uvw[:, 2:]
-    return out
+    return np.array([project_points(K, handles.X_WC(float(t)).inverse(), handles.p_W_pads) for t in times])
 
 
 def collect_log(handles: CalibrationSceneHandles, context, config: Scenario) -> dict[str, np.ndarray]:
