@@ -202,16 +202,21 @@ def pose_from_state(state) -> RigidTransform:
     return RigidTransform(Quaternion(q / np.linalg.norm(q)), np.asarray(state[P_WB]))
 
 
+def _symbolic_model(params: QuadrotorParams):
+    """(x (17), u (4), dx/dt, V_WB, A_WB) of Eq. (7)-(8) in pydrake.symbolic variables."""
+    x = MakeVectorVariable(STATE_SIZE, "x")
+    u = MakeVectorVariable(4, "w_cmd")
+    with np.errstate(invalid="ignore"):  # numpy's float-flag check on arrays of Expressions
+        V_WB, A_WB = body_kinematics(x, params)
+        return x, u, quadrotor_state_derivative(x, u, params), V_WB, A_WB
+
+
 def make_quadrotor_dynamics(params: QuadrotorParams) -> SymbolicVectorSystem:
     """Eq. (7)-(8) as a SymbolicVectorSystem: input 4 rotor speed commands [rad/s], continuous
     state the 17-vector, output [state (17), V_WB (6), A_WB (6)] (see body_kinematics).
     Per-step evaluation stays in C++."""
     params.validate()
-    x = MakeVectorVariable(STATE_SIZE, "x")
-    u = MakeVectorVariable(4, "w_cmd")
-    with np.errstate(invalid="ignore"):  # numpy's float-flag check on arrays of Expressions
-        V_WB, A_WB = body_kinematics(x, params)
-        dynamics = quadrotor_state_derivative(x, u, params)
+    x, u, dynamics, V_WB, A_WB = _symbolic_model(params)
     return SymbolicVectorSystem(state=x, input=u, dynamics=dynamics, output=np.concatenate([x, V_WB, A_WB]))
 
 
@@ -258,15 +263,12 @@ class Quadrotor(Diagram):
             builder.Connect(dynamics.get_output_port(), split.get_input_port())
             state, V_WB, A_WB = (split.get_output_port(i) for i in range(3))
         else:
-            x = MakeVectorVariable(STATE_SIZE, "x")
-            u = MakeVectorVariable(4, "w_cmd")
-            with np.errstate(invalid="ignore"):  # numpy's float-flag check on arrays of Expressions
-                derivative, kinematics = quadrotor_state_derivative(x, u, params), body_kinematics(x, params)
+            x, u, derivative, V_WB_x, A_WB_x = _symbolic_model(params)
             self.dynamics = dynamics = builder.AddNamedSystem("dynamics", discretise(
                 SymbolicVectorSystem(state=x, input=u, dynamics=derivative, output=x), time_period, integration,
                 "quadrotor"))
             kinematics = builder.AddNamedSystem("kinematics", SymbolicVectorSystem(
-                input=x, output=np.concatenate(kinematics)))
+                input=x, output=np.concatenate([V_WB_x, A_WB_x])))
             split = builder.AddNamedSystem("split", Demultiplexer([6, 6]))
             builder.Connect(dynamics.get_output_port(), kinematics.get_input_port())
             builder.Connect(kinematics.get_output_port(), split.get_input_port())
