@@ -21,7 +21,7 @@ from diagrams.gv_landing import (
 )
 from diagrams.outputs import save_figure, write_npz
 from diagrams.scenario import RunSettings
-from systems.config import require_positive
+from systems.config import ConfigError, require_positive
 from systems.control.landing import Mode
 from systems.vehicles.quadrotor import P_WB, V_WB
 
@@ -319,6 +319,8 @@ def run(scenario: Scenario, ctx) -> dict:
     from diagrams.gv_landing import path_polyline
     from diagrams.runner import finish_run
 
+    if ctx.options.video:
+        raise ConfigError("--video records a camera stream, and gv-landing has none (perfect perception)")
     diagram, handles = build_gv_landing(scenario, ctx.meshcat)
     flight = simulate_flight(diagram, handles, scenario.duration_s, realtime=ctx.options.meshcat,
                              progress=ctx.options.progress, record=ctx.options.record)

@@ -223,3 +223,11 @@ def test_cli_run_writes_metrics_with_the_landing_section(tmp_path):
     assert {"t", "quadrotor_state", "vehicle_state", "relative_state", "mode"} <= set(log.files)
     for name in ("trajectories_3d", "trajectories_top", "altitude", "velocity", "tracking_error"):
         assert (out / f"{name}.png").stat().st_size > 10_000
+
+
+def test_video_without_a_camera_is_a_one_line_error(capfd, tmp_path):
+    out = tmp_path / "video"
+    code = main(["run", "gv-landing", "--video", "--out", str(out), "--quiet"])
+    _, err = capfd.readouterr()
+    assert code == 2 and "gv-landing has none" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
