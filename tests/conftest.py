@@ -1,7 +1,9 @@
 """Shared fixtures: built Stewart scenes (a diagram is built once per session; every test takes a
 fresh context from it) and one short simulated run of the stewart-dynamic scenario."""
 
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +16,12 @@ from diagrams.runner import load_scenario
 from diagrams.stewart_run import collect_log
 from diagrams.stewart_scene import StewartSceneConfig, StewartSceneHandles, build_stewart_scene
 from systems.platforms.stewart import StewartPlatformConfig
+
+
+def landing_sim_command() -> list[str]:
+    """The installed `landing-sim` command, or the module when the console script is missing."""
+    script = Path(sys.executable).with_name("landing-sim")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "diagrams.cli"]
 
 
 def pose(xyz, rpy_deg) -> RigidTransform:

@@ -6,7 +6,6 @@ import io
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -14,13 +13,9 @@ import numpy as np
 import pytest
 
 from diagrams.cli import main
+from tests.conftest import landing_sim_command
 
 SYS_OUT = Path("/sys/landing-sim-test/out")  # /sys refuses to create entries, even for root (EPERM)
-
-
-def landing_sim_command() -> list[str]:
-    script = Path(sys.executable).with_name("landing-sim")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "diagrams.cli"]
 
 
 @pytest.fixture(scope="module")

@@ -3,7 +3,6 @@ PadCentroidsSystem, a short calibration run, scenario validation and the command
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -17,6 +16,7 @@ from systems.config import ConfigError
 from systems.estimators.pad_calibration import PAD_COLOURS, PAD_RGB, PadCalibration, rgb_to_ycbcr, segment_colour
 from systems.perception.color_pads import PadCentroidsSystem
 from systems.sensors.tof import sensor_positions_C
+from tests.conftest import landing_sim_command
 
 ROOT = Path(__file__).resolve().parent.parent
 EQ10 = np.array([458.5, 457.855, 258.7735, 252.308])  # fx, fy, cx, cy: seed 000 Eq. 10
@@ -129,8 +129,7 @@ def test_bad_scenario_values_are_config_errors_naming_the_field(override, field)
 
 def test_command_line_writes_the_calibration_and_metrics(tmp_path):
     out = tmp_path / "cal"
-    cli = Path(sys.executable).parent / "landing-sim"
-    done = subprocess.run([str(cli), "run", "crhf-calibration", "--duration", "1", "--out", str(out), "--quiet"],
+    done = subprocess.run([*landing_sim_command(), "run", "crhf-calibration", "--duration", "1", "--out", str(out), "--quiet"],
                           capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert done.returncode == 0, done.stderr
     metrics = json.loads((out / "metrics.json").read_text())
@@ -138,7 +137,7 @@ def test_command_line_writes_the_calibration_and_metrics(tmp_path):
     assert metrics["scenario"] == "crhf-calibration" and metrics["sim_time_s"] == 1.0
     assert len(PadCalibration.load(out / "pad_calibration.npz").sensors) == 4
 
-    bad = subprocess.run([str(cli), "run", "crhf-calibration", "--set", "end_height_m=9",
+    bad = subprocess.run([*landing_sim_command(), "run", "crhf-calibration", "--set", "end_height_m=9",
                          "--out", str(tmp_path / "x")],
                          capture_output=True, text=True, cwd=tmp_path, timeout=60)
     assert bad.returncode == 2 and "end_height_m" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1

@@ -9,12 +9,11 @@ and requires them near the middle of the view, where Meshcat's default camera pu
 
 import shutil
 import subprocess
-import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from tests.conftest import landing_sim_command
 
 CHROMIUM = shutil.which("chromium")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (make browser installs it)")
@@ -22,11 +21,6 @@ pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not instal
 WIDTH, HEIGHT = 800, 600
 CONTROLS_BAR_ROWS = 30  # Meshcat's black "Open Controls" bar at the top right
 DARK = 60  # 8-bit grey level below which only scene objects are drawn
-
-
-def landing_sim_command() -> list[str]:
-    script = Path(sys.executable).with_name("landing-sim")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "diagrams.cli"]
 
 
 @pytest.fixture(scope="module")
