@@ -67,6 +67,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from tqdm import tqdm
 
 from diagrams.gv_landing import GvLandingConfig, GvLandingHandles, StartConfig, add_gv_landing, path_polyline
+from diagrams.metrics import axis_errors
 from diagrams.outputs import save_figure, write_npz
 from diagrams.scenario import RunSettings
 from systems.config import ConfigError, require, require_positive
@@ -480,10 +481,7 @@ def error_metrics(truth: Truth, trace: FilterTrace, errors: Errors, settle_s: fl
         "rms_position_xy_m": float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))),
         "rms_heading_deg": float(np.degrees(np.sqrt(np.mean(h**2)))),
         "rms_marker_position_m": np.sqrt(np.mean(m**2, axis=0)).tolist(),
-        "mae_xyz_m": np.mean(np.abs(e), axis=0).tolist(),
-        "rmse_xyz_m": np.sqrt(np.mean(e**2, axis=0)).tolist(),
-        "mae_rpy_deg": np.mean(np.abs(rpy), axis=0).tolist(),
-        "rmse_rpy_deg": np.sqrt(np.mean(rpy**2, axis=0)).tolist(),
+        **axis_errors(e, rpy),
         "max_position_m": float(np.max(np.linalg.norm(e, axis=1))),
         "valid_fraction": float(np.mean(trace.valid)),
         "steps": int(window.sum()),

@@ -37,16 +37,23 @@ def pose_errors(truth: np.ndarray, estimate: np.ndarray):
     return valid, difference[:, :3], rpy, np.rad2deg(np.asarray(angle))
 
 
+def axis_errors(xyz: np.ndarray, rpy_deg: np.ndarray) -> dict:
+    """MAE and RMSE per axis of errors xyz (M, 3) in m and rpy_deg (M, 3) in deg: the estimator figures of docs/architecture.md."""
+    return {
+        "mae_xyz_m": np.mean(np.abs(xyz), axis=0).tolist(),
+        "mae_rpy_deg": np.mean(np.abs(rpy_deg), axis=0).tolist(),
+        "rmse_xyz_m": np.sqrt(np.mean(xyz**2, axis=0)).tolist(),
+        "rmse_rpy_deg": np.sqrt(np.mean(rpy_deg**2, axis=0)).tolist(),
+    }
+
+
 def estimator_metrics(truth: np.ndarray, estimate: np.ndarray) -> dict:
     """MAE and RMSE per axis, valid fraction and pose-flip count of one estimator over a run."""
     valid, xyz, rpy, angle = pose_errors(truth, estimate)
     if not valid.any():
         return {"valid_fraction": 0.0, "flips": 0}
     return {
-        "mae_xyz_m": np.mean(np.abs(xyz), axis=0).tolist(),
-        "mae_rpy_deg": np.mean(np.abs(rpy), axis=0).tolist(),
-        "rmse_xyz_m": np.sqrt(np.mean(xyz**2, axis=0)).tolist(),
-        "rmse_rpy_deg": np.sqrt(np.mean(rpy**2, axis=0)).tolist(),
+        **axis_errors(xyz, rpy),
         "valid_fraction": float(np.mean(valid)),
         "flips": int(np.sum(angle > FLIP_THRESHOLD_DEG)),
     }
