@@ -38,7 +38,8 @@ def pose_errors(truth: np.ndarray, estimate: np.ndarray):
 
 
 def axis_errors(xyz: np.ndarray, rpy_deg: np.ndarray) -> dict:
-    """MAE and RMSE per axis of errors xyz (M, 3) in m and rpy_deg (M, 3) in deg: the estimator figures of docs/architecture.md."""
+    """MAE and RMSE per axis of errors xyz (M, 3) in m and rpy_deg (M, 3) in deg: the estimator
+    figures of docs/architecture.md."""
     return {
         "mae_xyz_m": np.mean(np.abs(xyz), axis=0).tolist(),
         "mae_rpy_deg": np.mean(np.abs(rpy_deg), axis=0).tolist(),
