@@ -1,0 +1,197 @@
+"""Running a campaign: checking its output directory, driving its runs through an executor while
+each finished run's record is written, and summary.json from the records once all have one."""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import pickle
+import sys
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+
+from tqdm import tqdm
+
+from diagrams.montecarlo.definition import CampaignDefinition
+from diagrams.montecarlo.executors import _check_executor, _check_workers, _Inline, _open_executor
+from diagrams.montecarlo.records import RunRecord, _execute, _failure, _Outcome, _write_record, read_records
+from diagrams.montecarlo.settings import CampaignSettings, RunTask
+from diagrams.outputs import check_writable, write_json
+from systems.config import ConfigError
+
+MAX_POOL_DEATHS = 5  # in a row, with no run finishing between them: something else is wrong
+
+
+def _check_out_dir(out_dir: Path, settings: CampaignSettings) -> None:
+    """Raises ConfigError unless `out_dir` is new, empty, or holds this very campaign (a resume)."""
+    check_writable(out_dir)
+    if not out_dir.exists() or not any(out_dir.iterdir()):
+        return
+    saved_path = out_dir / "campaign.json"
+    if not saved_path.is_file():
+        raise ConfigError(f"output directory {out_dir} is not empty and holds no campaign.json; "
+                          f"give a new or empty directory")
+    try:
+        saved = json.loads(saved_path.read_text())
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"cannot read {saved_path}: {e}") from None
+    differences = settings.differences(saved if isinstance(saved, dict) else {})
+    if differences:
+        raise ConfigError(f"{out_dir} holds a campaign with other settings ({'; '.join(differences)}); "
+                          f"give another --out or the same settings to resume it")
+
+
+def _check_picklable(run) -> None:
+    try:
+        pickle.dumps(run)
+    except Exception as e:
+        raise TypeError(f"the campaign's run function {run!r} cannot go to worker processes: it must be "
+                        f"picklable (a module-level function): {e}") from None
+
+
+def run_campaign(definition: CampaignDefinition, settings: CampaignSettings, out_dir: str | Path, *,
+                 workers: int | None = None, scheduler: str | None = None, progress: bool = True,
+                 retry_failed: bool = False, connect_timeout_s: float | None = None) -> dict:
+    """Runs every run of `settings` that `out_dir` holds no record of; writes summary.json (and the
+    definition's plots) once all have one; returns the summary. `workers`: local processes (None: one
+    per core, 0: in this process); `scheduler`: a Dask scheduler's address instead, reached within
+    `connect_timeout_s` (None: DEFAULT_CONNECT_TIMEOUT_S).
+
+    Raises ConfigError for bad settings, an output directory holding another campaign, or an
+    unreachable scheduler, before anything is written; KeyboardInterrupt passes through after the
+    runs that finished are written and the workers are ended."""
+    start = time.perf_counter()
+    out_dir = Path(out_dir)
+    _check_executor(workers, scheduler)
+    _check_out_dir(out_dir, settings)
+    tasks = settings.tasks(definition.case_key)
+    records = read_records(out_dir, settings) if out_dir.is_dir() else {}
+    finished = {key for key, r in records.items() if r.status == "done" or not retry_failed}
+    todo = [t for t in tasks if (t.case, t.index) not in finished]
+    failed = sum(1 for key in finished if records[key].status == "failed")
+    if todo and scheduler is None and workers != 0:
+        _check_picklable(definition.run)
+    # Fails fast (an unreachable scheduler, workers that cannot start), before anything is written.
+    pool = _open_executor(workers, scheduler, connect_timeout_s) if todo else _Inline()
+    aborted = True
+    try:
+        if todo:
+            _check_workers(pool, definition.run)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        if not (out_dir / "campaign.json").exists():
+            write_json(out_dir / "campaign.json", settings.to_json())
+        with tqdm(total=len(tasks), initial=len(tasks) - len(todo), unit="run", disable=not progress,
+                  desc=settings.scenario, dynamic_ncols=True) as bar:
+            bar.set_postfix(failed=failed)
+
+            def keep(task: RunTask, outcome: _Outcome) -> None:
+                nonlocal failed
+                _write_record(out_dir, task, outcome)
+                if outcome.status == "failed":
+                    failed += 1
+                    bar.set_postfix(failed=failed)
+                bar.update(1)
+
+            _drive(pool, definition.run, todo, keep)
+        wall = time.perf_counter() - start
+        aborted = False
+    except KeyboardInterrupt:
+        done = len(read_records(out_dir, settings))
+        print(f"montecarlo: interrupted with {done} of {settings.runs * len(settings.cases)} runs recorded in "
+              f"{out_dir}; run the same command again to resume", file=sys.stderr)
+        raise
+    finally:
+        pool.close(abort=aborted)
+    return write_summary(definition, settings, out_dir, wall, computed=len(todo))
+
+
+def _drive(pool, run: Callable, tasks: Sequence[RunTask], keep: Callable[[RunTask, _Outcome], None]) -> None:
+    """Submits the tasks through `pool`, a window at a time, and hands each outcome to `keep` as it
+    arrives. When a process pool dies, it is replaced and the runs it held become suspects, run one
+    at a time; a run that takes down a pool while alone in it is kept as failed."""
+    queue = deque(tasks)
+    suspects: deque[RunTask] = deque()
+    in_flight: dict[cf.Future, RunTask] = {}
+    window = 2 * pool.workers
+    deaths_without_progress = 0
+
+    def refill() -> None:
+        while (queue or suspects) and len(in_flight) < (1 if suspects else window):
+            task = (suspects or queue).popleft()
+            in_flight[pool.executor.submit(_execute, run, task)] = task
+
+    try:
+        refill()
+        while in_flight:
+            done, _ = cf.wait(in_flight, return_when=cf.FIRST_COMPLETED)
+            broken = False
+            for future in done:
+                try:
+                    outcome = future.result()
+                except BrokenProcessPool:
+                    broken = True
+                    continue
+                except cf.CancelledError:  # not the run's doing (a Dask scheduler that went away): stop
+                    raise RuntimeError(f"the executor cancelled run {in_flight[future].index} of "
+                                       f"{in_flight[future].case}; stopping (finished runs are kept)") from None
+                except Exception as e:  # the executor's own verdict on this run (e.g. Dask's KilledWorker)
+                    outcome = _failure(type(e).__name__, str(e))
+                keep(in_flight.pop(future), outcome)
+                deaths_without_progress = 0
+            if broken:
+                deaths_without_progress += 1
+                if deaths_without_progress > MAX_POOL_DEATHS:
+                    raise RuntimeError(f"the worker processes died {deaths_without_progress} times in a row with no "
+                                       f"run finishing; stopping (finished runs are kept)")
+                held = list(in_flight.values())  # every run the dead pool held
+                in_flight.clear()
+                if len(held) == 1:
+                    keep(held[0], _failure("WorkerDied", "the worker process running this run died (a crash in "
+                                                         "native code, or killed for lack of memory)"))
+                else:
+                    suspects.extend(held)
+                pool.restart()
+            refill()
+    except BaseException:
+        # Interrupted: keep what finished, drop the rest (it is redone on resume).
+        for future, task in in_flight.items():
+            if future.done() and not future.cancelled() and future.exception() is None:
+                keep(task, future.result())
+            future.cancel()
+        raise
+
+
+def write_summary(definition: CampaignDefinition, settings: CampaignSettings, out_dir: str | Path,
+                  wall_time_s: float, computed: int) -> dict:
+    """summary.json from every record of the campaign (read back in case and index order, so it
+    does not depend on how or in which order the runs were computed), then the plots."""
+    out_dir = Path(out_dir)
+    records = read_records(out_dir, settings)
+    done: dict[str, list[RunRecord]] = {case: [] for case in settings.cases}
+    cases = {}
+    failures = []
+    for case in settings.cases:
+        mine = [records[(case, i)] for i in range(settings.runs) if (case, i) in records]
+        done[case] = [r for r in mine if r.status == "done"]
+        bad = [r for r in mine if r.status == "failed"]
+        cases[case] = {"requested": settings.runs, "done": len(done[case]), "failed": len(bad)}
+        failures += [{"case": r.case, "index": r.index, "seed": r.seed, "reason": r.reason} for r in bad]
+    requested = settings.runs * len(settings.cases)
+    summary = {
+        "scenario": settings.scenario,
+        "runs": {"requested": requested, "done": sum(c["done"] for c in cases.values()),
+                 "failed": len(failures), "computed_now": computed},
+        "wall_time_s": wall_time_s,
+        "runs_per_s": computed / wall_time_s if computed and wall_time_s > 0 else None,
+        "filters": definition.aggregate(done),
+        "cases": cases,
+        "failures": failures,
+        "campaign": settings.to_json(),
+    }
+    write_json(out_dir / "summary.json", summary)
+    if definition.plot is not None:
+        definition.plot(settings, done, out_dir)
+    return summary
