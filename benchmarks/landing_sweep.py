@@ -37,8 +37,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 
 from diagrams.gv_landing import build_gv_landing  # noqa: E402
-from diagrams.gv_landing_run import (  # noqa: E402
-    SETTLED_TOLERANCE_M, SETTLED_WINDOW_S, TARGET_TOUCHDOWN_ERROR_M, TARGET_TOUCHDOWN_REL_SPEED_MPS, fly, simulate_flight,
+from diagrams.gv_landing_run import fly, fly_diagram  # noqa: E402
+from diagrams.landing_metrics import (  # noqa: E402
+    SETTLED_TOLERANCE_M, SETTLED_WINDOW_S, TARGET_TOUCHDOWN_ERROR_M, TARGET_TOUCHDOWN_REL_SPEED_MPS,
 )
 from diagrams.runner import load_scenario  # noqa: E402
 from systems.vehicles.paths import PATH_NAMES  # noqa: E402
@@ -128,10 +129,10 @@ def realtime(duration_s: float, repeats: int = 5) -> dict:
         diagram, handles = build_gv_landing(scenario)
         builds.append(time.perf_counter() - start)
         cpu = time.thread_time()
-        flight = simulate_flight(diagram, handles, duration_s)
+        flight = fly_diagram(diagram, handles, duration_s)
         cpus.append(time.thread_time() - cpu)
-        walls.append(flight.wall_time_s)
-        assert flight.sim_time_s >= duration_s - 1e-6, flight.status
+        walls.append(flight.simulation.wall_time_s)
+        assert flight.simulation.sim_time_s >= duration_s - 1e-6, flight.status
     best = int(np.argmin(walls))
     return {"sim_time_s": duration_s, "wall_time_s": walls[best], "realtime_factor": duration_s / walls[best],
             "all_wall_times_s": walls, "thread_cpu_time_s": cpus[best], "build_time_s": float(np.median(builds))}

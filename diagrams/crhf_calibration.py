@@ -350,5 +350,5 @@ def run(scenario: Scenario, ctx) -> dict:
     calibration.save(ctx.out_dir / "pad_calibration.npz")  # atomic: written to a temporary name, renamed
     write_npz(ctx.out_dir / "log.npz", **log)
     plot_calibration(calibration, scenario, handles.p_C_sensors, ctx.out_dir)
-    return finish_run(handles, ctx, metrics)
+    return finish_run(ctx, metrics)
 

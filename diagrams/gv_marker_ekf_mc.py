@@ -2,15 +2,12 @@
 
     landing-sim montecarlo gv-marker-ekf --runs 100 --speeds 3 6 12 --workers 2 --out results/mc
 
-A run (`run_task`) is one seeded measurement stream through both filters. With the paper's
-synthetic source (the default) the flight (vehicle and UAV) does not depend on the measurement
-noise (perfect perception steers the UAV), so each worker process simulates it once per speed and
-keeps it (diagrams/gv_marker_ekf.fly_truth's cache, keyed by the scenario settings without the
-seed); a run draws its stream from numpy.random.default_rng(run seed), vectorised over the whole
-run, and steps both filters over the identical list of measurements. With `--set
-estimation.source=detector` every run flies with the camera, rendering and detecting each frame
-with the run's pixel noise (about 0.9 s of wall time per simulated second: a handful of runs, not
-hundreds). The loaded scenario is cached per (case, overrides); only its seed changes from run to run.
+A run (`run_task`) is one seeded measurement stream through the filters. With the paper's synthetic
+source (the default) it takes the batch path (diagrams/marker_batch.py: the Diagram's numbers, the
+flight flown once per speed in each worker); with `--set estimation.source=detector` every run flies
+the Diagram with the camera, rendering and detecting each frame (a handful of runs, not hundreds:
+docs/results.md has the cost). The loaded scenario is cached per (case, overrides); only its seed
+changes from run to run.
 
 Each run keeps its metrics (per filter: RMS position and heading error, per-marker RMS, counts)
 and, every DECIMATE-th step as float32, the true and estimated pad path, heading and marker errors.
@@ -24,15 +21,17 @@ mc_marker_errors.png (the ensemble RMS position error of each marker over time, 
 """
 
 import dataclasses
+import time
 import warnings
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
 
-from diagrams.gv_landing import path_polyline
 from diagrams.montecarlo import CampaignDefinition, RunOutput, RunTask, parse_number_case
 from diagrams.outputs import save_figure
+from systems.estimators.marker_ekf.engine import EST_P_WP, EST_YAW
+from systems.vehicles.paths import make_path
 
 DECIMATE = 4  # keep every 4th step (140 ms) of the time series
 SPEEDS = ("3", "6", "12")  # seed 002 Sec. 4: C1, C2, C3 [m/s]
@@ -47,25 +46,40 @@ def _scenario(task: RunTask):
     return dataclasses.replace(_SCENARIOS[key], seed=task.seed)
 
 
+def sampled(scenario):
+    """The run at the filter steps: by the batch path where it applies, else through the Diagram."""
+    from diagrams.gv_landing import build_gv_landing
+    from diagrams.gv_landing_run import fly_diagram
+    from diagrams.marker_batch import batch_run
+
+    if scenario.estimation.source == "synthetic" and scenario.perception.source == "truth":
+        return batch_run(scenario, scenario.run_length_s)
+    diagram, handles = build_gv_landing(scenario)
+    return fly_diagram(diagram, handles, scenario.run_length_s).sampled
+
+
 def run_task(task: RunTask) -> RunOutput:
     """One run of the campaign (module docstring)."""
-    from diagrams.gv_marker_ekf import estimate_run
+    from diagrams.marker_metrics import marker_metrics, pad_truth
 
     scenario = _scenario(task)
-    est = estimate_run(scenario)
+    start = time.perf_counter()
+    run = sampled(scenario)
+    est = scenario.estimation
+    measured, metrics, errors = marker_metrics(run, scenario.platform, est.X_BC, est.settle_s)
+    truth = pad_truth(run, scenario.platform)
     keep = slice(None, None, DECIMATE)
-    truth = est.truth
-    arrays = {"t": truth.t[keep].astype(np.float32), "true_xy": truth.p_WP[keep, :2].astype(np.float32),
+    arrays = {"t": run.t[keep].astype(np.float32), "true_xy": truth.p_WP[keep, :2].astype(np.float32),
               "true_yaw": truth.yaw[keep].astype(np.float32)}
-    for name, trace in est.traces.items():
-        invalid = ~trace.valid[keep]  # NaN where the filter flags its estimate, as its metrics leave it out
-        for key, values in (("xy", trace.p_WP[keep, :2]), ("yaw", trace.yaw[keep]),
-                            ("marker_error", est.errors[name].markers[keep])):
+    for name, estimate in run.estimates.items():
+        invalid = ~errors[name].valid[keep]  # NaN where the filter flags its estimate, as its metrics leave it out
+        for key, values in (("xy", estimate[keep][:, EST_P_WP][:, :2]), ("yaw", estimate[keep][:, EST_YAW]),
+                            ("marker_error", errors[name].markers[keep])):
             arrays[f"{name}_{key}"] = np.where(invalid.reshape(-1, *[1] * (values.ndim - 1)), np.nan,
                                                values).astype(np.float32)
-    metrics = {"speed_m_s": scenario.vehicle.speed, "seed": scenario.seed, "sim_time_s": float(truth.t[-1]),
-               "estimation_wall_time_s": est.wall_time_s, "settle_s": scenario.estimation.settle_s,
-               "source": scenario.estimation.source, "measurements": est.measurements, "estimators": est.metrics}
+    metrics = {"speed_m_s": scenario.vehicle.speed, "seed": scenario.seed, "sim_time_s": float(run.t[-1]),
+               "estimation_wall_time_s": time.perf_counter() - start, "settle_s": est.settle_s, "source": est.source,
+               "measurements": measured, "estimators": metrics}
     return RunOutput(metrics, arrays)
 
 
@@ -128,7 +142,7 @@ def aggregate(done: dict) -> dict:
 
 def plot(settings, done: dict, out_dir: Path) -> None:
     """Seed 002 Fig. 3-5 over the ensemble, one row per speed."""
-    from diagrams.gv_marker_ekf import plot_heading, plot_markers, plot_path
+    from diagrams.marker_plots import plot_heading, plot_markers, plot_path
     from diagrams.runner import load_scenario
 
     cases = [c for c in settings.cases if done.get(c)]
@@ -136,7 +150,7 @@ def plot(settings, done: dict, out_dir: Path) -> None:
         return
     names = _filters(done[cases[0]])
     scenario = load_scenario(settings.scenario, None, list(settings.overrides))[1]
-    reference = path_polyline(scenario.vehicle, max_length_m=1e9)
+    reference = make_path(scenario.vehicle.path_config()).polyline(max_length_m=1e9)
     ensembles = {c: {n: _ensemble(done[c], n) for n in names} for c in cases}
     fig, axes = plt.subplots(len(cases), 1, figsize=(9, 4.5 * len(cases)), squeeze=False)
     for ax, c in zip(axes[:, 0], cases):

@@ -48,13 +48,16 @@ def axis_errors(xyz: np.ndarray, rpy_deg: np.ndarray) -> dict:
     }
 
 
-def estimator_metrics(truth: np.ndarray, estimate: np.ndarray) -> dict:
-    """MAE and RMSE per axis, valid fraction and pose-flip count of one estimator over a run."""
-    valid, xyz, rpy, angle = pose_errors(truth, estimate)
-    if not valid.any():
-        return {"valid_fraction": 0.0, "flips": 0}
-    return {
-        **axis_errors(xyz, rpy),
-        "valid_fraction": float(np.mean(valid)),
-        "flips": int(np.sum(angle > FLIP_THRESHOLD_DEG)),
-    }
+def estimator_metrics(truth: np.ndarray, estimate: np.ndarray, window: np.ndarray | None = None) -> dict:
+    """One estimator's figures over a run: MAE and RMSE per axis and the pose-flip count over its
+    valid estimates (within `window`, a boolean mask of the frames to score, when given), and the
+    share of all frames with a valid estimate. Rows as `pose_errors`."""
+    scored = estimate.copy()
+    if window is not None:
+        scored[~window, 0] = 0.0
+    valid, xyz, rpy, angle = pose_errors(truth, scored)
+    out = {"valid_fraction": float(np.mean(estimate[:, 0] > 0.5)) if len(estimate) else 0.0,
+           "flips": int(np.sum(angle > FLIP_THRESHOLD_DEG)), "frames_scored": int(valid.sum())}
+    if valid.any():
+        out.update(axis_errors(xyz, rpy))
+    return out

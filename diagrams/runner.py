@@ -2,16 +2,14 @@
 leaves behind (metrics.json, log.npz, plots, and on request a Meshcat recording and a video)."""
 
 import shutil
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from pydrake.geometry import Meshcat, MeshcatParams
-from pydrake.systems.analysis import Simulator
-from tqdm import tqdm
 
 from diagrams.outputs import check_writable, write_json, write_text
 from diagrams.scenario import load_typed, normalise, read_yaml, scenario_path, set_override
+from diagrams.simulate import simulate
 from systems.config import ConfigError
 
 
@@ -83,49 +81,19 @@ def make_meshcat(options: RunOptions) -> Meshcat | None:
     return Meshcat(MeshcatParams(host=options.meshcat_host, port=options.meshcat_port))
 
 
-def simulate(diagram, duration_s: float, options: RunOptions, visualizer=None):
-    """Simulates `diagram` for `duration_s`; returns (wall time in s, the final root context).
-    Real time when Meshcat is live, as fast as possible otherwise; records for `--record`."""
-    simulator = Simulator(diagram)
-    if options.meshcat:
-        simulator.set_target_realtime_rate(1.0)
-    if visualizer is not None and options.record:
-        visualizer.StartRecording()
-    simulator.Initialize()
-    steps = max(1, int(round(duration_s / 0.5)))
-    start = time.perf_counter()
-    with tqdm(total=duration_s, unit="sim s", disable=not options.progress, leave=False,
-              bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim s [{elapsed}<{remaining}]") as bar:
-        for k in range(1, steps + 1):
-            target = duration_s * k / steps
-            simulator.AdvanceTo(target)
-            bar.update(target - bar.n)
-    wall = time.perf_counter() - start
-    if visualizer is not None and options.record:
-        visualizer.StopRecording()
-        visualizer.PublishRecording()
-    return wall, simulator.get_context()
-
-
 def simulate_scene(diagram, handles, scenario, ctx: RunContext):
     """Simulates a scene whose handles carry `meshcat_visualizer` and `video` (see
-    `stewart_scene.add_viewers`); returns (metrics common to every run, final context). A failed
-    run discards its partial video."""
-    try:
-        wall, context = simulate(diagram, scenario.duration_s, ctx.options, handles.meshcat_visualizer)
-    except BaseException:
-        if handles.video is not None:
-            handles.video.discard()
-        raise
-    metrics = {"scenario": ctx.name, "seed": scenario.seed, "sim_time_s": scenario.duration_s, "wall_time_s": wall,
-               "realtime_factor": scenario.duration_s / wall}
-    return metrics, context
+    `stewart_scene.add_viewers`) for `duration_s`; returns (metrics common to every run, final
+    context)."""
+    run = simulate(diagram, scenario.duration_s, realtime=ctx.options.meshcat, progress=ctx.options.progress,
+                   visualizer=handles.meshcat_visualizer, record=ctx.options.record, video=handles.video)
+    metrics = {"scenario": ctx.name, "seed": scenario.seed, "sim_time_s": run.sim_time_s,
+               "wall_time_s": run.wall_time_s, "realtime_factor": run.realtime_factor}
+    return metrics, run.context
 
 
-def finish_run(handles, ctx: RunContext, metrics: dict) -> dict:
-    """Closes the video, writes the Meshcat recording if asked, and metrics.json last."""
-    if handles.video is not None:
-        handles.video.finish()
+def finish_run(ctx: RunContext, metrics: dict) -> dict:
+    """Writes the Meshcat recording if asked, and metrics.json last."""
     if ctx.options.record:
         write_text(ctx.out_dir / "meshcat.html", ctx.meshcat.StaticHtml())
     write_json(ctx.out_dir / "metrics.json", metrics)

@@ -120,4 +120,4 @@ def run(scenario: Scenario, ctx) -> dict:
     plot_scene(log, scenario, ctx.out_dir)
     plot_pose_estimates(log["t"], log["X_CT"], {name: log[f"estimate_{name}"] for name in scenario.estimators},
                         ctx.out_dir)
-    return finish_run(handles, ctx, metrics)
+    return finish_run(ctx, metrics)

@@ -86,11 +86,12 @@ def test_steering_lag_and_limit():
 
 
 @pytest.mark.parametrize("yaml, message", [
-    ("wheelbase_m: 0.0", "ground_vehicle.wheelbase_m must be positive"),
-    ("max_steering_deg: 0.0", "ground_vehicle.max_steering_deg must be in"),
-    ("path: {name: zigzag}", "ground_vehicle.path.name 'zigzag' is not a path"),
-    ("path: {name: circle, radius_m: 5.0}", "ground_vehicle.path.radius_m = 5.0 is tighter"),
-    ("path: {name: turn-90, length_m: 30.0}", "path.length_m = 30.0 is too short"),
+    ("wheelbase_m: 0.0", "vehicle.wheelbase_m must be positive"),
+    ("max_steering_deg: 0.0", "vehicle.max_steering_deg must be in"),
+    ("path: zigzag", "vehicle.path 'zigzag' is not a path"),
+    ("{path: circle, path_radius_m: 5.0}", "vehicle.path_radius_m = 5.0 is tighter"),
+    ("{path: turn-90, path_length_m: 30.0}", r"vehicle.path_length_m = 30.0 is too short"),
+    ("{speed_schedule_times_s: [0, 1], speed_schedule_m_s: [1]}", "must have the same length"),
 ])
 def test_bad_config_is_rejected_by_name(yaml, message):
     config = yaml_load_typed(schema=GroundVehicleConfig, data=yaml)
@@ -126,8 +127,8 @@ def test_nearest_keeps_to_its_branch_where_the_figure_eight_crosses():
 
 @pytest.mark.parametrize("name", [n for n in PATH_NAMES if n != "sine"])
 def test_follower_tracks_seed_003_figure_9_paths(name):
-    config = GroundVehicleConfig(path=PathConfig(name=name))
-    path = make_path(config.path)
+    config = GroundVehicleConfig(path=name)
+    path = make_path(config.path_config())
     distance = path.length if path.closed else 200.0  # past the manoeuvre
     states, progress = follow(config, speed=2.0, distance=distance)
     errors = cross_track_errors(path, states)
@@ -137,9 +138,9 @@ def test_follower_tracks_seed_003_figure_9_paths(name):
 
 @pytest.mark.parametrize("speed", [3.0, 6.0, 12.0])  # seed 002 cases C1, C2, C3
 def test_follower_tracks_seed_002_sine_path(speed):
-    config = GroundVehicleConfig(path=PathConfig(name="sine", length_m=700.0))
+    config = GroundVehicleConfig(path="sine", path_length_m=700.0)
     states, progress = follow(config, speed=speed, distance=600.0)
-    path = make_path(config.path)
+    path = make_path(config.path_config())
     errors = cross_track_errors(path, states)
     assert errors.max() < 0.1
     assert_progress(progress, 600.0, path, config, speed)
@@ -149,7 +150,7 @@ def test_follower_tracks_seed_002_sine_path(speed):
 def test_discretised_vehicle_drives_as_the_continuous_one():
     # The bicycle integrated per 5 ms period (the gv-landing default) gets each 20 Hz steering
     # command one period late: ~4 mm apart after 100 m of the figure-eight at 3 m/s.
-    config = GroundVehicleConfig(path=PathConfig(name="figure-eight"))
+    config = GroundVehicleConfig(path="figure-eight")
     positions = []
     for time_period in (None, 0.005):
         builder = DiagramBuilder()

@@ -1,6 +1,6 @@
 """The gv-landing diagram (issue 4): a full landing, failures reported in metrics, configuration
-errors naming their field, the perception seam, the two flight controller backends flying alike, the
-discrete vehicles against the continuous ones, Meshcat, and the CLI run."""
+errors naming their field, the true relative state, the two flight controller backends flying alike,
+the discrete vehicles against the continuous ones, the monitor, Meshcat, and the CLI run."""
 
 import json
 
@@ -10,14 +10,16 @@ from pydrake.geometry import Meshcat
 from pydrake.math import RollPitchYaw, RotationMatrix
 
 from diagrams.cli import main
-from diagrams.gv_landing import (
-    A_WP, HEIGHT, P_BP_B, P_BP_W, V_WP, VALID, GvLandingConfig, LandingMonitor, PerfectPerception, build_gv_landing,
-)
-from diagrams.gv_landing_run import FAILURE_REASONS, fly, simulate_flight
+from diagrams.gv_landing import build_gv_landing
+from diagrams.gv_landing_config import GvLandingConfig
+from diagrams.gv_landing_run import fly, fly_diagram
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.control.landing import Mode
-from systems.vehicles.quadrotor import P_WB, hover_state, quadrotor_state
+from systems.control.monitor import FAILURE_REASONS, LandingMonitor
+from systems.perception.seam import A_WP, HEIGHT, P_BP_B, P_BP_W, V_WP, VALID, SeamSplit
+from systems.perception.truth import RelativeStateTruth
+from systems.vehicles.quadrotor import P_WB, hover_state, pose_from_state, quadrotor_state
 
 # pydrake filters numpy's "invalid value" warnings from symbolic object arrays when imported;
 # pytest resets warning filters per test, so restore that one here.
@@ -90,20 +92,25 @@ def test_a_path_too_short_for_its_manoeuvre_names_the_flattened_field():
         load_scenario("gv-landing", overrides=["vehicle.path=s-shape", "vehicle.path_length_m=50"])
 
 
-def test_perception_seam_gives_the_true_relative_state():
+def test_the_truth_gives_the_true_relative_state_and_the_split_names_its_parts():
     config = GvLandingConfig()
-    perception = PerfectPerception(config.vehicle, config.platform, config.perception)
-    context = perception.CreateDefaultContext()
+    truth = RelativeStateTruth(config.vehicle, config.platform, config.perception.field_of_view_deg,
+                               config.perception.max_range_m)
+    context = truth.CreateDefaultContext()
     # Vehicle at (10, 0) heading +y, steering 0.1 rad (and commanded there: no steering rate),
     # 2 m/s at constant speed; the pad is 1.75 m ahead of the rear axle.
     steering, speed = 0.1, 2.0
-    perception.GetInputPort("vehicle_state").FixValue(context, [10.0, 0.0, np.pi / 2, steering])
-    perception.GetInputPort("vehicle_speed").FixValue(context, [speed, 0.0])
-    perception.GetInputPort("vehicle_steering_command").FixValue(context, [steering])
-    quad = perception.GetInputPort("quadrotor_state")
-    quad.FixValue(context, hover_state(config.quadrotor, [11.0, 2.0, 5.0], yaw=np.pi / 2))
+    truth.GetInputPort("vehicle_state").FixValue(context, [10.0, 0.0, np.pi / 2, steering])
+    truth.GetInputPort("vehicle_speed").FixValue(context, [speed, 0.0])
+    truth.GetInputPort("vehicle_steering_command").FixValue(context, [steering])
+    X_WB = truth.GetInputPort("X_WB")
+    X_WB.FixValue(context, pose_from_state(hover_state(config.quadrotor, [11.0, 2.0, 5.0], yaw=np.pi / 2)))
+    relative = truth.get_output_port().Eval(context)
+    split = SeamSplit()
+    split_context = split.CreateDefaultContext()
+    split.get_input_port().FixValue(split_context, relative)
+    out = lambda name: split.GetOutputPort(name).Eval(split_context)  # noqa: E731
     p_WP = np.array([10.0, 1.75, 1.6])
-    out = lambda name: perception.GetOutputPort(name).Eval(context)  # noqa: E731
     np.testing.assert_allclose(out("p_BP_W"), p_WP - [11.0, 2.0, 5.0], atol=1e-12)
     np.testing.assert_allclose(out("target_offset"), [-1.0, -0.25], atol=1e-12)
     np.testing.assert_allclose(out("p_BP_B"), [-0.25, 1.0, -3.4], atol=1e-12)  # yawed 90 deg: x_B = +y_W
@@ -119,14 +126,14 @@ def test_perception_seam_gives_the_true_relative_state():
     np.testing.assert_allclose(out("target_acceleration"), v_P**2 / np.linalg.norm(to_centre)**2 * to_centre,
                                atol=1e-12)
     assert out("target_valid")[0] == 1.0
-    relative = out("relative_state")
     np.testing.assert_allclose(relative[P_BP_W], out("p_BP_W"))
     np.testing.assert_allclose(relative[P_BP_B], out("p_BP_B"))
     assert relative[HEIGHT] == pytest.approx(3.4) and relative[V_WP][2] == 0.0 and relative[A_WP][2] == 0.0
     np.testing.assert_allclose(relative[A_WP][:2], out("target_acceleration"))
     # Rolled 80 deg, the camera cone (150 deg) no longer holds the pad: not valid.
-    quad.FixValue(context, quadrotor_state(p_WB=[11.0, 2.0, 5.0], R_WB=RotationMatrix(RollPitchYaw(1.4, 0, 0))))
-    assert out("target_valid")[0] == 0.0 and out("relative_state")[VALID] == 0.0
+    X_WB.FixValue(context, pose_from_state(quadrotor_state(p_WB=[11.0, 2.0, 5.0],
+                                                           R_WB=RotationMatrix(RollPitchYaw(1.4, 0, 0)))))
+    assert truth.get_output_port().Eval(context)[VALID] == 0.0
 
 
 def test_the_pads_acceleration_is_the_rate_of_its_velocity():
@@ -136,8 +143,8 @@ def test_the_pads_acceleration_is_the_rate_of_its_velocity():
         "vehicle.path=s-shape", "vehicle.path_lead_m=2", "vehicle.speed_schedule_times_s=[0, 5, 10]",
         "vehicle.speed_schedule_m_s=[0, 3, 2]", "termination.stop_on_landed=false"])
     diagram, handles = build_gv_landing(scenario)
-    flight = simulate_flight(diagram, handles, 20.0)
-    t, relative = flight.log["t"], flight.log["relative_state"]
+    flight = fly_diagram(diagram, handles, 20.0)
+    t, relative = flight.log["t"], flight.log["true_relative_state"]
     acceleration = relative[:, A_WP]
     difference = np.abs(np.gradient(relative[:, V_WP], t, axis=0) - acceleration)
     assert np.abs(acceleration[:, :2]).max() > 0.5 and not acceleration[:, 2].any()
@@ -147,7 +154,7 @@ def test_the_pads_acceleration_is_the_rate_of_its_velocity():
 def _positions(overrides, duration_s):
     _, scenario = load_scenario("gv-landing", overrides=overrides)
     diagram, handles = build_gv_landing(scenario)
-    flight = simulate_flight(diagram, handles, duration_s)
+    flight = fly_diagram(diagram, handles, duration_s)
     return flight.log["t"], flight.log["quadrotor_state"][:, P_WB], flight.log["vehicle_state"][:, :2]
 
 
@@ -176,16 +183,23 @@ def test_python_flight_controller_flies_the_same_as_the_symbolic_one(integration
 
 def test_monitor_names_each_way_a_run_ends():
     config = GvLandingConfig()
-    monitor = LandingMonitor(config)
+    monitor = LandingMonitor(config.termination, config.platform, config.landing.touchdown_height_m)
     quad = hover_state(config.quadrotor, [20.0, 0.0, 5.0])
     vehicle = np.array([0.0, 0.0, 0.0, 0.0])
     relative = np.zeros(14)
+    relative[P_BP_W], relative[HEIGHT] = [-18.25, 0.0, -3.4], 3.4  # the true relative state of `quad`
 
-    def check(quad=quad, mode=Mode.FOLLOW, last_seen=1.0, t=1.0, seen_ever=True):
+    def check(quad=quad, mode=Mode.FOLLOW, last_seen=1.0, t=1.0, seen_ever=True, relative=relative):
         return monitor.check(t, quad, vehicle, relative, mode, last_seen, seen_ever)
 
     assert check() is None
-    assert check(mode=Mode.LANDED).startswith("landed")
+    assert check(mode=Mode.LANDED).startswith("landed: the supervisor")
+    touching = relative.copy()
+    touching[P_BP_W], touching[HEIGHT] = [0.3, -0.2, -0.08], 0.08  # the gear on the pad, whatever the estimate
+    assert check(relative=touching).startswith("landed: the gear touched the pad")
+    beside = touching.copy()
+    beside[P_BP_W] = [0.9, 0.0, -0.08]  # as low, but off the 1 m pad: no touchdown
+    assert check(relative=beside) is None
     nan = quad.copy()
     nan[8] = np.nan
     assert check(quad=nan).startswith("diverged")
@@ -194,8 +208,8 @@ def test_monitor_names_each_way_a_run_ends():
     fast = quad.copy()
     fast[7] = 100.0
     assert check(quad=fast).startswith("diverged")
-    assert check(t=30.0, last_seen=5.0).startswith("target_lost: unseen for 25.0 s")
-    assert check(t=30.0, last_seen=0.0, seen_ever=False).startswith("target_lost: the pad was never in view")
+    assert check(t=30.0, last_seen=5.0).startswith("target_lost: no valid estimate for 25.0 s")
+    assert check(t=30.0, last_seen=0.0, seen_ever=False).startswith("target_lost: no valid estimate of the pad")
 
 
 def test_meshcat_shows_the_scene_path_and_trail():
@@ -203,7 +217,7 @@ def test_meshcat_shows_the_scene_path_and_trail():
     _, scenario = load_scenario("gv-landing", overrides=["vehicle.path=figure-eight"])
     diagram, handles = build_gv_landing(scenario, meshcat)
     assert handles.meshcat_visualizer is not None
-    simulate_flight(diagram, handles, 1.0, record=True)
+    fly_diagram(diagram, handles, 1.0, record=True)
     for path in ("gv_landing/path", "gv_landing/uav_trail", "/drake/visualizer/uav_body",
                  "/drake/visualizer/gv_body/gv_pad_markers", "/drake/visualizer/gv_wheel_fl"):
         assert meshcat.HasPath(path), path

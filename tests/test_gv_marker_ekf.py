@@ -1,8 +1,9 @@
 """gv-marker-ekf (diagrams/gv_marker_ekf.py) and its campaign (diagrams/gv_marker_ekf_mc.py) on
-short runs: the command writes its metrics, both filters see the identical measurement stream, the
-vectorised stream matches `synthetic_marker_measurements`, the detector source measures the markers
-the camera renders in the scene and the filters track the pad on it, Meshcat records the flight,
-the campaign gives identical summaries with 1 and 2 workers, and bad settings are one-line errors."""
+short runs: the command writes its metrics, both filters see the identical measurement stream one
+period late, the truth's marker geometry against Drake, the synthetic stream has the paper's
+accuracy, the detector source measures the markers the camera renders in the scene and the filters
+track the pad on it, Meshcat records the flight and the estimates, the campaign gives identical
+summaries with 1 and 2 workers, and bad settings are one-line errors."""
 
 import json
 
@@ -13,14 +14,16 @@ from pydrake.geometry import Meshcat
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from diagrams.cli import main
-from diagrams.gv_marker_ekf import (
-    Truth, arrivals, estimate_run, fly, fly_truth, measurement_metrics, quat_multiply, show_estimates, synthetic_stream,
-    true_marker_poses_C,
-)
+from diagrams.gv_landing import build_gv_landing
+from diagrams.gv_landing_run import fly_diagram
+from diagrams.marker_batch import batch_run, flight_samples
+from diagrams.marker_metrics import SampledRun, marker_metrics, measurement_metrics, pad_truth, true_marker_poses_C
 from diagrams.montecarlo import campaign_definition, campaign_settings, run_campaign
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
-from systems.perception.markers import synthetic_marker_measurements
+from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT
+from systems.quaternion import drake_to_paper
+from systems.vehicles.quadrotor import P_WB, quadrotor_state
 
 SHORT = ["duration_s=4"]
 
@@ -33,18 +36,20 @@ def test_run_command_writes_metrics(capfd, tmp_path):
     out = tmp_path / "run"
     code = main(["run", "gv-marker-ekf", "--set", "vehicle.speed=6", "--set", "duration_s=3", "--out", str(out),
                  "--quiet"])
-    assert code in (0, None)
+    assert code == 0
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["scenario"] == "gv-marker-ekf"
+    assert metrics["scenario"] == "gv-marker-ekf" and "landing" not in metrics
+    assert metrics["perception"]["source"] == "truth" and metrics["flight"]["end"] == "completed"
     for name in ("paper_ekf", "ct_ekf"):
         m = metrics["estimators"][name]
         assert 0 < m["rms_position_m"] < 0.5 and 0 < m["rms_heading_deg"] < 10
-        assert len(m["rms_marker_position_m"]) == 5
+        assert len(m["rms_marker_position_m"]) == 5 and len(m["mae_xyz_m"]) == 3
         assert {"gated", "invalid", "accepted"} <= set(m["measurements"])
-    for png in ("path.png", "heading.png", "marker_errors.png"):
+    for png in ("path.png", "heading.png", "marker_errors.png", "perception.png"):
         assert (out / png).is_file()
     with np.load(out / "log.npz") as log:
-        assert log["ct_ekf_p_WP"].shape == log["p_WP"].shape
+        assert log["ct_ekf_estimate"].shape == (len(log["t_sample"]), 13)
+        assert log["measurements"].shape == (len(log["t_sample"]), 5, 7)
 
 
 def test_default_run_length_is_500_m_of_driving():
@@ -52,66 +57,59 @@ def test_default_run_length_is_500_m_of_driving():
     assert s.run_length_s == pytest.approx(500 / 12)
 
 
+def _heights_and_offsets(s, duration_s):
+    t, quad, vehicle = flight_samples(s, duration_s)
+    p_WP = np.array([s.platform.X_WP(v).translation() for v in vehicle])
+    return t, quad[:, P_WB], quad[:, 2] - p_WP[:, 2], np.linalg.norm(quad[:, :2] - p_WP[:, :2], axis=1)
+
+
 def test_flight_starts_at_10_m_and_holds_0_4_m_above_the_pad():
-    s = load_scenario("gv-marker-ekf", None, ["vehicle.speed=3", "duration_s=20"])[1]
-    truth = fly_truth(s)
-    assert truth.p_WB[0] == pytest.approx([0, 0, 10])
-    height = truth.p_WB[:, 2] - truth.p_WP[:, 2]
-    assert abs(height[-1] - 0.4) < 0.05
-    assert np.linalg.norm(truth.p_WB[-1, :2] - truth.p_WP[-1, :2]) < 0.5
+    s = load_scenario("gv-marker-ekf", None, ["vehicle.speed=3"])[1]
+    _, p_WB, height, offset = _heights_and_offsets(s, 20.0)
+    assert p_WB[0] == pytest.approx([0, 0, 10])
+    assert abs(height[-1] - 0.4) < 0.05 and offset[-1] < 0.5
 
 
 def test_flight_at_12_m_s_never_goes_below_the_pad_and_keeps_up():
     s = load_scenario("gv-marker-ekf", None, ["vehicle.speed=12"])[1]  # the full 500 m (42 s)
-    truth = fly_truth(s, cache=False)
-    height = truth.p_WB[:, 2] - truth.p_WP[:, 2]
-    offset = np.linalg.norm(truth.p_WB[:, :2] - truth.p_WP[:, :2], axis=1)
+    t, _, height, offset = _heights_and_offsets(s, s.run_length_s)
     assert height.min() > 0.3 and abs(height[-1] - 0.4) < 0.05
-    caught_up = truth.t >= 20.0  # the UAV starts hovering and needs ~15 s to reach 12 m/s and catch up
+    caught_up = t >= 20.0  # the UAV starts hovering and needs ~15 s to reach 12 m/s and catch up
     assert offset[caught_up].max() < 0.3
 
 
-def test_both_filters_get_the_identical_stream():
-    s = scenario()
-    truth = fly_truth(s)
-    log = []
-    est = estimate_run(s, truth, inputs_log=log)
-    assert len(log) == len(truth.t) and log[0] == [] and len(log[1]) == 5  # one period late
-    # Run each filter alone on the same seed: the same estimates as side by side.
+def test_both_filters_get_the_identical_stream_one_period_late():
+    s = scenario(seed=4)
+    together = batch_run(s, 4.0)
+    # Each filter alone on the same seed: the same estimates as side by side.
     for name in ("paper_ekf", "ct_ekf"):
         s.estimation.filters = [name]
-        alone = estimate_run(s, truth)
-        np.testing.assert_array_equal(alone.traces[name].p_WP, est.traces[name].p_WP)
-    again = estimate_run(scenario(), truth)
-    np.testing.assert_array_equal(again.stream.p_CM, est.stream.p_CM)
+        alone = batch_run(s, 4.0)
+        np.testing.assert_array_equal(alone.estimates[name], together.estimates[name])
+        np.testing.assert_array_equal(alone.measurements, together.measurements)
+        # The newest measurement in each step was acquired one period before it (none in the first).
+        last = together.estimates[name][:, EST_LAST_MEASUREMENT]
+        assert np.isnan(last[0])
+        np.testing.assert_allclose(last[1:], together.t[:-1], atol=1e-12)
 
 
-def test_vectorised_stream_matches_the_synthetic_source_geometry():
+def test_the_truths_marker_poses_in_the_camera_are_drakes():
     s = scenario()
-    layout, X_BC = s.platform.markers, s.estimation.X_BC
-    t = np.array([0.0, 0.035])
     X_WB = [RigidTransform(RollPitchYaw(0.1, -0.05, 0.4), [1, 2, 5]), RigidTransform(RollPitchYaw(0, 0.2, -1), [0, 1, 3])]
-    yaw = np.array([0.3, -2.0])
-    p_WP = np.array([[1.5, 2.2, 1.6], [0.2, 0.9, 1.6]])
-    q_WB = np.array([X.rotation().ToQuaternion().wxyz() for X in X_WB])
-    truth = Truth(t, np.array([X.translation() for X in X_WB]), q_WB, p_WP, yaw, np.zeros((2, 4)), "", 0.0)
-    stream = synthetic_stream(truth, layout, X_BC, np.random.default_rng(0), 0.0, 0.0)
+    vehicle = np.array([[0.0, 0.5, 0.3, 0.0], [-1.0, 0.2, -2.0, 0.1]])
+    quad = np.array([quadrotor_state(p_WB=X.translation(), R_WB=X.rotation()) for X in X_WB])
+    run = SampledRun(np.array([0.0, 0.035]), quad, vehicle, np.full((2, 5, 7), np.nan), {}, {}, {}, {})
+    p_CM, q_CP = true_marker_poses_C(pad_truth(run, s.platform), s.platform.markers, s.estimation.X_BC)
     for k in range(2):
-        X_WP = RigidTransform(RollPitchYaw(0, 0, yaw[k]), p_WP[k])
-        ref = synthetic_marker_measurements(X_WB[k].multiply(X_BC).InvertAndCompose(X_WP), layout,
-                                            np.random.default_rng(0), 0.0, 0.0)
-        for i, m in enumerate(ref):
-            np.testing.assert_allclose(stream.p_CM[k, i], m.p_CM, atol=1e-12)
-            q = stream.q_CM[k, i]
-            assert abs(abs(q @ m.q_CM) - 1) < 1e-12
-    a = np.array([0.5, 0.5, 0.5, 0.5])
-    np.testing.assert_allclose(quat_multiply(a, a), (Quaternion(a).multiply(Quaternion(a))).wxyz())
+        X_CP = X_WB[k].multiply(s.estimation.X_BC).InvertAndCompose(s.platform.X_WP(vehicle[k]))
+        np.testing.assert_allclose(p_CM[k], X_CP.multiply(s.platform.markers.p_PM.T).T, atol=1e-12)
+        assert abs(abs(np.dot(q_CP[k], X_CP.rotation().ToQuaternion().wxyz())) - 1) < 1e-12
 
 
 def test_synthetic_measurements_have_the_papers_accuracy():
-    s = scenario(6)
-    est = estimate_run(s, fly_truth(s))
-    m = est.measurements
+    s = scenario(6, 0, "duration_s=20")  # 572 samples of 5 markers: the RMS to about 2 %
+    run = batch_run(s, s.run_length_s)
+    m = measurement_metrics(run, pad_truth(run, s.platform), s.platform.markers, s.estimation.X_BC)
     assert m["measured_fraction"] == [1.0] * 5
     # 0.1 m on each of 3 axes, 5 deg on each of 3 axes of a rotation vector
     np.testing.assert_allclose(m["rms_position_m"], 0.1 * np.sqrt(3), rtol=0.08)
@@ -122,43 +120,46 @@ def test_synthetic_measurements_have_the_papers_accuracy():
 def detector_run():
     """4 s at 3 m/s with the camera: the pad is in view, leaves it (0.3-1.2 s) and returns."""
     s = scenario(3, 0, "estimation.source=detector")
-    truth, stream, _ = fly(s, camera=True)
-    return s, truth, stream
+    diagram, handles = build_gv_landing(s)
+    return s, fly_diagram(diagram, handles, s.run_length_s).sampled
 
 
+@pytest.mark.slow
 def test_detector_measures_the_markers_the_camera_renders(detector_run):
-    s, truth, stream = detector_run
-    layout = s.platform.markers
-    m = measurement_metrics(truth, stream, layout, s.estimation.X_BC)
+    s, run = detector_run
+    layout, X_BC = s.platform.markers, s.estimation.X_BC
+    truth = pad_truth(run, s.platform)
+    m = measurement_metrics(run, truth, layout, X_BC)
     assert min(m["measured_fraction"]) > 0.5  # from 8 m up, the UAV hovering behind the vehicle
     assert max(m["rms_position_m"]) < 0.2  # m, 14-24 px markers 8 m away
-    p_CM, q_CP = true_marker_poses_C(truth, layout, s.estimation.X_BC)
-    seen = ~np.isnan(stream.p_CM[..., 0])
+    p_CM, q_CP = true_marker_poses_C(truth, layout, X_BC)
+    measured, q_CM = run.measurements[..., :3], run.measurements[..., 3:]
+    seen = ~np.isnan(measured[..., 0])
     # The rendered texture, the camera mount and the intrinsics agree with the layout: bearings to a
     # fraction of a pixel, ranges to a few per cent, and each marker's heading about the optical axis.
-    bearing = (stream.p_CM[..., :2] / stream.p_CM[..., 2:] - p_CM[..., :2] / p_CM[..., 2:])[seen]
+    bearing = (measured[..., :2] / measured[..., 2:] - p_CM[..., :2] / p_CM[..., 2:])[seen]
     assert np.sqrt(np.mean(np.sum(bearing**2, axis=1))) < 1.0 / s.estimation.camera.fx
-    ratio = np.linalg.norm(stream.p_CM[seen], axis=1) / np.linalg.norm(p_CM[seen], axis=1)
+    ratio = np.linalg.norm(measured[seen], axis=1) / np.linalg.norm(p_CM[seen], axis=1)
     assert abs(np.mean(ratio) - 1) < 0.03
     for k, i in zip(*np.nonzero(seen)):
-        R_error = (Quaternion(q_CP[k]).rotation().T
-                   @ Quaternion(np.r_[stream.q_CM[k, i, 3], stream.q_CM[k, i, :3]]).rotation())
+        R_error = Quaternion(q_CP[k]).rotation().T @ Quaternion(np.r_[q_CM[k, i, 3], q_CM[k, i, :3]]).rotation()
         assert abs(np.degrees(np.arctan2(R_error[1, 0], R_error[0, 0]))) < 5.0
-    # The pad leaves the 58 deg view while the UAV catches up: those frames measure nothing.
+    # The pad leaves the 58 deg view while the UAV catches up: those frames measure nothing, and the
+    # filters get nothing new one period later.
     blind = ~seen.any(axis=1)
-    assert 10 < blind.sum() < len(truth.t) / 2
+    assert 10 < blind.sum() < len(run.t) / 2
     k = int(np.argmax(blind))
-    assert arrivals(stream, layout, k + s.estimation.latency_periods, s.estimation.latency_periods) == []
+    assert run.estimates["ct_ekf"][k + 1, EST_LAST_MEASUREMENT] < run.t[k] - 1e-9
 
 
+@pytest.mark.slow
 def test_filters_track_the_pad_on_the_detector_stream(detector_run):
-    s, truth, stream = detector_run
-    est = estimate_run(s, truth, stream)
+    s, run = detector_run
+    _, metrics, _ = marker_metrics(run, s.platform, s.estimation.X_BC, s.estimation.settle_s)
     for name in ("paper_ekf", "ct_ekf"):
-        m = est.metrics[name]
+        m = metrics[name]
         assert m["rms_position_m"] < 0.1 and m["rms_heading_deg"] < 1.0
-        assert m["steps"] > 40 and m["measurements"]["invalid"] == 0
-    np.testing.assert_array_equal(est.stream.p_CM, stream.p_CM)
+        assert m["frames_scored"] > 40 and m["measurements"]["invalid"] == 0
 
 
 def test_video_needs_the_camera(capfd, tmp_path):
@@ -171,15 +172,15 @@ def test_video_needs_the_camera(capfd, tmp_path):
 
 def test_meshcat_records_the_flight_and_shows_the_estimates():
     sizes = []
-    for duration in ("1", "3"):
+    for duration in (1.0, 3.0):
         meshcat = Meshcat()
-        s = scenario(6, 0, f"duration_s={duration}")
-        truth, _, handles = fly(s, meshcat, record=True)
+        s = scenario(6)
+        diagram, handles = build_gv_landing(s, meshcat)
+        fly_diagram(diagram, handles, duration, record=True)
         sizes.append(len(meshcat.StaticHtml()))
     assert sizes[1] > sizes[0] + 10_000  # the recording holds the whole flight, not its last frame
-    show_estimates(meshcat, estimate_run(s, truth))
     for name in ("paper_ekf", "ct_ekf"):
-        assert meshcat.HasPath(f"gv_marker_ekf/{name}_pad_path")
+        assert meshcat.HasPath(f"gv_landing/{name}_pad_path")
 
 
 def campaign(tmp_path, workers, runs=2, speeds=("3", "12")):
@@ -188,9 +189,11 @@ def campaign(tmp_path, workers, runs=2, speeds=("3", "12")):
     return run_campaign(definition, settings, tmp_path / f"mc{workers}", workers=workers, progress=False)
 
 
+@pytest.mark.slow
 def test_campaign_identical_with_1_and_2_workers(tmp_path):
     one, two = campaign(tmp_path, 1), campaign(tmp_path, 2)
     assert one["runs"]["done"] == 4 and one["runs"]["failed"] == 0
+
     def figures(summary):  # every figure but the timing (per_frame_ms)
         return json.dumps({f: {c: {k: v for k, v in d.items() if k != "per_frame_ms"} for c, d in cases.items()}
                            for f, cases in summary["filters"].items()}, sort_keys=True)
@@ -202,6 +205,7 @@ def test_campaign_identical_with_1_and_2_workers(tmp_path):
         assert (tmp_path / "mc1" / png).is_file()
 
 
+@pytest.mark.slow
 def test_detector_campaign_leaves_out_what_the_filters_flag(tmp_path):
     # At 12 m/s the pad leaves the camera's view 0.2 s in and the filters coast until they flag
     # their estimates invalid: the figures are over the valid ones (from t = 0 here).
@@ -236,7 +240,9 @@ def test_bad_scenario_values():
         scenario(12, 0, "estimation.filters=[nope]")
     with pytest.raises(ConfigError, match="vehicle.speed"):
         scenario(0)
-    with pytest.raises(ConfigError, match="estimation.source 'camera' is not one of: synthetic, detector"):
+    with pytest.raises(ConfigError, match="estimation.source 'camera' is not one of: none, synthetic, detector"):
         scenario(12, 0, "estimation.source=camera")
     with pytest.raises(ConfigError, match=r"estimation.camera.rate_hz \(20\) must be 1 / estimation.ekf.period_s"):
         scenario(12, 0, "estimation.camera.rate_hz=20")
+    with pytest.raises(ConfigError, match="gv-marker-ekf needs a measurement stream"):
+        scenario(12, 0, "estimation.source=none", "estimation.filters=[]")

@@ -72,17 +72,24 @@ def test_nominal_landing_sequence():
     np.testing.assert_allclose(horizontal, TRACKING)
     np.testing.assert_allclose(script.acceleration, [*TRACKING_ACCELERATION, 0.0])
 
-    # Below LH the target floods the view: the landing goes on, coasting with its last velocity
-    # (and no acceleration feed-forward).
+    # Below LH an invalid estimate stops the landing too: hold (coasting with the target's last
+    # velocity, no acceleration feed-forward), never descend.
     mode, horizontal, vz = script.step(altitude=2.5, seen=False, height=0.8)
-    assert mode == Mode.LAND and vz == -CONFIG.landing_speed_m_s
+    assert mode == Mode.HOLD and vz == 0.0
     np.testing.assert_allclose(horizontal, TARGET_VELOCITY)
     assert not script.acceleration.any()
+    mode, _, vz = script.step(altitude=2.5, seen=False, height=0.05)  # a stale height is no touchdown
+    assert mode == Mode.HOLD and vz >= 0.0
 
-    mode, horizontal, vz = script.step(altitude=1.7, seen=False, height=0.05)
+    # Seen again: follow at that height, centred so descend, and below LH land.
+    assert script.step(altitude=2.5, offset=(0.1, 0.0), height=0.9)[0] == Mode.FOLLOW
+    assert script.step(altitude=2.5, offset=(0.1, 0.0), height=0.9)[0] == Mode.APPROACH
+    mode, _, vz = script.step(altitude=2.4, offset=(0.1, 0.0), height=0.8)
+    assert mode == Mode.LAND and vz == -CONFIG.landing_speed_m_s
+    mode, horizontal, vz = script.step(altitude=1.7, offset=(0.0, 0.0), height=0.05)
     assert mode == Mode.LANDED and vz == 0.0
     np.testing.assert_allclose(horizontal, TARGET_VELOCITY)
-    assert script.step(altitude=1.7, seen=True, height=0.05)[0] == Mode.LANDED  # terminal
+    assert script.step(altitude=1.7, seen=False, height=0.05)[0] == Mode.LANDED  # terminal
 
 
 def test_target_lost_holds_then_climbs_to_search_then_resumes():
@@ -112,19 +119,19 @@ def test_target_lost_holds_then_climbs_to_search_then_resumes():
     np.testing.assert_allclose(horizontal, TRACKING)
 
 
-def test_never_descends_blind():
-    # Random flight above LH (so never LAND, which is committed): unseen means no descent.
+def test_never_descends_on_an_invalid_estimate():
+    # Random flight at any height, below LH too: unseen means no descent, whatever the mode.
     rng = np.random.default_rng(0)
     script = Script()
     visited, seen = set(), True
     for _ in range(3000):
         seen ^= rng.random() < 0.02  # seen and unseen spells of about a second
         mode, _, vz = script.step(altitude=rng.uniform(0.0, 10.0), seen=seen,
-                                  offset=rng.uniform(-1.5, 1.5, 2), height=rng.uniform(1.6, 10.0))
+                                  offset=rng.uniform(-1.5, 1.5, 2), height=rng.uniform(0.2, 10.0))
         visited.add(mode)
         if not seen:
             assert vz >= 0.0
-    assert {Mode.CLIMB, Mode.FOLLOW, Mode.APPROACH, Mode.HOLD, Mode.SEARCH} <= visited
+    assert {Mode.CLIMB, Mode.FOLLOW, Mode.APPROACH, Mode.LAND, Mode.HOLD, Mode.SEARCH} <= visited
 
 
 @pytest.mark.parametrize("yaml, message", [

@@ -14,9 +14,11 @@ from pydrake.systems.primitives import ConstantValueSource
 
 from systems.estimators.marker_ekf import (FILTERS, ConstantTurnEkf, MarkerEkfConfig, MarkerFilterSystem,
                                            PaperMarkerEkf)
-from systems.estimators.quaternion import drake_to_paper, xi
-from systems.perception.markers import (MarkerLayout, MarkerMeasurement, SyntheticMarkerSource,
-                                        synthetic_marker_measurements)
+from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, EST_P_WP, EST_V_WP, EST_YAW
+from systems.perception.latency import MeasurementLatency
+from systems.perception.markers import MarkerLayout, MarkerMeasurement
+from systems.perception.synthetic_markers import SyntheticMarkerSource, synthetic_marker_measurements
+from systems.quaternion import drake_to_paper, xi
 from systems.sensors.camera import CameraConfig
 from tests.conftest import pose
 
@@ -78,8 +80,8 @@ def estimate_errors(marker_filter, X_WP: RigidTransform):
     estimate = marker_filter.estimate()
     yaw = RollPitchYaw(X_WP.rotation()).yaw_angle()
     p_WM = X_WP.multiply(LAYOUT.p_PM.T).T
-    return (np.linalg.norm(estimate.pose.X_RT.translation() - X_WP.translation()),
-            np.angle(np.exp(1j * (estimate.yaw_rad - yaw))), np.linalg.norm(estimate.p_WM - p_WM, axis=1))
+    return (np.linalg.norm(estimate.X_WP.X_RT.translation() - X_WP.translation()),
+            np.angle(np.exp(1j * (estimate.vector[EST_YAW] - yaw))), np.linalg.norm(estimate.p_WM - p_WM, axis=1))
 
 
 def rms(values) -> float:
@@ -187,7 +189,7 @@ def test_converges_on_a_straight_constant_speed_drive(cls):
     assert np.degrees(rms(yaw[settled])) < 1.5
     assert markers[settled].max() < 0.25
     estimate = marker_filter.estimate()
-    assert estimate.pose.valid and estimate.pose.covariance.shape == (6, 6)
+    assert estimate.X_WP.valid and estimate.X_WP.covariance.shape == (6, 6)
     np.testing.assert_allclose(velocity[settled].mean(axis=0),
                                6.0 * np.array([np.cos(np.radians(30)), np.sin(np.radians(30)), 0]), atol=0.1)
 
@@ -202,6 +204,24 @@ def test_constant_turn_filter_converges_on_a_circle_and_beats_the_papers():
     assert rms(paper_errors[0][settled]) > 1.5 * rms(ct_errors[0][settled])
     assert rms(ct_errors[2][settled]) < rms(paper_errors[2][settled])
     assert ct.belief[1][ConstantTurnEkf.OMEGA] == pytest.approx(12.0 / 41.0, rel=0.1)
+    # The pad's rates against the truth's (central differences), RMS over 100 more steps: the
+    # constant-turn filter's acceleration is the centripetal one (v^2 / r ~ 3.5 m/s^2); the paper's
+    # model has none.
+    h, rng = 1e-4, np.random.default_rng(5)
+    errors = {ct: [], paper: []}
+    for k in range(500, 600):
+        t = k * TS
+        p = [truth(t + d).translation() for d in (-h, 0.0, h)]
+        v_true, a_true = (p[2] - p[0]) / (2 * h), (p[2] - 2 * p[1] + p[0]) / h**2
+        measurements = measure(truth, t, rng)
+        for marker_filter in errors:
+            marker_filter.step(t, uav_over(truth(t), t), measurements)
+            estimate = marker_filter.estimate()
+            errors[marker_filter].append(np.r_[estimate.v_WP - v_true, estimate.a_WP - a_true])
+    ct_v, ct_a = np.split(np.array(errors[ct]), 2, axis=1)
+    paper_a = np.array(errors[paper])[:, 3:]
+    assert rms(np.linalg.norm(ct_v, axis=1)) < 0.5 and rms(np.linalg.norm(ct_a, axis=1)) < 0.5
+    assert rms(np.linalg.norm(paper_a, axis=1)) == pytest.approx(12.0**2 / 41.0, rel=0.1)  # all of it
 
 
 @pytest.mark.parametrize("cls", BOTH)
@@ -216,11 +236,11 @@ def test_without_markers_the_filter_predicts_and_then_reconverges(cls):
         traces.append(np.trace(marker_filter.belief[2]))
     assert np.all(np.diff(traces) > 0)
     coasted = marker_filter.estimate()
-    assert not coasted.pose.valid  # its position is too uncertain
-    assert np.linalg.norm(coasted.pose.X_RT.translation() - truth(249 * TS).translation()) < 2.0  # but predicted
+    assert not coasted.X_WP.valid  # its position is too uncertain
+    assert np.linalg.norm(coasted.X_WP.X_RT.translation() - truth(249 * TS).translation()) < 2.0  # but predicted
     position = drive(marker_filter, truth, steps=100, first=250)[0]
     assert position[-30:].max() < 0.15
-    assert marker_filter.estimate().pose.valid
+    assert marker_filter.estimate().X_WP.valid
     assert marker_filter.stats.gated == 0 and marker_filter.stats.resets == 0
 
 
@@ -360,9 +380,9 @@ def test_any_subset_of_markers(cls, ids):
     seen = [LAYOUT.index(i) for i in ids]
     assert markers[-50:, seen].max() < 0.25
     if cls is ConstantTurnEkf or 0 in ids:
-        assert position[-50:].max() < 0.25 and marker_filter.estimate().pose.valid
+        assert position[-50:].max() < 0.25 and marker_filter.estimate().X_WP.valid
     else:  # the paper's markers are independent: the pad (marker 0) is only predicted, and invalid
-        assert not marker_filter.estimate().pose.valid
+        assert not marker_filter.estimate().X_WP.valid
 
 
 @pytest.mark.parametrize("cls", BOTH)
@@ -377,24 +397,26 @@ def test_a_different_random_subset_each_step(cls):
 # ---- the Drake system --------------------------------------------------------------------------
 
 
-def filter_diagram(cls, X_WB, X_WP, latency_s=0.0):
+def filter_diagram(cls, X_WB, X_WP, delay_steps=0):
     builder = DiagramBuilder()
     uav = builder.AddSystem(ConstantValueSource(AbstractValue.Make(X_WB)))
     pad = builder.AddSystem(ConstantValueSource(AbstractValue.Make(X_WP)))
-    source = builder.AddSystem(SyntheticMarkerSource(LAYOUT, X_BC, TS, seed=1, latency_s=latency_s))
+    source = builder.AddSystem(SyntheticMarkerSource(LAYOUT, X_BC, TS, seed=1))
+    latency = builder.AddSystem(MeasurementLatency(TS, delay_steps))
     estimator = builder.AddSystem(MarkerFilterSystem(make(cls)))
     builder.Connect(uav.get_output_port(), source.GetInputPort("X_WB"))
     builder.Connect(pad.get_output_port(), source.GetInputPort("X_WP"))
+    builder.Connect(source.get_output_port(), latency.get_input_port())
     builder.Connect(uav.get_output_port(), estimator.GetInputPort("X_WB"))
-    builder.Connect(source.get_output_port(), estimator.GetInputPort("marker_measurements"))
+    builder.Connect(latency.get_output_port(), estimator.GetInputPort("marker_measurements"))
     return builder.Build(), estimator
 
 
 @pytest.mark.parametrize("cls", BOTH)
-@pytest.mark.parametrize("latency_s", [0.0, TS])
-def test_filter_system_estimates_a_still_pad(cls, latency_s):
+@pytest.mark.parametrize("delay_steps", [0, 1])
+def test_filter_system_estimates_a_still_pad(cls, delay_steps):
     X_WB, X_WP = pose([3.2, 1.1, 4.6], [2, -1, 80]), pose([3.0, 1.0, 1.6], [0, 0, 70])
-    diagram, estimator = filter_diagram(cls, X_WB, X_WP, latency_s)
+    diagram, estimator = filter_diagram(cls, X_WB, X_WP, delay_steps)
     simulator = Simulator(diagram)
     simulator.AdvanceTo(60 * TS)
     context = estimator.GetMyContextFromRoot(simulator.get_context())
@@ -405,8 +427,14 @@ def test_filter_system_estimates_a_still_pad(cls, latency_s):
     p_WM = estimator.GetOutputPort("p_WM_estimate").Eval(context).reshape(5, 3)
     np.testing.assert_allclose(p_WM, X_WP.multiply(LAYOUT.p_PM.T).T, atol=0.2)  # the paper's: 0.06 m std
     stats = estimator.GetOutputPort("filter_stats").Eval(context)
-    # 60 updates (t = 0 to 59 TS); with latency, the first has nothing yet
-    assert stats.accepted == 5 * (60 - round(latency_s / TS)) and stats.too_late == 0 and stats.invalid == 0
+    # 61 steps (t = 0 to 60 TS: the outputs at a step time include that step); with latency, the
+    # first step has nothing yet
+    assert stats.accepted == 5 * (61 - delay_steps) and stats.too_late == 0 and stats.invalid == 0
+    vector = estimator.GetOutputPort("estimate_vector").Eval(context)
+    assert vector[EST_LAST_MEASUREMENT] == pytest.approx((60 - delay_steps) * TS)
+    np.testing.assert_allclose(vector[EST_P_WP], estimate.X_RT.translation())
+    assert np.linalg.norm(estimator.GetOutputPort("v_WP_estimate").Eval(context)) < 1.0  # still (noise: ~0.3)
+    np.testing.assert_allclose(vector[EST_V_WP], estimator.GetOutputPort("v_WP_estimate").Eval(context))
     simulator.AdvanceTo(60.5 * TS)  # between updates: the outputs are predicted to the context's time
     assert estimator.GetOutputPort("X_WP_estimate").Eval(context).time == pytest.approx(60.5 * TS)
 
@@ -419,7 +447,7 @@ def test_filter_system_contexts_do_not_share_the_filter():
     clone = simulator.get_context().Clone()
     simulator.AdvanceTo(20 * TS)
     stats = lambda c: estimator.GetOutputPort("filter_stats").Eval(estimator.GetMyContextFromRoot(c))
-    assert stats(clone).accepted == 50 and stats(simulator.get_context()).accepted == 100
+    assert stats(clone).accepted == 55 and stats(simulator.get_context()).accepted == 105
 
 
 def test_filters_are_registered_by_name():

@@ -1,4 +1,5 @@
-"""Seed 002 marker layout, pad texture, synthetic measurements and ArUco detection + per-marker PnP."""
+"""Seed 002 marker layout, pad texture, synthetic measurements, ArUco detection + per-marker PnP, the
+measurement latency and the stream as a logged vector."""
 
 import copy
 
@@ -8,14 +9,17 @@ import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 from scipy.spatial.transform import Rotation
 
 from systems.config import ConfigError
-from systems.estimators.quaternion import drake_to_paper, paper_to_drake
 from systems.noise import sample_rng
-from systems.perception.markers import (MarkerDetectorSystem, MarkerLayout, MarkerMeasurement, SyntheticMarkerSource,
-                                        detect_marker_poses, pad_texture, synthetic_marker_measurements)
+from systems.perception.latency import MeasurementLatency, delay_queue
+from systems.perception.marker_detector import MarkerDetectorSystem, detect_marker_poses
+from systems.perception.markers import MarkerLayout, MarkerMeasurement, measurements_vector, pad_texture
+from systems.perception.synthetic_markers import STREAM, SyntheticMarkerSource, synthetic_marker_measurements
+from systems.quaternion import drake_to_paper, paper_to_drake
 from systems.sensors.camera import CameraConfig
 from tests.conftest import pose
 
@@ -104,7 +108,7 @@ def test_noise_free_synthetic_measurements_are_the_true_marker_poses():
         X_CM = true_X_CM(X_CP, m.marker_id)
         np.testing.assert_allclose(m.p_CM, X_CM.translation(), atol=1e-12)
         assert angle_between(RotationMatrix(paper_to_drake(m.q_CM)), X_CM.rotation()) < 1e-9
-        assert m.time == 1.5 and m.latency_s == 0.0
+        assert m.time == 1.5
 
 
 def test_synthetic_noise_has_the_papers_standard_deviations():
@@ -146,30 +150,53 @@ def test_synthetic_source_system_samples_seeded_noise_per_sample():
     context.SetTime(0.35)
     measurements = source.get_output_port().Eval(context)
     X_CP = X_WB.multiply(CAMERA.X_BC).InvertAndCompose(X_WP)
-    expected = synthetic_marker_measurements(X_CP, LAYOUT, sample_rng(3, "marker_measurements", 10), time=0.35)
+    expected = synthetic_marker_measurements(X_CP, LAYOUT, sample_rng(3, STREAM, 10), time=0.35)
     for m, e in zip(measurements, expected, strict=True):
         np.testing.assert_allclose(m.p_CM, e.p_CM, atol=1e-12)
         np.testing.assert_allclose(m.q_CM, e.q_CM, atol=1e-12)
         assert m.time == 0.35
 
 
-def test_synthetic_source_delivers_late_measurements_after_their_latency():
-    source = SyntheticMarkerSource(LAYOUT, CAMERA.X_BC, period_s=0.035, latency_s=0.07)
-    context = fixed_pose_source(source, pose([0, 0, 5.0], [0, 0, 0]), pose([0, 0, 1.6], [0, 0, 0]))
-    simulator = Simulator(source, context)
+class SampleCounter(LeafSystem):
+    """A stand-in sensor: at sample k its list of measurements is [k]."""
+
+    def __init__(self, period_s: float):
+        super().__init__()
+        self.DeclareAbstractOutputPort("measurements", lambda: AbstractValue.Make([]),
+                                       lambda c, o: o.set_value([round(c.get_time() / period_s)]))
+
+
+@pytest.mark.parametrize("delay_steps", [0, 1, 2])
+def test_the_latency_delivers_what_was_acquired_whole_samples_before(delay_steps):
+    builder = DiagramBuilder()
+    sensor = builder.AddSystem(SampleCounter(0.035))
+    latency = builder.AddSystem(MeasurementLatency(0.035, delay_steps))
+    builder.Connect(sensor.get_output_port(), latency.get_input_port())
+    simulator = Simulator(builder.Build())
+    context = latency.GetMyContextFromRoot(simulator.get_context())
+    queue = ()
     for k in range(6):
-        simulator.AdvanceTo(k * 0.035)  # stops before this time's update: what a filter's update here reads
-        measurements = source.get_output_port().Eval(context)
-        if k < 2:
-            assert measurements == []  # nothing has waited 70 ms yet
-        else:
-            assert [m.time for m in measurements] == pytest.approx([(k - 2) * 0.035] * 5)
-            assert all(m.latency_s == pytest.approx(0.07) for m in measurements)
+        simulator.AdvanceTo(k * 0.035)  # before this time's update (but t = 0's, done by the first AdvanceTo)
+        expected = [] if k < delay_steps else [k - delay_steps]
+        if k > 0:
+            assert latency.get_output_port().Eval(context) == expected
+        queue, due = delay_queue(queue, [k], delay_steps)  # the pure queue, one sample at a time
+        assert due == expected
 
 
-def test_synthetic_source_rejects_a_latency_off_its_period():
-    with pytest.raises(ConfigError, match="latency_s"):
-        SyntheticMarkerSource(LAYOUT, CAMERA.X_BC, period_s=0.035, latency_s=0.05)
+def test_a_latency_must_be_whole_samples():
+    with pytest.raises(ConfigError, match="delay_steps"):
+        MeasurementLatency(0.035, -1)
+
+
+def test_the_stream_as_a_vector_has_nan_for_markers_not_measured():
+    X_CP = pose([0.4, -0.2, 3.0], [175, 4, 60])
+    measurements = synthetic_marker_measurements(X_CP, LAYOUT, np.random.default_rng(0))
+    measured = [measurements[0], measurements[3], MarkerMeasurement(0.0, 42, [0, 0, 1], [0, 0, 0, 1])]
+    vector = measurements_vector(measured, LAYOUT).reshape(5, 7)
+    np.testing.assert_array_equal(vector[0], np.r_[measurements[0].p_CM, measurements[0].q_CM])
+    np.testing.assert_array_equal(vector[3], np.r_[measurements[3].p_CM, measurements[3].q_CM])
+    assert np.isnan(vector[[1, 2, 4]]).all()  # and the unknown id 42 is nowhere
 
 
 # ---- the real pipeline: ArUco detection and per-marker solvePnP -------------------------------

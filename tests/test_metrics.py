@@ -42,3 +42,13 @@ def test_angle_errors_wrap_and_flips_are_counted():
                                                                                       np.deg2rad(179)), [0, 0, 2]),
                                                      True))])
     assert estimator_metrics(truth, flipped)["flips"] == 1
+
+
+def test_a_window_scores_only_its_frames_and_the_valid_fraction_stays_over_all():
+    truth = np.array([pose_vector(X) for X in poses(6)])
+    estimates = [PoseEstimate(0.0, X, True) for X in poses(6, dx=0.05)[:3] + poses(6, dx=0.01)[3:]]
+    estimates[4] = PoseEstimate.invalid(0.0)
+    window = np.arange(6) >= 3  # e.g. after the filters settle
+    m = estimator_metrics(truth, np.array([estimate_vector(e) for e in estimates]), window)
+    np.testing.assert_allclose(m["mae_xyz_m"], [0.01, 0.0, 0.0], atol=1e-12)
+    assert m["frames_scored"] == 2 and m["valid_fraction"] == 5 / 6

@@ -2,9 +2,12 @@
 
 The UAV takes off, climbs to the initial altitude IH, follows the target with the PID, descends
 towards it while it is centred in the downward view, and below the landing height LH lands
-vertically without further checks (Sec. 3.1.2: there the target floods the view). If the target
-is lost above LH it holds its altitude, coasting with the target's last velocity, and after a
-while climbs back to IH to search; it never descends while the target is not seen.
+vertically. It reads the perception seam (systems/perception/seam.py), so "seen" is the
+estimate's valid flag. Ours, beyond the paper (which lands below LH without further checks because
+there the target floods its camera's view): the final landing also stops on an invalid estimate.
+With no valid estimate it holds its altitude, coasting with the target's last velocity, and after
+`lost_hold_s` climbs back to IH to search; it never descends on an invalid estimate. (A filter that
+predicts through a blind last metre keeps its estimate valid while its covariance allows.)
 
 Modes and what they command (velocities in World, z up; "hold" is a P loop on altitude):
 
@@ -13,9 +16,9 @@ Modes and what they command (velocities in World, z up; "hold" is a P loop on al
     FOLLOW    track, hold altitude; target centred                        -> APPROACH
     APPROACH  track, descend; height above target <= LH                   -> LAND
               target off centre                                           -> FOLLOW
-    LAND      track (or coast if unseen), descend; touchdown              -> LANDED
+    LAND      track, descend at landing speed; touchdown                  -> LANDED
     LANDED    keep the target's velocity, no vertical speed (the run ends)
-    HOLD      target lost in FOLLOW/APPROACH: coast, hold altitude; seen  -> FOLLOW; lost_hold_s -> SEARCH
+    HOLD      not seen in FOLLOW/APPROACH/LAND: coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
     SEARCH    no horizontal speed, climb back to IH (never descend); seen -> FOLLOW
 
 One transition per step; the command is that of the mode after the transition.
@@ -106,7 +109,7 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
         return Mode.CLIMB
     if mode == Mode.CLIMB and abs(inputs.altitude_m - config.initial_height_m) <= config.altitude_tolerance_m:
         return Mode.FOLLOW if seen else Mode.SEARCH
-    if mode in (Mode.FOLLOW, Mode.APPROACH) and not seen:
+    if mode in (Mode.FOLLOW, Mode.APPROACH, Mode.LAND) and not seen:
         return Mode.HOLD
     if mode == Mode.FOLLOW and offset <= config.centred_radius_m:
         return Mode.APPROACH
@@ -159,8 +162,8 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
         horizontal, acceleration, vertical = coast, _ZERO, towards(memory.altitude_hold_m)
     else:  # SEARCH
         horizontal, acceleration, vertical = _ZERO, _ZERO, towards(config.initial_height_m)
-    if not seen and mode not in (Mode.LAND, Mode.LANDED):
-        vertical = max(vertical, 0.0)  # never descend blind
+    if not seen and mode != Mode.LANDED:
+        vertical = max(vertical, 0.0)  # never descend on an invalid estimate
     return np.array([horizontal[0], horizontal[1], vertical, math.radians(config.yaw_deg),
                      acceleration[0], acceleration[1], 0.0], dtype=float)
 

@@ -27,6 +27,7 @@ from pydrake.symbolic import MakeVectorVariable
 from pydrake.systems.analysis import SimulatorConfig
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Multiplexer, SymbolicVectorSystem
+from pydrake.trajectories import PiecewisePolynomial
 
 from systems.config import require, require_positive
 from systems.geometry import wrap_angle
@@ -45,29 +46,60 @@ class PathFollowerConfig:
     min_preview_m: float = 5.0
     search_window_m: float = 10.0  # nearest-point search around the last one
 
-    def validate(self, prefix: str = "ground_vehicle.follower") -> None:
+    def validate(self, prefix: str = "vehicle.follower") -> None:
         for name in ("rate_hz", "preview_time_s", "min_preview_m", "search_window_m"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
 
 
 @dataclass
 class GroundVehicleConfig:
+    """The vehicle of a scenario's `vehicle` section: its path, its speed and Eq. (6)'s bicycle."""
+
+    path: str = "straight"  # one of systems.vehicles.paths.PATH_NAMES
+    speed: float = 0.5  # m/s, constant unless a schedule is given; seed 003 simulated 0.2-0.8 m/s
+    # Scheduled speed (optional): piecewise linear through these points, held after the last one.
+    speed_schedule_times_s: list[float] = field(default_factory=list)
+    speed_schedule_m_s: list[float] = field(default_factory=list)
     wheelbase_m: float = 3.5  # d, seed 002 Table 1
     steering_time_constant_s: float = 1.0  # tau_s, seed 002 Table 1
     max_steering_deg: float = 20.0  # theta_max, seed 002 Table 1
-    path: PathConfig = field(default_factory=PathConfig)
+    # Path sizes (seed 003 Fig. 9 gives none; see paths.py).
+    path_length_m: float = 2000.0  # open paths
+    path_radius_m: float = 15.0  # every arc
+    path_lead_m: float = 20.0  # straight run before the turns and the S
+    path_side_m: float = 60.0  # rectangle's long side
     follower: PathFollowerConfig = field(default_factory=PathFollowerConfig)
 
-    def validate(self, prefix: str = "ground_vehicle") -> None:
+    def path_config(self) -> PathConfig:
+        return PathConfig(name=self.path, length_m=self.path_length_m, radius_m=self.path_radius_m,
+                          lead_m=self.path_lead_m, side_m=self.path_side_m)
+
+    def speed_profile(self) -> PiecewisePolynomial | None:
+        """The scheduled speed [m/s] as a trajectory of time [s], or None for the constant `speed`."""
+        if not self.speed_schedule_times_s:
+            return None
+        times = np.asarray(self.speed_schedule_times_s, dtype=float)
+        speeds = np.asarray(self.speed_schedule_m_s, dtype=float)
+        if len(times) == 1:
+            times, speeds = np.r_[times, times + 1.0], np.r_[speeds, speeds]
+        return PiecewisePolynomial.FirstOrderHold(times, speeds.reshape(1, -1))
+
+    def validate(self, prefix: str = "vehicle") -> None:
+        require(self.speed >= 0, f"{prefix}.speed must not be negative, got {self.speed}")
         require_positive(self.wheelbase_m, f"{prefix}.wheelbase_m")
         require_positive(self.steering_time_constant_s, f"{prefix}.steering_time_constant_s")
         require(0 < self.max_steering_deg < 90,
                 f"{prefix}.max_steering_deg must be in (0, 90), got {self.max_steering_deg}")
-        self.path.validate(f"{prefix}.path")
+        times, speeds = self.speed_schedule_times_s, self.speed_schedule_m_s
+        require(len(times) == len(speeds), f"{prefix}.speed_schedule_times_s and {prefix}.speed_schedule_m_s must "
+                                           f"have the same length ({len(times)} and {len(speeds)})")
+        require(all(b > a for a, b in zip(times, times[1:])), f"{prefix}.speed_schedule_times_s must increase")
+        require(all(v >= 0 for v in speeds), f"{prefix}.speed_schedule_m_s must not be negative")
+        self.path_config().validate(f"{prefix}.path")
         self.follower.validate(f"{prefix}.follower")
-        if self.path.name != "sine":  # Eq. (13) has a fixed shape, at least 40 m in radius
-            require(self.path.radius_m >= self.min_turning_radius_m(),
-                    f"{prefix}.path.radius_m = {self.path.radius_m} is tighter than the vehicle "
+        if self.path != "sine":  # Eq. (13) has a fixed shape, at least 40 m in radius
+            require(self.path_radius_m >= self.min_turning_radius_m(),
+                    f"{prefix}.path_radius_m = {self.path_radius_m} is tighter than the vehicle "
                     f"can turn ({self.min_turning_radius_m():.1f} m at "
                     f"{prefix}.max_steering_deg = {self.max_steering_deg})")
 
@@ -184,7 +216,7 @@ class GroundVehicle(Diagram):
         super().__init__()
         config.validate()
         self.config = config
-        self.path = make_path(config.path)
+        self.path = make_path(config.path_config())
         builder = DiagramBuilder()
         bicycle = make_bicycle_dynamics(config)
         if time_period is not None:

@@ -14,6 +14,8 @@ import numpy as np
 from systems.config import require, require_positive
 
 SAMPLE_SPACING_M = 0.1  # polyline resolution: 0.1 mm chord error on a 15 m radius
+# The open manoeuvres: their arcs' signed turning angles (rad), after the straight lead.
+MANOEUVRE_TURNS = {"s-shape": (np.pi, -np.pi), "turn-90": (np.pi / 2,), "turn-180": (np.pi,)}
 
 
 @dataclass
@@ -25,10 +27,15 @@ class PathConfig:
     side_m: float = 60.0  # rectangle: long straight side; the short one is half of it
 
     def validate(self, prefix: str = "path") -> None:
+        """Names the fields as a scenario's flat keys: `{prefix}` for the name, `{prefix}_length_m`..."""
         require(self.name in PATH_NAMES,
-                f"{prefix}.name '{self.name}' is not a path (known: {', '.join(PATH_NAMES)})")
+                f"{prefix} '{self.name}' is not a path (known: {', '.join(PATH_NAMES)})")
         for name in ("length_m", "radius_m", "lead_m", "side_m"):
-            require_positive(getattr(self, name), f"{prefix}.{name}")
+            require_positive(getattr(self, name), f"{prefix}_{name}")
+        if self.name in MANOEUVRE_TURNS:
+            used = self.lead_m + sum(abs(angle) for angle in MANOEUVRE_TURNS[self.name]) * self.radius_m
+            require(used < self.length_m,
+                    f"{prefix}_length_m = {self.length_m} is too short for '{self.name}' (needs {used:.0f})")
 
 
 class Path:
@@ -76,6 +83,12 @@ class Path:
             lists = self._lists = (self.xy[:, 0].tolist(), self.xy[:, 1].tolist(), self._heading.tolist(),
                                    self._curvature.tolist())
         return tuple(v[i] + f * (v[i + 1] - v[i]) for v in lists)
+
+    def polyline(self, max_length_m: float = 400.0) -> np.ndarray:
+        """(N, 2) points along the path in W [m], about 2000 at most: all of a closed path, the first
+        `max_length_m` of an open one."""
+        s = self.s if self.closed else self.s[self.s <= max_length_m]
+        return self.xy[np.searchsorted(self.s, s)][:: max(1, len(s) // 2000)]
 
     def nearest(self, p, s_hint: float | None = None, window_m: float = 10.0) -> float:
         """Arc length of the point nearest to p (2, m). With s_hint, only within window_m of it,
@@ -147,13 +160,11 @@ def sine_path(length_m: float) -> Path:
                 (ddy / (1 + dy**2) ** 1.5)[keep], closed=False)
 
 
-def _open_manoeuvre(config: PathConfig, turns) -> Path:
-    """Straight lead, the given arcs (signed angles, rad), then straight up to length_m."""
+def _open_manoeuvre(config: PathConfig) -> Path:
+    """Straight lead, the arcs of MANOEUVRE_TURNS, then straight up to length_m (validate checks it fits)."""
     k = 1.0 / config.radius_m
-    arcs = [(abs(angle) * config.radius_m, np.sign(angle) * k) for angle in turns]
+    arcs = [(abs(angle) * config.radius_m, np.sign(angle) * k) for angle in MANOEUVRE_TURNS[config.name]]
     used = config.lead_m + sum(length for length, _ in arcs)
-    require(used < config.length_m,
-            f"path.length_m = {config.length_m} is too short for '{config.name}' (needs {used:.0f})")
     return from_segments([(config.lead_m, 0.0), *arcs, (config.length_m - used, 0.0)], closed=False)
 
 
@@ -174,17 +185,18 @@ def _figure_eight(config: PathConfig) -> Path:
 _BUILDERS = {
     "sine": lambda c: sine_path(c.length_m),
     "straight": lambda c: from_segments([(c.length_m, 0.0)], closed=False),
-    "s-shape": lambda c: _open_manoeuvre(c, [np.pi, -np.pi]),
+    "s-shape": _open_manoeuvre,
     "rectangle": _rectangle,
     "circle": lambda c: from_segments([(2 * np.pi * c.radius_m, 1.0 / c.radius_m)], closed=True),
     "figure-eight": _figure_eight,
-    "turn-90": lambda c: _open_manoeuvre(c, [np.pi / 2]),
-    "turn-180": lambda c: _open_manoeuvre(c, [np.pi]),
+    "turn-90": _open_manoeuvre,
+    "turn-180": _open_manoeuvre,
 }
 PATH_NAMES = tuple(_BUILDERS)
 
 
-def make_path(config: PathConfig) -> Path:
-    """The named path; ConfigError (a ValueError) for an unknown name or a bad size."""
-    config.validate()
+def make_path(config: PathConfig, prefix: str = "path") -> Path:
+    """The named path; ConfigError (a ValueError) naming `prefix`'s fields for an unknown name or a
+    bad size."""
+    config.validate(prefix)
     return _BUILDERS[config.name](config)

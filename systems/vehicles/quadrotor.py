@@ -44,6 +44,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, SymbolicVectorSystem
 
 from systems.config import require, require_positive
+from systems.quaternion import quaternion_rate, rotation_from_quaternion
 from systems.vehicles.integration import discretise, set_vehicle_state
 
 STATE_SIZE = 17
@@ -110,30 +111,6 @@ def mixer_matrix(params: QuadrotorParams) -> np.ndarray:
         [l1, -l1, -l1, l1],
         [-l2, -l2, l2, l2],
         [k_dt, -k_dt, k_dt, -k_dt],
-    ])
-
-
-def rotation_from_quaternion(q):
-    """R_WB (3x3) from a quaternion [w, x, y, z] of any nonzero norm; works on floats and
-    pydrake.symbolic Expressions alike."""
-    w, x, y, z = q
-    n = w * w + x * x + y * y + z * z
-    return np.array([
-        [w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z],
-    ]) / n
-
-
-def quaternion_rate(q, w_B):
-    """q_dot = q (x) [0, w_B] / 2 for Drake's [w, x, y, z] order and body angular velocity."""
-    w, x, y, z = q
-    p, r, s = w_B
-    return 0.5 * np.array([
-        -x * p - y * r - z * s,
-        w * p + y * s - z * r,
-        w * r + z * p - x * s,
-        w * s + x * r - y * p,
     ])
 
 

@@ -1,32 +1,10 @@
-"""Pose of the landing pad on the ground vehicle from ArUco marker measurements (seed 002, Sec. 3).
+"""The marker filters' common machinery: `MarkerFilter`, its configuration, camera and records.
 
-Two discrete-time EKFs with the same measurements, tuning, gate and late-measurement handling:
-
-- `PaperMarkerEkf` ("paper_ekf"): the paper's 37-state filter, Eq. (11)-(12): each of the five
-  markers has its own constant-velocity position (6 states each, in the World frame W, the paper's
-  S_R), plus the pad attitude q^{P/R} (scalar last, quaternion.py) and angular velocity omega (in P)
-  under constant angular velocity. The markers are not tied to each other or to the attitude.
-- `ConstantTurnEkf` ("ct_ekf"): why the paper's filter degrades with speed (its Sec. 4 and 5): its
-  model says every marker moves in a straight line at constant velocity, but the vehicle turns, so
-  the error in each 35 ms prediction is the centripetal acceleration v^2 kappa (3.5 m/s^2 at
-  12 m/s on Eq. 13's path against 0.2 m/s^2 at 3 m/s) and the filter lags on every bend. This
-  filter models the pad as the rigid body it is, turning at a constant rate (the coordinated-turn
-  model, Bar-Shalom et al. [10]): state [p_WP (3), v_WP (3), yaw psi, yaw rate omega],
-  the horizontal velocity rotating at omega (exact for any point of a car in a steady turn, wherever
-  the pad sits on it), the pad level; each marker is p_WP + R_z(psi) p_PM_i with the layout's
-  known offsets, so all five markers and their attitudes inform one 8-state pose.
-
-Measurements (`MarkerMeasurement`): the pose of marker i in the camera frame C. The camera C is
-mounted at X_BC on the UAV body B whose pose X_WB (the UAV's own estimate) is a filter input: the
-measurement model is Eq. (12) with the camera offset c of Eq. (4) included (the paper has c = 0):
-p_CM = (D^{B/C})^T (D^{B/R} (p_WM - r) - c_B) and q^{M/C} = q^{B/C} (.) (q^{B/R})^-1 (.) q^{P/R}.
-A measured quaternion is sign-aligned with the prediction (q and -q are the same attitude) before
-the paper's additive innovation; `ConstantTurnEkf` takes the attitude innovation as the rotation
-vector of q_meas (x) q_pred^-1 (both W-relative, Eq. 5) instead.
-
-Common machinery (`MarkerFilter`):
+A subclass gives the model (paper_ekf.py, constant_turn_ekf.py): its state, process, predicted
+measurements, Jacobian and innovations. `MarkerFilter` runs it on the measurements of Eq. (12) (the
+package docstring):
 - update: the EKF of Sec. 3 with the Joseph-form covariance as the paper writes it, on the stacked
-  rows of the markers seen in the step (any subset), quaternion renormalised after the update;
+  rows of the markers seen in the step (any subset), the state renormalised by the model after it;
 - a chi-square gate per marker measurement: its innovation's normalised squared length against
   the chi-square quantile `gate_probability` for the row count; rejected ones are counted, and
   after `reset_after_rejected_steps` steps in a row whose measurements were all rejected, the
@@ -39,35 +17,22 @@ Common machinery (`MarkerFilter`):
   the step it was taken in and the filter re-runs from there, so it is fused exactly as if it had
   arrived on time (the UAV pose at t_m comes from the history; between two steps it is
   interpolated). Older than the history: rejected and counted as too late.
-
-Reading the paper: Eq. (12) labels its position rows p^i_R, but they are the camera-frame s^i_C
-of Eq. (4); its Eq. (11) omega is written like Eq. (7)'s omega_R, but Xi(q) omega / 2 is the
-kinematics of a body-frame rate, so omega here is in P (the same for a pad turning about the
-vertical); the typos of Eq. (3) and of the DCM are fixed in quaternion.py.
-
-Units: m, s, rad. Measurement noise R: `position_std_m` on each position axis (seed 002 Sec. 4:
-0.1 m); the attitude's `attitude_std_deg` (5 deg) is per axis of a rotation vector, which is
-(sigma/2)^2 on each quaternion component for the paper's filter. The paper gives no process
-noise or initial covariance: those defaults are ours, identical for both filters.
 """
 
 import copy
 import math
+from time import perf_counter
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
-from pydrake.systems.framework import LeafSystem, ValueProducer
 from scipy.stats import chi2
 
 from systems.config import require, require_positive
 from systems.estimators.estimate import PoseEstimate
-from systems.geometry import wrap_angle
-from systems.estimators.quaternion import (dcm, drake_to_paper, inverse, odot_matrix, omega_matrix, paper_to_drake,
-                                           rotation_vector, xi)
 from systems.perception.markers import MarkerLayout, MarkerMeasurement
+from systems.quaternion import dcm, drake_to_paper, inverse, odot_matrix, paper_to_drake
 
 TIME_TOLERANCE_S = 1e-9
 
@@ -116,15 +81,32 @@ class FilterStats:
                            self.too_late + other.too_late, self.resets + other.resets)
 
 
+# A filter's estimate as one vector (`MarkerFilter.estimate_vector`, logged every filter step).
+EST_VALID, EST_P_WP, EST_YAW, EST_V_WP, EST_A_WP, EST_POSITION_STD, EST_LAST_MEASUREMENT = (
+    0, slice(1, 4), 4, slice(5, 8), slice(8, 11), 11, 12)
+ESTIMATE_VECTOR_SIZE = 13
+
+
 @dataclass(frozen=True)
 class MarkerFilterEstimate:
-    """What a filter says about the pad at `pose.time`: pose.X_RT is X_WP (the pad frame P at
-    marker 0), pose.covariance is over [roll, pitch, yaw, x, y, z]; p_WM (n, 3) the marker centres
-    in W [m]; yaw_rad the heading of P's x axis from W's x axis. NaN arrays when not started."""
+    """What a filter says about the pad at X_WP.time (NaN arrays when it has not started):
+    X_WP: PoseEstimate of the pad frame P (at marker 0) in W, covariance over [roll, pitch, yaw, x, y, z];
+    vector: [valid, p_WP (3, m), yaw_WP (rad, P's x axis from W's), v_WP (3, m/s), a_WP (3, m/s^2;
+      zero in a model without acceleration), position std (m), acquisition time of the newest
+      measurement fused (s)] (the EST_* indices);
+    p_WM: (n, 3) the marker centres in W [m]."""
 
-    pose: PoseEstimate
+    X_WP: PoseEstimate
+    vector: np.ndarray
     p_WM: np.ndarray
-    yaw_rad: float
+
+    @property
+    def v_WP(self) -> np.ndarray:
+        return self.vector[EST_V_WP]
+
+    @property
+    def a_WP(self) -> np.ndarray:
+        return self.vector[EST_A_WP]
 
 
 class Camera(NamedTuple):
@@ -204,6 +186,8 @@ class MarkerFilter:
         self._history: tuple[_Step, ...] = ()
         self._settled = FilterStats()  # counts no re-run can change: dropped steps', intake rejections
         self._has_evicted = False
+        self._last_measurement_s = -math.inf  # acquisition time of the newest measurement in a fusing step
+        self.compute_s = 0.0  # wall time spent in step() [s], for reports (no result depends on it)
 
     def __deepcopy__(self, memo):
         return copy.copy(self)  # step() rebinds attributes, never mutates them (caches of constants aside)
@@ -254,6 +238,11 @@ class MarkerFilter:
         """6x6 covariance of [roll, pitch, yaw, x, y, z] of the pad frame P."""
         raise NotImplementedError
 
+    def platform_rates(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(v_WP [m/s], a_WP [m/s^2]) of the pad frame's origin in W; a_WP zero where the model has
+        no acceleration."""
+        raise NotImplementedError
+
     # ---- camera ------------------------------------------------------------------------------
 
     def camera(self, p_WB: np.ndarray, q_BR: np.ndarray) -> Camera:
@@ -277,6 +266,7 @@ class MarkerFilter:
         (at t) and the marker measurements that arrived since the previous step (any order, late
         ones included). `camera`: `camera_at(X_WB)` when the caller has it already (filters with
         the same camera mount can share one)."""
+        start = perf_counter()
         history = self._history
         if history and t <= history[-1].time + TIME_TOLERANCE_S:
             raise ValueError(f"step at t = {t} s does not follow the previous step at {history[-1].time} s")
@@ -303,6 +293,9 @@ class MarkerFilter:
             self._has_evicted = True
         self._settled += settled
         self._history = tuple(steps)
+        self._last_measurement_s = max([self._last_measurement_s] + [
+            max(m.time for m in s.measurements) for s in steps if s.stats.accepted])
+        self.compute_s += perf_counter() - start
 
     def _screen(self, measurements, t: float) -> tuple[list[MarkerMeasurement], FilterStats]:
         """The measurements that can be fused, and the count of those that cannot."""
@@ -457,290 +450,47 @@ class MarkerFilter:
         """(time, x, P) of the latest posterior, or None before the filter has started."""
         return self._history[-1].belief if self.started else None
 
+    @property
+    def time(self) -> float | None:
+        """The latest step's time [s], None before the first step."""
+        return self._history[-1].time if self._history else None
+
     def estimate(self, t: float | None = None) -> MarkerFilterEstimate:
-        """The pad's pose and the marker positions, predicted from the latest posterior to t
+        """The pad's pose, rates and marker positions, predicted from the latest posterior to t
         (default: the latest step's time). Invalid before the start and while the pad position's
         standard deviation, sqrt(trace), exceeds max_valid_position_std_m."""
         if not self.started:
             time = 0.0 if t is None else t
-            return MarkerFilterEstimate(PoseEstimate.invalid(time), np.full((len(self.p_PM), 3), np.nan), np.nan)
-        belief, p_WP, q_PR, p_WM, valid, yaw = self._summary(t)
-        R_WP = RotationMatrix(paper_to_drake(q_PR))
+            vector = np.full(ESTIMATE_VECTOR_SIZE, np.nan)
+            vector[EST_VALID] = 0.0
+            return MarkerFilterEstimate(PoseEstimate.invalid(time), vector, np.full((len(self.p_PM), 3), np.nan))
+        belief, q_PR, vector, p_WM = self._summary(t)
+        X_WP = RigidTransform(RotationMatrix(paper_to_drake(q_PR)), vector[EST_P_WP])
         covariance = self.platform_covariance(belief.x, belief.P)
-        return MarkerFilterEstimate(PoseEstimate(belief.time, RigidTransform(R_WP, p_WP), valid, covariance), p_WM,
-                                    yaw)
+        return MarkerFilterEstimate(PoseEstimate(belief.time, X_WP, bool(vector[EST_VALID]), covariance), vector,
+                                    p_WM)
 
-    def estimate_values(self, t: float | None = None) -> tuple[np.ndarray, float, np.ndarray, bool] | None:
-        """`estimate(t)`'s (p_WP, yaw, p_WM, valid) without building its Drake objects (for loops
-        over many steps, e.g. the Monte Carlo runs); None before the filter has started."""
+    def estimate_vector(self, t: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """`estimate(t)`'s vector and p_WM without its Drake objects (for loops over many steps)."""
         if not self.started:
-            return None
-        _, p_WP, _, p_WM, valid, yaw = self._summary(t)
-        return p_WP, yaw, p_WM, valid
+            vector = np.full(ESTIMATE_VECTOR_SIZE, np.nan)
+            vector[EST_VALID] = 0.0
+            return vector, np.full((len(self.p_PM), 3), np.nan)
+        _, _, vector, p_WM = self._summary(t)
+        return vector, p_WM
 
     def _summary(self, t: float | None):
-        """(belief, p_WP, unit q^{P/R}, p_WM, valid, yaw) of the latest posterior predicted to t."""
+        """(belief, unit q^{P/R}, estimate vector, p_WM) of the latest posterior predicted to t."""
         belief = self._history[-1].belief
         if t is not None:
             belief = self._predict_to(belief, t)
         p_WP, q_PR, p_WM = self.platform(belief.x)
         q_PR = q_PR / np.linalg.norm(q_PR)
-        valid = bool(np.sqrt(np.trace(belief.P[:3, :3])) <= self.config.max_valid_position_std_m)  # p_WP = x[:3]
+        position_std = math.sqrt(np.trace(belief.P[:3, :3]))  # p_WP = x[:3]
         x, y, z, w = q_PR.tolist()  # scalar last; yaw = atan2(R_WP[1, 0], R_WP[0, 0])
         yaw = math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
-        return belief, p_WP, q_PR, p_WM, valid, yaw
-
-
-class PaperMarkerEkf(MarkerFilter):
-    """Seed 002's EKF, Eq. (11)-(12). State x (6 n + 7; 37 for five markers):
-    [p_WM_1, v_WM_1, ..., p_WM_n, v_WM_n (m, m/s, in W), q^{P/R} (scalar last), omega (rad/s, in P)]."""
-
-    name = "paper_ekf"
-    rows = 7  # p_CM (3), q^{M/C} (4)
-
-    def __init__(self, layout: MarkerLayout, X_BC: RigidTransform, config: MarkerEkfConfig | None = None):
-        self.n = 6 * len(layout.ids) + 7
-        self._q = slice(self.n - 7, self.n - 3)
-        self._w = slice(self.n - 3, self.n)
-        super().__init__(layout, X_BC, config)
-
-    def marker_noise(self, sigma_p, sigma_q):
-        # A rotation vector dtheta ~ N(0, sigma^2 I3) moves q by about [dtheta / 2, 0]: (sigma/2)^2 per
-        # component (the scalar's share is second order; giving it the same is conservative).
-        return np.diag(np.r_[np.full(3, sigma_p**2), np.full(4, (sigma_q / 2) ** 2)])
-
-    def initial_state(self, slots, p_WM, q_MR):
-        c = self.config
-        q = np.sum(q_MR * np.sign(q_MR @ q_MR[0])[:, None], axis=0)  # every marker's attitude is the pad's
-        q /= np.linalg.norm(q)
-        R_WP = dcm(q).T
-        # markers not seen start where the layout puts them, from the mean of the seen ones
-        origin = np.mean(p_WM - self.p_PM[slots] @ R_WP.T, axis=0)
-        p = origin + self.p_PM @ R_WP.T
-        p[slots] = p_WM
-        m = len(self.p_PM)
-        x = np.zeros(self.n)
-        x[:6 * m].reshape(m, 6)[:, :3] = p
-        x[self._q] = q
-        variances = np.tile(np.r_[np.full(3, c.position_std_m**2), np.full(3, c.initial_velocity_std_mps**2)], m)
-        return x, np.diag(np.r_[variances, np.full(4, (self._sigma_q / 2) ** 2),
-                                np.full(3, c.initial_angular_velocity_std_radps**2)])
-
-    def process(self, x, dt):
-        """Eq. (11): markers at constant velocity, q_{k+1} = q_k + (T_s/2) Xi(q_k) omega_k, omega constant."""
-        m = len(self.p_PM)
-        f = x.copy()
-        markers = f[:6 * m].reshape(m, 6)
-        markers[:, :3] += dt * markers[:, 3:]
-        q, omega = x[self._q], x[self._w]
-        f[self._q] = q + dt / 2 * xi(q) @ omega
-        F = self.constants(dt)[0].copy()
-        F[self._q, self._q] += dt / 2 * omega_matrix(omega)
-        F[self._q, self._w] = dt / 2 * xi(q)
-        return f, F
-
-    def process_noise(self, x, dt):
-        """Q: white acceleration on each marker axis; white angular acceleration on omega, reaching
-        q through Xi(q)/2 (the same [[dt^3/3, dt^2/2], [dt^2/2, dt]] shape)."""
-        Q = self.constants(dt)[1].copy()
-        G = xi(x[self._q]) / 2
-        rotation = cv_noise(self.config.angular_acceleration_psd, dt)
-        Q[self._q, self._q] = rotation[0, 0] * G @ G.T
-        Q[self._q, self._w] = rotation[0, 1] * G
-        Q[self._w, self._q] = rotation[0, 1] * G.T
-        return Q
-
-    def constant_parts(self, dt):
-        """F and Q of Eq. (11) without the quaternion's blocks, which depend on the state."""
-        c, m = self.config, len(self.p_PM)
-        F = np.eye(self.n)
-        F[:6 * m, :6 * m] = np.kron(np.eye(m), np.kron([[1.0, dt], [0.0, 1.0]], np.eye(3)))
-        psd = np.diag([c.acceleration_psd, c.acceleration_psd, c.vertical_acceleration_psd])
-        Q = np.zeros((self.n, self.n))
-        Q[:6 * m, :6 * m] = np.kron(np.eye(m), np.kron(cv_noise(1.0, dt), psd))
-        Q[self._w, self._w] = cv_noise(c.angular_acceleration_psd, dt)[1, 1] * np.eye(3)
-        return F, Q
-
-    def predict_measurements(self, x, slots, camera):
-        m = len(self.p_PM)
-        p_WM = x[:6 * m].reshape(m, 6)[slots, :3]
-        return (p_WM - camera.p_WC) @ camera.R_CW.T, camera.Q_RC @ x[self._q]  # Eq. (12)
-
-    def measurement_jacobian(self, x, slots, camera):
-        k = len(slots)
-        H = np.zeros((k, 7, self.n))
-        H[np.arange(k)[:, None, None], np.arange(3)[None, :, None],
-          6 * np.asarray(slots)[:, None, None] + np.arange(3)[None, None, :]] = camera.R_CW
-        H[:, 3:, self._q] = camera.Q_RC
-        return H.reshape(7 * k, self.n)
-
-    def innovations(self, x, slots, camera, p_CM, q_MC):
-        p_hat, q_hat = self.predict_measurements(x, slots, camera)
-        q_MC = q_MC * np.where(q_MC @ q_hat < 0, -1.0, 1.0)[:, None]  # q and -q: the same attitude
-        return np.hstack([p_CM - p_hat, q_MC - q_hat])
-
-    def normalized(self, x):
-        x[self._q] /= np.linalg.norm(x[self._q])
-        return x
-
-    def platform(self, x):
-        m = len(self.p_PM)
-        return x[:3].copy(), x[self._q].copy(), x[:6 * m].reshape(m, 6)[:, :3].copy()
-
-    def platform_covariance(self, x, P):
-        J = np.zeros((6, self.n))  # [small rotation in P; position of marker 0] from x
-        J[:3, self._q] = 2 * xi(x[self._q]).T  # dtheta = 2 Xi(q)^T dq (Markley & Crassidis)
-        J[3:, :3] = np.eye(3)
-        return J @ P @ J.T
-
-
-def _rot_z(psi: float) -> np.ndarray:
-    """R_z(psi), a rotation by psi about z (3x3)."""
-    c, s = np.cos(psi), np.sin(psi)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _yaw_quaternion(psi: float) -> np.ndarray:
-    """q^{P/R} of a level pad yawed by psi about W's z."""
-    return np.array([0.0, 0.0, np.sin(psi / 2), np.cos(psi / 2)])
-
-
-def _turn_terms(theta: float) -> tuple[float, float, float, float]:
-    """sin(th)/th, (1 - cos(th))/th and their derivatives in th, with series near th = 0."""
-    if abs(theta) < 1e-4:
-        return 1 - theta**2 / 6, theta / 2 - theta**3 / 24, -theta / 3, 0.5 - theta**2 / 8
-    s, c = math.sin(theta), math.cos(theta)
-    return s / theta, (1 - c) / theta, (theta * c - s) / theta**2, (theta * s - (1 - c)) / theta**2
-
-
-class ConstantTurnEkf(MarkerFilter):
-    """The coordinated-turn EKF (module docstring). State x (8): [p_WP (3, m), v_WP (3, m/s), psi
-    (rad), omega (rad/s)]: the pad frame's origin (marker 0) and velocity in W, its yaw and yaw rate."""
-
-    name = "ct_ekf"
-    n = 8
-    rows = 6  # p_CM (3), attitude rotation vector (3)
-    PSI, OMEGA = 6, 7
-
-    def marker_noise(self, sigma_p, sigma_q):
-        return np.diag(np.r_[np.full(3, sigma_p**2), np.full(3, sigma_q**2)])
-
-    def initial_state(self, slots, p_WM, q_MR):
-        c = self.config
-        R = np.array([dcm(q).T for q in q_MR])  # R_WM of each marker
-        psi = np.arctan2(np.sum(R[:, 1, 0]), np.sum(R[:, 0, 0]))  # mean heading
-        p = np.mean(p_WM - self.p_PM[slots] @ _rot_z(psi).T, axis=0)
-        x = np.r_[p, 0.0, 0.0, 0.0, psi, 0.0]
-        return x, np.diag(np.r_[np.full(3, c.position_std_m**2), np.full(3, c.initial_velocity_std_mps**2),
-                                self._sigma_q**2, c.initial_angular_velocity_std_radps**2])
-
-    def process(self, x, dt):
-        """Exact coordinated turn over dt: the horizontal velocity turns by omega dt, the position
-        follows the arc, p_xy += dt [[f1, -f2], [f2, f1]] v_xy with f1 = sin(omega dt)/(omega dt),
-        f2 = (1 - cos(omega dt))/(omega dt); z at constant velocity; psi += omega dt; omega constant."""
-        _, _, _, vx, vy, vz, _, omega = x.tolist()
-        f1, f2, d1, d2 = _turn_terms(omega * dt)
-        c, s = math.cos(omega * dt), math.sin(omega * dt)
-        a, b = dt * f1, dt * f2
-        f = x.copy()
-        f[0] += a * vx - b * vy
-        f[1] += b * vx + a * vy
-        f[2] += dt * vz
-        f[3], f[4] = c * vx - s * vy, s * vx + c * vy
-        f[self.PSI] += omega * dt
-        F = np.eye(8)
-        F[0, 3], F[0, 4], F[1, 3], F[1, 4] = a, -b, b, a
-        F[0, 7], F[1, 7] = dt * dt * (d1 * vx - d2 * vy), dt * dt * (d2 * vx + d1 * vy)
-        F[3, 3], F[3, 4], F[4, 3], F[4, 4] = c, -s, s, c
-        F[3, 7], F[4, 7] = -dt * (s * vx + c * vy), dt * (c * vx - s * vy)
-        F[2, 5] = F[self.PSI, self.OMEGA] = dt
-        return f, F
-
-    def process_noise(self, x, dt):
-        return self.constants(dt)
-
-    def constant_parts(self, dt):
-        """Q: white acceleration on each axis of the pad (as the paper's filter has on each marker),
-        white angular acceleration on the yaw rate."""
-        c = self.config
-        Q = np.zeros((8, 8))
-        for axis, psd in enumerate((c.acceleration_psd, c.acceleration_psd, c.vertical_acceleration_psd)):
-            Q[axis::3, axis::3][:2, :2] = cv_noise(psd, dt)
-        Q[6:, 6:] = cv_noise(c.angular_acceleration_psd, dt)
-        return Q
-
-    def predict_measurements(self, x, slots, camera):
-        return self._predict_positions(x, slots, camera), camera.Q_RC @ _yaw_quaternion(x[self.PSI])  # Eq. (12)
-
-    def _predict_positions(self, x, slots, camera):
-        p_WM = x[:3] + self.p_PM[slots] @ _rot_z(x[self.PSI]).T
-        return (p_WM - camera.p_WC) @ camera.R_CW.T
-
-    def measurement_jacobian(self, x, slots, camera):
-        k = len(slots)
-        c, s = np.cos(x[self.PSI]), np.sin(x[self.PSI])
-        dR_WP = np.array([[-s, -c, 0.0], [c, -s, 0.0], [0.0, 0.0, 0.0]])  # d R_z(psi) / d psi
-        H = np.zeros((k, 6, 8))
-        H[:, :3, :3] = camera.R_CW
-        H[:, :3, self.PSI] = self.p_PM[slots] @ (camera.R_CW @ dR_WP).T
-        H[:, 5, self.PSI] = 1.0  # the attitude error is a rotation about z by the yaw error
-        return H.reshape(6 * k, 8)
-
-    def innovations(self, x, slots, camera, p_CM, q_MC):
-        # q^{M/R} = [q^{C/R} (.)] q^{M/C} (Eq. 5) = dq (x) q_pred: dq = [q_pred^-1 (.)] q^{M/R}
-        to_error = odot_matrix(inverse(_yaw_quaternion(x[self.PSI]))) @ camera.M_CR
-        return np.hstack([p_CM - self._predict_positions(x, slots, camera), rotation_vector(q_MC @ to_error.T)])
-
-    def normalized(self, x):
-        x[self.PSI] = wrap_angle(x[self.PSI])
-        return x
-
-    def platform(self, x):
-        return x[:3].copy(), _yaw_quaternion(x[self.PSI]), x[:3] + self.p_PM @ _rot_z(x[self.PSI]).T
-
-    def platform_covariance(self, x, P):
-        J = np.zeros((6, 8))
-        J[2, self.PSI] = 1.0  # roll and pitch: level by assumption, zero variance
-        J[3:, :3] = np.eye(3)
-        return J @ P @ J.T
-
-
-FILTERS = {PaperMarkerEkf.name: PaperMarkerEkf, ConstantTurnEkf.name: ConstantTurnEkf}
-
-
-class MarkerFilterSystem(LeafSystem):
-    """A marker filter as a system, stepped by a periodic update every config.period_s.
-
-    Inputs: `marker_measurements` (list of MarkerMeasurement that arrived since the last update)
-    and `X_WB` (RigidTransform, the UAV body). Outputs, from the latest posterior predicted to the
-    context's time (so a consumer at any rate, or before the update at the same time, sees no lag):
-    `X_WP_estimate` (PoseEstimate of the pad frame P in W), `p_WM_estimate` (3 n: the marker centres
-    in W, m; NaN before the filter starts) and `filter_stats` (FilterStats).
-    """
-
-    def __init__(self, marker_filter: MarkerFilter):
-        super().__init__()
-        self._measurements = self.DeclareAbstractInputPort("marker_measurements", AbstractValue.Make([]))
-        self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
-        self._filter = self.DeclareAbstractState(AbstractValue.Make(marker_filter))
-        self.DeclarePeriodicUnrestrictedUpdateEvent(marker_filter.config.period_s, 0.0, self._update)
-        n = len(marker_filter.layout.ids)
-        self._estimate = self.DeclareCacheEntry(
-            "estimate", ValueProducer(
-                allocate=lambda: AbstractValue.Make(marker_filter.estimate()),
-                calc=lambda c, v: v.set_value(c.get_abstract_state(self._filter).get_value().estimate(c.get_time()))),
-            {self.time_ticket(), self.abstract_state_ticket(self._filter)})
-        self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()),
-                                       lambda c, o: o.set_value(self._estimate.Eval(c).pose),
-                                       {self._estimate.ticket()})
-        self.DeclareVectorOutputPort("p_WM_estimate", 3 * n,
-                                     lambda c, o: o.SetFromVector(self._estimate.Eval(c).p_WM.ravel()),
-                                     {self._estimate.ticket()})
-        self.DeclareAbstractOutputPort(
-            "filter_stats", lambda: AbstractValue.Make(FilterStats()),
-            lambda c, o: o.set_value(c.get_abstract_state(self._filter).get_value().stats),
-            {self.abstract_state_ticket(self._filter)})
-
-    def _update(self, context, state):
-        marker_filter = state.get_mutable_abstract_state(self._filter).get_value()  # a copy of the context's
-        marker_filter.step(context.get_time(), self._X_WB.Eval(context), self._measurements.Eval(context))
+        v_WP, a_WP = self.platform_rates(belief.x)
+        last = self._last_measurement_s if math.isfinite(self._last_measurement_s) else math.nan
+        vector = np.r_[float(position_std <= self.config.max_valid_position_std_m), p_WP, yaw, v_WP, a_WP,
+                       position_std, last]
+        return belief, q_PR, vector, p_WM

@@ -1,0 +1,191 @@
+"""The configuration of the ground-vehicle scenarios (gv-landing, gv-marker-ekf, marker-landing):
+one dataclass per YAML section, every paper number a default with its source.
+
+Sections beyond the systems' own configs: `perception` (what steers: `source`, a name in
+diagrams/perception_sources.py, and when its estimate is valid), `estimation` (the marker
+measurement stream and the filters that run on it), `start`, `integration`.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.math import RigidTransform
+from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
+
+from diagrams.perception_sources import perception_source
+from systems.config import require, require_positive
+from systems.control.flight_controller import BACKENDS, FlightControllerConfig
+from systems.control.landing import LandingConfig
+from systems.control.monitor import TerminationConfig
+from systems.control.pid import TrackingPidConfig
+from systems.estimators.marker_ekf import FILTERS, MarkerEkfConfig
+from systems.perception.seam import SeamConfig
+from systems.sensors.camera import CameraConfig
+from systems.vehicles.airframe import AirframeConfig
+from systems.vehicles.ground_vehicle import GroundVehicleConfig
+from systems.vehicles.ground_vehicle_geometry import PlatformConfig
+from systems.vehicles.quadrotor import QuadrotorParams
+
+MEASUREMENT_SOURCES = ("none", "synthetic", "detector")
+
+
+@dataclass
+class PerceptionConfig(SeamConfig):
+    """What steers the UAV, and (SeamConfig) when an estimate is valid enough to steer on."""
+
+    source: str = "truth"  # a name in diagrams.perception_sources.SOURCES: truth, ct_ekf, paper_ekf, ...
+    # The truth's view (source truth, and the true relative state's flag): a cone about -z_B.
+    field_of_view_deg: float = 150.0  # full angle; seed 003's fisheye (Sec. 2.1)
+    max_range_m: float = 30.0  # not in the paper
+
+    def validate(self, prefix: str = "perception") -> None:
+        perception_source(self.source, f"{prefix}.source")
+        SeamConfig.validate(self, prefix)
+        require(0 < self.field_of_view_deg <= 180, f"{prefix}.field_of_view_deg must be in (0, 180]")
+        require_positive(self.max_range_m, f"{prefix}.max_range_m")
+
+
+def default_marker_camera() -> CameraConfig:
+    """The project's downward camera (systems/sensors/camera.py: 512 px, 58 deg, 0.04 m under the
+    body, optical axis down) at one frame per filter step T_s = 35 ms, with the pixel noise of the
+    Stewart scenes (2 levels)."""
+    return CameraConfig(rate_hz=1.0 / MarkerEkfConfig.period_s, pixel_noise_std=2.0)
+
+
+@dataclass
+class MarkerEstimationConfig:
+    """The marker measurement stream and the filters on it (seed 002 Sec. 3-4).
+
+    source "none": no stream (the truth steers). "synthetic": the paper's (Sec. 4): every marker's
+    true pose in the camera plus sigma_p_m / sigma_deg noise. "detector": the camera renders the
+    scene, OpenCV's ArUco detector finds the markers and solvePnP gives each one's pose.
+    Every sample reaches the filters `latency_periods` filter steps after it was taken."""
+
+    source: str = "none"  # one of MEASUREMENT_SOURCES
+    filters: list[str] = field(default_factory=list)  # filters that watch (names in FILTERS)
+    sigma_p_m: float = 0.1  # seed 002 Sec. 4 (synthetic source)
+    sigma_deg: float = 5.0  # seed 002 Sec. 4 (synthetic source)
+    latency_periods: int = 1  # seed 002 Sec. 4: 25 ms acquire + 10 ms process = one T_s late
+    settle_s: float = 2.0  # the filters' errors are taken from this time on (start-up left out)
+    camera: CameraConfig = field(default_factory=default_marker_camera)  # its mount for both sources
+    ekf: MarkerEkfConfig = field(default_factory=MarkerEkfConfig)  # shared by every filter (T_s = 35 ms)
+
+    def validate(self, prefix: str = "estimation") -> None:
+        require(self.source in MEASUREMENT_SOURCES,
+                f"{prefix}.source '{self.source}' is not one of: {', '.join(MEASUREMENT_SOURCES)}")
+        require(all(f in FILTERS for f in self.filters) and len(set(self.filters)) == len(self.filters),
+                f"{prefix}.filters must be different names from: {', '.join(FILTERS)}")
+        require(not self.filters or self.source != "none",
+                f"{prefix}.filters need a measurement stream: set {prefix}.source to synthetic or detector")
+        require(self.sigma_p_m >= 0 and self.sigma_deg >= 0, f"{prefix}.sigma_p_m and sigma_deg must not be negative")
+        require(self.latency_periods >= 0, f"{prefix}.latency_periods must not be negative")
+        require(self.settle_s >= 0, f"{prefix}.settle_s must not be negative")
+        self.camera.validate(f"{prefix}.camera")
+        self.ekf.validate(f"{prefix}.ekf")
+        require(abs(self.camera.period_s - self.ekf.period_s) < 1e-9,
+                f"{prefix}.camera.rate_hz ({self.camera.rate_hz:g}) must be 1 / {prefix}.ekf.period_s "
+                f"({1 / self.ekf.period_s:g} Hz): the camera gives one frame per filter step")
+
+    @property
+    def X_BC(self) -> RigidTransform:
+        """The camera C in the UAV body B: optical axis down (+z_C = -z_B), +x_C = +x_B."""
+        return self.camera.X_BC
+
+    @property
+    def latency_s(self) -> float:
+        return self.latency_periods * self.ekf.period_s
+
+
+@dataclass
+class StartConfig:
+    """Where the UAV is at t = 0, its rotors at hover speed: on the ground (height_m 0) or hovering
+    height_m above it (the vehicle starts at the World origin)."""
+
+    xy_m: list[float] = field(default_factory=lambda: [-3.0, -4.0])
+    height_m: float = 0.0
+    yaw_deg: float = 0.0
+
+    def validate(self, prefix: str = "start") -> None:
+        require(len(self.xy_m) == 2, f"{prefix}.xy_m needs 2 numbers")
+        require(self.height_m >= 0, f"{prefix}.height_m must not be negative")
+
+
+@dataclass
+class IntegrationConfig:
+    """How the vehicles' continuous dynamics (seed 002 Eq. 6-8) are integrated.
+
+    discrete (the default): each vehicle integrates its equations over each flight-controller period
+    in C++ (systems/vehicles/integration.py) with `scheme`, its input held over the period (the rotor
+    commands are held so anyway); the diagram then has no continuous state, so the simulator never
+    evaluates whole-diagram derivatives (each visits every Python LeafSystem).
+    discrete false: the simulator integrates the diagram with `scheme` (for comparison)."""
+
+    discrete: bool = True
+    # Drake's RK5, one fixed 5 ms step per controller period: its error over a period matches seed
+    # 002's RK4 at 1 ms (benchmarks/landing_sweep.py measures both).
+    scheme: str = "runge_kutta5"  # a name from pydrake.systems.analysis.GetIntegrationSchemes()
+    max_step_s: float = 0.005
+    error_control: bool = False  # fixed steps (error control restarts from a small step every period)
+    accuracy: float = 1e-6  # with error_control
+
+    def validate(self, prefix: str = "integration") -> None:
+        require(self.scheme in GetIntegrationSchemes(),
+                f"{prefix}.scheme '{self.scheme}' is not one of {', '.join(GetIntegrationSchemes())}")
+        require_positive(self.max_step_s, f"{prefix}.max_step_s")
+        require(0 < self.accuracy < 1, f"{prefix}.accuracy must be in (0, 1)")
+
+    def simulator_config(self) -> SimulatorConfig:
+        return SimulatorConfig(integration_scheme=self.scheme, max_step_size=self.max_step_s,
+                               use_error_control=self.error_control, accuracy=self.accuracy)
+
+
+def _table1_airframe() -> AirframeConfig:
+    """Visual airframe matching seed 002 Table 1's arms (rotors at l1 = l2 = 0.25 m)."""
+    return AirframeConfig(body_size_m=0.2, body_height_m=0.08, rotor_arm_m=float(np.hypot(0.25, 0.25)),
+                          propeller_radius_m=0.12)
+
+
+@dataclass
+class GvLandingConfig:
+    seed: int = 0  # of every noise source (measurements, pixels)
+    vehicle: GroundVehicleConfig = field(default_factory=GroundVehicleConfig)
+    platform: PlatformConfig = field(default_factory=PlatformConfig)
+    quadrotor: QuadrotorParams = field(default_factory=QuadrotorParams)
+    controller: FlightControllerConfig = field(default_factory=FlightControllerConfig)
+    # The flight controller's backend (systems/control/flight_controller.py): "symbolic" (C++, the
+    # default) or "python" (the same law in a LeafSystem).
+    controller_implementation: str = "symbolic"
+    pid: TrackingPidConfig = field(default_factory=TrackingPidConfig)
+    landing: LandingConfig = field(default_factory=LandingConfig)
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+    estimation: MarkerEstimationConfig = field(default_factory=MarkerEstimationConfig)
+    start: StartConfig = field(default_factory=StartConfig)
+    termination: TerminationConfig = field(default_factory=TerminationConfig)
+    integration: IntegrationConfig = field(default_factory=IntegrationConfig)
+    uav: AirframeConfig = field(default_factory=_table1_airframe)  # visual only
+
+    def validate(self) -> None:
+        for name in ("vehicle", "platform", "quadrotor", "controller", "pid", "landing", "perception", "estimation",
+                     "start", "termination", "integration", "uav"):
+            getattr(self, name).validate(name)
+        require(self.controller_implementation in BACKENDS,
+                f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
+        require(self.controller.max_vertical_accel_m_s2 < self.quadrotor.gravity_m_s2,
+                "controller.max_vertical_accel_m_s2 must be below quadrotor.gravity_m_s2")
+        if perception_source(self.perception.source).needs_markers:
+            require(self.estimation.source != "none",
+                    f"perception.source '{self.perception.source}' needs marker measurements, and "
+                    f"estimation.source is none: set estimation.source to synthetic or detector")
+
+    @property
+    def period_s(self) -> float:
+        """The flight controller's sample period, over which the discrete vehicles integrate."""
+        return 1.0 / self.controller.rate_hz
+
+    @property
+    def filter_names(self) -> list[str]:
+        """The marker filters in the diagram: those that watch and the one that steers."""
+        names = list(self.estimation.filters)
+        if self.perception.source in FILTERS and self.perception.source not in names:
+            names.append(self.perception.source)
+        return names

@@ -1,0 +1,85 @@
+"""The open-loop marker campaign's fast path: the Diagram's numbers without a flight per run.
+
+In gv-marker-ekf the truth steers and the filters only watch, so the flight does not depend on the
+measurements. A campaign worker flies each setting once (`flight_samples`, kept in the process,
+keyed by the scenario without its seed and estimation settings), and each run then replays it at the
+filter steps through the very functions the Diagram's systems call: the UAV's and the pad's poses
+(`pose_from_state`, `PlatformConfig.X_WP`), the seeded synthetic sample
+(`synthetic_marker_sample`), the latency queue (`delay_queue`) and the filters' `step` and
+`estimate_vector`. tests/test_marker_batch.py checks both give the same estimates to 1e-9 on the same
+seed. Only for `perception.source: truth` with `estimation.source: synthetic`.
+"""
+
+import dataclasses
+
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from diagrams.gv_landing import add_gv_landing
+from diagrams.gv_landing_config import GvLandingConfig
+from diagrams.marker_metrics import SampledRun
+from diagrams.simulate import simulate
+from systems.config import require
+from systems.estimators.marker_ekf import FILTERS
+from systems.estimators.marker_ekf.engine import ESTIMATE_VECTOR_SIZE
+from systems.perception.latency import delay_queue
+from systems.perception.markers import measurements_vector
+from systems.perception.synthetic_markers import synthetic_marker_sample
+from systems.vehicles.quadrotor import pose_from_state
+
+_FLIGHTS: dict[str, tuple] = {}
+_FLIGHTS_KEPT = 4
+
+
+def flight_config(config: GvLandingConfig) -> GvLandingConfig:
+    """The flight alone: the scenario as a plain GvLandingConfig without its measurement stream."""
+    plain = GvLandingConfig(**{f.name: getattr(config, f.name) for f in dataclasses.fields(GvLandingConfig)})
+    return dataclasses.replace(plain, estimation=dataclasses.replace(config.estimation, source="none", filters=[]))
+
+
+def flight_samples(config: GvLandingConfig, duration_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, quadrotor states (N, 17), vehicle states (N, 4)) at the filter steps of the flight,
+    flown once per settings in this process."""
+    flight = flight_config(config)
+    key = repr((dataclasses.asdict(dataclasses.replace(flight, seed=0)), duration_s))
+    if key not in _FLIGHTS:
+        builder = DiagramBuilder()
+        handles = add_gv_landing(builder, flight)
+        period = config.estimation.ekf.period_s
+        quad = LogVectorOutput(handles.quadrotor.GetOutputPort("state"), builder, period)
+        vehicle = LogVectorOutput(handles.vehicle.GetOutputPort("state"), builder, period)
+        diagram = builder.Build()
+        context = simulate(diagram, duration_s, initialize=handles.initialize).context
+        quad_log, vehicle_log = quad.FindLog(context), vehicle.FindLog(context)
+        if len(_FLIGHTS) >= _FLIGHTS_KEPT:
+            _FLIGHTS.pop(next(iter(_FLIGHTS)))
+        _FLIGHTS[key] = (quad_log.sample_times().copy(), quad_log.data().T.copy(), vehicle_log.data().T.copy())
+    return _FLIGHTS[key]
+
+
+def batch_run(config: GvLandingConfig, duration_s: float) -> SampledRun:
+    """The sampled run the Diagram would give for `config` (its seed) over `duration_s`."""
+    est = config.estimation
+    require(config.perception.source == "truth" and est.source == "synthetic",
+            "the batch path replays an open-loop flight: perception.source truth, estimation.source synthetic")
+    t, quad, vehicle = flight_samples(config, duration_s)
+    layout, n = config.platform.markers, len(config.platform.markers.ids)
+    filters = {name: FILTERS[name](layout, est.X_BC, est.ekf) for name in config.filter_names}
+    measurements = np.empty((len(t), 7 * n))
+    estimates = {name: np.empty((len(t), ESTIMATE_VECTOR_SIZE)) for name in filters}
+    p_WM = {name: np.empty((len(t), n, 3)) for name in filters}
+    queue = ()
+    for k, t_k in enumerate(t.tolist()):
+        X_WB, X_WP = pose_from_state(quad[k]), config.platform.X_WP(vehicle[k])
+        acquired = synthetic_marker_sample(t_k, X_WB, X_WP, est.X_BC, layout, config.seed, est.ekf.period_s,
+                                           est.sigma_p_m, est.sigma_deg)
+        measurements[k] = measurements_vector(acquired, layout)
+        queue, arrived = delay_queue(queue, acquired, est.latency_periods)
+        camera = next(iter(filters.values())).camera_at(X_WB)  # every filter has the camera at est.X_BC
+        for name, f in filters.items():
+            f.step(t_k, X_WB, arrived, camera)
+            estimates[name][k], p_WM[name][k] = f.estimate_vector(t_k)
+    return SampledRun(t, quad, vehicle, measurements.reshape(-1, n, 7), estimates, p_WM,
+                      {name: dataclasses.asdict(f.stats) for name, f in filters.items()},
+                      {name: f.compute_s for name, f in filters.items()})

@@ -1,0 +1,94 @@
+"""The registry behind `perception.source`: the name of what steers the UAV -> the function that adds
+that perception source to a builder.
+
+A source's function gets the builder and `PerceptionInputs` (what the scene offers it: the UAV's
+own pose, the truth, the marker measurement stream and the marker filters already in the diagram)
+and returns `SeamPorts`: the seam (systems/perception/seam.py) and, where it has one, the pose
+estimate that metrics score. Nothing in the controller or the supervisor changes with the source.
+
+    register_source("mine", PerceptionSource(add_mine, needs_markers=True))   # your own estimator
+
+`add_estimate_to_seam` is the adapter's wiring, for any estimator that outputs a PoseEstimate of the
+pad in W (and, where it has them, the pad's velocity and acceleration).
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pydrake.systems.framework import DiagramBuilder, OutputPort
+
+from systems.config import ConfigError
+from systems.estimators.marker_ekf import FILTERS, MarkerFilterSystem
+from systems.perception.seam import EstimateToSeam
+
+
+@dataclass
+class PerceptionInputs:
+    """What a gv scenario's diagram offers a perception source."""
+
+    config: object  # the scenario (diagrams.gv_landing_config.GvLandingConfig)
+    X_WB: OutputPort  # the UAV's own pose (RigidTransform): its navigation, the truth for now
+    true_relative_state: OutputPort  # the truth's seam
+    marker_measurements: OutputPort | None  # list of MarkerMeasurement, after the latency; None: no stream
+    filters: dict[str, MarkerFilterSystem] = field(default_factory=dict)  # marker filters by name
+
+
+@dataclass
+class SeamPorts:
+    """What a perception source gives the controller (`relative_state`) and the metrics
+    (`X_WP_estimate`, a PoseEstimate of the pad in W; None for the truth)."""
+
+    relative_state: OutputPort
+    X_WP_estimate: OutputPort | None = None
+    filter_name: str | None = None  # the marker filter behind it, if any
+
+
+@dataclass(frozen=True)
+class PerceptionSource:
+    add: Callable[[DiagramBuilder, PerceptionInputs], SeamPorts]
+    needs_markers: bool = False  # the scenario must have a marker measurement stream (estimation.source)
+
+
+def add_estimate_to_seam(builder: DiagramBuilder, inputs: PerceptionInputs, X_WP_estimate: OutputPort,
+                         v_WP_estimate: OutputPort | None = None, a_WP_estimate: OutputPort | None = None) -> SeamPorts:
+    """Wires `EstimateToSeam` (validity from scenario.perception) to an estimator's outputs."""
+    adapter = builder.AddNamedSystem("estimate_to_seam", EstimateToSeam(inputs.config.perception))
+    builder.Connect(inputs.X_WB, adapter.GetInputPort("X_WB"))
+    builder.Connect(X_WP_estimate, adapter.GetInputPort("X_WP_estimate"))
+    for port, name in ((v_WP_estimate, "v_WP_estimate"), (a_WP_estimate, "a_WP_estimate")):
+        if port is not None:
+            builder.Connect(port, adapter.GetInputPort(name))
+    return SeamPorts(adapter.GetOutputPort("relative_state"), X_WP_estimate)
+
+
+def _truth(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
+    return SeamPorts(inputs.true_relative_state)
+
+
+def _marker_filter(name: str) -> Callable[[DiagramBuilder, PerceptionInputs], SeamPorts]:
+    def add(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
+        marker_filter = inputs.filters[name]  # the builder adds every filter the scenario names
+        ports = add_estimate_to_seam(builder, inputs, marker_filter.GetOutputPort("X_WP_estimate"),
+                                     marker_filter.GetOutputPort("v_WP_estimate"),
+                                     marker_filter.GetOutputPort("a_WP_estimate"))
+        ports.filter_name = name
+        return ports
+    return add
+
+
+SOURCES: dict[str, PerceptionSource] = {
+    "truth": PerceptionSource(_truth),
+    **{name: PerceptionSource(_marker_filter(name), needs_markers=True) for name in FILTERS},
+}
+
+
+def register_source(name: str, source: PerceptionSource) -> None:
+    """Adds a perception source (e.g. your own estimator) under `name`, for `perception.source`."""
+    SOURCES[name] = source
+
+
+def perception_source(name: str, prefix: str = "perception.source") -> PerceptionSource:
+    """The registered source; ConfigError naming the known ones otherwise."""
+    if name not in SOURCES:
+        raise ConfigError(f"{prefix} '{name}' is not a perception source (known: {', '.join(SOURCES)})")
+    return SOURCES[name]

@@ -1,0 +1,83 @@
+"""One way to simulate any scenario's diagram: progress bar, real-time pacing, Meshcat recording,
+the camera video, and what ends a run early.
+
+    run = simulate(diagram, duration_s, initialize=handles.initialize, realtime=options.meshcat)
+    run.status   # "completed", a termination event's message ("landed: ..."), or "diverged: ..."
+
+A system's event that returns EventStatus.ReachedTermination ends the run with its message; an
+integrator failure ends it as "diverged". An exception or Ctrl-C discards the partial video and
+passes on. The garbage collector's view of the objects from imports and the build is frozen for the
+run (gc.freeze): its passes would otherwise walk them all, a large share of a Python-heavy run.
+"""
+
+import gc
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig, SimulatorStatus
+from tqdm import tqdm
+
+COMPLETED = "completed"
+CHUNK_S = 0.5  # simulated time between progress-bar updates (and Ctrl-C checks)
+
+
+@dataclass
+class Simulation:
+    """What `simulate` returns: why it stopped, the simulated and wall times [s], the final context."""
+
+    status: str
+    sim_time_s: float
+    wall_time_s: float
+    context: object
+
+    @property
+    def realtime_factor(self) -> float | None:
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else None
+
+
+def simulate(diagram, duration_s: float, *, initialize: Callable | None = None,
+             simulator_config: SimulatorConfig | None = None, realtime: bool = False, progress: bool = False,
+             visualizer=None, record: bool = False, video=None) -> Simulation:
+    """Simulates `diagram` for `duration_s` [s] or until a termination event. `initialize(context)`
+    sets the initial conditions; `visualizer` (a MeshcatVisualizer) records when `record`; `video`
+    (a VideoRecorder in the diagram) is finished on success and discarded otherwise."""
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    if initialize is not None:
+        initialize(context)
+    if simulator_config is not None:
+        ApplySimulatorConfig(simulator_config, simulator)
+    if realtime:
+        simulator.set_target_realtime_rate(1.0)
+    recording = visualizer is not None and record
+    if recording:
+        visualizer.StartRecording()
+    status = COMPLETED
+    gc.freeze()
+    start = time.perf_counter()
+    try:
+        simulator.Initialize()
+        with tqdm(total=duration_s, unit="sim s", disable=not progress, leave=False,
+                  bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim s [{elapsed}<{remaining}]") as bar:
+            while context.get_time() < duration_s - 1e-9:
+                result = simulator.AdvanceTo(min(duration_s, context.get_time() + CHUNK_S))
+                bar.update(context.get_time() - bar.n)
+                if result.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+                    status = result.message()
+                    break
+    except RuntimeError as e:
+        status = f"diverged: the integrator failed at t = {context.get_time():.2f} s ({str(e).splitlines()[0]})"
+    except BaseException:
+        if video is not None:
+            video.discard()
+        raise
+    finally:
+        wall = time.perf_counter() - start
+        gc.unfreeze()
+    if recording:
+        visualizer.StopRecording()
+        visualizer.PublishRecording()
+    if video is not None:
+        video.finish()
+    return Simulation(status, context.get_time(), wall, context)

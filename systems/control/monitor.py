@@ -1,0 +1,111 @@
+"""Ends a landing run, as the simulation's referee: it reads the truth, not what the UAV believes.
+
+`LandingMonitor`'s periodic update returns EventStatus.ReachedTermination with a message
+"<reason>: <details>", reason one of FAILURE_REASONS or "landed", when the supervisor reports
+touchdown (LANDED), the UAV's gear touches the pad (its body `touchdown_height_m` above the pad's
+top while over the pad), it hits the ground or the vehicle, the state diverges or turns non-finite,
+or the seam has had no valid estimate for `lost_timeout_s`. There is no contact dynamics: the
+first touch ends the run.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.systems.framework import EventStatus, LeafSystem
+
+from systems.config import require, require_positive
+from systems.control.landing import Mode
+from systems.perception.seam import HEIGHT, P_BP_W, RELATIVE_STATE_SIZE
+from systems.vehicles.ground_vehicle_geometry import PlatformConfig
+from systems.vehicles.quadrotor import STATE_SIZE
+
+FAILURE_REASONS = ("crash", "diverged", "target_lost", "timeout", "missed_pad")
+GV_X, GV_Y, GV_HEADING = range(3)  # in the ground vehicle's state [x, y, heading, steering]
+
+
+@dataclass
+class TerminationConfig:
+    """When `LandingMonitor` ends a run (not from the papers)."""
+
+    rate_hz: float = 10.0  # checks per second (a run goes on up to one period past its end)
+    stop_on_landed: bool = True  # false: fly on after touchdown (the supervisor keeps the vehicle's speed)
+    lost_timeout_s: float = 20.0  # no valid estimate this long: "target_lost"
+    max_speed_m_s: float = 40.0  # |v_WB| beyond this: "diverged"
+    max_altitude_m: float = 60.0  # "diverged"
+    max_distance_m: float = 200.0  # horizontal distance to the pad: "diverged"
+    ground_tolerance_m: float = 0.02  # the UAV's centre this far below the ground: "crash"
+
+    def validate(self, prefix: str = "termination") -> None:
+        for name in ("rate_hz", "lost_timeout_s", "max_speed_m_s", "max_altitude_m", "max_distance_m"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        require(self.ground_tolerance_m >= 0, f"{prefix}.ground_tolerance_m must not be negative")
+
+
+def pad_offset(relative: np.ndarray, heading) -> np.ndarray:
+    """The UAV's horizontal offset from the pad centre in the pad frame P [m] (x along the vehicle),
+    (..., 2), from relative states (..., RELATIVE_STATE_SIZE: pad minus UAV in W) and the vehicle's
+    headings (...) [rad]."""
+    dx, dy = -relative[..., P_BP_W.start], -relative[..., P_BP_W.start + 1]
+    c, s = np.cos(heading), np.sin(heading)
+    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
+
+
+class LandingMonitor(LeafSystem):
+    """Inputs `quadrotor_state` (17), `vehicle_state` (4), `true_relative_state` (the seam's layout,
+    from the truth), `target_valid` (1, the seam's flag: what steers) and `mode` (1)."""
+
+    def __init__(self, termination: TerminationConfig, platform: PlatformConfig, touchdown_height_m: float):
+        super().__init__()
+        self._termination, self._platform, self._touchdown = termination, platform, touchdown_height_m
+        self._quad = self.DeclareVectorInputPort("quadrotor_state", STATE_SIZE)
+        self._vehicle = self.DeclareVectorInputPort("vehicle_state", 4)
+        self._relative = self.DeclareVectorInputPort("true_relative_state", RELATIVE_STATE_SIZE)
+        self._valid = self.DeclareVectorInputPort("target_valid", 1)
+        self._mode = self.DeclareVectorInputPort("mode", 1)
+        self._last_seen = self.DeclareDiscreteState([0.0, 0.0])  # [time last valid (s), valid at all (0/1)]
+        self.DeclarePeriodicDiscreteUpdateEvent(1.0 / termination.rate_hz, 0.0, self._update)
+
+    def check(self, t: float, quad, vehicle, relative, mode: int, last_seen: float, seen_ever: bool = True) -> str | None:
+        """The termination message for these values (`relative` the true relative state), or None."""
+        term, platform = self._termination, self._platform
+        if not (np.isfinite(quad).all() and np.isfinite(vehicle).all()):
+            return f"diverged: non-finite state at t = {t:.2f} s"
+        if mode == Mode.LANDED:
+            return f"landed: the supervisor reported touchdown by t = {t:.2f} s" if term.stop_on_landed else None
+        offset = pad_offset(relative, vehicle[GV_HEADING])
+        if (term.stop_on_landed and relative[HEIGHT] <= self._touchdown
+                and np.all(np.abs(offset) <= platform.pad_size_m / 2)):
+            return f"landed: the gear touched the pad at t = {t:.2f} s"
+        px, py, pz, vx, vy, vz = (float(quad[i]) for i in (0, 1, 2, 7, 8, 9))
+        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if pz < -term.ground_tolerance_m:
+            return f"crash: hit the ground at t = {t:.2f} s, {speed:.1f} m/s"
+        c, s = math.cos(vehicle[GV_HEADING]), math.sin(vehicle[GV_HEADING])
+        dx, dy = px - vehicle[GV_X], py - vehicle[GV_Y]
+        along, across = c * dx + s * dy, -s * dx + c * dy  # UAV in the vehicle frame V
+        if (-platform.rear_overhang_m < along < platform.body_length_m - platform.rear_overhang_m
+                and abs(across) < platform.body_width_m / 2 and pz < platform.height_m - platform.pad_thickness_m):
+            return f"crash: hit the ground vehicle at t = {t:.2f} s"
+        if speed > term.max_speed_m_s:
+            return f"diverged: speed {speed:.1f} m/s at t = {t:.2f} s"
+        if pz > term.max_altitude_m:
+            return f"diverged: altitude {pz:.1f} m at t = {t:.2f} s"
+        distance = math.hypot(relative[0], relative[1])
+        if distance > term.max_distance_m:
+            return f"diverged: {distance:.0f} m from the pad at t = {t:.2f} s"
+        if t - last_seen > term.lost_timeout_s:
+            if not seen_ever:
+                return f"target_lost: no valid estimate of the pad in the first {t:.1f} s"
+            return f"target_lost: no valid estimate for {t - last_seen:.1f} s at t = {t:.2f} s"
+        return None
+
+    def _update(self, context, discrete_state):
+        t = context.get_time()
+        last_seen, seen_ever = context.get_discrete_state(self._last_seen).get_value()
+        if self._valid.Eval(context)[0] > 0.5:
+            last_seen, seen_ever = t, 1.0
+        discrete_state.set_value(self._last_seen, [last_seen, seen_ever])
+        message = self.check(t, self._quad.Eval(context), self._vehicle.Eval(context), self._relative.Eval(context),
+                             int(round(self._mode.Eval(context)[0])), last_seen, bool(seen_ever))
+        return EventStatus.ReachedTermination(self, message) if message else EventStatus.Succeeded()

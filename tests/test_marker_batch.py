@@ -1,0 +1,41 @@
+"""The open-loop campaign's batch path (diagrams/marker_batch.py) gives the Diagram's estimates, and
+only where it applies."""
+
+import numpy as np
+import pytest
+
+from diagrams.gv_landing import build_gv_landing
+from diagrams.gv_landing_run import fly_diagram
+from diagrams.marker_batch import batch_run
+from diagrams.runner import load_scenario
+from systems.config import ConfigError
+
+
+@pytest.mark.parametrize("speed, seed, latency", [(6, 3, 1), (12, 11, 0), (3, 0, 2)])
+def test_the_batch_path_gives_the_diagrams_estimates(speed, seed, latency):
+    _, s = load_scenario("gv-marker-ekf", overrides=[f"vehicle.speed={speed}", f"estimation.latency_periods={latency}"],
+                         seed=seed)
+    diagram, handles = build_gv_landing(s)
+    in_diagram = fly_diagram(diagram, handles, 4.0).sampled
+    batch = batch_run(s, 4.0)
+    np.testing.assert_array_equal(batch.t, in_diagram.t)
+    np.testing.assert_allclose(batch.quadrotor_state, in_diagram.quadrotor_state, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(batch.measurements, in_diagram.measurements, rtol=0, atol=1e-9)
+    assert set(batch.estimates) == set(in_diagram.estimates) == {"paper_ekf", "ct_ekf"}
+    for name in batch.estimates:
+        started = ~np.isnan(in_diagram.estimates[name][:, 1])
+        assert started.mean() > 0.9
+        # every figure but the filter's own compute time
+        np.testing.assert_allclose(batch.estimates[name], in_diagram.estimates[name], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(batch.p_WM[name], in_diagram.p_WM[name], rtol=0, atol=1e-9)
+        assert batch.stats[name] == in_diagram.stats[name] and batch.stats[name]["accepted"] > 0
+    # a different seed is a different stream
+    assert not np.allclose(batch_run(s.__class__(**{**s.__dict__, "seed": seed + 1}), 4.0).measurements,
+                           batch.measurements, equal_nan=True)
+
+
+def test_the_batch_path_only_replays_open_loop_synthetic_runs():
+    for override in ("perception.source=ct_ekf", "estimation.source=detector"):
+        _, s = load_scenario("gv-marker-ekf", overrides=[override])
+        with pytest.raises(ConfigError, match="the batch path replays an open-loop flight"):
+            batch_run(s, 1.0)

@@ -1,0 +1,95 @@
+"""The perception seam: the adapter's vector and its validity (the estimate's own flag, covariance and
+age), and the registry behind `perception.source` with its one-line errors."""
+
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform, RollPitchYaw
+
+from diagrams.cli import main
+from diagrams.perception_sources import SOURCES, perception_source
+from diagrams.runner import load_scenario
+from systems.config import ConfigError
+from systems.estimators.estimate import PoseEstimate
+from systems.perception.seam import (
+    A_WP, HEIGHT, P_BP_B, P_BP_W, RELATIVE_STATE_SIZE, V_WP, VALID, EstimateToSeam, SeamConfig, estimate_is_valid,
+    seam_vector,
+)
+
+X_WB = RigidTransform(RollPitchYaw(0.1, -0.2, 1.3), [4.0, -2.0, 6.5])
+X_WP = RigidTransform(RollPitchYaw(0.0, 0.0, 0.4), [5.0, -1.0, 1.6])
+
+
+def covariance(position_std_m: float) -> np.ndarray:
+    """[roll, pitch, yaw, x, y, z] covariance with the given position std (sqrt of the trace)."""
+    return np.diag([0.01, 0.01, 0.01, *np.full(3, position_std_m**2 / 3)])
+
+
+def test_the_seam_is_the_pad_relative_to_the_uav_in_world_and_body():
+    values = seam_vector(X_WB, X_WP.translation(), [3.0, 0.5, 0.0], [0.2, -0.1, 0.0], True)
+    p_BP_W = X_WP.translation() - X_WB.translation()
+    np.testing.assert_allclose(values[P_BP_W], p_BP_W)
+    np.testing.assert_allclose(values[P_BP_B], X_WB.rotation().matrix().T @ p_BP_W, atol=1e-12)
+    np.testing.assert_allclose(values[V_WP], [3.0, 0.5, 0.0])
+    np.testing.assert_allclose(values[A_WP], [0.2, -0.1, 0.0])
+    assert values[HEIGHT] == pytest.approx(4.9) and values[VALID] == 1.0
+    assert seam_vector(X_WB, X_WP.translation(), np.zeros(3), np.zeros(3), False)[VALID] == 0.0
+    # Never NaN: a non-finite entry becomes zero and the seam invalid.
+    broken = seam_vector(X_WB, [np.nan, 0.0, 1.6], np.zeros(3), [np.inf, 0.0, 0.0], True)
+    assert np.all(np.isfinite(broken)) and broken[VALID] == 0.0
+
+
+@pytest.mark.parametrize("estimate, time, valid", [
+    (PoseEstimate(10.0, X_WP, True, covariance(0.3)), 10.0, True),
+    (PoseEstimate(10.0, X_WP, True, None), 10.2, True),  # no covariance: the flag and the age decide
+    (PoseEstimate(10.0, X_WP, False, covariance(0.3)), 10.0, False),  # the estimator says no
+    (PoseEstimate(10.0, X_WP, True, covariance(1.5)), 10.0, False),  # too uncertain to steer on
+    (PoseEstimate(10.0, X_WP, True, covariance(0.3)), 10.6, False),  # too old
+    (PoseEstimate(10.0, RigidTransform([np.nan, 0.0, 0.0]), True, None), 10.0, False),
+    (PoseEstimate(10.0, X_WP, True, np.full((6, 6), np.nan)), 10.0, False),
+])
+def test_validity_is_the_estimates_own(estimate, time, valid):
+    assert estimate_is_valid(estimate, time, SeamConfig(max_position_std_m=1.0, max_age_s=0.5)) == valid
+
+
+@pytest.mark.parametrize("rates", [True, False])
+def test_the_adapter_system(rates):
+    adapter = EstimateToSeam(SeamConfig())
+    context = adapter.CreateDefaultContext()
+    context.SetTime(3.0)
+    adapter.GetInputPort("X_WB").FixValue(context, X_WB)
+    adapter.GetInputPort("X_WP_estimate").FixValue(context, PoseEstimate(3.0, X_WP, True, covariance(0.2)))
+    if rates:  # an estimator without rates leaves these unconnected: zero feed-forward
+        adapter.GetInputPort("v_WP_estimate").FixValue(context, [3.0, 0.5, 0.0])
+        adapter.GetInputPort("a_WP_estimate").FixValue(context, [0.2, -0.1, 0.0])
+    values = adapter.get_output_port().Eval(context)
+    assert len(values) == RELATIVE_STATE_SIZE and values[VALID] == 1.0
+    expected = seam_vector(X_WB, X_WP.translation(), [3.0, 0.5, 0.0] if rates else np.zeros(3),
+                           [0.2, -0.1, 0.0] if rates else np.zeros(3), True)
+    np.testing.assert_allclose(values, expected, atol=1e-12)
+
+
+def test_the_registry_names_every_source_and_what_it_needs():
+    assert {"truth", "ct_ekf", "paper_ekf"} <= set(SOURCES)
+    assert not perception_source("truth").needs_markers and perception_source("ct_ekf").needs_markers
+    with pytest.raises(ConfigError, match=r"perception.source 'kalman' is not a perception source \(known: truth"):
+        perception_source("kalman")
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["perception.source=kalman"], "perception.source 'kalman' is not a perception source (known: truth, "),
+    (["perception.source=ct_ekf"], "perception.source 'ct_ekf' needs marker measurements, and estimation.source "
+                                   "is none: set estimation.source to synthetic or detector"),
+    (["estimation.filters=[ct_ekf]"], "estimation.filters need a measurement stream"),
+])
+def test_a_source_that_cannot_run_is_one_line_and_exit_2(capfd, tmp_path, overrides, message):
+    out = tmp_path / "run"
+    code = main(["run", "gv-landing", *[a for o in overrides for a in ("--set", o)], "--out", str(out), "--quiet"])
+    _, err = capfd.readouterr()
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_any_gv_scenario_takes_a_perception_source():
+    for name in ("gv-landing", "gv-marker-ekf", "marker-landing"):
+        _, s = load_scenario(name, overrides=["perception.source=paper_ekf", "estimation.source=synthetic"])
+        assert s.perception.source == "paper_ekf" and "paper_ekf" in s.filter_names
