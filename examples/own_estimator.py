@@ -81,11 +81,11 @@ class AveragedMarkers(LeafSystem):
         track = context.get_discrete_state(self._track).get_value()
         t = context.get_time()
         if np.isnan(track[0]):
-            output.set_value(PoseEstimate.invalid(t))
+            output.set_value(PoseEstimate.invalid(t, "W", "P"))
             return
         p_WP = track[1:4] + (t - track[0]) * track[5:8]
         output.set_value(PoseEstimate(t, RigidTransform(RollPitchYaw(0.0, 0.0, track[4]), p_WP),
-                                      valid=t - track[8] <= self.MAX_AGE_S))
+                                      valid=t - track[8] <= self.MAX_AGE_S, reference="W", target="P"))
 
 
 def add_averaged_markers(builder, inputs):

@@ -18,6 +18,17 @@ from diagrams.stewart_scene import StewartSceneConfig, StewartSceneHandles, buil
 from systems.platforms.stewart import StewartPlatformConfig
 
 
+# Fixtures that render camera images or spawn processes: a test using one is marked slow.
+SLOW_FIXTURES = {"hover_scene", "tilted_scene", "dynamic_run", "build_scene", "scene", "console_runs", "short_run",
+                 "pool_campaigns", "local_cluster", "detector_run"}
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
+
+
 def landing_sim_command() -> list[str]:
     """The installed `landing-sim` command, or the module when the console script is missing."""
     script = Path(sys.executable).with_name("landing-sim")

@@ -49,6 +49,7 @@ def static_run(platform, hover_yaw_deg, pixel_noise_std, tof_noise_std_m):
     return log["t"] >= 1.0, xyz, angle  # the range filter starts from one frame and settles within 1 s
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("platform, hover_yaw_deg", STATIC_DECKS)
 def test_crhf_on_a_static_rendered_deck_is_within_1_cm_and_1_degree(platform, hover_yaw_deg):
     # The bound is 1 cm and 1 degree; CRHF does several times better, and these bounds
@@ -63,6 +64,7 @@ def test_crhf_on_a_static_rendered_deck_is_within_1_cm_and_1_degree(platform, ho
     assert angle[settled].max() < 0.5
 
 
+@pytest.mark.slow
 def test_a_smoke_run_of_the_dynamic_deck_has_crhf_z_error_below_atda(tmp_path):
     name, scenario = load_scenario("stewart-dynamic", duration_s=10.0)
     metrics = run(name, scenario, tmp_path, RunOptions(progress=False))

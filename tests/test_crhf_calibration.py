@@ -90,6 +90,7 @@ def test_pad_centroids_system_orders_pads_and_flags_missing_ones():
     assert np.isnan(pixels[[PAD_COLOURS.index("yellow"), PAD_COLOURS.index("blue")]]).all()
 
 
+@pytest.mark.slow
 def test_a_short_calibration_climb_implies_the_camera_intrinsics(tmp_path):
     name, scenario = load_scenario("crhf-calibration", overrides=["climb_speed_m_s=1.0"], duration_s=2.0)
     metrics = run(name, scenario, tmp_path, RunOptions(progress=False))
@@ -127,6 +128,7 @@ def test_bad_scenario_values_are_config_errors_naming_the_field(override, field)
         load_scenario("crhf-calibration", overrides=[override])
 
 
+@pytest.mark.slow
 def test_command_line_writes_the_calibration_and_metrics(tmp_path):
     out = tmp_path / "cal"
     done = subprocess.run([*landing_sim_command(), "run", "crhf-calibration", "--duration", "1", "--out", str(out), "--quiet"],

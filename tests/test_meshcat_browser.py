@@ -16,7 +16,8 @@ import pytest
 from tests.conftest import landing_sim_command
 
 CHROMIUM = shutil.which("chromium")
-pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (make browser installs it)")
+pytestmark = [pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (make browser installs it)"),
+              pytest.mark.slow]
 
 WIDTH, HEIGHT = 800, 600
 CONTROLS_BAR_ROWS = 30  # Meshcat's black "Open Controls" bar at the top right

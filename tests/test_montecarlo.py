@@ -210,6 +210,7 @@ def test_each_run_leaves_its_record_and_arrays(pool_campaigns):
     assert not [n for n in names if "partial" in n], names
 
 
+@pytest.mark.slow
 def test_pydrake_runs_in_spawned_workers(tmp_path):
     definition = toy(run=drake_run)
     s = settings(definition, cases=["3", "6"], runs=2)
@@ -254,6 +255,7 @@ def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path):
 
 # ---- failures, resume, protection --------------------------------------------------------------
 
+@pytest.mark.slow
 def test_a_crashing_run_is_recorded_as_failed_and_the_campaign_goes_on(tmp_path):
     s = settings()
     summary = run_campaign(toy(run=crashing_run), s, tmp_path, workers=2, progress=False)
@@ -275,6 +277,7 @@ def test_a_crashing_run_is_recorded_as_failed_and_the_campaign_goes_on(tmp_path)
     assert [k for k in before if before[k] != after[k]] == [str(Path("runs") / "6" / "00002.json")]
 
 
+@pytest.mark.slow
 def test_a_run_that_kills_its_worker_is_recorded_and_the_campaign_goes_on(tmp_path):
     summary = run_campaign(toy(run=dying_run), settings(), tmp_path, workers=2, progress=False)
     assert summary["runs"]["done"] == 11 and summary["runs"]["failed"] == 1

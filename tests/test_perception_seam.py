@@ -1,6 +1,9 @@
 """The perception seam: the adapter's vector and its validity (the estimate's own flag, covariance and
 age), and the registry behind `perception.source` with its one-line errors."""
 
+import copy
+import pickle
+
 import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw
@@ -57,7 +60,7 @@ def test_the_adapter_system(rates):
     context = adapter.CreateDefaultContext()
     context.SetTime(3.0)
     adapter.GetInputPort("X_WB").FixValue(context, X_WB)
-    adapter.GetInputPort("X_WP_estimate").FixValue(context, PoseEstimate(3.0, X_WP, True, covariance(0.2)))
+    adapter.GetInputPort("X_WP_estimate").FixValue(context, PoseEstimate(3.0, X_WP, True, covariance(0.2), "W", "P"))
     if rates:  # an estimator without rates leaves these unconnected: zero feed-forward
         adapter.GetInputPort("v_WP_estimate").FixValue(context, [3.0, 0.5, 0.0])
         adapter.GetInputPort("a_WP_estimate").FixValue(context, [0.2, -0.1, 0.0])
@@ -66,6 +69,20 @@ def test_the_adapter_system(rates):
     expected = seam_vector(X_WB, X_WP.translation(), [3.0, 0.5, 0.0] if rates else np.zeros(3),
                            [0.2, -0.1, 0.0] if rates else np.zeros(3), True)
     np.testing.assert_allclose(values, expected, atol=1e-12)
+
+
+def test_estimates_name_their_frames_and_the_seam_takes_only_the_pad_in_the_world():
+    estimate = PoseEstimate(1.0, X_WP, True, None, "C", "T")
+    assert estimate.frames == "X_CT" and estimate.X_CT is estimate.X_RT
+    with pytest.raises(AttributeError):
+        estimate.X_WP
+    assert copy.deepcopy(estimate).X_CT.IsExactlyEqualTo(X_WP) and pickle.loads(pickle.dumps(estimate)).frames == "X_CT"
+    adapter = EstimateToSeam()
+    context = adapter.CreateDefaultContext()
+    adapter.GetInputPort("X_WB").FixValue(context, X_WB)
+    adapter.GetInputPort("X_WP_estimate").FixValue(context, estimate)
+    with pytest.raises(ConfigError, match="needs an estimate of the pad in the world, X_WP; it got X_CT"):
+        adapter.get_output_port().Eval(context)
 
 
 def test_the_registry_names_every_source_and_what_it_needs():

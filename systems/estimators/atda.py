@@ -48,5 +48,5 @@ class AtdaEstimator(LeafSystem):
     def _calc(self, context, output):
         detection = self.get_input_port().Eval(context)
         X_CT = atda_pose(detection.corners, self._K, self._tag_size) if detection.detected else None
-        output.set_value(PoseEstimate(context.get_time(), X_CT, True) if X_CT is not None
-                         else PoseEstimate.invalid(context.get_time()))
+        output.set_value(PoseEstimate(context.get_time(), X_CT, True, reference="C", target="T") if X_CT is not None
+                         else PoseEstimate.invalid(context.get_time(), "C", "T"))

@@ -154,8 +154,8 @@ class CrhfEstimator(LeafSystem):
         result = self.estimate(corner_track, ranges, range_covariance, state)
         state = replace(state, corners=corner_track, ranges=range_track)
         if result is None or not result.valid:
-            return state, PoseEstimate.invalid(time)
-        return self._remember(state, result), PoseEstimate(time, result.X_CT, True)
+            return state, PoseEstimate.invalid(time, "C", "T")
+        return self._remember(state, result), PoseEstimate(time, result.X_CT, True, reference="C", target="T")
 
     def estimate(self, corner_track: Track, ranges: np.ndarray | None, range_covariance: np.ndarray | None,
                  state: CrhfState) -> CrhfEstimate | None:

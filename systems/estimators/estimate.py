@@ -10,23 +10,37 @@ from pydrake.systems.framework import LeafSystem
 
 @dataclass(frozen=True)
 class PoseEstimate:
-    """A pose estimate of a target frame T in a reference frame R (e.g. X_CT: tag in camera).
+    """A pose estimate of a target frame in a reference frame, both named by their monogram letters:
+    `reference` "C" and `target` "T" make X_RT the tag in the camera, readable as `estimate.X_CT`.
 
     time: seconds of simulation time the estimate refers to.
     X_RT: the estimated pose; meaningful only when `valid` is True.
     valid: False when the estimator has no trustworthy estimate (none at all, or one it coasted too
       long to trust); X_RT is then identity or that untrusted estimate.
     covariance: 6x6 covariance of [roll, pitch, yaw (rad); x, y, z (m)], or None if unknown.
+    reference, target: the frames' names ("R" and "T" when not named).
     """
 
     time: float = 0.0
     X_RT: RigidTransform = field(default_factory=RigidTransform)
     valid: bool = False
     covariance: np.ndarray | None = None
+    reference: str = "R"
+    target: str = "T"
+
+    @property
+    def frames(self) -> str:
+        """The pose's monogram name: "X_" + reference + target, e.g. "X_WP"."""
+        return f"X_{self.reference}{self.target}"
+
+    def __getattr__(self, name: str):
+        if not name.startswith("_") and name not in ("reference", "target") and name == self.frames:
+            return self.X_RT
+        raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
 
     @staticmethod
-    def invalid(time: float) -> "PoseEstimate":
-        return PoseEstimate(time=time)
+    def invalid(time: float, reference: str = "R", target: str = "T") -> "PoseEstimate":
+        return PoseEstimate(time=time, reference=reference, target=target)
 
 
 def estimate_vector(estimate: PoseEstimate) -> np.ndarray:

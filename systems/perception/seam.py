@@ -22,7 +22,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
-from systems.config import require_positive
+from systems.config import ConfigError, require_positive
 from systems.estimators.estimate import PoseEstimate
 
 P_BP_W = slice(0, 3)  # pad centre minus UAV (body origin), in W [m]
@@ -82,7 +82,8 @@ class EstimateToSeam(LeafSystem):
     """The adapter from a pad estimate to the seam.
 
     Inputs: `X_WB` (RigidTransform, the UAV's own pose: its navigation), `X_WP_estimate`
-    (PoseEstimate of the pad frame P in W), and optionally `v_WP_estimate` and `a_WP_estimate` (3
+    (PoseEstimate of the pad frame P in W, its frames named "W" and "P": a valid estimate of any other
+    pose is a ConfigError), and optionally `v_WP_estimate` and `a_WP_estimate` (3
     each, W, m/s and m/s^2; zero when not connected). Output `relative_state` (RELATIVE_STATE_SIZE),
     valid by `estimate_is_valid`.
     """
@@ -102,6 +103,9 @@ class EstimateToSeam(LeafSystem):
 
     def _calc(self, context, output):
         estimate = self._estimate.Eval(context)
+        if estimate.valid and estimate.frames != "X_WP":
+            raise ConfigError(f"the perception seam needs an estimate of the pad in the world, X_WP; "
+                              f"it got {estimate.frames}")
         valid = estimate_is_valid(estimate, context.get_time(), self._config)
         output.SetFromVector(seam_vector(self._X_WB.Eval(context), estimate.X_RT.translation(),
                                          self._rate(self._v_WP, context), self._rate(self._a_WP, context), valid))
