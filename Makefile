@@ -1,4 +1,4 @@
-# landing-sim: `make demo` runs the default scenario, `make test` the test suite, `make bench` the benchmarks.
+# landing-sim: `make demo` lands by vision (marker-landing), `make test` runs the test suite, `make bench` the benchmarks.
 # Both set up .venv first (Python 3.12 or newer; drake >= 1.52 needs it) and check the Debian
 # libraries that headless rendering needs.
 SHELL := /bin/bash
@@ -15,7 +15,7 @@ PYTHON ?= $(shell for p in python3.12 python3.13 python3.14 python3 \
 .PHONY: demo test bench clean system-deps browser
 
 demo: $(STAMP) system-deps
-	$(VENV)/bin/landing-sim run stewart-dynamic --duration 20 --out results/demo
+	$(VENV)/bin/landing-sim run marker-landing --out results/demo
 
 test: $(STAMP) system-deps browser
 	$(VENV)/bin/python -m pytest
@@ -25,6 +25,7 @@ bench: $(STAMP) system-deps
 	$(VENV)/bin/python benchmarks/crhf_table5.py
 	$(VENV)/bin/python benchmarks/landing_sweep.py
 	$(VENV)/bin/python benchmarks/marker_ekf_mc.py
+	$(VENV)/bin/python benchmarks/vision_landing.py
 
 $(STAMP): pyproject.toml
 	@if [ -z "$(PYTHON)" ]; then \

@@ -27,6 +27,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, OutputPort
 from pydrake.systems.primitives import (
     ConstantVectorSource, Demultiplexer, LogVectorOutput, TrajectorySource, VectorLogSink,
 )
+from pydrake.systems.sensors import RgbdSensor
 
 from diagrams.gv_landing_config import GvLandingConfig
 from diagrams.marker_plots import style
@@ -62,6 +63,20 @@ LOG_NAMES = ("quadrotor_state", "vehicle_state", "relative_state", "true_relativ
 
 
 @dataclass
+class Measurements:
+    """The marker stream of `estimation.source` (what is None is not there): `acquired` and `delayed`
+    (after the latency) MarkerMeasurement lists; with the camera, the `camera` (RgbdSensor), its noisy
+    `color_image` port, the `detector` and the `video` recorder."""
+
+    acquired: OutputPort | None = None
+    delayed: OutputPort | None = None
+    camera: RgbdSensor | None = None
+    color_image: OutputPort | None = None
+    detector: MarkerDetectorSystem | None = None
+    video: VideoRecorder | None = None
+
+
+@dataclass
 class GvLandingHandles:
     """The systems and ports of a built gv diagram that callers use. `loggers` sample at the
     supervisor's rate (LOG_NAMES, and `steering_estimate` when an estimator steers); with a marker
@@ -82,12 +97,14 @@ class GvLandingHandles:
     airframe: AirframeGeometry
     vehicle_geometry: GroundVehicleGeometry
     loggers: dict[str, VectorLogSink]
-    measurements: OutputPort | None = None  # MarkerMeasurements as the filters get them (after the latency)
-    detector: MarkerDetectorSystem | None = None
+    measurements: Measurements = field(default_factory=Measurements)
     filters: dict[str, MarkerFilterSystem] = field(default_factory=dict)
     sample_loggers: dict[str, VectorLogSink] = field(default_factory=dict)
     meshcat_visualizer: MeshcatVisualizer | None = None
-    video: VideoRecorder | None = None
+
+    @property
+    def video(self) -> VideoRecorder | None:
+        return self.measurements.video
 
     def initialize(self, root_context) -> None:
         """Sets the initial conditions in a context of the built diagram: the UAV at rest at `start`
@@ -126,13 +143,11 @@ def build_gv_landing(config: GvLandingConfig, meshcat: Meshcat | None = None,
 
 
 def _add_measurements(builder: DiagramBuilder, config: GvLandingConfig, scene_graph: SceneGraph, body_frame_id,
-                      X_WB: OutputPort, vehicle_state: OutputPort, video_path):
-    """The marker measurement stream of `estimation.source`: (as acquired, after its latency,
-    detector, video recorder), each None where there is none."""
+                      X_WB: OutputPort, vehicle_state: OutputPort, video_path) -> Measurements:
     est = config.estimation
+    out = Measurements()
     if est.source == "none":
-        return None, None, None, None
-    detector = video = None
+        return out
     if est.source == "synthetic":
         pad = builder.AddNamedSystem("pad_pose", PadPose(config.platform))
         source = builder.AddNamedSystem("marker_source", SyntheticMarkerSource(
@@ -140,22 +155,24 @@ def _add_measurements(builder: DiagramBuilder, config: GvLandingConfig, scene_gr
         builder.Connect(vehicle_state, pad.get_input_port())
         builder.Connect(X_WB, source.GetInputPort("X_WB"))
         builder.Connect(pad.get_output_port(), source.GetInputPort("X_WP"))
-        acquired = source.get_output_port()
+        out.acquired = source.get_output_port()
     else:
         camera_config = est.camera
         add_renderer(scene_graph)
-        _, noisy_camera = add_camera(builder, scene_graph, body_frame_id, camera_config, config.seed)
-        detector = builder.AddNamedSystem("marker_detector", MarkerDetectorSystem(
+        out.camera, noisy_camera = add_camera(builder, scene_graph, body_frame_id, camera_config, config.seed)
+        out.color_image = noisy_camera.get_output_port()
+        out.detector = builder.AddNamedSystem("marker_detector", MarkerDetectorSystem(
             camera_config.K, config.platform.markers, camera_config.width, camera_config.height))
-        builder.Connect(noisy_camera.get_output_port(), detector.get_input_port())
-        acquired = detector.get_output_port()
+        builder.Connect(out.color_image, out.detector.get_input_port())
+        out.acquired = out.detector.get_output_port()
         if video_path is not None:
-            video = builder.AddNamedSystem("video", VideoRecorder(video_path, camera_config.period_s,
-                                                                  camera_config.width, camera_config.height))
-            builder.Connect(noisy_camera.get_output_port(), video.get_input_port())
+            out.video = builder.AddNamedSystem("video", VideoRecorder(video_path, camera_config.period_s,
+                                                                      camera_config.width, camera_config.height))
+            builder.Connect(out.color_image, out.video.get_input_port())
     latency = builder.AddNamedSystem("measurement_latency", MeasurementLatency(est.ekf.period_s, est.latency_periods))
-    builder.Connect(acquired, latency.get_input_port())
-    return acquired, latency.get_output_port(), detector, video
+    builder.Connect(out.acquired, latency.get_input_port())
+    out.delayed = latency.get_output_port()
+    return out
 
 
 def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Meshcat | None = None,
@@ -196,18 +213,19 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
     builder.Connect(vehicle_state, vehicle_geometry.get_input_port())
     builder.Connect(vehicle_geometry.get_output_port(), scene_graph.get_source_pose_port(vehicle_geometry.source_id))
 
-    acquired, measurements, detector, video = _add_measurements(builder, config, scene_graph,
-                                                                airframe.body_frame_id, X_WB, vehicle_state, video_path)
+    measurements = _add_measurements(builder, config, scene_graph, airframe.body_frame_id, X_WB, vehicle_state,
+                                     video_path)
     filters = {}
     for name in config.filter_names:
         est = config.estimation
         filters[name] = builder.AddNamedSystem(name, MarkerFilterSystem(
             FILTERS[name](config.platform.markers, est.X_BC, est.ekf)))
-        builder.Connect(measurements, filters[name].GetInputPort("marker_measurements"))
+        builder.Connect(measurements.delayed, filters[name].GetInputPort("marker_measurements"))
         builder.Connect(X_WB, filters[name].GetInputPort("X_WB"))
 
     perception = perception_source(config.perception.source).add(
-        builder, PerceptionInputs(config, X_WB, truth.get_output_port(), measurements, filters))
+        builder, PerceptionInputs(config, X_WB, truth.get_output_port(), measurements.delayed,
+                                  measurements.color_image, filters))
     seam = builder.AddNamedSystem("seam", SeamSplit())
     builder.Connect(perception.relative_state, seam.get_input_port())
     pid = builder.AddNamedSystem("tracking_pid", TrackingPid(config.pid))
@@ -247,9 +265,9 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         builder.Connect(perception.X_WP_estimate, to_vector.get_input_port())
         loggers["steering_estimate"] = LogVectorOutput(to_vector.get_output_port(), builder, period)
     sample_loggers = {}
-    if acquired is not None:  # the stream as acquired, the truth and every filter's estimate, per sample
+    if measurements.acquired is not None:  # the stream as acquired, the truth and every filter's estimate
         stream = builder.AddNamedSystem("stream_vector", MarkerMeasurementsToVector(config.platform.markers))
-        builder.Connect(acquired, stream.get_input_port())
+        builder.Connect(measurements.acquired, stream.get_input_port())
         ports = {"measurements": stream.get_output_port(), "quadrotor_state": quad_state,
                  "vehicle_state": vehicle_state}
         for name, f in filters.items():
@@ -274,5 +292,5 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
             builder.Connect(port, trail.get_input_port())
 
     return GvLandingHandles(config, quad, vehicle, truth, perception, pid, supervisor, controller, monitor,
-                            scene_graph, airframe, vehicle_geometry, loggers, measurements, detector, filters,
-                            sample_loggers, visualizer, video)
+                            scene_graph, airframe, vehicle_geometry, loggers, measurements, filters, sample_loggers,
+                            visualizer)

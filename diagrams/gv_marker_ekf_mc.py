@@ -67,7 +67,7 @@ def run_task(task: RunTask) -> RunOutput:
     run = sampled(scenario)
     est = scenario.estimation
     measured, metrics, errors = marker_metrics(run, scenario.platform, est.X_BC, est.settle_s)
-    truth = pad_truth(run, scenario.platform)
+    truth = pad_truth(run.quadrotor_state, run.vehicle_state, scenario.platform)
     keep = slice(None, None, DECIMATE)
     arrays = {"t": run.t[keep].astype(np.float32), "true_xy": truth.p_WP[keep, :2].astype(np.float32),
               "true_yaw": truth.yaw[keep].astype(np.float32)}

@@ -3,9 +3,9 @@
 In gv-marker-ekf the truth steers and the filters only watch, so the flight does not depend on the
 measurements. A campaign worker flies each setting once (`flight_samples`, kept in the process,
 keyed by the scenario without its seed and estimation settings), and each run then replays it at the
-filter steps through the very functions the Diagram's systems call: the UAV's and the pad's poses
-(`pose_from_state`, `PlatformConfig.X_WP`), the seeded synthetic sample
-(`synthetic_marker_sample`), the latency queue (`delay_queue`) and the filters' `step` and
+filter steps through the functions the Diagram's systems call: the seeded noise of each sample
+(`draw_noise` from `sample_rng`) applied by `noisy_marker_poses` to the true marker poses (here
+computed for all samples at once), the latency queue (`delay_queue`) and the filters' `step` and
 `estimate_vector`. tests/test_marker_batch.py checks both give the same estimates to 1e-9 on the same
 seed. Only for `perception.source: truth` with `estimation.source: synthetic`.
 """
@@ -18,15 +18,16 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from diagrams.gv_landing import add_gv_landing
 from diagrams.gv_landing_config import GvLandingConfig
-from diagrams.marker_metrics import SampledRun
+from diagrams.marker_metrics import SampledRun, pad_truth, true_marker_poses_C
 from diagrams.simulate import simulate
 from systems.config import require
 from systems.estimators.marker_ekf import FILTERS
 from systems.estimators.marker_ekf.engine import ESTIMATE_VECTOR_SIZE
+from systems.noise import sample_index, sample_rng
 from systems.perception.latency import delay_queue
-from systems.perception.markers import measurements_vector
-from systems.perception.synthetic_markers import synthetic_marker_sample
-from systems.vehicles.quadrotor import pose_from_state
+from systems.perception.markers import MarkerMeasurement
+from systems.perception.synthetic_markers import STREAM, draw_noise, noisy_marker_poses
+from systems.quaternion import drake_to_paper
 
 _FLIGHTS: dict[str, tuple] = {}
 _FLIGHTS_KEPT = 4
@@ -65,21 +66,24 @@ def batch_run(config: GvLandingConfig, duration_s: float) -> SampledRun:
             "the batch path replays an open-loop flight: perception.source truth, estimation.source synthetic")
     t, quad, vehicle = flight_samples(config, duration_s)
     layout, n = config.platform.markers, len(config.platform.markers.ids)
+    # The stream: every sample's true marker poses at once, each sample's noise from its own generator.
+    truth = pad_truth(quad, vehicle, config.platform)
+    p_true, q_CP = true_marker_poses_C(truth, layout, est.X_BC)
+    noise = [draw_noise(sample_rng(config.seed, STREAM, sample_index(t_k, est.ekf.period_s)), n, est.sigma_p_m,
+                        est.sigma_deg) for t_k in t.tolist()]
+    p_CM, q_CM = noisy_marker_poses(p_true, drake_to_paper(q_CP), *(np.array(part) for part in zip(*noise)))
+    q_BR = drake_to_paper(truth.q_WB)  # the UAV's attitude, the paper's way, for the filters' camera
     filters = {name: FILTERS[name](layout, est.X_BC, est.ekf) for name in config.filter_names}
-    measurements = np.empty((len(t), 7 * n))
     estimates = {name: np.empty((len(t), ESTIMATE_VECTOR_SIZE)) for name in filters}
     p_WM = {name: np.empty((len(t), n, 3)) for name in filters}
     queue = ()
     for k, t_k in enumerate(t.tolist()):
-        X_WB, X_WP = pose_from_state(quad[k]), config.platform.X_WP(vehicle[k])
-        acquired = synthetic_marker_sample(t_k, X_WB, X_WP, est.X_BC, layout, config.seed, est.ekf.period_s,
-                                           est.sigma_p_m, est.sigma_deg)
-        measurements[k] = measurements_vector(acquired, layout)
+        acquired = [MarkerMeasurement(t_k, marker_id, p, q) for marker_id, p, q in zip(layout.ids, p_CM[k], q_CM[k])]
         queue, arrived = delay_queue(queue, acquired, est.latency_periods)
-        camera = next(iter(filters.values())).camera_at(X_WB)  # every filter has the camera at est.X_BC
+        camera = next(iter(filters.values())).camera(truth.p_WB[k], q_BR[k])  # every filter's camera is at est.X_BC
         for name, f in filters.items():
-            f.step(t_k, X_WB, arrived, camera)
+            f.step(t_k, None, arrived, camera)
             estimates[name][k], p_WM[name][k] = f.estimate_vector(t_k)
-    return SampledRun(t, quad, vehicle, measurements.reshape(-1, n, 7), estimates, p_WM,
+    return SampledRun(t, quad, vehicle, np.concatenate([p_CM, q_CM], axis=-1), estimates, p_WM,
                       {name: dataclasses.asdict(f.stats) for name, f in filters.items()},
                       {name: f.compute_s for name, f in filters.items()})

@@ -53,11 +53,12 @@ class PadTruth:
     yaw: np.ndarray
 
 
-def pad_truth(run: SampledRun, platform: PlatformConfig) -> PadTruth:
-    heading = run.vehicle_state[:, GV_HEADING]
-    p_WP = run.vehicle_state[:, :2] + platform.pad_offset_m * np.column_stack([np.cos(heading), np.sin(heading)])
-    q = run.quadrotor_state[:, Q_WB]
-    return PadTruth(run.quadrotor_state[:, P_WB].copy(), q / np.linalg.norm(q, axis=1, keepdims=True),
+def pad_truth(quadrotor_state: np.ndarray, vehicle_state: np.ndarray, platform: PlatformConfig) -> PadTruth:
+    """The truth of states sampled over a run: quadrotor (N, 17), vehicle (N, 4)."""
+    heading = vehicle_state[:, GV_HEADING]
+    p_WP = vehicle_state[:, :2] + platform.pad_offset_m * np.column_stack([np.cos(heading), np.sin(heading)])
+    q = quadrotor_state[:, Q_WB]
+    return PadTruth(quadrotor_state[:, P_WB].copy(), q / np.linalg.norm(q, axis=1, keepdims=True),
                     np.column_stack([p_WP, np.full(len(heading), platform.height_m)]), np.unwrap(heading))
 
 
@@ -152,7 +153,7 @@ def filter_metrics(run: SampledRun, truth: PadTruth, name: str, errors: FilterEr
 def marker_metrics(run: SampledRun, platform: PlatformConfig, X_BC: RigidTransform,
                    settle_s: float) -> tuple[dict, dict, dict[str, FilterErrors]]:
     """(the stream's accuracy, per filter its figures, per filter its errors) of a sampled run."""
-    truth = pad_truth(run, platform)
+    truth = pad_truth(run.quadrotor_state, run.vehicle_state, platform)
     errors = {name: filter_errors(run, truth, name, platform.markers) for name in run.estimates}
     metrics = {name: filter_metrics(run, truth, name, e, settle_s) for name, e in errors.items()}
     return measurement_metrics(run, truth, platform.markers, X_BC), metrics, errors

@@ -61,7 +61,7 @@ def plot_markers(axes, t, marker_errors: dict[str, np.ndarray], ids, title: str,
 
 def plot_run(config, run: SampledRun, errors: dict[str, FilterErrors], out_dir) -> None:
     """path.png, heading.png and marker_errors.png of one run (config: the gv scenario)."""
-    truth = pad_truth(run, config.platform)
+    truth = pad_truth(run.quadrotor_state, run.vehicle_state, config.platform)
     title = f"{config.vehicle.speed:g} m/s"
     reference = make_path(config.vehicle.path_config()).polyline(max_length_m=1e9)
     fig, ax = plt.subplots(figsize=(9, 6))

@@ -1,23 +1,23 @@
 """Estimate-against-truth figures, the same for every estimator (DESIGN.md's metrics.json shape)."""
 
 import numpy as np
-from pydrake.common.eigen_geometry import Quaternion
-from pydrake.math import RollPitchYaw, RotationMatrix
+from scipy.spatial.transform import Rotation
 
 FLIP_THRESHOLD_DEG = 10.0  # a frame whose rotation error exceeds this counts as a pose flip
 
 
-def _rotation(wxyz: np.ndarray) -> RotationMatrix:
-    return RotationMatrix(Quaternion(wxyz / np.linalg.norm(wxyz)))
+def _rotations(wxyz: np.ndarray) -> Rotation:
+    """SciPy rotations of (M, 4) quaternions [w, x, y, z] of any nonzero norm."""
+    return Rotation.from_quat(wxyz[:, [1, 2, 3, 0]])  # SciPy is scalar-last, and normalises
 
 
 def xyz_rpy(poses: np.ndarray) -> np.ndarray:
-    """(N, 6) [x, y, z (m), roll, pitch, yaw (rad)] from (N, 7) [x, y, z, qw, qx, qy, qz] rows;
-    NaN rows stay NaN."""
+    """(N, 6) [x, y, z (m), roll, pitch, yaw (rad)] from (N, 7) [x, y, z, qw, qx, qy, qz] rows
+    (roll, pitch, yaw as Drake's RollPitchYaw: R = Rz(yaw) Ry(pitch) Rx(roll)); NaN rows stay NaN."""
     out = np.full((len(poses), 6), np.nan)
-    for i, row in enumerate(poses):
-        if np.all(np.isfinite(row)):
-            out[i] = np.r_[row[:3], RollPitchYaw(_rotation(row[3:])).vector()]
+    finite = np.all(np.isfinite(poses), axis=1)
+    if finite.any():
+        out[finite] = np.column_stack([poses[finite, :3], _rotations(poses[finite, 3:]).as_euler("xyz")])
     return out
 
 
@@ -32,9 +32,9 @@ def pose_errors(truth: np.ndarray, estimate: np.ndarray):
     valid = estimate[:, 0] > 0.5
     difference = xyz_rpy(estimate[valid, 1:]) - xyz_rpy(truth[valid])
     rpy = (np.rad2deg(difference[:, 3:]) + 180.0) % 360.0 - 180.0
-    angle = [_rotation(q_true).InvertAndCompose(_rotation(q_est)).ToAngleAxis().angle()
-             for q_true, q_est in zip(truth[valid, 3:], estimate[valid, 4:])]
-    return valid, difference[:, :3], rpy, np.rad2deg(np.asarray(angle))
+    angle = ((_rotations(truth[valid, 3:]).inv() * _rotations(estimate[valid, 4:])).magnitude()
+             if valid.any() else np.zeros(0))
+    return valid, difference[:, :3], rpy, np.rad2deg(angle)
 
 
 def axis_errors(xyz: np.ndarray, rpy_deg: np.ndarray) -> dict:

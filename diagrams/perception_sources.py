@@ -30,6 +30,7 @@ class PerceptionInputs:
     X_WB: OutputPort  # the UAV's own pose (RigidTransform): its navigation, the truth for now
     true_relative_state: OutputPort  # the truth's seam
     marker_measurements: OutputPort | None  # list of MarkerMeasurement, after the latency; None: no stream
+    color_image: OutputPort | None  # the downward camera's images (ImageRgba8U, with noise); None: no camera
     filters: dict[str, MarkerFilterSystem] = field(default_factory=dict)  # marker filters by name
 
 

@@ -163,8 +163,11 @@ def paper_to_drake(q: np.ndarray) -> Quaternion:
     return Quaternion(w=q[3], x=q[0], y=q[1], z=q[2])
 
 
-def drake_to_paper(rotation: Quaternion | RotationMatrix) -> np.ndarray:
-    """The paper's q^{B/A} = [x, y, z, w] from Drake's R_AB (RotationMatrix or Quaternion)."""
+def drake_to_paper(rotation: Quaternion | RotationMatrix | np.ndarray) -> np.ndarray:
+    """The paper's q^{B/A} = [x, y, z, w] from Drake's R_AB: a RotationMatrix, a Quaternion, or
+    quaternions (..., 4) in Drake's order [w, x, y, z]."""
+    if isinstance(rotation, np.ndarray):
+        return rotation[..., [1, 2, 3, 0]]
     if isinstance(rotation, RotationMatrix):
         rotation = rotation.ToQuaternion()
     w, x, y, z = rotation.wxyz()

@@ -99,7 +99,7 @@ def test_the_truths_marker_poses_in_the_camera_are_drakes():
     vehicle = np.array([[0.0, 0.5, 0.3, 0.0], [-1.0, 0.2, -2.0, 0.1]])
     quad = np.array([quadrotor_state(p_WB=X.translation(), R_WB=X.rotation()) for X in X_WB])
     run = SampledRun(np.array([0.0, 0.035]), quad, vehicle, np.full((2, 5, 7), np.nan), {}, {}, {}, {})
-    p_CM, q_CP = true_marker_poses_C(pad_truth(run, s.platform), s.platform.markers, s.estimation.X_BC)
+    p_CM, q_CP = true_marker_poses_C(pad_truth(run.quadrotor_state, run.vehicle_state, s.platform), s.platform.markers, s.estimation.X_BC)
     for k in range(2):
         X_CP = X_WB[k].multiply(s.estimation.X_BC).InvertAndCompose(s.platform.X_WP(vehicle[k]))
         np.testing.assert_allclose(p_CM[k], X_CP.multiply(s.platform.markers.p_PM.T).T, atol=1e-12)
@@ -109,7 +109,7 @@ def test_the_truths_marker_poses_in_the_camera_are_drakes():
 def test_synthetic_measurements_have_the_papers_accuracy():
     s = scenario(6, 0, "duration_s=20")  # 572 samples of 5 markers: the RMS to about 2 %
     run = batch_run(s, s.run_length_s)
-    m = measurement_metrics(run, pad_truth(run, s.platform), s.platform.markers, s.estimation.X_BC)
+    m = measurement_metrics(run, pad_truth(run.quadrotor_state, run.vehicle_state, s.platform), s.platform.markers, s.estimation.X_BC)
     assert m["measured_fraction"] == [1.0] * 5
     # 0.1 m on each of 3 axes, 5 deg on each of 3 axes of a rotation vector
     np.testing.assert_allclose(m["rms_position_m"], 0.1 * np.sqrt(3), rtol=0.08)
@@ -128,7 +128,7 @@ def detector_run():
 def test_detector_measures_the_markers_the_camera_renders(detector_run):
     s, run = detector_run
     layout, X_BC = s.platform.markers, s.estimation.X_BC
-    truth = pad_truth(run, s.platform)
+    truth = pad_truth(run.quadrotor_state, run.vehicle_state, s.platform)
     m = measurement_metrics(run, truth, layout, X_BC)
     assert min(m["measured_fraction"]) > 0.5  # from 8 m up, the UAV hovering behind the vehicle
     assert max(m["rms_position_m"]) < 0.2  # m, 14-24 px markers 8 m away

@@ -3,7 +3,7 @@
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
-from diagrams.metrics import estimator_metrics
+from diagrams.metrics import estimator_metrics, pose_errors, xyz_rpy
 from systems.estimators.estimate import PoseEstimate, estimate_vector
 from systems.sensors.ground_truth import pose_vector
 
@@ -52,3 +52,16 @@ def test_a_window_scores_only_its_frames_and_the_valid_fraction_stays_over_all()
     m = estimator_metrics(truth, np.array([estimate_vector(e) for e in estimates]), window)
     np.testing.assert_allclose(m["mae_xyz_m"], [0.01, 0.0, 0.0], atol=1e-12)
     assert m["frames_scored"] == 2 and m["valid_fraction"] == 5 / 6
+
+
+def test_roll_pitch_yaw_and_the_rotation_error_are_drakes():
+    rng = np.random.default_rng(3)
+    truth = [RigidTransform(RollPitchYaw(*rng.uniform(-1.4, 1.4, 3)), rng.normal(size=3)) for _ in range(20)]
+    estimate = [X.multiply(RigidTransform(RollPitchYaw(*rng.normal(0.0, 0.3, 3)), [0.0, 0.0, 0.0])) for X in truth]
+    rows = np.array([pose_vector(X) for X in truth])
+    rows[:, 3:] *= 1.7  # any nonzero norm
+    np.testing.assert_allclose(xyz_rpy(rows)[:, 3:], [RollPitchYaw(X.rotation()).vector() for X in truth], atol=1e-12)
+    _, _, _, angle = pose_errors(rows, np.array([estimate_vector(PoseEstimate(0.0, X, True)) for X in estimate]))
+    drake = [np.degrees(t.rotation().InvertAndCompose(e.rotation()).ToAngleAxis().angle())
+             for t, e in zip(truth, estimate)]
+    np.testing.assert_allclose(angle, drake, atol=1e-9)

@@ -52,11 +52,13 @@ class CampaignDefinition:
     plot: Callable[[CampaignSettings, dict[str, list[RunRecord]], Path], None] | None = None  # draws PNGs
     #   into the output directory from the done runs by case
     description: str = ""
+    paired: bool = False  # run i of every case gets the same seed (CampaignSettings.paired)
 
 
 # Scenario name -> its campaign: a CampaignDefinition or "module:attribute" (imported when used, so
-# the command starts without importing every scenario). The gv-marker-ekf integration adds its line.
-CAMPAIGNS: dict[str, CampaignDefinition | str] = {"gv-marker-ekf": "diagrams.gv_marker_ekf_mc:CAMPAIGN"}
+# the command starts without importing every scenario).
+CAMPAIGNS: dict[str, CampaignDefinition | str] = {"gv-marker-ekf": "diagrams.gv_marker_ekf_mc:CAMPAIGN",
+                                                  "marker-landing": "diagrams.landing_campaign:CAMPAIGN"}
 
 
 def campaign_definition(name: str) -> CampaignDefinition:
@@ -103,7 +105,7 @@ def campaign_settings(definition: CampaignDefinition, scenario: str, cases: Sequ
             raise ConfigError(f"--set expects key=value, got '{assignment}'")
         if definition.case_key is not None and key == definition.case_key:
             raise ConfigError(f"--set {key}: the campaign sets {key} from its {name}s")
-    settings = CampaignSettings(scenario, tuple(parsed), runs, base_seed, tuple(overrides))
+    settings = CampaignSettings(scenario, tuple(parsed), runs, base_seed, tuple(overrides), definition.paired)
     if definition.case_key is not None:  # bad settings fail here, before anything is written
         for task in settings.tasks(definition.case_key)[::runs]:  # one per case
             task.load_scenario()

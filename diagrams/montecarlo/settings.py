@@ -11,6 +11,7 @@ from systems.noise import stream_id
 
 FORMAT = 1  # of campaign.json and the run records
 SEED_SCHEME = "numpy SeedSequence([base_seed, crc32(case), index]).generate_state(1)[0]"
+PAIRED_SEED_SCHEME = "numpy SeedSequence([base_seed, crc32(''), index]).generate_state(1)[0], the same for every case"
 
 
 def run_seed(base_seed: int, case: str, index: int) -> int:
@@ -49,22 +50,25 @@ class CampaignSettings:
     runs: int  # per case
     base_seed: int = 0
     overrides: tuple[str, ...] = ()
+    paired: bool = False  # run i of every case gets the same seed (cases compared on the same noise)
 
     def tasks(self, case_key: str | None = None) -> list[RunTask]:
         """Every run of the campaign, case by case, index by index."""
-        return [RunTask(self.scenario, case, i, run_seed(self.base_seed, case, i), tuple(self.overrides), case_key)
+        return [RunTask(self.scenario, case, i, run_seed(self.base_seed, "" if self.paired else case, i),
+                        tuple(self.overrides), case_key)
                 for case in self.cases for i in range(self.runs)]
 
     def to_json(self) -> dict:
         return {"format": FORMAT, "scenario": self.scenario, "cases": list(self.cases), "runs": self.runs,
-                "base_seed": self.base_seed, "overrides": list(self.overrides), "seed_scheme": SEED_SCHEME}
+                "base_seed": self.base_seed, "overrides": list(self.overrides), "paired": self.paired,
+                "seed_scheme": PAIRED_SEED_SCHEME if self.paired else SEED_SCHEME}
 
     def differences(self, saved: dict) -> list[str]:
         """What differs between these settings and saved ones (cases compare as a set)."""
         mine = self.to_json()
         out = []
-        for key in ("scenario", "runs", "base_seed", "overrides", "cases", "format"):
-            theirs = saved.get(key)
+        for key in ("scenario", "runs", "base_seed", "overrides", "cases", "paired", "format"):
+            theirs = saved.get(key, False if key == "paired" else None)
             same = (sorted(map(str, theirs)) == sorted(mine[key]) if key == "cases" and isinstance(theirs, list)
                     else theirs == mine[key])
             if not same:

@@ -18,10 +18,10 @@ damping zeta, and a real pole at -(1/tau_a - 2 zeta w_n).
 One law, two backends. `FlightLaw` is the law, written once in scalar arithmetic that works on
 floats and on pydrake.symbolic Expressions alike, with its constants (gains, the inverse mixer)
 computed once:
-- `FlightController` (Python): a LeafSystem calling `FlightLaw` on floats, ~15 us a sample;
+- `FlightController` (Python): a LeafSystem calling `FlightLaw` on floats;
 - `SymbolicFlightController` (C++): the same `FlightLaw` stages traced into Expressions, one small
-  SymbolicVectorSystem per stage, ~10 us a sample with no Python in the loop. tests check that the
-  two give the same commands.
+  SymbolicVectorSystem per stage, with no Python in the loop. tests check that the two give the
+  same commands.
 Both either sample and hold at `rate_hz` (`held`, for a continuous quadrotor) or compute the law
 when pulled (for a quadrotor discretised per controller period, which holds its input itself).
 """
@@ -276,9 +276,9 @@ class _SymbolicChain:
 
 class SymbolicFlightController(Diagram):
     """The C++ backend: `FlightLaw` evaluated by SymbolicVectorSystems, with FlightController's
-    ports (inputs `state` (17) and `command` (7), output `rotor_speed_commands` (4)). The law as one
-    SymbolicVectorSystem is 95,000 characters per rotor and takes 0.7 ms to evaluate; as one
-    SymbolicVectorSystem per FlightLaw stage it takes ~10 us.
+    ports (inputs `state` (17) and `command` (7), output `rotor_speed_commands` (4)). One
+    SymbolicVectorSystem per FlightLaw stage: traced whole, the law is an expression of 95,000
+    characters per rotor, far slower to evaluate.
 
     `held` (for a continuous quadrotor): the output is sampled and held at `config.rate_hz` from
     the hover command on, exactly as FlightController does (call `initialize`). Not held: the law at

@@ -16,9 +16,9 @@ def aruco_dictionary(name: str):
 
 @lru_cache(maxsize=None)
 def subpix_detector(dictionary: str) -> cv2.aruco.ArucoDetector:
-    """A detector for the named dictionary, corners refined with CORNER_REFINE_SUBPIX.
-    (CORNER_REFINE_APRILTAG returned whole-pixel corners on rendered frames and took 50 ms on a
-    noisy 512x512 frame, against 1.3 ms for SUBPIX.)"""
+    """A detector for the named dictionary, corners refined with CORNER_REFINE_SUBPIX
+    (CORNER_REFINE_APRILTAG returned whole-pixel corners on rendered frames, and at many times the
+    cost: docs/results.md)."""
     parameters = cv2.aruco.DetectorParameters()
     parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     return cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), parameters)

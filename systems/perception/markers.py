@@ -151,7 +151,7 @@ def measurements_vector(measurements, layout: MarkerLayout) -> np.ndarray:
     for m in measurements:
         i = layout.index(m.marker_id)
         if i is not None and ids.count(m.marker_id) == 1:
-            out[i] = np.r_[m.p_CM, m.q_CM]
+            out[i, :3], out[i, 3:] = m.p_CM, m.q_CM
     return out.ravel()
 
 

@@ -20,18 +20,30 @@ from systems.quaternion import drake_to_paper, odot_matrix
 STREAM = "marker_measurements"
 
 
+def noisy_marker_poses(p_CM: np.ndarray, q_CP: np.ndarray, dp: np.ndarray,
+                       dtheta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The measured poses from the true ones, over any leading shape (...): marker centres p_CM
+    (..., n, 3) [m] and the pad's attitude q_CP (..., 4, the paper's scalar-last q^{P/C}), plus
+    position noise dp (..., n, 3) [m] and attitude noise dtheta (..., n, 3) [rad], a rotation vector in
+    the marker frame: (p_CM + dp, q^{M/C} (..., n, 4)) with R_CM = R_CP Exp(dtheta)."""
+    angle = np.linalg.norm(dtheta, axis=-1, keepdims=True)
+    dq = np.concatenate([np.sinc(angle / (2 * np.pi)) * dtheta / 2, np.cos(angle / 2)], axis=-1)  # [sin(a/2) axis, cos(a/2)]
+    return p_CM + dp, np.einsum("...ij,...mj->...mi", odot_matrix(q_CP) if q_CP.ndim == 1 else
+                                np.array([odot_matrix(q) for q in q_CP]), dq)  # q_CP (.) dq
+
+
+def draw_noise(rng: np.random.Generator, n: int, sigma_p: float, sigma_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """(dp (n, 3) [m], dtheta (n, 3) [rad]) of one sample: positions first, then angles."""
+    return rng.normal(0.0, sigma_p, (n, 3)), rng.normal(0.0, np.radians(sigma_deg), (n, 3))
+
+
 def synthetic_marker_measurements(X_CP: RigidTransform, layout: MarkerLayout, rng: np.random.Generator,
                                   sigma_p: float = 0.1, sigma_deg: float = 5.0,
                                   time: float = 0.0) -> list[MarkerMeasurement]:
-    """Every marker's true pose in C (from the pad pose X_CP) plus noise: sigma_p [m] on each axis
-    of p_CM, and R_CM Exp(dtheta) with dtheta ~ N(0, sigma_deg^2 I3) in the marker frame; stamped
-    `time` [s]. Draws positions (n, 3), then angles (n, 3) from `rng`."""
-    n = len(layout.ids)
-    p_CM = X_CP.multiply(layout.p_PM.T).T + rng.normal(0.0, sigma_p, (n, 3))
-    dtheta = rng.normal(0.0, np.radians(sigma_deg), (n, 3))
-    angle = np.linalg.norm(dtheta, axis=1, keepdims=True)
-    dq = np.hstack([np.sinc(angle / (2 * np.pi)) * dtheta / 2, np.cos(angle / 2)])  # [sin(a/2) axis, cos(a/2)]
-    q_CM = dq @ odot_matrix(drake_to_paper(X_CP.rotation())).T  # q_CP (.) dq: R_CM = R_CP Exp(dtheta)
+    """Every marker's true pose in C (from the pad pose X_CP) plus noise drawn from `rng`
+    (`noisy_marker_poses`, `draw_noise`), stamped `time` [s]."""
+    p_CM, q_CM = noisy_marker_poses(X_CP.multiply(layout.p_PM.T).T, drake_to_paper(X_CP.rotation()),
+                                    *draw_noise(rng, len(layout.ids), sigma_p, sigma_deg))
     return [MarkerMeasurement(time, marker_id, p, q) for marker_id, p, q in zip(layout.ids, p_CM, q_CM)]
 
 

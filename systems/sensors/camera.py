@@ -107,8 +107,8 @@ def image_to_numpy(image) -> np.ndarray:
 
 
 # Standard normal quantiles at 65536 equiprobable levels: indexing this table with uniform 16-bit
-# integers draws Gaussian noise (tails cut at 4.3 sigma) about three times faster than
-# Generator.standard_normal, which matters at 512x512x3 samples per frame.
+# integers draws Gaussian noise (tails cut at 4.3 sigma) faster than Generator.standard_normal,
+# which matters at 512x512x3 samples per frame (docs/results.md).
 _NORMAL_QUANTILES = norm.ppf((np.arange(65536) + 0.5) / 65536).astype(np.float32)
 
 

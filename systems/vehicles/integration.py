@@ -3,7 +3,7 @@
 A vehicle with `time_period` T integrates its continuous equations over each period T in C++
 (Drake's DiscreteTimeApproximation), holding its input over the period. A diagram with no
 continuous state never evaluates whole-diagram derivatives, each of which would call into every
-Python LeafSystem in it (~4.7 us apiece, several evaluations per integrator step).
+Python LeafSystem in it (several evaluations per integrator step).
 """
 
 from pydrake.systems.analysis import DiscreteTimeApproximation, SimulatorConfig

@@ -261,11 +261,11 @@ class MarkerFilter:
 
     # ---- filter steps ------------------------------------------------------------------------
 
-    def step(self, t: float, X_WB: RigidTransform, measurements, camera: Camera | None = None) -> None:
+    def step(self, t: float, X_WB: RigidTransform | None, measurements, camera: Camera | None = None) -> None:
         """Advances the filter to time t [s], later than the previous step's, with the UAV at X_WB
         (at t) and the marker measurements that arrived since the previous step (any order, late
         ones included). `camera`: `camera_at(X_WB)` when the caller has it already (filters with
-        the same camera mount can share one)."""
+        the same camera mount can share one); X_WB is then not read."""
         start = perf_counter()
         history = self._history
         if history and t <= history[-1].time + TIME_TOLERANCE_S:
@@ -288,13 +288,14 @@ class MarkerFilter:
                                    old.measurements + tuple(late.get(j, ()))))
         camera = self.camera_at(X_WB) if camera is None else camera
         steps.append(self._run(steps[-1] if steps else None, t, camera, tuple(current)))
+        for s in steps[first:]:  # the steps run now, old ones re-run included
+            if s.stats.accepted:
+                self._last_measurement_s = max(self._last_measurement_s, max(m.time for m in s.measurements))
         while len(steps) > 1 and steps[0].time < t - self.config.history_s - TIME_TOLERANCE_S:
             settled += steps.pop(0).stats
             self._has_evicted = True
         self._settled += settled
         self._history = tuple(steps)
-        self._last_measurement_s = max([self._last_measurement_s] + [
-            max(m.time for m in s.measurements) for s in steps if s.stats.accepted])
         self.compute_s += perf_counter() - start
 
     def _screen(self, measurements, t: float) -> tuple[list[MarkerMeasurement], FilterStats]:
@@ -491,6 +492,8 @@ class MarkerFilter:
         yaw = math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
         v_WP, a_WP = self.platform_rates(belief.x)
         last = self._last_measurement_s if math.isfinite(self._last_measurement_s) else math.nan
-        vector = np.r_[float(position_std <= self.config.max_valid_position_std_m), p_WP, yaw, v_WP, a_WP,
-                       position_std, last]
+        vector = np.empty(ESTIMATE_VECTOR_SIZE)
+        vector[EST_VALID] = position_std <= self.config.max_valid_position_std_m
+        vector[EST_P_WP], vector[EST_YAW], vector[EST_V_WP], vector[EST_A_WP] = p_WP, yaw, v_WP, a_WP
+        vector[EST_POSITION_STD], vector[EST_LAST_MEASUREMENT] = position_std, last
         return belief, q_PR, vector, p_WM
