@@ -172,10 +172,13 @@ class GvLandingConfig:
                 f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
         require(self.controller.max_vertical_accel_m_s2 < self.quadrotor.gravity_m_s2,
                 "controller.max_vertical_accel_m_s2 must be below quadrotor.gravity_m_s2")
-        if perception_source(self.perception.source).needs_markers:
-            require(self.estimation.source != "none",
-                    f"perception.source '{self.perception.source}' needs marker measurements, and "
-                    f"estimation.source is none: set estimation.source to synthetic or detector")
+        source, stream = perception_source(self.perception.source), self.estimation.source
+        require(not source.needs_markers or stream != "none",
+                f"perception.source '{self.perception.source}' needs marker measurements, and estimation.source "
+                f"is none: set estimation.source to synthetic or detector")
+        require(not source.needs_camera or stream == "detector",
+                f"perception.source '{self.perception.source}' needs the camera, and estimation.source is {stream}: "
+                f"set estimation.source to detector")
 
     @property
     def period_s(self) -> float:

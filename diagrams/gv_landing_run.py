@@ -172,14 +172,17 @@ def summary_lines(name: str, metrics: dict) -> list[str]:
     perception = metrics["perception"]
     if perception["source"] != "truth" and "rms_position_m" in perception:
         coast = perception.get("coast_before_touchdown_s")
-        lines.append(f"steered by {perception['source']}: RMS position {perception['rms_position_m']:.3f} m, heading "
+        lines.append(f"steered by {perception['source']}: RMS position {perception['rms_position_m']:.3f} m over the "
+                     f"flight, heading "
                      f"{perception['rms_heading_deg']:.2f} deg, valid {perception['valid_fraction']:.0%}, longest "
                      f"without a valid estimate {perception['longest_invalid_s']:.2f} s"
                      + (f", last measurement {coast:.2f} s before touchdown" if coast is not None else ""))
+    settle = metrics.get("measurements", {}).get("settle_s", 0.0)
     for filter_name, m in metrics.get("estimators", {}).items():
         if "rms_position_m" in m:
-            lines.append(f"{filter_name}: RMS position {m['rms_position_m']:.3f} m, heading {m['rms_heading_deg']:.2f} "
-                         f"deg ({m['measurements']['gated']} gated, {m['measurements']['invalid']} invalid)")
+            lines.append(f"{filter_name} from {settle:g} s on: RMS position {m['rms_position_m']:.3f} m, heading "
+                         f"{m['rms_heading_deg']:.2f} deg ({m['measurements']['gated']} gated, "
+                         f"{m['measurements']['invalid']} invalid)")
     return [f"{name}: {line}" for line in lines]
 
 

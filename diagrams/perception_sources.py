@@ -46,8 +46,11 @@ class SeamPorts:
 
 @dataclass(frozen=True)
 class PerceptionSource:
+    """How to add a source, and what it needs from the scenario (checked when it is loaded)."""
+
     add: Callable[[DiagramBuilder, PerceptionInputs], SeamPorts]
-    needs_markers: bool = False  # the scenario must have a marker measurement stream (estimation.source)
+    needs_markers: bool = False  # a marker measurement stream (estimation.source synthetic or detector)
+    needs_camera: bool = False  # the rendered camera (estimation.source detector)
 
 
 def add_estimate_to_seam(builder: DiagramBuilder, inputs: PerceptionInputs, X_WP_estimate: OutputPort,

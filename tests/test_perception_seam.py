@@ -9,7 +9,7 @@ import pytest
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from diagrams.cli import main
-from diagrams.perception_sources import SOURCES, perception_source
+from diagrams.perception_sources import SOURCES, PerceptionSource, perception_source
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.estimators.estimate import PoseEstimate
@@ -104,6 +104,15 @@ def test_a_source_that_cannot_run_is_one_line_and_exit_2(capfd, tmp_path, overri
     _, err = capfd.readouterr()
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_a_source_that_needs_the_camera_says_so(monkeypatch):
+    monkeypatch.setitem(SOURCES, "on_images", PerceptionSource(lambda builder, inputs: None, needs_camera=True))
+    with pytest.raises(ConfigError, match="perception.source 'on_images' needs the camera, and estimation.source is "
+                                          "synthetic: set estimation.source to detector"):
+        load_scenario("gv-landing", overrides=["perception.source=on_images", "estimation.source=synthetic"])
+    _, s = load_scenario("gv-landing", overrides=["perception.source=on_images", "estimation.source=detector"])
+    assert s.perception.source == "on_images"
 
 
 def test_any_gv_scenario_takes_a_perception_source():
