@@ -98,7 +98,7 @@ def previous_figures(commit: str, runs: int, workers: int, tmp: Path) -> dict:
                   f"s = campaign_settings(d, 'gv-marker-ekf', {list(SPEEDS)!r}, {runs})\n"
                   f"import json; print(json.dumps(run_campaign(d, s, {str(tmp / 'previous_mc')!r}, workers={workers}, "
                   f"progress=False)['filters']))\n")
-        wrapped = f"if __name__ == '__main__':\n" + "".join(f"    {line}\n" for line in script.splitlines())
+        wrapped = "if __name__ == '__main__':\n" + "".join(f"    {line}\n" for line in script.splitlines())
         result = subprocess.run([sys.executable, "-c", wrapped], cwd=tree, check=True, capture_output=True, text=True)
         filters = json.loads(result.stdout.strip().splitlines()[-1])
     finally:

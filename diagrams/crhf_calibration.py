@@ -35,8 +35,8 @@ from systems.perception.apriltag import project_points
 from systems.perception.color_pads import PadCentroidsSystem
 from systems.sensors.camera import CameraConfig, NoisyCamera, add_renderer
 from systems.sensors.tof import TofConfig, TofSensors, sensor_positions_C
-from systems.sensors.video import VideoRecorder
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry, PrescribedPose
+from systems.viewers import VideoRecorder
 
 PAD_THICKNESS_M = 0.0005  # thin discs: sheets of coloured card on the floor (a thicker disc shows its rim)
 GROUND_SIZE_M = 12.0  # wider than the camera's footprint at any height the ToF sensors reach

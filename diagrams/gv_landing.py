@@ -48,13 +48,12 @@ from systems.perception.seam import SeamSplit
 from systems.perception.synthetic_markers import SyntheticMarkerSource
 from systems.perception.truth import PadPose, RelativeStateTruth
 from systems.sensors.camera import add_camera, add_renderer
-from systems.sensors.video import VideoRecorder
 from systems.vehicles.airframe import AirframeGeometry
 from systems.vehicles.ground_vehicle import GroundVehicle, GroundVehicleConfig
 from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry
 from systems.vehicles.paths import make_path
 from systems.vehicles.quadrotor import P_WB, STATE_SIZE, Quadrotor, hover_state
-from systems.viewers import MeshcatTrail
+from systems.viewers import MeshcatTrail, VideoRecorder
 
 # Logged at the supervisor's rate (the sample before the first LANDED holds what the supervisor saw
 # at touchdown): the states, the seam (what steers), the truth's seam, the supervisor and the PID.

@@ -193,7 +193,8 @@ def run_flight(scenario: GvLandingConfig, ctx, duration_s: float, landing: bool 
     if ctx.options.video and scenario.estimation.source != "detector":
         raise ConfigError(f"--video records the camera, and {ctx.name} has none "
                           f"(--set estimation.source=detector renders it)")
-    diagram, handles = build_gv_landing(scenario, ctx.meshcat, ctx.out_dir / "camera.mp4" if ctx.options.video else None)
+    video_path = ctx.out_dir / "camera.mp4" if ctx.options.video else None
+    diagram, handles = build_gv_landing(scenario, ctx.meshcat, video_path)
     flight = fly_diagram(diagram, handles, duration_s, realtime=ctx.options.meshcat, progress=ctx.options.progress,
                          record=ctx.options.record)
     metrics = flight_metrics(flight, scenario, ctx.name, landing)

@@ -50,7 +50,8 @@ class Scenario(RunSettings, GvLandingConfig):
         require(self.estimation.source != "none" and self.estimation.filters,
                 "gv-marker-ekf needs a measurement stream (estimation.source) and filters (estimation.filters)")
         require(self.platform.height_m < self.start.height_m and self.landing.initial_height_m < self.start.height_m,
-                f"platform.height_m and landing.initial_height_m must be below start.height_m ({self.start.height_m} m)")
+                f"platform.height_m and landing.initial_height_m must be below start.height_m "
+                f"({self.start.height_m} m)")
 
     @property
     def run_length_s(self) -> float:

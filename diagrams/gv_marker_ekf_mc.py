@@ -115,7 +115,8 @@ def aggregate(done: dict) -> dict:
             continue
         settle = float(records[0].metrics.get("settle_s", 0.0))
         for name in _filters(records):
-            ms = [r.metrics["estimators"][name] for r in records if "rms_position_m" in r.metrics["estimators"].get(name, {})]
+            ms = [r.metrics["estimators"][name] for r in records
+                  if "rms_position_m" in r.metrics["estimators"].get(name, {})]
             if not ms:
                 continue
             t, true_xy, true_yaw, xy, yaw, _ = _ensemble(records, name)

@@ -10,7 +10,6 @@ from systems.estimators.marker_ekf.engine import EST_P_WP, EST_YAW
 from systems.geometry import wrap_angle
 from systems.vehicles.paths import make_path
 
-
 FILTER_STYLE = {"paper_ekf": ("tab:red", "paper EKF"), "ct_ekf": ("tab:green", "constant-turn EKF")}
 
 

@@ -7,14 +7,14 @@ import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RigidTransform
 
+from diagrams.metrics import estimator_metrics
 from diagrams.outputs import save_figure, write_npz
+from diagrams.pose_plots import plot_pose_estimates
 from diagrams.scenario import RunSettings
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import require_positive
-from diagrams.metrics import estimator_metrics
-from diagrams.pose_plots import plot_pose_estimates
-from systems.sensors.ground_truth import pose_vector
 from systems.perception.apriltag import project_points
+from systems.sensors.ground_truth import pose_vector
 
 
 @dataclass

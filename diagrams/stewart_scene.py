@@ -24,8 +24,8 @@ from systems.sensors.camera import CameraConfig, NoisyCamera, add_camera, add_re
 from systems.sensors.ground_truth import RelativePose
 from systems.sensors.imu import Imu, ImuConfig
 from systems.sensors.tof import TofConfig, TofSensors, make_ray_sensor, sensor_positions_C
-from systems.sensors.video import VideoRecorder
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry, PrescribedPose
+from systems.viewers import VideoRecorder
 
 
 @dataclass

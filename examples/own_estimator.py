@@ -108,8 +108,9 @@ def main(argv=None) -> dict:
     metrics, _ = fly(scenario, scenario.duration_s)
     landing, perception = metrics["landing"], metrics["perception"]
     if landing["success"]:
-        print(f"landed {landing['touchdown_error_m']:.3f} m from the pad centre at {landing['touchdown_rel_speed_mps']:.2f}"
-              f" m/s (touchdown by the {landing['touchdown_by']}, {landing['touchdown_gap_m']:.3f} m fallen)")
+        print(f"landed {landing['touchdown_error_m']:.3f} m from the pad centre at "
+              f"{landing['touchdown_rel_speed_mps']:.2f} m/s (touchdown by the {landing['touchdown_by']}, "
+              f"{landing['touchdown_gap_m']:.3f} m fallen)")
     else:
         print(f"no landing: {landing['failure_reason']} ({landing['failure_detail']})")
     print(f"averaged_markers steering: RMS position {perception.get('rms_position_m', float('nan')):.3f} m, valid "

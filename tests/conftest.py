@@ -17,7 +17,6 @@ from diagrams.stewart_run import collect_log
 from diagrams.stewart_scene import StewartSceneConfig, StewartSceneHandles, build_stewart_scene
 from systems.platforms.stewart import StewartPlatformConfig
 
-
 # Fixtures that render camera images or spawn processes: a test using one is marked slow.
 SLOW_FIXTURES = {"hover_scene", "tilted_scene", "dynamic_run", "build_scene", "scene", "console_runs", "short_run",
                  "pool_campaigns", "local_cluster", "detector_run"}

@@ -22,7 +22,6 @@ from diagrams.montecarlo import campaign_definition, campaign_settings, run_camp
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT
-from systems.quaternion import drake_to_paper
 from systems.vehicles.quadrotor import P_WB, quadrotor_state
 
 SHORT = ["duration_s=4"]
@@ -95,11 +94,13 @@ def test_both_filters_get_the_identical_stream_one_period_late():
 
 def test_the_truths_marker_poses_in_the_camera_are_drakes():
     s = scenario()
-    X_WB = [RigidTransform(RollPitchYaw(0.1, -0.05, 0.4), [1, 2, 5]), RigidTransform(RollPitchYaw(0, 0.2, -1), [0, 1, 3])]
+    X_WB = [RigidTransform(RollPitchYaw(0.1, -0.05, 0.4), [1, 2, 5]),
+            RigidTransform(RollPitchYaw(0, 0.2, -1), [0, 1, 3])]
     vehicle = np.array([[0.0, 0.5, 0.3, 0.0], [-1.0, 0.2, -2.0, 0.1]])
     quad = np.array([quadrotor_state(p_WB=X.translation(), R_WB=X.rotation()) for X in X_WB])
     run = SampledRun(np.array([0.0, 0.035]), quad, vehicle, np.full((2, 5, 7), np.nan), {}, {}, {}, {})
-    p_CM, q_CP = true_marker_poses_C(pad_truth(run.quadrotor_state, run.vehicle_state, s.platform), s.platform.markers, s.estimation.X_BC)
+    truth = pad_truth(run.quadrotor_state, run.vehicle_state, s.platform)
+    p_CM, q_CP = true_marker_poses_C(truth, s.platform.markers, s.estimation.X_BC)
     for k in range(2):
         X_CP = X_WB[k].multiply(s.estimation.X_BC).InvertAndCompose(s.platform.X_WP(vehicle[k]))
         np.testing.assert_allclose(p_CM[k], X_CP.multiply(s.platform.markers.p_PM.T).T, atol=1e-12)
@@ -109,7 +110,8 @@ def test_the_truths_marker_poses_in_the_camera_are_drakes():
 def test_synthetic_measurements_have_the_papers_accuracy():
     s = scenario(6, 0, "duration_s=20")  # 572 samples of 5 markers: the RMS to about 2 %
     run = batch_run(s, s.run_length_s)
-    m = measurement_metrics(run, pad_truth(run.quadrotor_state, run.vehicle_state, s.platform), s.platform.markers, s.estimation.X_BC)
+    truth = pad_truth(run.quadrotor_state, run.vehicle_state, s.platform)
+    m = measurement_metrics(run, truth, s.platform.markers, s.estimation.X_BC)
     assert m["measured_fraction"] == [1.0] * 5
     # 0.1 m on each of 3 axes, 5 deg on each of 3 axes of a rotation vector
     np.testing.assert_allclose(m["rms_position_m"], 0.1 * np.sqrt(3), rtol=0.08)

@@ -12,8 +12,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
-from systems.estimators.marker_ekf import (FILTERS, ConstantTurnEkf, MarkerEkfConfig, MarkerFilterSystem,
-                                           PaperMarkerEkf)
+from systems.estimators.marker_ekf import FILTERS, ConstantTurnEkf, MarkerEkfConfig, MarkerFilterSystem, PaperMarkerEkf
 from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, EST_P_WP, EST_V_WP, EST_YAW
 from systems.perception.latency import MeasurementLatency
 from systems.perception.markers import MarkerLayout, MarkerMeasurement

@@ -13,6 +13,7 @@ import subprocess
 import cv2
 import numpy as np
 import pytest
+
 from tests.conftest import landing_sim_command
 
 CHROMIUM = shutil.which("chromium")

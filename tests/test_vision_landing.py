@@ -44,9 +44,10 @@ class BlindAfter(LeafSystem):
         super().__init__()
         X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
         relative = self.DeclareVectorInputPort("true_relative_state", RELATIVE_STATE_SIZE)
-        self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()), lambda c, o: o.set_value(
-            PoseEstimate(c.get_time(), RigidTransform(X_WB.Eval(c).translation() + relative.Eval(c)[P_BP_W]),
-                         c.get_time() < blind_s, reference="W", target="P")))
+        self.DeclareAbstractOutputPort(
+            "X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()), lambda c, o: o.set_value(
+                PoseEstimate(c.get_time(), RigidTransform(X_WB.Eval(c).translation() + relative.Eval(c)[P_BP_W]),
+                             c.get_time() < blind_s, reference="W", target="P")))
         self.DeclareVectorOutputPort("v_WP_estimate", 3, lambda c, o: o.SetFromVector(relative.Eval(c)[V_WP]))
 
 

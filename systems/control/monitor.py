@@ -66,7 +66,8 @@ class LandingMonitor(LeafSystem):
         self._last_seen = self.DeclareDiscreteState([0.0, 0.0])  # [time last valid (s), valid at all (0/1)]
         self.DeclarePeriodicDiscreteUpdateEvent(1.0 / termination.rate_hz, 0.0, self._update)
 
-    def check(self, t: float, quad, vehicle, relative, mode: int, last_seen: float, seen_ever: bool = True) -> str | None:
+    def check(self, t: float, quad, vehicle, relative, mode: int, last_seen: float,
+              seen_ever: bool = True) -> str | None:
         """The termination message for these values (`relative` the true relative state), or None."""
         term, platform = self._termination, self._platform
         if not (np.isfinite(quad).all() and np.isfinite(vehicle).all()):

@@ -29,7 +29,6 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from systems.config import require, require_positive
-
 from systems.estimators.crhf_math import CrhfEstimate, crhf_tag_pose
 from systems.estimators.estimate import PoseEstimate
 from systems.estimators.pad_calibration import PadCalibration

@@ -27,7 +27,8 @@ def noisy_marker_poses(p_CM: np.ndarray, q_CP: np.ndarray, dp: np.ndarray,
     position noise dp (..., n, 3) [m] and attitude noise dtheta (..., n, 3) [rad], a rotation vector in
     the marker frame: (p_CM + dp, q^{M/C} (..., n, 4)) with R_CM = R_CP Exp(dtheta)."""
     angle = np.linalg.norm(dtheta, axis=-1, keepdims=True)
-    dq = np.concatenate([np.sinc(angle / (2 * np.pi)) * dtheta / 2, np.cos(angle / 2)], axis=-1)  # [sin(a/2) axis, cos(a/2)]
+    # [sin(a/2) axis, cos(a/2)]
+    dq = np.concatenate([np.sinc(angle / (2 * np.pi)) * dtheta / 2, np.cos(angle / 2)], axis=-1)
     return p_CM + dp, np.einsum("...ij,...mj->...mi", odot_matrix(q_CP) if q_CP.ndim == 1 else
                                 np.array([odot_matrix(q) for q in q_CP]), dq)  # q_CP (.) dq
 

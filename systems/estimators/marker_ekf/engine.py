@@ -21,8 +21,8 @@ package docstring):
 
 import copy
 import math
-from time import perf_counter
 from dataclasses import dataclass
+from time import perf_counter
 from typing import NamedTuple
 
 import numpy as np
@@ -464,12 +464,13 @@ class MarkerFilter:
             time = 0.0 if t is None else t
             vector = np.full(ESTIMATE_VECTOR_SIZE, np.nan)
             vector[EST_VALID] = 0.0
-            return MarkerFilterEstimate(PoseEstimate.invalid(time, "W", "P"), vector, np.full((len(self.p_PM), 3), np.nan))
+            return MarkerFilterEstimate(PoseEstimate.invalid(time, "W", "P"), vector,
+                                        np.full((len(self.p_PM), 3), np.nan))
         belief, q_PR, vector, p_WM = self._summary(t)
         X_WP = RigidTransform(RotationMatrix(paper_to_drake(q_PR)), vector[EST_P_WP])
         covariance = self.platform_covariance(belief.x, belief.P)
-        return MarkerFilterEstimate(PoseEstimate(belief.time, X_WP, bool(vector[EST_VALID]), covariance, "W", "P"), vector,
-                                    p_WM)
+        estimate = PoseEstimate(belief.time, X_WP, bool(vector[EST_VALID]), covariance, "W", "P")
+        return MarkerFilterEstimate(estimate, vector, p_WM)
 
     def estimate_vector(self, t: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """`estimate(t)`'s vector and p_WM without its Drake objects (for loops over many steps)."""
