@@ -60,6 +60,28 @@ def test_detected_corners_match_the_projected_true_corners(scene_name, request):
         assert np.ptp(sides) > 3.0 and np.linalg.norm(expected.mean(axis=0) - K_EQ10[:2, 2]) > 10.0
 
 
+def test_the_lens_distorts_the_rendered_image_as_opencv_projects(tilted_scene, build_scene):
+    # A strong lens (seed 001's, Table 1, moves these corners by a tenth of a pixel).
+    distortion = [-0.4, 0.15, 0.01, -0.02, 0.0]
+    config = tilted_scene.config
+    distorted = build_scene(type(config)(**{**config.__dict__, "camera": CameraConfig(distortion=distortion)}))
+    context = distorted.context()
+    image = image_to_numpy(distorted.handles.color_image.Eval(distorted.handles.noisy_camera.GetMyContextFromRoot(
+        context)))
+    detected = AprilTagDetector(config.platform.tag_id).detect(image)
+    X_CP = tilted_scene.X_WC().inverse().multiply(tilted_scene.X_WP_static()).GetAsMatrix4()
+    s, z = config.platform.tag_size_m / 2, TAG_ABOVE_DECK_M
+    corners_P = np.array([[-s, s, z], [s, s, z], [s, -s, z], [-s, -s, z]])
+    expected, _ = cv2.projectPoints(corners_P, cv2.Rodrigues(X_CP[:3, :3])[0], X_CP[:3, 3], K_EQ10,
+                                    np.array(distortion))
+    expected = expected.reshape(4, 2)
+    moved = np.linalg.norm(expected - true_corners_px(tilted_scene), axis=1)
+    error = np.linalg.norm(detected - expected, axis=1)
+    # as close as the undistorted render's corners are to their projection, and far closer than the
+    # lens moved them where it moved them most
+    assert error.max() < 1.0 and moved.max() > 1.5 and np.all(error[moved > 1.5] < moved[moved > 1.5] / 3)
+
+
 def test_the_stewart_scene_tag_corner_model_agrees(tilted_scene):
     # The platform's own tag frame and corners, used by the logs, project to the same pixels.
     from systems.perception.apriltag import project_points
@@ -154,6 +176,8 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     ({"cx": 600.0}, "camera.cx"),
     ({"far_m": 0.01}, "camera.far_m"),
     ({"pixel_noise_std": -1.0}, "camera.pixel_noise_std"),
+    ({"distortion": [0.1, 0.0]}, "camera.distortion needs 5 numbers"),
+    ({"distortion": [-0.9, 0.0, 0.0, 0.0, 0.0]}, "camera.distortion folds the image"),
 ])
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):

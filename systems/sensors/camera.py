@@ -1,4 +1,5 @@
-"""The downward camera of seed 000: a 512x512 RgbdSensor rigidly on the airframe, plus pixel noise.
+"""The downward camera of seed 000: a 512x512 RgbdSensor rigidly on the airframe, plus lens
+distortion (seed 001's camera has some) and pixel noise.
 
 Pixel convention: intrinsics here are OpenCV's (pixel centres at integer coordinates), which is
 what every vision function in the project uses. Drake's renderer puts pixel centres at
@@ -43,6 +44,8 @@ class CameraConfig:
     # Camera frame C in the body frame B: below the body, optical axis down (+z_C = -z_B),
     # +x_C = +x_B (forward), so +y_C = -y_B.
     mount_xyz_m: list[float] = field(default_factory=lambda: [0.0, 0.0, -0.04])
+    # Lens distortion applied to the rendered (pinhole) image: OpenCV's [k1, k2, p1, p2, k3].
+    distortion: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0, 0.0])
 
     def validate(self, prefix: str = "camera") -> None:
         require(self.width > 0 and self.height > 0, f"{prefix}.width and {prefix}.height must be positive")
@@ -53,6 +56,11 @@ class CameraConfig:
         require(self.far_m > self.near_m, f"{prefix}.far_m must exceed {prefix}.near_m")
         require(self.pixel_noise_std >= 0, f"{prefix}.pixel_noise_std must not be negative")
         require(len(self.mount_xyz_m) == 3, f"{prefix}.mount_xyz_m needs 3 numbers")
+        require(len(self.distortion) == 5, f"{prefix}.distortion needs 5 numbers [k1, k2, p1, p2, k3]")
+        if any(self.distortion):
+            folds = distortion_folds(self)
+            require(not folds, f"{prefix}.distortion folds the image (its radial map turns back at {folds:.0%} "
+                               f"of the half-diagonal)")
 
     @property
     def period_s(self) -> float:
@@ -67,6 +75,34 @@ class CameraConfig:
     def X_BC(self) -> RigidTransform:
         """Pose of the camera frame C in the body frame B."""
         return RigidTransform(RotationMatrix.MakeXRotation(np.pi), self.mount_xyz_m)
+
+    @property
+    def D(self) -> np.ndarray:
+        """The distortion coefficients as OpenCV takes them."""
+        return np.asarray(self.distortion, dtype=float)
+
+
+def distortion_folds(config: CameraConfig) -> float:
+    """0 when the radial distortion r (1 + k1 r^2 + k2 r^4 + k3 r^6) grows monotonically out to the
+    image's corners (normalised coordinates), else the fraction of the half-diagonal where it turns."""
+    k1, k2, _, _, k3 = config.distortion
+    corner = max(np.hypot(u / config.fx, v / config.fy) for u in (config.cx, config.width - config.cx)
+                 for v in (config.cy, config.height - config.cy))
+    r = np.linspace(0.0, corner, 400)
+    slope = 1 + 3 * k1 * r**2 + 5 * k2 * r**4 + 7 * k3 * r**6
+    bad = np.flatnonzero(slope <= 0)
+    return float(r[bad[0]] / corner) if bad.size else 0.0
+
+
+def distortion_maps(config: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
+    """cv2.remap's maps for the distorted image: where each of its pixels (OpenCV's integer centres)
+    lies in the undistorted pinhole render with the same K."""
+    u, v = np.meshgrid(np.arange(config.width, dtype=np.float32), np.arange(config.height, dtype=np.float32))
+    distorted = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
+    undistorted = cv2.undistortPoints(distorted, config.K, config.D, None, None, config.K, criteria)
+    maps = undistorted.reshape(config.height, config.width, 2)
+    return maps[..., 0].astype(np.float32), maps[..., 1].astype(np.float32)
 
 
 def camera_info(width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> CameraInfo:
@@ -122,7 +158,8 @@ def add_pixel_noise(rgba: np.ndarray, std: float, rng: np.random.Generator) -> n
 
 
 class NoisyCamera(LeafSystem):
-    """Adds seeded pixel noise to a rendered colour image.
+    """The lens and the sensor: the rendered pinhole image distorted by `config.distortion`
+    (cv2.remap) and given seeded pixel noise.
 
     Input `rendered_image` and output `color_image` are ImageRgba8U. The output is a pure function
     of the time's frame index, so it is computed (and the scene rendered) only when a consumer
@@ -132,15 +169,20 @@ class NoisyCamera(LeafSystem):
     def __init__(self, config: CameraConfig, seed: int = 0):
         super().__init__()
         self._std, self._period, self._seed = config.pixel_noise_std, config.period_s, seed
+        self._maps = distortion_maps(config) if any(config.distortion) else None
         blank = ImageRgba8U(config.width, config.height)
         self.DeclareAbstractInputPort("rendered_image", AbstractValue.Make(blank))
         self.DeclareAbstractOutputPort("color_image", lambda: AbstractValue.Make(blank), self._calc_image)
 
     def _calc_image(self, context, output):
         rendered = self.get_input_port().Eval(context)
-        if self._std == 0:
+        if self._std == 0 and self._maps is None:
             output.set_value(rendered)
             return
-        k = sample_index(context.get_time(), self._period)
-        noisy = add_pixel_noise(image_to_numpy(rendered), self._std, sample_rng(self._seed, "camera_pixels", k))
-        output.get_mutable_value().mutable_data[:] = noisy
+        image = image_to_numpy(rendered)
+        if self._maps is not None:
+            image = cv2.remap(image, *self._maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if self._std > 0:
+            k = sample_index(context.get_time(), self._period)
+            image = add_pixel_noise(image, self._std, sample_rng(self._seed, "camera_pixels", k))
+        output.get_mutable_value().mutable_data[:] = image

@@ -1,0 +1,53 @@
+"""Seed 001's RQRLP landing pattern (systems/perception/rqrlp/): its geometry and its texture."""
+
+import numpy as np
+import pytest
+
+from systems.config import ConfigError
+from systems.perception.rqrlp.pattern import MARKERS, RqrlpLayout, rqrlp_image
+
+LAYOUT = RqrlpLayout()
+
+
+def pixel(image, layout, p):
+    """The image's value at the point p (x, y) of P [m]."""
+    scale = layout.pixels / layout.size_m
+    return image[int((layout.size_m / 2 - p[1]) * scale), int((p[0] + layout.size_m / 2) * scale)]
+
+
+def test_the_texture_shows_the_layouts_markers_and_outline():
+    image = rqrlp_image(LAYOUT)
+    assert image.shape == (LAYOUT.pixels, LAYOUT.pixels) and image.dtype == np.uint8
+    for marker in MARKERS:
+        outer, middle, inner = LAYOUT.marker_corners_P(marker)
+        centre = LAYOUT.marker_centres_P[marker]
+        assert pixel(image, LAYOUT, centre) == 0  # the inner black square
+        ring = (middle[0, :2] + inner[0, :2]) / 2
+        assert pixel(image, LAYOUT, ring) == 255  # the white square between
+        assert pixel(image, LAYOUT, (outer[0, :2] + middle[0, :2]) / 2) == 0  # the outer black
+    edge = LAYOUT.size_m / 2 - LAYOUT.border_m / 2
+    assert pixel(image, LAYOUT, [0.0, edge]) == 0 and pixel(image, LAYOUT, [edge, 0.1]) == 0
+    # The texture: corner-rich, never as dark as the markers, so only they nest three contours deep.
+    middle = slice(LAYOUT.pixels // 2 - 100, LAYOUT.pixels // 2 + 100)
+    inside = image[middle, middle]
+    assert inside.min() > 50 and len(np.unique(inside)) >= 4
+    assert np.array_equal(image, rqrlp_image(LAYOUT))  # the same pattern every time
+
+
+def test_top_is_off_the_longest_line_between_the_markers():
+    centres = LAYOUT.marker_centres_P
+    right_bottom = np.linalg.norm(centres["right"] - centres["bottom"])
+    assert right_bottom > np.linalg.norm(centres["top"] - centres["right"])
+    assert right_bottom > np.linalg.norm(centres["top"] - centres["bottom"])
+
+
+def test_nested_squares_have_the_qr_proportions():
+    squares = LAYOUT.marker_corners_P("top")
+    sides = [np.linalg.norm(s[0] - s[1]) for s in squares]
+    np.testing.assert_allclose(np.array(sides) / sides[0], [1.0, 5 / 7, 3 / 7])
+
+
+@pytest.mark.parametrize("changes", [{"size_m": 0.4}, {"border_m": 0.0}, {"pixels": 100}])
+def test_a_layout_that_does_not_fit_is_a_config_error(changes):
+    with pytest.raises(ConfigError, match="platform.rqrlp"):
+        RqrlpLayout(**changes).validate()
