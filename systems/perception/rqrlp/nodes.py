@@ -1,0 +1,243 @@
+"""Seed 001's three vision nodes (Sec. 4.1) on one grey image of the RQRLP (pattern.py), as plain
+functions of the image, the intrinsics K and the lens distortion D (OpenCV's).
+
+- Approaching (`approach`): the pattern's black outline, the largest dark quadrilateral; a rough
+  3-D position of its centre from its apparent size and centre (the paper keeps only the position).
+- Adjustment (`adjustment`): the location markers, found by contour-hierarchy statistics (three
+  nested squares of 7, 5 and 3 modules), told apart by the paper's geometry (Top is off the longest
+  line between two markers, Right and Bottom by the side of that line Top is on), their 36 corners
+  -> homography -> pose (homography.py, Eq. 1-2).
+- Touchdown (`TouchdownTracker`): features on the texture tracked between frames by pyramidal
+  Lucas-Kanade flow -> inter-frame homography -> the pose chained from the previous one (Eq. 3),
+  re-anchored whenever the adjustment node has a pose.
+Each returns X_CP (the pattern P in the camera C) or None, with what the node's covariance needs.
+"""
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from pydrake.math import RigidTransform
+
+from systems.perception.rqrlp.homography import (
+    homography_from_pose, plane_pose, pose_from_homography, undistort_pixels,
+)
+from systems.perception.rqrlp.pattern import MARKERS, MODULES, RqrlpLayout
+
+AREA_RATIO_TOLERANCE = 0.35  # nested squares' areas against 49 : 25 : 9, relative
+SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
+
+
+def dark_regions(grey: np.ndarray) -> np.ndarray:
+    """The dark parts of the image (Otsu's threshold) as a binary mask (255 dark)."""
+    _, binary = cv2.threshold(grey, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
+    return binary
+
+
+def _quad(contour: np.ndarray) -> np.ndarray | None:
+    """The contour as a convex quadrilateral (4, 2) px, or None."""
+    approx = cv2.approxPolyDP(contour, 0.06 * cv2.arcLength(contour, True), True)
+    if len(approx) != 4 or not cv2.isContourConvex(approx):
+        return None
+    return approx.reshape(4, 2).astype(np.float64)
+
+
+# ---- Approaching ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ApproachResult:
+    p_CP: np.ndarray  # the pattern's centre in C [m]
+    corners_px: np.ndarray  # (4, 2) its outline in the undistorted image
+    side_px: float  # its apparent size, sqrt of the outline's area [px]
+
+
+def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_side_px: float = 8.0) -> ApproachResult | None:
+    """The outline: the largest dark convex quadrilateral that holds other contours (the pattern's
+    interior), its centre where its diagonals cross, and its depth from its apparent size:
+    z = f size_m / side_px, f = sqrt(fx fy)."""
+    contours, hierarchy = cv2.findContours(dark_regions(grey), cv2.RETR_TREE, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return None
+    best = None
+    for i in np.argsort([-cv2.contourArea(c) for c in contours]):
+        if hierarchy[0, i, 3] != -1 or hierarchy[0, i, 2] == -1:  # an outermost contour with a hole
+            continue
+        quad = _quad(contours[i])
+        if quad is not None:
+            best = quad
+            break
+    if best is None:
+        return None
+    corners = undistort_pixels(best, K, D)
+    side = float(np.sqrt(cv2.contourArea(corners.astype(np.float32))))
+    if side < min_side_px:
+        return None
+    a, b, c, d = np.c_[corners, np.ones(4)]
+    centre = np.cross(np.cross(a, c), np.cross(b, d))  # the diagonals' crossing, homogeneous
+    z = np.sqrt(K[0, 0] * K[1, 1]) * layout.size_m / side
+    return ApproachResult(z * np.linalg.solve(K, centre / centre[2]), corners, side)
+
+
+# ---- Adjustment -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AdjustmentResult:
+    X_CP: RigidTransform
+    corners_px: np.ndarray  # (36, 2) undistorted, in the order of `layout_corners`
+    rms_residual_px: float  # of the corners about the homography's projection
+    module_px: float  # a marker module's apparent size
+
+
+def location_markers(grey: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Candidates: contours nested three deep (dark, light, dark) whose quadrilaterals' areas go as
+    49 : 25 : 9; each as its three squares' corners (4, 2) px, outer first."""
+    contours, hierarchy = cv2.findContours(dark_regions(grey), cv2.RETR_TREE, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return []
+    hierarchy = hierarchy[0]
+    out = []
+    for i in range(len(contours)):
+        j = hierarchy[i, 2]
+        k = hierarchy[j, 2] if j != -1 else -1
+        if k == -1 or hierarchy[j, 0] != -1 or hierarchy[k, 0] != -1:  # one hole, holding one square
+            continue
+        quads = [_quad(contours[n]) for n in (i, j, k)]
+        if any(q is None for q in quads):
+            continue
+        areas = np.array([cv2.contourArea(q.astype(np.float32)) for q in quads])
+        expected = np.array(MODULES, dtype=float) ** 2
+        if areas[2] <= 0 or np.any(np.abs(areas / areas[0] * expected[0] / expected - 1) > AREA_RATIO_TOLERANCE):
+            continue
+        out.append(tuple(quads))
+    return out
+
+
+def classify(candidates) -> dict[str, tuple] | None:
+    """Top, Right and Bottom among exactly three candidates: the two farthest apart are Right and
+    Bottom; seen from Top, Right is the one clockwise of Bottom in the image (y down)."""
+    if len(candidates) != 3:
+        return None
+    centres = [c[0].mean(axis=0) for c in candidates]
+    pairs = [(0, 1), (0, 2), (1, 2)]
+    a, b = max(pairs, key=lambda p: np.linalg.norm(centres[p[0]] - centres[p[1]]))
+    top = 3 - a - b
+    u, v = centres[a] - centres[top], centres[b] - centres[top]
+    right, bottom = (a, b) if u[0] * v[1] - u[1] * v[0] > 0 else (b, a)
+    return {"top": candidates[top], "right": candidates[right], "bottom": candidates[bottom]}
+
+
+def _ordered(quad: np.ndarray, x_axis: np.ndarray, up_axis: np.ndarray) -> np.ndarray:
+    """The quad's corners as the layout orders them: top-left, bottom-left, bottom-right, top-right
+    of the upright pattern, whose right and up are the image directions x_axis and up_axis."""
+    d = quad - quad.mean(axis=0)
+    x, up = d @ x_axis, d @ up_axis
+    order = [np.argmin(x - up), np.argmin(x + up), np.argmax(x - up), np.argmax(x + up)]
+    return quad[order] if len(set(order)) == 4 else None
+
+
+def layout_corners(layout: RqrlpLayout) -> np.ndarray:
+    """(36, 3) the markers' corners in P, in `adjustment`'s order (marker, square, corner)."""
+    return np.concatenate([layout.marker_corners_P(m).reshape(-1, 3) for m in MARKERS])
+
+
+def adjustment(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout,
+               min_module_px: float = 2.0) -> AdjustmentResult | None:
+    """The pose from the location markers (module docstring), corners refined to sub-pixel."""
+    markers = classify(location_markers(grey))
+    if markers is None:
+        return None
+    centres = {m: markers[m][0].mean(axis=0) for m in MARKERS}
+    x_axis = centres["right"] - centres["top"]
+    up_axis = centres["top"] - centres["bottom"]
+    x_axis, up_axis = x_axis / np.linalg.norm(x_axis), up_axis / np.linalg.norm(up_axis)
+    corners = []
+    for m in MARKERS:
+        for quad in markers[m]:
+            ordered = _ordered(quad, x_axis, up_axis)
+            if ordered is None:
+                return None
+            corners.append(ordered)
+    corners = np.concatenate(corners)
+    module = float(np.sqrt(cv2.contourArea(markers["top"][0].astype(np.float32)))) / MODULES[0]
+    if module < min_module_px:
+        return None
+    window = 2 if module >= 4 else 1  # the refinement must not reach the next square's corner (a module away)
+    refined = cv2.cornerSubPix(grey, corners.astype(np.float32).reshape(-1, 1, 2), (window, window), (-1, -1),
+                               SUBPIX_CRITERIA).reshape(-1, 2)
+    pixels = undistort_pixels(refined, K, D)
+    points = layout_corners(layout)
+    found = plane_pose(points, pixels, K)
+    if found is None:
+        return None
+    X_CP, inliers = found
+    H = homography_from_pose(X_CP, K)
+    projected = np.c_[points[:, :2], np.ones(len(points))] @ H.T
+    residual = pixels - projected[:, :2] / projected[:, 2:]
+    return AdjustmentResult(X_CP, pixels, float(np.sqrt(np.mean(np.sum(residual[inliers] ** 2, axis=1)))), module)
+
+
+# ---- Touchdown --------------------------------------------------------------------------------
+
+
+class TouchdownTracker:
+    """Eq. (3): the pattern's homography into the current frame, H_w^{i+1} = H_i^{i+1} H_w^i, from
+    features tracked between frames; anchored (and re-anchored) to a pose, e.g. the adjustment
+    node's. Immutable steps: `track` returns the next tracker."""
+
+    def __init__(self, K: np.ndarray, D, layout: RqrlpLayout, max_features: int = 200, min_features: int = 12):
+        self.K, self.D = np.asarray(K, dtype=float), D
+        self.outline_P = layout.outline_corners_P[:, :2]
+        self.max_features, self.min_features = max_features, min_features
+        self.grey = None  # the previous frame
+        self.points = None  # (N, 2) features in it (distorted pixels)
+        self.H = None  # pattern plane -> previous frame's undistorted pixels
+        self.chained = 0  # frames since the anchor
+
+    def anchored(self, grey: np.ndarray, X_CP: RigidTransform) -> "TouchdownTracker":
+        """A tracker whose chain starts at this frame, where the pattern is at X_CP."""
+        out = self._copy()
+        out.H, out.chained, out.grey = homography_from_pose(X_CP, self.K), 0, grey
+        out.points = self._features(grey, out.H)
+        return out
+
+    def track(self, grey: np.ndarray) -> tuple["TouchdownTracker", RigidTransform | None, int]:
+        """(the tracker after this frame, X_CP or None, features used)."""
+        out = self._copy()
+        out.grey = grey
+        if self.H is None or self.points is None or len(self.points) < self.min_features:
+            out.H, out.points = None, None
+            return out, None, 0
+        moved, status, _ = cv2.calcOpticalFlowPyrLK(self.grey, grey, self.points.astype(np.float32).reshape(-1, 1, 2),
+                                                   None, winSize=(21, 21), maxLevel=3)
+        kept = status.ravel().astype(bool)
+        if kept.sum() < self.min_features:
+            out.H, out.points = None, None
+            return out, None, int(kept.sum())
+        before = undistort_pixels(self.points[kept], self.K, self.D)
+        after = undistort_pixels(moved.reshape(-1, 2)[kept], self.K, self.D)
+        step, inliers = cv2.findHomography(before, after, cv2.RANSAC, 1.5)
+        if step is None or inliers.sum() < self.min_features:
+            out.H, out.points = None, None
+            return out, None, 0 if inliers is None else int(inliers.sum())
+        out.H = step @ self.H
+        out.H /= out.H[2, 2]
+        out.chained = self.chained + 1
+        survivors = moved.reshape(-1, 2)[kept][inliers.ravel().astype(bool)]
+        out.points = survivors if len(survivors) >= self.max_features // 2 else self._features(grey, out.H)
+        return out, pose_from_homography(out.H, self.K), int(inliers.sum())
+
+    def _features(self, grey: np.ndarray, H: np.ndarray) -> np.ndarray | None:
+        """Good features to track (Shi-Tomasi) inside the pattern's outline as H maps it (the lens'
+        distortion neglected for this mask), in distorted pixels."""
+        outline = cv2.perspectiveTransform(self.outline_P.reshape(-1, 1, 2), H).reshape(-1, 2)
+        mask = np.zeros(grey.shape, np.uint8)
+        cv2.fillConvexPoly(mask, np.round(outline).astype(np.int32), 255)
+        points = cv2.goodFeaturesToTrack(grey, self.max_features, 0.01, 7, mask=mask)
+        return None if points is None else points.reshape(-1, 2)
+
+    def _copy(self) -> "TouchdownTracker":
+        out = TouchdownTracker.__new__(TouchdownTracker)
+        out.__dict__.update(self.__dict__)
+        return out

@@ -1,0 +1,104 @@
+"""Seed 001's vision nodes on views of the RQRLP made by its homography (the renderer's pinhole
+image, then the lens' distortion as the camera applies it): the adjustment node against the truth
+and against OpenCV's own PnP on the same corners, the approaching node's rough position, the
+touchdown node's chain over a descent, and nothing found where there is nothing to find."""
+
+import cv2
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+
+from systems.perception.rqrlp.homography import homography_from_pose, pose_from_homography
+from systems.perception.rqrlp.nodes import TouchdownTracker, adjustment, approach, layout_corners
+from systems.perception.rqrlp.pattern import RqrlpLayout, rqrlp_image
+from systems.sensors.camera import CameraConfig, distortion_maps
+
+LAYOUT = RqrlpLayout()
+TEXTURE = rqrlp_image(LAYOUT)
+# Seed 001 Table 1's camera at half its 1920 x 1080 resolution (the same field of view), its lens.
+CAMERA = CameraConfig(width=960, height=540, fx=640.0, fy=640.0, cx=474.45, cy=271.6,
+                      distortion=[-0.00908, -0.03128, 0.00109, -0.00198, 0.0])
+K, D = CAMERA.K, CAMERA.D
+MAPS = distortion_maps(CAMERA)
+LOOKING_DOWN = RotationMatrix.MakeXRotation(np.pi)
+
+
+def view(X_CP: RigidTransform, supersample: int = 3, ground: int = 200) -> np.ndarray:
+    """The grey image of the pattern at X_CP: the plane's homography at `supersample` times the
+    resolution averaged down, then distorted by the lens."""
+    scale, half = TEXTURE.shape[0] / LAYOUT.size_m, LAYOUT.size_m / 2
+    texel_to_P = np.array([[1 / scale, 0, 0.5 / scale - half], [0, -1 / scale, half - 0.5 / scale], [0, 0, 1]])
+    K_big = K.copy()
+    K_big[:2] *= supersample
+    K_big[:2, 2] = (K[:2, 2] + 0.5) * supersample - 0.5
+    R, t = X_CP.rotation().matrix(), X_CP.translation()
+    H = K_big @ np.column_stack([R[:, 0], R[:, 1], t]) @ texel_to_P
+    big = cv2.warpPerspective(TEXTURE, H, (CAMERA.width * supersample, CAMERA.height * supersample),
+                              flags=cv2.INTER_LINEAR, borderValue=ground)
+    pinhole = cv2.resize(big, (CAMERA.width, CAMERA.height), interpolation=cv2.INTER_AREA)
+    return cv2.remap(pinhole, *MAPS, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def X_CP_at(height_m: float, xy=(0.05, -0.03), yaw_deg: float = 30.0, tilt_deg=(0.0, 0.0)) -> RigidTransform:
+    """The pattern `height_m` under the camera, offset, yawed, and tilted (roll, pitch of the camera)."""
+    R = RotationMatrix(RollPitchYaw(np.radians([*tilt_deg, 0.0]))).multiply(LOOKING_DOWN).multiply(
+        RotationMatrix.MakeZRotation(np.radians(yaw_deg)))
+    return RigidTransform(R, [*xy, height_m])
+
+
+def errors(estimate: RigidTransform, truth: RigidTransform) -> tuple[float, float]:
+    """(position error [m], rotation error [deg])."""
+    return (float(np.linalg.norm(estimate.translation() - truth.translation())),
+            float(np.degrees(truth.rotation().InvertAndCompose(estimate.rotation()).ToAngleAxis().angle())))
+
+
+def test_eq_2_recovers_a_pose_from_its_homography():
+    X_CP = X_CP_at(3.0, tilt_deg=(8.0, -5.0))
+    H = homography_from_pose(X_CP, K)
+    position, angle = errors(pose_from_homography(H * -2.5, K), X_CP)  # any scale, either sign
+    assert position < 1e-12 and angle < 1e-9
+
+
+@pytest.mark.parametrize("height_m, yaw_deg, tilt_deg", [(1.0, 0.0, (0, 0)), (2.5, 30.0, (6, -4)),
+                                                        (4.0, 200.0, (-10, 8)), (3.0, -75.0, (3, 3))])
+def test_adjustment_finds_the_pose_and_agrees_with_opencvs_pnp(height_m, yaw_deg, tilt_deg):
+    X_CP = X_CP_at(height_m, yaw_deg=yaw_deg, tilt_deg=tilt_deg)
+    found = adjustment(view(X_CP), K, D, LAYOUT)
+    assert found is not None
+    position, angle = errors(found.X_CP, X_CP)
+    assert position < 0.004 * height_m and angle < 1.0, (position, angle)
+    assert found.rms_residual_px < 0.5
+    ok, rvec, tvec = cv2.solvePnP(layout_corners(LAYOUT), found.corners_px, K, None, flags=cv2.SOLVEPNP_SQPNP)
+    opencv = RigidTransform(RotationMatrix(cv2.Rodrigues(rvec)[0]), tvec.ravel())
+    position, angle = errors(found.X_CP, opencv)
+    assert ok and position < 0.003 * height_m and angle < 1.0  # Eq. 2 minimises no reprojection error
+
+
+def test_adjustment_needs_the_markers_resolved():
+    assert adjustment(view(X_CP_at(14.0)), K, D, LAYOUT) is None  # modules under 2 px
+    assert adjustment(np.full((540, 960), 200, np.uint8), K, D, LAYOUT) is None
+    assert adjustment(view(X_CP_at(1.0, xy=(0.6, 0.0))), K, D, LAYOUT) is None  # a marker out of view
+
+
+@pytest.mark.parametrize("height_m", [4.0, 10.0, 20.0])
+def test_approach_gives_a_rough_position_from_far(height_m):
+    X_CP = X_CP_at(height_m, xy=(0.8, -0.5), tilt_deg=(5, -3))
+    found = approach(view(X_CP), K, D, LAYOUT)
+    assert found is not None
+    assert np.linalg.norm(found.p_CP - X_CP.translation()) < 0.03 * height_m  # a few per cent of the range
+
+
+def test_touchdown_chains_the_pose_through_a_descent_without_markers_in_view():
+    # From 1.2 m to 0.2 m over the texture, off the markers after the anchor, turning and drifting.
+    poses = [X_CP_at(1.2 - 0.05 * k, xy=(0.02 + 0.004 * k, -0.01 - 0.003 * k), yaw_deg=30.0 + 1.5 * k)
+             for k in range(21)]
+    images = [view(X) for X in poses]
+    tracker = TouchdownTracker(K, D, LAYOUT).anchored(images[0], poses[0])
+    worst = (0.0, 0.0)
+    for image, X_CP in zip(images[1:], poses[1:]):
+        tracker, estimate, features = tracker.track(image)
+        assert estimate is not None and features >= 12
+        worst = np.maximum(worst, errors(estimate, X_CP))
+    assert worst[0] < 0.01 and worst[1] < 1.0, worst
+    assert tracker.chained == 20
+    assert TouchdownTracker(K, D, LAYOUT).track(images[1])[1] is None  # no anchor, no pose
