@@ -20,7 +20,10 @@ import numpy as np
 from pydrake.math import RigidTransform
 
 from systems.perception.rqrlp.homography import (
-    homography_from_pose, plane_pose, pose_from_homography, undistort_pixels,
+    homography_from_pose,
+    plane_pose,
+    pose_from_homography,
+    undistort_pixels,
 )
 from systems.perception.rqrlp.pattern import MARKERS, MODULES, RqrlpLayout
 

@@ -76,16 +76,16 @@ def rqrlp_image(layout: RqrlpLayout) -> np.ndarray:
     # so the markers' nested contours stay their own.
     image = np.full((n, n), 235, np.uint8)
     for cells in (4, 2, 1):
-        side = max(1, int(round(layout.texture_cell_m * cells * scale)))
+        side = max(1, round(layout.texture_cell_m * cells * scale))
         count = int((n / side) ** 2 * 0.35)
         for (row, col), level in zip(rng.integers(0, n - side, (count, 2)), rng.choice([70, 120, 170, 215], count)):
             image[row:row + side, col:col + side] = level
     # The black border, and the white quiet zone inside it around each marker.
-    border = int(round(layout.border_m * scale))
+    border = round(layout.border_m * scale)
     image[:border], image[-border:], image[:, :border], image[:, -border:] = 0, 0, 0, 0
 
     def to_pixels(p):  # P (x, y) -> image (col, row)
-        return int(round((p[0] + layout.size_m / 2) * scale)), int(round((layout.size_m / 2 - p[1]) * scale))
+        return round((p[0] + layout.size_m / 2) * scale), round((layout.size_m / 2 - p[1]) * scale)
 
     for marker in MARKERS:
         centre = layout.marker_centres_P[marker]

@@ -1,0 +1,177 @@
+"""Seed 001's federated EKF (Sec. 4.2) as a pure function of time, the IMU and the nodes'
+measurements: one local filter per vision node (local_filter.py), fused and reset (fusion.py).
+
+    state = FederatedState()                                  # not started
+    state = step(state, t, imu, {"approach": m1, "adjustment": None, "touchdown": m3}, config, X_BC)
+
+Every step predicts each local filter over the time since the last with the IMU sample (f_B, w_B);
+a step with measurements (a camera frame: a dict, even of Nones) updates each node's own filter
+with its node's measurement, then fuses the filters (Eq. 7-9) and resets them (Eq. 6). The filter
+starts at the first measurement of any node. Frames: B the UAV body, P the pattern (level, z up),
+C the camera at X_BC in B. Units: m, s, rad.
+"""
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+
+from systems.config import require_positive
+from systems.estimators.federated.fusion import fuse, reset
+from systems.estimators.federated.local_filter import (
+    LocalFilterConfig,
+    LocalState,
+    initial_state,
+    predict,
+    update_centre_in_camera,
+    update_pose,
+)
+from systems.perception.rqrlp.measurements import NodeMeasurement
+from systems.quaternion import skew
+
+NODES = ("approach", "adjustment", "touchdown")  # seed 001 Fig. 3, from far to near
+
+
+@dataclass
+class FederatedConfig(LocalFilterConfig):
+    """The local filters' noise and gate (LocalFilterConfig) and when the fused estimate is valid
+    (ours): measured by some node within `max_coast_s`, and the pattern's position relative to the
+    body known to `max_relative_std_m` (sqrt of the trace)."""
+
+    max_coast_s: float = 0.5
+    max_relative_std_m: float = 1.0
+    gravity_m_s2: float = 9.81  # the IMU's (systems/sensors/imu.py ImuConfig.gravity_m_s2)
+
+    def validate(self, prefix: str = "federated") -> None:
+        LocalFilterConfig.validate(self, prefix)
+        for name in ("max_coast_s", "max_relative_std_m", "gravity_m_s2"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+
+
+@dataclass(frozen=True)
+class NodeStats:
+    """One node's record: measurements accepted by its filter, rejected by its gate, and the time of
+    the last accepted one (None: never)."""
+
+    accepted: int = 0
+    gated: int = 0
+    last_accepted_s: float | None = None
+
+
+@dataclass(frozen=True)
+class FederatedState:
+    """time: of the last step [s] (None: not stepped). fused: the global estimate (None until a
+    node measured). filters: the local filters after the last reset; local_estimates: each one's
+    estimate after its own update, before the fusion (Fig. 10d's LF curves); betas: Eq. (9)'s."""
+
+    time: float | None = None
+    fused: LocalState | None = None
+    filters: tuple[LocalState, ...] = ()
+    local_estimates: tuple[LocalState, ...] = ()
+    betas: np.ndarray = field(default_factory=lambda: np.full(len(NODES), 1.0 / len(NODES)))
+    stats: tuple[NodeStats, ...] = tuple(NodeStats() for _ in NODES)
+    last_imu: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+    @property
+    def started(self) -> bool:
+        return self.fused is not None
+
+
+def _first_state(measurement: NodeMeasurement, X_BC: RigidTransform, f_B: np.ndarray,
+                 config: FederatedConfig) -> LocalState:
+    """A filter started by a node's first measurement: a full pose as measured, the approaching
+    node's centre with the tilt from the accelerometer and the heading unknown (initial_state)."""
+    if measurement.X_PB is not None:
+        P = np.diag(np.r_[np.diag(measurement.covariance)[3:6], np.full(3, config.initial_velocity_std_mps**2),
+                          np.diag(measurement.covariance)[0:3]])
+        return LocalState(measurement.X_PB.translation(), np.zeros(3), measurement.X_PB.rotation().matrix(), P)
+    return initial_state(X_BC.multiply(measurement.p_CP), f_B, config)
+
+
+def _update(state: LocalState, measurement: NodeMeasurement, X_BC: RigidTransform,
+            config: FederatedConfig) -> LocalState:
+    if measurement.X_PB is not None:
+        return update_pose(state, measurement.X_PB.translation(), measurement.X_PB.rotation().matrix(),
+                           measurement.covariance, config)
+    return update_centre_in_camera(state, measurement.p_CP, measurement.covariance, X_BC.rotation().matrix(),
+                                   X_BC.translation(), config)
+
+
+def step(state: FederatedState, time: float, imu: np.ndarray, measurements: dict | None,
+         config: FederatedConfig, X_BC: RigidTransform) -> FederatedState:
+    """The state at `time` [s]: predicted with the IMU sample imu = [f_B (m/s^2), w_B (rad/s)] over
+    the time since the last step, then (measurements: a dict node -> NodeMeasurement or None, a
+    camera frame) updated, fused and reset."""
+    imu = np.asarray(imu, dtype=float)
+    f_B, w_B = imu[:3], imu[3:]
+    filters = state.filters
+    if state.started and time > state.time:
+        filters = tuple(predict(s, f_B, w_B, time - state.time, config, config.gravity_m_s2) for s in filters)
+    if measurements is None:
+        fused = _fused_between_frames(filters) if state.started else None
+        return replace(state, time=time, filters=filters, fused=fused, last_imu=imu)
+    state = replace(state, time=time, last_imu=imu)
+    present = [(i, measurements.get(node)) for i, node in enumerate(NODES)]
+    present = [(i, m) for i, m in present if m is not None]
+    if not state.started:
+        if not present:
+            return state
+        first = _first_state(present[0][1], X_BC, f_B, config)
+        filters = tuple(replace(first, P=first.P * len(NODES), q_scale=float(len(NODES))) for _ in NODES)
+    stats = list(state.stats)
+    updated = list(filters)
+    for i, measurement in present:
+        after = _update(filters[i], measurement, X_BC, config)
+        accepted = after.accepted > filters[i].accepted
+        stats[i] = NodeStats(stats[i].accepted + accepted, stats[i].gated + (not accepted),
+                             time if accepted else stats[i].last_accepted_s)
+        updated[i] = after
+    fused, betas = fuse(updated)
+    return replace(state, fused=fused, filters=tuple(reset(updated, fused, betas)), local_estimates=tuple(updated),
+                   betas=betas, stats=tuple(stats))
+
+
+def _fused_between_frames(filters: tuple[LocalState, ...]) -> LocalState:
+    """Between frames every filter holds the same nominal state (the last reset's, predicted alike):
+    the fused estimate is any one's, with the information of all (Eq. 7)."""
+    information = sum(np.linalg.inv(s.P) for s in filters)
+    P = np.linalg.inv(information)
+    return replace(filters[0], P=(P + P.T) / 2, q_scale=1.0)
+
+
+def last_accepted_s(state: FederatedState) -> float | None:
+    """The latest time any node's measurement was accepted (None: never)."""
+    times = [s.last_accepted_s for s in state.stats if s.last_accepted_s is not None]
+    return max(times) if times else None
+
+
+def relative_jacobian(fused: LocalState) -> np.ndarray:
+    """(3x9) d(p_BP_B)/d(error state): p_BP_B = -R_PB^T p_PB, the pattern's centre seen from the
+    body, what the landing steers on (independent of the heading when only the centre was seen)."""
+    R_BP = fused.R.T
+    J = np.zeros((3, 9))
+    J[:, 0:3] = -R_BP
+    J[:, 6:9] = -R_BP @ skew(fused.p)
+    return J
+
+
+def relative_std_m(fused: LocalState) -> float:
+    """sqrt(trace) of p_BP_B's covariance [m]."""
+    J = relative_jacobian(fused)
+    return float(np.sqrt(max(np.trace(J @ fused.P @ J.T), 0.0)))
+
+
+def is_valid(state: FederatedState, config: FederatedConfig) -> bool:
+    """Started, a node measured within max_coast_s, the relative position within max_relative_std_m
+    and every number finite."""
+    last = last_accepted_s(state)
+    if not state.started or last is None or state.time - last > config.max_coast_s:
+        return False
+    fused = state.fused
+    finite = all(np.all(np.isfinite(x)) for x in (fused.p, fused.v, fused.R, fused.P))
+    return finite and relative_std_m(fused) <= config.max_relative_std_m
+
+
+def X_PB(estimate: LocalState) -> RigidTransform:
+    """The estimate as the pose of B in P."""
+    return RigidTransform(RotationMatrix.ProjectToRotationMatrix(estimate.R), estimate.p)

@@ -1,0 +1,142 @@
+"""A local filter of seed 001's federated EKF (Sec. 4.2): the UAV's pose relative to the pattern,
+predicted by the IMU and updated by one vision node.
+
+The state is Eq. (4)'s pose of the body B in the pattern frame P, p_PB and R_PB, plus the velocity
+v_PB (in P) that integrating the IMU's accelerations needs (Eq. 4 lists the pose alone). Error
+state (9): [dp, dv, dtheta], dtheta a rotation vector in P (R = Exp(dtheta) R_nominal). Prediction
+(strapdown, P level and still): R <- R Exp(w_B dt), a = R f_B + g_P, p <- p + v dt + a dt^2 / 2,
+v <- v + a dt. Measurements: a full pose of B in P (the adjustment and touchdown nodes' Z, Eq. 5),
+or the pattern's centre in the camera (the approaching node's rough position). Each is gated by its
+innovation's chi-square quantile. Units: m, s, rad.
+"""
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from systems.config import require, require_positive
+from systems.quaternion import skew
+
+
+@dataclass
+class LocalFilterConfig:
+    """Process noise of the IMU prediction (ours: the IMU's densities plus what the model leaves out)
+    and the initial uncertainty."""
+
+    accel_noise_psd: float = 0.05  # (m/s^2)^2/Hz: the accelerometer's noise, its bias and the pattern's motion
+    gyro_noise_psd: float = 1e-5  # (rad/s)^2/Hz: the gyroscope's noise and bias
+    initial_velocity_std_mps: float = 1.0
+    initial_tilt_std_deg: float = 3.0  # roll and pitch from the first accelerometer sample
+    initial_yaw_std_deg: float = 180.0  # the heading relative to the pattern: unknown until a full pose
+    gate_probability: float = 0.9999
+
+    def validate(self, prefix: str = "federated") -> None:
+        for name in ("accel_noise_psd", "gyro_noise_psd", "initial_velocity_std_mps", "initial_tilt_std_deg",
+                     "initial_yaw_std_deg"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        require(0 < self.gate_probability < 1, f"{prefix}.gate_probability must be in (0, 1)")
+
+
+@dataclass(frozen=True)
+class LocalState:
+    """The nominal state and the error covariance (9x9) of one local filter; `q_scale` is 1/beta,
+    the share of the process noise it carries (fusion.py). Immutable."""
+
+    p: np.ndarray  # p_PB [m]
+    v: np.ndarray  # v_PB in P [m/s]
+    R: np.ndarray  # R_PB
+    P: np.ndarray  # covariance of [dp, dv, dtheta]
+    q_scale: float = 1.0
+    accepted: int = 0
+    gated: int = 0
+    stats: dict = field(default_factory=dict)
+
+
+def exp_so3(theta: np.ndarray) -> np.ndarray:
+    return Rotation.from_rotvec(theta).as_matrix()
+
+
+def log_so3(R: np.ndarray) -> np.ndarray:
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+def initial_state(p_BP_B: np.ndarray, f_B: np.ndarray, config: LocalFilterConfig,
+                  position_std_m: float = 0.1) -> LocalState:
+    """The state from a first position of the pattern seen from the body (p_BP_B, m, in B; its
+    error `position_std_m`) and the accelerometer's specific force f_B (its direction is up): roll
+    and pitch level the body with it, the heading 0 with `initial_yaw_std_deg`. The position
+    p = -R p_BP_B turns with the attitude, dp = -[p]x dtheta: the covariance says so, so that the
+    relative position (what the landing needs) is as certain as measured whatever the heading."""
+    up_B = np.asarray(f_B, dtype=float) / np.linalg.norm(f_B)
+    R = Rotation.align_vectors([[0.0, 0.0, 1.0]], [up_B])[0].as_matrix()  # R_PB: up_B -> z_P
+    p = -R @ np.asarray(p_BP_B, dtype=float)
+    tilt, yaw = np.radians(config.initial_tilt_std_deg), np.radians(config.initial_yaw_std_deg)
+    P_theta = np.diag([tilt**2, tilt**2, yaw**2])
+    S = skew(p)
+    P = np.zeros((9, 9))
+    P[0:3, 0:3] = position_std_m**2 * np.eye(3) + S @ P_theta @ S.T
+    P[0:3, 6:9] = -S @ P_theta
+    P[6:9, 0:3] = P[0:3, 6:9].T
+    P[3:6, 3:6] = config.initial_velocity_std_mps**2 * np.eye(3)
+    P[6:9, 6:9] = P_theta
+    return LocalState(p, np.zeros(3), R, P)
+
+
+def predict(state: LocalState, f_B: np.ndarray, w_B: np.ndarray, dt: float, config: LocalFilterConfig,
+            gravity_m_s2: float) -> LocalState:
+    """One IMU step of dt seconds with specific force f_B [m/s^2] and angular velocity w_B [rad/s]."""
+    R = state.R
+    a = R @ f_B - [0.0, 0.0, gravity_m_s2]
+    F = np.eye(9)
+    F[0:3, 3:6] = dt * np.eye(3)
+    F[3:6, 6:9] = -dt * skew(R @ f_B)  # d(a)/d(dtheta): Exp(dtheta) R f = R f + dtheta x R f
+    q_a, q_w = config.accel_noise_psd * state.q_scale, config.gyro_noise_psd * state.q_scale
+    Q = np.zeros((9, 9))
+    Q[0:3, 0:3] = q_a * dt**3 / 3 * np.eye(3)
+    Q[0:3, 3:6] = Q[3:6, 0:3] = q_a * dt**2 / 2 * np.eye(3)
+    Q[3:6, 3:6] = q_a * dt * np.eye(3)
+    Q[6:9, 6:9] = q_w * dt * np.eye(3)
+    P = F @ state.P @ F.T + Q
+    return replace(state, p=state.p + state.v * dt + a * dt**2 / 2, v=state.v + a * dt, R=R @ exp_so3(w_B * dt),
+                   P=(P + P.T) / 2)
+
+
+def _update(state: LocalState, innovation: np.ndarray, H: np.ndarray, noise: np.ndarray,
+            config: LocalFilterConfig) -> LocalState:
+    S = H @ state.P @ H.T + noise
+    nis = float(innovation @ np.linalg.solve(S, innovation))
+    if not np.isfinite(nis) or nis > chi2.ppf(config.gate_probability, len(innovation)):
+        return replace(state, gated=state.gated + 1)
+    K = np.linalg.solve(S, H @ state.P).T
+    dx = K @ innovation
+    I_KH = np.eye(9) - K @ H
+    P = I_KH @ state.P @ I_KH.T + K @ noise @ K.T  # Joseph form
+    return replace(state, p=state.p + dx[0:3], v=state.v + dx[3:6], R=exp_so3(dx[6:9]) @ state.R, P=(P + P.T) / 2,
+                   accepted=state.accepted + 1)
+
+
+def update_pose(state: LocalState, p_PB: np.ndarray, R_PB: np.ndarray, covariance: np.ndarray,
+                config: LocalFilterConfig) -> LocalState:
+    """A full pose of B in P; covariance (6x6) over [dtheta (in P), dp]."""
+    innovation = np.r_[np.asarray(p_PB) - state.p, log_so3(R_PB @ state.R.T)]
+    H = np.zeros((6, 9))
+    H[0:3, 0:3] = np.eye(3)
+    H[3:6, 6:9] = np.eye(3)
+    noise = np.zeros((6, 6))
+    noise[0:3, 0:3], noise[3:6, 3:6] = covariance[3:6, 3:6], covariance[0:3, 0:3]
+    noise[0:3, 3:6], noise[3:6, 0:3] = covariance[3:6, 0:3], covariance[0:3, 3:6]
+    return _update(state, innovation, H, noise, config)
+
+
+def update_centre_in_camera(state: LocalState, p_CP: np.ndarray, covariance: np.ndarray, R_BC: np.ndarray,
+                            p_BC: np.ndarray, config: LocalFilterConfig) -> LocalState:
+    """The pattern's centre seen from the camera (p_CP in C, m; covariance 3x3), the camera at (R_BC,
+    p_BC) in B: h = R_BC^T (R_PB^T (-p_PB) - p_BC)."""
+    R_BP = state.R.T
+    predicted = R_BC.T @ (R_BP @ (-state.p) - p_BC)
+    H = np.zeros((3, 9))
+    H[:, 0:3] = -R_BC.T @ R_BP
+    H[:, 6:9] = -R_BC.T @ R_BP @ skew(state.p)  # R_PB^T = R^T Exp(-dtheta): d/d(dtheta) of -R^T (p - dtheta x p)
+    return _update(state, np.asarray(p_CP) - predicted, H, np.asarray(covariance), config)

@@ -1,0 +1,70 @@
+"""What seed 001's vision nodes tell the federated filter (`NodeMeasurement`), with covariances from
+the image: a pose's from the reprojection Jacobian of the points it was solved from (first order,
+the pixel noise from the fit's residuals), the rough position's from its apparent size."""
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+from scipy.spatial.transform import Rotation
+
+MIN_PIXEL_STD = 0.3  # px: no fit is trusted beyond the renderer's quantisation
+APPROACH_REL_STD = 0.03  # the rough position's relative depth error from an unmodelled tilt (cos 15 deg)
+
+
+@dataclass(frozen=True)
+class NodeMeasurement:
+    """One node's measurement at `time` [s]: with `X_PB` a full pose of the body B in the pattern
+    frame P, covariance (6x6) over [dtheta (rotation vector in P), dp] (rad, m); else `p_CP`, the
+    pattern's centre in the camera (m), covariance (3x3). `quality`: the node's own figure (features,
+    pixels) for logs."""
+
+    time: float
+    node: str
+    covariance: np.ndarray
+    X_PB: RigidTransform | None = None
+    p_CP: np.ndarray | None = None
+    quality: float = 0.0
+
+
+def _project(points_P: np.ndarray, X_PB: RigidTransform, X_BC: RigidTransform, K: np.ndarray) -> np.ndarray:
+    X_CP = X_PB.multiply(X_BC).inverse()
+    p_C = X_CP.multiply(points_P.T).T
+    return (p_C[:, :2] / p_C[:, 2:]) * [K[0, 0], K[1, 1]] + K[:2, 2]
+
+
+def pose_covariance(points_P: np.ndarray, X_PB: RigidTransform, X_BC: RigidTransform, K: np.ndarray,
+                    pixel_std: float) -> np.ndarray:
+    """(6x6) covariance over [dtheta, dp] of B's pose in P solved from the points (N, 3, in P) seen
+    by a pinhole camera K at X_BC with pixel noise `pixel_std`: pixel_std^2 (J^T J)^-1, J the
+    reprojections' Jacobian (central differences)."""
+    J = np.empty((2 * len(points_P), 6))
+    step = 1e-6
+    for i in range(6):
+        delta = np.zeros(6)
+        delta[i] = step
+        perturbed = []
+        for sign in (1.0, -1.0):
+            R = RotationMatrix(Rotation.from_rotvec(sign * delta[:3]).as_matrix()).multiply(X_PB.rotation())
+            perturbed.append(_project(points_P, RigidTransform(R, X_PB.translation() + sign * delta[3:]), X_BC, K))
+        J[:, i] = ((perturbed[0] - perturbed[1]) / (2 * step)).ravel()
+    covariance = max(pixel_std, MIN_PIXEL_STD) ** 2 * np.linalg.inv(J.T @ J)
+    return (covariance + covariance.T) / 2
+
+
+def fit_pixel_std(residuals_px: np.ndarray, parameters: int = 8) -> float:
+    """The pixel noise from a fit's residuals (N, 2): sqrt(sum r^2 / (2 N - parameters))."""
+    residuals_px = np.asarray(residuals_px, dtype=float)
+    return float(np.sqrt(np.sum(residuals_px**2) / max(residuals_px.size - parameters, 1)))
+
+
+def approach_covariance(p_CP: np.ndarray, side_px: float, focal_px: float, pixel_std: float = 1.0) -> np.ndarray:
+    """(3x3) of the rough position p_CP = z [u, v, 1] (u, v the centre's normalised coordinates):
+    the depth z from the apparent size, relative error pixel_std / side_px and APPROACH_REL_STD;
+    u and v with pixel_std / focal_px; first order."""
+    z = float(p_CP[2])
+    u, v = p_CP[0] / z, p_CP[1] / z
+    var_z = z**2 * ((pixel_std / side_px) ** 2 + APPROACH_REL_STD**2)
+    var_uv = (pixel_std / focal_px) ** 2
+    J = np.array([[z, 0.0, u], [0.0, z, v], [0.0, 0.0, 1.0]])  # d(p_CP)/d(u, v, z)
+    return J @ np.diag([var_uv, var_uv, var_z]) @ J.T

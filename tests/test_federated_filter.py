@@ -1,0 +1,149 @@
+"""Seed 001's federated EKF (systems/estimators/federated): the local filters against analytic
+motion, the fusion against a centralised Kalman filter (Carlson's equivalence), and the engine on a
+synthetic flight against its truth."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform, RollPitchYaw
+
+from systems.estimators.federated.engine import (
+    NODES,
+    X_PB,
+    FederatedConfig,
+    FederatedState,
+    is_valid,
+    relative_std_m,
+    step,
+)
+from systems.estimators.federated.fusion import fuse, reset
+from systems.estimators.federated.local_filter import (
+    LocalFilterConfig,
+    LocalState,
+    initial_state,
+    log_so3,
+    predict,
+    update_pose,
+)
+from systems.perception.rqrlp.measurements import NodeMeasurement, approach_covariance
+
+G = 9.81
+X_BC = RigidTransform(RollPitchYaw(np.pi, 0.0, 0.0), [0.0, 0.0, -0.04])
+
+
+def _state(p, P_scale=0.01):
+    return LocalState(np.asarray(p, dtype=float), np.zeros(3), np.eye(3), np.eye(9) * P_scale)
+
+
+def test_prediction_integrates_a_constant_acceleration_exactly():
+    config = LocalFilterConfig()
+    a = np.array([0.3, -0.2, 0.5])
+    state = replace(_state([1.0, 2.0, 3.0]), v=np.array([0.5, 0.0, -1.0]))
+    for _ in range(100):  # 1 s at 100 Hz, level, not turning: f_B = a - g
+        state = predict(state, a + [0.0, 0.0, G], np.zeros(3), 0.01, config, G)
+    np.testing.assert_allclose(state.p, [1.0, 2.0, 3.0] + np.array([0.5, 0.0, -1.0]) + a / 2, atol=1e-12)
+    np.testing.assert_allclose(state.v, [0.5, 0.0, -1.0] + a, atol=1e-12)
+    assert np.all(np.diag(state.P)[0:6] > 0.01)  # the covariance grew
+
+
+def test_prediction_turns_with_the_gyroscope():
+    state = predict(_state([0, 0, 0]), np.array([0.0, 0.0, G]), np.array([0.0, 0.0, 0.5]), 2.0, LocalFilterConfig(), G)
+    np.testing.assert_allclose(log_so3(state.R), [0.0, 0.0, 1.0], atol=1e-12)
+
+
+def test_fusion_of_equal_filters_is_their_mean_and_the_betas_are_equal():
+    a, b = _state([1.0, 0.0, 2.0]), _state([1.2, 0.4, 2.0])
+    fused, betas = fuse([a, b])
+    np.testing.assert_allclose(fused.p, [1.1, 0.2, 2.0], atol=1e-12)
+    np.testing.assert_allclose(fused.P, a.P / 2, atol=1e-12)
+    np.testing.assert_allclose(betas, [0.5, 0.5])
+
+
+def test_fusion_with_reset_equals_the_centralised_filter():
+    """Carlson's federated filter with the information-sharing reset gives the centralised filter's
+    estimate: two nodes' pose measurements on their own filters, fused, against one filter that
+    takes both."""
+    config = LocalFilterConfig(gate_probability=1 - 1e-12)
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((9, 9))
+    start = LocalState(np.array([0.5, -0.3, 4.0]), np.array([0.1, 0.0, -0.5]), np.eye(3), A @ A.T * 0.01 + np.eye(9) * 0.01)
+    shared = reset([start, start], start, np.array([0.3, 0.7]))
+    z = [(np.array([0.6, -0.25, 3.9]), RollPitchYaw(0.01, -0.02, 0.03).ToRotationMatrix().matrix(), np.eye(6) * 0.02),
+         (np.array([0.55, -0.35, 4.05]), RollPitchYaw(-0.01, 0.01, 0.02).ToRotationMatrix().matrix(), np.eye(6) * 0.05)]
+    locals_ = [update_pose(s, *m, config) for s, m in zip(shared, z)]
+    fused, _ = fuse(locals_)
+    central = update_pose(update_pose(start, *z[0], config), *z[1], config)
+    np.testing.assert_allclose(fused.p, central.p, atol=2e-3)  # to first order (the attitude's linearisation)
+    np.testing.assert_allclose(np.trace(fused.P), np.trace(central.P), rtol=1e-2)
+    assert np.trace(fused.P) < min(np.trace(s.P) for s in locals_)
+
+
+def test_the_gate_rejects_a_ten_sigma_pose():
+    state = _state([0.0, 0.0, 5.0])
+    far = update_pose(state, np.array([0.0, 0.0, 6.0]), np.eye(3), np.eye(6) * 1e-4, LocalFilterConfig())
+    assert far.gated == 1 and far.accepted == 0
+    np.testing.assert_array_equal(far.p, state.p)
+
+
+def test_a_start_from_the_centre_alone_knows_the_relative_position_whatever_the_heading():
+    state = initial_state(np.array([0.4, -0.3, -15.0]), np.array([0.0, 0.0, G]), LocalFilterConfig(), 0.1)
+    assert relative_std_m(state) == pytest.approx(0.1 * np.sqrt(3), rel=1e-9)
+    assert np.sqrt(state.P[0, 0]) > 0.4  # yet p_PB's horizontal position is uncertain with the heading
+
+
+def _truth(t):
+    """A descent with a sideways sway and a turn: p_PB(t) [m], v, a, R_PB(t) (yaw 0.2 t + 0.5)."""
+    p = np.array([0.5 * np.sin(0.5 * t), 0.3 * t - 1.0, 8.0 - 0.5 * t])
+    v = np.array([0.25 * np.cos(0.5 * t), 0.3, -0.5])
+    a = np.array([-0.125 * np.sin(0.5 * t), 0.0, 0.0])
+    return p, v, a, RollPitchYaw(0.0, 0.0, 0.2 * t + 0.5).ToRotationMatrix()
+
+
+def _fly(duration_s, nodes_until_s, rng, yaw_offset=0.0):
+    """The engine at 200 Hz with an ideal IMU, and at 50 Hz an approach centre (always) and an
+    adjustment pose (from 1 s), with the noise their covariances say, until `nodes_until_s`."""
+    config = FederatedConfig()
+    state, errors, valid = FederatedState(), [], []
+    for k in range(int(duration_s * 200) + 1):
+        t = k / 200
+        p, _, a, R = _truth(t)
+        imu = np.r_[R.inverse().multiply(a + [0.0, 0.0, G]), [0.0, 0.0, 0.2]]
+        frame = None
+        if k % 4 == 0:
+            frame = {}
+            if t <= nodes_until_s:
+                X_PB_true = RigidTransform(R, p)
+                X_CP = X_BC.inverse().multiply(X_PB_true.inverse())
+                covariance = approach_covariance(X_CP.translation(), 60.0, 640.0)
+                p_CP = rng.multivariate_normal(X_CP.translation(), covariance)
+                frame["approach"] = NodeMeasurement(t, "approach", covariance, p_CP=p_CP)
+                if t >= 1.0:
+                    noisy = RigidTransform(RollPitchYaw(*rng.normal(0, 0.01, 3)).ToRotationMatrix().multiply(R),
+                                           p + rng.normal(0, 0.02, 3))
+                    frame["adjustment"] = NodeMeasurement(t, "adjustment", np.diag([1e-4] * 3 + [4e-4] * 3), X_PB=noisy)
+        state = step(state, t, imu, frame, config, X_BC)
+        if state.started:
+            errors.append(np.r_[X_PB(state.fused).translation() - p,
+                                log_so3(X_PB(state.fused).rotation().matrix() @ R.matrix().T)])
+            valid.append(is_valid(state, config))
+    return state, np.array(errors), np.array(valid), config
+
+
+def test_the_engine_tracks_a_synthetic_flight_and_weighs_the_better_node():
+    state, errors, valid, _ = _fly(6.0, 6.0, np.random.default_rng(1))
+    late = errors[-200:]
+    assert np.sqrt(np.mean(late[:, :3] ** 2)) < 0.02  # m, from 0.02 m poses and centres 0.2 m deep
+    assert np.abs(late[:, 3:]).max() < 0.02  # rad: the heading found from the full poses
+    assert valid.all()
+    assert state.betas[NODES.index("adjustment")] > state.betas[NODES.index("approach")]
+    assert state.stats[NODES.index("adjustment")].accepted > 200 and state.stats[NODES.index("touchdown")].accepted == 0
+
+
+def test_with_every_node_lost_the_engine_dead_reckons_and_turns_invalid():
+    state, errors, valid, config = _fly(5.0, 3.0, np.random.default_rng(2))
+    frames_after = np.arange(len(valid)) / 200 - 3.0  # the engine started at t = 0
+    assert valid[frames_after < 0].all()
+    assert not valid[frames_after > config.max_coast_s + 0.01].any()
+    assert relative_std_m(state.fused) > 0.05  # grown from about 0.01 m
+    assert np.isfinite(errors).all()
