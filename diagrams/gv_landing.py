@@ -25,7 +25,11 @@ from pydrake.geometry import Box, Meshcat, MeshcatVisualizer, MeshcatVisualizerP
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import Diagram, DiagramBuilder, OutputPort
 from pydrake.systems.primitives import (
-    ConstantVectorSource, Demultiplexer, LogVectorOutput, TrajectorySource, VectorLogSink,
+    ConstantVectorSource,
+    Demultiplexer,
+    LogVectorOutput,
+    TrajectorySource,
+    VectorLogSink,
 )
 from pydrake.systems.sensors import RgbdSensor
 
@@ -63,9 +67,10 @@ LOG_NAMES = ("quadrotor_state", "vehicle_state", "relative_state", "true_relativ
 
 @dataclass
 class Measurements:
-    """The marker stream of `estimation.source` (what is None is not there): `acquired` and `delayed`
-    (after the latency) MarkerMeasurement lists; with the camera, the `camera` (RgbdSensor), its noisy
-    `color_image` port, the `detector` and the `video` recorder."""
+    """The camera and the marker stream of `estimation.source` (what is None is not there): `acquired`
+    and `delayed` (after the latency) MarkerMeasurement lists; with the camera (config.camera()), the
+    `camera` (RgbdSensor), its noisy `color_image` port, the `video` recorder, and with
+    estimation.source detector the `detector`."""
 
     acquired: OutputPort | None = None
     delayed: OutputPort | None = None
@@ -145,6 +150,15 @@ def _add_measurements(builder: DiagramBuilder, config: GvLandingConfig, scene_gr
                       X_WB: OutputPort, vehicle_state: OutputPort, video_path) -> Measurements:
     est = config.estimation
     out = Measurements()
+    camera_config = config.camera()
+    if camera_config is not None:
+        add_renderer(scene_graph)
+        out.camera, noisy_camera = add_camera(builder, scene_graph, body_frame_id, camera_config, config.seed)
+        out.color_image = noisy_camera.get_output_port()
+        if video_path is not None:
+            out.video = builder.AddNamedSystem("video", VideoRecorder(video_path, camera_config.period_s,
+                                                                      camera_config.width, camera_config.height))
+            builder.Connect(out.color_image, out.video.get_input_port())
     if est.source == "none":
         return out
     if est.source == "synthetic":
@@ -156,18 +170,10 @@ def _add_measurements(builder: DiagramBuilder, config: GvLandingConfig, scene_gr
         builder.Connect(pad.get_output_port(), source.GetInputPort("X_WP"))
         out.acquired = source.get_output_port()
     else:
-        camera_config = est.camera
-        add_renderer(scene_graph)
-        out.camera, noisy_camera = add_camera(builder, scene_graph, body_frame_id, camera_config, config.seed)
-        out.color_image = noisy_camera.get_output_port()
         out.detector = builder.AddNamedSystem("marker_detector", MarkerDetectorSystem(
             camera_config.K, config.platform.markers, camera_config.width, camera_config.height))
         builder.Connect(out.color_image, out.detector.get_input_port())
         out.acquired = out.detector.get_output_port()
-        if video_path is not None:
-            out.video = builder.AddNamedSystem("video", VideoRecorder(video_path, camera_config.period_s,
-                                                                      camera_config.width, camera_config.height))
-            builder.Connect(out.color_image, out.video.get_input_port())
     latency = builder.AddNamedSystem("measurement_latency", MeasurementLatency(est.ekf.period_s, est.latency_periods))
     builder.Connect(out.acquired, latency.get_input_port())
     out.delayed = latency.get_output_port()
@@ -178,8 +184,9 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
                    video_path=None) -> GvLandingHandles:
     """Adds the gv systems to `builder`; returns their handles."""
     config.validate()
-    if video_path is not None and config.estimation.source != "detector":
-        raise ConfigError("a video records the camera, which only estimation.source detector has")
+    if video_path is not None and config.camera() is None:
+        raise ConfigError("a video records the camera, and this scene has none (estimation.source detector or "
+                          "perception.source federated render one)")
     discrete = config.integration.discrete
     period, integration = (config.period_s, config.integration.simulator_config()) if discrete else (None, None)
     quad = builder.AddNamedSystem("quadrotor", Quadrotor(config.quadrotor, period, integration))
@@ -223,8 +230,8 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         builder.Connect(X_WB, filters[name].GetInputPort("X_WB"))
 
     perception = perception_source(config.perception.source).add(
-        builder, PerceptionInputs(config, X_WB, truth.get_output_port(), measurements.delayed,
-                                  measurements.color_image, filters))
+        builder, PerceptionInputs(config, X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"),
+                                  truth.get_output_port(), measurements.delayed, measurements.color_image, filters))
     seam = builder.AddNamedSystem("seam", SeamSplit())
     builder.Connect(perception.relative_state, seam.get_input_port())
     pid = builder.AddNamedSystem("tracking_pid", TrackingPid(config.pid))

@@ -3,7 +3,8 @@ one dataclass per YAML section, every paper number a default with its source.
 
 Sections beyond the systems' own configs: `perception` (what steers: `source`, a name in
 diagrams/perception_sources.py, and when its estimate is valid), `estimation` (the marker
-measurement stream and the filters that run on it), `start`, `integration`.
+measurement stream and the filters that run on it), `federated` (seed 001's camera, IMU and
+federated filter, for perception.source federated), `start`, `integration`.
 """
 
 from dataclasses import dataclass, field
@@ -12,6 +13,7 @@ import numpy as np
 from pydrake.math import RigidTransform
 from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 
+from diagrams.federated_perception import FederatedPerceptionConfig
 from diagrams.perception_sources import perception_source
 from systems.config import require, require_positive
 from systems.control.flight_controller import BACKENDS, FlightControllerConfig
@@ -163,10 +165,11 @@ class GvLandingConfig:
     termination: TerminationConfig = field(default_factory=TerminationConfig)
     integration: IntegrationConfig = field(default_factory=IntegrationConfig)
     uav: AirframeConfig = field(default_factory=_table1_airframe)  # visual only
+    federated: FederatedPerceptionConfig = field(default_factory=FederatedPerceptionConfig)
 
     def validate(self) -> None:
         for name in ("vehicle", "platform", "quadrotor", "controller", "pid", "landing", "perception", "estimation",
-                     "start", "termination", "integration", "uav"):
+                     "start", "termination", "integration", "uav", "federated"):
             getattr(self, name).validate(name)
         require(self.controller_implementation in BACKENDS,
                 f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
@@ -176,9 +179,27 @@ class GvLandingConfig:
         require(not source.needs_markers or stream != "none",
                 f"perception.source '{self.perception.source}' needs marker measurements, and estimation.source "
                 f"is none: set estimation.source to synthetic or detector")
-        require(not source.needs_camera or stream == "detector",
-                f"perception.source '{self.perception.source}' needs the camera, and estimation.source is {stream}: "
-                f"set estimation.source to detector")
+        if source.camera is None:
+            require(not source.needs_camera or stream == "detector",
+                    f"perception.source '{self.perception.source}' needs the camera, and estimation.source is "
+                    f"{stream}: set estimation.source to detector")
+        else:
+            require(stream != "detector", f"perception.source '{self.perception.source}' brings its own camera: "
+                                          f"estimation.source detector would add a second one")
+        if self.perception.source == "federated":
+            require(self.platform.pattern == "rqrlp",
+                    "perception.source federated looks for seed 001's pattern: set platform.pattern to rqrlp")
+        require(stream == "none" or self.platform.pattern == "markers",
+                f"estimation.source {stream} measures the ArUco markers, and platform.pattern is "
+                f"{self.platform.pattern}")
+
+    def camera(self):
+        """The scene's camera (CameraConfig), or None: estimation.source detector's, or the one the
+        perception source brings."""
+        own = perception_source(self.perception.source).camera
+        if own is not None:
+            return own(self)
+        return self.estimation.camera if self.estimation.source == "detector" else None
 
     @property
     def period_s(self) -> float:

@@ -2,9 +2,11 @@
 that perception source to a builder.
 
 A source's function gets the builder and `PerceptionInputs` (what the scene offers it: the UAV's
-own pose, the truth, the marker measurement stream and the marker filters already in the diagram)
-and returns `SeamPorts`: the seam (systems/perception/seam.py) and, where it has one, the pose
-estimate that metrics score. Nothing in the controller or the supervisor changes with the source.
+own pose and kinematics, the truth, the marker measurement stream, the marker filters already in
+the diagram and the camera's stream) and returns `SeamPorts`: the seam
+(systems/perception/seam.py), where it has one the pose estimate that metrics score, and its own
+logs. Nothing in the controller or the supervisor changes with the source. A source that brings
+its own camera (`PerceptionSource.camera`) gets the scene to render it.
 
     register_source("mine", PerceptionSource(add_mine, needs_markers=True))   # your own estimator
 
@@ -17,6 +19,7 @@ from dataclasses import dataclass, field
 
 from pydrake.systems.framework import DiagramBuilder, OutputPort
 
+from diagrams.federated_perception import add_federated_perception
 from systems.config import ConfigError
 from systems.estimators.marker_ekf import FILTERS, MarkerFilterSystem
 from systems.perception.seam import EstimateToSeam
@@ -28,6 +31,8 @@ class PerceptionInputs:
 
     config: object  # the scenario (diagrams.gv_landing_config.GvLandingConfig)
     X_WB: OutputPort  # the UAV's own pose (RigidTransform): its navigation, the truth for now
+    V_WB: OutputPort  # its spatial velocity (6: [w; v] in W) and acceleration (A_WB), likewise
+    A_WB: OutputPort
     true_relative_state: OutputPort  # the truth's seam
     marker_measurements: OutputPort | None  # list of MarkerMeasurement, after the latency; None: no stream
     color_image: OutputPort | None  # the downward camera's images (ImageRgba8U, with noise); None: no camera
@@ -42,6 +47,8 @@ class SeamPorts:
     relative_state: OutputPort
     X_WP_estimate: OutputPort | None = None
     filter_name: str | None = None  # the marker filter behind it, if any
+    logs: dict = field(default_factory=dict)  # the source's own loggers (name -> VectorLogSink), for its metrics
+    systems: object = None  # what the source added, for callers that need more (e.g. FederatedPorts)
 
 
 @dataclass(frozen=True)
@@ -50,7 +57,8 @@ class PerceptionSource:
 
     add: Callable[[DiagramBuilder, PerceptionInputs], SeamPorts]
     needs_markers: bool = False  # a marker measurement stream (estimation.source synthetic or detector)
-    needs_camera: bool = False  # the rendered camera (estimation.source detector)
+    needs_camera: bool = False  # the rendered camera: estimation.source detector's, or its own
+    camera: Callable | None = None  # config -> its own CameraConfig, which the scene adds (None: none of its own)
 
 
 def add_estimate_to_seam(builder: DiagramBuilder, inputs: PerceptionInputs, X_WP_estimate: OutputPort,
@@ -80,9 +88,21 @@ def _marker_filter(name: str) -> Callable[[DiagramBuilder, PerceptionInputs], Se
     return add
 
 
+def _federated(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
+    """Seed 001: the RQRLP's three vision nodes and the federated EKF (diagrams/federated_perception.py)."""
+    config = inputs.config
+    federated = add_federated_perception(builder, config.federated, config.platform.rqrlp, config.seed,
+                                         inputs.color_image, inputs.X_WB, inputs.V_WB, inputs.A_WB)
+    ports = add_estimate_to_seam(builder, inputs, federated.filter.GetOutputPort("X_WP_estimate"),
+                                 federated.filter.GetOutputPort("v_WP_estimate"))
+    ports.logs, ports.systems = federated.logs, federated
+    return ports
+
+
 SOURCES: dict[str, PerceptionSource] = {
     "truth": PerceptionSource(_truth),
     **{name: PerceptionSource(_marker_filter(name), needs_markers=True) for name in FILTERS},
+    "federated": PerceptionSource(_federated, needs_camera=True, camera=lambda config: config.federated.camera),
 }
 
 

@@ -219,7 +219,7 @@ def test_meshcat_shows_the_scene_path_and_trail():
     assert handles.meshcat_visualizer is not None
     fly_diagram(diagram, handles, 1.0, record=True)
     for path in ("gv_landing/path", "gv_landing/uav_trail", "/drake/visualizer/uav_body",
-                 "/drake/visualizer/gv_body/gv_pad_markers", "/drake/visualizer/gv_wheel_fl"):
+                 "/drake/visualizer/gv_body/gv_pad_pattern", "/drake/visualizer/gv_wheel_fl"):
         assert meshcat.HasPath(path), path
     assert len(meshcat.StaticHtml()) > 100_000  # the recording, with the pad's texture
 

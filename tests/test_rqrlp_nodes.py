@@ -3,6 +3,8 @@ image, then the lens' distortion as the camera applies it): the adjustment node 
 and against OpenCV's own PnP on the same corners, the approaching node's rough position, the
 touchdown node's chain over a descent, and nothing found where there is nothing to find."""
 
+import zlib
+
 import cv2
 import numpy as np
 import pytest
@@ -23,9 +25,10 @@ MAPS = distortion_maps(CAMERA)
 LOOKING_DOWN = RotationMatrix.MakeXRotation(np.pi)
 
 
-def view(X_CP: RigidTransform, supersample: int = 3, ground: int = 200) -> np.ndarray:
+def view(X_CP: RigidTransform, supersample: int = 3, ground: int = 200, noise: float = 2.0) -> np.ndarray:
     """The grey image of the pattern at X_CP: the plane's homography at `supersample` times the
-    resolution averaged down, then distorted by the lens."""
+    resolution averaged down, distorted by the lens, with the camera's pixel noise (`noise` levels,
+    seeded by the pose)."""
     scale, half = TEXTURE.shape[0] / LAYOUT.size_m, LAYOUT.size_m / 2
     texel_to_P = np.array([[1 / scale, 0, 0.5 / scale - half], [0, -1 / scale, half - 0.5 / scale], [0, 0, 1]])
     K_big = K.copy()
@@ -36,7 +39,9 @@ def view(X_CP: RigidTransform, supersample: int = 3, ground: int = 200) -> np.nd
     big = cv2.warpPerspective(TEXTURE, H, (CAMERA.width * supersample, CAMERA.height * supersample),
                               flags=cv2.INTER_LINEAR, borderValue=ground)
     pinhole = cv2.resize(big, (CAMERA.width, CAMERA.height), interpolation=cv2.INTER_AREA)
-    return cv2.remap(pinhole, *MAPS, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    distorted = cv2.remap(pinhole, *MAPS, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    rng = np.random.default_rng(zlib.crc32(X_CP.GetAsMatrix34().tobytes()))
+    return np.clip(distorted + rng.normal(0.0, noise, distorted.shape), 0, 255).astype(np.uint8)
 
 
 def X_CP_at(height_m: float, xy=(0.05, -0.03), yaw_deg: float = 30.0, tilt_deg=(0.0, 0.0)) -> RigidTransform:
@@ -86,6 +91,10 @@ def test_approach_gives_a_rough_position_from_far(height_m):
     found = approach(view(X_CP), K, D, LAYOUT)
     assert found is not None
     assert np.linalg.norm(found.p_CP - X_CP.translation()) < 0.03 * height_m  # a few per cent of the range
+
+
+def test_approach_ignores_an_outline_the_image_cuts():
+    assert approach(view(X_CP_at(0.9)), K, D, LAYOUT) is None  # 0.85 m at 0.9 m: taller than the image
 
 
 def test_touchdown_chains_the_pose_through_a_descent_without_markers_in_view():

@@ -1,5 +1,7 @@
 """The ground vehicle as a scene: the landing pad on its roof (`PlatformConfig`) and its visible
-body, wheels and marker-textured pad registered with SceneGraph (`GroundVehicleGeometry`).
+body, wheels and textured pad registered with SceneGraph (`GroundVehicleGeometry`). The pad shows
+seed 002's ArUco markers or seed 001's RQRLP (`pattern`); with `carrier` ground it lies alone on the
+ground (the vehicle, at rest, is not drawn).
 
 Frames: the vehicle frame V is on the ground under the rear axle, x forward, z up; the pad frame P
 has its origin at the centre of the pad's top surface, axes parallel to V's.
@@ -18,7 +20,11 @@ from models.apriltag import textured_quad_mesh
 from systems.config import require, require_positive
 from systems.geometry import register_visual
 from systems.perception.markers import MarkerLayout, pad_texture
+from systems.perception.rqrlp.pattern import RqrlpLayout, rqrlp_image, rqrlp_texture_name
 from systems.vehicles.ground_vehicle import ground_pose
+
+PATTERNS = ("markers", "rqrlp")
+CARRIERS = ("vehicle", "ground")
 
 
 @dataclass
@@ -33,6 +39,9 @@ class PlatformConfig:
     # Five ArUco markers (seed 002 Fig. 1c; seed 003's UGV carries an ArUco marker too), textured on
     # the pad; systems/perception/markers.py gives the default layout and why.
     markers: MarkerLayout = field(default_factory=MarkerLayout)
+    pattern: str = "markers"  # what the pad shows: "markers" (the ArUco layout) or "rqrlp" (seed 001's pattern)
+    rqrlp: RqrlpLayout = field(default_factory=RqrlpLayout)  # with pattern rqrlp; its size_m is pad_size_m
+    carrier: str = "vehicle"  # "vehicle": on the roof; "ground": the pad alone, its top height_m above the ground
     # The visible body (not in the papers: a car the size of seed 002's 3.5 m wheelbase).
     body_length_m: float = 4.6
     body_width_m: float = 1.8
@@ -45,6 +54,19 @@ class PlatformConfig:
         for name in ("height_m", "pad_size_m", "pad_thickness_m", "body_length_m", "body_width_m",
                      "ground_clearance_m", "wheel_radius_m", "wheel_width_m"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
+        require(self.pattern in PATTERNS, f"{prefix}.pattern '{self.pattern}' is not one of: {', '.join(PATTERNS)}")
+        require(self.carrier in CARRIERS, f"{prefix}.carrier '{self.carrier}' is not one of: {', '.join(CARRIERS)}")
+        if self.pattern == "rqrlp":
+            self.rqrlp.validate(f"{prefix}.rqrlp")
+            require(abs(self.rqrlp.size_m - self.pad_size_m) < 1e-9,
+                    f"{prefix}.pad_size_m ({self.pad_size_m:g}) must be the pattern's size, {prefix}.rqrlp.size_m "
+                    f"({self.rqrlp.size_m:g})")
+        else:
+            self.markers.validate(f"{prefix}.markers", self.pad_size_m)
+        if self.carrier == "ground":
+            require(self.height_m >= self.pad_thickness_m,
+                    f"{prefix}.height_m ({self.height_m}) must be at least {prefix}.pad_thickness_m on the ground")
+            return
         require(self.rear_overhang_m >= 0, f"{prefix}.rear_overhang_m must not be negative")
         require(self.height_m - self.pad_thickness_m > self.ground_clearance_m,
                 f"{prefix}.height_m ({self.height_m}) must be above {prefix}.ground_clearance_m + pad_thickness_m")
@@ -54,7 +76,6 @@ class PlatformConfig:
         require(rear <= self.pad_offset_m - self.pad_size_m / 2 and self.pad_offset_m + self.pad_size_m / 2 <= front,
                 f"{prefix}.pad_offset_m ({self.pad_offset_m}) puts the pad off the roof "
                 f"(the body spans {rear:g} to {front:g} m along the vehicle)")
-        self.markers.validate(f"{prefix}.markers", self.pad_size_m)
 
     @property
     def p_VP(self) -> np.ndarray:
@@ -67,15 +88,18 @@ class PlatformConfig:
 
 
 def pad_texture_mesh(platform: PlatformConfig):
-    """The unit textured quad (models/generated) carrying the pad's markers (`pad_texture`),
-    generated on first use and named by its content."""
+    """The unit textured quad (models/generated) carrying the pad's pattern (the markers'
+    `pad_texture` or the RQRLP), generated on first use and named by its content."""
+    if platform.pattern == "rqrlp":
+        return textured_quad_mesh(rqrlp_texture_name(platform.rqrlp), rqrlp_image(platform.rqrlp))
     image = pad_texture(platform.markers, platform.pad_size_m)
     return textured_quad_mesh(f"gv_pad_{hashlib.sha1(image.tobytes()).hexdigest()[:12]}", image)
 
 
 class GroundVehicleGeometry(LeafSystem):
-    """Registers the vehicle (body, four wheels, the pad with its marker texture) with SceneGraph and
-    poses it from the input `vehicle_state` (4): the body frame is V, the front wheels steer."""
+    """Registers the vehicle (body, four wheels, the pad with its pattern; the pad alone with carrier
+    ground) with SceneGraph and poses it from the input `vehicle_state` (4): the body frame is V,
+    the front wheels steer."""
 
     def __init__(self, wheelbase_m: float, platform: PlatformConfig, scene_graph: SceneGraph):
         super().__init__()
@@ -83,14 +107,23 @@ class GroundVehicleGeometry(LeafSystem):
         sid, p = self.source_id, platform
         self.body_frame_id = scene_graph.RegisterFrame(sid, GeometryFrame("gv_body"))
         body = self.body_frame_id
+        register_visual(scene_graph, sid, body, RigidTransform([p.pad_offset_m, 0.0, p.height_m - p.pad_thickness_m / 2]),
+                        Box(p.pad_size_m, p.pad_size_m, p.pad_thickness_m), "gv_pad", (0.95, 0.95, 0.95, 1.0))
+        register_visual(scene_graph, sid, body, RigidTransform([p.pad_offset_m, 0.0, p.height_m + 0.001]),
+                        Mesh(str(pad_texture_mesh(p)), p.pad_size_m), "gv_pad_pattern", rgba=None)
+        self._front = []  # the steered wheels' frames and their positions in V
+        if p.carrier == "vehicle":
+            self._register_vehicle(scene_graph, wheelbase_m, p)
+        self._state = self.DeclareVectorInputPort("vehicle_state", 4)
+        self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc)
+
+    def _register_vehicle(self, scene_graph: SceneGraph, wheelbase_m: float, p: PlatformConfig) -> None:
+        """The body and the wheels."""
+        sid, body = self.source_id, self.body_frame_id
         top = p.height_m - p.pad_thickness_m
         register_visual(scene_graph, sid, body, RigidTransform(
             [p.body_length_m / 2 - p.rear_overhang_m, 0.0, (p.ground_clearance_m + top) / 2]),
             Box(p.body_length_m, p.body_width_m, top - p.ground_clearance_m), "gv_body", (0.75, 0.3, 0.15, 1.0))
-        register_visual(scene_graph, sid, body, RigidTransform([p.pad_offset_m, 0.0, p.height_m - p.pad_thickness_m / 2]),
-                        Box(p.pad_size_m, p.pad_size_m, p.pad_thickness_m), "gv_pad", (0.95, 0.95, 0.95, 1.0))
-        register_visual(scene_graph, sid, body, RigidTransform([p.pad_offset_m, 0.0, p.height_m + 0.001]),
-                        Mesh(str(pad_texture_mesh(p)), p.pad_size_m), "gv_pad_markers", rgba=None)
         wheel = Cylinder(p.wheel_radius_m, p.wheel_width_m)
         R_wheel = RotationMatrix.MakeXRotation(np.pi / 2)  # cylinder axis (z) along the axle (y)
         y = p.body_width_m / 2  # wheels half outside the body (no coplanar faces)
@@ -98,13 +131,10 @@ class GroundVehicleGeometry(LeafSystem):
         for name, side in (("rl", 1), ("rr", -1)):
             register_visual(scene_graph, sid, body, RigidTransform(R_wheel, [0.0, side * y, p.wheel_radius_m]), wheel,
                             f"gv_wheel_{name}", dark)
-        self._front = []
         for name, side in (("fl", 1), ("fr", -1)):
             frame = scene_graph.RegisterFrame(sid, GeometryFrame(f"gv_wheel_{name}"))
             register_visual(scene_graph, sid, frame, RigidTransform(R_wheel), wheel, f"gv_wheel_{name}", dark)
             self._front.append((frame, np.array([wheelbase_m, side * y, p.wheel_radius_m])))
-        self._state = self.DeclareVectorInputPort("vehicle_state", 4)
-        self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc)
 
     def _calc(self, context, output):
         state = self._state.Eval(context)

@@ -7,7 +7,8 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from systems.estimators.estimate import PoseEstimate
-from systems.estimators.marker_ekf.engine import ESTIMATE_VECTOR_SIZE, TIME_TOLERANCE_S, FilterStats, MarkerFilter
+from systems.estimators.marker_ekf.engine import ESTIMATE_VECTOR_SIZE, FilterStats, MarkerFilter
+from systems.stepped import SteppedValue
 
 
 class MarkerFilterSystem(LeafSystem):
@@ -29,14 +30,10 @@ class MarkerFilterSystem(LeafSystem):
         self._period = marker_filter.config.period_s
         self._measurements = self.DeclareAbstractInputPort("marker_measurements", AbstractValue.Make([]))
         self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
-        self._filter = self.DeclareAbstractState(AbstractValue.Make(marker_filter))
-        self._now = self.DeclareCacheEntry("filter_now", ValueProducer(
-            allocate=lambda: AbstractValue.Make(marker_filter), calc=self._calc_now),
-            {self.time_ticket(), self.abstract_state_ticket(self._filter), self.all_input_ports_ticket()})
+        self._now = SteppedValue(self, "filter", marker_filter, self._period, self._step, lambda f: f.time).now
         self._estimate = self.DeclareCacheEntry("estimate", ValueProducer(
             allocate=lambda: AbstractValue.Make(marker_filter.estimate()),
             calc=lambda c, v: v.set_value(self._now.Eval(c).estimate(c.get_time()))), {self._now.ticket()})
-        self.DeclarePeriodicUnrestrictedUpdateEvent(self._period, 0.0, self._update)
         estimate = {self._estimate.ticket()}
         n = len(marker_filter.layout.ids)
         self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()),
@@ -49,17 +46,7 @@ class MarkerFilterSystem(LeafSystem):
         self.DeclareAbstractOutputPort("filter_stats", lambda: AbstractValue.Make(FilterStats()),
                                        lambda c, o: o.set_value(self._now.Eval(c).stats), {self._now.ticket()})
 
-    def _calc_now(self, context, value):
-        """The filter at the context's time: the state's, stepped with this time's inputs when the
-        time is a step not yet taken."""
-        marker_filter = context.get_abstract_state(self._filter).get_value()
-        t = context.get_time()
-        k = round(t / self._period)
-        if abs(t - k * self._period) <= TIME_TOLERANCE_S and (marker_filter.time is None
-                                                                or t > marker_filter.time + TIME_TOLERANCE_S):
-            marker_filter = copy.copy(marker_filter)
-            marker_filter.step(t, self._X_WB.Eval(context), self._measurements.Eval(context))
-        value.set_value(marker_filter)
-
-    def _update(self, context, state):
-        state.get_mutable_abstract_state(self._filter).set_value(self._now.Eval(context))
+    def _step(self, context, marker_filter: MarkerFilter) -> MarkerFilter:
+        stepped = copy.copy(marker_filter)
+        stepped.step(context.get_time(), self._X_WB.Eval(context), self._measurements.Eval(context))
+        return stepped

@@ -68,3 +68,56 @@ def approach_covariance(p_CP: np.ndarray, side_px: float, focal_px: float, pixel
     var_uv = (pixel_std / focal_px) ** 2
     J = np.array([[z, 0.0, u], [0.0, z, v], [0.0, 0.0, 1.0]])  # d(p_CP)/d(u, v, z)
     return J @ np.diag([var_uv, var_uv, var_z]) @ J.T
+
+
+TRACK_STEP_PX = 0.1  # px: the touchdown chain's drift per frame, a random walk (ours)
+
+
+def pose_of_body(X_CP: RigidTransform, X_BC: RigidTransform) -> RigidTransform:
+    """X_PB from the pattern seen in the camera (X_CP) and the camera's mount X_BC."""
+    return X_BC.multiply(X_CP).inverse()
+
+
+def approach_measurement(p_CP: np.ndarray, side_px: float, time: float, focal_px: float) -> NodeMeasurement:
+    """The approaching node's rough position (nodes.approach) as the filter takes it."""
+    return NodeMeasurement(time, "approach", approach_covariance(p_CP, side_px, focal_px), p_CP=np.asarray(p_CP),
+                           quality=side_px)
+
+
+def adjustment_measurement(X_CP: RigidTransform, points_P: np.ndarray, rms_residual_px: float, time: float,
+                           X_BC: RigidTransform, K: np.ndarray) -> NodeMeasurement:
+    """The adjustment node's pose (nodes.adjustment) with the covariance of its corners (points_P)
+    at its fit's residual."""
+    X_PB = pose_of_body(X_CP, X_BC)
+    return NodeMeasurement(time, "adjustment", pose_covariance(points_P, X_PB, X_BC, K, rms_residual_px), X_PB=X_PB,
+                           quality=rms_residual_px)
+
+
+def touchdown_measurement(X_CP: RigidTransform, outline_P: np.ndarray, anchor_px: float, chained: int, time: float,
+                          X_BC: RigidTransform, K: np.ndarray) -> NodeMeasurement:
+    """The touchdown node's chained pose (nodes.TouchdownTracker): the covariance of the pattern's
+    outline corners (outline_P) at the anchor's pixel noise plus the chain's random walk,
+    anchor_px^2 + chained TRACK_STEP_PX^2."""
+    X_PB = pose_of_body(X_CP, X_BC)
+    pixel_std = float(np.sqrt(anchor_px**2 + chained * TRACK_STEP_PX**2))
+    return NodeMeasurement(time, "touchdown", pose_covariance(outline_P, X_PB, X_BC, K, pixel_std), X_PB=X_PB,
+                           quality=chained)
+
+
+NODE_VECTOR_SIZE = 9  # node_vector's
+
+
+def node_vector(measurement: NodeMeasurement | None) -> np.ndarray:
+    """For logs: [present, x, y, z, qw, qx, qy, qz, quality]: a pose node's X_PB (m, in P), the
+    approaching node's p_CP (m, in C) with a NaN quaternion; NaN but `present` 0 when None."""
+    out = np.full(NODE_VECTOR_SIZE, np.nan)
+    out[0] = float(measurement is not None)
+    if measurement is None:
+        return out
+    out[8] = measurement.quality
+    if measurement.X_PB is None:
+        out[1:4] = measurement.p_CP
+        return out
+    out[1:4] = measurement.X_PB.translation()
+    out[4:8] = measurement.X_PB.rotation().ToQuaternion().wxyz()
+    return out

@@ -28,6 +28,7 @@ from systems.perception.rqrlp.homography import (
 from systems.perception.rqrlp.pattern import MARKERS, MODULES, RqrlpLayout
 
 AREA_RATIO_TOLERANCE = 0.35  # nested squares' areas against 49 : 25 : 9, relative
+EDGE_MARGIN_PX = 2  # an outline this close to the image's edge may be cut by it
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
 
 
@@ -38,8 +39,10 @@ def dark_regions(grey: np.ndarray) -> np.ndarray:
 
 
 def _quad(contour: np.ndarray) -> np.ndarray | None:
-    """The contour as a convex quadrilateral (4, 2) px, or None."""
-    approx = cv2.approxPolyDP(contour, 0.06 * cv2.arcLength(contour, True), True)
+    """The contour's convex hull as a quadrilateral (4, 2) px, or None (a thin outline a pixel or two
+    wide traces as a ragged contour: its hull is the square's)."""
+    hull = cv2.convexHull(contour)
+    approx = cv2.approxPolyDP(hull, 0.06 * cv2.arcLength(hull, True), True)
     if len(approx) != 4 or not cv2.isContourConvex(approx):
         return None
     return approx.reshape(4, 2).astype(np.float64)
@@ -56,24 +59,22 @@ class ApproachResult:
 
 
 def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_side_px: float = 8.0) -> ApproachResult | None:
-    """The outline: the largest dark convex quadrilateral that holds other contours (the pattern's
-    interior), its centre where its diagonals cross, and its depth from its apparent size:
-    z = f size_m / side_px, f = sqrt(fx fy)."""
-    contours, hierarchy = cv2.findContours(dark_regions(grey), cv2.RETR_TREE, cv2.CHAIN_APPROX_SIMPLE)
-    if hierarchy is None:
+    """The outline: the largest dark region (its black border, closed over a pixel's gaps, with the
+    dark texture and markers it holds), its convex hull a quadrilateral lying wholly in the image;
+    its centre where its diagonals cross, and its depth from its apparent size:
+    z = f size_m / side_px, f = sqrt(fx fy). A contour runs through its edge pixels' centres, half a
+    pixel inside the edge: side_px is the quadrilateral's sqrt(area) + 1."""
+    closed = cv2.morphologyEx(dark_regions(grey), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
         return None
-    best = None
-    for i in np.argsort([-cv2.contourArea(c) for c in contours]):
-        if hierarchy[0, i, 3] != -1 or hierarchy[0, i, 2] == -1:  # an outermost contour with a hole
-            continue
-        quad = _quad(contours[i])
-        if quad is not None:
-            best = quad
-            break
-    if best is None:
+    best = _quad(max(contours, key=lambda c: cv2.contourArea(cv2.convexHull(c))))
+    height, width = grey.shape
+    if best is None or best.min() <= EDGE_MARGIN_PX or np.any(best >= [width - 1 - EDGE_MARGIN_PX,
+                                                                      height - 1 - EDGE_MARGIN_PX]):
         return None
     corners = undistort_pixels(best, K, D)
-    side = float(np.sqrt(cv2.contourArea(corners.astype(np.float32))))
+    side = float(np.sqrt(cv2.contourArea(corners.astype(np.float32)))) + 1.0
     if side < min_side_px:
         return None
     a, b, c, d = np.c_[corners, np.ones(4)]
@@ -145,9 +146,11 @@ def layout_corners(layout: RqrlpLayout) -> np.ndarray:
     return np.concatenate([layout.marker_corners_P(m).reshape(-1, 3) for m in MARKERS])
 
 
-def adjustment(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout,
-               min_module_px: float = 2.0) -> AdjustmentResult | None:
-    """The pose from the location markers (module docstring), corners refined to sub-pixel."""
+def adjustment(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_module_px: float = 2.0,
+               max_residual_px: float = 1.0) -> AdjustmentResult | None:
+    """The pose from the location markers (module docstring), corners refined to sub-pixel; None
+    when a module is under min_module_px or the corners' RMS residual about the fitted homography
+    exceeds max_residual_px (corners refined onto the wrong edges)."""
     markers = classify(location_markers(grey))
     if markers is None:
         return None
@@ -178,7 +181,8 @@ def adjustment(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout,
     H = homography_from_pose(X_CP, K)
     projected = np.c_[points[:, :2], np.ones(len(points))] @ H.T
     residual = pixels - projected[:, :2] / projected[:, 2:]
-    return AdjustmentResult(X_CP, pixels, float(np.sqrt(np.mean(np.sum(residual[inliers] ** 2, axis=1)))), module)
+    rms = float(np.sqrt(np.mean(np.sum(residual[inliers] ** 2, axis=1))))
+    return None if rms > max_residual_px else AdjustmentResult(X_CP, pixels, rms, module)
 
 
 # ---- Touchdown --------------------------------------------------------------------------------
