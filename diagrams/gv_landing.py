@@ -230,8 +230,9 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         builder.Connect(X_WB, filters[name].GetInputPort("X_WB"))
 
     perception = perception_source(config.perception.source).add(
-        builder, PerceptionInputs(config, X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"),
-                                  truth.get_output_port(), measurements.delayed, measurements.color_image, filters))
+        builder, PerceptionInputs(config, X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"), quad_state,
+                                  vehicle_state, truth.get_output_port(), measurements.delayed,
+                                  measurements.color_image, filters))
     seam = builder.AddNamedSystem("seam", SeamSplit())
     builder.Connect(perception.relative_state, seam.get_input_port())
     pid = builder.AddNamedSystem("tracking_pid", TrackingPid(config.pid))

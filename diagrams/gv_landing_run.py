@@ -23,6 +23,7 @@ from diagrams.marker_metrics import SampledRun, marker_metrics
 from diagrams.marker_plots import plot_run
 from diagrams.outputs import write_npz
 from diagrams.perception_metrics import perception_metrics
+from diagrams.perception_sources import perception_source
 from diagrams.scenario import RunSettings
 from diagrams.simulate import Simulation, simulate
 from systems.config import ConfigError, require_positive
@@ -54,6 +55,7 @@ class Flight:
     log: dict[str, np.ndarray]
     sampled: SampledRun | None
     handles: GvLandingHandles
+    source_log: dict[str, np.ndarray] | None = None  # the perception source's own logs (and their times "t")
 
 
 def collect_log(handles: GvLandingHandles, context) -> dict[str, np.ndarray]:
@@ -64,6 +66,16 @@ def collect_log(handles: GvLandingHandles, context) -> dict[str, np.ndarray]:
     arrays["mode"] = arrays["mode"][:, 0].round().astype(int)
     arrays["vehicle_speed"] = arrays["vehicle_speed"][:, 0]
     arrays["p_VP"] = handles.config.platform.p_VP
+    return arrays
+
+
+def collect_source_log(handles: GvLandingHandles, context) -> dict[str, np.ndarray] | None:
+    """The perception source's own logs as arrays (one row per sample, times `t`), or None."""
+    logs = {name: logger.FindLog(context) for name, logger in handles.perception.logs.items()}
+    if not logs:
+        return None
+    arrays = {name: log.data().T.copy() for name, log in logs.items()}
+    arrays["t"] = next(iter(logs.values())).sample_times().copy()
     return arrays
 
 
@@ -93,7 +105,7 @@ def fly_diagram(diagram, handles: GvLandingHandles, duration_s: float, **options
                           visualizer=handles.meshcat_visualizer, **options)
     context = simulation.context
     return Flight(simulation.status, simulation, collect_log(handles, context), sampled_run(handles, context),
-                  handles)
+                  handles, collect_source_log(handles, context))
 
 
 def estimation_metrics(flight: Flight, config: GvLandingConfig) -> dict:
@@ -131,6 +143,9 @@ def flight_metrics(flight: Flight, config: GvLandingConfig, name: str = "gv-land
         log, config.perception.source, touchdown_s, None if steering is None else sampled.t,
         None if steering is None else sampled.estimates[steering])
     out.update(estimation_metrics(flight, config))
+    source = perception_source(config.perception.source)
+    if source.metrics is not None and flight.source_log is not None:
+        out.setdefault("estimators", {}).update(source.metrics(flight.source_log, config, touchdown_s))
     out["end"] = flight.status
     return out
 
@@ -155,6 +170,11 @@ def write_outputs(flight: Flight, metrics: dict, config: GvLandingConfig, out_di
                            f"{name}_marker_error": errors[name].markers})
         if run.estimates:
             plot_run(config, run, errors, out_dir)
+    source = perception_source(config.perception.source)
+    if flight.source_log is not None:
+        arrays.update({f"{config.perception.source}_{name}": values for name, values in flight.source_log.items()})
+        if source.plot is not None:
+            source.plot(flight.source_log, config, out_dir)
     write_npz(out_dir / "log.npz", **arrays)
     plot_flight(flight.log, config, out_dir, make_path(config.vehicle.path_config()).polyline(max_length_m=1e9))
     plot_perception(flight.log, config.perception.source, out_dir)
@@ -183,6 +203,11 @@ def summary_lines(name: str, metrics: dict) -> list[str]:
             lines.append(f"{filter_name} from {settle:g} s on: RMS position {m['rms_position_m']:.3f} m, heading "
                          f"{m['rms_heading_deg']:.2f} deg ({m['measurements']['gated']} gated, "
                          f"{m['measurements']['invalid']} invalid)")
+    for estimator, m in metrics.get("estimators", {}).items():
+        if "rmse_orientation_rad" in m and not estimator.startswith(("approach", "adjustment", "touchdown")):
+            lines.append(f"{estimator}: RMSE position {m['rmse_position_m']:.4f} m, orientation "
+                         f"{m['rmse_orientation_rad']:.4f} rad, height {m['rmse_height_m']:.4f} m, valid "
+                         f"{m['valid_fraction']:.1%}")
     return [f"{name}: {line}" for line in lines]
 
 

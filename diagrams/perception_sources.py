@@ -18,8 +18,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pydrake.systems.framework import DiagramBuilder, OutputPort
+from pydrake.systems.primitives import LogVectorOutput
 
+from diagrams.federated_metrics import federated_log, federated_metrics
 from diagrams.federated_perception import add_federated_perception
+from diagrams.federated_plots import plot_federated
 from systems.config import ConfigError
 from systems.estimators.marker_ekf import FILTERS, MarkerFilterSystem
 from systems.perception.seam import EstimateToSeam
@@ -33,6 +36,8 @@ class PerceptionInputs:
     X_WB: OutputPort  # the UAV's own pose (RigidTransform): its navigation, the truth for now
     V_WB: OutputPort  # its spatial velocity (6: [w; v] in W) and acceleration (A_WB), likewise
     A_WB: OutputPort
+    quadrotor_state: OutputPort  # the truth, for a source's own logs: the UAV's state (17) and the vehicle's (4)
+    vehicle_state: OutputPort
     true_relative_state: OutputPort  # the truth's seam
     marker_measurements: OutputPort | None  # list of MarkerMeasurement, after the latency; None: no stream
     color_image: OutputPort | None  # the downward camera's images (ImageRgba8U, with noise); None: no camera
@@ -59,6 +64,10 @@ class PerceptionSource:
     needs_markers: bool = False  # a marker measurement stream (estimation.source synthetic or detector)
     needs_camera: bool = False  # the rendered camera: estimation.source detector's, or its own
     camera: Callable | None = None  # config -> its own CameraConfig, which the scene adds (None: none of its own)
+    # Its own figures: (arrays of its `logs` by name with their times "t", config, touchdown time or None)
+    # -> metrics.json's `estimators` entries; and its plots: (the same arrays, config, out_dir).
+    metrics: Callable | None = None
+    plot: Callable | None = None
 
 
 def add_estimate_to_seam(builder: DiagramBuilder, inputs: PerceptionInputs, X_WP_estimate: OutputPort,
@@ -95,14 +104,26 @@ def _federated(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
                                          inputs.color_image, inputs.X_WB, inputs.V_WB, inputs.A_WB)
     ports = add_estimate_to_seam(builder, inputs, federated.filter.GetOutputPort("X_WP_estimate"),
                                  federated.filter.GetOutputPort("v_WP_estimate"))
-    ports.logs, ports.systems = federated.logs, federated
+    period = config.federated.camera.period_s
+    ports.logs = {**federated.logs, "quadrotor_state": LogVectorOutput(inputs.quadrotor_state, builder, period),
+                  "vehicle_state": LogVectorOutput(inputs.vehicle_state, builder, period)}
+    ports.systems = federated
     return ports
+
+
+def _federated_metrics(log: dict, config, end_s: float | None) -> dict:
+    return federated_metrics(federated_log(log, config.platform), config.federated.camera.X_BC, end_s)
+
+
+def _federated_plot(log: dict, config, out_dir) -> None:
+    plot_federated(federated_log(log, config.platform), out_dir)
 
 
 SOURCES: dict[str, PerceptionSource] = {
     "truth": PerceptionSource(_truth),
     **{name: PerceptionSource(_marker_filter(name), needs_markers=True) for name in FILTERS},
-    "federated": PerceptionSource(_federated, needs_camera=True, camera=lambda config: config.federated.camera),
+    "federated": PerceptionSource(_federated, needs_camera=True, camera=lambda config: config.federated.camera,
+                                  metrics=_federated_metrics, plot=_federated_plot),
 }
 
 

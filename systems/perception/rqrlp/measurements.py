@@ -9,7 +9,8 @@ from pydrake.math import RigidTransform, RotationMatrix
 from scipy.spatial.transform import Rotation
 
 MIN_PIXEL_STD = 0.3  # px: no fit is trusted beyond the renderer's quantisation
-APPROACH_REL_STD = 0.03  # the rough position's relative depth error from an unmodelled tilt (cos 15 deg)
+APPROACH_PIXEL_STD = 0.4  # px: the outline's sides and centre (open-landing: 0.3-0.4 px from 20 m to 5 m)
+APPROACH_REL_STD = 0.002  # the rough position's relative depth error beyond its pixels' (tilt, lens)
 
 
 @dataclass(frozen=True)
@@ -58,7 +59,8 @@ def fit_pixel_std(residuals_px: np.ndarray, parameters: int = 8) -> float:
     return float(np.sqrt(np.sum(residuals_px**2) / max(residuals_px.size - parameters, 1)))
 
 
-def approach_covariance(p_CP: np.ndarray, side_px: float, focal_px: float, pixel_std: float = 1.0) -> np.ndarray:
+def approach_covariance(p_CP: np.ndarray, side_px: float, focal_px: float,
+                        pixel_std: float = APPROACH_PIXEL_STD) -> np.ndarray:
     """(3x3) of the rough position p_CP = z [u, v, 1] (u, v the centre's normalised coordinates):
     the depth z from the apparent size, relative error pixel_std / side_px and APPROACH_REL_STD;
     u and v with pixel_std / focal_px; first order."""
@@ -87,9 +89,12 @@ def approach_measurement(p_CP: np.ndarray, side_px: float, time: float, focal_px
 def adjustment_measurement(X_CP: RigidTransform, points_P: np.ndarray, rms_residual_px: float, time: float,
                            X_BC: RigidTransform, K: np.ndarray) -> NodeMeasurement:
     """The adjustment node's pose (nodes.adjustment) with the covariance of its corners (points_P)
-    at its fit's residual."""
+    at its fit's residual, the corners of one location marker counted as one measurement: they
+    share its blur, and a bias the homography absorbs is not in the residual (open-landing: the
+    pose's height error was 3x what independent corners claim)."""
     X_PB = pose_of_body(X_CP, X_BC)
-    return NodeMeasurement(time, "adjustment", pose_covariance(points_P, X_PB, X_BC, K, rms_residual_px), X_PB=X_PB,
+    pixel_std = max(rms_residual_px, MIN_PIXEL_STD) * np.sqrt(len(points_P) / 3)
+    return NodeMeasurement(time, "adjustment", pose_covariance(points_P, X_PB, X_BC, K, pixel_std), X_PB=X_PB,
                            quality=rms_residual_px)
 
 

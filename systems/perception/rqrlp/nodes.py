@@ -28,6 +28,7 @@ from systems.perception.rqrlp.homography import (
 from systems.perception.rqrlp.pattern import MARKERS, MODULES, RqrlpLayout
 
 AREA_RATIO_TOLERANCE = 0.35  # nested squares' areas against 49 : 25 : 9, relative
+MIN_DARK_EDGE = 0.65  # the share of the outline's edges that its black border makes dark
 EDGE_MARGIN_PX = 2  # an outline this close to the image's edge may be cut by it
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
 
@@ -60,7 +61,8 @@ class ApproachResult:
 
 def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_side_px: float = 8.0) -> ApproachResult | None:
     """The outline: the largest dark region (its black border, closed over a pixel's gaps, with the
-    dark texture and markers it holds), its convex hull a quadrilateral lying wholly in the image;
+    dark texture and markers it holds), its convex hull a quadrilateral lying wholly in the image,
+    dark along its edges;
     its centre where its diagonals cross, and its depth from its apparent size:
     z = f size_m / side_px, f = sqrt(fx fy). A contour runs through its edge pixels' centres, half a
     pixel inside the edge: side_px is the quadrilateral's sqrt(area) + 1."""
@@ -73,6 +75,8 @@ def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_side_p
     if best is None or best.min() <= EDGE_MARGIN_PX or np.any(best >= [width - 1 - EDGE_MARGIN_PX,
                                                                       height - 1 - EDGE_MARGIN_PX]):
         return None
+    if _dark_along_edges(closed, best) < MIN_DARK_EDGE:
+        return None  # not a border: a blob of the texture, seen when the outline is out of view
     corners = undistort_pixels(best, K, D)
     side = float(np.sqrt(cv2.contourArea(corners.astype(np.float32)))) + 1.0
     if side < min_side_px:
@@ -81,6 +85,14 @@ def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_side_p
     centre = np.cross(np.cross(a, c), np.cross(b, d))  # the diagonals' crossing, homogeneous
     z = np.sqrt(K[0, 0] * K[1, 1]) * layout.size_m / side
     return ApproachResult(z * np.linalg.solve(K, centre / centre[2]), corners, side)
+
+
+def _dark_along_edges(mask: np.ndarray, quad: np.ndarray, samples: int = 32) -> float:
+    """The share of points along the quadrilateral's edges that are dark in the mask."""
+    s = np.linspace(0.0, 1.0, samples, endpoint=False)[:, None]
+    points = np.concatenate([quad[i] + s * (quad[(i + 1) % 4] - quad[i]) for i in range(4)])
+    cols, rows = np.round(points).astype(int).T
+    return float(np.mean(mask[rows, cols] > 0))
 
 
 # ---- Adjustment -------------------------------------------------------------------------------
@@ -146,11 +158,14 @@ def layout_corners(layout: RqrlpLayout) -> np.ndarray:
     return np.concatenate([layout.marker_corners_P(m).reshape(-1, 3) for m in MARKERS])
 
 
-def adjustment(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_module_px: float = 2.0,
+def adjustment(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_module_px: float = 5.0,
                max_residual_px: float = 1.0) -> AdjustmentResult | None:
     """The pose from the location markers (module docstring), corners refined to sub-pixel; None
-    when a module is under min_module_px or the corners' RMS residual about the fitted homography
-    exceeds max_residual_px (corners refined onto the wrong edges)."""
+    when a module is under min_module_px (5 px: 7.7 m with seed 001's 1280 px focal length and 30 mm
+    modules, where the paper's adjustment pose "tends to stabilize" below 10 m; smaller ones blur
+    into biased corners) or the
+    corners' RMS residual about the fitted homography exceeds max_residual_px (corners refined onto
+    the wrong edges)."""
     markers = classify(location_markers(grey))
     if markers is None:
         return None

@@ -1,0 +1,143 @@
+"""Seed 001's figures for a run with the federated filter: each vision node's own measurement, each
+local filter and the fused estimate against the truth (seed 001 Sec. 5, Fig. 8-10).
+
+Everything is the UAV body B in the pattern frame P (the paper's pose), at the camera's frames:
+`FederatedLog` holds the logs of diagrams/federated_perception.py and the true X_PB. The
+approaching node measures only the pattern's centre in the camera, p_CP: it is scored there.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.math import RigidTransform
+from scipy.spatial.transform import Rotation
+
+from diagrams.marker_metrics import pad_truth
+from diagrams.metrics import estimator_metrics
+from systems.estimators.federated.engine import NODES
+from systems.estimators.federated.system import (
+    FED_LOCAL_P,
+    FED_LOCAL_THETA,
+    FED_P_PB,
+    FED_Q_PB,
+    FED_STARTED,
+    FED_VALID,
+)
+from systems.vehicles.ground_vehicle_geometry import PlatformConfig
+from systems.vehicles.quadrotor import P_WB, Q_WB
+
+
+@dataclass
+class FederatedLog:
+    """At the camera's frames t (N,): `federated` (N, FEDERATED_VECTOR_SIZE), `nodes` (name ->
+    (N, NODE_VECTOR_SIZE)) and the truth X_PB (N, 7: [x, y, z, qw, qx, qy, qz])."""
+
+    t: np.ndarray
+    federated: np.ndarray
+    nodes: dict[str, np.ndarray]
+    X_PB: np.ndarray
+
+
+def _wxyz(rotation: Rotation) -> np.ndarray:
+    xyzw = rotation.as_quat()
+    return np.column_stack([xyzw[:, 3], xyzw[:, :3]])
+
+
+def _rotation(wxyz: np.ndarray) -> Rotation:
+    return Rotation.from_quat(np.column_stack([wxyz[:, 1:], wxyz[:, 0]]))
+
+
+def true_X_PB(quadrotor_state: np.ndarray, vehicle_state: np.ndarray, platform: PlatformConfig) -> np.ndarray:
+    """(N, 7) the UAV body in the pad frame from sampled states (quadrotor (N, 17), vehicle (N, 4))."""
+    truth = pad_truth(quadrotor_state, vehicle_state, platform)
+    R_WP = Rotation.from_rotvec(np.outer(truth.yaw, [0.0, 0.0, 1.0]))
+    R_WB = _rotation(quadrotor_state[:, Q_WB])
+    p_PB = R_WP.inv().apply(quadrotor_state[:, P_WB] - truth.p_WP)
+    return np.column_stack([p_PB, _wxyz(R_WP.inv() * R_WB)])
+
+
+def federated_log(log: dict, platform: PlatformConfig) -> FederatedLog:
+    """From the federated source's logs as arrays (diagrams/perception_sources.py: "t", "federated",
+    one per node, "quadrotor_state", "vehicle_state")."""
+    return FederatedLog(log["t"], log["federated"], {name: log[name] for name in NODES},
+                        true_X_PB(log["quadrotor_state"], log["vehicle_state"], platform))
+
+
+def _pose_rows(valid: np.ndarray, p: np.ndarray, wxyz: np.ndarray) -> np.ndarray:
+    """(N, 8) estimator_metrics rows [valid, x, y, z, qw, qx, qy, qz]."""
+    return np.column_stack([valid.astype(float), p, wxyz])
+
+
+def _paper_figures(truth: np.ndarray, rows: np.ndarray, window: np.ndarray) -> dict:
+    """Seed 001's figures over the scored frames: 3-D position RMSE, orientation RMSE (the rotation
+    angle's) and the height's (z of p_PB)."""
+    scored = window & (rows[:, 0] > 0.5)
+    if not scored.any():
+        return {}
+    error = rows[scored, 1:4] - truth[scored, :3]
+    angle = (_rotation(truth[scored, 3:]).inv() * _rotation(rows[scored, 4:])).magnitude()
+    return {"rmse_position_m": float(np.sqrt(np.mean(np.sum(error**2, axis=1)))),
+            "rmse_orientation_rad": float(np.sqrt(np.mean(angle**2))),
+            "rmse_height_m": float(np.sqrt(np.mean(error[:, 2] ** 2)))}
+
+
+def _band(heights: np.ndarray, present: np.ndarray) -> list[float] | None:
+    """[lowest, highest] true height [m] of the frames where a node measured."""
+    return [float(heights[present].min()), float(heights[present].max())] if present.any() else None
+
+
+def node_metrics(log: FederatedLog, X_BC: RigidTransform, window: np.ndarray) -> dict:
+    """Each node's own measurement: the pose nodes' X_PB as estimators; the approaching node's p_CP
+    (MAE/RMSE per axis in C); each one's share of frames and its altitude band."""
+    heights = log.X_PB[:, 2]
+    out = {}
+    for name in NODES:
+        rows = log.nodes[name]
+        present = rows[:, 0] > 0.5
+        figures = {"present_fraction": float(np.mean(present[window])) if window.any() else 0.0,
+                   "altitude_band_m": _band(heights, present & window)}
+        if name == "approach":
+            X_CB = X_BC.inverse()
+            p_CP = _rotation(log.X_PB[:, 3:]).inv().apply(-log.X_PB[:, :3])  # p_BP in B
+            p_CP = p_CP @ X_CB.rotation().matrix().T + X_CB.translation()
+            error = rows[present & window, 1:4] - p_CP[present & window]
+            if len(error):
+                figures.update({"frame": "C", "mae_xyz_m": np.mean(np.abs(error), axis=0).tolist(),
+                                "rmse_xyz_m": np.sqrt(np.mean(error**2, axis=0)).tolist(),
+                                "rmse_position_m": float(np.sqrt(np.mean(np.sum(error**2, axis=1))))})
+        else:
+            pose = _pose_rows(present, np.nan_to_num(rows[:, 1:4]), np.where(present[:, None], rows[:, 4:8], 1.0))
+            figures.update(estimator_metrics(log.X_PB, pose, window))
+            figures.update(_paper_figures(log.X_PB, pose, window))
+        out[name] = figures
+    return out
+
+
+def filter_metrics(log: FederatedLog, window: np.ndarray) -> dict:
+    """The local filters (after their own updates, `local_<node>`) and the fused estimate
+    (`federated`): MAE/RMSE per axis, valid fraction, and the paper's figures."""
+    fed = log.federated
+    started = fed[:, FED_STARTED] > 0.5
+    out = {}
+    for i, name in enumerate(NODES):
+        p = fed[:, FED_LOCAL_P][:, 3 * i:3 * i + 3]
+        theta = fed[:, FED_LOCAL_THETA][:, 3 * i:3 * i + 3]
+        has = started & np.isfinite(p).all(axis=1)
+        wxyz = np.ones((len(p), 4))
+        if has.any():
+            wxyz[has] = _wxyz(Rotation.from_rotvec(theta[has]))
+        rows = _pose_rows(has, np.nan_to_num(p), wxyz)
+        out[f"local_{name}"] = {**estimator_metrics(log.X_PB, rows, window), **_paper_figures(log.X_PB, rows, window)}
+    valid = fed[:, FED_VALID] > 0.5
+    rows = _pose_rows(valid, np.nan_to_num(fed[:, FED_P_PB]), np.where(started[:, None], fed[:, FED_Q_PB], 1.0))
+    fused = {**estimator_metrics(log.X_PB, rows, window), **_paper_figures(log.X_PB, rows, window)}
+    fused["valid_fraction"] = float(np.mean(valid[window])) if window.any() else 0.0
+    out["federated"] = fused
+    return out
+
+
+def federated_metrics(log: FederatedLog, X_BC: RigidTransform, end_s: float | None = None) -> dict:
+    """The `estimators` section: the nodes, the local filters and the fused estimate over the
+    frames up to `end_s` (touchdown; None: all)."""
+    window = np.ones(len(log.t), bool) if end_s is None else log.t <= end_s
+    return {**node_metrics(log, X_BC, window), **filter_metrics(log, window)}
