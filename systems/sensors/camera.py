@@ -46,6 +46,8 @@ class CameraConfig:
     mount_xyz_m: list[float] = field(default_factory=lambda: [0.0, 0.0, -0.04])
     # Lens distortion applied to the rendered (pinhole) image: OpenCV's [k1, k2, p1, p2, k3].
     distortion: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0, 0.0])
+    # Faults: [start, end] intervals [s] in which the lens is covered (black frames).
+    blackouts_s: list[list[float]] = field(default_factory=list)
 
     def validate(self, prefix: str = "camera") -> None:
         require(self.width > 0 and self.height > 0, f"{prefix}.width and {prefix}.height must be positive")
@@ -57,6 +59,9 @@ class CameraConfig:
         require(self.pixel_noise_std >= 0, f"{prefix}.pixel_noise_std must not be negative")
         require(len(self.mount_xyz_m) == 3, f"{prefix}.mount_xyz_m needs 3 numbers")
         require(len(self.distortion) == 5, f"{prefix}.distortion needs 5 numbers [k1, k2, p1, p2, k3]")
+        for interval in self.blackouts_s:
+            require(len(interval) == 2 and 0 <= interval[0] < interval[1],
+                    f"{prefix}.blackouts_s needs [start, end] pairs with 0 <= start < end, got {interval}")
         if any(self.distortion):
             folds = distortion_folds(self)
             require(not folds, f"{prefix}.distortion folds the image (its radial map turns back at {folds:.0%} "
@@ -159,7 +164,7 @@ def add_pixel_noise(rgba: np.ndarray, std: float, rng: np.random.Generator) -> n
 
 class NoisyCamera(LeafSystem):
     """The lens and the sensor: the rendered pinhole image distorted by `config.distortion`
-    (cv2.remap) and given seeded pixel noise.
+    (cv2.remap) and given seeded pixel noise; black within `config.blackouts_s`.
 
     Input `rendered_image` and output `color_image` are ImageRgba8U. The output is a pure function
     of the time's frame index, so it is computed (and the scene rendered) only when a consumer
@@ -170,11 +175,17 @@ class NoisyCamera(LeafSystem):
         super().__init__()
         self._std, self._period, self._seed = config.pixel_noise_std, config.period_s, seed
         self._maps = distortion_maps(config) if any(config.distortion) else None
+        self._blackouts = [tuple(interval) for interval in config.blackouts_s]
         blank = ImageRgba8U(config.width, config.height)
         self.DeclareAbstractInputPort("rendered_image", AbstractValue.Make(blank))
         self.DeclareAbstractOutputPort("color_image", lambda: AbstractValue.Make(blank), self._calc_image)
 
     def _calc_image(self, context, output):
+        t = context.get_time()
+        if any(start <= t <= end for start, end in self._blackouts):
+            output.get_mutable_value().mutable_data[:] = 0
+            output.get_mutable_value().mutable_data[..., 3] = 255
+            return
         rendered = self.get_input_port().Eval(context)
         if self._std == 0 and self._maps is None:
             output.set_value(rendered)

@@ -40,7 +40,7 @@ class PlatformConfig:
     # the pad; systems/perception/markers.py gives the default layout and why.
     markers: MarkerLayout = field(default_factory=MarkerLayout)
     pattern: str = "markers"  # what the pad shows: "markers" (the ArUco layout) or "rqrlp" (seed 001's pattern)
-    rqrlp: RqrlpLayout = field(default_factory=RqrlpLayout)  # with pattern rqrlp; its size_m is pad_size_m
+    rqrlp: RqrlpLayout = field(default_factory=RqrlpLayout)  # with pattern rqrlp, centred on the (white) pad
     carrier: str = "vehicle"  # "vehicle": on the roof; "ground": the pad alone, its top height_m above the ground
     # The visible body (not in the papers: a car the size of seed 002's 3.5 m wheelbase).
     body_length_m: float = 4.6
@@ -58,9 +58,9 @@ class PlatformConfig:
         require(self.carrier in CARRIERS, f"{prefix}.carrier '{self.carrier}' is not one of: {', '.join(CARRIERS)}")
         if self.pattern == "rqrlp":
             self.rqrlp.validate(f"{prefix}.rqrlp")
-            require(abs(self.rqrlp.size_m - self.pad_size_m) < 1e-9,
-                    f"{prefix}.pad_size_m ({self.pad_size_m:g}) must be the pattern's size, {prefix}.rqrlp.size_m "
-                    f"({self.rqrlp.size_m:g})")
+            require(self.rqrlp.size_m <= self.pad_size_m,
+                    f"{prefix}.rqrlp.size_m ({self.rqrlp.size_m:g}) is larger than the pad, {prefix}.pad_size_m "
+                    f"({self.pad_size_m:g})")
         else:
             self.markers.validate(f"{prefix}.markers", self.pad_size_m)
         if self.carrier == "ground":
@@ -76,6 +76,11 @@ class PlatformConfig:
         require(rear <= self.pad_offset_m - self.pad_size_m / 2 and self.pad_offset_m + self.pad_size_m / 2 <= front,
                 f"{prefix}.pad_offset_m ({self.pad_offset_m}) puts the pad off the roof "
                 f"(the body spans {rear:g} to {front:g} m along the vehicle)")
+
+    @property
+    def pattern_size_m(self) -> float:
+        """The side of the textured square on the pad: the whole pad, or the RQRLP on it."""
+        return self.rqrlp.size_m if self.pattern == "rqrlp" else self.pad_size_m
 
     @property
     def p_VP(self) -> np.ndarray:
@@ -110,7 +115,7 @@ class GroundVehicleGeometry(LeafSystem):
         register_visual(scene_graph, sid, body, RigidTransform([p.pad_offset_m, 0.0, p.height_m - p.pad_thickness_m / 2]),
                         Box(p.pad_size_m, p.pad_size_m, p.pad_thickness_m), "gv_pad", (0.95, 0.95, 0.95, 1.0))
         register_visual(scene_graph, sid, body, RigidTransform([p.pad_offset_m, 0.0, p.height_m + 0.001]),
-                        Mesh(str(pad_texture_mesh(p)), p.pad_size_m), "gv_pad_pattern", rgba=None)
+                        Mesh(str(pad_texture_mesh(p)), p.pattern_size_m), "gv_pad_pattern", rgba=None)
         self._front = []  # the steered wheels' frames and their positions in V
         if p.carrier == "vehicle":
             self._register_vehicle(scene_graph, wheelbase_m, p)

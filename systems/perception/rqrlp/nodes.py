@@ -28,6 +28,7 @@ from systems.perception.rqrlp.homography import (
 from systems.perception.rqrlp.pattern import MARKERS, MODULES, RqrlpLayout
 
 AREA_RATIO_TOLERANCE = 0.35  # nested squares' areas against 49 : 25 : 9, relative
+MAX_ASPECT = 1.6  # the outline's longer side against its shorter (a square seen up to ~50 deg off its normal)
 MIN_DARK_EDGE = 0.65  # the share of the outline's edges that its black border makes dark
 EDGE_MARGIN_PX = 2  # an outline this close to the image's edge may be cut by it
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
@@ -60,18 +61,27 @@ class ApproachResult:
 
 
 def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_side_px: float = 8.0) -> ApproachResult | None:
-    """The outline: the largest dark region (its black border, closed over a pixel's gaps, with the
-    dark texture and markers it holds), its convex hull a quadrilateral lying wholly in the image,
-    dark along its edges;
+    """The outline: the largest square-ish dark region (its black border, closed over a pixel's gaps,
+    with the dark texture and markers it holds; a white margin keeps it apart from a dark carrier),
+    its convex hull a quadrilateral lying wholly in the image, dark along its edges;
     its centre where its diagonals cross, and its depth from its apparent size:
     z = f size_m / side_px, f = sqrt(fx fy). A contour runs through its edge pixels' centres, half a
     pixel inside the edge: side_px is the quadrilateral's sqrt(area) + 1."""
     closed = cv2.morphologyEx(dark_regions(grey), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-    contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    if not contours:
-        return None
-    best = _quad(max(contours, key=lambda c: cv2.contourArea(cv2.convexHull(c))))
+    # Two levels: the dark regions' outer boundaries and their holes; a region inside a hole (the
+    # pattern on a dark carrier's white pad) is an outer boundary again.
+    contours, hierarchy = cv2.findContours(closed, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     height, width = grey.shape
+    best = None
+    outer = [c for c, h in zip(contours, hierarchy[0] if hierarchy is not None else []) if h[3] == -1]
+    for contour in sorted(outer, key=lambda c: -cv2.contourArea(cv2.convexHull(c))):
+        quad = _quad(contour)
+        if quad is None or cv2.contourArea(quad.astype(np.float32)) < min_side_px**2:
+            break
+        (_, _), (w, h), _ = cv2.minAreaRect(quad.astype(np.float32))
+        if max(w, h) <= MAX_ASPECT * min(w, h):
+            best = quad  # the largest square-ish region: not the vehicle's body, say
+            break
     if best is None or best.min() <= EDGE_MARGIN_PX or np.any(best >= [width - 1 - EDGE_MARGIN_PX,
                                                                       height - 1 - EDGE_MARGIN_PX]):
         return None
