@@ -121,13 +121,17 @@ class GvLandingHandles:
         self.controller.initialize(root_context)
 
 
-def add_ground_and_path(scene_graph: SceneGraph, vehicle: GroundVehicleConfig, meshcat: Meshcat | None) -> None:
-    """A ground plane under the path (top at z = 0); the path drawn in Meshcat."""
-    xy = make_path(vehicle.path_config()).polyline()
-    lo, hi = xy.min(axis=0) - 25.0, xy.max(axis=0) + 25.0
+def add_ground(scene_graph: SceneGraph, lo: np.ndarray, hi: np.ndarray) -> None:
+    """A ground plane from World x-y `lo` to `hi` [m], its top at z = 0."""
     source_id = scene_graph.RegisterSource("ground")
     register_visual(scene_graph, source_id, scene_graph.world_frame_id(),
                     RigidTransform([*(lo + hi) / 2, -0.05]), Box(*(hi - lo), 0.1), "ground", (0.8, 0.82, 0.76, 1.0))
+
+
+def add_ground_and_path(scene_graph: SceneGraph, vehicle: GroundVehicleConfig, meshcat: Meshcat | None) -> None:
+    """A ground plane under the path; the path drawn in Meshcat."""
+    xy = make_path(vehicle.path_config()).polyline()
+    add_ground(scene_graph, xy.min(axis=0) - 25.0, xy.max(axis=0) + 25.0)
     if meshcat is not None:
         meshcat.SetLine("gv_landing/path", np.vstack([xy.T, np.full(len(xy), 0.02)]), 3.0, Rgba(1.0, 0.85, 0.1, 1.0))
         meshcat.SetProperty("/Grid", "visible", False)  # the ground plane is the floor

@@ -141,7 +141,7 @@ class IntegrationConfig:
                                use_error_control=self.error_control, accuracy=self.accuracy)
 
 
-def _table1_airframe() -> AirframeConfig:
+def table1_airframe() -> AirframeConfig:
     """Visual airframe matching seed 002 Table 1's arms (rotors at l1 = l2 = 0.25 m)."""
     return AirframeConfig(body_size_m=0.2, body_height_m=0.08, rotor_arm_m=float(np.hypot(0.25, 0.25)),
                           propeller_radius_m=0.12)
@@ -164,7 +164,7 @@ class GvLandingConfig:
     start: StartConfig = field(default_factory=StartConfig)
     termination: TerminationConfig = field(default_factory=TerminationConfig)
     integration: IntegrationConfig = field(default_factory=IntegrationConfig)
-    uav: AirframeConfig = field(default_factory=_table1_airframe)  # visual only
+    uav: AirframeConfig = field(default_factory=table1_airframe)  # visual only
     federated: FederatedPerceptionConfig = field(default_factory=FederatedPerceptionConfig)
 
     def validate(self) -> None:

@@ -48,6 +48,7 @@ DIAGRAM_MODULES = {
     "crhf_calibration": "diagrams.crhf_calibration",
     "gv_landing": "diagrams.gv_landing_run",
     "gv_marker_ekf": "diagrams.gv_marker_ekf",
+    "rqrlp_maneuvers": "diagrams.rqrlp_maneuvers_run",
 }
 
 

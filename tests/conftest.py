@@ -19,7 +19,7 @@ from systems.platforms.stewart import StewartPlatformConfig
 
 # Fixtures that render camera images or spawn processes: a test using one is marked slow.
 SLOW_FIXTURES = {"hover_scene", "tilted_scene", "dynamic_run", "build_scene", "scene", "console_runs", "short_run",
-                 "pool_campaigns", "local_cluster", "detector_run"}
+                 "pool_campaigns", "local_cluster", "detector_run", "federated_landing", "covered_landing", "maneuvers"}
 
 
 def pytest_collection_modifyitems(items):

@@ -74,8 +74,14 @@ def bad_config(tmp_path):
     (["run", "stewart-hover", "--config", "{bad_config}"], "not both"),
     (["run", "stewart-hover", "--frobnicate"], "--frobnicate"),
     (["run", "--config", "{missing}"], "missing.yaml"),
+    (["run", "open-landing", "--set", "platform.pattern=markers"], "platform.pattern"),
+    (["run", "open-landing", "--set", "estimation.source=detector"], "estimation.source"),
+    (["run", "open-landing", "--set", "federated.camera.blackouts_s=[[2.0, 1.0]]"], "blackouts_s"),
+    (["run", "open-landing", "--set", "federated.imu.rate_hz=70.0"], "federated.camera.rate_hz"),
+    (["run", "rqrlp-maneuvers", "--set", "manoeuvres=[[0.0, 1, 0, 0, 0]]"], "manoeuvres"),
 ], ids=["bad-name", "unknown-key", "negative-rate", "tag-too-big", "negative-duration", "type-error",
-        "name-and-config", "unknown-option", "missing-config"])
+        "name-and-config", "unknown-option", "missing-config", "federated-on-markers", "two-cameras",
+        "backward-blackout", "imu-rate", "empty-manoeuvre"])
 def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path, bad_config, args, named):
     out = tmp_path / "out"
     args = [a.format(bad_config=bad_config, missing=tmp_path / "missing.yaml") for a in args]

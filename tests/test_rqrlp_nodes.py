@@ -75,8 +75,10 @@ def test_adjustment_finds_the_pose_and_agrees_with_opencvs_pnp(height_m, yaw_deg
     assert found.rms_residual_px < 0.5
     ok, rvec, tvec = cv2.solvePnP(layout_corners(LAYOUT), found.corners_px, K, None, flags=cv2.SOLVEPNP_SQPNP)
     opencv = RigidTransform(RotationMatrix(cv2.Rodrigues(rvec)[0]), tvec.ravel())
-    position, angle = errors(found.X_CP, opencv)
+    position, angle = errors(found.X_CP_homography, opencv)
     assert ok and position < 0.003 * height_m and angle < 1.0  # Eq. 2 minimises no reprojection error
+    position, angle = errors(found.X_CP, opencv)
+    assert position < 1e-4 * height_m and angle < 0.05  # refined to the same least-squares pose
 
 
 def test_adjustment_needs_the_markers_resolved():

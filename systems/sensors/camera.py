@@ -13,8 +13,14 @@ import cv2
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
-    ClippingRange, ColorRenderCamera, DepthRange, DepthRenderCamera, MakeRenderEngineVtk, RenderCameraCore,
-    RenderEngineVtkParams, SceneGraph,
+    ClippingRange,
+    ColorRenderCamera,
+    DepthRange,
+    DepthRenderCamera,
+    MakeRenderEngineVtk,
+    RenderCameraCore,
+    RenderEngineVtkParams,
+    SceneGraph,
 )
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder, LeafSystem

@@ -71,6 +71,7 @@ class FederatedState:
     betas: np.ndarray = field(default_factory=lambda: np.full(len(NODES), 1.0 / len(NODES)))
     stats: tuple[NodeStats, ...] = tuple(NodeStats() for _ in NODES)
     last_imu: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    heading_known: bool = False  # a node has measured a full pose (the approaching node's centre has no heading)
 
     @property
     def started(self) -> bool:
@@ -86,6 +87,21 @@ def _first_state(measurement: NodeMeasurement, X_BC: RigidTransform, f_B: np.nda
                           np.diag(measurement.covariance)[0:3]])
         return LocalState(measurement.X_PB.translation(), np.zeros(3), measurement.X_PB.rotation().matrix(), P)
     return initial_state(X_BC.multiply(measurement.p_CP), f_B, config)
+
+
+def _restart(state: FederatedState, measurement: NodeMeasurement, X_BC: RigidTransform, f_B: np.ndarray,
+             config: FederatedConfig) -> tuple[LocalState, ...]:
+    """Every local filter (re)started from one measurement, each with N times its covariance (so
+    that their fusion has it): at the first measurement, and at the first full pose while the
+    heading is unknown (an EKF update over a heading that far off would not be linear). A restart
+    keeps the body's velocity, v_B, and its covariance."""
+    first = _first_state(measurement, X_BC, f_B, config)
+    if state.started:
+        R = first.R @ state.fused.R.T  # the new P's axes from the old's
+        P = first.P.copy()
+        P[3:6, 3:6] = R @ state.fused.P[3:6, 3:6] @ R.T
+        first = replace(first, v=R @ state.fused.v, P=P)
+    return tuple(replace(first, P=first.P * len(NODES), q_scale=float(len(NODES))) for _ in NODES)
 
 
 def _update(state: LocalState, measurement: NodeMeasurement, X_BC: RigidTransform,
@@ -113,12 +129,16 @@ def step(state: FederatedState, time: float, imu: np.ndarray, measurements: dict
     state = replace(state, time=time, last_imu=imu)
     present = [(i, measurements.get(node)) for i, node in enumerate(NODES)]
     present = [(i, m) for i, m in present if m is not None]
-    if not state.started:
+    stats = list(state.stats)
+    pose = next(((i, m) for i, m in present if m.X_PB is not None), None)
+    if not state.started or (not state.heading_known and pose is not None):
         if not present:
             return state
-        first = _first_state(present[0][1], X_BC, f_B, config)
-        filters = tuple(replace(first, P=first.P * len(NODES), q_scale=float(len(NODES))) for _ in NODES)
-    stats = list(state.stats)
+        i, source = pose or present[0]
+        filters = _restart(state, source, X_BC, f_B, config)
+        state = replace(state, heading_known=pose is not None)
+        stats[i] = NodeStats(stats[i].accepted + 1, stats[i].gated, time)
+        present = [(j, m) for j, m in present if j != i]
     updated = list(filters)
     for i, measurement in present:
         after = _update(filters[i], measurement, X_BC, config)

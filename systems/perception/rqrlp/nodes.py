@@ -6,7 +6,8 @@ functions of the image, the intrinsics K and the lens distortion D (OpenCV's).
 - Adjustment (`adjustment`): the location markers, found by contour-hierarchy statistics (three
   nested squares of 7, 5 and 3 modules), told apart by the paper's geometry (Top is off the longest
   line between two markers, Right and Bottom by the side of that line Top is on), their 36 corners
-  -> homography -> pose (homography.py, Eq. 1-2).
+  -> homography -> pose (homography.py, Eq. 1-2), refined to the least reprojection error (OpenCV's
+  Levenberg-Marquardt).
 - Touchdown (`TouchdownTracker`): features on the texture tracked between frames by pyramidal
   Lucas-Kanade flow -> inter-frame homography -> the pose chained from the previous one (Eq. 3),
   re-anchored whenever the adjustment node has a pose.
@@ -17,7 +18,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from pydrake.math import RigidTransform
+from pydrake.math import RigidTransform, RotationMatrix
 
 from systems.perception.rqrlp.homography import (
     homography_from_pose,
@@ -110,10 +111,11 @@ def _dark_along_edges(mask: np.ndarray, quad: np.ndarray, samples: int = 32) -> 
 
 @dataclass(frozen=True)
 class AdjustmentResult:
-    X_CP: RigidTransform
+    X_CP: RigidTransform  # Eq. (2)'s pose refined to the least reprojection error
     corners_px: np.ndarray  # (36, 2) undistorted, in the order of `layout_corners`
-    rms_residual_px: float  # of the corners about the homography's projection
+    rms_residual_px: float  # of the corners about the refined pose's projection
     module_px: float  # a marker module's apparent size
+    X_CP_homography: RigidTransform  # Eq. (2)'s own, from the homography
 
 
 def location_markers(grey: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -168,6 +170,16 @@ def layout_corners(layout: RqrlpLayout) -> np.ndarray:
     return np.concatenate([layout.marker_corners_P(m).reshape(-1, 3) for m in MARKERS])
 
 
+def refine_pose(X_CP: RigidTransform, points_P: np.ndarray, pixels: np.ndarray, K: np.ndarray) -> RigidTransform:
+    """Eq. (2)'s pose (which minimises no image error: a fronto-parallel view's tilt comes out a few
+    degrees off) refined by OpenCV's Levenberg-Marquardt on the reprojection error of the points
+    (N, 3, in P) at the undistorted pixels (N, 2)."""
+    rvec = cv2.Rodrigues(X_CP.rotation().matrix())[0]
+    tvec = X_CP.translation().reshape(3, 1).copy()
+    rvec, tvec = cv2.solvePnPRefineLM(points_P, pixels, K, None, rvec, tvec)
+    return RigidTransform(RotationMatrix(cv2.Rodrigues(rvec)[0]), tvec.ravel())
+
+
 def adjustment(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_module_px: float = 5.0,
                max_residual_px: float = 1.0) -> AdjustmentResult | None:
     """The pose from the location markers (module docstring), corners refined to sub-pixel; None
@@ -202,12 +214,13 @@ def adjustment(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_modu
     found = plane_pose(points, pixels, K)
     if found is None:
         return None
-    X_CP, inliers = found
+    X_CP_homography, inliers = found
+    X_CP = refine_pose(X_CP_homography, points[inliers], pixels[inliers], K)
     H = homography_from_pose(X_CP, K)
     projected = np.c_[points[:, :2], np.ones(len(points))] @ H.T
     residual = pixels - projected[:, :2] / projected[:, 2:]
     rms = float(np.sqrt(np.mean(np.sum(residual[inliers] ** 2, axis=1))))
-    return None if rms > max_residual_px else AdjustmentResult(X_CP, pixels, rms, module)
+    return None if rms > max_residual_px else AdjustmentResult(X_CP, pixels, rms, module, X_CP_homography)
 
 
 # ---- Touchdown --------------------------------------------------------------------------------

@@ -1,0 +1,99 @@
+"""Seed 001 in the loop, on the rendered camera: a shortened open landing steered by the federated
+estimate, the same with the lens covered for 1.5 s, and a few of rqrlp-maneuvers' manoeuvres, all
+against the simulation's truth. benchmarks/federated.py runs the full scenes (20 m, 10 seeds)."""
+
+import numpy as np
+import pytest
+
+from diagrams.federated_metrics import federated_log
+from diagrams.gv_landing_run import fly
+from diagrams.rqrlp_maneuvers_run import fly as fly_maneuvers
+from diagrams.runner import load_scenario
+from systems.control.flight_controller import COMMAND_SIZE
+from systems.control.landing import Mode
+from systems.estimators.federated.system import FED_RELATIVE_STD
+from systems.perception.seam import VALID
+
+SHORT = ["start.height_m=6.0", "landing.initial_height_m=6.0"]  # the last 6 m of open-landing's 20
+BLACKOUT_S = (2.0, 3.5)
+
+
+def _open_landing(*overrides):
+    _, config = load_scenario("open-landing", overrides=[*SHORT, *overrides])
+    return fly(config, 30.0)
+
+
+@pytest.fixture(scope="module")
+def federated_landing():
+    return _open_landing()
+
+
+@pytest.fixture(scope="module")
+def covered_landing():
+    return _open_landing(f"federated.camera.blackouts_s=[[{BLACKOUT_S[0]}, {BLACKOUT_S[1]}]]")
+
+
+def test_the_federated_estimate_lands_the_uav_on_the_pattern(federated_landing):
+    metrics, _ = federated_landing
+    landing = metrics["landing"]
+    assert landing["success"], landing
+    assert landing["touchdown_error_m"] < 0.10 and landing["touchdown_rel_speed_mps"] < 0.5
+    assert metrics["perception"]["source"] == "federated"
+    fused = metrics["estimators"]["federated"]
+    assert fused["valid_fraction"] >= 0.99
+    assert fused["rmse_height_m"] < 0.037  # seed 001's fused height RMSE
+
+
+def test_each_node_measures_in_its_own_altitude_band(federated_landing):
+    estimators = federated_landing[0]["estimators"]
+    approach, adjustment, touchdown = (estimators[n]["altitude_band_m"] for n in ("approach", "adjustment",
+                                                                                 "touchdown"))
+    assert approach[1] > 5.5  # from the start
+    assert 3.0 < adjustment[1] < 4.5 and adjustment[0] > 0.5  # 5 px modules to the markers leaving the view
+    assert touchdown[0] < 0.3  # to the end
+    for name in ("approach", "adjustment", "touchdown"):
+        assert np.isfinite(estimators[f"local_{name}"]["rmse_height_m"])
+
+
+def test_with_the_lens_covered_the_estimate_turns_invalid_and_the_uav_does_not_descend(covered_landing):
+    metrics, flight = covered_landing
+    log = flight.log
+    blind = (log["t"] > BLACKOUT_S[0] + 0.6) & (log["t"] < BLACKOUT_S[1])
+    assert not (log["relative_state"][blind, VALID] > 0.5).any()  # dead-reckoned past max_coast_s: invalid
+    invalid = log["relative_state"][:-1, VALID] < 0.5
+    # The supervisor's step at sample k, on that sample's seam, shows in the log at k + 1.
+    assert not np.isin(log["mode"][1:][invalid], [Mode.LAND, Mode.APPROACH]).any()
+    assert (log["command"][1:][invalid, 2] > -1e-6).all()  # never descends on an invalid estimate
+    fed = federated_log(flight.source_log, flight.handles.config.platform)
+    std = fed.federated[:, FED_RELATIVE_STD]
+    before, late = np.searchsorted(fed.t, [BLACKOUT_S[0], BLACKOUT_S[1] - 0.05])
+    assert std[late] > 3 * std[before]  # the covariance grows on the IMU alone
+    assert metrics["landing"]["success"] and metrics["landing"]["touchdown_error_m"] < 0.10  # and recovers
+
+
+@pytest.fixture(scope="module")
+def maneuvers():
+    _, config = load_scenario("rqrlp-maneuvers", overrides=[
+        "manoeuvres=[[2.0, 0, 0, 0, 0], [3.0, 0.2, -0.1, 0.1, 0], [4.0, 0, 0, 0, 90.0]]"])
+    return fly_maneuvers(config, config.run_length_s), config
+
+
+def test_the_manoeuvres_command_what_they_say(maneuvers):
+    _, config = maneuvers
+    command = config.command_trajectory()
+    assert command.rows() == COMMAND_SIZE - 3
+    np.testing.assert_allclose(command.value(4.0).ravel(), [0.2, -0.1, 0.1, 0.0])
+    np.testing.assert_allclose(command.value(9.0).ravel()[3], 2 * np.pi)  # a whole turn at 90 deg/s
+
+
+def test_over_manoeuvres_the_federated_pose_beats_every_node(maneuvers):
+    """A 9 s excerpt (benchmarks/federated.py scores the whole flight against seed 001's figures)."""
+    (metrics, _), _ = maneuvers
+    estimators = metrics["estimators"]
+    fused = estimators["federated"]
+    assert fused["valid_fraction"] == 1.0
+    assert estimators["adjustment"]["present_fraction"] > 0.9  # the markers seen throughout
+    for node in ("adjustment", "touchdown"):
+        assert fused["rmse_position_m"] < estimators[node]["rmse_position_m"]
+        assert fused["rmse_orientation_rad"] < estimators[node]["rmse_orientation_rad"]
+    assert fused["rmse_orientation_rad"] <= 0.0818  # seed 001's figure
