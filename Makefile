@@ -26,6 +26,7 @@ bench: $(STAMP) system-deps
 	$(VENV)/bin/python benchmarks/landing_sweep.py
 	$(VENV)/bin/python benchmarks/marker_ekf_mc.py
 	$(VENV)/bin/python benchmarks/vision_landing.py
+	$(VENV)/bin/python benchmarks/federated.py
 
 $(STAMP): pyproject.toml
 	@if [ -z "$(PYTHON)" ]; then \

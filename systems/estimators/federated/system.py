@@ -63,7 +63,7 @@ class FederatedFilterSystem(LeafSystem):
     Outputs at t, with the step at t included (systems/stepped.py):
     `X_PB_estimate` (PoseEstimate of B in P, covariance [dtheta; dp] in P), `X_WP_estimate`
     (PoseEstimate of the pattern in W: X_WB X_PB^-1, its position covariance the relative
-    position's, valid by engine.is_valid), `v_WP_estimate` (3, m/s in W: the pattern's velocity,
+    position's, its heading's pi^2 before the first full pose, valid by engine.is_valid), `v_WP_estimate` (3, m/s in W: the pattern's velocity,
     v_WB minus the body's velocity relative to P) and `federated_vector` (FED_* layout).
     """
 
@@ -116,6 +116,8 @@ class FederatedFilterSystem(LeafSystem):
         J[0:3, 6:9] = -R_WP  # R_WP = R_WB R_PB^T: an attitude error dtheta (in P) turns it by -R_WP dtheta in W
         J[3:6] = R_WB @ relative_jacobian(state.fused)
         covariance = J @ state.fused.P @ J.T
+        if not state.heading_known:
+            covariance[2, 2] += np.pi**2  # the pattern's heading is a gauge until a full pose (engine.py)
         return PoseEstimate(context.get_time(), X_WP, is_valid(state, self._config), (covariance + covariance.T) / 2,
                             "W", "P")
 

@@ -1,0 +1,74 @@
+"""`FederatedFilterSystem` in a small diagram (no rendering): the same numbers as the engine's
+`step` run by hand, the step of t seen at t, and the pattern put in the world through X_WB."""
+
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
+
+from systems.config import ConfigError
+from systems.estimators.federated.engine import NODES, X_PB, FederatedConfig, FederatedState, step
+from systems.estimators.federated.system import FED_STARTED, FED_VALID, FederatedFilterSystem
+from systems.perception.rqrlp.measurements import approach_measurement
+
+G = 9.81
+X_BC = RigidTransform(RollPitchYaw(np.pi, 0.0, 0.0), [0.0, 0.0, -0.04])
+X_WB = RigidTransform(RollPitchYaw(0.0, 0.0, 0.4), [1.0, 2.0, 5.0])
+IMU = np.array([0.0, 0.0, G, 0.0, 0.0, 0.0])  # at rest, level
+P_CP = np.array([0.1, -0.2, 4.9])
+IMU_PERIOD, CAMERA_PERIOD = 0.005, 0.02
+
+
+def _diagram():
+    builder = DiagramBuilder()
+    federated = builder.AddSystem(FederatedFilterSystem(FederatedConfig(), X_BC, IMU_PERIOD, CAMERA_PERIOD))
+    builder.Connect(builder.AddSystem(ConstantVectorSource(IMU)).get_output_port(), federated.GetInputPort("imu"))
+    measurement = approach_measurement(P_CP, 80.0, 0.0, 640.0)
+    for node in NODES:
+        value = [measurement] if node == "approach" else []
+        builder.Connect(builder.AddSystem(ConstantValueSource(AbstractValue.Make(value))).get_output_port(),
+                        federated.GetInputPort(node))
+    builder.Connect(builder.AddSystem(ConstantValueSource(AbstractValue.Make(X_WB))).get_output_port(),
+                    federated.GetInputPort("X_WB"))
+    builder.Connect(builder.AddSystem(ConstantVectorSource(np.zeros(6))).get_output_port(),
+                    federated.GetInputPort("V_WB"))
+    return builder.Build(), federated, measurement
+
+
+def test_the_system_gives_the_engines_numbers_and_puts_the_pattern_in_the_world():
+    diagram, federated, measurement = _diagram()
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(0.1)
+    context = federated.GetMyContextFromRoot(simulator.get_context())
+    state = FederatedState()
+    for k in range(21):  # t = 0 ... 0.1 s; a frame every 4 IMU steps
+        t = k * IMU_PERIOD
+        frame = {"approach": measurement} if k % 4 == 0 else None
+        state = step(state, t, IMU, frame, FederatedConfig(), X_BC)
+    X_PB_system = federated.GetOutputPort("X_PB_estimate").Eval(context)
+    np.testing.assert_allclose(X_PB_system.X_RT.GetAsMatrix34(), X_PB(state.fused).GetAsMatrix34(), atol=1e-12)
+    X_WP = federated.GetOutputPort("X_WP_estimate").Eval(context)
+    assert X_WP.valid and X_WP.frames == "X_WP"
+    p_WP = X_WB.multiply(X_BC.multiply(P_CP))  # the measured centre, in the world
+    np.testing.assert_allclose(X_WP.X_RT.translation(), p_WP, atol=2e-3)
+    assert X_WP.covariance[2, 2] > np.pi**2  # no full pose yet: the pattern's heading is unknown
+    np.testing.assert_allclose(federated.GetOutputPort("v_WP_estimate").Eval(context), 0.0, atol=0.05)
+    vector = federated.GetOutputPort("federated_vector").Eval(context)
+    assert vector[FED_VALID] == 1.0 and vector[FED_STARTED] == 1.0
+
+
+def test_a_frame_is_in_the_output_at_its_own_time():
+    diagram, federated, _ = _diagram()
+    context = diagram.CreateDefaultContext()
+    federated_context = federated.GetMyContextFromRoot(context)
+    assert federated.GetOutputPort("X_WP_estimate").Eval(federated_context).valid  # t = 0's frame, no event run
+    context.SetTime(0.005)  # an IMU step that is no camera frame, from the same unstepped state
+    assert not federated.GetOutputPort("X_WP_estimate").Eval(federated_context).valid
+
+
+def test_the_camera_period_must_be_whole_imu_periods():
+    with pytest.raises(ConfigError, match="whole number of IMU periods"):
+        FederatedFilterSystem(FederatedConfig(), X_BC, 0.005, 0.0125)
