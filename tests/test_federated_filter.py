@@ -87,9 +87,13 @@ def test_the_gate_rejects_a_ten_sigma_pose():
 
 
 def test_a_start_from_the_centre_alone_knows_the_relative_position_whatever_the_heading():
-    state = initial_state(np.array([0.4, -0.3, -15.0]), np.array([0.0, 0.0, G]), LocalFilterConfig(), 0.1)
+    config = LocalFilterConfig()
+    state = initial_state(np.array([0.4, -0.3, -15.0]), np.array([0.0, 0.0, G]), config, 0.1)
     assert relative_std_m(state) == pytest.approx(0.1 * np.sqrt(3), rel=1e-9)
-    assert np.sqrt(state.P[0, 0]) > 0.4  # yet p_PB's horizontal position is uncertain with the heading
+    # yet p_PB's horizontal position is uncertain with the attitude, over the 15 m lever arm:
+    # x = -(R p_BP_B)_x moves by 15 m per radian of pitch and 0.3 m per radian of heading
+    tilt, yaw = np.radians(config.initial_tilt_std_deg), np.radians(config.initial_yaw_std_deg)
+    assert state.P[0, 0] == pytest.approx(0.1**2 + (15.0 * tilt) ** 2 + (0.3 * yaw) ** 2, rel=1e-9)
 
 
 def _truth(t):

@@ -100,6 +100,15 @@ def test_approach_ignores_an_outline_the_image_cuts_and_the_texture_inside_it(he
     assert approach(view(X_CP_at(height_m)), K, D, LAYOUT) is None  # 0.85 m at 0.9 m: taller than the image
 
 
+def test_approach_takes_no_location_marker_for_the_outline_below_it():
+    # Under 0.7 m the outline is out of view and a marker's dark squares are the largest square-ish
+    # regions: the white margin inside the outline's border tells them apart.
+    for height_m in (0.2, 0.6, 0.7):
+        for xy in ((0.0, 0.0), (0.1, 0.05)):
+            for yaw_deg in (30, 45, 60):
+                assert approach(view(X_CP_at(height_m, xy=xy, yaw_deg=yaw_deg)), K, D, LAYOUT) is None
+
+
 def test_touchdown_chains_the_pose_through_a_descent_without_markers_in_view():
     # From 1.2 m to 0.2 m over the texture, off the markers after the anchor, turning and drifting.
     poses = [X_CP_at(1.2 - 0.05 * k, xy=(0.02 + 0.004 * k, -0.01 - 0.003 * k), yaw_deg=30.0 + 1.5 * k)

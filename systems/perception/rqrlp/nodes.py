@@ -88,6 +88,8 @@ def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_side_p
         return None
     if _dark_along_edges(closed, best) < MIN_DARK_EDGE:
         return None  # not a border: a blob of the texture, seen when the outline is out of view
+    if not _light_inside_border(dark_regions(grey), best, layout):
+        return None  # a location marker's square, seen when the outline is out of view
     corners = undistort_pixels(best, K, D)
     side = float(np.sqrt(cv2.contourArea(corners.astype(np.float32)))) + 1.0
     if side < min_side_px:
@@ -104,6 +106,18 @@ def _dark_along_edges(mask: np.ndarray, quad: np.ndarray, samples: int = 32) -> 
     points = np.concatenate([quad[i] + s * (quad[(i + 1) % 4] - quad[i]) for i in range(4)])
     cols, rows = np.round(points).astype(int).T
     return float(np.mean(mask[rows, cols] > 0))
+
+
+def _light_inside_border(mask: np.ndarray, quad: np.ndarray, layout: RqrlpLayout, min_margin_px: float = 2.0) -> bool:
+    """Whether the white margin inside the black border is light along the quadrilateral (the
+    unclosed dark mask), where the margin spans min_margin_px or more; a location marker's squares
+    are dark there (its ring is a module wide, a seventh of its side)."""
+    side = np.sqrt(cv2.contourArea(quad.astype(np.float32)))
+    if layout.margin_m / layout.size_m * side < min_margin_px:
+        return True  # too small to tell: the largest square-ish region is the outline from afar
+    inset = (layout.border_m + layout.margin_m / 2) / layout.size_m  # of the side, from each edge
+    centre = quad.mean(axis=0)
+    return 1.0 - _dark_along_edges(mask, centre + (1 - 2 * inset) * (quad - centre)) >= MIN_DARK_EDGE
 
 
 # ---- Adjustment -------------------------------------------------------------------------------
