@@ -11,7 +11,7 @@ from diagrams.rqrlp_maneuvers_run import fly as fly_maneuvers
 from diagrams.runner import load_scenario
 from systems.control.flight_controller import COMMAND_SIZE
 from systems.control.landing import Mode
-from systems.estimators.federated.system import FED_RELATIVE_STD
+from systems.estimators.federated.system import FED_BETAS, FED_RELATIVE_STD
 from systems.perception.seam import VALID
 
 SHORT = ["start.height_m=6.0", "landing.initial_height_m=6.0"]  # the last 6 m of open-landing's 20
@@ -53,6 +53,16 @@ def test_each_node_measures_in_its_own_altitude_band(federated_landing):
     assert touchdown[0] < 0.3  # to the end
     for name in ("approach", "adjustment", "touchdown"):
         assert np.isfinite(estimators[f"local_{name}"]["rmse_height_m"])
+
+
+def test_a_node_with_the_pattern_out_of_view_loses_its_weight(federated_landing):
+    _, flight = federated_landing
+    fed = federated_log(flight.source_log, flight.handles.config.platform)
+    height, betas = fed.X_PB[:, 2], fed.federated[:, FED_BETAS]
+    last = height < 0.5  # the outline and the location markers out of view: the touchdown node alone
+    assert betas[last, 2].mean() > 0.9 and betas[last, :2].max() < 0.05
+    far = (height > 4.5) & (height < 5.5)  # the markers too small: the approaching node alone
+    assert betas[far, 0].mean() > 0.9
 
 
 def test_with_the_lens_covered_the_estimate_turns_invalid_and_the_uav_does_not_descend(covered_landing):
