@@ -19,6 +19,7 @@ Prints PASS/FAIL per target; never a timed assertion in a test.
 
 import argparse
 import json
+import multiprocessing
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -75,7 +76,8 @@ def landing_row(seed: int, m: dict) -> dict:
 
 def landing_campaign(name: str, runs: int, workers: int, overrides: tuple[str, ...]) -> dict:
     start = time.perf_counter()
-    with ProcessPoolExecutor(workers) as pool:
+    # spawn: a forked worker inherits the parent's render context (VTK, EGL) and hangs in it
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         rows = [landing_row(seed, m) for seed, m in zip(range(runs), pool.map(
             landing, range(runs), [overrides] * runs))]
     print(f"\n## {name}: {runs} seeds, {workers} workers, {time.perf_counter() - start:.0f} s wall\n")
@@ -162,7 +164,8 @@ def frame_costs(overrides: tuple[str, ...], repeats: int = 3) -> dict:
     for grey in frames:
         found = adjustment_node(grey, 0.0, camera, layout)
         if found is not None:
-            measurements = {"approach": approach_node(grey, 0.0, camera, layout), "adjustment": found}
+            outline = approach_node(grey, 0.0, camera, layout)
+            measurements = {"approach": outline, "adjustment": found} if outline is not None else measurements
             tracker = tracker.anchored(grey, camera.X_BC.inverse().multiply(found.X_PB.inverse()))
             continue
         if tracker.H is not None:

@@ -88,7 +88,7 @@ def test_the_gate_rejects_a_ten_sigma_pose():
 
 def test_a_start_from_the_centre_alone_knows_the_relative_position_whatever_the_heading():
     config = LocalFilterConfig()
-    state = initial_state(np.array([0.4, -0.3, -15.0]), np.array([0.0, 0.0, G]), config, 0.1)
+    state = initial_state(np.array([0.4, -0.3, -15.0]), 0.01 * np.eye(3), np.array([0.0, 0.0, G]), config)
     assert relative_std_m(state) == pytest.approx(0.1 * np.sqrt(3), rel=1e-9)
     # yet p_PB's horizontal position is uncertain with the attitude, over the 15 m lever arm:
     # x = -(R p_BP_B)_x moves by 15 m per radian of pitch and 0.3 m per radian of heading
@@ -164,3 +164,25 @@ def test_a_node_that_loses_its_features_loses_its_weight_and_recovers_it():
     at = lambda t: betas[np.argmin(np.abs(betas[:, 0] - t)), adjustment]
     assert at(3.98) < 0.1 * at(2.98)  # a tenth of its weight before, after a second without measurements
     assert at(5.0) > 0.8 * at(2.98)  # most of it back within a second of its return
+
+
+def test_a_filter_that_rejects_every_measurement_restarts_from_the_next_after_max_coast():
+    """Hovering 10 m over the pattern, the filter converged; then the measurements say 2 m lower (the
+    state is off, as after a divergence): gated, invalid after max_coast_s, restarted, right again."""
+    config = FederatedConfig()
+    state, history = FederatedState(), []
+    for k in range(int(4.0 * 200) + 1):
+        t = k / 200
+        frame = None
+        if k % 4 == 0:
+            height = 10.0 if t < 2.0 else 8.0
+            p_CP = X_BC.inverse().multiply(RigidTransform([0.0, 0.0, height]).inverse()).translation()
+            frame = {"approach": NodeMeasurement(t, "approach", approach_covariance(p_CP, 60.0, 640.0), p_CP=p_CP)}
+        state = step(state, t, np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0], frame, config, X_BC)
+        history.append((t, is_valid(state, config), state.fused.p[2], state.stats[0].gated))
+    t, valid, height, gated = np.array(history).T
+    coasting = (t > 2.0) & (t < 1.98 + config.max_coast_s)
+    assert np.abs(height[coasting] - 10.0).max() < 0.01 and valid[coasting].all()  # gated, dead-reckoned
+    assert gated[coasting][-1] >= 20
+    assert not valid[(t > 1.98 + config.max_coast_s) & (t < 2.0 + config.max_coast_s)].any()  # lost
+    assert valid[t >= 2.0 + config.max_coast_s].all() and np.abs(height[t > 3.0] - 8.0).max() < 0.05  # restarted

@@ -7,7 +7,8 @@ measurements: one local filter per vision node (local_filter.py), fused and rese
 Every step predicts each local filter over the time since the last with the IMU sample (f_B, w_B);
 a step with measurements (a camera frame: a dict, even of Nones) updates each node's own filter
 with its node's measurement, then fuses the filters (Eq. 7-9) and resets them (Eq. 6). The filter
-starts at the first measurement of any node. Frames: B the UAV body, P the pattern (level, z up),
+starts at the first measurement of any node, and again at the first after max_coast_s without one
+accepted. Frames: B the UAV body, P the pattern (level, z up),
 C the camera at X_BC in B. Units: m, s, rad.
 """
 
@@ -22,6 +23,7 @@ from systems.estimators.federated.local_filter import (
     LocalFilterConfig,
     LocalState,
     initial_state,
+    initial_velocity_covariance,
     predict,
     update_centre_in_camera,
     update_pose,
@@ -83,25 +85,34 @@ def _first_state(measurement: NodeMeasurement, X_BC: RigidTransform, f_B: np.nda
     """A filter started by a node's first measurement: a full pose as measured, the approaching
     node's centre with the tilt from the accelerometer and the heading unknown (initial_state)."""
     if measurement.X_PB is not None:
-        P = np.diag(np.r_[np.diag(measurement.covariance)[3:6], np.full(3, config.initial_velocity_std_mps**2),
+        P = np.diag(np.r_[np.diag(measurement.covariance)[3:6], np.diag(initial_velocity_covariance(config)),
                           np.diag(measurement.covariance)[0:3]])
         return LocalState(measurement.X_PB.translation(), np.zeros(3), measurement.X_PB.rotation().matrix(), P)
-    return initial_state(X_BC.multiply(measurement.p_CP), f_B, config)
+    R_BC = X_BC.rotation().matrix()
+    return initial_state(X_BC.multiply(measurement.p_CP), R_BC @ measurement.covariance @ R_BC.T, f_B, config)
 
 
 def _restart(state: FederatedState, measurement: NodeMeasurement, X_BC: RigidTransform, f_B: np.ndarray,
-             config: FederatedConfig) -> tuple[LocalState, ...]:
+             config: FederatedConfig, lost: bool) -> tuple[LocalState, ...]:
     """Every local filter (re)started from one measurement, each with N times its covariance (so
-    that their fusion has it): at the first measurement, and at the first full pose while the
-    heading is unknown (an EKF update over a heading that far off would not be linear). A restart
-    keeps the body's velocity, v_B, and its covariance."""
+    that their fusion has it): at the first measurement, after max_coast_s without one accepted
+    (`lost`), and at the first full pose while the heading is unknown (an EKF update over a heading
+    that far off would not be linear). A restart keeps the body's velocity, v_B, and its covariance,
+    to which a lost filter adds the initial one (it may have drifted off)."""
     first = _first_state(measurement, X_BC, f_B, config)
     if state.started:
         R = first.R @ state.fused.R.T  # the new P's axes from the old's
         P = first.P.copy()
-        P[3:6, 3:6] = R @ state.fused.P[3:6, 3:6] @ R.T
+        P[3:6, 3:6] = R @ state.fused.P[3:6, 3:6] @ R.T + (initial_velocity_covariance(config) if lost else 0.0)
         first = replace(first, v=R @ state.fused.v, P=P)
     return tuple(replace(first, P=first.P * len(NODES), q_scale=float(len(NODES))) for _ in NODES)
+
+
+def _lost(state: FederatedState, config: FederatedConfig) -> bool:
+    """No measurement accepted for over max_coast_s (every node lost, or gated: a filter that has
+    drifted off rejects what would bring it back): the next measurement restarts it."""
+    last = last_accepted_s(state)
+    return last is None or state.time - last > config.max_coast_s
 
 
 def _update(state: LocalState, measurement: NodeMeasurement, X_BC: RigidTransform,
@@ -131,11 +142,12 @@ def step(state: FederatedState, time: float, imu: np.ndarray, measurements: dict
     present = [(i, m) for i, m in present if m is not None]
     stats = list(state.stats)
     pose = next(((i, m) for i, m in present if m.X_PB is not None), None)
-    if not state.started or (not state.heading_known and pose is not None):
-        if not present:
-            return state
+    if not state.started and not present:
+        return state
+    lost = state.started and _lost(state, config)
+    if present and (not state.started or lost or (not state.heading_known and pose is not None)):
         i, source = pose or present[0]
-        filters = _restart(state, source, X_BC, f_B, config)
+        filters = _restart(state, source, X_BC, f_B, config, lost)
         state = replace(state, heading_known=pose is not None)
         stats[i] = NodeStats(stats[i].accepted + 1, stats[i].gated, time)
         present = [(j, m) for j, m in present if j != i]
