@@ -24,7 +24,7 @@ from systems.sensors.imu import Imu, ImuConfig
 def seed001_camera() -> CameraConfig:
     """Seed 001 Table 1's camera (GoPro 4: 1080p at 50 fps, f 1280 px, principal point (948.9,
     543.2), distortion (-0.00908, -0.03128, 0.00109, -0.00198, 0)) at half its resolution, the same
-    field of view: 1080p renders 3.5x slower here (docs/results.md gives both's cost and accuracy).
+    field of view: 1080p renders 3.8x slower here (docs/results.md gives both's cost and accuracy).
     Pixel noise as the other scenes' cameras."""
     return CameraConfig(width=960, height=540, fx=640.0, fy=640.0, cx=474.45, cy=271.6, rate_hz=50.0,
                         pixel_noise_std=2.0, distortion=[-0.00908, -0.03128, 0.00109, -0.00198, 0.0])
