@@ -53,7 +53,6 @@ class SeamPorts:
     X_WP_estimate: OutputPort | None = None
     filter_name: str | None = None  # the marker filter behind it, if any
     logs: dict = field(default_factory=dict)  # the source's own loggers (name -> VectorLogSink), for its metrics
-    systems: object = None  # what the source added, for callers that need more (e.g. FederatedPorts)
 
 
 @dataclass(frozen=True)
@@ -107,7 +106,6 @@ def _federated(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
     period = config.federated.camera.period_s
     ports.logs = {**federated.logs, "quadrotor_state": LogVectorOutput(inputs.quadrotor_state, builder, period),
                   "vehicle_state": LogVectorOutput(inputs.vehicle_state, builder, period)}
-    ports.systems = federated
     return ports
 
 

@@ -16,7 +16,7 @@ estimate here: it is scored against the truth.
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydrake.geometry import Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph
+from pydrake.geometry import Meshcat, MeshcatVisualizer, SceneGraph
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, MatrixGain, TrajectorySource
 from pydrake.systems.sensors import RgbdSensor
@@ -25,6 +25,7 @@ from pydrake.trajectories import PiecewisePolynomial
 from diagrams.federated_perception import FederatedPerceptionConfig, FederatedPorts, add_federated_perception
 from diagrams.gv_landing import add_ground
 from diagrams.gv_landing_config import IntegrationConfig, StartConfig, table1_airframe
+from diagrams.stewart_scene import add_viewers
 from systems.config import require
 from systems.control.flight_controller import BACKENDS, COMMAND_SIZE, FlightControllerConfig, make_flight_controller
 from systems.sensors.camera import add_camera, add_renderer
@@ -151,15 +152,8 @@ def build_rqrlp_maneuvers(config: ManeuversConfig, meshcat: Meshcat | None = Non
                                           quad.GetOutputPort("A_WB"))
     truth_logs = {name: LogVectorOutput(port, builder, camera_config.period_s)
                   for name, port in (("quadrotor_state", quad_state), ("vehicle_state", vehicle_state))}
-    video = None
-    if video_path is not None:
-        video = builder.AddNamedSystem("video", VideoRecorder(video_path, camera_config.period_s, camera_config.width,
-                                                              camera_config.height))
-        builder.Connect(noisy_camera.get_output_port(), video.get_input_port())
-    visualizer = None
+    visualizer, video = add_viewers(builder, scene_graph, meshcat, noisy_camera, camera_config, video_path)
     if meshcat is not None:
-        visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat,
-                                                    MeshcatVisualizerParams(role=Role.kIllustration))
         trail = builder.AddNamedSystem("uav_trail", MeshcatTrail(meshcat, "rqrlp/uav_trail", STATE_SIZE, P_WB))
         builder.Connect(quad_state, trail.get_input_port())
         meshcat.SetCameraPose(np.array([-4.0, -5.0, 4.0]), np.array([0.0, 0.0, 1.0]))

@@ -186,3 +186,26 @@ def test_a_filter_that_rejects_every_measurement_restarts_from_the_next_after_ma
     assert gated[coasting][-1] >= 20
     assert not valid[(t > 1.98 + config.max_coast_s) & (t < 2.0 + config.max_coast_s)].any()  # lost
     assert valid[t >= 2.0 + config.max_coast_s].all() and np.abs(height[t > 3.0] - 8.0).max() < 0.05  # restarted
+
+
+def test_between_frames_the_fused_estimate_is_the_information_sum_of_the_predicted_filters():
+    config, rng = FederatedConfig(), np.random.default_rng(5)
+    state = FederatedState()
+    for k in range(13):  # frames at 0, 4, 8 and 12 (200 Hz, 50 Hz), predicted steps between
+        t = k / 200
+        p, _, a, R = _truth(t)
+        frame = None
+        if k % 4 == 0:
+            X_CP = X_BC.inverse().multiply(RigidTransform(R, p).inverse())
+            covariance = approach_covariance(X_CP.translation(), 60.0, 640.0)
+            pose = RigidTransform(R, p + rng.normal(0, 0.004, 3))
+            frame = {"approach": NodeMeasurement(t, "approach", covariance,
+                                                 p_CP=rng.multivariate_normal(X_CP.translation(), covariance)),
+                     "adjustment": NodeMeasurement(t, "adjustment", np.diag([2.5e-5] * 3 + [1.6e-5] * 3), X_PB=pose)}
+        state = step(state, t, np.r_[R.inverse().multiply(a + [0.0, 0.0, G]), [0.0, 0.0, 0.2]], frame, config, X_BC)
+        if frame is None:
+            information = sum(np.linalg.inv(s.P) for s in state.filters)
+            np.testing.assert_allclose(state.fused.P, np.linalg.inv(information), rtol=1e-6, atol=1e-12)
+            for s in state.filters:
+                np.testing.assert_allclose(s.p, state.fused.p, atol=1e-12)
+                np.testing.assert_allclose(s.v, state.fused.v, atol=1e-12)

@@ -131,11 +131,16 @@ def step(state: FederatedState, time: float, imu: np.ndarray, measurements: dict
     camera frame) updated, fused and reset."""
     imu = np.asarray(imu, dtype=float)
     f_B, w_B = imu[:3], imu[3:]
-    filters = state.filters
-    if state.started and time > state.time:
+    filters, fused = state.filters, state.fused
+    moved = state.started and time > state.time
+    if moved:
         filters = tuple(predict(s, f_B, w_B, time - state.time, config, config.gravity_m_s2) for s in filters)
     if measurements is None:
-        fused = _fused_between_frames(filters) if state.started else None
+        # Between frames the fused estimate is predicted alike: the filters share its nominal state
+        # and split its covariance and process noise by the betas (P_i = P_g / beta_i, Q_i = Q / beta_i,
+        # sum beta_i = 1), so the predicted filters' information sums to the predicted fused one's.
+        if moved:
+            fused = predict(fused, f_B, w_B, time - state.time, config, config.gravity_m_s2)
         return replace(state, time=time, filters=filters, fused=fused, last_imu=imu)
     state = replace(state, time=time, last_imu=imu)
     present = [(i, measurements.get(node)) for i, node in enumerate(NODES)]
@@ -161,14 +166,6 @@ def step(state: FederatedState, time: float, imu: np.ndarray, measurements: dict
     fused, betas = fuse(updated)
     return replace(state, fused=fused, filters=tuple(reset(updated, fused, betas)), local_estimates=tuple(updated),
                    betas=betas, stats=tuple(stats))
-
-
-def _fused_between_frames(filters: tuple[LocalState, ...]) -> LocalState:
-    """Between frames every filter holds the same nominal state (the last reset's, predicted alike):
-    the fused estimate is any one's, with the information of all (Eq. 7)."""
-    information = sum(np.linalg.inv(s.P) for s in filters)
-    P = np.linalg.inv(information)
-    return replace(filters[0], P=(P + P.T) / 2, q_scale=1.0)
 
 
 def last_accepted_s(state: FederatedState) -> float | None:
