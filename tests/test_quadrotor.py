@@ -270,3 +270,47 @@ def test_discretised_quadrotor_outputs_the_same_kinematics():
         assert quad.GetOutputPort("X_WB").Eval(context).translation() == pytest.approx([1.0, 2.0, 5.0])
     for continuous, discrete in zip(*values):
         np.testing.assert_allclose(discrete, continuous, atol=1e-12)
+
+
+DRAG = QuadrotorParams(rotor_drag_coefficient=8.06428e-5)  # RotorS's
+
+
+def test_rotor_drag_pulls_against_the_air_relative_velocity_in_the_rotor_plane():
+    R_WB = RotationMatrix(RollPitchYaw(0.3, -0.2, 0.7))
+    speeds = np.array([470.0, 490.0, 480.0, 475.0])
+    state = quadrotor_state(p_WB=[0.0, 0.0, 5.0], R_WB=R_WB, v_WB=[2.0, -1.0, 0.5], rotor_speeds=speeds)
+    wind = np.array([-1.0, 0.5, 3.0])
+    still = quadrotor_state_derivative(state, speeds, PARAMS)[V_WB]
+    dragged = quadrotor_state_derivative(state, speeds, DRAG, wind)[V_WB]
+    # By hand: the air-relative velocity in B, its z part dropped, times -k_rd (sum of rotor speeds) / m.
+    R = R_WB.matrix()
+    v_B = R.T @ (state[V_WB] - wind)
+    expected = R @ (-8.06428e-5 * speeds.sum() * np.array([v_B[0], v_B[1], 0.0])) / DRAG.mass_kg
+    np.testing.assert_allclose(dragged - still, expected, atol=1e-12)
+    assert np.linalg.norm(expected) > 0.1  # m/s^2: large enough to mean something
+    # Air along the body's z axis does not act; still air pulls on the UAV's own velocity.
+    along_z = state[V_WB] - R[:, 2]
+    np.testing.assert_allclose(quadrotor_state_derivative(state, speeds, DRAG, along_z)[V_WB], still, atol=1e-12)
+    assert not np.allclose(quadrotor_state_derivative(state, speeds, DRAG)[V_WB], still)
+
+
+@pytest.mark.parametrize("time_period", [None, 0.005])
+def test_wind_blows_a_hovering_quadrotor_downwind_and_reaches_its_accelerometer(time_period):
+    builder = DiagramBuilder()
+    quad = builder.AddSystem(Quadrotor(DRAG, time_period, wind=True))
+    commands = builder.AddSystem(ConstantVectorSource(np.full(4, DRAG.hover_rotor_speed())))
+    wind = builder.AddSystem(ConstantVectorSource([0.0, 5.0, 0.0]))
+    builder.Connect(commands.get_output_port(), quad.GetInputPort("rotor_speed_commands"))
+    builder.Connect(wind.get_output_port(), quad.GetInputPort("wind_velocity_W"))
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    root = simulator.get_mutable_context()
+    quad.set_state(root, hover_state(DRAG, [0.0, 0.0, 10.0]))
+    context = quad.GetMyContextFromRoot(root)
+    # At rest in a 5 m/s wind: the drag's acceleration, k_rd 4 w_hover 5 / m, toward +y.
+    a_WB = quad.GetOutputPort("A_WB").Eval(context)[3:]
+    expected = 8.06428e-5 * 4 * DRAG.hover_rotor_speed() * 5.0 / DRAG.mass_kg
+    np.testing.assert_allclose(a_WB, [0.0, expected, 0.0], atol=1e-9)
+    simulator.AdvanceTo(1.0)
+    state = quad.GetOutputPort("state").Eval(context)
+    assert 0.0 < state[V_WB][1] < 5.0 and abs(state[V_WB][0]) < 1e-9  # carried downwind, slower than the air
