@@ -8,6 +8,7 @@ unknown key by its full dotted path.
 
 import dataclasses
 import difflib
+import re
 import typing
 from pathlib import Path
 
@@ -17,6 +18,21 @@ from pydrake.common.yaml import yaml_load_typed
 from systems.config import ConfigError
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2's numbers: `1e9` and `1E-3` are floats (YAML 1.1, which
+    PyYAML follows, reads a float without a dot as text and wants `1.0e+9`)."""
+
+
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float",
+                              re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+                              list("-+0123456789"))
+
+
+def parse_yaml(text: str):
+    """YAML text as plain data, numbers read as YAML 1.2 reads them."""
+    return yaml.load(text, Loader=_Loader)
 
 
 @dataclasses.dataclass
@@ -76,8 +92,11 @@ def normalise(raw: dict, schema, path: str = "") -> dict:
             value = normalise(value, kind, dotted)
         elif typing.get_origin(kind) is list:
             value = value if isinstance(value, list) else [value]
+            item_kind = typing.get_args(kind)[0]
+            if dataclasses.is_dataclass(item_kind):  # a list of groups: each checked as its own
+                value = [normalise(item, item_kind, f"{dotted}[{i}]") for i, item in enumerate(value)]
             for item in value:
-                _check_scalar(item, typing.get_args(kind)[0], dotted)
+                _check_scalar(item, item_kind, dotted)
         elif kind in _SCALAR_KINDS:
             _check_scalar(value, kind, dotted)
         out[key] = value
@@ -90,7 +109,7 @@ def set_override(raw: dict, assignment: str) -> None:
     if not sep or not key:
         raise ConfigError(f"--set expects key=value, got '{assignment}'")
     try:
-        value = yaml.safe_load(text)
+        value = parse_yaml(text)
     except yaml.YAMLError:
         raise ConfigError(f"--set {key}: cannot parse the value '{text}'") from None
     node = raw
@@ -112,7 +131,7 @@ def load_typed(raw: dict, schema, source: str):
 
 def read_yaml(path: Path) -> dict:
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = parse_yaml(path.read_text())
     except OSError as e:
         raise ConfigError(f"cannot read scenario file {path}: {e.strerror}") from None
     except yaml.YAMLError as e:

@@ -192,3 +192,13 @@ def test_an_empty_file_is_the_defaults(tmp_path):
 def test_normalise_wraps_scalars_for_list_fields_only():
     out = normalise({"duration_s": 2, "platform": {"x_amplitude_m": 0.1, "motion": "static"}}, Scenario)
     assert out == {"duration_s": 2, "platform": {"x_amplitude_m": [0.1], "motion": "static"}}
+
+
+def test_numbers_are_read_as_yaml_1_2_reads_them(tmp_path):
+    # PyYAML (YAML 1.1) reads 1e9 as text; a user writing it means a number.
+    _, scenario = load_scenario("stewart-dynamic", overrides=["camera.rate_hz=2.5e1", "tof.noise_std_m=1E-3"])
+    assert scenario.camera.rate_hz == 25.0 and scenario.tof.noise_std_m == 0.001
+    _, scenario = load_scenario(config_path=write_yaml(tmp_path, "diagram: stewart_scene\nduration_s: 3e1\n"))
+    assert scenario.duration_s == 30.0
+    with pytest.raises(ConfigError, match="camera.rate_hz"):
+        load_scenario("stewart-dynamic", overrides=["camera.rate_hz=1e"])  # still text, and named
