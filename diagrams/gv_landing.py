@@ -12,6 +12,7 @@ All in World W (z up):
         --> marker filters (estimation.filters, and the steering one) --> logs
     perception source (diagrams/perception_sources.py) --seam--> tracking PID (pid.rate_hz)
         --> landing supervisor (50 Hz) --command--> flight controller (200 Hz) --> quadrotor
+    wind (`wind`, unless calm: mean, Dryden turbulence, gusts) --air velocity--> quadrotor's rotor drag
 
 Both vehicles integrate their equations over each 5 ms controller period in C++
 (`integration.discrete`), so Python runs only at the rates the systems declare.
@@ -41,6 +42,7 @@ from systems.control.flight_controller import FlightController, SymbolicFlightCo
 from systems.control.landing import LandingSupervisor
 from systems.control.monitor import LandingMonitor
 from systems.control.pid import TrackingPid
+from systems.environment.wind_system import WindSystem
 from systems.estimators.estimate import PoseEstimateToVector
 from systems.estimators.marker_ekf import FILTERS, MarkerFilterSystem
 from systems.estimators.marker_ekf.engine import ESTIMATE_VECTOR_SIZE
@@ -57,10 +59,11 @@ from systems.vehicles.ground_vehicle import GroundVehicle, GroundVehicleConfig
 from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry
 from systems.vehicles.paths import make_path
 from systems.vehicles.quadrotor import P_WB, STATE_SIZE, Quadrotor, hover_state
-from systems.viewers import MeshcatTrail, VideoRecorder
+from systems.viewers import MeshcatArrow, MeshcatTrail, VideoRecorder
 
 # Logged at the supervisor's rate (the sample before the first LANDED holds what the supervisor saw
-# at touchdown): the states, the seam (what steers), the truth's seam, the supervisor and the PID.
+# at touchdown): the states, the seam (what steers), the truth's seam, the supervisor and the PID;
+# and `wind` (the air's velocity in W) where it blows.
 LOG_NAMES = ("quadrotor_state", "vehicle_state", "relative_state", "true_relative_state", "mode", "command",
              "tracking_velocity", "vehicle_speed")
 
@@ -90,6 +93,7 @@ class GvLandingHandles:
 
     config: GvLandingConfig
     quadrotor: Quadrotor  # discretised per controller period with integration.discrete
+    wind: WindSystem | None  # None in calm air
     vehicle: GroundVehicle  # likewise
     truth: RelativeStateTruth
     perception: SeamPorts  # what steers
@@ -193,7 +197,8 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
                           "perception.source federated render one)")
     discrete = config.integration.discrete
     period, integration = (config.period_s, config.integration.simulator_config()) if discrete else (None, None)
-    quad = builder.AddNamedSystem("quadrotor", Quadrotor(config.quadrotor, period, integration))
+    wind = None if config.wind.is_calm else builder.AddNamedSystem("wind", WindSystem(config.wind, config.seed))
+    quad = builder.AddNamedSystem("quadrotor", Quadrotor(config.quadrotor, period, integration, wind=wind is not None))
     vehicle = builder.AddNamedSystem("ground_vehicle", GroundVehicle(config.vehicle, period, integration))
     # The vehicle's speed and its rate: [v (m/s), dv/dt (m/s^2)].
     profile = config.vehicle.speed_profile()
@@ -204,6 +209,9 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
     builder.Connect(speed_split.get_output_port(0), vehicle.GetInputPort("speed"))
     quad_state, vehicle_state, X_WB = (quad.GetOutputPort("state"), vehicle.GetOutputPort("state"),
                                        quad.GetOutputPort("X_WB"))
+    if wind is not None:
+        builder.Connect(quad_state, wind.get_input_port())
+        builder.Connect(wind.get_output_port(), quad.GetInputPort("wind_velocity_W"))
 
     truth = builder.AddNamedSystem("true_relative_state", RelativeStateTruth(
         config.vehicle, config.platform, config.perception.field_of_view_deg, config.perception.max_range_m))
@@ -271,6 +279,8 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         quad_state, vehicle_state, perception.relative_state, truth.get_output_port(),
         supervisor.GetOutputPort("mode"), supervisor.GetOutputPort("command"), pid.GetOutputPort("velocity_command"),
         speed.get_output_port()))}
+    if wind is not None:
+        loggers["wind"] = LogVectorOutput(wind.get_output_port(), builder, period)
     if perception.X_WP_estimate is not None:
         to_vector = builder.AddNamedSystem("steering_estimate_vector", PoseEstimateToVector())
         builder.Connect(perception.X_WP_estimate, to_vector.get_input_port())
@@ -293,6 +303,10 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
                                                     MeshcatVisualizerParams(role=Role.kIllustration))
         trail = builder.AddNamedSystem("uav_trail", MeshcatTrail(meshcat, "gv_landing/uav_trail", STATE_SIZE, P_WB))
         builder.Connect(quad_state, trail.get_input_port())
+        if wind is not None:  # the air's velocity at the UAV, 0.4 m per m/s
+            arrow = builder.AddNamedSystem("wind_arrow", MeshcatArrow(meshcat, "gv_landing/wind", STATE_SIZE, P_WB))
+            builder.Connect(quad_state, arrow.GetInputPort("position"))
+            builder.Connect(wind.get_output_port(), arrow.GetInputPort("vector"))
         # Each estimator's pad path (valid estimates) beside it.
         estimates = {name: (f.GetOutputPort("estimate_vector"), ESTIMATE_VECTOR_SIZE) for name, f in filters.items()}
         if perception.X_WP_estimate is not None and perception.filter_name is None:
@@ -302,6 +316,6 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
                 meshcat, f"gv_landing/{name}_pad_path", size, slice(1, 4), to_rgba(style(name)[0]), valid_index=0))
             builder.Connect(port, trail.get_input_port())
 
-    return GvLandingHandles(config, quad, vehicle, truth, perception, pid, supervisor, controller, monitor,
+    return GvLandingHandles(config, quad, wind, vehicle, truth, perception, pid, supervisor, controller, monitor,
                             scene_graph, airframe, vehicle_geometry, loggers, measurements, filters, sample_loggers,
                             visualizer)

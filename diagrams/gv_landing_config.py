@@ -4,7 +4,8 @@ one dataclass per YAML section, every paper number a default with its source.
 Sections beyond the systems' own configs: `perception` (what steers: `source`, a name in
 diagrams/perception_sources.py, and when its estimate is valid), `estimation` (the marker
 measurement stream and the filters that run on it), `federated` (seed 001's camera, IMU and
-federated filter, for perception.source federated), `start`, `integration`.
+federated filter, for perception.source federated), `wind` (systems/environment/wind.py: it acts
+through the quadrotor's rotor drag), `start`, `integration`.
 """
 
 from dataclasses import dataclass, field
@@ -20,6 +21,7 @@ from systems.control.flight_controller import BACKENDS, FlightControllerConfig
 from systems.control.landing import LandingConfig
 from systems.control.monitor import TerminationConfig
 from systems.control.pid import TrackingPidConfig
+from systems.environment.wind import WindConfig
 from systems.estimators.marker_ekf import FILTERS, MarkerEkfConfig
 from systems.perception.seam import SeamConfig
 from systems.sensors.camera import CameraConfig
@@ -166,11 +168,15 @@ class GvLandingConfig:
     integration: IntegrationConfig = field(default_factory=IntegrationConfig)
     uav: AirframeConfig = field(default_factory=table1_airframe)  # visual only
     federated: FederatedPerceptionConfig = field(default_factory=FederatedPerceptionConfig)
+    wind: WindConfig = field(default_factory=WindConfig)  # calm by default
 
     def validate(self) -> None:
         for name in ("vehicle", "platform", "quadrotor", "controller", "pid", "landing", "perception", "estimation",
-                     "start", "termination", "integration", "uav", "federated"):
+                     "start", "termination", "integration", "uav", "federated", "wind"):
             getattr(self, name).validate(name)
+        require(self.wind.is_calm or self.quadrotor.rotor_drag_coefficient > 0,
+                "wind acts on the quadrotor through its rotor drag, and quadrotor.rotor_drag_coefficient is 0 "
+                "(seed 002's model): set it (RotorS's is 8.06428e-5)")
         require(self.controller_implementation in BACKENDS,
                 f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
         require(self.controller.max_vertical_accel_m_s2 < self.quadrotor.gravity_m_s2,

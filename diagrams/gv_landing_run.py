@@ -5,8 +5,9 @@
     landing-sim run gv-landing --set perception.source=ct_ekf --set estimation.source=synthetic
 
 metrics.json: `landing` and `tracking` (diagrams/landing_metrics.py), `perception` (what steered,
-diagrams/perception_metrics.py), and with a marker stream `measurements` (its own accuracy) and
-`estimators` (every marker filter, diagrams/marker_metrics.py). Scripts use `fly(config,
+diagrams/perception_metrics.py), with a marker stream `measurements` (its own accuracy) and
+`estimators` (every marker filter, diagrams/marker_metrics.py), and in wind `wind`
+(diagrams/wind_report.py, with wind.png). Scripts use `fly(config,
 duration_s)`, which returns the metrics and the flight without writing anything.
 """
 
@@ -26,6 +27,7 @@ from diagrams.perception_metrics import perception_metrics
 from diagrams.perception_sources import perception_source
 from diagrams.scenario import RunSettings
 from diagrams.simulate import Simulation, simulate
+from diagrams.wind_report import plot_wind, wind_metrics
 from systems.config import ConfigError, require_positive
 from systems.perception.seam import HEIGHT, P_BP_W
 from systems.vehicles.paths import make_path
@@ -146,6 +148,8 @@ def flight_metrics(flight: Flight, config: GvLandingConfig, name: str = "gv-land
     source = perception_source(config.perception.source)
     if source.metrics is not None and flight.source_log is not None:
         out.setdefault("estimators", {}).update(source.metrics(flight.source_log, config, touchdown_s))
+    if "wind" in log:
+        out["wind"] = wind_metrics(log, config.wind)
     out["end"] = flight.status
     return out
 
@@ -178,6 +182,8 @@ def write_outputs(flight: Flight, metrics: dict, config: GvLandingConfig, out_di
     write_npz(out_dir / "log.npz", **arrays)
     plot_flight(flight.log, config, out_dir, make_path(config.vehicle.path_config()).polyline(max_length_m=1e9))
     plot_perception(flight.log, config.perception.source, out_dir)
+    if "wind" in flight.log:
+        plot_wind(flight.log, out_dir)
 
 
 def summary_lines(name: str, metrics: dict) -> list[str]:

@@ -41,6 +41,44 @@ class MeshcatTrail(LeafSystem):
             self._meshcat.SetLine(self._path, np.array(self._points).T, 2.0, self._rgba)
 
 
+class MeshcatArrow(LeafSystem):
+    """Draws a vector as an arrow in Meshcat at `path`, from a point: inputs `position` (vector of
+    `size`, the point in W [m] at `points`) and `vector` (3, in W), sampled at `rate_hz`; the arrow is
+    `scale` metres long per unit of the vector (a wind of 5 m/s at 0.4: 2 m), hidden where the
+    vector is under `min_norm`."""
+
+    def __init__(self, meshcat: Meshcat, path: str, size: int = 3, points: slice = slice(0, 3), scale: float = 0.4,
+                 rgba: tuple = (0.2, 0.6, 1.0, 1.0), rate_hz: float = 10.0, min_norm: float = 0.05):
+        super().__init__()
+        self._meshcat, self._path, self._slice, self._scale, self._rgba = meshcat, path, points, scale, Rgba(*rgba)
+        self._min_norm = min_norm
+        self._position = self.DeclareVectorInputPort("position", size)
+        self._vector = self.DeclareVectorInputPort("vector", 3)
+        self.DeclareInitializationPublishEvent(lambda context: self._meshcat.Delete(self._path))
+        self.DeclarePeriodicPublishEvent(1.0 / rate_hz, 0.0, self._publish)
+
+    def _publish(self, context):
+        tail, vector = self._position.Eval(context)[self._slice], self._vector.Eval(context)
+        norm = float(np.linalg.norm(vector))
+        if norm < self._min_norm or not np.all(np.isfinite(tail)):
+            self._meshcat.SetProperty(self._path, "visible", False)
+            return
+        self._meshcat.SetLine(self._path, arrow_polyline(tail, vector * self._scale).T, 3.0, self._rgba)
+        self._meshcat.SetProperty(self._path, "visible", True)
+
+
+def arrow_polyline(tail: np.ndarray, vector: np.ndarray, head: float = 0.2) -> np.ndarray:
+    """(5, 3) points of an arrow from `tail` along `vector` [m]: the shaft, then the head's two
+    barbs (each `head` of the arrow's length, 25 deg off it) drawn from its tip."""
+    tip = tail + vector
+    length = np.linalg.norm(vector)
+    along = vector / length
+    side = np.cross(along, [0.0, 0.0, 1.0])
+    side = side / np.linalg.norm(side) if np.linalg.norm(side) > 1e-6 else np.array([1.0, 0.0, 0.0])
+    back, out = head * length * np.cos(np.radians(25)), head * length * np.sin(np.radians(25))
+    return np.array([tail, tip, tip - back * along + out * side, tip, tip - back * along - out * side])
+
+
 class VideoRecorder(LeafSystem):
     """Appends `color_image` to a video every `period_s`. Frames go to a temporary file that
     `finish()` renames to `path`, so an interrupted run leaves no half-written video."""

@@ -1,0 +1,75 @@
+"""Wind in the gv scenarios: the `wind` section through the scenario loader, the WindSystem wired to
+the quadrotor's rotor drag in the diagram, logged, reported in metrics.json and wind.png."""
+
+import numpy as np
+import pytest
+from pydrake.geometry import Meshcat, MeshcatParams
+
+from diagrams.gv_landing import build_gv_landing
+from diagrams.gv_landing_run import fly, fly_diagram
+from diagrams.runner import load_scenario
+from diagrams.wind_report import plot_wind
+from systems.config import ConfigError
+from systems.environment.wind import GustConfig
+from systems.vehicles.quadrotor import Q_WB, V_WB, rotation_from_quaternion
+from systems.viewers import arrow_polyline
+
+pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+
+DRAG = "quadrotor.rotor_drag_coefficient=8.06428e-5"
+
+
+def test_the_wind_section_loads_gusts_and_names_its_mistakes():
+    _, config = load_scenario("gv-landing", overrides=[
+        DRAG, "wind.mean_m_s=5", "wind.turbulence=light",
+        "wind.gusts=[{start_s: 2.0, duration_s: 1.5, magnitude_m_s: 3.0, direction_deg: 90.0}]"])
+    assert config.wind.gusts == [GustConfig(start_s=2.0, duration_s=1.5, magnitude_m_s=3.0, direction_deg=90.0)]
+    with pytest.raises(ConfigError, match="rotor_drag_coefficient"):
+        load_scenario("gv-landing", overrides=["wind.mean_m_s=5"])  # seed 002's airframe feels no air
+    with pytest.raises(ConfigError, match=r"wind\.turbulence"):
+        load_scenario("gv-landing", overrides=[DRAG, "wind.turbulence=strong"])
+    with pytest.raises(ConfigError, match=r"wind\.gusts\[0\]\.duration_s"):
+        load_scenario("gv-landing", overrides=[DRAG, "wind.gusts=[{duration_s: 0.0, magnitude_m_s: 1.0}]"])
+    with pytest.raises(ConfigError, match=r"wind\.gusts\[0\]\.speed"):
+        load_scenario("gv-landing", overrides=[DRAG, "wind.gusts=[{speed: 1.0}]"])
+
+
+def test_a_steady_crosswind_reaches_the_quadrotor_which_leans_into_it(tmp_path):
+    # 5 m/s toward +y while the UAV climbs from its start (the vehicle stands still).
+    _, config = load_scenario("gv-landing", overrides=[DRAG, "wind.mean_m_s=5", "wind.direction_deg=90",
+                                                       "vehicle.speed=0.0"])
+    metrics, flight = fly(config, 3.0)
+    log = flight.log
+    np.testing.assert_allclose(log["wind"], np.tile([0.0, 5.0, 0.0], (len(log["t"]), 1)), atol=1e-12)
+    assert metrics["wind"]["at_uav"]["mean_W_m_s"] == pytest.approx([0.0, 5.0, 0.0], abs=1e-12)
+    # Climbing, the thrust leans upwind by the rotor drag over the weight, k_rd 4 w_hover (5 - v_y) / (m g),
+    # v_y the UAV's own drift downwind.
+    quad, climb = config.quadrotor, (log["t"] > 1.0) & (log["t"] < 3.0)
+    states = log["quadrotor_state"][climb]
+    thrust_y = np.array([rotation_from_quaternion(q)[1, 2] for q in states[:, Q_WB]])
+    drag_y = quad.rotor_drag_coefficient * 4 * quad.hover_rotor_speed() * (5.0 - states[:, V_WB][:, 1])
+    np.testing.assert_allclose(thrust_y, -drag_y / (quad.mass_kg * quad.gravity_m_s2), rtol=0.05)
+    assert np.all(states[:, V_WB][:, 1] > 0.1)  # and it drifts downwind
+    _, calm = fly(load_scenario("gv-landing", overrides=[DRAG, "vehicle.speed=0.0"])[1], 3.0)
+    assert "wind" not in calm.log and np.allclose(calm.log["quadrotor_state"][:, V_WB][:, 1], 0.0, atol=1e-9)
+    plot_wind(log, tmp_path)
+    assert (tmp_path / "wind.png").stat().st_size > 0
+
+
+def test_the_wind_is_drawn_in_meshcat_as_an_arrow_at_the_uav():
+    _, config = load_scenario("gv-landing", overrides=[DRAG, "wind.mean_m_s=5", "wind.direction_deg=90"])
+    meshcat = Meshcat(params=MeshcatParams(host="localhost"))
+    diagram, handles = build_gv_landing(config, meshcat)
+    fly_diagram(diagram, handles, 0.5)
+    assert meshcat.HasPath("/drake/gv_landing/wind")
+
+
+def test_an_arrow_runs_along_its_vector_with_its_head_at_the_tip():
+    tail, vector = np.array([1.0, 2.0, 3.0]), np.array([0.0, 2.0, 0.0])
+    points = arrow_polyline(tail, vector)
+    np.testing.assert_allclose(points[1], tail + vector)
+    np.testing.assert_allclose(points[3], tail + vector)
+    for barb in (points[2], points[4]):  # 20 % of the length, 25 deg off the shaft, behind the tip
+        offset = barb - (tail + vector)
+        assert np.linalg.norm(offset) == pytest.approx(0.4)
+        assert np.degrees(np.arccos(-offset @ vector / (np.linalg.norm(offset) * 2.0))) == pytest.approx(25.0)
