@@ -42,6 +42,7 @@ from systems.control.flight_controller import FlightController, SymbolicFlightCo
 from systems.control.landing import LandingSupervisor
 from systems.control.monitor import LandingMonitor
 from systems.control.pid import TrackingPid
+from systems.control.velocity_integral import VelocityIntegral
 from systems.environment.wind_system import WindSystem
 from systems.estimators.estimate import PoseEstimateToVector
 from systems.estimators.marker_ekf import FILTERS, MarkerFilterSystem
@@ -265,7 +266,13 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
     builder.Connect(altitude.get_output_port(1), supervisor.GetInputPort("altitude"))
     builder.Connect(pid.GetOutputPort("velocity_command"), supervisor.GetInputPort("tracking_velocity"))
     builder.Connect(pid.GetOutputPort("acceleration_command"), supervisor.GetInputPort("tracking_acceleration"))
-    builder.Connect(supervisor.GetOutputPort("command"), controller.GetInputPort("command"))
+    if config.controller.velocity_integral_gain_xy > 0:  # the supervisor's command with integral action
+        integral = builder.AddNamedSystem("velocity_integral", VelocityIntegral(config.controller))
+        builder.Connect(supervisor.GetOutputPort("command"), integral.GetInputPort("command"))
+        builder.Connect(quad_state, integral.GetInputPort("state"))
+        builder.Connect(integral.GetOutputPort("command"), controller.GetInputPort("command"))
+    else:
+        builder.Connect(supervisor.GetOutputPort("command"), controller.GetInputPort("command"))
     builder.Connect(quad_state, controller.GetInputPort("state"))
     builder.Connect(controller.GetOutputPort("rotor_speed_commands"), quad.GetInputPort("rotor_speed_commands"))
     builder.Connect(quad_state, monitor.GetInputPort("quadrotor_state"))

@@ -62,12 +62,17 @@ class FlightControllerConfig:
     yaw_frequency_rad_s: float = 2.0  # w_n of yaw; drag torque k_dt = 2.4 cm gives little authority
     attitude_damping: float = 0.8  # zeta of roll, pitch and yaw
     rotor_time_constant_s: float = 0.025  # tau_a, the compensated motor lag
+    # Integral action on the horizontal velocity error (systems/control/velocity_integral.py): K_i
+    # [1/s^2], 0 for none (the default; K_v^2 / 4 = 1.0 is critically damped), and its limit.
+    velocity_integral_gain_xy: float = 0.0
+    max_integral_accel_m_s2: float = 3.0
 
     def validate(self, prefix: str = "flight_controller") -> None:
         for name in ("rate_hz", "velocity_gain_xy", "velocity_gain_z", "max_vertical_accel_m_s2",
                      "attitude_frequency_rad_s", "yaw_frequency_rad_s", "attitude_damping",
-                     "rotor_time_constant_s"):
+                     "rotor_time_constant_s", "max_integral_accel_m_s2"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
+        require(self.velocity_integral_gain_xy >= 0, f"{prefix}.velocity_integral_gain_xy must not be negative")
         require(0 < self.max_tilt_deg < 90, f"{prefix}.max_tilt_deg must be in (0, 90)")
         for name in ("attitude_frequency_rad_s", "yaw_frequency_rad_s"):
             require(2 * self.attitude_damping * getattr(self, name) < 1 / self.rotor_time_constant_s,

@@ -1,0 +1,53 @@
+"""Integral action on the horizontal velocity error: the clamp, and a hovering quadrotor held still
+in a steady wind, where the proportional loop alone drifts downwind at the speed the analysis gives."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from systems.control.flight_controller import FlightController, FlightControllerConfig, flight_command
+from systems.control.velocity_integral import VelocityIntegral, integral_step
+from systems.vehicles.quadrotor import V_WB, Quadrotor, QuadrotorParams, hover_state
+
+pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+
+QUAD = QuadrotorParams(rotor_drag_coefficient=8.06428e-5)
+
+
+def test_the_integral_accumulates_the_error_and_is_clamped():
+    step = integral_step(np.array([0.1, 0.0]), [1.0, 0.5], [0.0, 0.0], 0.01, 1.0, 3.0)
+    np.testing.assert_allclose(step, [0.11, 0.005])
+    clamped = integral_step(np.array([2.9, 0.0]), [0.0, 50.0], [0.0, 0.0], 0.01, 2.0, 3.0)
+    assert np.linalg.norm(clamped) * 2.0 == pytest.approx(3.0)  # K_i |I| at the limit, in the error's direction
+    assert clamped[1] > 0
+
+
+@pytest.mark.parametrize("gain", [0.0, 1.0])
+def test_a_quadrotor_told_to_hold_still_in_a_steady_wind(gain):
+    config = FlightControllerConfig(velocity_integral_gain_xy=gain)
+    builder = DiagramBuilder()
+    quad = builder.AddSystem(Quadrotor(QUAD, wind=True))
+    controller = builder.AddSystem(FlightController(QUAD, config))
+    command = builder.AddSystem(ConstantVectorSource(flight_command([0.0, 0.0, 0.0])))
+    wind = builder.AddSystem(ConstantVectorSource([4.0, 0.0, 0.0]))
+    builder.Connect(wind.get_output_port(), quad.GetInputPort("wind_velocity_W"))
+    builder.Connect(quad.GetOutputPort("state"), controller.GetInputPort("state"))
+    builder.Connect(controller.get_output_port(), quad.GetInputPort("rotor_speed_commands"))
+    if gain:
+        integral = builder.AddSystem(VelocityIntegral(config))
+        builder.Connect(command.get_output_port(), integral.GetInputPort("command"))
+        builder.Connect(quad.GetOutputPort("state"), integral.GetInputPort("state"))
+        builder.Connect(integral.get_output_port(), controller.GetInputPort("command"))
+    else:
+        builder.Connect(command.get_output_port(), controller.GetInputPort("command"))
+    simulator = Simulator(builder.Build())
+    quad.set_state(simulator.get_mutable_context(), hover_state(QUAD, [0.0, 0.0, 10.0]))
+    simulator.AdvanceTo(15.0)
+    v = quad.GetOutputPort("state").Eval(quad.GetMyContextFromRoot(simulator.get_context()))[V_WB]
+    if gain:
+        assert np.linalg.norm(v[:2]) < 1e-3  # horizontally (the vertical loop has no integral)
+    else:  # K_v v = c (4 - v), c = k_rd 4 w_hover / m: the proportional loop's steady drift downwind
+        c = QUAD.rotor_drag_coefficient * 4 * QUAD.hover_rotor_speed() / QUAD.mass_kg
+        assert v[0] == pytest.approx(4.0 * c / (config.velocity_gain_xy + c), rel=0.02) and v[0] > 0.2
