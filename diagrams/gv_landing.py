@@ -8,7 +8,7 @@ and whatever `perception.source` names steering through the seam.
 All in World W (z up):
 
     vehicle --state--> true relative state (systems/perception/truth.py) --> monitor, logs
-    camera (estimation.source detector: render, ArUco, PnP) or synthetic source --> latency
+    camera (estimation.source detector: render, ArUco, PnP) or synthetic source [--> faults] --> latency
         --> marker filters (estimation.filters, and the steering one) --> logs
     perception source (diagrams/perception_sources.py) --seam--> tracking PID (pid.rate_hz)
         --> landing supervisor (50 Hz) --command--> flight controller (200 Hz) --> quadrotor
@@ -50,6 +50,7 @@ from systems.estimators.marker_ekf.engine import ESTIMATE_VECTOR_SIZE
 from systems.geometry import register_visual
 from systems.perception.latency import MeasurementLatency
 from systems.perception.marker_detector import MarkerDetectorSystem
+from systems.perception.marker_faults import MarkerFaults
 from systems.perception.markers import MarkerMeasurementsToVector
 from systems.perception.seam import SeamSplit
 from systems.perception.synthetic_markers import SyntheticMarkerSource
@@ -72,7 +73,7 @@ LOG_NAMES = ("quadrotor_state", "vehicle_state", "relative_state", "true_relativ
 @dataclass
 class Measurements:
     """The camera and the marker stream of `estimation.source` (what is None is not there): `acquired`
-    and `delayed` (after the latency) MarkerMeasurement lists; with the camera (config.camera()), the
+    (with the `faults` in it) and `delayed` (after the latency) MarkerMeasurement lists; with the camera (config.camera()), the
     `camera` (RgbdSensor), its noisy `color_image` port, the `video` recorder, and with
     estimation.source detector the `detector`."""
 
@@ -183,6 +184,10 @@ def _add_measurements(builder: DiagramBuilder, config: GvLandingConfig, scene_gr
             camera_config.K, config.platform.markers, camera_config.width, camera_config.height))
         builder.Connect(out.color_image, out.detector.get_input_port())
         out.acquired = out.detector.get_output_port()
+    if config.faults.active:  # what the camera or the source delivers, with the faults in it
+        faults = builder.AddNamedSystem("marker_faults", MarkerFaults(config.faults, est.ekf.period_s, config.seed))
+        builder.Connect(out.acquired, faults.get_input_port())
+        out.acquired = faults.get_output_port()
     latency = builder.AddNamedSystem("measurement_latency", MeasurementLatency(est.ekf.period_s, est.latency_periods))
     builder.Connect(out.acquired, latency.get_input_port())
     out.delayed = latency.get_output_port()

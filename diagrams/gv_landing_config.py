@@ -5,7 +5,8 @@ Sections beyond the systems' own configs: `perception` (what steers: `source`, a
 diagrams/perception_sources.py, and when its estimate is valid), `estimation` (the marker
 measurement stream and the filters that run on it), `federated` (seed 001's camera, IMU and
 federated filter, for perception.source federated), `wind` (systems/environment/wind.py: it acts
-through the quadrotor's rotor drag), `start`, `integration`.
+through the quadrotor's rotor drag), `faults` (systems/perception/marker_faults.py: in the marker
+stream), `start`, `integration`.
 """
 
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ from systems.control.monitor import TerminationConfig
 from systems.control.pid import TrackingPidConfig
 from systems.environment.wind import WindConfig
 from systems.estimators.marker_ekf import FILTERS, MarkerEkfConfig
+from systems.perception.marker_faults import FaultsConfig
 from systems.perception.seam import SeamConfig
 from systems.sensors.camera import CameraConfig
 from systems.vehicles.airframe import AirframeConfig
@@ -169,11 +171,14 @@ class GvLandingConfig:
     uav: AirframeConfig = field(default_factory=table1_airframe)  # visual only
     federated: FederatedPerceptionConfig = field(default_factory=FederatedPerceptionConfig)
     wind: WindConfig = field(default_factory=WindConfig)  # calm by default
+    faults: FaultsConfig = field(default_factory=FaultsConfig)  # in the marker stream; none by default
 
     def validate(self) -> None:
         for name in ("vehicle", "platform", "quadrotor", "controller", "pid", "landing", "perception", "estimation",
-                     "start", "termination", "integration", "uav", "federated", "wind"):
+                     "start", "termination", "integration", "uav", "federated", "wind", "faults"):
             getattr(self, name).validate(name)
+        require(not self.faults.active or self.estimation.source != "none",
+                "faults act on the marker stream, and estimation.source is none: set it to synthetic or detector")
         require(self.wind.is_calm or self.quadrotor.rotor_drag_coefficient > 0,
                 "wind acts on the quadrotor through its rotor drag, and quadrotor.rotor_drag_coefficient is 0 "
                 "(seed 002's model): set it (RotorS's is 8.06428e-5)")

@@ -51,7 +51,8 @@ def impact(gap_m: float, vertical_speed: float, gravity: float) -> tuple[float, 
 
 def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
     """The "landing" section: success (touched down on the pad), touchdown error and relative speed
-    at impact, the failure reason, and when each supervisor mode was first entered."""
+    at impact, the failure reason, when each supervisor mode was first entered, and how many final
+    descents were aborted (`aborts`) and begun again (`retries`)."""
     kind = status.split(":", 1)[0]
     out = {"success": False, "touchdown_error_m": None, "touchdown_rel_speed_mps": None, "time_to_land_s": None,
            "failure_reason": None, "failure_detail": None}
@@ -99,6 +100,10 @@ def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
                                  if (i := first(log["mode"] == mode)) is not None}
     if out["time_to_land_s"] is not None:
         out["mode_entry_times_s"]["landed"] = out["time_to_land_s"]
+    mode = log["mode"]
+    begins = np.r_[True, mode[1:] != mode[:-1]]  # the samples where a mode begins
+    out["aborts"] = int(np.count_nonzero(begins & (mode == Mode.ABORT)))  # final descents given up
+    out["retries"] = max(int(np.count_nonzero(begins & (mode == Mode.LAND))) - 1, 0)  # and begun again
     return out
 
 

@@ -13,7 +13,8 @@ from systems.vehicles.quadrotor import P_WB, V_WB
 
 GV_HEADING = 2  # in the ground vehicle's state [x, y, heading, steering]
 MODE_COLOURS = {Mode.TAKEOFF: "0.85", Mode.CLIMB: "tab:cyan", Mode.FOLLOW: "tab:blue", Mode.APPROACH: "tab:green",
-                Mode.LAND: "tab:orange", Mode.LANDED: "tab:red", Mode.HOLD: "tab:pink", Mode.SEARCH: "tab:purple"}
+                Mode.LAND: "tab:orange", Mode.LANDED: "tab:red", Mode.HOLD: "tab:pink", Mode.SEARCH: "tab:purple",
+                Mode.ABORT: "tab:brown"}
 
 
 def _mode_lines(ax, log):

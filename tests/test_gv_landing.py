@@ -46,6 +46,7 @@ def test_full_landing_on_a_straight_path_at_half_a_metre_per_second(straight_lan
     times = landing["mode_entry_times_s"]
     assert times["takeoff"] < times["climb"] < times["follow"] < times["approach"] < times["land"] < times["landed"]
     assert 0.0 < landing["touchdown_height_m"] <= scenario.landing.touchdown_height_m
+    assert landing["aborts"] == landing["retries"] == 0
     # Seed 003 Fig. 8: the tracking error settles to about 0.01 m before the final descent.
     assert max(metrics["tracking"]["before_final_descent_max_abs_xy_m"]) < 0.01
     assert flight.status.startswith("landed")

@@ -3,9 +3,12 @@ import pytest
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import Simulator
 
+from diagrams.landing_metrics import landing_metrics
+from diagrams.runner import load_scenario
 from systems.control.landing import (
     LandingConfig, LandingStateMachine, LandingSupervisor, Mode, SupervisorInputs,
 )
+from systems.perception.seam import HEIGHT
 
 CONFIG = LandingConfig()
 TRACKING = np.array([0.9, -0.3])  # what the PID asks for
@@ -72,16 +75,16 @@ def test_nominal_landing_sequence():
     np.testing.assert_allclose(horizontal, TRACKING)
     np.testing.assert_allclose(script.acceleration, [*TRACKING_ACCELERATION, 0.0])
 
-    # Below LH an invalid estimate stops the landing too: hold (coasting with the target's last
-    # velocity, no acceleration feed-forward), never descend.
+    # Below LH an invalid estimate aborts the landing: climb out at the climb speed, coasting with
+    # the target's last velocity (no acceleration feed-forward), never descend.
     mode, horizontal, vz = script.step(altitude=2.5, seen=False, height=0.8)
-    assert mode == Mode.HOLD and vz == 0.0
+    assert mode == Mode.ABORT and vz == CONFIG.climb_speed_m_s
     np.testing.assert_allclose(horizontal, TARGET_VELOCITY)
     assert not script.acceleration.any()
     mode, _, vz = script.step(altitude=2.5, seen=False, height=0.05)  # a stale height is no touchdown
-    assert mode == Mode.HOLD and vz >= 0.0
+    assert mode == Mode.ABORT and vz == CONFIG.climb_speed_m_s
 
-    # Seen again: follow at that height, centred so descend, and below LH land.
+    # Seen again: a retry, from following at that height: centred so descend, and below LH land.
     assert script.step(altitude=2.5, offset=(0.1, 0.0), height=0.9)[0] == Mode.FOLLOW
     assert script.step(altitude=2.5, offset=(0.1, 0.0), height=0.9)[0] == Mode.APPROACH
     mode, _, vz = script.step(altitude=2.4, offset=(0.1, 0.0), height=0.8)
@@ -131,7 +134,7 @@ def test_never_descends_on_an_invalid_estimate():
         visited.add(mode)
         if not seen:
             assert vz >= 0.0
-    assert {Mode.CLIMB, Mode.FOLLOW, Mode.APPROACH, Mode.LAND, Mode.HOLD, Mode.SEARCH} <= visited
+    assert {Mode.CLIMB, Mode.FOLLOW, Mode.APPROACH, Mode.LAND, Mode.HOLD, Mode.SEARCH, Mode.ABORT} <= visited
 
 
 @pytest.mark.parametrize("yaml, message", [
@@ -168,3 +171,15 @@ def test_system_wraps_the_state_machine():
     simulator.AdvanceTo(0.07)
     assert mode.Eval(context)[0] == Mode.FOLLOW
     np.testing.assert_allclose(command.Eval(context), [*TRACKING, 0.0, 0.0, *TRACKING_ACCELERATION, 0.0])
+
+
+def test_aborted_and_retried_final_descents_are_counted():
+    modes = [Mode.FOLLOW, Mode.APPROACH, Mode.LAND, Mode.LAND, Mode.ABORT, Mode.FOLLOW, Mode.APPROACH, Mode.LAND,
+             Mode.ABORT, Mode.ABORT, Mode.SEARCH, Mode.FOLLOW, Mode.LAND, Mode.LAND]
+    n = len(modes)
+    relative = np.zeros((n, 14))
+    relative[:, HEIGHT] = 5.0  # never down: no touchdown
+    log = {"t": 0.02 * np.arange(n), "mode": np.array(modes, dtype=int), "true_relative_state": relative,
+           "quadrotor_state": np.zeros((n, 17)), "vehicle_state": np.zeros((n, 4))}
+    out = landing_metrics(log, "timeout: no touchdown", load_scenario("gv-landing")[1])
+    assert out["aborts"] == 2 and out["retries"] == 2

@@ -69,15 +69,19 @@ def test_an_invalid_estimate_below_lh_holds_never_descends_and_climbs_out(monkey
     blind = t >= blind_s
     assert mode[np.argmax(blind) - 1] == Mode.LAND and not log["relative_state"][blind, VALID].any()
     assert metrics["landing"]["failure_reason"] == "target_lost" and metrics["landing"]["touchdown_error_m"] is None
-    # Held, then searched; never LAND again and never commanding a descent on the invalid estimate:
-    # the descent at the landing speed (0.3 m/s) stops within the velocity loop's response (~7 cm).
+    # Aborted (climbing out), then searched; never LAND again and never commanding a descent on the
+    # invalid estimate: the descent at the landing speed (0.3 m/s) stops within the velocity loop's
+    # response (~7 cm).
     after = t > blind_s + 1e-6  # the samples logged after the supervisor's update at blind_s
-    assert {Mode.HOLD, Mode.SEARCH} <= set(mode[after]) and Mode.LAND not in mode[after]
+    assert mode[after][0] == Mode.ABORT and Mode.SEARCH in mode[after] and Mode.LAND not in mode[after]
     assert np.all(log["command"][after, 2] >= 0.0)
     assert altitude[blind].min() > altitude[np.argmax(blind)] - 0.1
+    aborting = blind & (mode == Mode.ABORT)
+    assert altitude[aborting][-1] > altitude[np.argmax(blind)] + 0.5  # climbing out at 1 m/s for lost_hold_s
     climbing = blind & (mode == Mode.SEARCH)
     assert altitude[climbing][-1] > altitude[np.argmax(blind)] + 2.0
     assert metrics["perception"]["longest_invalid_s"] >= 6.0 - 0.1
+    assert metrics["landing"]["aborts"] == 1 and metrics["landing"]["retries"] == 0
 
 
 @pytest.mark.slow

@@ -6,8 +6,9 @@ vertically. It reads the perception seam (systems/perception/seam.py), so "seen"
 estimate's valid flag. Ours, beyond the paper (which lands below LH without further checks because
 there the target floods its camera's view): the final landing also stops on an invalid estimate.
 With no valid estimate it holds its altitude, coasting with the target's last velocity, and after
-`lost_hold_s` climbs back to IH to search; it never descends on an invalid estimate. (A filter that
-predicts through a blind last metre keeps its estimate valid while its covariance allows.)
+`lost_hold_s` climbs back to IH to search; below LH it aborts instead: it climbs out, coasting, and
+tries again from FOLLOW once it sees the target. It never descends on an invalid estimate. (A filter
+that predicts through a blind last metre keeps its estimate valid while its covariance allows.)
 
 Modes and what they command (velocities in World, z up; "hold" is a P loop on altitude):
 
@@ -17,9 +18,11 @@ Modes and what they command (velocities in World, z up; "hold" is a P loop on al
     APPROACH  track, descend; height above target <= LH                   -> LAND
               target off centre                                           -> FOLLOW
     LAND      track, descend at landing speed; touchdown                  -> LANDED
+              not seen                                                    -> ABORT
     LANDED    keep the target's velocity, no vertical speed (the run ends)
-    HOLD      not seen in FOLLOW/APPROACH/LAND: coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
+    HOLD      not seen in FOLLOW/APPROACH: coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
     SEARCH    no horizontal speed, climb back to IH (never descend); seen -> FOLLOW
+    ABORT     coast, climb towards IH at climb speed; seen -> FOLLOW (a retry); lost_hold_s -> SEARCH
 
 One transition per step; the command is that of the mode after the transition.
 """
@@ -44,6 +47,7 @@ class Mode(IntEnum):
     LANDED = 5
     HOLD = 6
     SEARCH = 7
+    ABORT = 8
 
 
 @dataclass
@@ -109,7 +113,9 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
         return Mode.CLIMB
     if mode == Mode.CLIMB and abs(inputs.altitude_m - config.initial_height_m) <= config.altitude_tolerance_m:
         return Mode.FOLLOW if seen else Mode.SEARCH
-    if mode in (Mode.FOLLOW, Mode.APPROACH, Mode.LAND) and not seen:
+    if mode == Mode.LAND and not seen:
+        return Mode.ABORT
+    if mode in (Mode.FOLLOW, Mode.APPROACH) and not seen:
         return Mode.HOLD
     if mode == Mode.FOLLOW and offset <= config.centred_radius_m:
         return Mode.APPROACH
@@ -119,9 +125,9 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
         return Mode.FOLLOW
     if mode == Mode.LAND and inputs.height_above_target_m <= config.touchdown_height_m:
         return Mode.LANDED
-    if mode in (Mode.HOLD, Mode.SEARCH) and seen:
+    if mode in (Mode.HOLD, Mode.SEARCH, Mode.ABORT) and seen:
         return Mode.FOLLOW
-    if mode == Mode.HOLD and inputs.time_s - memory.mode_since_s >= config.lost_hold_s:
+    if mode in (Mode.HOLD, Mode.ABORT) and inputs.time_s - memory.mode_since_s >= config.lost_hold_s:
         return Mode.SEARCH
     return mode
 
@@ -160,6 +166,8 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
         horizontal, acceleration, vertical = coast, _ZERO, 0.0
     elif mode == Mode.HOLD:
         horizontal, acceleration, vertical = coast, _ZERO, towards(memory.altitude_hold_m)
+    elif mode == Mode.ABORT:
+        horizontal, acceleration, vertical = coast, _ZERO, config.climb_speed_m_s
     else:  # SEARCH
         horizontal, acceleration, vertical = _ZERO, _ZERO, towards(config.initial_height_m)
     if not seen and mode != Mode.LANDED:

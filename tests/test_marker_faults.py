@@ -1,0 +1,98 @@
+"""Faults in the marker stream: covered camera (fixed intervals and seeded random bursts), dropped
+frames and outliers, against their configured rates; their settings' checks; and in the loop, a
+landing on a stream with outliers and bursts, the filter gating the outliers and the supervisor
+aborting rather than descending blind."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from diagrams.gv_landing_run import fly
+from diagrams.runner import load_scenario
+from systems.config import ConfigError
+from systems.perception.marker_faults import FaultsConfig, apply_faults, occluded
+from systems.perception.markers import MarkerMeasurement
+
+pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+
+T = 0.035
+FRAME = [MarkerMeasurement(0.0, i, [0.1 * i, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0]) for i in range(3)]
+
+
+def test_a_fixed_occlusion_covers_its_interval_and_nothing_else():
+    config = FaultsConfig(occlusions_s=[[1.0, 1.5]])
+    covered = [k for k in range(100) if not apply_faults(FRAME, k, T, config, seed=0)]
+    assert covered == [k for k in range(100) if 1.0 <= k * T <= 1.5]
+    assert apply_faults(FRAME, 10, T, config, seed=0) == FRAME  # untouched outside
+
+
+def test_random_bursts_cover_the_share_their_rate_and_length_give_and_are_seeded():
+    config = FaultsConfig(occlusion_rate_hz=0.2, occlusion_duration_s=0.5)
+    covered = np.array([occluded(k, T, config, seed=3) for k in range(20000)])
+    n = math.ceil(0.5 / T)
+    expected = 1 - (1 - 0.2 * T) ** n
+    assert covered.mean() == pytest.approx(expected, abs=4 * math.sqrt(expected * n / covered.size))
+    starts = np.flatnonzero(np.diff(covered.astype(int)) == 1) + 1
+    ends = np.flatnonzero(np.diff(covered.astype(int)) == -1) + 1
+    assert np.all(ends[ends > starts[0]][:len(starts) - 1] - starts[:len(starts) - 1] >= n)  # a burst lasts
+    assert np.array_equal(covered, [occluded(k, T, config, seed=3) for k in range(20000)])
+    assert not np.array_equal(covered, [occluded(k, T, config, seed=4) for k in range(20000)])
+
+
+def test_drops_and_outliers_at_their_rates_with_their_errors():
+    config = FaultsConfig(drop_probability=0.1, outlier_probability=0.2, outlier_position_m=0.5, outlier_deg=20.0)
+    frames = [apply_faults(FRAME, k, T, config, seed=1) for k in range(5000)]
+    dropped = np.array([not f for f in frames])
+    assert dropped.mean() == pytest.approx(0.1, abs=0.015)
+    moved, angles = [], []
+    for frame in frames:
+        for m, original in zip(frame, FRAME):
+            moved.append(m.p_CM - original.p_CM)
+            angles.append(np.degrees((Rotation.from_quat(m.q_CM) * Rotation.from_quat(original.q_CM).inv()).magnitude()))
+    moved, angles = np.array(moved), np.array(angles)
+    is_outlier = np.linalg.norm(moved, axis=1) > 0
+    assert is_outlier.mean() == pytest.approx(0.2, abs=0.015)
+    assert moved[is_outlier].std(axis=0) == pytest.approx([0.5] * 3, rel=0.08)
+    assert np.sqrt(np.mean(angles[is_outlier] ** 2)) == pytest.approx(20.0, rel=0.08)  # |N(0, 20 deg)|
+
+
+@pytest.mark.parametrize("assignment, field", [
+    ("faults.occlusions_s=[[2.0, 1.0]]", r"faults\.occlusions_s\[0\]"),
+    ("faults.drop_probability=1.5", r"faults\.drop_probability"),
+    ("faults.occlusion_duration_s=0", r"faults\.occlusion_duration_s"),
+    ("faults.occlusions_s=[[0.0, 500.0]]", "longer than the run"),
+])
+def test_bad_fault_settings_name_the_field(assignment, field):
+    with pytest.raises(ConfigError, match=field):
+        load_scenario("marker-landing", overrides=["estimation.source=synthetic", assignment])
+
+
+def test_faults_need_a_stream():
+    with pytest.raises(ConfigError, match="estimation.source"):
+        load_scenario("gv-landing", overrides=["faults.drop_probability=0.1"])
+
+
+@pytest.mark.slow
+def test_in_the_loop_outliers_are_gated_and_a_covered_final_descent_is_flown_on_the_prediction():
+    # marker-landing on the synthetic stream, started low; 5 % outliers throughout, the camera covered
+    # for 1.2 s during the final descent: the filter gates the outliers and predicts through the
+    # cover, its estimate valid (its position std stays small), and the UAV lands on the pad.
+    base = ["estimation.source=synthetic", "start.height_m=4", "start.xy_m=[1.2, 1.2]", "landing.initial_height_m=3.5"]
+    _, clean = load_scenario("marker-landing", overrides=base)
+    clean_metrics, _ = fly(clean, clean.duration_s)
+    land_s = clean_metrics["landing"]["mode_entry_times_s"]["land"]
+    cover = (land_s + 0.5, land_s + 1.7)
+    _, s = load_scenario("marker-landing", overrides=[*base, "faults.outlier_probability=0.05",
+                                                      f"faults.occlusions_s=[[{cover[0]}, {cover[1]}]]"])
+    metrics, flight = fly(s, s.duration_s)
+    gated = [m["estimators"]["ct_ekf"]["measurements"]["gated"] for m in (clean_metrics, metrics)]
+    assert gated[1] > gated[0] + 10
+    sampled = flight.sampled
+    covered = (sampled.t >= cover[0]) & (sampled.t <= cover[1])
+    assert covered.sum() > 30 and np.all(np.isnan(sampled.measurements[covered]))  # nothing got through
+    assert not np.all(np.isnan(sampled.measurements[~covered]))
+    landing = metrics["landing"]
+    assert landing["success"] and landing["touchdown_error_m"] < 0.10 and landing["aborts"] == 0
+    assert metrics["perception"]["valid_fraction"] == pytest.approx(clean_metrics["perception"]["valid_fraction"])
