@@ -50,6 +50,9 @@ def _parser() -> argparse.ArgumentParser:
     mc.add_argument("--runs", type=int, metavar="N", help="runs per case (default: the campaign's)")
     mc.add_argument("--speeds", "--cases", dest="cases", nargs="+", metavar="CASE",
                     help="the cases to run, e.g. vehicle speeds in m/s (default: the campaign's)")
+    mc.add_argument("--case", dest="case_options", metavar="KEY=V1,V2", action="append", default=[],
+                    help="a field and its values (repeatable): landings of any gv scenario over the grid of "
+                         "their product, e.g. --case vehicle.speed=3,6,12 --case wind.mean_m_s=0,5"),
     mc.add_argument("--seed", type=int, default=0, help="base seed; run i of a case always gets the same seed")
     mc.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append", default=[],
                     help="override a scenario field in every run (repeatable)")
@@ -90,9 +93,15 @@ def _run(args) -> None:
 
 def _montecarlo(args) -> None:
     from diagrams.montecarlo import campaign_definition, campaign_settings, run_campaign
+    from diagrams.montecarlo.grid import grid_settings
 
-    definition = campaign_definition(args.scenario)
-    settings = campaign_settings(definition, args.scenario, args.cases, args.runs, args.seed, args.overrides)
+    if args.case_options:
+        if args.cases:
+            raise ConfigError("--case and --cases do not mix: give the grid's fields with --case")
+        definition, settings = grid_settings(args.scenario, args.case_options, args.runs, args.seed, args.overrides)
+    else:
+        definition = campaign_definition(args.scenario)
+        settings = campaign_settings(definition, args.scenario, args.cases, args.runs, args.seed, args.overrides)
     out_dir = args.out or f"results/{args.scenario}-mc"
     summary = run_campaign(definition, settings, out_dir, workers=args.workers, scheduler=args.scheduler,
                            progress=not args.quiet, retry_failed=args.retry_failed)

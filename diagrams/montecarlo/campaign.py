@@ -178,6 +178,8 @@ def write_summary(definition: CampaignDefinition, settings: CampaignSettings, ou
         done[case] = [r for r in mine if r.status == "done"]
         bad = [r for r in mine if r.status == "failed"]
         cases[case] = {"requested": settings.runs, "done": len(done[case]), "failed": len(bad)}
+        if definition.case_summary is not None:
+            cases[case].update(definition.case_summary(done[case]))
         failures += [{"case": r.case, "index": r.index, "seed": r.seed, "reason": r.reason} for r in bad]
     requested = settings.runs * len(settings.cases)
     summary = {

@@ -16,7 +16,7 @@ from diagrams.montecarlo.records import RunOutput, RunRecord
 from diagrams.montecarlo.settings import CampaignSettings, RunTask
 from systems.config import ConfigError
 
-_CASE_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")  # a case names a directory under runs/
+_CASE_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+=,-]*$")  # a case names a directory under runs/
 
 
 def parse_number_case(text: str) -> str:
@@ -53,6 +53,8 @@ class CampaignDefinition:
     #   into the output directory from the done runs by case
     description: str = ""
     paired: bool = False  # run i of every case gets the same seed (CampaignSettings.paired)
+    case_summary: Callable[[list[RunRecord]], dict] | None = None  # a case's done runs -> figures added
+    #   to its entry in summary.json's "cases"
 
 
 # Scenario name -> its campaign: a CampaignDefinition or "module:attribute" (imported when used, so
@@ -95,7 +97,7 @@ def campaign_settings(definition: CampaignDefinition, scenario: str, cases: Sequ
         if known and case not in known:
             raise ConfigError(f"unknown {name} '{text}' for {scenario} (known: {', '.join(known)})")
         if not _CASE_PATTERN.match(case):
-            raise ConfigError(f"{name} '{text}' cannot name a directory (letters, digits, '.', '_', '+', '-')")
+            raise ConfigError(f"{name} '{text}' cannot name a directory (letters, digits, '.', '_', '+', '-', '=', ',')")
         if case in parsed:
             raise ConfigError(f"{name} {case} is given twice")
         parsed.append(case)

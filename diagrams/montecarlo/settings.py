@@ -11,6 +11,7 @@ from systems.noise import stream_id
 
 FORMAT = 1  # of campaign.json and the run records
 SEED_SCHEME = "numpy SeedSequence([base_seed, crc32(case), index]).generate_state(1)[0]"
+GRID = "<grid>"  # RunTask.case_key of a campaign whose cases are "key=value[,key=value]" assignments
 PAIRED_SEED_SCHEME = "numpy SeedSequence([base_seed, crc32(''), index]).generate_state(1)[0], the same for every case"
 
 
@@ -36,7 +37,9 @@ class RunTask:
         from diagrams.runner import load_scenario
 
         overrides = list(self.overrides)
-        if self.case_key is not None:
+        if self.case_key == GRID:  # a grid campaign's case is its assignments (diagrams/montecarlo/grid.py)
+            overrides += self.case.split(",")
+        elif self.case_key is not None:
             overrides.append(f"{self.case_key}={self.case}")
         return load_scenario(self.scenario, None, overrides, None, self.seed)
 
