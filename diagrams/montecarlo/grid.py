@@ -71,7 +71,7 @@ def landing_case_summary(records: list[RunRecord]) -> dict:
 def plot_grid(settings: CampaignSettings, done: dict[str, list[RunRecord]], out_dir) -> None:
     """touchdowns.png: each case's touchdown points in the pad frame (m) inside the pad's outline,
     and its success rate."""
-    fig, (points, rates) = plt.subplots(1, 2, figsize=(11, 4.5), gridspec_kw={"width_ratios": [1, 1.3]})
+    fig, (points, rates) = plt.subplots(1, 2, figsize=(12, 4.5), layout="constrained")
     for case, records in done.items():
         xy = [r.metrics["landing"]["touchdown_offset_pad_xy_m"] for r in records
               if r.metrics["landing"].get("touchdown_offset_pad_xy_m") is not None]
