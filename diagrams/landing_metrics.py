@@ -12,7 +12,7 @@ import numpy as np
 
 from diagrams.simulate import COMPLETED
 from systems.control.landing import Mode
-from systems.control.monitor import FAILURE_REASONS, pad_offset
+from systems.control.monitor import FAILURE_REASONS, SUPERVISOR_LANDED, pad_offset
 from systems.perception.seam import HEIGHT, P_BP_W, V_WP
 from systems.vehicles.quadrotor import V_WB
 
@@ -30,9 +30,14 @@ def first(mask) -> int | None:
     return int(index[0]) if index.size else None
 
 
-def touchdown(log: dict[str, np.ndarray], touchdown_height_m: float, pad_size_m: float) -> tuple[int, str] | None:
-    """(log index, "supervisor" or "contact") of the touchdown (module docstring), or None."""
+def touchdown(log: dict[str, np.ndarray], touchdown_height_m: float, pad_size_m: float,
+              supervisor_landed: bool = False) -> tuple[int, str] | None:
+    """(log index, "supervisor" or "contact") of the touchdown (module docstring), or None.
+    `supervisor_landed`: the run ended on the supervisor's LANDED, which the log may not hold (the
+    run stops at the step it is declared): then its last sample is what the supervisor saw."""
     landed = first(log["mode"] == Mode.LANDED)
+    if landed is None and supervisor_landed:
+        landed = len(log["mode"])
     relative = log["true_relative_state"]
     over_pad = np.all(np.abs(pad_offset(relative, log["vehicle_state"][:, GV_HEADING])) <= pad_size_m / 2, axis=1)
     contact = first((relative[:, HEIGHT] <= touchdown_height_m) & over_pad)
@@ -56,7 +61,8 @@ def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
     kind = status.split(":", 1)[0]
     out = {"success": False, "touchdown_error_m": None, "touchdown_rel_speed_mps": None, "time_to_land_s": None,
            "failure_reason": None, "failure_detail": None}
-    found = touchdown(log, config.landing.touchdown_height_m, config.platform.pad_size_m)
+    found = touchdown(log, config.landing.touchdown_height_m, config.platform.pad_size_m,
+                      status.startswith(SUPERVISOR_LANDED))
     if found is not None:
         k, by = found
         relative, quad = log["true_relative_state"][k], log["quadrotor_state"][k]

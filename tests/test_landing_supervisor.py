@@ -183,3 +183,19 @@ def test_aborted_and_retried_final_descents_are_counted():
            "quadrotor_state": np.zeros((n, 17)), "vehicle_state": np.zeros((n, 4))}
     out = landing_metrics(log, "timeout: no touchdown", load_scenario("gv-landing")[1])
     assert out["aborts"] == 2 and out["retries"] == 2
+
+
+def test_a_run_ended_on_the_supervisors_landed_is_a_touchdown_even_if_the_log_missed_it():
+    # The run stops at the step the supervisor declares LANDED: its last logged sample is still LAND.
+    n = 5
+    relative = np.zeros((n, 14))
+    relative[:, HEIGHT] = np.linspace(0.5, 0.15, n)  # the true gear still 5 cm up when the estimate said down
+    log = {"t": 0.02 * np.arange(n), "mode": np.full(n, int(Mode.LAND)), "true_relative_state": relative,
+           "quadrotor_state": np.zeros((n, 17)), "vehicle_state": np.zeros((n, 4)), "vehicle_speed": np.zeros(n)}
+    config = load_scenario("gv-landing")[1]
+    out = landing_metrics(log, "landed: the supervisor reported touchdown by t = 0.08 s", config)
+    assert out["success"] and out["failure_reason"] is None and out["touchdown_by"] == "supervisor"
+    assert out["touchdown_rel_speed_mps"] == pytest.approx(np.sqrt(2 * 9.81 * 0.05))  # the fall from 5 cm
+    relative[:, 0] = 0.9  # the pad 0.9 m away: down beside it
+    out = landing_metrics(log, "landed: the supervisor reported touchdown by t = 0.08 s", config)
+    assert not out["success"] and out["failure_reason"] == "missed_pad"

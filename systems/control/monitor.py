@@ -21,6 +21,7 @@ from systems.vehicles.ground_vehicle_geometry import PlatformConfig
 from systems.vehicles.quadrotor import STATE_SIZE
 
 FAILURE_REASONS = ("crash", "diverged", "target_lost", "timeout", "missed_pad")
+SUPERVISOR_LANDED = "landed: the supervisor reported touchdown"  # how a run ends on the supervisor's LANDED
 GV_X, GV_Y, GV_HEADING = range(3)  # in the ground vehicle's state [x, y, heading, steering]
 
 
@@ -73,7 +74,7 @@ class LandingMonitor(LeafSystem):
         if not (np.isfinite(quad).all() and np.isfinite(vehicle).all()):
             return f"diverged: non-finite state at t = {t:.2f} s"
         if mode == Mode.LANDED:
-            return f"landed: the supervisor reported touchdown by t = {t:.2f} s" if term.stop_on_landed else None
+            return f"{SUPERVISOR_LANDED} by t = {t:.2f} s" if term.stop_on_landed else None
         offset = pad_offset(relative, vehicle[GV_HEADING])
         if (term.stop_on_landed and relative[HEIGHT] <= self._touchdown
                 and np.all(np.abs(offset) <= platform.pad_size_m / 2)):
