@@ -13,6 +13,7 @@ All in World W (z up):
     perception source (diagrams/perception_sources.py) --seam--> tracking PID (pid.rate_hz)
         --> landing supervisor (50 Hz) --command--> flight controller (200 Hz) --> quadrotor
     wind (`wind`, unless calm: mean, Dryden turbulence, gusts) --air velocity--> quadrotor's rotor drag
+    navigation (`navigation.source` gnss_ins: the truth plus its errors) --> controller, supervisor, filters
 
 Both vehicles integrate their equations over each 5 ms controller period in C++
 (`integration.discrete`), so Python runs only at the rates the systems declare.
@@ -56,6 +57,7 @@ from systems.perception.seam import SeamSplit
 from systems.perception.synthetic_markers import SyntheticMarkerSource
 from systems.perception.truth import PadPose, RelativeStateTruth
 from systems.sensors.camera import add_camera, add_renderer
+from systems.sensors.navigation import NavigationSystem
 from systems.vehicles.airframe import AirframeGeometry
 from systems.vehicles.ground_vehicle import GroundVehicle, GroundVehicleConfig
 from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry
@@ -218,6 +220,13 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
     if wind is not None:
         builder.Connect(quad_state, wind.get_input_port())
         builder.Connect(wind.get_output_port(), quad.GetInputPort("wind_velocity_W"))
+    # What the UAV believes of itself (the controller, the supervisor, the estimators placing the pad
+    # in W): the truth, or its navigation's; the referee, the camera and the metrics keep the truth.
+    nav_state, nav_X_WB = quad_state, X_WB
+    if config.navigation.source != "truth":
+        navigation = builder.AddNamedSystem("navigation", NavigationSystem(config.navigation, config.seed))
+        builder.Connect(quad_state, navigation.get_input_port())
+        nav_state, nav_X_WB = navigation.GetOutputPort("state"), navigation.GetOutputPort("X_WB")
 
     truth = builder.AddNamedSystem("true_relative_state", RelativeStateTruth(
         config.vehicle, config.platform, config.perception.field_of_view_deg, config.perception.max_range_m))
@@ -245,10 +254,10 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         filters[name] = builder.AddNamedSystem(name, MarkerFilterSystem(
             FILTERS[name](config.platform.markers, est.X_BC, est.ekf)))
         builder.Connect(measurements.delayed, filters[name].GetInputPort("marker_measurements"))
-        builder.Connect(X_WB, filters[name].GetInputPort("X_WB"))
+        builder.Connect(nav_X_WB, filters[name].GetInputPort("X_WB"))
 
     perception = perception_source(config.perception.source).add(
-        builder, PerceptionInputs(config, X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"), quad_state,
+        builder, PerceptionInputs(config, nav_X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"), quad_state,
                                   vehicle_state, truth.get_output_port(), measurements.delayed,
                                   measurements.color_image, filters))
     seam = builder.AddNamedSystem("seam", SeamSplit())
@@ -261,7 +270,7 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
     monitor = builder.AddNamedSystem("monitor", LandingMonitor(config.termination, config.platform,
                                                                config.landing.touchdown_height_m))
     altitude = builder.AddNamedSystem("altitude", Demultiplexer([2, 1, STATE_SIZE - 3]))
-    builder.Connect(quad_state, altitude.get_input_port())
+    builder.Connect(nav_state, altitude.get_input_port())
     for name in ("target_offset", "target_velocity", "target_valid"):
         builder.Connect(seam.GetOutputPort(name), pid.GetInputPort(name))
         builder.Connect(seam.GetOutputPort(name), supervisor.GetInputPort(name))
@@ -274,11 +283,11 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
     if config.controller.velocity_integral_gain_xy > 0:  # the supervisor's command with integral action
         integral = builder.AddNamedSystem("velocity_integral", VelocityIntegral(config.controller))
         builder.Connect(supervisor.GetOutputPort("command"), integral.GetInputPort("command"))
-        builder.Connect(quad_state, integral.GetInputPort("state"))
+        builder.Connect(nav_state, integral.GetInputPort("state"))
         builder.Connect(integral.GetOutputPort("command"), controller.GetInputPort("command"))
     else:
         builder.Connect(supervisor.GetOutputPort("command"), controller.GetInputPort("command"))
-    builder.Connect(quad_state, controller.GetInputPort("state"))
+    builder.Connect(nav_state, controller.GetInputPort("state"))
     builder.Connect(controller.GetOutputPort("rotor_speed_commands"), quad.GetInputPort("rotor_speed_commands"))
     builder.Connect(quad_state, monitor.GetInputPort("quadrotor_state"))
     builder.Connect(vehicle_state, monitor.GetInputPort("vehicle_state"))

@@ -6,7 +6,7 @@ diagrams/perception_sources.py, and when its estimate is valid), `estimation` (t
 measurement stream and the filters that run on it), `federated` (seed 001's camera, IMU and
 federated filter, for perception.source federated), `wind` (systems/environment/wind.py: it acts
 through the quadrotor's rotor drag), `faults` (systems/perception/marker_faults.py: in the marker
-stream), `start`, `integration`.
+stream), `navigation` (systems/sensors/navigation.py: the UAV's own state), `start`, `integration`.
 """
 
 from dataclasses import dataclass, field
@@ -27,6 +27,7 @@ from systems.estimators.marker_ekf import FILTERS, MarkerEkfConfig
 from systems.perception.marker_faults import FaultsConfig
 from systems.perception.seam import SeamConfig
 from systems.sensors.camera import CameraConfig
+from systems.sensors.navigation import NavigationConfig
 from systems.vehicles.airframe import AirframeConfig
 from systems.vehicles.ground_vehicle import GroundVehicleConfig
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
@@ -172,11 +173,14 @@ class GvLandingConfig:
     federated: FederatedPerceptionConfig = field(default_factory=FederatedPerceptionConfig)
     wind: WindConfig = field(default_factory=WindConfig)  # calm by default
     faults: FaultsConfig = field(default_factory=FaultsConfig)  # in the marker stream; none by default
+    navigation: NavigationConfig = field(default_factory=NavigationConfig)  # the UAV's own; the truth by default
 
     def validate(self) -> None:
         for name in ("vehicle", "platform", "quadrotor", "controller", "pid", "landing", "perception", "estimation",
-                     "start", "termination", "integration", "uav", "federated", "wind", "faults"):
+                     "start", "termination", "integration", "uav", "federated", "wind", "faults", "navigation"):
             getattr(self, name).validate(name)
+        require(self.navigation.source == "truth" or self.perception.source != "federated",
+                "perception.source federated drives its IMU from the UAV's pose: navigation.source must be truth")
         require(not self.faults.active or self.estimation.source != "none",
                 "faults act on the marker stream, and estimation.source is none: set it to synthetic or detector")
         require(self.wind.is_calm or self.quadrotor.rotor_drag_coefficient > 0,

@@ -1,0 +1,108 @@
+"""The UAV's own navigation (issue 10): what its autopilot believes of its pose and velocity, the
+truth plus the errors of a GNSS/INS grade, for the flight controller, the supervisor and the
+estimators that place the pad in World; the truth stays with the referee and the metrics.
+
+Errors, seeded per sample (sample_rng(seed, "navigation", k), t_k = k T, T = 1 / rate_hz):
+- position: first-order Gauss-Markov per axis, standard deviation `position_std_m`, correlation
+  time `position_time_constant_s`, exactly discretised (e_{k+1} = a e_k + sigma sqrt(1 - a^2) n,
+  a = exp(-T / tau)) and started from its stationary distribution;
+- attitude: the same, per roll, pitch and yaw (`tilt_std_deg`, `yaw_std_deg`,
+  `attitude_time_constant_s`), applied as R_WB_nav = R_WB R(roll, pitch, yaw errors);
+- velocity: white, `velocity_std_m_s` per axis, drawn every sample.
+Frames: World W (z up), body B; m, s, rad (deg in the settings' names).
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common.value import Value
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.systems.framework import LeafSystem
+
+from systems.config import require, require_positive
+from systems.noise import sample_index, sample_rng
+from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE, V_WB, pose_from_state
+
+SOURCES = ("truth", "gnss_ins")
+
+
+@dataclass
+class NavigationConfig:
+    """`source`: truth, or gnss_ins (the errors of the module docstring). The defaults are a
+    consumer grade: GPS with a nine-axis IMU and a barometer, about 2 m (seed 000's reference [21]);
+    the rest are ours (a GNSS error wanders over about a minute; a consumer autopilot's attitude
+    filter holds the tilt to about half a degree and the heading to a couple of degrees)."""
+
+    source: str = "truth"
+    rate_hz: float = 200.0  # the errors' sample rate (the flight controller's)
+    position_std_m: float = 2.0
+    position_time_constant_s: float = 60.0
+    velocity_std_m_s: float = 0.05
+    tilt_std_deg: float = 0.5
+    yaw_std_deg: float = 2.0
+    attitude_time_constant_s: float = 30.0
+
+    def validate(self, prefix: str = "navigation") -> None:
+        require(self.source in SOURCES, f"{prefix}.source '{self.source}' is not one of {', '.join(SOURCES)}")
+        for name in ("rate_hz", "position_time_constant_s", "attitude_time_constant_s"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        for name in ("position_std_m", "velocity_std_m_s", "tilt_std_deg", "yaw_std_deg"):
+            require(getattr(self, name) >= 0, f"{prefix}.{name} must not be negative, got {getattr(self, name)}")
+
+
+def gauss_markov_step(error: np.ndarray, std: np.ndarray, time_constant_s: float, period_s: float,
+                      noise: np.ndarray) -> np.ndarray:
+    """A first-order Gauss-Markov error one period later (exact), from standard normal `noise`."""
+    a = math.exp(-period_s / time_constant_s)
+    return a * error + np.asarray(std) * math.sqrt(1.0 - a * a) * noise
+
+
+def navigation_state(true_state: np.ndarray, position_error: np.ndarray, attitude_error: np.ndarray,
+                     velocity_error: np.ndarray) -> np.ndarray:
+    """The 17-vector state as the navigation gives it: position and velocity (m, m/s, in W) plus
+    their errors, the attitude turned by the [roll, pitch, yaw] error (rad) in B; the body rates
+    and rotor speeds as they are."""
+    out = np.array(true_state, dtype=float)
+    out[P_WB] += position_error
+    out[V_WB] += velocity_error
+    R_WB = pose_from_state(true_state).rotation().multiply(RotationMatrix(RollPitchYaw(attitude_error)))
+    out[Q_WB] = R_WB.ToQuaternion().wxyz()
+    return out
+
+
+class NavigationSystem(LeafSystem):
+    """Input `quadrotor_state` (17, the truth); outputs `state` (17, navigation_state) and `X_WB`
+    (abstract RigidTransform) of the navigation. Discrete state: the position and attitude errors
+    (6), and the velocity error (3), stepped every 1 / rate_hz from t = 0."""
+
+    def __init__(self, config: NavigationConfig, seed: int = 0):
+        super().__init__()
+        config.validate()
+        self._config, self._seed, self._period = config, seed, 1.0 / config.rate_hz
+        self._std = np.r_[np.full(3, config.position_std_m), np.radians([config.tilt_std_deg] * 2),
+                          math.radians(config.yaw_std_deg)]
+        initial = sample_rng(seed, "navigation", 0).standard_normal(9)
+        self._errors = self.DeclareDiscreteState(np.r_[self._std * initial[:6],
+                                                       config.velocity_std_m_s * initial[6:]])
+        self._truth = self.DeclareVectorInputPort("quadrotor_state", STATE_SIZE)
+        self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._step)
+        self.DeclareVectorOutputPort("state", STATE_SIZE, self._calc_state)
+        self.DeclareAbstractOutputPort("X_WB", lambda: Value(RigidTransform()),
+                                       lambda c, o: o.set_value(pose_from_state(self._state(c))))
+
+    def _step(self, context, discrete_state):
+        c = self._config
+        errors = context.get_discrete_state_vector().CopyToVector()
+        k = sample_index(context.get_time(), self._period)
+        noise = sample_rng(self._seed, "navigation", k + 1).standard_normal(9)
+        position = gauss_markov_step(errors[0:3], self._std[0:3], c.position_time_constant_s, self._period, noise[0:3])
+        attitude = gauss_markov_step(errors[3:6], self._std[3:6], c.attitude_time_constant_s, self._period, noise[3:6])
+        discrete_state.set_value(np.r_[position, attitude, c.velocity_std_m_s * noise[6:9]])
+
+    def _state(self, context) -> np.ndarray:
+        errors = context.get_discrete_state_vector().CopyToVector()
+        return navigation_state(self._truth.Eval(context), errors[0:3], errors[3:6], errors[6:9])
+
+    def _calc_state(self, context, output):
+        output.SetFromVector(self._state(context))

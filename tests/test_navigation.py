@@ -1,0 +1,90 @@
+"""The UAV's own navigation (systems/sensors/navigation.py): the Gauss-Markov errors' statistics,
+the navigation state built from the truth and its errors, the system seeded and consistent, its
+settings' checks, and in the gv diagram where it reaches."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.math import RollPitchYaw, RotationMatrix
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
+
+from diagrams.gv_landing_run import fly
+from diagrams.runner import load_scenario
+from systems.config import ConfigError
+from systems.sensors.navigation import NavigationConfig, NavigationSystem, gauss_markov_step, navigation_state
+from systems.vehicles.quadrotor import P_WB, V_WB, pose_from_state, quadrotor_state
+
+pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+
+TRUE = quadrotor_state(p_WB=[1.0, 2.0, 5.0], R_WB=RotationMatrix(RollPitchYaw(0.1, -0.05, 0.7)), v_WB=[1.0, 0.0, -0.5],
+                       w_WB_B=[0.1, 0.0, 0.0], rotor_speeds=[480.0] * 4)
+
+
+def test_the_gauss_markov_error_keeps_its_variance_and_correlation_time():
+    rng = np.random.default_rng(0)
+    period, tau, std = 0.1, 5.0, 2.0
+    e, series = np.array([std * rng.standard_normal()]), []
+    for _ in range(200000):
+        e = gauss_markov_step(e, [std], tau, period, rng.standard_normal(1))
+        series.append(e[0])
+    series = np.array(series)
+    assert series.std() == pytest.approx(std, rel=0.05)
+    lag = 30  # 3 s
+    assert np.corrcoef(series[:-lag], series[lag:])[0, 1] == pytest.approx(math.exp(-lag * period / tau), abs=0.03)
+
+
+def test_the_navigation_state_is_the_truth_moved_by_its_errors():
+    state = navigation_state(TRUE, [0.5, -0.2, 0.1], [0.01, -0.02, 0.05], [0.03, 0.0, -0.01])
+    np.testing.assert_allclose(state[P_WB], TRUE[P_WB] + [0.5, -0.2, 0.1])
+    np.testing.assert_allclose(state[V_WB], TRUE[V_WB] + [0.03, 0.0, -0.01])
+    expected = pose_from_state(TRUE).rotation().multiply(RotationMatrix(RollPitchYaw(0.01, -0.02, 0.05)))
+    assert pose_from_state(state).rotation().IsNearlyEqualTo(expected, 1e-12)
+    np.testing.assert_array_equal(state[10:], TRUE[10:])  # body rates and rotors as they are
+    np.testing.assert_allclose(navigation_state(TRUE, np.zeros(3), np.zeros(3), np.zeros(3)), TRUE, atol=1e-15)
+
+
+def _simulate(seed: int, config: NavigationConfig, duration_s: float = 2.0) -> np.ndarray:
+    builder = DiagramBuilder()
+    truth = builder.AddSystem(ConstantVectorSource(TRUE))
+    navigation = builder.AddSystem(NavigationSystem(config, seed))
+    builder.Connect(truth.get_output_port(), navigation.get_input_port())
+    log = LogVectorOutput(navigation.GetOutputPort("state"), builder, 0.01)
+    simulator = Simulator(builder.Build())
+    simulator.AdvanceTo(duration_s)
+    context = navigation.GetMyContextFromRoot(simulator.get_context())
+    X_WB = navigation.GetOutputPort("X_WB").Eval(context)
+    assert X_WB.IsNearlyEqualTo(pose_from_state(navigation.GetOutputPort("state").Eval(context)), 1e-12)
+    return log.FindLog(simulator.get_context()).data().T
+
+
+def test_the_system_is_seeded_and_its_errors_are_the_configured_size():
+    config = NavigationConfig(source="gnss_ins", position_time_constant_s=0.2, attitude_time_constant_s=0.2)
+    states = _simulate(3, config, 20.0)
+    error = states[:, P_WB] - TRUE[P_WB]
+    assert error.std() == pytest.approx(config.position_std_m, rel=0.1)  # 100 correlation times
+    assert (states[:, V_WB] - TRUE[V_WB]).std() == pytest.approx(config.velocity_std_m_s, rel=0.05)
+    np.testing.assert_array_equal(states, _simulate(3, config, 20.0))
+    assert not np.array_equal(states, _simulate(4, config, 20.0))
+
+
+def test_navigation_settings_name_their_mistakes():
+    with pytest.raises(ConfigError, match=r"navigation\.source 'gps'"):
+        load_scenario("gv-landing", overrides=["navigation.source=gps"])
+    with pytest.raises(ConfigError, match=r"navigation\.position_std_m"):
+        load_scenario("gv-landing", overrides=["navigation.position_std_m=-1"])
+    with pytest.raises(ConfigError, match="navigation.source must be truth"):
+        load_scenario("open-landing", overrides=["navigation.source=gnss_ins"])
+
+
+def test_in_the_loop_the_controller_flies_on_the_navigation():
+    # Held over the start, the UAV flies where its navigation says it is: its true position wanders
+    # with the navigation's error, which the truth-navigation flight does not.
+    flights = {}
+    for source in ("truth", "gnss_ins"):
+        _, s = load_scenario("gv-landing", overrides=[f"navigation.source={source}", "vehicle.speed=0.0"])
+        flights[source] = fly(s, 3.0)[1].log["quadrotor_state"][:, P_WB]
+    assert np.abs(flights["truth"][:, :2] - flights["truth"][0, :2]).max() < 1e-6
+    assert np.abs(flights["gnss_ins"][:, :2] - flights["gnss_ins"][0, :2]).max() > 1e-3
