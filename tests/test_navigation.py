@@ -14,7 +14,13 @@ from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 from diagrams.gv_landing_run import fly
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
-from systems.sensors.navigation import NavigationConfig, NavigationSystem, gauss_markov_step, navigation_state
+from systems.sensors.navigation import (
+    NavigationConfig,
+    NavigationSystem,
+    gauss_markov_step,
+    navigation_state,
+    second_order_model,
+)
 from systems.vehicles.quadrotor import P_WB, V_WB, pose_from_state, quadrotor_state
 
 pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
@@ -60,14 +66,25 @@ def _simulate(seed: int, config: NavigationConfig, duration_s: float = 2.0) -> n
     return log.FindLog(simulator.get_context()).data().T
 
 
-def test_the_system_is_seeded_and_its_errors_are_the_configured_size():
+def test_the_system_is_seeded_its_errors_the_configured_size_and_its_velocity_error_the_positions_rate():
     config = NavigationConfig(source="gnss_ins", position_time_constant_s=0.2, attitude_time_constant_s=0.2)
-    states = _simulate(3, config, 20.0)
-    error = states[:, P_WB] - TRUE[P_WB]
-    assert error.std() == pytest.approx(config.position_std_m, rel=0.1)  # 100 correlation times
-    assert (states[:, V_WB] - TRUE[V_WB]).std() == pytest.approx(config.velocity_std_m_s, rel=0.05)
-    np.testing.assert_array_equal(states, _simulate(3, config, 20.0))
-    assert not np.array_equal(states, _simulate(4, config, 20.0))
+    states = _simulate(3, config, 40.0)
+    position, velocity = states[:, P_WB] - TRUE[P_WB], states[:, V_WB] - TRUE[V_WB]
+    assert position.std() == pytest.approx(config.position_std_m, rel=0.1)  # 200 correlation times
+    assert velocity.std() == pytest.approx(config.position_std_m / 0.2, rel=0.1)  # sigma / tau
+    rate = np.diff(position, axis=0) / 0.01  # the logged position error's rate, against the velocity error
+    assert np.corrcoef(rate.ravel(), velocity[:-1].ravel())[0, 1] > 0.95
+    np.testing.assert_array_equal(states, _simulate(3, config, 40.0))
+    assert not np.array_equal(states, _simulate(4, config, 40.0))
+
+
+def test_the_second_order_model_is_exact():
+    phi, g, stationary = second_order_model(5.0, 0.01)
+    P = stationary @ stationary.T
+    np.testing.assert_allclose(P, np.diag([1.0, 1.0 / 25.0]), atol=1e-12)  # var(e) = 1, var(e') = 1 / tau^2
+    np.testing.assert_allclose(phi @ P @ phi.T + g @ g.T, P, atol=1e-12)  # stationary under the step
+    lag = 300  # 3 s: R(t) / R(0) = (1 + t / tau) e^(-t / tau)
+    assert (np.linalg.matrix_power(phi, lag) @ P)[0, 0] == pytest.approx((1 + 3.0 / 5.0) * math.exp(-3.0 / 5.0))
 
 
 def test_navigation_settings_name_their_mistakes():

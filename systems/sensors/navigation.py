@@ -2,13 +2,15 @@
 truth plus the errors of a GNSS/INS grade, for the flight controller, the supervisor and the
 estimators that place the pad in World; the truth stays with the referee and the metrics.
 
-Errors, seeded per sample (sample_rng(seed, "navigation", k), t_k = k T, T = 1 / rate_hz):
-- position: first-order Gauss-Markov per axis, standard deviation `position_std_m`, correlation
-  time `position_time_constant_s`, exactly discretised (e_{k+1} = a e_k + sigma sqrt(1 - a^2) n,
-  a = exp(-T / tau)) and started from its stationary distribution;
-- attitude: the same, per roll, pitch and yaw (`tilt_std_deg`, `yaw_std_deg`,
-  `attitude_time_constant_s`), applied as R_WB_nav = R_WB R(roll, pitch, yaw errors);
-- velocity: white, `velocity_std_m_s` per axis, drawn every sample.
+Errors, seeded per sample (sample_rng(seed, "navigation", k), t_k = k T, T = 1 / rate_hz), each
+exactly discretised and started from its stationary distribution:
+- position: a second-order Gauss-Markov process per axis (an INS's error, smooth, held by GNSS):
+  e'' = -e / tau^2 - 2 e' / tau + white noise, standard deviation `position_std_m`, autocorrelation
+  sigma^2 (1 + |t| / tau) e^(-|t| / tau) with tau = `position_time_constant_s`; the velocity error is
+  its rate e' (standard deviation sigma / tau), so the two agree as an INS's do;
+- attitude: first-order Gauss-Markov per roll, pitch and yaw (`tilt_std_deg`, `yaw_std_deg`,
+  `attitude_time_constant_s`; e_{k+1} = a e_k + sigma sqrt(1 - a^2) n, a = exp(-T / tau)), applied
+  as R_WB_nav = R_WB R(roll, pitch, yaw errors).
 Frames: World W (z up), body B; m, s, rad (deg in the settings' names).
 """
 
@@ -19,6 +21,7 @@ import numpy as np
 from pydrake.common.value import Value
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import LeafSystem
+from scipy.linalg import cholesky, expm, solve_continuous_lyapunov
 
 from systems.config import require, require_positive
 from systems.noise import sample_index, sample_rng
@@ -31,14 +34,14 @@ SOURCES = ("truth", "gnss_ins")
 class NavigationConfig:
     """`source`: truth, or gnss_ins (the errors of the module docstring). The defaults are a
     consumer grade: GPS with a nine-axis IMU and a barometer, about 2 m (seed 000's reference [21]);
-    the rest are ours (a GNSS error wanders over about a minute; a consumer autopilot's attitude
-    filter holds the tilt to about half a degree and the heading to a couple of degrees)."""
+    the rest are ours (a GNSS error wanders over about a minute, which makes the velocity error
+    2 m / 60 s = 0.033 m/s; a consumer autopilot's attitude filter holds the tilt to about half a
+    degree and the heading to a couple of degrees)."""
 
     source: str = "truth"
     rate_hz: float = 200.0  # the errors' sample rate (the flight controller's)
     position_std_m: float = 2.0
     position_time_constant_s: float = 60.0
-    velocity_std_m_s: float = 0.05
     tilt_std_deg: float = 0.5
     yaw_std_deg: float = 2.0
     attitude_time_constant_s: float = 30.0
@@ -47,7 +50,7 @@ class NavigationConfig:
         require(self.source in SOURCES, f"{prefix}.source '{self.source}' is not one of {', '.join(SOURCES)}")
         for name in ("rate_hz", "position_time_constant_s", "attitude_time_constant_s"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
-        for name in ("position_std_m", "velocity_std_m_s", "tilt_std_deg", "yaw_std_deg"):
+        for name in ("position_std_m", "tilt_std_deg", "yaw_std_deg"):
             require(getattr(self, name) >= 0, f"{prefix}.{name} must not be negative, got {getattr(self, name)}")
 
 
@@ -56,6 +59,22 @@ def gauss_markov_step(error: np.ndarray, std: np.ndarray, time_constant_s: float
     """A first-order Gauss-Markov error one period later (exact), from standard normal `noise`."""
     a = math.exp(-period_s / time_constant_s)
     return a * error + np.asarray(std) * math.sqrt(1.0 - a * a) * noise
+
+
+def second_order_model(time_constant_s: float, period_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The unit-variance second-order Gauss-Markov process [e, e'] (module docstring) over one
+    period: (Phi (2x2), G (2x2) with x_next = Phi x + G n, n ~ N(0, I), and the stationary covariance's
+    Cholesky factor), exact (Van Loan's method)."""
+    tau = time_constant_s
+    A = np.array([[0.0, 1.0], [-1.0 / tau**2, -2.0 / tau]])
+    B = np.array([[0.0], [2.0 / math.sqrt(tau**3)]])  # makes var(e) = 1: q = 4 / tau^3
+    van_loan = np.zeros((4, 4))
+    van_loan[:2, :2], van_loan[:2, 2:], van_loan[2:, 2:] = -A * period_s, B @ B.T * period_s, A.T * period_s
+    exp = expm(van_loan)
+    phi = exp[2:, 2:].T
+    q = phi @ exp[:2, 2:]
+    stationary = solve_continuous_lyapunov(A, -B @ B.T)
+    return phi, cholesky((q + q.T) / 2, lower=True), cholesky(stationary, lower=True)
 
 
 def navigation_state(true_state: np.ndarray, position_error: np.ndarray, attitude_error: np.ndarray,
@@ -73,18 +92,19 @@ def navigation_state(true_state: np.ndarray, position_error: np.ndarray, attitud
 
 class NavigationSystem(LeafSystem):
     """Input `quadrotor_state` (17, the truth); outputs `state` (17, navigation_state) and `X_WB`
-    (abstract RigidTransform) of the navigation. Discrete state: the position and attitude errors
-    (6), and the velocity error (3), stepped every 1 / rate_hz from t = 0."""
+    (abstract RigidTransform) of the navigation. Discrete state: the position errors and their rates
+    (3 x 2, in units of position_std_m), the attitude errors (3, rad), stepped every 1 / rate_hz from
+    t = 0."""
 
     def __init__(self, config: NavigationConfig, seed: int = 0):
         super().__init__()
         config.validate()
         self._config, self._seed, self._period = config, seed, 1.0 / config.rate_hz
-        self._std = np.r_[np.full(3, config.position_std_m), np.radians([config.tilt_std_deg] * 2),
-                          math.radians(config.yaw_std_deg)]
+        self._attitude_std = np.radians([config.tilt_std_deg, config.tilt_std_deg, config.yaw_std_deg])
+        self._phi, self._g, stationary = second_order_model(config.position_time_constant_s, self._period)
         initial = sample_rng(seed, "navigation", 0).standard_normal(9)
-        self._errors = self.DeclareDiscreteState(np.r_[self._std * initial[:6],
-                                                       config.velocity_std_m_s * initial[6:]])
+        position = (stationary @ initial[:6].reshape(2, 3)).T.ravel()  # [e, e'] per axis, unit variance
+        self._errors = self.DeclareDiscreteState(np.r_[position, self._attitude_std * initial[6:]])
         self._truth = self.DeclareVectorInputPort("quadrotor_state", STATE_SIZE)
         self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._step)
         self.DeclareVectorOutputPort("state", STATE_SIZE, self._calc_state)
@@ -96,13 +116,15 @@ class NavigationSystem(LeafSystem):
         errors = context.get_discrete_state_vector().CopyToVector()
         k = sample_index(context.get_time(), self._period)
         noise = sample_rng(self._seed, "navigation", k + 1).standard_normal(9)
-        position = gauss_markov_step(errors[0:3], self._std[0:3], c.position_time_constant_s, self._period, noise[0:3])
-        attitude = gauss_markov_step(errors[3:6], self._std[3:6], c.attitude_time_constant_s, self._period, noise[3:6])
-        discrete_state.set_value(np.r_[position, attitude, c.velocity_std_m_s * noise[6:9]])
+        position = errors[0:6].reshape(3, 2) @ self._phi.T + noise[0:6].reshape(3, 2) @ self._g.T
+        attitude = gauss_markov_step(errors[6:9], self._attitude_std, c.attitude_time_constant_s, self._period,
+                                     noise[6:9])
+        discrete_state.set_value(np.r_[position.ravel(), attitude])
 
     def _state(self, context) -> np.ndarray:
         errors = context.get_discrete_state_vector().CopyToVector()
-        return navigation_state(self._truth.Eval(context), errors[0:3], errors[3:6], errors[6:9])
+        position = errors[0:6].reshape(3, 2) * self._config.position_std_m  # [e, e'] per axis, in m and m/s
+        return navigation_state(self._truth.Eval(context), position[:, 0], errors[6:9], position[:, 1])
 
     def _calc_state(self, context, output):
         output.SetFromVector(self._state(context))
