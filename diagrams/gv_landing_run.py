@@ -44,7 +44,7 @@ class Scenario(RunSettings, GvLandingConfig):
     def validate(self) -> None:
         require_positive(self.duration_s, "duration_s")
         GvLandingConfig.validate(self)
-        self.faults.validate("faults", self.duration_s)
+        self.faults.check_within(self.duration_s)
 
 
 @dataclass

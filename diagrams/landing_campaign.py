@@ -11,6 +11,8 @@ estimate's RMS position error (RMS over the runs) and the time flown on the pred
 touchdown.
 """
 
+from collections import Counter
+
 import numpy as np
 
 from diagrams.montecarlo import CampaignDefinition, RunTask
@@ -28,11 +30,12 @@ def run_task(task: RunTask) -> dict:
     return {"seed": task.seed, **{key: metrics[key] for key in keep if key in metrics}}
 
 
-def _percentiles(values: list[float]) -> dict | None:
+def _percentiles(values: list[float], median: str = "median") -> dict | None:
+    """{median, "p95", "max"} of the values (None for none); `median` names the first key."""
     if not values:
         return None
     v = np.asarray(values, dtype=float)
-    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+    return {median: float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
 
 
 def aggregate(done: dict) -> dict:
@@ -56,6 +59,19 @@ def aggregate(done: dict) -> dict:
             "time_to_land_s": _percentiles([m["time_to_land_s"] for m in touched]),
         }
     return {"landing": out}
+
+
+def landing_case_summary(records: list) -> dict:
+    """One case's landing figures in a `--case` campaign (diagrams/montecarlo/grid.py), from its
+    finished runs (RunRecord): success rate, touchdown error and relative vertical speed (p50, p95,
+    max over the runs that touched down), failure reasons counted, aborts."""
+    landings = [r.metrics["landing"] for r in records]
+    touched = [m for m in landings if m["touchdown_error_m"] is not None]
+    return {"success_rate": sum(m["success"] for m in landings) / len(landings) if landings else None,
+            "touchdown_error_m": _percentiles([m["touchdown_error_m"] for m in touched], "p50"),
+            "touchdown_rel_speed_mps": _percentiles([m["touchdown_rel_speed_mps"] for m in touched], "p50"),
+            "failure_reasons": dict(Counter(m["failure_reason"] for m in landings if m["failure_reason"])),
+            "aborts": sum(m["aborts"] for m in landings)}
 
 
 CAMPAIGN = CampaignDefinition(

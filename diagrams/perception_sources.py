@@ -33,8 +33,8 @@ class PerceptionInputs:
     """What a gv scenario's diagram offers a perception source."""
 
     config: object  # the scenario (diagrams.gv_landing_config.GvLandingConfig)
-    X_WB: OutputPort  # the UAV's own pose (RigidTransform): its navigation, the truth for now
-    V_WB: OutputPort  # its spatial velocity (6: [w; v] in W) and acceleration (A_WB), likewise
+    X_WB: OutputPort  # the UAV's own pose (RigidTransform): its navigation's (`navigation.source`)
+    V_WB: OutputPort  # its true spatial velocity (6: [w; v] in W) and acceleration (A_WB), for an IMU
     A_WB: OutputPort
     quadrotor_state: OutputPort  # the truth, for a source's own logs: the UAV's state (17) and the vehicle's (4)
     vehicle_state: OutputPort

@@ -13,3 +13,7 @@ def require(condition: bool, message: str) -> None:
 
 def require_positive(value: float, name: str) -> None:
     require(value > 0, f"{name} must be positive, got {value}")
+
+
+def require_non_negative(value: float, name: str) -> None:
+    require(value >= 0, f"{name} must not be negative, got {value}")

@@ -5,7 +5,7 @@ runs/ too), and every run flies the scenario with its case's assignments (a land
     landing-sim montecarlo marker-landing-wind --runs 20 --case vehicle.speed=3,6 --case wind.mean_m_s=0,5
 
 summary.json's "cases" then holds per case, besides its run counts, the landings' figures
-(`landing_case_summary`): success_rate, touchdown error and relative vertical speed (p50, p95,
+(diagrams/landing_campaign.landing_case_summary): success_rate, touchdown error and relative vertical speed (p50, p95,
 max, over the runs that touched down), failure reasons counted, and aborts.
 """
 
@@ -16,7 +16,7 @@ import itertools
 import matplotlib.pyplot as plt
 import numpy as np
 
-from diagrams.landing_campaign import run_task
+from diagrams.landing_campaign import landing_case_summary, run_task
 from diagrams.montecarlo.definition import CampaignDefinition, campaign_settings
 from diagrams.montecarlo.records import RunRecord
 from diagrams.montecarlo.settings import GRID, CampaignSettings
@@ -45,27 +45,6 @@ def grid_cases(options: list[str]) -> tuple[str, ...]:
         raise ConfigError("--case: a field is given twice (give its values in one --case, comma-separated)")
     return tuple(",".join(f"{k}={v}" for k, v in zip(keys, values))
                  for values in itertools.product(*(values for _, values in fields)))
-
-
-def _percentiles(values: list[float]) -> dict | None:
-    if not values:
-        return None
-    v = np.asarray(values, dtype=float)
-    return {"p50": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
-
-
-def landing_case_summary(records: list[RunRecord]) -> dict:
-    """One case's landing figures (module docstring) from its finished runs."""
-    landings = [r.metrics["landing"] for r in records]
-    touched = [m for m in landings if m["touchdown_error_m"] is not None]
-    reasons: dict[str, int] = {}
-    for m in landings:
-        if m["failure_reason"]:
-            reasons[m["failure_reason"]] = reasons.get(m["failure_reason"], 0) + 1
-    return {"success_rate": sum(m["success"] for m in landings) / len(landings) if landings else None,
-            "touchdown_error_m": _percentiles([m["touchdown_error_m"] for m in touched]),
-            "touchdown_rel_speed_mps": _percentiles([m["touchdown_rel_speed_mps"] for m in touched]),
-            "failure_reasons": reasons, "aborts": sum(m.get("aborts", 0) for m in landings)}
 
 
 def plot_grid(settings: CampaignSettings, done: dict[str, list[RunRecord]], out_dir) -> None:

@@ -34,7 +34,7 @@ from pydrake.symbolic import MakeVectorVariable
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, Multiplexer, SymbolicVectorSystem, ZeroOrderHold
 
-from systems.config import require, require_positive
+from systems.config import require, require_non_negative, require_positive
 from systems.vehicles.quadrotor import (
     P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, QuadrotorParams, mixer_matrix, rotation_from_quaternion,
 )
@@ -72,7 +72,7 @@ class FlightControllerConfig:
                      "attitude_frequency_rad_s", "yaw_frequency_rad_s", "attitude_damping",
                      "rotor_time_constant_s", "max_integral_accel_m_s2"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
-        require(self.velocity_integral_gain_xy >= 0, f"{prefix}.velocity_integral_gain_xy must not be negative")
+        require_non_negative(self.velocity_integral_gain_xy, f"{prefix}.velocity_integral_gain_xy")
         require(0 < self.max_tilt_deg < 90, f"{prefix}.max_tilt_deg must be in (0, 90)")
         for name in ("attitude_frequency_rad_s", "yaw_frequency_rad_s"):
             require(2 * self.attitude_damping * getattr(self, name) < 1 / self.rotor_time_constant_s,

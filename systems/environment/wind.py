@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import block_diag, cholesky, expm, solve_continuous_lyapunov
 
-from systems.config import require, require_positive
+from systems.config import require, require_non_negative, require_positive
 
 FT_M = 0.3048
 KNOT_M_S = 0.514444
@@ -59,9 +59,9 @@ class GustConfig:
     elevation_deg: float = 0.0
 
     def validate(self, prefix: str = "gust") -> None:
-        require(self.start_s >= 0, f"{prefix}.start_s must not be negative, got {self.start_s}")
+        require_non_negative(self.start_s, f"{prefix}.start_s")
         require_positive(self.duration_s, f"{prefix}.duration_s")
-        require(self.magnitude_m_s >= 0, f"{prefix}.magnitude_m_s must not be negative, got {self.magnitude_m_s}")
+        require_non_negative(self.magnitude_m_s, f"{prefix}.magnitude_m_s")
 
 
 @dataclass
@@ -91,7 +91,7 @@ class WindConfig:
     gusts: list[GustConfig] = field(default_factory=list)
 
     def validate(self, prefix: str = "wind") -> None:
-        require(self.mean_m_s >= 0, f"{prefix}.mean_m_s must not be negative, got {self.mean_m_s}")
+        require_non_negative(self.mean_m_s, f"{prefix}.mean_m_s")
         require(self.turbulence in TURBULENCE_LEVELS,
                 f"{prefix}.turbulence '{self.turbulence}' is not one of {', '.join(TURBULENCE_LEVELS)}")
         for name in ("sigma_m_s", "length_scale_m"):

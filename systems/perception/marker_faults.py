@@ -22,7 +22,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 from scipy.spatial.transform import Rotation
 
-from systems.config import require, require_positive
+from systems.config import require, require_non_negative, require_positive
 from systems.noise import sample_index, sample_rng
 from systems.perception.markers import MarkerMeasurement
 
@@ -39,21 +39,23 @@ class FaultsConfig:
     outlier_position_m: float = 0.5
     outlier_deg: float = 20.0
 
-    def validate(self, prefix: str = "faults", duration_s: float | None = None) -> None:
-        """Checks every field; with `duration_s`, also that no burst is longer than the run."""
+    def validate(self, prefix: str = "faults") -> None:
+        """Checks every field."""
         for i, interval in enumerate(self.occlusions_s):
             require(len(interval) == 2 and 0 <= interval[0] < interval[1],
                     f"{prefix}.occlusions_s[{i}] must be [start, end] with 0 <= start < end, got {interval}")
-        require(self.occlusion_rate_hz >= 0, f"{prefix}.occlusion_rate_hz must not be negative")
+        require_non_negative(self.occlusion_rate_hz, f"{prefix}.occlusion_rate_hz")
         for name in ("occlusion_duration_s", "outlier_position_m", "outlier_deg"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
         for name in ("drop_probability", "outlier_probability"):
             require(0 <= getattr(self, name) <= 1, f"{prefix}.{name} must be within [0, 1], got {getattr(self, name)}")
-        if duration_s is not None:
-            longest = max([end - start for start, end in self.occlusions_s] +
-                          [self.occlusion_duration_s if self.occlusion_rate_hz else 0.0])
-            require(longest <= duration_s, f"{prefix}: an occlusion of {longest:g} s is longer than the run "
-                                           f"({duration_s:g} s)")
+
+    def check_within(self, duration_s: float, prefix: str = "faults") -> None:
+        """That no occlusion is longer than a run of `duration_s` [s]."""
+        longest = max([end - start for start, end in self.occlusions_s] +
+                      [self.occlusion_duration_s if self.occlusion_rate_hz else 0.0])
+        require(longest <= duration_s, f"{prefix}: an occlusion of {longest:g} s is longer than the run "
+                                       f"({duration_s:g} s)")
 
     @property
     def active(self) -> bool:

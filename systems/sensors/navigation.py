@@ -23,7 +23,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 from scipy.linalg import cholesky, expm, solve_continuous_lyapunov
 
-from systems.config import require, require_positive
+from systems.config import require, require_non_negative, require_positive
 from systems.noise import sample_index, sample_rng
 from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE, V_WB, pose_from_state
 
@@ -51,7 +51,7 @@ class NavigationConfig:
         for name in ("rate_hz", "position_time_constant_s", "attitude_time_constant_s"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
         for name in ("position_std_m", "tilt_std_deg", "yaw_std_deg"):
-            require(getattr(self, name) >= 0, f"{prefix}.{name} must not be negative, got {getattr(self, name)}")
+            require_non_negative(getattr(self, name), f"{prefix}.{name}")
 
 
 def gauss_markov_step(error: np.ndarray, std: np.ndarray, time_constant_s: float, period_s: float,
@@ -107,9 +107,9 @@ class NavigationSystem(LeafSystem):
         self._errors = self.DeclareDiscreteState(np.r_[position, self._attitude_std * initial[6:]])
         self._truth = self.DeclareVectorInputPort("quadrotor_state", STATE_SIZE)
         self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._step)
-        self.DeclareVectorOutputPort("state", STATE_SIZE, self._calc_state)
-        self.DeclareAbstractOutputPort("X_WB", lambda: Value(RigidTransform()),
-                                       lambda c, o: o.set_value(pose_from_state(self._state(c))))
+        state = self.DeclareVectorOutputPort("state", STATE_SIZE, self._calc_state)
+        self.DeclareAbstractOutputPort("X_WB", lambda: Value(RigidTransform()),  # from the state's cached value
+                                       lambda c, o: o.set_value(pose_from_state(state.Eval(c))))
 
     def _step(self, context, discrete_state):
         c = self._config
@@ -121,10 +121,7 @@ class NavigationSystem(LeafSystem):
                                      noise[6:9])
         discrete_state.set_value(np.r_[position.ravel(), attitude])
 
-    def _state(self, context) -> np.ndarray:
+    def _calc_state(self, context, output):
         errors = context.get_discrete_state_vector().CopyToVector()
         position = errors[0:6].reshape(3, 2) * self._config.position_std_m  # [e, e'] per axis, in m and m/s
-        return navigation_state(self._truth.Eval(context), position[:, 0], errors[6:9], position[:, 1])
-
-    def _calc_state(self, context, output):
-        output.SetFromVector(self._state(context))
+        output.SetFromVector(navigation_state(self._truth.Eval(context), position[:, 0], errors[6:9], position[:, 1]))

@@ -53,7 +53,7 @@ from pydrake.systems.analysis import SimulatorConfig
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, Multiplexer, SymbolicVectorSystem
 
-from systems.config import require, require_positive
+from systems.config import require, require_non_negative, require_positive
 from systems.quaternion import quaternion_rate, rotation_from_quaternion
 from systems.vehicles.integration import discretise, set_vehicle_state
 
@@ -97,7 +97,7 @@ class QuadrotorParams:
             "max_rotor_speed_rad_s", "gravity_m_s2",
         ):
             require_positive(getattr(self, name), f"{prefix}.{name}")
-        require(self.rotor_drag_coefficient >= 0, f"{prefix}.rotor_drag_coefficient must not be negative")
+        require_non_negative(self.rotor_drag_coefficient, f"{prefix}.rotor_drag_coefficient")
         Jx, Jy, Jz = self.inertia_diagonal
         require(Jx <= Jy + Jz and Jy <= Jx + Jz and Jz <= Jx + Jy,
                 f"{prefix}.inertia_xx/yy/zz_kg_m2 = {Jx}, {Jy}, {Jz} violate the triangle "
@@ -128,7 +128,7 @@ def mixer_matrix(params: QuadrotorParams) -> np.ndarray:
     ])
 
 
-def rotor_drag_W(state, R_WB, params: QuadrotorParams, v_wind_W=(0.0, 0.0, 0.0)):
+def rotor_drag_W(state, R_WB, params: QuadrotorParams, v_wind_W):
     """The rotor drag force in W [N] (module docstring) on the air-relative velocity
     v_WB - v_wind_W [m/s, in W]. Works on floats and on pydrake.symbolic Expressions."""
     v_B = R_WB.T @ (state[V_WB] - np.asarray(v_wind_W))
