@@ -35,15 +35,15 @@ from pydrake.systems.primitives import (
 )
 from pydrake.systems.sensors import RgbdSensor
 
+from diagrams.flight_stack import add_flight_stack
 from diagrams.gv_landing_config import GvLandingConfig
 from diagrams.marker_plots import style
 from diagrams.perception_sources import PerceptionInputs, SeamPorts, perception_source
 from systems.config import ConfigError
-from systems.control.flight_controller import FlightController, SymbolicFlightController, make_flight_controller
+from systems.control.flight_controller import FlightController, SymbolicFlightController
 from systems.control.landing import LandingSupervisor
 from systems.control.monitor import LandingMonitor
 from systems.control.pid import TrackingPid
-from systems.control.velocity_integral import VelocityIntegral
 from systems.environment.wind_system import WindSystem
 from systems.estimators.estimate import PoseEstimateToVector
 from systems.estimators.marker_ekf import FILTERS, MarkerFilterSystem
@@ -53,7 +53,6 @@ from systems.perception.latency import MeasurementLatency
 from systems.perception.marker_detector import MarkerDetectorSystem
 from systems.perception.marker_faults import MarkerFaults
 from systems.perception.markers import MarkerMeasurementsToVector
-from systems.perception.seam import SeamSplit
 from systems.perception.synthetic_markers import SyntheticMarkerSource
 from systems.perception.truth import PadPose, RelativeStateTruth
 from systems.sensors.camera import add_camera, add_renderer
@@ -260,40 +259,9 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         builder, PerceptionInputs(config, nav_X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"), quad_state,
                                   vehicle_state, truth.get_output_port(), measurements.delayed,
                                   measurements.color_image, filters))
-    seam = builder.AddNamedSystem("seam", SeamSplit())
-    builder.Connect(perception.relative_state, seam.get_input_port())
-    pid = builder.AddNamedSystem("tracking_pid", TrackingPid(config.pid))
-    supervisor = builder.AddNamedSystem("landing_supervisor", LandingSupervisor(config.landing))
-    # Not held with the discretised quadrotor: it samples and holds the law at the period itself.
-    controller = builder.AddNamedSystem("flight_controller", make_flight_controller(
-        config.quadrotor, config.controller, config.controller_implementation, held=not discrete))
-    monitor = builder.AddNamedSystem("monitor", LandingMonitor(config.termination, config.platform,
-                                                               config.landing.touchdown_height_m))
-    altitude = builder.AddNamedSystem("altitude", Demultiplexer([2, 1, STATE_SIZE - 3]))
-    builder.Connect(nav_state, altitude.get_input_port())
-    for name in ("target_offset", "target_velocity", "target_valid"):
-        builder.Connect(seam.GetOutputPort(name), pid.GetInputPort(name))
-        builder.Connect(seam.GetOutputPort(name), supervisor.GetInputPort(name))
-    builder.Connect(seam.GetOutputPort("target_acceleration"), pid.GetInputPort("target_acceleration"))
-    builder.Connect(seam.GetOutputPort("height_above_target"), pid.GetInputPort("height"))
-    builder.Connect(seam.GetOutputPort("height_above_target"), supervisor.GetInputPort("height_above_target"))
-    builder.Connect(altitude.get_output_port(1), supervisor.GetInputPort("altitude"))
-    builder.Connect(pid.GetOutputPort("velocity_command"), supervisor.GetInputPort("tracking_velocity"))
-    builder.Connect(pid.GetOutputPort("acceleration_command"), supervisor.GetInputPort("tracking_acceleration"))
-    if config.controller.velocity_integral_gain_xy > 0:  # the supervisor's command with integral action
-        integral = builder.AddNamedSystem("velocity_integral", VelocityIntegral(config.controller))
-        builder.Connect(supervisor.GetOutputPort("command"), integral.GetInputPort("command"))
-        builder.Connect(nav_state, integral.GetInputPort("state"))
-        builder.Connect(integral.GetOutputPort("command"), controller.GetInputPort("command"))
-    else:
-        builder.Connect(supervisor.GetOutputPort("command"), controller.GetInputPort("command"))
-    builder.Connect(nav_state, controller.GetInputPort("state"))
-    builder.Connect(controller.GetOutputPort("rotor_speed_commands"), quad.GetInputPort("rotor_speed_commands"))
-    builder.Connect(quad_state, monitor.GetInputPort("quadrotor_state"))
-    builder.Connect(vehicle_state, monitor.GetInputPort("vehicle_state"))
-    builder.Connect(truth.get_output_port(), monitor.GetInputPort("true_relative_state"))
-    builder.Connect(seam.GetOutputPort("target_valid"), monitor.GetInputPort("target_valid"))
-    builder.Connect(supervisor.GetOutputPort("mode"), monitor.GetInputPort("mode"))
+    stack = add_flight_stack(builder, config, quad, nav_state, perception.relative_state, vehicle_state,
+                             truth.get_output_port(), config.platform)
+    pid, supervisor = stack.pid, stack.supervisor
 
     period = 1.0 / config.landing.rate_hz
     loggers = {name: LogVectorOutput(port, builder, period) for name, port in zip(LOG_NAMES, (
@@ -337,6 +305,6 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
                 meshcat, f"gv_landing/{name}_pad_path", size, slice(1, 4), to_rgba(style(name)[0]), valid_index=0))
             builder.Connect(port, trail.get_input_port())
 
-    return GvLandingHandles(config, quad, wind, vehicle, truth, perception, pid, supervisor, controller, monitor,
-                            scene_graph, airframe, vehicle_geometry, loggers, measurements, filters, sample_loggers,
-                            visualizer)
+    return GvLandingHandles(config, quad, wind, vehicle, truth, perception, pid, supervisor, stack.controller,
+                            stack.monitor, scene_graph, airframe, vehicle_geometry, loggers, measurements, filters,
+                            sample_loggers, visualizer)

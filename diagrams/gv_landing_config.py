@@ -217,6 +217,11 @@ class GvLandingConfig:
         return self.estimation.camera if self.estimation.source == "detector" else None
 
     @property
+    def pad_size_m(self) -> float:
+        """The side of the square landed on: the pad's."""
+        return self.platform.pad_size_m
+
+    @property
     def period_s(self) -> float:
         """The flight controller's sample period, over which the discrete vehicles integrate."""
         return 1.0 / self.controller.rate_hz

@@ -1,4 +1,4 @@
-"""Landing campaigns: seeded closed-loop landings of a gv scenario, one case per perception source,
+"""Landing campaigns: seeded closed-loop landings of a gv scenario (or deck-landing), one case per perception source,
 the same seeds for every source (the same pixel noise, the same stream), side by side.
 
     landing-sim montecarlo marker-landing --runs 10 --cases ct_ekf paper_ekf truth --workers 2
@@ -20,12 +20,22 @@ from diagrams.montecarlo import CampaignDefinition, RunTask
 SOURCES = ("ct_ekf", "paper_ekf", "truth")
 
 
+def is_landing_scenario(scenario) -> bool:
+    """A scenario whose diagram flies a landing (its run module has `fly(config, duration_s)`)."""
+    from diagrams.deck_landing_config import DeckLandingConfig
+    from diagrams.gv_landing_config import GvLandingConfig
+
+    return isinstance(scenario, GvLandingConfig | DeckLandingConfig)
+
+
 def run_task(task: RunTask) -> dict:
-    """One landing of the campaign."""
-    from diagrams.gv_landing_run import fly
+    """One landing of the campaign, by the scenario's own diagram."""
+    import importlib
+
+    from diagrams.runner import DIAGRAM_MODULES
 
     _, scenario = task.load_scenario()
-    metrics, _ = fly(scenario, scenario.duration_s)
+    metrics, _ = importlib.import_module(DIAGRAM_MODULES[scenario.diagram]).fly(scenario, scenario.duration_s)
     keep = ("sim_time_s", "wall_time_s", "realtime_factor", "landing", "perception", "measurements", "estimators")
     return {"seed": task.seed, **{key: metrics[key] for key in keep if key in metrics}}
 
@@ -64,14 +74,20 @@ def aggregate(done: dict) -> dict:
 def landing_case_summary(records: list) -> dict:
     """One case's landing figures in a `--case` campaign (diagrams/montecarlo/grid.py), from its
     finished runs (RunRecord): success rate, touchdown error and relative vertical speed (p50, p95,
-    max over the runs that touched down), failure reasons counted, aborts."""
+    max over the runs that touched down), failure reasons counted, aborts, how many met the targets, and on a
+    deck its tilt at touchdown and the time waited for a landing window."""
     landings = [r.metrics["landing"] for r in records]
     touched = [m for m in landings if m["touchdown_error_m"] is not None]
     return {"success_rate": sum(m["success"] for m in landings) / len(landings) if landings else None,
             "touchdown_error_m": _percentiles([m["touchdown_error_m"] for m in touched], "p50"),
             "touchdown_rel_speed_mps": _percentiles([m["touchdown_rel_speed_mps"] for m in touched], "p50"),
             "failure_reasons": dict(Counter(m["failure_reason"] for m in landings if m["failure_reason"])),
-            "aborts": sum(m["aborts"] for m in landings)}
+            "aborts": sum(m["aborts"] for m in landings),
+            "meets_targets": sum(m["meets_targets"] for m in landings),
+            # On a moving deck: its tilt at touchdown and the waits for a landing window.
+            **({"deck_tilt_at_touchdown_deg": _percentiles([m["deck_tilt_at_touchdown_deg"] for m in touched], "p50"),
+                "wait_s": _percentiles([m["wait_s"] for m in landings], "p50")}
+               if any("deck_tilt_at_touchdown_deg" in m for m in touched) else {})}
 
 
 CAMPAIGN = CampaignDefinition(

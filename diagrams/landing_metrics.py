@@ -30,16 +30,17 @@ def first(mask) -> int | None:
     return int(index[0]) if index.size else None
 
 
-def touchdown(log: dict[str, np.ndarray], touchdown_height_m: float, pad_size_m: float,
+def touchdown(log: dict[str, np.ndarray], touchdown_height_m: float, pad_size_m: float, heading: np.ndarray,
               supervisor_landed: bool = False) -> tuple[int, str] | None:
-    """(log index, "supervisor" or "contact") of the touchdown (module docstring), or None.
-    `supervisor_landed`: the run ended on the supervisor's LANDED, which the log may not hold (the
-    run stops at the step it is declared): then its last sample is what the supervisor saw."""
+    """(log index, "supervisor" or "contact") of the touchdown (module docstring), or None. `heading`: the
+    pad frame's heading per sample [rad]. `supervisor_landed`: the run ended on the supervisor's LANDED,
+    which the log may not hold (the run stops at the step it is declared): then its last sample is what
+    the supervisor saw."""
     landed = first(log["mode"] == Mode.LANDED)
     if landed is None and supervisor_landed:
         landed = len(log["mode"])
     relative = log["true_relative_state"]
-    over_pad = np.all(np.abs(pad_offset(relative, log["vehicle_state"][:, GV_HEADING])) <= pad_size_m / 2, axis=1)
+    over_pad = np.all(np.abs(pad_offset(relative, heading)) <= pad_size_m / 2, axis=1)
     contact = first((relative[:, HEIGHT] <= touchdown_height_m) & over_pad)
     candidates = [(max(landed - 1, 0), 0, "supervisor")] if landed is not None else []
     candidates += [(contact, 1, "contact")] if contact is not None else []
@@ -55,27 +56,41 @@ def impact(gap_m: float, vertical_speed: float, gravity: float) -> tuple[float, 
 
 
 def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
-    """The "landing" section: success (touched down on the pad), touchdown error and relative speed
-    at impact, the failure reason, when each supervisor mode was first entered, and how many final
-    descents were aborted (`aborts`) and begun again (`retries`)."""
+    """A gv flight's "landing" section: `pad_landing`'s, with the vehicle's speed and turn radius at touchdown."""
+    out, k = pad_landing(log, status, log["vehicle_state"][:, GV_HEADING], config.platform.pad_size_m,
+                         config.landing.touchdown_height_m, config.quadrotor.gravity_m_s2)
+    if k is not None:
+        steering = log["vehicle_state"][k, GV_STEERING]
+        out["vehicle_speed_at_touchdown_m_s"] = float(log["vehicle_speed"][k])
+        # The vehicle's turn radius (bicycle: d / tan(steering)); null on a straight (steering under 1 mrad:
+        # a radius over 3.5 km).
+        out["vehicle_turn_radius_at_touchdown_m"] = (float(abs(config.vehicle.wheelbase_m / np.tan(steering)))
+                                                     if abs(steering) > 1e-3 else None)
+    return out
+
+
+def pad_landing(log: dict[str, np.ndarray], status: str, heading: np.ndarray, pad_size_m: float,
+                touchdown_height_m: float, gravity_m_s2: float) -> tuple[dict, int | None]:
+    """The "landing" section of a flight onto a pad of pad_size_m [m] headed `heading` [rad] per sample
+    (the log's `t`, `mode`, `true_relative_state` and `quadrotor_state`), and the log index of the touchdown
+    (None without one): success (touched down on the pad), touchdown error and relative speed at impact,
+    the failure reason, when each supervisor mode was first entered, and `descent_counts`."""
     kind = status.split(":", 1)[0]
     out = {"success": False, "touchdown_error_m": None, "touchdown_rel_speed_mps": None, "time_to_land_s": None,
            "failure_reason": None, "failure_detail": None}
-    found = touchdown(log, config.landing.touchdown_height_m, config.platform.pad_size_m,
-                      status.startswith(SUPERVISOR_LANDED))
+    found = touchdown(log, touchdown_height_m, pad_size_m, heading, status.startswith(SUPERVISOR_LANDED))
+    k = None
     if found is not None:
         k, by = found
         relative, quad = log["true_relative_state"][k], log["quadrotor_state"][k]
         v_rel = quad[V_WB] - relative[V_WP]
-        gap = relative[HEIGHT] - config.landing.touchdown_height_m  # the gear above the pad when the motors stop
-        fall_s, speed = impact(gap, v_rel[2], config.quadrotor.gravity_m_s2)
+        gap = relative[HEIGHT] - touchdown_height_m  # the gear above the pad when the motors stop
+        fall_s, speed = impact(gap, v_rel[2], gravity_m_s2)
         at_impact = relative.copy()
         at_impact[P_BP_W] = relative[P_BP_W] - fall_s * v_rel  # pad minus UAV after the fall
-        heading = log["vehicle_state"][k, GV_HEADING]
-        offset_P = pad_offset(at_impact, heading)
-        on_pad = bool(np.all(np.abs(offset_P) <= config.platform.pad_size_m / 2))
+        offset_P = pad_offset(at_impact, heading[k])
+        on_pad = bool(np.all(np.abs(offset_P) <= pad_size_m / 2))
         error = float(np.linalg.norm(at_impact[P_BP_W][:2]))
-        steering = log["vehicle_state"][k, GV_STEERING]
         out.update({
             "success": on_pad,
             "touchdown_error_m": error,
@@ -86,15 +101,10 @@ def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
             "touchdown_offset_pad_xy_m": offset_P.tolist(),  # UAV centre in the pad frame
             "touchdown_rel_speed_horizontal_mps": float(np.linalg.norm(v_rel[:2])),
             "touchdown_height_m": float(relative[HEIGHT]),  # true, when the supervisor saw it
-            "vehicle_speed_at_touchdown_m_s": float(log["vehicle_speed"][k]),
-            # The vehicle's turn radius (bicycle: d / tan(steering)); null on a straight (steering
-            # under 1 mrad: a radius over 3.5 km).
-            "vehicle_turn_radius_at_touchdown_m": (float(abs(config.vehicle.wheelbase_m / np.tan(steering)))
-                                                   if abs(steering) > 1e-3 else None),
         })
         if not on_pad:
             out["failure_reason"], out["failure_detail"] = "missed_pad", (
-                f"touched down {error:.2f} m from the pad centre, off the {config.platform.pad_size_m:g} m pad")
+                f"touched down {error:.2f} m from the pad centre, off the {pad_size_m:g} m pad")
     elif status == COMPLETED:
         out["failure_reason"], out["failure_detail"] = "timeout", f"no touchdown by t = {log['t'][-1]:.1f} s"
     else:
@@ -106,11 +116,21 @@ def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
                                  if (i := first(log["mode"] == mode)) is not None}
     if out["time_to_land_s"] is not None:
         out["mode_entry_times_s"]["landed"] = out["time_to_land_s"]
-    mode = log["mode"]
+    out.update(descent_counts(log["t"], log["mode"]))
+    return out, k
+
+
+def descent_counts(t: np.ndarray, mode: np.ndarray) -> dict:
+    """How often the final descent was given up (`aborts`: into ABORT, or from LAND back to WAIT when the
+    landing window closed) and begun again (`retries`), and the waits for a landing window (`waits`,
+    `wait_s`: the time spent in WAIT), from the logged modes at times t [s]."""
     begins = np.r_[True, mode[1:] != mode[:-1]]  # the samples where a mode begins
-    out["aborts"] = int(np.count_nonzero(begins & (mode == Mode.ABORT)))  # final descents given up
-    out["retries"] = max(int(np.count_nonzero(begins & (mode == Mode.LAND))) - 1, 0)  # and begun again
-    return out
+    waved_off = np.r_[False, (mode[1:] == Mode.WAIT) & (mode[:-1] == Mode.LAND)]
+    waiting = mode == Mode.WAIT
+    return {"aborts": int(np.count_nonzero(begins & (mode == Mode.ABORT)) + np.count_nonzero(waved_off)),
+            "retries": max(int(np.count_nonzero(begins & (mode == Mode.LAND))) - 1, 0),
+            "waits": int(np.count_nonzero(begins & waiting)),
+            "wait_s": float(np.sum(np.diff(t, append=t[-1])[waiting])) if len(t) else 0.0}
 
 
 def tracking_metrics(log: dict[str, np.ndarray]) -> dict:

@@ -7,14 +7,14 @@ import numpy as np
 
 from diagrams.landing_metrics import SETTLED_TOLERANCE_M, first
 from diagrams.outputs import save_figure
+from diagrams.perception_metrics import carrier_heading
 from systems.control.landing import Mode
 from systems.perception.seam import HEIGHT, P_BP_W, V_WP, VALID
 from systems.vehicles.quadrotor import P_WB, V_WB
 
-GV_HEADING = 2  # in the ground vehicle's state [x, y, heading, steering]
 MODE_COLOURS = {Mode.TAKEOFF: "0.85", Mode.CLIMB: "tab:cyan", Mode.FOLLOW: "tab:blue", Mode.APPROACH: "tab:green",
                 Mode.LAND: "tab:orange", Mode.LANDED: "tab:red", Mode.HOLD: "tab:pink", Mode.SEARCH: "tab:purple",
-                Mode.ABORT: "tab:brown"}
+                Mode.ABORT: "tab:brown", Mode.WAIT: "tab:olive"}
 
 
 def _mode_lines(ax, log):
@@ -139,7 +139,7 @@ def plot_perception(log: dict[str, np.ndarray], source: str, out_dir) -> None:
     if "steering_estimate" in log:
         q = log["steering_estimate"][:, 4:]
         yaw = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
-        axes[4].plot(t, np.degrees(np.angle(np.exp(1j * (yaw - log["vehicle_state"][:, GV_HEADING])))), "-",
+        axes[4].plot(t, np.degrees(np.angle(np.exp(1j * (yaw - carrier_heading(log))))), "-",
                      color="tab:red", lw=1)
     axes[4].plot(t[~valid], np.zeros(np.count_nonzero(~valid)), "|", color="0.3", ms=6, label="no valid estimate")
     axes[4].set_ylabel("heading error (deg)")

@@ -23,6 +23,12 @@ def longest_run(mask: np.ndarray) -> int:
     return int((ends - starts).max()) if starts.size else 0
 
 
+def carrier_heading(log: dict[str, np.ndarray]) -> np.ndarray:
+    """The pad carrier's heading per sample [rad]: the ground vehicle's, or the deck's (`carrier_state`, the
+    same layout)."""
+    return log["carrier_state" if "carrier_state" in log else "vehicle_state"][:, GV_HEADING]
+
+
 def _yaw_rows(p: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     zero = np.zeros_like(yaw)
     return np.column_stack([p, np.cos(yaw / 2), zero, zero, np.sin(yaw / 2)])
@@ -35,7 +41,7 @@ def perception_metrics(log: dict[str, np.ndarray], source: str, touchdown_s: flo
     t, seam, truth = log["t"], log["relative_state"], log["true_relative_state"]
     valid = seam[:, VALID] > 0.5
     p_WB = log["quadrotor_state"][:, P_WB]
-    true_yaw = log["vehicle_state"][:, GV_HEADING]
+    true_yaw = carrier_heading(log)
     if "steering_estimate" in log:  # [valid, x, y, z, qw, qx, qy, qz]; NaN where invalid
         q = log["steering_estimate"][:, 4:]
         yaw = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))

@@ -47,6 +47,7 @@ DIAGRAM_MODULES = {
     "stewart_scene": "diagrams.stewart_run",
     "crhf_calibration": "diagrams.crhf_calibration",
     "gv_landing": "diagrams.gv_landing_run",
+    "deck_landing": "diagrams.deck_landing_run",
     "gv_marker_ekf": "diagrams.gv_marker_ekf",
     "rqrlp_maneuvers": "diagrams.rqrlp_maneuvers_run",
 }

@@ -182,3 +182,22 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         CameraConfig(**changes).validate()
+
+
+def test_camera_velocity_adds_the_lever_arm_and_turns_into_the_camera_frame():
+    from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+
+    from systems.sensors.ground_truth import CameraVelocity
+
+    X_BC = RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.1, 0.0, -0.04])
+    system = CameraVelocity(X_BC)
+    context = system.CreateDefaultContext()
+    X_WB = RigidTransform(RollPitchYaw(0.0, 0.0, np.pi / 2), [1.0, 2.0, 3.0])
+    system.GetInputPort("X_WB").FixValue(context, X_WB)
+    # Descending at 0.4 m/s, yawing at 1 rad/s: the camera, 0.1 m ahead (W +y after the yaw), moves
+    # 0.1 m/s towards W -x, and along its optical axis (W -z) at 0.4 m/s.
+    system.GetInputPort("V_WB").FixValue(context, [0.0, 0.0, 1.0, 0.0, 0.0, -0.4])
+    v_C = system.get_output_port().Eval(context)
+    R_WC = X_WB.rotation().multiply(X_BC.rotation())
+    np.testing.assert_allclose(R_WC.multiply(v_C), [-0.1, 0.0, -0.4], atol=1e-12)
+    assert v_C[2] == pytest.approx(0.4)

@@ -3,10 +3,14 @@ import pytest
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import Simulator
 
-from diagrams.landing_metrics import landing_metrics
+from diagrams.landing_metrics import descent_counts, landing_metrics
 from diagrams.runner import load_scenario
 from systems.control.landing import (
-    LandingConfig, LandingStateMachine, LandingSupervisor, Mode, SupervisorInputs,
+    LandingConfig,
+    LandingStateMachine,
+    LandingSupervisor,
+    Mode,
+    SupervisorInputs,
 )
 from systems.perception.seam import HEIGHT
 
@@ -24,12 +28,13 @@ class Script:
         self.machine = LandingStateMachine(CONFIG)
         self.time = 0.0
 
-    def step(self, altitude, seen=True, offset=(0.0, 0.0), height=None):
+    def step(self, altitude, seen=True, offset=(0.0, 0.0), height=None, window=(True, True)):
         inputs = SupervisorInputs(
             time_s=self.time, altitude_m=altitude,
             height_above_target_m=altitude if height is None else height, target_valid=seen,
             target_offset_m=np.asarray(offset, dtype=float), target_velocity_m_s=TARGET_VELOCITY,
-            tracking_velocity_m_s=TRACKING, tracking_acceleration_m_s2=TRACKING_ACCELERATION)
+            tracking_velocity_m_s=TRACKING, tracking_acceleration_m_s2=TRACKING_ACCELERATION,
+            window_open=window[0], window_holds=window[1])
         self.time += 0.02
         self.command = self.machine.step(inputs)
         return self.machine.mode, self.command[:2], self.command[2]
@@ -135,6 +140,38 @@ def test_never_descends_on_an_invalid_estimate():
         if not seen:
             assert vz >= 0.0
     assert {Mode.CLIMB, Mode.FOLLOW, Mode.APPROACH, Mode.LAND, Mode.HOLD, Mode.SEARCH, Mode.ABORT} <= visited
+
+
+def test_waits_at_lh_for_a_landing_window_and_waves_off_when_it_closes():
+    script = Script()
+    for altitude in (1.0, 7.5, 7.5):
+        script.step(altitude=altitude, offset=(0.2, 0.0))
+    assert script.step(altitude=6.0, offset=(0.1, 0.0))[0] == Mode.APPROACH
+    closed, lh = (False, False), CONFIG.landing_height_m
+    mode, horizontal, vz = script.step(altitude=3.0, offset=(0.1, 0.0), height=lh - 0.1, window=closed)
+    assert mode == Mode.WAIT and vz == pytest.approx(0.1 * CONFIG.altitude_gain)  # back up to LH
+    np.testing.assert_allclose(horizontal, TRACKING)  # tracking the target meanwhile
+    mode, _, vz = script.step(altitude=3.0, offset=(0.1, 0.0), height=lh + 0.05, window=(False, True))
+    assert mode == Mode.WAIT and vz == pytest.approx(-0.05 * CONFIG.altitude_gain)  # holding LH, not committing
+    assert script.step(altitude=3.0, offset=(0.1, 0.0), height=lh, window=closed, seen=False)[0] == Mode.HOLD
+    assert script.step(altitude=3.0, offset=(0.1, 0.0), height=lh)[0] == Mode.FOLLOW
+    assert script.step(altitude=3.0, offset=(0.1, 0.0), height=lh)[0] == Mode.APPROACH
+    assert script.step(altitude=3.0, offset=(0.1, 0.0), height=lh - 0.02, window=closed)[0] == Mode.WAIT
+    mode, _, vz = script.step(altitude=3.0, offset=(0.1, 0.0), height=lh, window=(True, True))
+    assert mode == Mode.LAND and vz == -CONFIG.landing_speed_m_s  # the window opened: commit
+    assert script.step(altitude=2.7, offset=(0.1, 0.0), height=lh - 0.3, window=(False, True))[0] == Mode.LAND
+    mode, _, vz = script.step(altitude=2.6, offset=(0.1, 0.0), height=lh - 0.4, window=closed)
+    assert mode == Mode.WAIT and vz > 0  # the deck turned lively: wave off, back up to LH
+    assert script.step(altitude=2.6, offset=(0.1, 0.0), height=lh - 0.4, window=(True, True))[0] == Mode.LAND
+    assert script.step(altitude=2.0, offset=(0.1, 0.0), height=0.05, window=closed)[0] == Mode.LANDED
+
+
+def test_waits_and_wave_offs_are_counted():
+    modes = [Mode.APPROACH, Mode.WAIT, Mode.WAIT, Mode.LAND, Mode.WAIT, Mode.LAND, Mode.LAND, Mode.ABORT,
+             Mode.FOLLOW, Mode.APPROACH, Mode.LAND]
+    t = 0.5 * np.arange(len(modes))
+    out = descent_counts(t, np.array(modes, dtype=int))
+    assert out == {"aborts": 2, "retries": 2, "waits": 2, "wait_s": 1.5}
 
 
 @pytest.mark.parametrize("yaml, message", [

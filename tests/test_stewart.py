@@ -16,6 +16,7 @@ from systems.platforms.stewart import (
     StewartPlatformConfig,
     forward_kinematics,
     leg_lengths,
+    stroke_violation,
     within_stroke,
 )
 
@@ -229,3 +230,61 @@ def test_invalid_configuration_raises_config_error_naming_the_field(changes, fie
 def test_tag_that_just_fits_is_accepted():
     StewartPlatformConfig(tag_size_m=0.8, deck_size_m=1.0).validate()  # 0.8 m with border is exactly 1.0 m
     StewartPlatformConfig(motion="random_walk").validate()
+
+
+def moving_platform(**motion):
+    config = StewartPlatformConfig(motion="sinusoid", **motion)
+    platform = StewartPlatform(config, SceneGraph())
+    return platform, platform.CreateDefaultContext()
+
+
+def test_pad_motion_is_the_sinusoids_and_their_derivatives():
+    a, f, phase = 0.06, 0.041, 0.3
+    platform, context = moving_platform(z_amplitude_m=[a], z_frequency_hz=[f], z_phase_deg=[math.degrees(phase)],
+                                        x_amplitude_m=[0.05], x_frequency_hz=[0.031])
+    w, t = 2 * math.pi * f, 3.7
+    context.SetTime(t)
+    motion = platform.GetOutputPort("pad_motion").Eval(context)
+    top = platform.geometry.X_SP0.translation()[2]
+    np.testing.assert_allclose(motion[2], top + a * math.sin(w * t + phase), atol=1e-12)
+    np.testing.assert_allclose(motion[5], a * w * math.cos(w * t + phase), rtol=1e-6)  # central differences
+    np.testing.assert_allclose(motion[8], -a * w * w * math.sin(w * t + phase), rtol=1e-4, atol=1e-9)
+    wx = 2 * math.pi * 0.031
+    np.testing.assert_allclose(motion[3], 0.05 * wx * math.cos(wx * t), rtol=1e-6)
+
+
+def test_deck_motion_and_carrier_state_describe_the_tilted_yawed_deck():
+    platform, context = moving_platform(roll_amplitude_deg=[8.0], roll_frequency_hz=[0.05],
+                                        yaw_amplitude_deg=[10.0], yaw_frequency_hz=[0.027])
+    t = 2.0
+    context.SetTime(t)
+    roll, yaw = math.radians(8.0) * math.sin(2 * math.pi * 0.05 * t), math.radians(10.0) * math.sin(
+        2 * math.pi * 0.027 * t)
+    R = RotationMatrix(RollPitchYaw(roll, 0.0, yaw))
+    motion = platform.GetOutputPort("deck_motion").Eval(context)
+    np.testing.assert_allclose(motion[:2], R.col(2)[:2], atol=1e-12)
+    h = 1e-5
+    rate = (RotationMatrix(RollPitchYaw(math.radians(8.0) * math.sin(2 * math.pi * 0.05 * (t + h)), 0.0,
+                                        math.radians(10.0) * math.sin(2 * math.pi * 0.027 * (t + h)))).col(2)
+            - RotationMatrix(RollPitchYaw(math.radians(8.0) * math.sin(2 * math.pi * 0.05 * (t - h)), 0.0,
+                                          math.radians(10.0) * math.sin(2 * math.pi * 0.027 * (t - h)))).col(2)) / (2 * h)
+    np.testing.assert_allclose(motion[2:4], rate[:2], rtol=1e-5)
+    assert motion[6] == 1.0
+    np.testing.assert_allclose(platform.GetOutputPort("carrier_state").Eval(context), [0.0, 0.0, yaw, 0.0],
+                               atol=1e-12)
+
+
+def test_time_offset_starts_the_motion_later():
+    config = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[0.05], z_frequency_hz=[0.1])
+    shifted = StewartMotion(StewartPlatformConfig(**{**config.__dict__, "time_offset_s": 1.5}))
+    np.testing.assert_allclose(shifted(2.0), StewartMotion(config)(3.5), atol=1e-15)
+
+
+def test_stroke_violation_names_when_and_which_leg():
+    within = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[0.06], z_frequency_hz=[0.041])
+    assert stroke_violation(within, 30.0) is None
+    beyond = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[0.3], z_frequency_hz=[0.1])
+    message = stroke_violation(beyond, 30.0)
+    # z + 0.3 sin(0.2 pi t): the legs (0.6 m joint planes apart, max 0.85) pass their stroke before t = 2.5 s.
+    assert message is not None and message.startswith("t = ") and "leg" in message
+    assert float(message.split()[2]) < 2.5

@@ -1,4 +1,4 @@
-"""Campaigns over any fields of a gv scenario (issue 10): each `--case KEY=V1,V2,...` names a field
+"""Campaigns over any fields of a landing scenario (a gv scenario or deck-landing; issue 10): each `--case KEY=V1,V2,...` names a field
 and its values, the cases are their product, each named "key=value[,key=value]" (its directory under
 runs/ too), and every run flies the scenario with its case's assignments (a landing campaign).
 
@@ -56,7 +56,7 @@ def plot_grid(settings: CampaignSettings, done: dict[str, list[RunRecord]], out_
               if r.metrics["landing"].get("touchdown_offset_pad_xy_m") is not None]
         if xy:
             points.scatter(*np.array(xy).T, s=14, label=case)
-    half = load_scenario(settings.scenario, overrides=list(settings.overrides))[1].platform.pad_size_m / 2
+    half = load_scenario(settings.scenario, overrides=list(settings.overrides))[1].pad_size_m / 2
     points.plot([-half, half, half, -half, -half], [-half, -half, half, half, -half], "k-", lw=1)
     points.set_aspect("equal")
     points.set_xlabel("x in the pad frame [m]")
@@ -71,7 +71,7 @@ def plot_grid(settings: CampaignSettings, done: dict[str, list[RunRecord]], out_
 
 
 def grid_campaign(scenario: str) -> CampaignDefinition:
-    """The landing campaign over `--case` grids of a gv scenario."""
+    """The landing campaign over `--case` grids of a landing scenario."""
     return CampaignDefinition(run=run_task, cases=(), runs=10, case_name="case", case_key=GRID, known_cases=(),
                               aggregate=lambda done: {}, case_summary=landing_case_summary, plot=plot_grid,
                               paired=True, description=f"landings of {scenario} over a grid of field values")
@@ -81,10 +81,11 @@ def grid_settings(scenario: str, options: list[str], runs: int | None, base_seed
                   overrides: list[str]) -> tuple[CampaignDefinition, CampaignSettings]:
     """The definition and checked settings of a `--case` campaign (a field no scenario has, or a value
     of the wrong type, is a ConfigError naming it, before anything is written)."""
-    from diagrams.gv_landing_config import GvLandingConfig
+    from diagrams.landing_campaign import is_landing_scenario
 
-    if not isinstance(load_scenario(scenario)[1], GvLandingConfig):
-        raise ConfigError(f"--case campaigns fly landings: {scenario} is not a ground-vehicle (gv) scenario")
+    if not is_landing_scenario(load_scenario(scenario)[1]):
+        raise ConfigError(f"--case campaigns fly landings: {scenario} is not a landing scenario (a gv scenario or "
+                          f"deck-landing)")
     cases = grid_cases(options)
     fields = {option.partition("=")[0].strip() for option in options}
     for assignment in overrides:

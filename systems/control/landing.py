@@ -9,16 +9,22 @@ With no valid estimate it holds its altitude, coasting with the target's last ve
 `lost_hold_s` climbs back to IH to search; below LH it aborts instead: it climbs out, coasting, and
 tries again from FOLLOW once it sees the target. It never descends on an invalid estimate. (A filter
 that predicts through a blind last metre keeps its estimate valid while its covariance allows.)
+On a moving deck the final descent also waits for a landing window (the input `landing_window`, from
+systems/control/landing_window.py; always open where it is not connected): at LH the UAV holds LH above
+the target until the window opens, and a descent whose window closes goes back up to LH (an abort).
 
 Modes and what they command (velocities in World, z up; "hold" is a P loop on altitude):
 
     TAKEOFF   straight up at climb speed, until takeoff_height_m          -> CLIMB
     CLIMB     to IH, tracking the target if seen                          -> FOLLOW (seen) / SEARCH
     FOLLOW    track, hold altitude; target centred                        -> APPROACH
-    APPROACH  track, descend; height above target <= LH                   -> LAND
+    APPROACH  track, descend; height above target <= LH                   -> LAND (window open) / WAIT
               target off centre                                           -> FOLLOW
     LAND      track, descend at landing speed; touchdown                  -> LANDED
               not seen                                                    -> ABORT
+              the window closes                                           -> WAIT
+    WAIT      track, hold LH above the target; window open                -> LAND
+              not seen -> HOLD; target off centre -> FOLLOW
     LANDED    keep the target's velocity, no vertical speed (the run ends)
     HOLD      not seen in FOLLOW/APPROACH: coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
     SEARCH    no horizontal speed, climb back to IH (never descend); seen -> FOLLOW
@@ -48,6 +54,7 @@ class Mode(IntEnum):
     HOLD = 6
     SEARCH = 7
     ABORT = 8
+    WAIT = 9
 
 
 @dataclass
@@ -97,6 +104,8 @@ class SupervisorInputs:
     target_velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(2))
     tracking_velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(2))  # PID, Eq. 26-27
     tracking_acceleration_m_s2: np.ndarray = field(default_factory=lambda: np.zeros(2))  # PID's feed-forward
+    window_open: bool = True  # the landing window (module docstring): commit to the final descent
+    window_holds: bool = True  # a committed descent may go on
 
 
 class SupervisorMemory(NamedTuple):
@@ -115,16 +124,20 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
         return Mode.FOLLOW if seen else Mode.SEARCH
     if mode == Mode.LAND and not seen:
         return Mode.ABORT
-    if mode in (Mode.FOLLOW, Mode.APPROACH) and not seen:
+    if mode in (Mode.FOLLOW, Mode.APPROACH, Mode.WAIT) and not seen:
         return Mode.HOLD
     if mode == Mode.FOLLOW and offset <= config.centred_radius_m:
         return Mode.APPROACH
     if mode == Mode.APPROACH and inputs.height_above_target_m <= config.landing_height_m:
-        return Mode.LAND
-    if mode == Mode.APPROACH and offset > config.off_centre_radius_m:
+        return Mode.LAND if inputs.window_open else Mode.WAIT
+    if mode in (Mode.APPROACH, Mode.WAIT) and offset > config.off_centre_radius_m:
         return Mode.FOLLOW
+    if mode == Mode.WAIT and inputs.window_open:
+        return Mode.LAND
     if mode == Mode.LAND and inputs.height_above_target_m <= config.touchdown_height_m:
         return Mode.LANDED
+    if mode == Mode.LAND and not inputs.window_holds:
+        return Mode.WAIT
     if mode in (Mode.HOLD, Mode.SEARCH, Mode.ABORT) and seen:
         return Mode.FOLLOW
     if mode in (Mode.HOLD, Mode.ABORT) and inputs.time_s - memory.mode_since_s >= config.lost_hold_s:
@@ -162,6 +175,9 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
         horizontal, vertical = tracking, -config.descent_speed_m_s
     elif mode == Mode.LAND:
         horizontal, vertical = tracking, -config.landing_speed_m_s
+    elif mode == Mode.WAIT:  # LH above the target, from above or (after an abort) from below
+        rate = config.altitude_gain * (config.landing_height_m - inputs.height_above_target_m)
+        horizontal, vertical = tracking, min(max(rate, -config.descent_speed_m_s), config.climb_speed_m_s)
     elif mode == Mode.LANDED:
         horizontal, acceleration, vertical = coast, _ZERO, 0.0
     elif mode == Mode.HOLD:
@@ -213,7 +229,8 @@ class LandingSupervisor(LeafSystem):
     Inputs (World x-y where 2-vectors): `altitude` (1, m), `height_above_target` (1, m),
     `target_valid` (1, nonzero when seen), `target_offset` (2, target - UAV, m),
     `target_velocity` (2, m/s), `tracking_velocity` (2, m/s) and `tracking_acceleration` (2, m/s^2),
-    the TrackingPid outputs.
+    the TrackingPid outputs, and optionally `landing_window` (2: [open, holds], nonzero when true;
+    both true when not connected).
     Outputs: `command` (7, for the FlightController) and `mode` (1, a Mode value), held between
     samples; `command` starts at zero velocity. The memory is discrete state (a vector, so Drake
     copies it without Python).
@@ -228,6 +245,7 @@ class LandingSupervisor(LeafSystem):
             ("target_velocity", 2), ("tracking_velocity", 2), ("tracking_acceleration", 2))]
         (self._altitude, self._height, self._valid, self._offset, self._target_velocity, self._tracking_velocity,
          self._tracking_acceleration) = ports
+        self._window = self.DeclareVectorInputPort("landing_window", 2)
         # [mode_since_s, altitude_hold_m, last target velocity (2)]; the mode is its own group (an output).
         self._memory = self.DeclareDiscreteState(4)
         self._mode = self.DeclareDiscreteState([float(Mode.TAKEOFF)])
@@ -240,10 +258,13 @@ class LandingSupervisor(LeafSystem):
         def scalar(port):  # without the copy that Eval makes
             return port.EvalBasicVector(context).GetAtIndex(0)
 
+        window_open = window_holds = True
+        if self._window.HasValue(context):
+            window_open, window_holds = (bool(flag) for flag in self._window.Eval(context))
         return SupervisorInputs(
             context.get_time(), scalar(self._altitude), scalar(self._height), bool(scalar(self._valid)),
             self._offset.Eval(context), self._target_velocity.Eval(context), self._tracking_velocity.Eval(context),
-            self._tracking_acceleration.Eval(context))
+            self._tracking_acceleration.Eval(context), window_open, window_holds)
 
     def _update(self, context, discrete_state):
         since, hold, vx, vy = context.get_discrete_state(self._memory).get_value().tolist()

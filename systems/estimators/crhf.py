@@ -105,7 +105,9 @@ class CrhfState:
 
 
 class CrhfEstimator(LeafSystem):
-    """Inputs: tag_detection (TagDetection), ranges (4, m, NaN when invalid). Output:
+    """Inputs: tag_detection (TagDetection), ranges (4, m, NaN when invalid) and optionally
+    camera_velocity_C (3, the camera's own velocity in C [m/s], from the drone's navigation: the range
+    track's prediction then follows the drone's own motion, Eq. 28's B u; unconnected: a hovering drone). Output:
     X_CT_estimate (PoseEstimate) for the frame at the context's time; invalid when the corner track
     is lost, a range is invalid, the touch points are degenerate or a touch pixel is outside the
     calibration.
@@ -130,6 +132,8 @@ class CrhfEstimator(LeafSystem):
         self._p_T_corners = tag_corners_T(tag_size_m)
         self.DeclareAbstractInputPort("tag_detection", AbstractValue.Make(TagDetection()))
         self.DeclareVectorInputPort("ranges", 4)
+        self._camera_velocity = self.DeclareVectorInputPort("camera_velocity_C", 3)
+        self._period = period_s
         self._state = self.DeclareAbstractState(AbstractValue.Make(CrhfState()))
         self._frame = self.DeclareCacheEntry(
             "frame", ValueProducer(allocate=lambda: AbstractValue.Make((CrhfState(), PoseEstimate())),
@@ -139,14 +143,17 @@ class CrhfEstimator(LeafSystem):
                                        lambda c, o: o.set_value(self._frame.Eval(c)[1]),
                                        {self._frame.ticket()})
 
-    def step(self, state: CrhfState, corners: np.ndarray | None, ranges: np.ndarray, time: float):
+    def step(self, state: CrhfState, corners: np.ndarray | None, ranges: np.ndarray, time: float,
+             range_shift_m: float | None = None):
         """One frame: (next CrhfState, PoseEstimate) from the previous state, the detected corners
-        (4x2 px or None) and the ranges (4, m, NaN when invalid)."""
+        (4x2 px or None), the ranges (4, m, NaN when invalid) and the ranges' change over the frame from the
+        camera's own motion (m; Eq. 28's B u, None: unknown, as for a hovering drone)."""
         corner_track = step_track(state.corners, corners, self._corner_filter)
         if self._range_filter is None:
             range_track, range_covariance = Track(), self._range_variance * np.eye(4)
         else:
-            range_track = step_track(state.ranges, ranges, self._range_filter)
+            shift = None if range_shift_m is None else np.full(4, range_shift_m)
+            range_track = step_track(state.ranges, ranges, self._range_filter, shift)
             valid = range_track.valid and np.all(np.isfinite(ranges))
             ranges = range_track.position if valid else None
             range_covariance = range_track.P[:4, :4] if valid else None
@@ -181,8 +188,11 @@ class CrhfEstimator(LeafSystem):
 
     def _calc_frame(self, context, value):
         state = context.get_abstract_state(self._state).get_value()
+        shift = None
+        if self._camera_velocity.HasValue(context):  # the rays run along +z_C: moving along it shortens them
+            shift = -self._period * float(self._camera_velocity.Eval(context)[2])
         value.set_value(self.step(state, self.get_input_port(0).Eval(context).corners,
-                                  self.get_input_port(1).Eval(context), context.get_time()))
+                                  self.get_input_port(1).Eval(context), context.get_time(), shift))
 
     def _update(self, context, state):
         state.get_mutable_abstract_state(self._state).set_value(self._frame.Eval(context)[0])

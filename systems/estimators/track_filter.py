@@ -93,13 +93,16 @@ class Track:
         return None if self.x is None else self.x[: len(self.x) // 2]
 
 
-def step_track(track: Track, measurement: np.ndarray | None, params: TrackFilterParams) -> Track:
+def step_track(track: Track, measurement: np.ndarray | None, params: TrackFilterParams,
+               shift: np.ndarray | None = None) -> Track:
     """Advance the track by one frame.
 
     measurement: the n coordinates (any shape; flattened), or None (or any non-finite entry) when
     nothing was measured. A measurement starts a track or predicts and updates it; a missing one
     predicts only, and after more than `params.max_coast_steps` such frames in a row the track is
     dropped (an invalid, empty track) so the next measurement starts afresh.
+    shift: Eq. 28's B u, a known change of the n coordinates over the step that is not the tracked
+    thing's own motion (the ranges' change from the drone's own motion), added to the prediction.
     """
     z = None if measurement is None else np.asarray(measurement, dtype=float).reshape(-1)
     if z is not None and not np.all(np.isfinite(z)):
@@ -111,6 +114,8 @@ def step_track(track: Track, measurement: np.ndarray | None, params: TrackFilter
         return Track(np.r_[z, np.zeros(len(z))], np.diag(std**2), 0)
     F, Q, H, R = constant_velocity_model(params, len(track.x) // 2)
     x, P = kalman_predict(track.x, track.P, F, Q)
+    if shift is not None:  # x is the prediction's own array
+        x[: len(x) // 2] += shift
     if z is not None:
         return Track(*kalman_update(x, P, z, H, R), 0)
     if track.coasted_steps >= params.max_coast_steps:

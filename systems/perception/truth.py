@@ -76,6 +76,26 @@ class RelativeStateTruth(LeafSystem):
         output.SetFromVector(values)
 
 
+class PadMotionTruth(LeafSystem):
+    """The seam from a pad whose motion is given: inputs `X_WB` (RigidTransform, the UAV body) and
+    `pad_motion` (9: p_WP [m], v_WP [m/s], a_WP [m/s^2] in W, e.g. the Stewart deck's). Output
+    `relative_state` (RELATIVE_STATE_SIZE), computed when pulled; valid while the pad is `in_view`."""
+
+    def __init__(self, field_of_view_deg: float = 150.0, max_range_m: float = 30.0):
+        super().__init__()
+        self._view = (field_of_view_deg, max_range_m)
+        self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
+        self._motion = self.DeclareVectorInputPort("pad_motion", 9)
+        self.DeclareVectorOutputPort("relative_state", RELATIVE_STATE_SIZE, self._calc)
+
+    def _calc(self, context, output):
+        motion = self._motion.Eval(context)
+        values = seam_vector(self._X_WB.Eval(context), motion[:3], motion[3:6], motion[6:], True)
+        if not in_view(values[P_BP_B], *self._view):
+            values[VALID] = 0.0
+        output.SetFromVector(values)
+
+
 class PadPose(LeafSystem):
     """Input `vehicle_state` (4); output `X_WP` (RigidTransform): the pad frame P in W."""
 

@@ -18,14 +18,16 @@ from scipy.interpolate import PchipInterpolator
 from scipy.optimize import least_squares
 
 from models.apriltag import tag_mesh_path, tag_plate_scale
-from systems.perception.apriltag import tag_corners_T
 from systems.config import require, require_positive
+from systems.estimators.deck_tracker import DECK_MOTION_SIZE
 from systems.geometry import frame_between, register_visual
 from systems.noise import sample_rng
+from systems.perception.apriltag import tag_corners_T
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 MOTION_MODES = ("static", "sinusoid", "random_walk")
 TAG_ABOVE_DECK_M = 0.0005  # the tag plate floats this far above the deck surface (no z-fighting)
+RATE_STEP_S = 1e-3  # central-difference step of the deck's velocity and acceleration
 
 
 def _axis_unit(axis: str) -> str:
@@ -75,6 +77,7 @@ class StewartPlatformConfig:
     yaw_phase_deg: list[float] = field(default_factory=list)
     random_walk_time_constant_s: float = 4.0  # correlation time of the random walk
     random_walk_knot_interval_s: float = 0.25
+    time_offset_s: float = 0.0  # the motion's own time at t = 0: a run that finds the deck mid-motion
 
     def validate(self, prefix: str = "platform") -> None:
         for name in ("base_radius_m", "platform_radius_m", "nominal_height_m", "leg_min_m", "deck_size_m",
@@ -86,6 +89,7 @@ class StewartPlatformConfig:
         require(self.leg_max_m > self.leg_min_m, f"{prefix}.leg_max_m must exceed {prefix}.leg_min_m")
         require(self.motion in MOTION_MODES, f"{prefix}.motion must be one of {', '.join(MOTION_MODES)}, "
                 f"got '{self.motion}'")
+        require(self.time_offset_s >= 0, f"{prefix}.time_offset_s must not be negative")
         require(0 <= self.tag_id < 587, f"{prefix}.tag_id must be in [0, 586] for tag36h11")
         require(tag_plate_scale(self.tag_size_m) <= self.deck_size_m,
                 f"{prefix}.tag_size_m = {self.tag_size_m} m does not fit on the deck: the tag with its white "
@@ -171,10 +175,12 @@ class StewartMotion:
         self._seed = seed
         self._tau = config.random_walk_time_constant_s
         self._h = config.random_walk_knot_interval_s
+        self._offset_s = config.time_offset_s
         self._knots = np.zeros((1, 6))  # random-walk state at t = 0, 1 h, 2 h, ...
         self._interpolant = None
 
     def __call__(self, t: float) -> np.ndarray:
+        t = t + self._offset_s
         if self._mode == "static":
             return np.zeros(6)
         if self._mode == "sinusoid":
@@ -205,6 +211,26 @@ class StewartMotion:
         offset = self(t)
         return RigidTransform(RollPitchYaw(offset[3:]), geometry.X_SP0.translation() + offset[:3])
 
+    def translation_rates(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(velocity [m/s], acceleration [m/s^2]) of the deck centre at time t (s), by central differences
+        over RATE_STEP_S (the motions are smooth: sinusoids, or PCHIP through the walk's knots)."""
+        h = RATE_STEP_S
+        before, now, after = (self(t + d)[:3] for d in (-h, 0.0, h))
+        return (after - before) / (2 * h), (after - 2 * now + before) / h**2
+
+
+def stroke_violation(config: StewartPlatformConfig, duration_s: float, seed: int = 0,
+                     step_s: float = 0.05) -> str | None:
+    """Where the configured motion takes a leg outside [leg_min_m, leg_max_m] within duration_s (sampled
+    every step_s): "t = ... s, leg i L m" for the first such time, or None when it stays within the stroke."""
+    geometry, motion = StewartGeometry.from_config(config), StewartMotion(config, seed)
+    for t in np.arange(0.0, duration_s + step_s / 2, step_s):
+        lengths = leg_lengths(motion.X_SP(float(t), geometry), geometry)
+        if not within_stroke(lengths, geometry):
+            i = int(np.argmax(np.maximum(lengths - geometry.leg_max_m, geometry.leg_min_m - lengths)))
+            return f"t = {t:.2f} s, leg {i + 1} {lengths[i]:.3f} m"
+    return None
+
 
 class StewartPlatform(LeafSystem):
     """The Stewart platform as a kinematic source, with its geometry registered in SceneGraph.
@@ -213,6 +239,11 @@ class StewartPlatform(LeafSystem):
       X_WP: deck pose in world (RigidTransform); the deck's top surface centre, z up.
       leg_lengths: the six leg lengths (m) from inverse kinematics.
       stroke_exceeded: [1.0] when any leg is outside [leg_min_m, leg_max_m], else [0.0].
+      pad_motion: [p_WP (3, m), v_WP (3, m/s), a_WP (3, m/s^2)] of the deck centre in W.
+      carrier_state: [x, y, yaw (rad), 0], the deck centre and heading in the ground vehicle's state layout,
+        for what reads a carrier that way (systems/control/monitor.py).
+      deck_motion: the true deck in the layout of systems/estimators/deck_tracker.py's estimate (tilt
+        components of the normal and their rates, heave and its rate, valid).
       geometry_pose: FramePoseVector for SceneGraph (connect to its source pose port).
     """
 
@@ -230,6 +261,9 @@ class StewartPlatform(LeafSystem):
                                                          self._calc_X_WP)
         self._leg_lengths_port = self.DeclareVectorOutputPort("leg_lengths", 6, self._calc_leg_lengths)
         self.DeclareVectorOutputPort("stroke_exceeded", 1, self._calc_stroke_exceeded)
+        self.DeclareVectorOutputPort("pad_motion", 9, self._calc_pad_motion)
+        self.DeclareVectorOutputPort("carrier_state", 4, self._calc_carrier_state)
+        self.DeclareVectorOutputPort("deck_motion", DECK_MOTION_SIZE, self._calc_deck_motion)
         self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()),
                                        self._calc_geometry_pose)
 
@@ -283,6 +317,23 @@ class StewartPlatform(LeafSystem):
     def _calc_stroke_exceeded(self, context, output):
         lengths = self._leg_lengths_port.Eval(context)
         output.SetFromVector([0.0 if within_stroke(lengths, self.geometry) else 1.0])
+
+    def _calc_pad_motion(self, context, output):
+        v_WP, a_WP = self.motion.translation_rates(context.get_time())
+        output.SetFromVector(np.concatenate([self._X_WP_port.Eval(context).translation(), v_WP, a_WP]))
+
+    def _calc_carrier_state(self, context, output):
+        X_WP = self._X_WP_port.Eval(context)
+        x_WP = X_WP.rotation().col(0)
+        output.SetFromVector([*X_WP.translation()[:2], np.arctan2(x_WP[1], x_WP[0]), 0.0])
+
+    def _calc_deck_motion(self, context, output):
+        t, h = context.get_time(), RATE_STEP_S
+        n_before, n_after = (self.X_WP(t + d).rotation().col(2)[:2] for d in (-h, h))
+        n = self._X_WP_port.Eval(context).rotation().col(2)[:2]
+        v_WP, _ = self.motion.translation_rates(t)
+        z = self._X_WP_port.Eval(context).translation()[2]
+        output.SetFromVector([*n, *((n_after - n_before) / (2 * h)), z, v_WP[2], 1.0, 0.0])
 
     def _calc_geometry_pose(self, context, output):
         X_WP = self._X_WP_port.Eval(context)

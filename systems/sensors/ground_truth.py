@@ -11,6 +11,26 @@ def pose_vector(X: RigidTransform) -> np.ndarray:
     return np.concatenate([X.translation(), X.rotation().ToQuaternion().wxyz()])
 
 
+class CameraVelocity(LeafSystem):
+    """The velocity of a camera C mounted at X_BC on a body B, in C [m/s]: v_C = R_CW (v_WB + w_WB x p_BC_W).
+
+    Inputs: X_WB (RigidTransform) and V_WB (6: [w; v] in W, rad/s and m/s). Output: v_C (3)."""
+
+    def __init__(self, X_BC: RigidTransform):
+        super().__init__()
+        self._X_BC = X_BC
+        self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
+        self._V_WB = self.DeclareVectorInputPort("V_WB", 6)
+        self.DeclareVectorOutputPort("v_C", 3, self._calc)
+
+    def _calc(self, context, output):
+        X_WB, V_WB = self._X_WB.Eval(context), self._V_WB.Eval(context)
+        R_WB = X_WB.rotation()
+        p_BC_W = R_WB.multiply(self._X_BC.translation())
+        v_WC = V_WB[3:] + np.cross(V_WB[:3], p_BC_W)
+        output.SetFromVector(R_WB.multiply(self._X_BC.rotation()).inverse().multiply(v_WC))
+
+
 class RelativePose(LeafSystem):
     """X_CP = (X_WB X_BC)^-1 X_WP for a camera C mounted at X_BC on a body B.
 

@@ -1,0 +1,125 @@
+"""The configuration of deck-landing: seed 002's quadrotor and our flight controller over seed 000's
+Stewart deck, with seed 000's camera, ToF sensors and estimators; one dataclass per YAML section.
+
+Sections beyond the systems' own: `perception` (what steers: `source` one of DECK_SOURCES, and when
+its estimate is valid), `tracker` (the deck in W from the estimator's frames), `window` (when the
+final descent may start), `start`, `integration`, `termination`.
+"""
+
+from dataclasses import dataclass, field, replace
+
+from pydrake.math import RigidTransform
+
+from diagrams.gv_landing_config import IntegrationConfig, StartConfig, table1_airframe
+from systems.config import require, require_positive
+from systems.control.flight_controller import BACKENDS, FlightControllerConfig
+from systems.control.landing import LandingConfig
+from systems.control.landing_window import LandingWindowConfig
+from systems.control.monitor import TerminationConfig
+from systems.control.pid import TrackingPidConfig
+from systems.estimators.crhf import CrhfConfig
+from systems.estimators.deck_tracker import DeckTrackerConfig
+from systems.noise import sample_rng
+from systems.perception.seam import SeamConfig
+from systems.platforms.stewart import StewartGeometry, StewartPlatformConfig, stroke_violation
+from systems.sensors.camera import CameraConfig
+from systems.sensors.tof import TofConfig
+from systems.vehicles.airframe import AirframeConfig
+from systems.vehicles.ground_vehicle_geometry import PlatformConfig
+from systems.vehicles.quadrotor import QuadrotorParams
+
+DECK_SOURCES = ("truth", "crhf", "atda")  # what may steer; both estimators run on the camera stream whatever steers
+ESTIMATORS = ("atda", "crhf")
+
+
+@dataclass
+class DeckPerceptionConfig(SeamConfig):
+    """What steers (`source`: the truth, or an estimator through the deck tracker) and (SeamConfig) when
+    its estimate is valid enough to steer on. The truth's view: the camera's cone."""
+
+    source: str = "crhf"
+    field_of_view_deg: float = 58.0  # about the seed 000 camera's (512 px, fx 458.5 px)
+    max_range_m: float = 4.0  # the ToF sensors' long-distance range
+
+    def validate(self, prefix: str = "perception") -> None:
+        require(self.source in DECK_SOURCES,
+                f"{prefix}.source '{self.source}' is not one of: {', '.join(DECK_SOURCES)}")
+        SeamConfig.validate(self, prefix)
+        require(0 < self.field_of_view_deg <= 180, f"{prefix}.field_of_view_deg must be in (0, 180]")
+        require_positive(self.max_range_m, f"{prefix}.max_range_m")
+
+
+@dataclass
+class DeckLandingConfig:
+    seed: int = 0  # of every noise source (pixels, ranges), of a random-walk deck and of random_deck_time_s
+    platform: StewartPlatformConfig = field(default_factory=StewartPlatformConfig)
+    # > 0: the deck's motion starts at a time drawn from the seed, uniform in [0, random_deck_time_s), after
+    # platform.time_offset_s, so that a campaign's runs meet the deck in different phases of its motion.
+    random_deck_time_s: float = 0.0
+    camera: CameraConfig = field(default_factory=CameraConfig)  # seed 000's, 20 Hz
+    tof: TofConfig = field(default_factory=TofConfig)
+    crhf: CrhfConfig = field(default_factory=CrhfConfig)
+    tracker: DeckTrackerConfig = field(default_factory=DeckTrackerConfig)
+    window: LandingWindowConfig = field(default_factory=LandingWindowConfig)
+    quadrotor: QuadrotorParams = field(default_factory=QuadrotorParams)
+    controller: FlightControllerConfig = field(default_factory=FlightControllerConfig)
+    controller_implementation: str = "symbolic"
+    pid: TrackingPidConfig = field(default_factory=TrackingPidConfig)
+    landing: LandingConfig = field(default_factory=LandingConfig)
+    perception: DeckPerceptionConfig = field(default_factory=DeckPerceptionConfig)
+    start: StartConfig = field(default_factory=StartConfig)
+    termination: TerminationConfig = field(default_factory=TerminationConfig)
+    integration: IntegrationConfig = field(default_factory=IntegrationConfig)
+    uav: AirframeConfig = field(default_factory=table1_airframe)  # visual only
+
+    def validate(self) -> None:
+        for name in ("platform", "camera", "tof", "crhf", "tracker", "window", "quadrotor", "controller", "pid",
+                     "landing", "perception", "start", "termination", "integration", "uav"):
+            getattr(self, name).validate(name)
+        require(self.controller_implementation in BACKENDS,
+                f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
+        require(self.integration.discrete, "integration.discrete must be true in deck-landing")
+        require(self.random_deck_time_s >= 0, "random_deck_time_s must not be negative")
+        top = self.deck_top_m
+        require(self.landing.initial_height_m > top + self.landing.landing_height_m,
+                f"landing.initial_height_m ({self.landing.initial_height_m:g} m above the ground) must be above the "
+                f"deck's top ({top:.2f} m) plus landing.landing_height_m")
+
+    def check_motion(self, duration_s: float) -> None:
+        """The deck's motion within the legs' stroke over the run (ConfigError naming where it is not)."""
+        violation = stroke_violation(self.deck(), duration_s, self.seed)
+        require(violation is None, f"platform: the motion leaves the legs' stroke "
+                                   f"[{self.platform.leg_min_m:g}, {self.platform.leg_max_m:g}] m ({violation})")
+
+    def deck(self) -> StewartPlatformConfig:
+        """The platform as this run meets it: platform.time_offset_s plus the seed's draw of random_deck_time_s."""
+        if self.random_deck_time_s <= 0:
+            return self.platform
+        drawn = float(sample_rng(self.seed, "deck_time", 0).uniform(0.0, self.random_deck_time_s))
+        return replace(self.platform, time_offset_s=self.platform.time_offset_s + drawn)
+
+    @property
+    def pad_size_m(self) -> float:
+        """The side of the square landed on: the deck's."""
+        return self.platform.deck_size_m
+
+    @property
+    def deck_top_m(self) -> float:
+        """The deck's top surface at its nominal pose, above the ground [m]."""
+        return float(StewartGeometry.from_config(self.platform).X_SP0.translation()[2])
+
+    @property
+    def X_BC(self) -> RigidTransform:
+        return self.camera.X_BC
+
+    @property
+    def period_s(self) -> float:
+        """The flight controller's sample period, over which the discrete quadrotor integrates."""
+        return 1.0 / self.controller.rate_hz
+
+    def carrier(self) -> PlatformConfig:
+        """The deck as the landing monitor's carrier: a pad of the deck's size at its nominal top, and the
+        deck itself (its footprint, down to its underside) as the body a UAV may crash into."""
+        size, thickness = self.platform.deck_size_m, self.platform.deck_thickness_m
+        return PlatformConfig(height_m=self.deck_top_m, pad_size_m=size, pad_thickness_m=thickness, pad_offset_m=0.0,
+                              body_length_m=size, body_width_m=size, rear_overhang_m=size / 2)

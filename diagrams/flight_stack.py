@@ -1,0 +1,75 @@
+"""The landing flight stack every landing diagram shares: the seam cut into ports, seed 003's tracking
+PID and landing supervisor, the flight controller on the quadrotor, and the referee that ends the run.
+
+    stack = add_flight_stack(builder, config, quadrotor, nav_state, relative_state, carrier_state,
+                             true_relative_state, carrier)
+
+`config` holds the sections `pid`, `landing`, `quadrotor`, `controller`, `controller_implementation`,
+`integration` and `termination` (diagrams/gv_landing_config.py's, diagrams/deck_landing_config.py's).
+`nav_state` is what the UAV believes of itself (its navigation's state, or the truth); the seam is what
+steers; the carrier (the vehicle, or the deck) and the true relative state are the referee's.
+"""
+
+from dataclasses import dataclass
+
+from pydrake.systems.framework import DiagramBuilder, OutputPort
+from pydrake.systems.primitives import Demultiplexer
+
+from systems.control.flight_controller import FlightController, SymbolicFlightController, make_flight_controller
+from systems.control.landing import LandingSupervisor
+from systems.control.monitor import LandingMonitor
+from systems.control.pid import TrackingPid
+from systems.control.velocity_integral import VelocityIntegral
+from systems.perception.seam import SeamSplit
+from systems.vehicles.ground_vehicle_geometry import PlatformConfig
+from systems.vehicles.quadrotor import STATE_SIZE, Quadrotor
+
+
+@dataclass
+class FlightStack:
+    seam: SeamSplit
+    pid: TrackingPid
+    supervisor: LandingSupervisor
+    controller: SymbolicFlightController | FlightController
+    monitor: LandingMonitor
+
+
+def add_flight_stack(builder: DiagramBuilder, config, quad: Quadrotor, nav_state: OutputPort,
+                     relative_state: OutputPort, carrier_state: OutputPort, true_relative_state: OutputPort,
+                     carrier: PlatformConfig) -> FlightStack:
+    """Adds the stack, steering `quad` on the seam `relative_state`; returns its systems."""
+    seam = builder.AddNamedSystem("seam", SeamSplit())
+    builder.Connect(relative_state, seam.get_input_port())
+    pid = builder.AddNamedSystem("tracking_pid", TrackingPid(config.pid))
+    supervisor = builder.AddNamedSystem("landing_supervisor", LandingSupervisor(config.landing))
+    # Not held with the discretised quadrotor: it samples and holds the law at the period itself.
+    controller = builder.AddNamedSystem("flight_controller", make_flight_controller(
+        config.quadrotor, config.controller, config.controller_implementation, held=not config.integration.discrete))
+    monitor = builder.AddNamedSystem("monitor", LandingMonitor(config.termination, carrier,
+                                                               config.landing.touchdown_height_m))
+    altitude = builder.AddNamedSystem("altitude", Demultiplexer([2, 1, STATE_SIZE - 3]))
+    builder.Connect(nav_state, altitude.get_input_port())
+    for name in ("target_offset", "target_velocity", "target_valid"):
+        builder.Connect(seam.GetOutputPort(name), pid.GetInputPort(name))
+        builder.Connect(seam.GetOutputPort(name), supervisor.GetInputPort(name))
+    builder.Connect(seam.GetOutputPort("target_acceleration"), pid.GetInputPort("target_acceleration"))
+    builder.Connect(seam.GetOutputPort("height_above_target"), pid.GetInputPort("height"))
+    builder.Connect(seam.GetOutputPort("height_above_target"), supervisor.GetInputPort("height_above_target"))
+    builder.Connect(altitude.get_output_port(1), supervisor.GetInputPort("altitude"))
+    builder.Connect(pid.GetOutputPort("velocity_command"), supervisor.GetInputPort("tracking_velocity"))
+    builder.Connect(pid.GetOutputPort("acceleration_command"), supervisor.GetInputPort("tracking_acceleration"))
+    if config.controller.velocity_integral_gain_xy > 0:  # the supervisor's command with integral action
+        integral = builder.AddNamedSystem("velocity_integral", VelocityIntegral(config.controller))
+        builder.Connect(supervisor.GetOutputPort("command"), integral.GetInputPort("command"))
+        builder.Connect(nav_state, integral.GetInputPort("state"))
+        builder.Connect(integral.GetOutputPort("command"), controller.GetInputPort("command"))
+    else:
+        builder.Connect(supervisor.GetOutputPort("command"), controller.GetInputPort("command"))
+    builder.Connect(nav_state, controller.GetInputPort("state"))
+    builder.Connect(controller.GetOutputPort("rotor_speed_commands"), quad.GetInputPort("rotor_speed_commands"))
+    builder.Connect(quad.GetOutputPort("state"), monitor.GetInputPort("quadrotor_state"))
+    builder.Connect(carrier_state, monitor.GetInputPort("vehicle_state"))
+    builder.Connect(true_relative_state, monitor.GetInputPort("true_relative_state"))
+    builder.Connect(seam.GetOutputPort("target_valid"), monitor.GetInputPort("target_valid"))
+    builder.Connect(supervisor.GetOutputPort("mode"), monitor.GetInputPort("mode"))
+    return FlightStack(seam, pid, supervisor, controller, monitor)

@@ -1,0 +1,81 @@
+"""When to commit to the final descent onto a moving deck (ours; seed 000 lands nothing, and a ship's
+deck is landed on in its quiet periods).
+
+The deck's tilt and heave are predicted from the tracked estimate (systems/estimators/deck_tracker.py:
+the normal's tilt components and heave with their rates, at constant rate) to the time the UAV would
+touch down, tau = (height above the deck - touchdown height) / landing speed. The window is open when
+the predicted tilt stays within `max_tilt_deg` over tau +- `timing_margin_s` and the heave rate within
+`max_heave_rate_m_s`; a descent already committed holds while the prediction stays within the looser
+`abort_tilt_deg` and twice the heave rate (the hysteresis keeps one noisy frame from aborting it), and
+always within `no_return_s` of touchdown, where climbing out would take longer than landing (and where
+the tag leaves the camera's view, and the estimate passes from the tag to the ToF plane).
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from systems.config import require, require_positive
+from systems.estimators.deck_tracker import DECK_MOTION_SIZE
+
+WINDOW_SAMPLES = 5  # predictions over tau +- the margin
+
+
+@dataclass
+class LandingWindowConfig:
+    """Thresholds (ours). 3 deg is issue 13's limit on the deck's tilt at touchdown; commit within less so
+    that the prediction's error over about a second (a few tenths of a degree) leaves room."""
+
+    max_tilt_deg: float = 2.5
+    abort_tilt_deg: float = 3.0
+    max_heave_rate_m_s: float = 0.1
+    timing_margin_s: float = 0.3  # the touchdown's timing error: the quadrotor's response to the descent
+    no_return_s: float = 1.0  # a descent this close to touchdown is not aborted
+
+    def validate(self, prefix: str = "window") -> None:
+        for name in ("max_tilt_deg", "max_heave_rate_m_s"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        require(self.abort_tilt_deg >= self.max_tilt_deg, f"{prefix}.abort_tilt_deg must be at least max_tilt_deg")
+        require(self.timing_margin_s >= 0, f"{prefix}.timing_margin_s must not be negative")
+        require(self.no_return_s >= 0, f"{prefix}.no_return_s must not be negative")
+
+
+def predicted_tilt_deg(deck_motion: np.ndarray, horizon_s: np.ndarray) -> np.ndarray:
+    """The deck's tilt [deg] predicted `horizon_s` [s] ahead at constant tilt rate."""
+    n_x = deck_motion[0] + deck_motion[2] * horizon_s
+    n_y = deck_motion[1] + deck_motion[3] * horizon_s
+    return np.degrees(np.arcsin(np.minimum(np.hypot(n_x, n_y), 1.0)))
+
+
+def window_flags(deck_motion: np.ndarray, time_to_touchdown_s: float,
+                 config: LandingWindowConfig) -> tuple[bool, bool]:
+    """(open: commit now, holds: a committed descent may go on) for the deck's motion (DECK_MOTION_SIZE) and
+    the time left to touchdown [s]; both False without a valid estimate."""
+    if deck_motion[6] < 0.5 or not math.isfinite(time_to_touchdown_s):
+        return False, False
+    tau = max(time_to_touchdown_s, 0.0)
+    horizon = np.linspace(max(tau - config.timing_margin_s, 0.0), tau + config.timing_margin_s, WINDOW_SAMPLES)
+    tilt = float(predicted_tilt_deg(deck_motion, horizon).max())
+    heave_rate = abs(float(deck_motion[5]))
+    return (tilt <= config.max_tilt_deg and heave_rate <= config.max_heave_rate_m_s,
+            tau <= config.no_return_s or (tilt <= config.abort_tilt_deg and heave_rate <= 2 * config.max_heave_rate_m_s))
+
+
+class LandingWindow(LeafSystem):
+    """Inputs `deck_motion` (DECK_MOTION_SIZE) and `height_above_target` (1, m: the seam's). Output
+    `landing_window` (2: [open, holds], 1 or 0), computed when pulled, for the landing supervisor; the
+    time to touchdown is the height less `touchdown_height_m` over `landing_speed_m_s`."""
+
+    def __init__(self, config: LandingWindowConfig, touchdown_height_m: float, landing_speed_m_s: float):
+        super().__init__()
+        config.validate()
+        self._config, self._touchdown, self._speed = config, touchdown_height_m, landing_speed_m_s
+        self._motion = self.DeclareVectorInputPort("deck_motion", DECK_MOTION_SIZE)
+        self._height = self.DeclareVectorInputPort("height_above_target", 1)
+        self.DeclareVectorOutputPort("landing_window", 2, self._calc)
+
+    def _calc(self, context, output):
+        tau = (float(self._height.Eval(context)[0]) - self._touchdown) / self._speed
+        output.SetFromVector([float(flag) for flag in window_flags(self._motion.Eval(context), tau, self._config)])

@@ -1,0 +1,171 @@
+"""The deck in the World, tracked from a tag-pose estimator's frames (ours: seed 000 estimates the tag
+in the camera frame by frame and says nothing of flying on it).
+
+Each valid frame's X_CT (CRHF's or ATDA's) becomes a measurement of the deck frame P in W through
+the UAV's own pose: X_WP = X_WB X_BC X_CT X_TP. Two of seed 000's constant-velocity Kalman filters
+(Eq. 28-35, systems/estimators/track_filter.py) follow it, one for the deck centre p_WP [m] and one
+for its attitude [n_x, n_y, yaw] [rad]: the x and y components of the deck's normal z_P in W (the
+tilt: |n_xy| = sin(tilt)) and the heading left after removing that tilt,
+    R_WP = R_tilt(n) Rz(yaw),   R_tilt(n) the smallest rotation taking z_W onto n.
+Between frames the tracks coast; a frame without a valid X_CT (the tag out of view, as in the last
+half metre of a landing) is a coasted step, and after `max_coast_steps` of them the estimate turns
+invalid. (Updating the heave and tilt from the four ToF ranges' plane in those frames was tried: each
+frame's plane tilts by 0.026 rad of noise over the sensors' 0.19 m spacing, and on a ship-like deck the
+tracks' own prediction over a second was the better estimate, tests/test_deck_tracker.py.) The estimate at any time is the tracks predicted to that time, so the deck's heave rate and
+tilt rate are there for a supervisor that times its touchdown (systems/control/landing_window.py).
+"""
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.framework import LeafSystem, ValueProducer
+
+from systems.config import require_positive
+from systems.estimators.estimate import PoseEstimate
+from systems.estimators.track_filter import Track, TrackFilterParams, step_track
+from systems.stepped import SteppedValue
+
+DECK_MOTION_SIZE = 8  # [n_x, n_y, dn_x/dt, dn_y/dt, z (m), dz/dt (m/s), valid, coasted steps]
+
+
+@dataclass
+class DeckTrackerConfig:
+    """The two tracks' tuning (ours; seed 000 gives no numbers). A ship-like deck moves slowly: the
+    stewart-dynamic deck's accelerations are under 1 cm/s^2 and 1 deg/s^2 (0.05 allows a livelier one);
+    the frames' errors are millimetres and tenths of a degree (ATDA's z, a centimetre at 2 m).
+    max_coast_steps: camera frames bridged without a pose, 1.5 s at 20 Hz (the blind last half metre of a
+    descent at 0.4 m/s takes about one second)."""
+
+    position: TrackFilterParams = field(default_factory=lambda: TrackFilterParams(
+        measurement_std=0.01, acceleration_std=0.05, initial_velocity_std=0.2, max_coast_steps=30))  # m
+    attitude: TrackFilterParams = field(default_factory=lambda: TrackFilterParams(
+        measurement_std=0.005, acceleration_std=0.05, initial_velocity_std=0.2, max_coast_steps=30))  # rad
+
+    def validate(self, prefix: str = "deck_tracker") -> None:
+        for name in ("position", "attitude"):
+            params = getattr(self, name)
+            for field_name in ("measurement_std", "acceleration_std", "initial_velocity_std"):
+                require_positive(getattr(params, field_name), f"{prefix}.{name}.{field_name}")
+
+
+def tilt_rotation(n_xy: np.ndarray) -> RotationMatrix:
+    """R_tilt: the smallest rotation taking z_W onto the unit normal whose x and y components are n_xy."""
+    n_xy = np.asarray(n_xy, dtype=float)
+    s = float(np.linalg.norm(n_xy))
+    if s < 1e-12:
+        return RotationMatrix()
+    angle = math.asin(min(s, 1.0))
+    axis = np.array([-n_xy[1], n_xy[0], 0.0]) / s  # z x n, normalised
+    return RotationMatrix(_axis_angle(axis, angle))
+
+
+def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
+
+
+def attitude_coordinates(R_WP: RotationMatrix) -> np.ndarray:
+    """[n_x, n_y, yaw] of a deck attitude (module docstring); yaw in (-pi, pi]."""
+    n = R_WP.col(2)
+    R_yaw = tilt_rotation(n[:2]).inverse().multiply(R_WP).matrix()
+    return np.array([n[0], n[1], math.atan2(R_yaw[1, 0], R_yaw[0, 0])])
+
+
+def attitude_rotation(coordinates: np.ndarray) -> RotationMatrix:
+    """R_WP from [n_x, n_y, yaw] (the inverse of attitude_coordinates)."""
+    return tilt_rotation(coordinates[:2]).multiply(RotationMatrix.MakeZRotation(float(coordinates[2])))
+
+
+@dataclass(frozen=True)
+class DeckTrack:
+    """The tracks at `time` [s] (None before the first frame): position (p_WP) and attitude."""
+
+    time: float | None = None
+    position: Track = field(default_factory=Track)
+    attitude: Track = field(default_factory=Track)
+
+    @property
+    def valid(self) -> bool:
+        return self.position.valid and self.attitude.valid
+
+    @property
+    def coasted_steps(self) -> int:
+        return self.position.coasted_steps
+
+
+def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time: float,
+                    config: DeckTrackerConfig, period_s: float) -> DeckTrack:
+    """One camera frame: the tracks advanced by period_s and updated with X_WP_measured (None: coast)."""
+    position_params, attitude_params = (replace(config.position, dt_s=period_s),
+                                        replace(config.attitude, dt_s=period_s))
+    position = attitude = None
+    if X_WP_measured is not None:
+        position = X_WP_measured.translation()
+        attitude = attitude_coordinates(X_WP_measured.rotation())
+        if track.attitude.valid:  # the heading's measurement unwrapped next to the track's
+            yaw = track.attitude.x[2]
+            attitude[2] = yaw + math.remainder(attitude[2] - yaw, 2 * math.pi)
+    return DeckTrack(time, step_track(track.position, position, position_params),
+                     step_track(track.attitude, attitude, attitude_params))
+
+
+def predicted(track: Track, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(values, rates, values' variances) of a valid constant-velocity track predicted dt [s] ahead
+    (without the process noise over dt: dt is under a frame)."""
+    n = len(track.x) // 2
+    values, rates = track.x[:n] + dt * track.x[n:], track.x[n:]
+    P = track.P
+    variances = np.diag(P)[:n] + 2 * dt * np.diag(P[:n, n:]) + dt * dt * np.diag(P)[n:]
+    return values, rates, variances
+
+
+def deck_estimate(track: DeckTrack, time: float) -> tuple[PoseEstimate, np.ndarray, np.ndarray]:
+    """(PoseEstimate of X_WP, v_WP [m/s], deck_motion (DECK_MOTION_SIZE)) at `time` [s]: the tracks
+    predicted from their last frame; invalid (zeros) when they are not tracking."""
+    motion = np.zeros(DECK_MOTION_SIZE)
+    if not track.valid:
+        return PoseEstimate.invalid(time, "W", "P"), np.zeros(3), motion
+    dt = time - track.time
+    p, v, p_var = predicted(track.position, dt)
+    a, a_rate, a_var = predicted(track.attitude, dt)
+    covariance = np.diag(np.r_[a_var[1], a_var[0], a_var[2], p_var])  # [roll, pitch, yaw, x, y, z]: small tilts
+    estimate = PoseEstimate(time, RigidTransform(attitude_rotation(a), p), True, covariance, "W", "P")
+    motion[:] = [a[0], a[1], a_rate[0], a_rate[1], p[2], v[2], 1.0, track.coasted_steps]
+    return estimate, v, motion
+
+
+class DeckTracker(LeafSystem):
+    """Inputs `X_CT_estimate` (PoseEstimate of the tag in the camera: CRHF's or ATDA's) and `X_WB`
+    (RigidTransform, the UAV's own pose: its navigation). Stepped at the camera's `period_s` (read
+    the estimator only then; SteppedValue: a reader at a frame time sees that frame). Outputs at any
+    time, predicted to it: `X_WP_estimate` (PoseEstimate of the deck in W), `v_WP_estimate` (3, m/s)
+    and `deck_motion` (DECK_MOTION_SIZE: module docstring's tilt components and rates, heave and its
+    rate, valid, coasted frames)."""
+
+    def __init__(self, config: DeckTrackerConfig, X_BC: RigidTransform, X_TP: RigidTransform, period_s: float):
+        super().__init__()
+        config.validate()
+        self._config, self._X_BC, self._X_TP, self._period = config, X_BC, X_TP, period_s
+        self._estimate_in = self.DeclareAbstractInputPort("X_CT_estimate", AbstractValue.Make(PoseEstimate()))
+        self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
+        now = SteppedValue(self, "deck_track", DeckTrack(), period_s, self._step, lambda track: track.time).now
+        self._estimate = self.DeclareCacheEntry("estimate", ValueProducer(
+            allocate=lambda: AbstractValue.Make(deck_estimate(DeckTrack(), 0.0)),
+            calc=lambda c, v: v.set_value(deck_estimate(now.Eval(c), c.get_time()))), {now.ticket()})
+        ticket = {self._estimate.ticket()}
+        self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()),
+                                       lambda c, o: o.set_value(self._estimate.Eval(c)[0]), ticket)
+        self.DeclareVectorOutputPort("v_WP_estimate", 3, lambda c, o: o.SetFromVector(self._estimate.Eval(c)[1]),
+                                     ticket)
+        self.DeclareVectorOutputPort("deck_motion", DECK_MOTION_SIZE,
+                                     lambda c, o: o.SetFromVector(self._estimate.Eval(c)[2]), ticket)
+
+    def _step(self, context, track: DeckTrack) -> DeckTrack:
+        estimate = self._estimate_in.Eval(context)
+        X_WP = None
+        if estimate.valid:
+            X_WP = self._X_WB.Eval(context).multiply(self._X_BC).multiply(estimate.X_CT).multiply(self._X_TP)
+        return step_deck_track(track, X_WP, context.get_time(), self._config, self._period)

@@ -1,0 +1,54 @@
+"""deck-landing in the loop (issue 13): the quadrotor lands on the moving Stewart deck on CRHF's estimate,
+scored against the simulation's truth; a covered lens is flagged, coasted and never descended on."""
+
+import numpy as np
+import pytest
+
+from diagrams.deck_landing_run import fly, tilt_deg
+from diagrams.runner import load_scenario
+from systems.control.landing import Mode
+from systems.perception.seam import VALID
+
+COMMAND_VZ = 2  # in the supervisor's command [v (3), yaw, a (3)]
+
+
+@pytest.fixture(scope="module")
+def crhf_landing():
+    _, config = load_scenario("deck-landing", overrides=["seed=0"])
+    return config, *fly(config, 60.0)
+
+
+def test_lands_on_the_deck_on_crhfs_estimate_within_the_targets(crhf_landing):
+    _, metrics, flight = crhf_landing
+    landing = metrics["landing"]
+    assert metrics["perception"]["source"] == "crhf"
+    assert landing["success"] and landing["failure_reason"] is None
+    assert landing["touchdown_error_m"] < 0.10 and landing["touchdown_rel_speed_mps"] < 0.5
+    assert landing["deck_tilt_at_touchdown_deg"] < 3.0 and landing["meets_targets"]
+    assert Mode.WAIT in flight.log["mode"]  # it waited at LH for the window
+    # The tilt at touchdown is the truth's, not the estimate's.
+    k = np.flatnonzero(flight.log["t"] <= landing["time_to_land_s"])[-1]
+    assert landing["deck_tilt_at_touchdown_deg"] == pytest.approx(float(tilt_deg(flight.log["true_deck_motion"][k])),
+                                                                  abs=0.2)
+
+
+def test_both_estimators_are_scored_against_the_true_tag_pose(crhf_landing):
+    _, metrics, _ = crhf_landing
+    for name in ("atda", "crhf"):
+        m = metrics["estimators"][name]
+        assert m["valid_fraction"] > 0.7  # the tag leaves the view in the last half metre
+        assert max(m["mae_xyz_m"]) < 0.01 and max(m["mae_rpy_deg"]) < 1.0
+    assert metrics["perception"]["rms_position_m"] < 0.02  # the deck tracker that steered
+
+
+def test_a_covered_lens_is_coasted_then_flagged_and_never_descended_on():
+    _, config = load_scenario("deck-landing", overrides=["seed=0", "camera.blackouts_s=[[3.0, 7.0]]"])
+    metrics, flight = fly(config, 30.0)
+    log = flight.log
+    t, valid = log["t"], log["relative_state"][:, VALID] > 0.5
+    covered = (t > 3.0) & (t < 7.0)
+    assert valid[covered & (t < 4.0)].all()  # coasted through the first second
+    assert not valid[covered & (t > 5.0)].any()  # then flagged
+    assert np.all(log["command"][~valid, COMMAND_VZ] >= 0.0)  # no descent on it
+    assert Mode.HOLD in log["mode"][covered]
+    assert metrics["landing"]["success"]  # and it lands once the lens is clear

@@ -1,0 +1,108 @@
+"""The deck tracker (systems/estimators/deck_tracker.py): its attitude coordinates against Drake's
+rotations, and its tracks against a moving deck's truth, with the tag seen and lost."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+
+from systems.estimators.deck_tracker import (
+    DeckTrack,
+    DeckTracker,
+    DeckTrackerConfig,
+    attitude_coordinates,
+    attitude_rotation,
+    deck_estimate,
+    step_deck_track,
+)
+from systems.estimators.estimate import PoseEstimate
+
+PERIOD = 0.05
+CONFIG = DeckTrackerConfig()
+
+
+def deck_pose(t: float) -> RigidTransform:
+    """A deck heaving 6 cm at 0.04 Hz and rolling and pitching 8 deg, yawed 10 deg, 0.69 m up."""
+    roll = math.radians(8.0) * math.sin(2 * math.pi * 0.05 * t)
+    pitch = math.radians(8.0) * math.sin(2 * math.pi * 0.037 * t + 1.2)
+    z = 0.69 + 0.06 * math.sin(2 * math.pi * 0.041 * t)
+    return RigidTransform(RollPitchYaw(roll, pitch, math.radians(10.0)), [0.02, -0.01, z])
+
+
+def test_attitude_coordinates_round_trip_drake_rotations():
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        rpy = rng.uniform([-0.5, -0.5, -math.pi], [0.5, 0.5, math.pi])
+        R = RotationMatrix(RollPitchYaw(rpy))
+        coordinates = attitude_coordinates(R)
+        np.testing.assert_allclose(coordinates[:2], R.col(2)[:2], atol=1e-12)  # the normal's tilt
+        np.testing.assert_allclose(attitude_rotation(coordinates).matrix(), R.matrix(), atol=1e-12)
+    # A level deck: the heading alone.
+    np.testing.assert_allclose(attitude_coordinates(RotationMatrix.MakeZRotation(0.7)), [0.0, 0.0, 0.7], atol=1e-12)
+
+
+def track_run(frames, measured=lambda k: True, noise_m=0.002, noise_rad=0.002, seed=0):
+    """Steps a tracker over camera frames of the moving deck with noisy poses (where `measured`)."""
+    rng = np.random.default_rng(seed)
+    track = DeckTrack()
+    for k in frames:
+        t = k * PERIOD
+        X = None
+        if measured(k):
+            true = deck_pose(t)
+            noise = RotationMatrix(RollPitchYaw(noise_rad * rng.standard_normal(3)))
+            X = RigidTransform(true.rotation().multiply(noise), true.translation() + noise_m * rng.standard_normal(3))
+        track = step_deck_track(track, X, t, CONFIG, PERIOD)
+    return track
+
+
+def errors(track, t):
+    estimate, v_WP, motion = deck_estimate(track, t)
+    true = deck_pose(t)
+    h = 1e-4
+    true_rate = (deck_pose(t + h).translation() - deck_pose(t - h).translation()) / (2 * h)
+    n_rate = (deck_pose(t + h).rotation().col(2) - deck_pose(t - h).rotation().col(2))[:2] / (2 * h)
+    return (estimate, np.linalg.norm(estimate.X_WP.translation() - true.translation()),
+            math.degrees(estimate.X_WP.rotation().InvertAndCompose(true.rotation()).ToAngleAxis().angle()),
+            abs(v_WP[2] - true_rate[2]), np.abs(motion[2:4] - n_rate).max())
+
+
+def test_tracks_a_moving_deck_from_noisy_frames():
+    frames = range(400)
+    track = track_run(frames)
+    estimate, position, angle, heave_rate, tilt_rate = errors(track, 399 * PERIOD)
+    assert estimate.valid and estimate.frames == "X_WP"
+    assert position < 0.005 and angle < 0.3
+    assert heave_rate < 0.01  # m/s; the deck heaves at up to 0.015 m/s
+    assert tilt_rate < 0.01  # 1/s; the normal tilts at up to 0.025 per s
+    # Predicted between frames: the estimate at t + 0.02 s is the track moved by its rates.
+    later, _, _, _, _ = errors(track, 399 * PERIOD + 0.02)
+    step = later.X_WP.translation() - estimate.X_WP.translation()
+    np.testing.assert_allclose(step, 0.02 * deck_estimate(track, 399 * PERIOD)[1], atol=1e-12)
+
+
+def test_coasts_then_turns_invalid_without_measurements():
+    seen = 200
+    track = track_run(range(seen + CONFIG.position.max_coast_steps), measured=lambda k: k < seen)
+    assert track.valid and track.coasted_steps == CONFIG.position.max_coast_steps
+    track = step_deck_track(track, None, (seen + 40) * PERIOD, CONFIG, PERIOD)
+    estimate, v_WP, motion = deck_estimate(track, (seen + 40) * PERIOD)
+    assert not estimate.valid and motion[6] == 0.0 and not np.any(v_WP)
+
+
+def test_the_system_measures_the_deck_through_the_uav_pose():
+    X_BC = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, -0.04])
+    X_PT = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, 0.0005])
+    tracker = DeckTracker(CONFIG, X_BC, X_PT.inverse(), PERIOD)
+    context = tracker.CreateDefaultContext()
+    X_WB = RigidTransform(RollPitchYaw(0.05, -0.03, 0.4), [0.1, -0.2, 2.7])
+    X_WP = deck_pose(0.0)
+    X_CT = X_WB.multiply(X_BC).InvertAndCompose(X_WP.multiply(X_PT))
+    tracker.GetInputPort("X_WB").FixValue(context, X_WB)
+    tracker.GetInputPort("X_CT_estimate").FixValue(context, PoseEstimate(0.0, X_CT, True, reference="C", target="T"))
+    estimate = tracker.GetOutputPort("X_WP_estimate").Eval(context)
+    assert estimate.valid and estimate.frames == "X_WP"
+    np.testing.assert_allclose(estimate.X_WP.GetAsMatrix4(), X_WP.GetAsMatrix4(), atol=1e-12)
+    motion = tracker.GetOutputPort("deck_motion").Eval(context)
+    assert motion[4] == pytest.approx(X_WP.translation()[2]) and motion[6] == 1.0

@@ -1,0 +1,69 @@
+"""The landing window (systems/control/landing_window.py) on analytic deck motions."""
+
+import math
+
+import numpy as np
+import pytest
+
+from systems.control.landing_window import LandingWindow, LandingWindowConfig, predicted_tilt_deg, window_flags
+
+CONFIG = LandingWindowConfig()
+
+
+def motion(n_xy=(0.0, 0.0), n_rate=(0.0, 0.0), heave_rate=0.0, valid=True):
+    return np.array([*n_xy, *n_rate, 0.69, heave_rate, 1.0 if valid else 0.0, 0.0])
+
+
+def sin_deg(deg):
+    return math.sin(math.radians(deg))
+
+
+def test_predicted_tilt_is_the_normal_moved_at_its_rate():
+    m = motion((sin_deg(3.0), 0.0), (-sin_deg(3.0) / 2.0, 0.0))  # back to level in 2 s
+    tilt = predicted_tilt_deg(m, np.array([0.0, 1.0, 2.0, 4.0]))
+    np.testing.assert_allclose(tilt, [3.0, math.degrees(math.asin(sin_deg(3.0) / 2)), 0.0, 3.0], atol=1e-9)
+
+
+def test_a_level_still_deck_opens_the_window():
+    assert window_flags(motion(), 2.0, CONFIG) == (True, True)
+
+
+def test_the_tilt_at_touchdown_decides_not_the_tilt_now():
+    # 4 deg now, levelling at 2 deg/s: level in 2 s, when the UAV would touch down.
+    levelling = motion((sin_deg(4.0), 0.0), (-sin_deg(4.0) / 2.0, 0.0))
+    assert window_flags(levelling, 2.0, CONFIG)[0]
+    assert not window_flags(levelling, 0.5, CONFIG)[0]  # touching down in 0.5 s: still 3 deg
+
+
+def test_hysteresis_and_no_return():
+    # 2.8 deg predicted at touchdown: too much to commit, not enough to abort a committed descent.
+    m = motion((sin_deg(2.8), 0.0))
+    assert window_flags(m, 2.0, CONFIG) == (False, True)
+    tilting = motion((sin_deg(2.0), 0.0), (sin_deg(2.0), 0.0))  # 2 deg now, 2 more per second
+    assert window_flags(tilting, 2.0, CONFIG) == (False, False)
+    assert window_flags(tilting, CONFIG.no_return_s, CONFIG) == (False, True)  # too late to climb out
+
+
+def test_heave_rate_closes_it_and_no_estimate_closes_everything():
+    assert window_flags(motion(heave_rate=0.15), 2.0, CONFIG) == (False, True)
+    assert window_flags(motion(heave_rate=0.25), 2.0, CONFIG) == (False, False)
+    assert window_flags(motion(valid=False), 2.0, CONFIG) == (False, False)
+    assert window_flags(motion(valid=False), 0.5, CONFIG) == (False, False)
+
+
+def test_the_system_times_touchdown_from_the_seam_height():
+    window = LandingWindow(CONFIG, touchdown_height_m=0.1, landing_speed_m_s=0.4)
+    context = window.CreateDefaultContext()
+    levelling = motion((sin_deg(4.0), 0.0), (-sin_deg(4.0) / 2.0, 0.0))  # level 2 s from now
+    window.GetInputPort("deck_motion").FixValue(context, levelling)
+    window.GetInputPort("height_above_target").FixValue(context, [0.9])  # 2 s to touchdown
+    np.testing.assert_array_equal(window.get_output_port().Eval(context), [1.0, 1.0])
+    window.GetInputPort("height_above_target").FixValue(context, [2.5])  # 6 s: past level, tilting the other way
+    assert window.get_output_port().Eval(context)[0] == 0.0
+
+
+def test_bad_thresholds_are_config_errors():
+    from systems.config import ConfigError
+
+    with pytest.raises(ConfigError, match="abort_tilt_deg"):
+        LandingWindowConfig(max_tilt_deg=3.0, abort_tilt_deg=2.0).validate()
