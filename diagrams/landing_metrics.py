@@ -12,7 +12,7 @@ import numpy as np
 
 from diagrams.simulate import COMPLETED
 from systems.control.landing import Mode
-from systems.control.monitor import FAILURE_REASONS, SUPERVISOR_LANDED, pad_offset
+from systems.control.monitor import FAILURE_REASONS, GEAR_TOUCHED, SUPERVISOR_LANDED, pad_offset
 from systems.perception.seam import HEIGHT, P_BP_W, V_WP
 from systems.vehicles.quadrotor import V_WB
 
@@ -31,17 +31,19 @@ def first(mask) -> int | None:
 
 
 def touchdown(log: dict[str, np.ndarray], touchdown_height_m: float, pad_size_m: float, heading: np.ndarray,
-              supervisor_landed: bool = False) -> tuple[int, str] | None:
+              status: str = "") -> tuple[int, str] | None:
     """(log index, "supervisor" or "contact") of the touchdown (module docstring), or None. `heading`: the
-    pad frame's heading per sample [rad]. `supervisor_landed`: the run ended on the supervisor's LANDED,
-    which the log may not hold (the run stops at the step it is declared): then its last sample is what
-    the supervisor saw."""
+    pad frame's heading per sample [rad]. `status`: how the run ended. A run stopped by the monitor on the
+    supervisor's LANDED or on the gear's touch may miss that sample in the log (the run stops at the step
+    it is declared): its last sample is then what the supervisor saw, or the touch."""
     landed = first(log["mode"] == Mode.LANDED)
-    if landed is None and supervisor_landed:
+    if landed is None and status.startswith(SUPERVISOR_LANDED):
         landed = len(log["mode"])
     relative = log["true_relative_state"]
     over_pad = np.all(np.abs(pad_offset(relative, heading)) <= pad_size_m / 2, axis=1)
     contact = first((relative[:, HEIGHT] <= touchdown_height_m) & over_pad)
+    if contact is None and status.startswith(GEAR_TOUCHED):
+        contact = len(relative) - 1
     candidates = [(max(landed - 1, 0), 0, "supervisor")] if landed is not None else []
     candidates += [(contact, 1, "contact")] if contact is not None else []
     return min(candidates)[::2] if candidates else None
@@ -78,7 +80,7 @@ def pad_landing(log: dict[str, np.ndarray], status: str, heading: np.ndarray, pa
     kind = status.split(":", 1)[0]
     out = {"success": False, "touchdown_error_m": None, "touchdown_rel_speed_mps": None, "time_to_land_s": None,
            "failure_reason": None, "failure_detail": None}
-    found = touchdown(log, touchdown_height_m, pad_size_m, heading, status.startswith(SUPERVISOR_LANDED))
+    found = touchdown(log, touchdown_height_m, pad_size_m, heading, status)
     k = None
     if found is not None:
         k, by = found

@@ -161,3 +161,43 @@ def test_fusion_and_averaging_switched_off_give_the_papers_pipeline_on_filtered_
                             paper_state)
     assert np.isnan(result.corner_residual_px2)  # the corners' normal was never computed
     assert not ours_estimate.X_RT.IsNearlyEqualTo(paper_estimate.X_RT, 1e-6)
+
+
+def test_a_sensor_past_the_decks_edge_is_gated_and_does_not_pull_the_range_track(crhf):
+    corners, ranges = level_frame()
+    state = CrhfState()
+    for k in range(10):
+        state, estimate = crhf.step(state, corners, ranges, 0.05 * k)
+    assert estimate.valid
+    past_edge = ranges.copy()
+    past_edge[2] += 0.7  # its ray falls past the deck onto the base
+    state, estimate = crhf.step(state, corners, past_edge, 0.5)
+    assert not estimate.valid  # flagged
+    np.testing.assert_allclose(state.ranges.position, ranges, atol=1e-3)  # the track coasted, unpulled
+    state, estimate = crhf.step(state, corners, ranges, 0.55)
+    assert estimate.valid and estimate.X_CT.translation()[2] == pytest.approx(2.0, abs=1e-3)
+
+
+def test_four_touch_points_off_one_plane_are_flagged_from_the_first_frame(crhf):
+    corners, ranges = level_frame()
+    ranges = ranges.copy()
+    ranges[0] += 0.3  # on the first frame there is no track to gate against
+    _, estimate = crhf.step(CrhfState(), corners, ranges, 0.0)
+    assert not estimate.valid
+
+
+def test_the_drones_own_motion_keeps_the_range_track_on_the_deck(crhf):
+    # The camera descends at 0.4 m/s towards a level tag: told its velocity (Eq. 28's B u), CRHF's z
+    # follows within millimetres; not told, its slow range track lags by centimetres.
+    def descend(told: bool) -> float:
+        state, worst = CrhfState(), 0.0
+        for k in range(60):
+            height = 2.0 - (0.0 if k < 20 else 0.4 * 0.05 * (k - 20))
+            corners, ranges = level_frame(height)
+            shift = -0.4 * 0.05 if told and k > 20 else None
+            state, estimate = crhf.step(state, corners, ranges, 0.05 * k, shift)
+            if k > 20:
+                worst = max(worst, abs(estimate.X_CT.translation()[2] - height))
+        return worst
+
+    assert descend(True) < 0.005 < 0.02 < descend(False)

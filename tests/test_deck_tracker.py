@@ -106,3 +106,15 @@ def test_the_system_measures_the_deck_through_the_uav_pose():
     np.testing.assert_allclose(estimate.X_WP.GetAsMatrix4(), X_WP.GetAsMatrix4(), atol=1e-12)
     motion = tracker.GetOutputPort("deck_motion").Eval(context)
     assert motion[4] == pytest.approx(X_WP.translation()[2]) and motion[6] == 1.0
+
+
+def test_a_wrong_frame_is_gated_and_the_tracks_keep_the_deck():
+    track = track_run(range(200))
+    t = 200 * PERIOD
+    true = deck_pose(t)
+    wrong = RigidTransform(true.rotation(), true.translation() + [0.1, -0.1, -0.6])  # a sensor off the edge
+    gated = step_deck_track(track, wrong, t, CONFIG, PERIOD)
+    assert gated.coasted_steps == 1  # not used: coasted
+    estimate, _, _ = deck_estimate(gated, t)
+    assert np.linalg.norm(estimate.X_WP.translation() - true.translation()) < 0.005
+    assert step_deck_track(track, true, t, CONFIG, PERIOD).coasted_steps == 0  # the right one is used

@@ -236,3 +236,17 @@ def test_a_run_ended_on_the_supervisors_landed_is_a_touchdown_even_if_the_log_mi
     relative[:, 0] = 0.9  # the pad 0.9 m away: down beside it
     out = landing_metrics(log, "landed: the supervisor reported touchdown by t = 0.08 s", config)
     assert not out["success"] and out["failure_reason"] == "missed_pad"
+
+
+def test_a_run_ended_on_the_gears_touch_is_a_touchdown_even_if_the_log_missed_it():
+    # The monitor's touch and the loggers' last sample are at the same time; the run stops before that sample.
+    n = 5
+    relative = np.zeros((n, 14))
+    relative[:, HEIGHT] = np.linspace(0.3, 0.1002, n)
+    log = {"t": 0.02 * np.arange(n), "mode": np.full(n, int(Mode.LAND)), "true_relative_state": relative,
+           "quadrotor_state": np.zeros((n, 17)), "vehicle_state": np.zeros((n, 4)), "vehicle_speed": np.zeros(n)}
+    config = load_scenario("gv-landing")[1]
+    out = landing_metrics(log, "landed: the gear touched the pad at t = 0.10 s", config)
+    assert out["success"] and out["touchdown_by"] == "contact" and out["time_to_land_s"] == pytest.approx(0.08)
+    out = landing_metrics(log, "timeout: no touchdown", config)
+    assert not out["success"]

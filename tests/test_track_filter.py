@@ -8,6 +8,7 @@ from systems.estimators.track_filter import (
     Track,
     TrackFilterParams,
     constant_velocity_model,
+    innovation_distance,
     kalman_update,
     step_track,
 )
@@ -126,3 +127,14 @@ def test_a_known_shift_removes_the_lag_of_the_drones_own_motion():
             worst_told = max(worst_told, np.abs(told.position - r).max())
             worst_blind = max(worst_blind, np.abs(blind.position - r).max())
     assert worst_told < 0.01 < worst_blind
+
+
+def test_innovation_distance_is_the_residual_over_its_covariance():
+    params = TrackFilterParams(dt_s=0.05, measurement_std=0.01, acceleration_std=0.1, initial_velocity_std=0.2)
+    track = step_track(Track(), [1.0, 2.0], params)
+    F, Q, H, R = constant_velocity_model(params, 2)
+    P = F @ track.P @ F.T + Q
+    S = R + H @ P @ H.T  # diagonal here: one coordinate's variance each
+    z = np.array([1.03, 1.98])
+    expected = (0.03**2) / S[0, 0] + (0.02**2) / S[1, 1]
+    assert innovation_distance(track, z, params) == pytest.approx(expected)

@@ -22,6 +22,7 @@ from systems.vehicles.quadrotor import STATE_SIZE
 
 FAILURE_REASONS = ("crash", "diverged", "target_lost", "timeout", "missed_pad")
 SUPERVISOR_LANDED = "landed: the supervisor reported touchdown"  # how a run ends on the supervisor's LANDED
+GEAR_TOUCHED = "landed: the gear touched the pad"  # and on the gear touching the pad
 GV_X, GV_Y, GV_HEADING = range(3)  # in the ground vehicle's state [x, y, heading, steering]
 
 
@@ -78,7 +79,7 @@ class LandingMonitor(LeafSystem):
         offset = pad_offset(relative, vehicle[GV_HEADING])
         if (term.stop_on_landed and relative[HEIGHT] <= self._touchdown
                 and np.all(np.abs(offset) <= platform.pad_size_m / 2)):
-            return f"landed: the gear touched the pad at t = {t:.2f} s"
+            return f"{GEAR_TOUCHED} at t = {t:.2f} s"
         px, py, pz, vx, vy, vz = (float(quad[i]) for i in (0, 1, 2, 7, 8, 9))
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         if pz < -term.ground_tolerance_m:

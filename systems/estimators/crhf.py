@@ -59,8 +59,16 @@ class CrhfConfig:
     filter_ranges: bool = True
     fuse_corner_normal: bool = True
     average_intrinsics: bool = True
+    # A sensor whose ray leaves the deck (past its edge, onto the base or the ground) reads the wrong surface:
+    # ours, a frame is flagged invalid (and the range track coasts) when a range is this far from the range
+    # track's prediction, or when the four touch points are this far from one plane (RMS; a deck's four
+    # points fit one to a few millimetres). Neither ever triggers in the Stewart scenes.
+    range_gate_m: float = 0.1
+    max_plane_residual_m: float = 0.02
 
     def validate(self, prefix: str = "crhf") -> None:
+        require_positive(self.range_gate_m, f"{prefix}.range_gate_m")
+        require_positive(self.max_plane_residual_m, f"{prefix}.max_plane_residual_m")
         require(self.touch_pixels in ("pchip", "hyperbola"),
                 f"{prefix}.touch_pixels must be 'pchip' or 'hyperbola', got '{self.touch_pixels}'")
         for name in ("corner_filter", "range_filter"):
@@ -126,6 +134,7 @@ class CrhfEstimator(LeafSystem):
         self._corner_filter = replace(config.corner_filter, dt_s=period_s)
         self._range_filter = replace(config.range_filter, dt_s=period_s) if config.filter_ranges else None
         self._range_variance = config.range_filter.measurement_std**2  # raw ranges' covariance / I
+        self._range_gate, self._max_residual = config.range_gate_m, config.max_plane_residual_m
         self._fuse = config.fuse_corner_normal
         self._average_intrinsics = config.average_intrinsics
         self._p_C_sensors = np.asarray(p_C_sensors, dtype=float)
@@ -153,13 +162,19 @@ class CrhfEstimator(LeafSystem):
             range_track, range_covariance = Track(), self._range_variance * np.eye(4)
         else:
             shift = None if range_shift_m is None else np.full(4, range_shift_m)
+            if state.ranges.valid:  # the gate: a range far from the track's prediction is not the deck
+                predicted = state.ranges.position + self._period * state.ranges.x[4:]
+                if shift is not None:
+                    predicted = predicted + shift
+                if np.any(np.abs(ranges - predicted) > self._range_gate):
+                    ranges = np.full(4, np.nan)
             range_track = step_track(state.ranges, ranges, self._range_filter, shift)
             valid = range_track.valid and np.all(np.isfinite(ranges))
             ranges = range_track.position if valid else None
             range_covariance = range_track.P[:4, :4] if valid else None
         result = self.estimate(corner_track, ranges, range_covariance, state)
         state = replace(state, corners=corner_track, ranges=range_track)
-        if result is None or not result.valid:
+        if result is None or not result.valid or not result.plane.rms_residual <= self._max_residual:
             return state, PoseEstimate.invalid(time, "C", "T")
         return self._remember(state, result), PoseEstimate(time, result.X_CT, True, reference="C", target="T")
 

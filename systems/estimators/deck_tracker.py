@@ -7,7 +7,9 @@ the UAV's own pose: X_WP = X_WB X_BC X_CT X_TP. Two of seed 000's constant-veloc
 for its attitude [n_x, n_y, yaw] [rad]: the x and y components of the deck's normal z_P in W (the
 tilt: |n_xy| = sin(tilt)) and the heading left after removing that tilt,
     R_WP = R_tilt(n) Rz(yaw),   R_tilt(n) the smallest rotation taking z_W onto n.
-Between frames the tracks coast; a frame without a valid X_CT (the tag out of view, as in the last
+A frame whose pose is far from the tracks' prediction (its innovation's chi-square beyond `gate_chi2`, on
+the centre or on the attitude: a wrong frame from the estimator) is not used. Between frames the
+tracks coast; a frame without a valid (or a gated) X_CT (the tag out of view, as in the last
 half metre of a landing) is a coasted step, and after `max_coast_steps` of them the estimate turns
 invalid. (Updating the heave and tilt from the four ToF ranges' plane in those frames was tried: each
 frame's plane tilts by 0.026 rad of noise over the sensors' 0.19 m spacing, and on a ship-like deck the
@@ -25,7 +27,7 @@ from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from systems.config import require_positive
 from systems.estimators.estimate import PoseEstimate
-from systems.estimators.track_filter import Track, TrackFilterParams, step_track
+from systems.estimators.track_filter import Track, TrackFilterParams, innovation_distance, step_track
 from systems.stepped import SteppedValue
 
 DECK_MOTION_SIZE = 8  # [n_x, n_y, dn_x/dt, dn_y/dt, z (m), dz/dt (m/s), valid, coasted steps]
@@ -43,8 +45,10 @@ class DeckTrackerConfig:
         measurement_std=0.01, acceleration_std=0.05, initial_velocity_std=0.2, max_coast_steps=30))  # m
     attitude: TrackFilterParams = field(default_factory=lambda: TrackFilterParams(
         measurement_std=0.005, acceleration_std=0.05, initial_velocity_std=0.2, max_coast_steps=30))  # rad
+    gate_chi2: float = 30.0  # chi-square with 3 degrees of freedom beyond which a frame is an outlier (p = 1e-6)
 
     def validate(self, prefix: str = "deck_tracker") -> None:
+        require_positive(self.gate_chi2, f"{prefix}.gate_chi2")
         for name in ("position", "attitude"):
             params = getattr(self, name)
             for field_name in ("measurement_std", "acceleration_std", "initial_velocity_std"):
@@ -108,6 +112,9 @@ def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time
         if track.attitude.valid:  # the heading's measurement unwrapped next to the track's
             yaw = track.attitude.x[2]
             attitude[2] = yaw + math.remainder(attitude[2] - yaw, 2 * math.pi)
+        if track.valid and max(innovation_distance(track.position, position, position_params),
+                               innovation_distance(track.attitude, attitude, attitude_params)) > config.gate_chi2:
+            position = attitude = None
     return DeckTrack(time, step_track(track.position, position, position_params),
                      step_track(track.attitude, attitude, attitude_params))
 

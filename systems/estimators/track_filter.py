@@ -93,6 +93,16 @@ class Track:
         return None if self.x is None else self.x[: len(self.x) // 2]
 
 
+def innovation_distance(track: Track, measurement: np.ndarray, params: TrackFilterParams) -> float:
+    """The squared Mahalanobis distance of a measurement (n coordinates) from a valid track's prediction one
+    step ahead, r^T S^-1 r with Eq. 32's residual r and its covariance S = R + H P- H^T: chi-square with n
+    degrees of freedom when the measurement is what the track models."""
+    F, Q, H, R = constant_velocity_model(params, len(track.x) // 2)
+    x, P = kalman_predict(track.x, track.P, F, Q)
+    residual = np.asarray(measurement, dtype=float).reshape(-1) - H @ x
+    return float(residual @ np.linalg.solve(R + H @ P @ H.T, residual))
+
+
 def step_track(track: Track, measurement: np.ndarray | None, params: TrackFilterParams,
                shift: np.ndarray | None = None) -> Track:
     """Advance the track by one frame.
