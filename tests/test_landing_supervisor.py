@@ -247,6 +247,6 @@ def test_a_run_ended_on_the_gears_touch_is_a_touchdown_even_if_the_log_missed_it
            "quadrotor_state": np.zeros((n, 17)), "vehicle_state": np.zeros((n, 4)), "vehicle_speed": np.zeros(n)}
     config = load_scenario("gv-landing")[1]
     out = landing_metrics(log, "landed: the gear touched the pad at t = 0.10 s", config)
-    assert out["success"] and out["touchdown_by"] == "contact" and out["time_to_land_s"] == pytest.approx(0.08)
+    assert out["success"] and out["touchdown_by"] == "contact" and out["time_to_land_s"] == pytest.approx(0.08, abs=0.01)
     out = landing_metrics(log, "timeout: no touchdown", config)
     assert not out["success"]
