@@ -34,7 +34,7 @@ def test_malformed_case_options_are_config_errors(options, message):
     ("gv-landing", ["vehicle.sped=3,6"], [], r"unknown key 'vehicle\.sped'"),
     ("gv-landing", ["vehicle.speed=3,fast"], [], r"vehicle\.speed must be a number"),
     ("gv-landing", ["vehicle.speed=3,6"], ["vehicle.speed=1"], r"--set vehicle\.speed: a --case sets it"),
-    ("stewart-dynamic", ["seed=1,2"], [], "not a ground-vehicle"),
+    ("stewart-dynamic", ["seed=1,2"], [], "not a landing scenario"),
 ])
 def test_bad_grids_name_the_field_before_anything_runs(scenario, options, overrides, message):
     with pytest.raises(ConfigError, match=message):
