@@ -20,6 +20,7 @@ from systems.control.landing import LandingSupervisor
 from systems.control.monitor import LandingMonitor
 from systems.control.pid import TrackingPid
 from systems.control.velocity_integral import VelocityIntegral
+from systems.perception.rendezvous import SeamSelect
 from systems.perception.seam import SeamSplit
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
 from systems.vehicles.quadrotor import STATE_SIZE, Quadrotor
@@ -36,9 +37,17 @@ class FlightStack:
 
 def add_flight_stack(builder: DiagramBuilder, config, quad: Quadrotor, nav_state: OutputPort,
                      relative_state: OutputPort, carrier_state: OutputPort, true_relative_state: OutputPort,
-                     carrier: PlatformConfig) -> FlightStack:
-    """Adds the stack, steering `quad` on the seam `relative_state`; returns its systems."""
+                     carrier: PlatformConfig, rendezvous: OutputPort | None = None) -> FlightStack:
+    """Adds the stack, steering `quad` on the seam `relative_state`; returns its systems. `rendezvous`: a
+    coarse seam (systems/perception/rendezvous.py) that the PID tracks where the vision one is invalid,
+    which the supervisor never descends on."""
     seam = builder.AddNamedSystem("seam", SeamSplit())
+    vision_valid = None
+    if rendezvous is not None:
+        select = builder.AddNamedSystem("seam_select", SeamSelect())
+        builder.Connect(relative_state, select.GetInputPort("vision"))
+        builder.Connect(rendezvous, select.GetInputPort("rendezvous"))
+        relative_state, vision_valid = select.GetOutputPort("relative_state"), select.GetOutputPort("vision_valid")
     builder.Connect(relative_state, seam.get_input_port())
     pid = builder.AddNamedSystem("tracking_pid", TrackingPid(config.pid))
     supervisor = builder.AddNamedSystem("landing_supervisor", LandingSupervisor(config.landing))
@@ -51,7 +60,13 @@ def add_flight_stack(builder: DiagramBuilder, config, quad: Quadrotor, nav_state
     builder.Connect(nav_state, altitude.get_input_port())
     for name in ("target_offset", "target_velocity", "target_valid"):
         builder.Connect(seam.GetOutputPort(name), pid.GetInputPort(name))
+    for name in ("target_offset", "target_velocity"):
         builder.Connect(seam.GetOutputPort(name), supervisor.GetInputPort(name))
+    if vision_valid is None:
+        vision_valid = seam.GetOutputPort("target_valid")
+    else:
+        builder.Connect(select.GetOutputPort("rendezvous_valid"), supervisor.GetInputPort("rendezvous_valid"))
+    builder.Connect(vision_valid, supervisor.GetInputPort("target_valid"))
     builder.Connect(seam.GetOutputPort("target_acceleration"), pid.GetInputPort("target_acceleration"))
     builder.Connect(seam.GetOutputPort("height_above_target"), pid.GetInputPort("height"))
     builder.Connect(seam.GetOutputPort("height_above_target"), supervisor.GetInputPort("height_above_target"))
@@ -70,6 +85,6 @@ def add_flight_stack(builder: DiagramBuilder, config, quad: Quadrotor, nav_state
     builder.Connect(quad.GetOutputPort("state"), monitor.GetInputPort("quadrotor_state"))
     builder.Connect(carrier_state, monitor.GetInputPort("vehicle_state"))
     builder.Connect(true_relative_state, monitor.GetInputPort("true_relative_state"))
-    builder.Connect(seam.GetOutputPort("target_valid"), monitor.GetInputPort("target_valid"))
+    builder.Connect(vision_valid, monitor.GetInputPort("target_valid"))
     builder.Connect(supervisor.GetOutputPort("mode"), monitor.GetInputPort("mode"))
     return FlightStack(seam, pid, supervisor, controller, monitor)

@@ -14,6 +14,7 @@ All in World W (z up):
         --> landing supervisor (50 Hz) --command--> flight controller (200 Hz) --> quadrotor
     wind (`wind`, unless calm: mean, Dryden turbulence, gusts) --air velocity--> quadrotor's rotor drag
     navigation (`navigation.source` gnss_ins: the truth plus its errors) --> controller, supervisor, filters
+    vehicle broadcast (`rendezvous.source` broadcast: its GNSS by radio) --coarse seam--> PID where unseen
 
 Both vehicles integrate their equations over each 5 ms controller period in C++
 (`integration.discrete`), so Python runs only at the rates the systems declare.
@@ -53,6 +54,7 @@ from systems.perception.latency import MeasurementLatency
 from systems.perception.marker_detector import MarkerDetectorSystem
 from systems.perception.marker_faults import MarkerFaults
 from systems.perception.markers import MarkerMeasurementsToVector
+from systems.perception.rendezvous import VehicleBroadcast
 from systems.perception.synthetic_markers import SyntheticMarkerSource
 from systems.perception.truth import PadPose, RelativeStateTruth
 from systems.sensors.camera import add_camera, add_renderer
@@ -259,8 +261,15 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         builder, PerceptionInputs(config, nav_X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"), quad_state,
                                   vehicle_state, truth.get_output_port(), measurements.delayed,
                                   measurements.color_image, filters))
+    rendezvous = None
+    if config.rendezvous.source == "broadcast":  # the vehicle's navigation by radio: a coarse target
+        broadcast = builder.AddNamedSystem("vehicle_broadcast", VehicleBroadcast(config.rendezvous, config.seed))
+        builder.Connect(truth.get_output_port(), broadcast.GetInputPort("true_relative_state"))
+        builder.Connect(quad_state, broadcast.GetInputPort("quadrotor_state"))
+        builder.Connect(nav_X_WB, broadcast.GetInputPort("X_WB"))
+        rendezvous = broadcast.get_output_port()
     stack = add_flight_stack(builder, config, quad, nav_state, perception.relative_state, vehicle_state,
-                             truth.get_output_port(), config.platform)
+                             truth.get_output_port(), config.platform, rendezvous)
     pid, supervisor = stack.pid, stack.supervisor
 
     period = 1.0 / config.landing.rate_hz

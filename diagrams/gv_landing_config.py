@@ -6,7 +6,8 @@ diagrams/perception_sources.py, and when its estimate is valid), `estimation` (t
 measurement stream and the filters that run on it), `federated` (seed 001's camera, IMU and
 federated filter, for perception.source federated), `wind` (systems/environment/wind.py: it acts
 through the quadrotor's rotor drag), `faults` (systems/perception/marker_faults.py: in the marker
-stream), `navigation` (systems/sensors/navigation.py: the UAV's own state), `start`, `integration`.
+stream), `navigation` (systems/sensors/navigation.py: the UAV's own state), `rendezvous`
+(systems/perception/rendezvous.py: the vehicle's broadcast navigation), `start`, `integration`.
 """
 
 from dataclasses import dataclass, field
@@ -25,6 +26,7 @@ from systems.control.pid import TrackingPidConfig
 from systems.environment.wind import WindConfig
 from systems.estimators.marker_ekf import FILTERS, MarkerEkfConfig
 from systems.perception.marker_faults import FaultsConfig
+from systems.perception.rendezvous import RendezvousConfig
 from systems.perception.seam import SeamConfig
 from systems.sensors.camera import CameraConfig
 from systems.sensors.navigation import NavigationConfig
@@ -174,10 +176,12 @@ class GvLandingConfig:
     wind: WindConfig = field(default_factory=WindConfig)  # calm by default
     faults: FaultsConfig = field(default_factory=FaultsConfig)  # in the marker stream; none by default
     navigation: NavigationConfig = field(default_factory=NavigationConfig)  # the UAV's own; the truth by default
+    rendezvous: RendezvousConfig = field(default_factory=RendezvousConfig)  # the vehicle's broadcast; none by default
 
     def validate(self) -> None:
         for name in ("vehicle", "platform", "quadrotor", "controller", "pid", "landing", "perception", "estimation",
-                     "start", "termination", "integration", "uav", "federated", "wind", "faults", "navigation"):
+                     "start", "termination", "integration", "uav", "federated", "wind", "faults", "navigation",
+                     "rendezvous"):
             getattr(self, name).validate(name)
         require(self.navigation.source == "truth" or self.perception.source != "federated",
                 "perception.source federated drives its IMU from the UAV's pose: navigation.source must be truth")

@@ -9,6 +9,10 @@ With no valid estimate it holds its altitude, coasting with the target's last ve
 `lost_hold_s` climbs back to IH to search; below LH it aborts instead: it climbs out, coasting, and
 tries again from FOLLOW once it sees the target. It never descends on an invalid estimate. (A filter
 that predicts through a blind last metre keeps its estimate valid while its covariance allows.)
+With a rendezvous source (the vehicle's broadcast navigation, systems/perception/rendezvous.py; the input
+`rendezvous_valid`) the UAV tracks that coarse target wherever it has no vision: climbing, holding,
+searching and aborting fly towards the vehicle instead of standing still or coasting, never descending
+on it. A climb that starts above IH without the target ends in SEARCH (it would never descend to IH).
 On a moving deck the final descent also waits for a landing window (the input `landing_window`, from
 systems/control/landing_window.py; always open where it is not connected): at LH the UAV holds LH above
 the target until the window opens, and a descent whose window closes goes back up to LH (an abort).
@@ -29,6 +33,7 @@ Modes and what they command (velocities in World, z up; "hold" is a P loop on al
     HOLD      not seen in FOLLOW/APPROACH: coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
     SEARCH    no horizontal speed, climb back to IH (never descend); seen -> FOLLOW
     ABORT     coast, climb towards IH at climb speed; seen -> FOLLOW (a retry); lost_hold_s -> SEARCH
+    (with a valid rendezvous target, CLIMB, HOLD, SEARCH and ABORT track it instead of coasting or standing)
 
 One transition per step; the command is that of the mode after the transition.
 """
@@ -106,6 +111,7 @@ class SupervisorInputs:
     tracking_acceleration_m_s2: np.ndarray = field(default_factory=lambda: np.zeros(2))  # PID's feed-forward
     window_open: bool = True  # the landing window (module docstring): commit to the final descent
     window_holds: bool = True  # a committed descent may go on
+    rendezvous_valid: bool = False  # the coarse target (the vehicle's broadcast) steers the PID where unseen
 
 
 class SupervisorMemory(NamedTuple):
@@ -122,6 +128,8 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
         return Mode.CLIMB
     if mode == Mode.CLIMB and abs(inputs.altitude_m - config.initial_height_m) <= config.altitude_tolerance_m:
         return Mode.FOLLOW if seen else Mode.SEARCH
+    if mode == Mode.CLIMB and not seen and inputs.altitude_m > config.initial_height_m:
+        return Mode.SEARCH
     if mode == Mode.LAND and not seen:
         return Mode.ABORT
     if mode in (Mode.FOLLOW, Mode.APPROACH, Mode.WAIT) and not seen:
@@ -151,10 +159,11 @@ _ZERO = (0.0, 0.0)
 def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: LandingConfig) -> np.ndarray:
     """The FlightController command for memory.mode: [v_WB_desired (3, m/s), yaw (rad),
     a_WB_feed_forward (3, m/s^2)]. The acceleration feed-forward is the tracking PID's while it
-    tracks a seen target, else zero (coasting keeps the last target velocity, not its acceleration)."""
-    mode, seen = memory.mode, inputs.target_valid
+    tracks a seen (or rendezvous) target, else zero (coasting keeps the last target velocity, not its
+    acceleration)."""
+    mode, seen, rendezvous = memory.mode, inputs.target_valid, inputs.rendezvous_valid
     coast = memory.last_target_velocity_m_s
-    if seen:
+    if seen or rendezvous:  # the PID on the vision target, or on the rendezvous one where unseen
         tracking, acceleration = inputs.tracking_velocity_m_s, inputs.tracking_acceleration_m_s2
     else:
         tracking, acceleration = coast, _ZERO
@@ -166,7 +175,7 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
     if mode == Mode.TAKEOFF:
         horizontal, acceleration, vertical = _ZERO, _ZERO, config.climb_speed_m_s
     elif mode == Mode.CLIMB:
-        if not seen:
+        if not (seen or rendezvous):
             tracking = _ZERO
         horizontal, vertical = tracking, towards(config.initial_height_m)
     elif mode == Mode.FOLLOW:
@@ -181,11 +190,13 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
     elif mode == Mode.LANDED:
         horizontal, acceleration, vertical = coast, _ZERO, 0.0
     elif mode == Mode.HOLD:
-        horizontal, acceleration, vertical = coast, _ZERO, towards(memory.altitude_hold_m)
+        horizontal, vertical = tracking, towards(memory.altitude_hold_m)
     elif mode == Mode.ABORT:
-        horizontal, acceleration, vertical = coast, _ZERO, config.climb_speed_m_s
+        horizontal, vertical = tracking, config.climb_speed_m_s
     else:  # SEARCH
-        horizontal, acceleration, vertical = _ZERO, _ZERO, towards(config.initial_height_m)
+        horizontal, vertical = tracking if rendezvous else _ZERO, towards(config.initial_height_m)
+        if not rendezvous:
+            acceleration = _ZERO
     if not seen and mode != Mode.LANDED:
         vertical = max(vertical, 0.0)  # never descend on an invalid estimate
     return np.array([horizontal[0], horizontal[1], vertical, math.radians(config.yaw_deg),
@@ -230,7 +241,8 @@ class LandingSupervisor(LeafSystem):
     `target_valid` (1, nonzero when seen), `target_offset` (2, target - UAV, m),
     `target_velocity` (2, m/s), `tracking_velocity` (2, m/s) and `tracking_acceleration` (2, m/s^2),
     the TrackingPid outputs, and optionally `landing_window` (2: [open, holds], nonzero when true;
-    both true when not connected).
+    both true when not connected) and `rendezvous_valid` (1: the PID tracks the rendezvous target where
+    the vision one is not valid; false when not connected).
     Outputs: `command` (7, for the FlightController) and `mode` (1, a Mode value), held between
     samples; `command` starts at zero velocity. The memory is discrete state (a vector, so Drake
     copies it without Python).
@@ -246,6 +258,7 @@ class LandingSupervisor(LeafSystem):
         (self._altitude, self._height, self._valid, self._offset, self._target_velocity, self._tracking_velocity,
          self._tracking_acceleration) = ports
         self._window = self.DeclareVectorInputPort("landing_window", 2)
+        self._rendezvous = self.DeclareVectorInputPort("rendezvous_valid", 1)
         # [mode_since_s, altitude_hold_m, last target velocity (2)]; the mode is its own group (an output).
         self._memory = self.DeclareDiscreteState(4)
         self._mode = self.DeclareDiscreteState([float(Mode.TAKEOFF)])
@@ -261,10 +274,11 @@ class LandingSupervisor(LeafSystem):
         window_open = window_holds = True
         if self._window.HasValue(context):
             window_open, window_holds = (bool(flag) for flag in self._window.Eval(context))
+        rendezvous = self._rendezvous.HasValue(context) and bool(scalar(self._rendezvous))
         return SupervisorInputs(
             context.get_time(), scalar(self._altitude), scalar(self._height), bool(scalar(self._valid)),
             self._offset.Eval(context), self._target_velocity.Eval(context), self._tracking_velocity.Eval(context),
-            self._tracking_acceleration.Eval(context), window_open, window_holds)
+            self._tracking_acceleration.Eval(context), window_open, window_holds, rendezvous)
 
     def _update(self, context, discrete_state):
         since, hold, vx, vy = context.get_discrete_state(self._memory).get_value().tolist()

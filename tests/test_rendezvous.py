@@ -1,0 +1,122 @@
+"""Rendezvous (issue 10): the vehicle's broadcast navigation as a coarse target
+(systems/perception/rendezvous.py), the supervisor tracking it where it has no vision, and the missions
+it makes possible: a vehicle that starts out of view, and the 12 m/s sine path from 10 m."""
+
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform
+from pydrake.systems.analysis import Simulator
+
+from diagrams.gv_landing_run import fly
+from diagrams.runner import load_scenario
+from systems.control.landing import LandingConfig, LandingStateMachine, Mode, SupervisorInputs
+from systems.perception.rendezvous import RendezvousConfig, SeamSelect, VehicleBroadcast
+from systems.perception.seam import P_BP_W, V_WP, VALID, seam_vector
+from systems.vehicles.quadrotor import STATE_SIZE
+
+P0, V = np.array([5.0, -2.0, 1.6]), np.array([3.0, 1.0, 0.0])  # the pad at t = 0 [m] and its velocity [m/s]
+
+
+def truth_at(t):
+    """The true seam of a pad moving at constant velocity, seen from a UAV hovering at the origin."""
+    return seam_vector(RigidTransform(), P0 + V * t, V, np.zeros(3), True)
+
+
+def broadcast_system(**settings):
+    system = VehicleBroadcast(RendezvousConfig(source="broadcast", **settings), seed=3)
+    context = system.CreateDefaultContext()
+    system.GetInputPort("quadrotor_state").FixValue(context, np.zeros(STATE_SIZE))
+    system.GetInputPort("X_WB").FixValue(context, RigidTransform())
+    return system, context
+
+
+def send(simulator, system, t):
+    """The message of time t (the truth then), sent by the periodic update at t."""
+    context = simulator.get_mutable_context()
+    system.GetInputPort("true_relative_state").FixValue(context, truth_at(t))
+    simulator.AdvanceTo(t + 0.01)
+
+
+def test_an_exact_broadcast_arrives_one_message_late_and_is_dead_reckoned():
+    system, context = broadcast_system(position_std_m=0.0, latency_periods=1)
+    simulator = Simulator(system, context)
+    output = system.get_output_port()
+    assert output.Eval(context)[VALID] == 0.0  # nothing received yet
+    send(simulator, system, 0.0)
+    assert output.Eval(context)[VALID] == 0.0  # the first message is still in flight
+    send(simulator, system, 0.1)
+    context.SetTime(0.15)  # the message of t = 0, dead-reckoned 0.15 s
+    seam = output.Eval(context)
+    assert seam[VALID] == 1.0
+    np.testing.assert_allclose(seam[P_BP_W], truth_at(0.15)[P_BP_W], atol=1e-12)
+    np.testing.assert_allclose(seam[V_WP], truth_at(0.15)[V_WP], atol=1e-12)
+    context.SetTime(0.0 + 1.0 + 1e-6)  # older than max_age_s: invalid
+    assert output.Eval(context)[VALID] == 0.0
+
+
+def test_the_gnss_error_starts_from_its_stationary_spread():
+    errors = []
+    for seed in range(400):
+        system = VehicleBroadcast(RendezvousConfig(source="broadcast"), seed=seed)
+        errors.append(system.CreateDefaultContext().get_discrete_state(0).get_value().reshape(3, 2)[:, 0])
+    std = np.std(np.array(errors) * RendezvousConfig().position_std_m)
+    assert std == pytest.approx(2.0, rel=0.1)
+
+
+def test_seam_select_prefers_vision_and_flags_which():
+    select = SeamSelect()
+    context = select.CreateDefaultContext()
+    vision, coarse = truth_at(0.0), truth_at(1.0)
+    vision_lost = vision.copy()
+    vision_lost[VALID] = 0.0
+    for seen, expected in ((vision, vision), (vision_lost, coarse)):
+        select.GetInputPort("vision").FixValue(context, seen)
+        select.GetInputPort("rendezvous").FixValue(context, coarse)
+        np.testing.assert_array_equal(select.GetOutputPort("relative_state").Eval(context), expected)
+        assert select.GetOutputPort("vision_valid").Eval(context)[0] == seen[VALID]
+        assert select.GetOutputPort("rendezvous_valid").Eval(context)[0] == 1.0
+
+
+def test_the_supervisor_tracks_the_rendezvous_target_unseen_and_never_descends_on_it():
+    config = LandingConfig()
+    machine = LandingStateMachine(config)
+    tracking = np.array([11.0, 3.0])
+
+    def step(t, altitude, seen=False, rendezvous=True):
+        return machine.step(SupervisorInputs(t, altitude, altitude, seen, np.array([20.0, 5.0]), np.array([12.0, 0.0]),
+                                             tracking, np.array([0.5, 0.0]), rendezvous_valid=rendezvous))
+
+    command = step(0.0, 10.0)  # off the ground already
+    assert machine.mode == Mode.CLIMB and command[2] == 0.0  # above IH, unseen: no descent
+    np.testing.assert_allclose(command[:2], tracking)  # flying to the vehicle meanwhile
+    command = step(0.02, 10.0)  # CLIMB would never come down to IH: SEARCH
+    assert machine.mode == Mode.SEARCH and command[2] == 0.0  # no descent on the coarse target
+    np.testing.assert_allclose(command[:2], tracking)
+    np.testing.assert_allclose(command[4:6], [0.5, 0.0])
+    command = step(0.04, 10.0, rendezvous=False)  # without it, SEARCH stands still
+    assert machine.mode == Mode.SEARCH and not command[:2].any()
+    step(0.06, 10.0, seen=True)
+    assert machine.mode == Mode.FOLLOW  # the camera has it: the vision takes over
+
+
+@pytest.mark.parametrize("source, lands", [("none", False), ("broadcast", True)])
+def test_a_vehicle_out_of_view_is_reached_only_with_the_broadcast(source, lands):
+    _, config = load_scenario("gv-landing", overrides=["vehicle.speed=3", "start.xy_m=[-40, -40]",
+                                                       f"rendezvous.source={source}"])
+    metrics, _ = fly(config, 60.0)
+    landing = metrics["landing"]
+    assert landing["success"] == lands
+    if lands:
+        assert landing["touchdown_error_m"] < 0.05
+    else:
+        assert landing["failure_reason"] == "target_lost"
+
+
+def test_the_12_m_s_sine_path_from_10_m_lands_on_the_truth():
+    # Issue 10's example: it used to end "diverged: 201 m from the pad" (the climb never came down to IH).
+    for source in ("none", "broadcast"):
+        _, config = load_scenario("gv-landing", overrides=[
+            "vehicle.path=sine", "vehicle.speed=12", "start.height_m=10", "start.xy_m=[0, 0]",
+            f"rendezvous.source={source}"])
+        landing = fly(config, 60.0)[0]["landing"]
+        assert landing["success"] and landing["touchdown_error_m"] < 0.1 and landing["touchdown_rel_speed_mps"] < 0.5
