@@ -82,7 +82,7 @@ def _add_estimators(builder: DiagramBuilder, config: DeckLandingConfig, color_im
     detector = builder.AddNamedSystem("tag_detector", TagDetectorSystem(
         config.platform.tag_id, config.camera.width, config.camera.height))
     builder.Connect(color_image, detector.get_input_port())
-    atda = builder.AddNamedSystem("atda", AtdaEstimator(config.camera.K, config.platform.tag_size_m))
+    atda = builder.AddNamedSystem("atda", AtdaEstimator(config.camera.K_estimated, config.platform.tag_size_m))
     crhf = builder.AddNamedSystem("crhf", CrhfEstimator(
         config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,
         config.camera.period_s))

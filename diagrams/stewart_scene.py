@@ -175,7 +175,7 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
     estimators = {}
     for name in config.estimators:
         if name == "atda":
-            estimator = builder.AddSystem(AtdaEstimator(config.camera.K, config.platform.tag_size_m))
+            estimator = builder.AddSystem(AtdaEstimator(config.camera.K_estimated, config.platform.tag_size_m))
         else:
             estimator = builder.AddSystem(CrhfEstimator(
                 config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,

@@ -201,3 +201,23 @@ def test_the_drones_own_motion_keeps_the_range_track_on_the_deck(crhf):
         return worst
 
     assert descend(True) < 0.005 < 0.02 < descend(False)
+
+
+def test_a_focal_length_error_scales_atdas_depth_and_leaves_crhfs():
+    # The estimators are given fx, fy 2 % long: ATDA's pinhole depth grows by 2 % (4 cm at 2 m) against
+    # the same frames with the exact K; CRHF measures its own intrinsics from the ranges and the pad
+    # calibration (seed 000 Eq. 40-45) and does not move.
+    def depths(error_pct):
+        config = StewartSceneConfig(platform=constant_offset_platform(), estimators=["atda", "crhf"])
+        config.camera.calibration_error.fx_pct = config.camera.calibration_error.fy_pct = error_pct
+        diagram, handles = build_stewart_scene(config)
+        simulator = Simulator(diagram)
+        simulator.AdvanceTo(1.0)
+        log = collect_log(handles, simulator.get_context(), config)
+        return log["X_CT"][:, 2], log["estimate_atda"][:, 3], log["estimate_crhf"][:, 3]
+
+    true_z, atda_exact, crhf_exact = depths(0.0)
+    _, atda_z, crhf_z = depths(2.0)
+    np.testing.assert_allclose(atda_z / atda_exact, 1.02, atol=0.002)
+    np.testing.assert_array_equal(crhf_z, crhf_exact)
+    assert np.max(np.abs(crhf_z - true_z)) < 0.005
