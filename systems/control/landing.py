@@ -12,7 +12,7 @@ that predicts through a blind last metre keeps its estimate valid while its cova
 With a rendezvous source (the vehicle's broadcast navigation, systems/perception/rendezvous.py; the input
 `rendezvous_valid`) the UAV tracks that coarse target wherever it has no vision: climbing, holding,
 searching and aborting fly towards the vehicle instead of standing still or coasting, never descending
-on it. A climb that starts above IH without the target ends in SEARCH (it would never descend to IH).
+on it (a climb that starts above IH waits there, following it, until the camera has the target).
 On a moving deck the final descent also waits for a landing window (the input `landing_window`, from
 systems/control/landing_window.py; always open where it is not connected): at LH the UAV holds LH above
 the target until the window opens, and a descent whose window closes goes back up to LH (an abort).
@@ -128,8 +128,6 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
         return Mode.CLIMB
     if mode == Mode.CLIMB and abs(inputs.altitude_m - config.initial_height_m) <= config.altitude_tolerance_m:
         return Mode.FOLLOW if seen else Mode.SEARCH
-    if mode == Mode.CLIMB and not seen and inputs.altitude_m > config.initial_height_m:
-        return Mode.SEARCH
     if mode == Mode.LAND and not seen:
         return Mode.ABORT
     if mode in (Mode.FOLLOW, Mode.APPROACH, Mode.WAIT) and not seen:
