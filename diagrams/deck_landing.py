@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.geometry import Meshcat, MeshcatVisualizer, SceneGraph
 from pydrake.systems.framework import Diagram, DiagramBuilder, OutputPort
-from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
+from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, VectorLogSink
 
 from diagrams.deck_landing_config import DeckLandingConfig
 from diagrams.flight_stack import FlightStack, add_flight_stack
@@ -39,7 +39,7 @@ from systems.sensors.camera import add_renderer
 from systems.sensors.ground_truth import CameraVelocity, RelativePose
 from systems.sensors.tof import TofSensors, sensor_positions_C
 from systems.vehicles.airframe import AirframeGeometry
-from systems.vehicles.quadrotor import P_WB, STATE_SIZE, Quadrotor, hover_state
+from systems.vehicles.quadrotor import P_WB, STATE_SIZE, V_WB, Quadrotor, hover_state
 from systems.viewers import MeshcatTrail, VideoRecorder
 
 # Logged at the supervisor's rate: the UAV, the deck (as the monitor's carrier, and its true motion), what
@@ -137,7 +137,11 @@ def add_deck_landing(builder: DiagramBuilder, config: DeckLandingConfig, meshcat
     stack = add_flight_stack(builder, config, quad, quad_state, relative_state, platform.GetOutputPort("carrier_state"),
                              truth.get_output_port(), config.carrier())
     window = builder.AddNamedSystem("landing_window", LandingWindow(
-        config.window, config.landing.touchdown_height_m, config.landing.landing_speed_m_s))
+        config.window, config.landing.touchdown_height_m, config.landing.landing_speed_m_s,
+        1.0 / config.controller.velocity_gain_z))
+    vertical = builder.AddNamedSystem("vertical_velocity", Demultiplexer([V_WB.start + 2, 1, STATE_SIZE - V_WB.stop]))
+    builder.Connect(quad_state, vertical.get_input_port())
+    builder.Connect(vertical.get_output_port(1), window.GetInputPort("vertical_velocity"))
     builder.Connect(deck_motion, window.GetInputPort("deck_motion"))
     builder.Connect(stack.seam.GetOutputPort("height_above_target"), window.GetInputPort("height_above_target"))
     builder.Connect(window.get_output_port(), stack.supervisor.GetInputPort("landing_window"))

@@ -5,7 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from systems.control.landing_window import LandingWindow, LandingWindowConfig, predicted_tilt_deg, window_flags
+from systems.control.landing_window import (
+    LandingWindow,
+    LandingWindowConfig,
+    predicted_tilt_deg,
+    time_to_touchdown,
+    window_flags,
+)
 
 CONFIG = LandingWindowConfig()
 
@@ -67,3 +73,29 @@ def test_bad_thresholds_are_config_errors():
 
     with pytest.raises(ConfigError, match="abort_tilt_deg"):
         LandingWindowConfig(max_tilt_deg=3.0, abort_tilt_deg=2.0).validate()
+
+
+def test_time_to_touchdown_is_that_of_a_first_order_descent():
+    # v(t) = V (1 - exp(-t / T)) from a hover covers h in tau with h = V (tau - T (1 - exp(-tau / T))):
+    # for tau >> T, tau = h / V + T. Integrated numerically against the formula.
+    V, T, h = 0.4, 1.0 / 3.0, 0.8
+    dt, t, z = 1e-4, 0.0, 0.0
+    while z < h:
+        z += V * (1 - math.exp(-t / T)) * dt
+        t += dt
+    assert time_to_touchdown(h, V, 0.0, T) == pytest.approx(t, abs=0.01)  # exp(-tau / T) ~ 0.1 % here
+    assert time_to_touchdown(h, V, V, T) == pytest.approx(h / V)  # at speed: no lag
+    assert time_to_touchdown(h, V, 2 * V, T) == pytest.approx(h / V)  # taken within [0, V]
+
+
+def test_the_window_counts_the_descents_lag_when_it_knows_the_vertical_velocity():
+    window = LandingWindow(CONFIG, touchdown_height_m=0.1, landing_speed_m_s=0.4, response_time_s=0.5)
+    context = window.CreateDefaultContext()
+    n0 = math.sin(math.radians(12.5))
+    levelling = motion((n0, 0.0), (-n0 / 2.5, 0.0))  # 12.5 deg, level 2.5 s from now (about 5 deg/s)
+    window.GetInputPort("deck_motion").FixValue(context, levelling)
+    window.GetInputPort("height_above_target").FixValue(context, [0.9])  # 2 s at speed, 2.5 s from a hover
+    window.GetInputPort("vertical_velocity").FixValue(context, [0.0])
+    assert window.get_output_port().Eval(context)[0] == 1.0
+    window.GetInputPort("vertical_velocity").FixValue(context, [-0.4])  # already descending: 2 s, 2.5 deg off
+    assert window.get_output_port().Eval(context)[0] == 0.0

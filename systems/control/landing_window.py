@@ -3,7 +3,12 @@ deck is landed on in its quiet periods).
 
 The deck's tilt and heave are predicted from the tracked estimate (systems/estimators/deck_tracker.py:
 the normal's tilt components and heave with their rates, at constant rate) to the time the UAV would
-touch down, tau = (height above the deck - touchdown height) / landing speed. The window is open when
+touch down: with h the height left to the touchdown height, V the landing speed, v the UAV's present
+descent speed and T the time constant of its vertical velocity loop (first order, 1 / K_v,z),
+    tau = h / V + T (1 - v / V),
+the time a descent takes that starts at v and settles to V (the second term is its lag: at the commit,
+from a hover, it is T; once at speed, nothing). Without the lag the predicted touchdown slides later
+along the deck's motion while the UAV speeds up, and a committed descent on a lively deck waves off. The window is open when
 the predicted tilt stays within `max_tilt_deg` over tau +- `timing_margin_s` and the heave rate within
 `max_heave_rate_m_s`; a descent already committed holds while the prediction stays within the looser
 `abort_tilt_deg` and twice the heave rate (the hysteresis keeps one noisy frame from aborting it), and
@@ -63,19 +68,34 @@ def window_flags(deck_motion: np.ndarray, time_to_touchdown_s: float,
             tau <= config.no_return_s or (tilt <= config.abort_tilt_deg and heave_rate <= 2 * config.max_heave_rate_m_s))
 
 
-class LandingWindow(LeafSystem):
-    """Inputs `deck_motion` (DECK_MOTION_SIZE) and `height_above_target` (1, m: the seam's). Output
-    `landing_window` (2: [open, holds], 1 or 0), computed when pulled, for the landing supervisor; the
-    time to touchdown is the height less `touchdown_height_m` over `landing_speed_m_s`."""
+def time_to_touchdown(height_to_go_m: float, landing_speed_m_s: float, descent_speed_m_s: float,
+                      response_time_s: float) -> float:
+    """tau [s] (module docstring) for the height left [m], the landing speed and the present descent speed
+    [m/s, positive down; taken within 0 and the landing speed] and the velocity loop's time constant [s]."""
+    v = min(max(descent_speed_m_s, 0.0), landing_speed_m_s)
+    return height_to_go_m / landing_speed_m_s + response_time_s * (1.0 - v / landing_speed_m_s)
 
-    def __init__(self, config: LandingWindowConfig, touchdown_height_m: float, landing_speed_m_s: float):
+
+class LandingWindow(LeafSystem):
+    """Inputs `deck_motion` (DECK_MOTION_SIZE), `height_above_target` (1, m: the seam's) and optionally
+    `vertical_velocity` (1, the UAV's z velocity in W [m/s], from its navigation; unconnected: the
+    descent's lag is left out). Output `landing_window` (2: [open, holds], 1 or 0), computed when pulled,
+    for the landing supervisor; the time to touchdown is `time_to_touchdown` of the height less
+    `touchdown_height_m`, `landing_speed_m_s` and `response_time_s` (1 / the flight controller's K_v,z)."""
+
+    def __init__(self, config: LandingWindowConfig, touchdown_height_m: float, landing_speed_m_s: float,
+                 response_time_s: float = 0.0):
         super().__init__()
         config.validate()
         self._config, self._touchdown, self._speed = config, touchdown_height_m, landing_speed_m_s
+        self._response = response_time_s
         self._motion = self.DeclareVectorInputPort("deck_motion", DECK_MOTION_SIZE)
         self._height = self.DeclareVectorInputPort("height_above_target", 1)
+        self._vertical = self.DeclareVectorInputPort("vertical_velocity", 1)
         self.DeclareVectorOutputPort("landing_window", 2, self._calc)
 
     def _calc(self, context, output):
-        tau = (float(self._height.Eval(context)[0]) - self._touchdown) / self._speed
+        descent = -float(self._vertical.Eval(context)[0]) if self._vertical.HasValue(context) else self._speed
+        tau = time_to_touchdown(float(self._height.Eval(context)[0]) - self._touchdown, self._speed, descent,
+                                self._response)
         output.SetFromVector([float(flag) for flag in window_flags(self._motion.Eval(context), tau, self._config)])
