@@ -21,7 +21,7 @@ from pydrake.systems.framework import LeafSystem
 from systems.config import require, require_non_negative, require_positive
 from systems.noise import sample_index, sample_rng
 from systems.perception.seam import P_BP_W, RELATIVE_STATE_SIZE, V_WP, VALID, seam_vector
-from systems.sensors.navigation import second_order_model
+from systems.sensors.navigation import SecondOrderGaussMarkov
 from systems.vehicles.quadrotor import P_WB, STATE_SIZE
 
 SOURCES = ("none", "broadcast")
@@ -59,9 +59,8 @@ class VehicleBroadcast(LeafSystem):
         super().__init__()
         config.validate()
         self._config, self._seed, self._period = config, seed, 1.0 / config.rate_hz
-        self._phi, self._g, stationary = second_order_model(config.position_time_constant_s, self._period)
-        initial = sample_rng(seed, "rendezvous", 0).standard_normal(6)
-        error = (stationary @ initial.reshape(2, 3)).T.ravel()
+        self._error_model = SecondOrderGaussMarkov(config.position_time_constant_s, self._period)
+        error = self._error_model.initial(sample_rng(seed, "rendezvous", 0).standard_normal(6))
         empty = np.tile(np.r_[np.zeros(6), np.nan], config.latency_periods + 1)
         self._error = self.DeclareDiscreteState(error)
         self._messages = self.DeclareDiscreteState(empty)
@@ -82,8 +81,8 @@ class VehicleBroadcast(LeafSystem):
         queue = context.get_discrete_state(self._messages).get_value()
         discrete_state.set_value(self._messages, np.r_[queue[MESSAGE_SIZE:], message])
         k = sample_index(context.get_time(), self._period)
-        noise = sample_rng(self._seed, "rendezvous", k + 1).standard_normal(6).reshape(3, 2)
-        discrete_state.set_value(self._error, (error @ self._phi.T + noise @ self._g.T).ravel())
+        noise = sample_rng(self._seed, "rendezvous", k + 1).standard_normal(6)
+        discrete_state.set_value(self._error, self._error_model.step(error, noise))
 
     def _calc(self, context, output):
         received = context.get_discrete_state(self._messages).get_value()[:MESSAGE_SIZE]

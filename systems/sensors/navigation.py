@@ -77,6 +77,22 @@ def second_order_model(time_constant_s: float, period_s: float) -> tuple[np.ndar
     return phi, cholesky((q + q.T) / 2, lower=True), cholesky(stationary, lower=True)
 
 
+class SecondOrderGaussMarkov:
+    """Independent unit-variance second-order Gauss-Markov processes (module docstring), one per axis, each
+    [e, e'] stepped exactly every period: values flat as (axes x 2), scaled by the caller."""
+
+    def __init__(self, time_constant_s: float, period_s: float):
+        self._phi, self._g, self._stationary = second_order_model(time_constant_s, period_s)
+
+    def initial(self, noise: np.ndarray) -> np.ndarray:
+        """A draw from the stationary distribution, from 2 x axes standard normal numbers."""
+        return (self._stationary @ np.asarray(noise).reshape(2, -1)).T.ravel()
+
+    def step(self, values: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """The values one period later, from 2 x axes standard normal numbers."""
+        return (np.asarray(values).reshape(-1, 2) @ self._phi.T + np.asarray(noise).reshape(-1, 2) @ self._g.T).ravel()
+
+
 def navigation_state(true_state: np.ndarray, position_error: np.ndarray, attitude_error: np.ndarray,
                      velocity_error: np.ndarray) -> np.ndarray:
     """The 17-vector state as the navigation gives it: position and velocity (m, m/s, in W) plus
@@ -101,9 +117,9 @@ class NavigationSystem(LeafSystem):
         config.validate()
         self._config, self._seed, self._period = config, seed, 1.0 / config.rate_hz
         self._attitude_std = np.radians([config.tilt_std_deg, config.tilt_std_deg, config.yaw_std_deg])
-        self._phi, self._g, stationary = second_order_model(config.position_time_constant_s, self._period)
+        self._position = SecondOrderGaussMarkov(config.position_time_constant_s, self._period)
         initial = sample_rng(seed, "navigation", 0).standard_normal(9)
-        position = (stationary @ initial[:6].reshape(2, 3)).T.ravel()  # [e, e'] per axis, unit variance
+        position = self._position.initial(initial[:6])  # [e, e'] per axis, unit variance
         self._errors = self.DeclareDiscreteState(np.r_[position, self._attitude_std * initial[6:]])
         self._truth = self.DeclareVectorInputPort("quadrotor_state", STATE_SIZE)
         self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._step)
@@ -116,10 +132,10 @@ class NavigationSystem(LeafSystem):
         errors = context.get_discrete_state_vector().CopyToVector()
         k = sample_index(context.get_time(), self._period)
         noise = sample_rng(self._seed, "navigation", k + 1).standard_normal(9)
-        position = errors[0:6].reshape(3, 2) @ self._phi.T + noise[0:6].reshape(3, 2) @ self._g.T
+        position = self._position.step(errors[0:6], noise[0:6])
         attitude = gauss_markov_step(errors[6:9], self._attitude_std, c.attitude_time_constant_s, self._period,
                                      noise[6:9])
-        discrete_state.set_value(np.r_[position.ravel(), attitude])
+        discrete_state.set_value(np.r_[position, attitude])
 
     def _calc_state(self, context, output):
         errors = context.get_discrete_state_vector().CopyToVector()
