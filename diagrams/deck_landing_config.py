@@ -10,13 +10,9 @@ from dataclasses import dataclass, field, replace
 
 from pydrake.math import RigidTransform
 
-from diagrams.gv_landing_config import IntegrationConfig, StartConfig, table1_airframe
+from diagrams.gv_landing_config import FlightConfig
 from systems.config import require, require_positive
-from systems.control.flight_controller import BACKENDS, FlightControllerConfig
-from systems.control.landing import LandingConfig
 from systems.control.landing_window import LandingWindowConfig
-from systems.control.monitor import TerminationConfig
-from systems.control.pid import TrackingPidConfig
 from systems.estimators.crhf import CrhfConfig
 from systems.estimators.deck_tracker import DeckTrackerConfig
 from systems.noise import sample_rng
@@ -24,9 +20,7 @@ from systems.perception.seam import SeamConfig
 from systems.platforms.stewart import StewartGeometry, StewartPlatformConfig, stroke_violation
 from systems.sensors.camera import CameraConfig
 from systems.sensors.tof import TofConfig
-from systems.vehicles.airframe import AirframeConfig
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
-from systems.vehicles.quadrotor import QuadrotorParams
 
 DECK_SOURCES = ("truth", "crhf", "atda")  # what may steer; both estimators run on the camera stream whatever steers
 ESTIMATORS = ("atda", "crhf")
@@ -50,7 +44,7 @@ class DeckPerceptionConfig(SeamConfig):
 
 
 @dataclass
-class DeckLandingConfig:
+class DeckLandingConfig(FlightConfig):
     seed: int = 0  # of every noise source (pixels, ranges), of a random-walk deck and of random_deck_time_s
     platform: StewartPlatformConfig = field(default_factory=StewartPlatformConfig)
     # > 0: the deck's motion starts at a time drawn from the seed, uniform in [0, random_deck_time_s), after
@@ -61,23 +55,12 @@ class DeckLandingConfig:
     crhf: CrhfConfig = field(default_factory=CrhfConfig)
     tracker: DeckTrackerConfig = field(default_factory=DeckTrackerConfig)
     window: LandingWindowConfig = field(default_factory=LandingWindowConfig)
-    quadrotor: QuadrotorParams = field(default_factory=QuadrotorParams)
-    controller: FlightControllerConfig = field(default_factory=FlightControllerConfig)
-    controller_implementation: str = "symbolic"
-    pid: TrackingPidConfig = field(default_factory=TrackingPidConfig)
-    landing: LandingConfig = field(default_factory=LandingConfig)
     perception: DeckPerceptionConfig = field(default_factory=DeckPerceptionConfig)
-    start: StartConfig = field(default_factory=StartConfig)
-    termination: TerminationConfig = field(default_factory=TerminationConfig)
-    integration: IntegrationConfig = field(default_factory=IntegrationConfig)
-    uav: AirframeConfig = field(default_factory=table1_airframe)  # visual only
 
     def validate(self) -> None:
-        for name in ("platform", "camera", "tof", "crhf", "tracker", "window", "quadrotor", "controller", "pid",
-                     "landing", "perception", "start", "termination", "integration", "uav"):
+        FlightConfig.validate(self)
+        for name in ("platform", "camera", "tof", "crhf", "tracker", "window", "perception"):
             getattr(self, name).validate(name)
-        require(self.controller_implementation in BACKENDS,
-                f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
         require(self.integration.discrete, "integration.discrete must be true in deck-landing")
         require(self.random_deck_time_s >= 0, "random_deck_time_s must not be negative")
         top = self.deck_top_m
@@ -111,11 +94,6 @@ class DeckLandingConfig:
     @property
     def X_BC(self) -> RigidTransform:
         return self.camera.X_BC
-
-    @property
-    def period_s(self) -> float:
-        """The flight controller's sample period, over which the discrete quadrotor integrates."""
-        return 1.0 / self.controller.rate_hz
 
     def carrier(self) -> PlatformConfig:
         """The deck as the landing monitor's carrier: a pad of the deck's size at its nominal top, and the

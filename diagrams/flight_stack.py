@@ -4,8 +4,7 @@ PID and landing supervisor, the flight controller on the quadrotor, and the refe
     stack = add_flight_stack(builder, config, quadrotor, nav_state, relative_state, carrier_state,
                              true_relative_state, carrier)
 
-`config` holds the sections `pid`, `landing`, `quadrotor`, `controller`, `controller_implementation`,
-`integration` and `termination` (diagrams/gv_landing_config.py's, diagrams/deck_landing_config.py's).
+`config` is a `diagrams.gv_landing_config.FlightConfig` (the gv and deck-landing configs both are).
 `nav_state` is what the UAV believes of itself (its navigation's state, or the truth); the seam is what
 steers; the carrier (the vehicle, or the deck) and the true relative state are the referee's.
 """
@@ -15,6 +14,7 @@ from dataclasses import dataclass
 from pydrake.systems.framework import DiagramBuilder, OutputPort
 from pydrake.systems.primitives import Demultiplexer
 
+from diagrams.gv_landing_config import FlightConfig
 from systems.control.flight_controller import FlightController, SymbolicFlightController, make_flight_controller
 from systems.control.landing import LandingSupervisor
 from systems.control.monitor import LandingMonitor
@@ -35,7 +35,7 @@ class FlightStack:
     monitor: LandingMonitor
 
 
-def add_flight_stack(builder: DiagramBuilder, config, quad: Quadrotor, nav_state: OutputPort,
+def add_flight_stack(builder: DiagramBuilder, config: FlightConfig, quad: Quadrotor, nav_state: OutputPort,
                      relative_state: OutputPort, carrier_state: OutputPort, true_relative_state: OutputPort,
                      carrier: PlatformConfig, rendezvous: OutputPort | None = None) -> FlightStack:
     """Adds the stack, steering `quad` on the seam `relative_state`; returns its systems. `rendezvous`: a

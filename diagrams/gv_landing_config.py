@@ -155,10 +155,10 @@ def table1_airframe() -> AirframeConfig:
 
 
 @dataclass
-class GvLandingConfig:
-    seed: int = 0  # of every noise source (measurements, pixels)
-    vehicle: GroundVehicleConfig = field(default_factory=GroundVehicleConfig)
-    platform: PlatformConfig = field(default_factory=PlatformConfig)
+class FlightConfig:
+    """The sections of every landing scenario's flight (diagrams/flight_stack.py's): the quadrotor, its
+    flight controller, seed 003's PID and landing procedure, the start, the referee and the integration."""
+
     quadrotor: QuadrotorParams = field(default_factory=QuadrotorParams)
     controller: FlightControllerConfig = field(default_factory=FlightControllerConfig)
     # The flight controller's backend (systems/control/flight_controller.py): "symbolic" (C++, the
@@ -166,12 +166,32 @@ class GvLandingConfig:
     controller_implementation: str = "symbolic"
     pid: TrackingPidConfig = field(default_factory=TrackingPidConfig)
     landing: LandingConfig = field(default_factory=LandingConfig)
-    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
-    estimation: MarkerEstimationConfig = field(default_factory=MarkerEstimationConfig)
     start: StartConfig = field(default_factory=StartConfig)
     termination: TerminationConfig = field(default_factory=TerminationConfig)
     integration: IntegrationConfig = field(default_factory=IntegrationConfig)
     uav: AirframeConfig = field(default_factory=table1_airframe)  # visual only
+
+    def validate(self) -> None:
+        for name in ("quadrotor", "controller", "pid", "landing", "start", "termination", "integration", "uav"):
+            getattr(self, name).validate(name)
+        require(self.controller_implementation in BACKENDS,
+                f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
+        require(self.controller.max_vertical_accel_m_s2 < self.quadrotor.gravity_m_s2,
+                "controller.max_vertical_accel_m_s2 must be below quadrotor.gravity_m_s2")
+
+    @property
+    def period_s(self) -> float:
+        """The flight controller's sample period, over which the discrete vehicles integrate."""
+        return 1.0 / self.controller.rate_hz
+
+
+@dataclass
+class GvLandingConfig(FlightConfig):
+    seed: int = 0  # of every noise source (measurements, pixels)
+    vehicle: GroundVehicleConfig = field(default_factory=GroundVehicleConfig)
+    platform: PlatformConfig = field(default_factory=PlatformConfig)
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+    estimation: MarkerEstimationConfig = field(default_factory=MarkerEstimationConfig)
     federated: FederatedPerceptionConfig = field(default_factory=FederatedPerceptionConfig)
     wind: WindConfig = field(default_factory=WindConfig)  # calm by default
     faults: FaultsConfig = field(default_factory=FaultsConfig)  # in the marker stream; none by default
@@ -179,8 +199,8 @@ class GvLandingConfig:
     rendezvous: RendezvousConfig = field(default_factory=RendezvousConfig)  # the vehicle's broadcast; none by default
 
     def validate(self) -> None:
-        for name in ("vehicle", "platform", "quadrotor", "controller", "pid", "landing", "perception", "estimation",
-                     "start", "termination", "integration", "uav", "federated", "wind", "faults", "navigation",
+        FlightConfig.validate(self)
+        for name in ("vehicle", "platform", "perception", "estimation", "federated", "wind", "faults", "navigation",
                      "rendezvous"):
             getattr(self, name).validate(name)
         require(self.navigation.source == "truth" or self.perception.source != "federated",
@@ -190,10 +210,6 @@ class GvLandingConfig:
         require(self.wind.is_calm or self.quadrotor.rotor_drag_coefficient > 0,
                 "wind acts on the quadrotor through its rotor drag, and quadrotor.rotor_drag_coefficient is 0 "
                 "(seed 002's model): set it (RotorS's is 8.06428e-5)")
-        require(self.controller_implementation in BACKENDS,
-                f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
-        require(self.controller.max_vertical_accel_m_s2 < self.quadrotor.gravity_m_s2,
-                "controller.max_vertical_accel_m_s2 must be below quadrotor.gravity_m_s2")
         source, stream = perception_source(self.perception.source), self.estimation.source
         require(not source.needs_markers or stream != "none",
                 f"perception.source '{self.perception.source}' needs marker measurements, and estimation.source "
@@ -224,11 +240,6 @@ class GvLandingConfig:
     def pad_size_m(self) -> float:
         """The side of the square landed on: the pad's."""
         return self.platform.pad_size_m
-
-    @property
-    def period_s(self) -> float:
-        """The flight controller's sample period, over which the discrete vehicles integrate."""
-        return 1.0 / self.controller.rate_hz
 
     @property
     def filter_names(self) -> list[str]:
