@@ -27,7 +27,6 @@ from diagrams.stewart_run import pose_from_vector
 from systems.control.landing import Mode
 from systems.perception.seam import HEIGHT
 from systems.sensors.ground_truth import pose_vector
-from systems.vehicles.quadrotor import P_WB
 
 TARGET_TILT_DEG = 3.0  # issue 13: the deck's tilt at touchdown
 
@@ -152,7 +151,7 @@ def write_outputs(flight: DeckFlight, config: DeckLandingConfig, out_dir) -> Non
     """log.npz and the plots of a flight."""
     frames = {f"frame_{name}": values for name, values in flight.frames.items()}
     X_BC = config.X_BC.GetAsMatrix4()
-    write_npz(out_dir / "log.npz", **flight.log, **frames, X_BC=X_BC, p_WB=flight.log["quadrotor_state"][:, P_WB],
+    write_npz(out_dir / "log.npz", **flight.log, **frames, X_BC=X_BC,
               X_PT=flight.handles.platform.X_PT.GetAsMatrix4(), K=config.camera.K)
     plot_deck_landing(flight, config, out_dir)
     plot_perception(flight.log, config.perception.source, out_dir)

@@ -192,9 +192,8 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
     elif mode == Mode.ABORT:
         horizontal, vertical = tracking, config.climb_speed_m_s
     else:  # SEARCH
-        horizontal, vertical = tracking if rendezvous else _ZERO, towards(config.initial_height_m)
-        if not rendezvous:
-            acceleration = _ZERO
+        horizontal, acceleration = (tracking, acceleration) if rendezvous else (_ZERO, _ZERO)
+        vertical = towards(config.initial_height_m)
     if not seen and mode != Mode.LANDED:
         vertical = max(vertical, 0.0)  # never descend on an invalid estimate
     return np.array([horizontal[0], horizontal[1], vertical, math.radians(config.yaw_deg),
