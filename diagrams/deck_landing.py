@@ -80,7 +80,8 @@ def _add_estimators(builder: DiagramBuilder, config: DeckLandingConfig, color_im
     """The tag detector, ATDA and CRHF on the camera stream; CRHF's range track told the camera's own
     velocity (from the UAV's state, here the truth)."""
     detector = builder.AddNamedSystem("tag_detector", TagDetectorSystem(
-        config.platform.tag_id, config.camera.width, config.camera.height))
+        config.platform.tag_id, config.camera.width, config.camera.height,
+        (config.camera.K_estimated, config.camera.D_estimated)))
     builder.Connect(color_image, detector.get_input_port())
     atda = builder.AddNamedSystem("atda", AtdaEstimator(config.camera.K_estimated, config.platform.tag_size_m))
     crhf = builder.AddNamedSystem("crhf", CrhfEstimator(

@@ -109,7 +109,7 @@ def add_uav_sensors(builder: DiagramBuilder, scene_graph: SceneGraph, body_frame
     camera, noisy_camera = add_camera(builder, scene_graph, body_frame_id, camera_config, seed)
     tof = builder.AddSystem(TofSensors(tof_config, seed))
     for i, p_CS in enumerate(sensor_positions_C(tof_config.arm_m, tof_config.angle_deg)):
-        ray = builder.AddSystem(make_ray_sensor(body_frame_id, X_BC.multiply(RigidTransform(p_CS))))
+        ray = builder.AddSystem(make_ray_sensor(body_frame_id, X_BC.multiply(RigidTransform(p_CS)), tof_config))
         builder.Connect(scene_graph.get_query_output_port(), ray.query_object_input_port())
         builder.Connect(ray.depth_image_32F_output_port(), tof.get_input_port(i))
     return camera, noisy_camera, tof
@@ -153,7 +153,8 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
     for name in ("X_WB", "V_WB", "A_WB"):
         builder.Connect(body.GetOutputPort(name), imu.GetInputPort(name))
 
-    detector = builder.AddSystem(TagDetectorSystem(config.platform.tag_id, config.camera.width, config.camera.height))
+    detector = builder.AddSystem(TagDetectorSystem(config.platform.tag_id, config.camera.width, config.camera.height,
+                                                   (config.camera.K_estimated, config.camera.D_estimated)))
     builder.Connect(noisy_camera.get_output_port(), detector.get_input_port())
 
     truth = builder.AddSystem(RelativePose(X_BC))

@@ -7,7 +7,7 @@ import pytest
 from pydrake.systems.sensors import ImageRgba8U
 
 from systems.config import ConfigError
-from systems.perception.apriltag import AprilTagDetector
+from systems.perception.apriltag import AprilTagDetector, TagDetectorSystem
 from systems.platforms.stewart import TAG_ABOVE_DECK_M
 from systems.sensors.camera import CameraConfig, NoisyCamera, add_pixel_noise, image_to_numpy
 
@@ -60,6 +60,21 @@ def test_detected_corners_match_the_projected_true_corners(scene_name, request):
         assert np.ptp(sides) > 3.0 and np.linalg.norm(expected.mean(axis=0) - K_EQ10[:2, 2]) > 10.0
 
 
+@pytest.mark.parametrize("scene_name", ["hover_scene", "tilted_scene"])
+def test_one_threshold_window_finds_the_corners_opencvs_three_windows_find(scene_name, request):
+    scene = request.getfixturevalue(scene_name)
+    image = rendered(scene)
+    parameters = cv2.aruco.DetectorParameters()
+    parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    full = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), parameters)
+    corners, ids, _ = full.detectMarkers(cv2.cvtColor(image, cv2.COLOR_RGBA2GRAY))
+    assert parameters.adaptiveThreshWinSizeMin != parameters.adaptiveThreshWinSizeMax
+    assert ids is not None and ids.ravel().tolist() == [scene.config.platform.tag_id]
+    one_window = AprilTagDetector(scene.config.platform.tag_id).detect(image)
+    # The refinement starts from slightly different contour corners: within 0.02 px of each other.
+    np.testing.assert_allclose(one_window, corners[0].reshape(4, 2), atol=0.02)
+
+
 def test_the_lens_distorts_the_rendered_image_as_opencv_projects(tilted_scene, build_scene):
     # A strong lens (seed 001's, Table 1, moves these corners by a tenth of a pixel).
     distortion = [-0.4, 0.15, 0.01, -0.02, 0.0]
@@ -80,6 +95,19 @@ def test_the_lens_distorts_the_rendered_image_as_opencv_projects(tilted_scene, b
     # as close as the undistorted render's corners are to their projection, and far closer than the
     # lens moved them where it moved them most
     assert error.max() < 1.0 and moved.max() > 1.5 and np.all(error[moved > 1.5] < moved[moved > 1.5] / 3)
+    # The scene's detector knows the lens: its corners are back in the pinhole image. A model whose k1 is
+    # 0.1 off (a poor calibration) leaves them off by about f k1 r^3 (r: normalised radius).
+    undistorted = distorted.eval(distorted.handles.detector, "tag_detection", context).corners
+    pinhole = true_corners_px(tilted_scene)
+    assert np.linalg.norm(undistorted - pinhole, axis=1).max() < 1.0
+    wrong_model = TagDetectorSystem(config.platform.tag_id, 512, 512, (K_EQ10, np.array(distortion) + [0.1, 0, 0, 0, 0]))
+    wrong_context = wrong_model.CreateDefaultContext()
+    wrong_model.get_input_port().FixValue(wrong_context, distorted.handles.color_image.Eval(
+        distorted.handles.noisy_camera.GetMyContextFromRoot(context)))
+    shift = np.linalg.norm(wrong_model.GetOutputPort("tag_detection").Eval(wrong_context).corners - undistorted, axis=1)
+    radius = np.linalg.norm((pinhole - K_EQ10[:2, 2]) / 458.5, axis=1)
+    np.testing.assert_allclose(shift, 458.5 * 0.1 * radius**3, rtol=0.3)
+    assert shift.max() > 0.5
 
 
 def test_the_stewart_scene_tag_corner_model_agrees(tilted_scene):
@@ -147,6 +175,24 @@ def test_noise_has_the_requested_std(std):
     assert abs(np.corrcoef(diff[..., 0].ravel(), diff[..., 1].ravel())[0, 1]) < 0.05
 
 
+def test_sensor_noise_is_shot_noise_plus_read_noise():
+    # Poisson shot noise: a level v holds v / 255 of the full well, variance = electrons; read noise adds.
+    full_well, read = 4000.0, 8.0
+    gain = 255.0 / full_well
+    for level in (20, 200):
+        image = ImageRgba8U(128, 128)
+        image.mutable_data[...] = level
+        config = CameraConfig(width=128, height=128, cx=64, cy=64, full_well_e=full_well, read_noise_e=read)
+        camera = NoisyCamera(config, seed=3)
+        context = camera.CreateDefaultContext()
+        camera.get_input_port().FixValue(context, image)
+        diff = image_to_numpy(camera.get_output_port().Eval(context)).astype(float) - level
+        expected = np.sqrt(level * gain + (read * gain) ** 2)
+        assert np.std(diff[..., :3]) == pytest.approx(expected, rel=0.1)
+        np.testing.assert_array_equal(diff[..., 3], 0.0)
+    assert np.sqrt(200 * gain) > 2.5 * np.sqrt(20 * gain)  # the two levels' noise differs clearly
+
+
 def test_same_seed_and_time_give_identical_noise():
     _, a = noisy_output(3.0, 0.25, seed=1)
     _, b = noisy_output(3.0, 0.25, seed=1)
@@ -176,6 +222,8 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     ({"cx": 600.0}, "camera.cx"),
     ({"far_m": 0.01}, "camera.far_m"),
     ({"pixel_noise_std": -1.0}, "camera.pixel_noise_std"),
+    ({"full_well_e": -1.0}, "camera.full_well_e"),
+    ({"read_noise_e": 3.0}, "camera.read_noise_e needs camera.full_well_e"),
     ({"distortion": [0.1, 0.0]}, "camera.distortion needs 5 numbers"),
     ({"distortion": [-0.9, 0.0, 0.0, 0.0, 0.0]}, "camera.distortion folds the image"),
 ])

@@ -7,11 +7,12 @@ import math
 import numpy as np
 import pytest
 from pydrake.systems.sensors import ImageDepth32F
+from scipy.integrate import quad
 
 from diagrams.stewart_scene import StewartSceneConfig
 from systems.config import ConfigError
 from systems.platforms.stewart import TAG_ABOVE_DECK_M
-from systems.sensors.tof import TofConfig, TofSensors, apply_range_limits, sensor_positions_C
+from systems.sensors.tof import TofConfig, TofSensors, apply_range_limits, sensor_positions_C, view_intrinsics
 
 
 def test_sensor_positions_follow_eq_21_to_24():
@@ -103,12 +104,69 @@ def test_noise_has_the_configured_std_and_is_seeded():
     assert np.all(outputs(other, other_context, 7 * period)[0] - truth != errors[7])
 
 
+def cone_system(depth, seed=0, **config):
+    """TofSensors with a cone, every sensor's depth image set to `depth` (a function of the view's
+    normalised image coordinates x, y)."""
+    config = TofConfig(**config)
+    pixels, fov_deg = config.view
+    f, c = view_intrinsics(pixels, fov_deg)
+    x = (np.arange(pixels) - c) / f
+    image = ImageDepth32F(pixels, pixels)
+    image.mutable_data[..., 0] = depth(x[None, :], x[:, None])
+    tof = TofSensors(config, seed)
+    context = tof.CreateDefaultContext()
+    for i in range(4):
+        tof.get_input_port(i).FixValue(context, image)
+    return tof, context
+
+
+def test_a_cone_over_a_plane_square_to_its_axis_reads_the_power_weighted_mean_path():
+    # Off-axis angle theta over a plane h away: path h / cos(theta); the power a patch returns is its
+    # solid angle (cos^3 theta dA in the image plane) over the squared path, so the reading is
+    # h * integral(cos^4) / integral(cos^5) over the cone's disc tan(theta) <= tan(13.5 deg).
+    h, half = 2.0, math.radians(13.5)
+    tof, context = cone_system(lambda x, y: np.full(np.broadcast(x, y).shape, h), cone_deg=27.0)
+    ranges, valid, truth = outputs(tof, context)
+    cos = lambda r: 1.0 / math.sqrt(1.0 + r * r)
+    expected = h * quad(lambda r: cos(r) ** 4 * r, 0, math.tan(half))[0] / quad(
+        lambda r: cos(r) ** 5 * r, 0, math.tan(half))[0]
+    np.testing.assert_allclose(ranges, expected, rtol=2e-4)
+    np.testing.assert_array_equal(truth, h)
+    np.testing.assert_array_equal(valid, 1.0)
+    assert expected - h > 0.005  # the cone reads long: 7 mm at 2 m
+
+
+def test_a_cone_half_over_an_edge_reads_between_the_two_surfaces_nearer_the_near_one():
+    # Half the footprint on a deck 1 m away, half on the ground 2 m away: the near half returns 4 times
+    # the power per patch.
+    tof, context = cone_system(lambda x, y: np.where(x + 0 * y < 0, 1.0, 2.0), cone_deg=27.0)
+    ranges, _, truth = outputs(tof, context)
+    assert np.all((ranges > 1.1) & (ranges < 1.5)), ranges
+    np.testing.assert_array_equal(truth, 2.0)  # the axis pixel sees the ground
+
+
+def test_a_cone_that_sees_nothing_is_invalid():
+    tof, context = cone_system(lambda x, y: np.full(np.broadcast(x, y).shape, np.inf), cone_deg=27.0)
+    ranges, valid, _ = outputs(tof, context)
+    assert np.all(np.isnan(ranges)) and np.all(valid == 0)
+
+
+def test_range_noise_grows_with_range_and_the_bias_offsets_every_reading():
+    period, truth = 1.0 / 20.0, np.array([0.5, 1.0, 2.0, 3.0])
+    tof, context = tof_system(truth, noise_std_m=0.002, noise_std_per_m=0.004, bias_m=0.01)
+    errors = np.array([outputs(tof, context, k * period)[0] - truth for k in range(2000)])
+    np.testing.assert_allclose(np.mean(errors, axis=0), 0.01, atol=4 * 0.014 / math.sqrt(2000))
+    np.testing.assert_allclose(np.std(errors, axis=0), 0.002 + 0.004 * truth, rtol=0.06)
+
+
 @pytest.mark.parametrize("changes, field", [
     ({"max_range_m": 0.03}, "tof.max_range_m"),
     ({"max_range_m": 25.0}, "tof.max_range_m"),
     ({"noise_std_m": -0.1}, "tof.noise_std_m"),
     ({"rate_hz": 0.0}, "tof.rate_hz"),
     ({"arm_m": -0.1}, "tof.arm_m"),
+    ({"cone_deg": 120.0}, "tof.cone_deg"),
+    ({"noise_std_per_m": -0.01}, "tof.noise_std_per_m"),
 ])
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):

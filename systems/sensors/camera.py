@@ -40,16 +40,21 @@ class CalibrationErrorConfig:
     estimators know the renderer's K exactly). A chessboard calibration of a small camera typically
     leaves a few tenths of a per cent in the focal length and a few pixels in the principal point (the
     standard deviations OpenCV's calibrateCamera reports); seed 000 puts ATDA's 6.9 cm of z error
-    (Table 5) down to imperfect calibration: about 3.4 % of focal length at 2 m."""
+    (Table 5) down to imperfect calibration: about 3.4 % of focal length at 2 m. `k1`, `k2`: the
+    radial distortion the estimators assume minus the lens's (`camera.distortion`)."""
 
     fx_pct: float = 0.0
     fy_pct: float = 0.0
     cx_px: float = 0.0
     cy_px: float = 0.0
+    k1: float = 0.0
+    k2: float = 0.0
 
     def validate(self, prefix: str = "camera.calibration_error") -> None:
         for name in ("fx_pct", "fy_pct"):
             require(abs(getattr(self, name)) < 50, f"{prefix}.{name} must be within +-50 %")
+        for name in ("k1", "k2"):
+            require(abs(getattr(self, name)) < 1, f"{prefix}.{name} must be within +-1")
 
 
 @dataclass
@@ -64,6 +69,10 @@ class CameraConfig:
     cy: float = 252.308
     rate_hz: float = 20.0  # seed 000 section 3: 50 ms simulation step
     pixel_noise_std: float = 0.0  # std of additive Gaussian noise per channel, 8-bit levels
+    # A sensor's own noise (issue 13), 0 for none: the electrons a pixel holds at level 255 (shot
+    # noise grows with the square root of the signal) and the read noise in electrons.
+    full_well_e: float = 0.0
+    read_noise_e: float = 0.0
     near_m: float = 0.05
     far_m: float = 50.0
     # Camera frame C in the body frame B: below the body, optical axis down (+z_C = -z_B),
@@ -84,6 +93,10 @@ class CameraConfig:
         require(0 < self.cy < self.height, f"{prefix}.cy must lie inside the image (0 < cy < height)")
         require(self.far_m > self.near_m, f"{prefix}.far_m must exceed {prefix}.near_m")
         require(self.pixel_noise_std >= 0, f"{prefix}.pixel_noise_std must not be negative")
+        require(self.full_well_e >= 0, f"{prefix}.full_well_e must not be negative")
+        require(self.read_noise_e >= 0, f"{prefix}.read_noise_e must not be negative")
+        require(self.read_noise_e == 0 or self.full_well_e > 0,
+                f"{prefix}.read_noise_e needs {prefix}.full_well_e (the electrons at level 255) to convert it")
         require(len(self.mount_xyz_m) == 3, f"{prefix}.mount_xyz_m needs 3 numbers")
         require(len(self.distortion) == 5, f"{prefix}.distortion needs 5 numbers [k1, k2, p1, p2, k3]")
         self.calibration_error.validate(f"{prefix}.calibration_error")
@@ -110,6 +123,12 @@ class CameraConfig:
         e = self.calibration_error
         return np.array([[self.fx * (1 + e.fx_pct / 100), 0.0, self.cx + e.cx_px],
                          [0.0, self.fy * (1 + e.fy_pct / 100), self.cy + e.cy_px], [0.0, 0.0, 1.0]])
+
+    @property
+    def D_estimated(self) -> np.ndarray:
+        """The distortion coefficients the estimators are given: D with `calibration_error`'s k1, k2."""
+        e = self.calibration_error
+        return self.D + [e.k1, e.k2, 0.0, 0.0, 0.0]
 
     @property
     def X_BC(self) -> RigidTransform:
@@ -182,24 +201,42 @@ def image_to_numpy(image) -> np.ndarray:
     return image.data
 
 
-# Standard normal quantiles at 65536 equiprobable levels: indexing this table with uniform 16-bit
-# integers draws Gaussian noise (tails cut at 4.3 sigma) faster than Generator.standard_normal,
-# which matters at 512x512x3 samples per frame (docs/results.md).
-_NORMAL_QUANTILES = norm.ppf((np.arange(65536) + 0.5) / 65536).astype(np.float32)
+# The standard normal at 256 equiprobable quantiles, scaled to unit variance (tails cut at 2.9 sigma):
+# a random byte through cv2.LUT draws one Gaussian sample, the cheapest way found to noise 512x512x3
+# values per frame (docs/results.md). Alpha's column is zero, so alpha is never touched.
+_Z = norm.ppf((np.arange(256) + 0.5) / 256)
+_Z_RGB = np.zeros((1, 256, 4), np.float32)
+_Z_RGB[0, :, :3] = (_Z / _Z.std())[:, None]
 
 
-def add_pixel_noise(rgba: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
-    """RGBA uint8 image plus zero-mean Gaussian noise of `std` levels on R, G, B (rounded and
-    saturated to 0-255); alpha untouched."""
-    noise = _NORMAL_QUANTILES[rng.integers(0, 65536, rgba.shape, dtype=np.uint16)]
-    noise *= np.float32(std)
-    noise[..., 3] = 0.0
+def noise_std_by_level(config: CameraConfig) -> np.ndarray:
+    """The noise std (8-bit levels) of a pixel at each of the 256 levels: the flat `pixel_noise_std`
+    plus, when `full_well_e` is set, photon shot noise (Poisson: variance = the electrons collected, a
+    level v holding v / 255 of the full well) and read noise, each converted at 255 / full_well_e levels
+    per electron; the three add in variance."""
+    variance = np.full(256, config.pixel_noise_std**2)
+    if config.full_well_e > 0:
+        gain = 255.0 / config.full_well_e  # levels per electron
+        variance += np.arange(256) * gain + (config.read_noise_e * gain) ** 2
+    return np.sqrt(variance)
+
+
+def add_pixel_noise(rgba: np.ndarray, std, rng: np.random.Generator) -> np.ndarray:
+    """RGBA uint8 image plus zero-mean Gaussian noise on R, G, B (rounded and saturated to 0-255); alpha
+    untouched. `std` (8-bit levels) is one number, or 256 numbers: the std at each pixel level."""
+    words = -(-rgba.size // 8)
+    draws = rng.bit_generator.random_raw(words).view(np.uint8)[:rgba.size].reshape(rgba.shape)
+    if np.ndim(std) == 0:
+        return cv2.add(rgba, cv2.LUT(draws, _Z_RGB * np.float32(std)), dtype=cv2.CV_8U)
+    level_std = np.zeros((1, 256, 4), np.float32)
+    level_std[0, :, :3] = np.asarray(std, np.float32)[:, None]
+    noise = cv2.multiply(cv2.LUT(draws, _Z_RGB), cv2.LUT(rgba, level_std))
     return cv2.add(rgba, noise, dtype=cv2.CV_8U)
 
 
 class NoisyCamera(LeafSystem):
     """The lens and the sensor: the rendered pinhole image distorted by `config.distortion`
-    (cv2.remap) and given seeded pixel noise; black within `config.blackouts_s`.
+    (cv2.remap) and given seeded pixel noise (`noise_std_by_level`); black within `config.blackouts_s`.
 
     Input `rendered_image` and output `color_image` are ImageRgba8U. The output is a pure function
     of the time's frame index, so it is computed (and the scene rendered) only when a consumer
@@ -208,7 +245,8 @@ class NoisyCamera(LeafSystem):
 
     def __init__(self, config: CameraConfig, seed: int = 0):
         super().__init__()
-        self._std, self._period, self._seed = config.pixel_noise_std, config.period_s, seed
+        self._std = noise_std_by_level(config) if config.full_well_e > 0 else config.pixel_noise_std
+        self._period, self._seed = config.period_s, seed
         self._maps = distortion_maps(config) if any(config.distortion) else None
         self._blackouts = [tuple(interval) for interval in config.blackouts_s]
         blank = ImageRgba8U(config.width, config.height)
@@ -222,13 +260,14 @@ class NoisyCamera(LeafSystem):
             output.get_mutable_value().mutable_data[..., 3] = 255
             return
         rendered = self.get_input_port().Eval(context)
-        if self._std == 0 and self._maps is None:
+        noisy = np.any(self._std)
+        if not noisy and self._maps is None:
             output.set_value(rendered)
             return
         image = image_to_numpy(rendered)
         if self._maps is not None:
             image = cv2.remap(image, *self._maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        if self._std > 0:
+        if noisy:
             k = sample_index(context.get_time(), self._period)
             image = add_pixel_noise(image, self._std, sample_rng(self._seed, "camera_pixels", k))
         output.get_mutable_value().mutable_data[:] = image

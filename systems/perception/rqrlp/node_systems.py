@@ -42,14 +42,14 @@ def first(measurements: list) -> NodeMeasurement | None:
 
 
 def approach_node(grey: np.ndarray, time: float, camera: CameraConfig, layout: RqrlpLayout) -> NodeMeasurement | None:
-    found = approach(grey, camera.K_estimated, camera.D, layout)
+    found = approach(grey, camera.K_estimated, camera.D_estimated, layout)
     return None if found is None else approach_measurement(found.p_CP, found.side_px, time,
                                                            float(np.sqrt(camera.fx * camera.fy)))
 
 
 def adjustment_node(grey: np.ndarray, time: float, camera: CameraConfig,
                     layout: RqrlpLayout) -> NodeMeasurement | None:
-    found = adjustment(grey, camera.K_estimated, camera.D, layout)
+    found = adjustment(grey, camera.K_estimated, camera.D_estimated, layout)
     return None if found is None else adjustment_measurement(found.X_CP, layout_corners(layout),
                                                              found.rms_residual_px, time, camera.X_BC, camera.K_estimated)
 
@@ -104,7 +104,7 @@ class TouchdownNode(LeafSystem):
         self._image = self.DeclareAbstractInputPort("color_image",
                                                     AbstractValue.Make(ImageRgba8U(camera.width, camera.height)))
         self._anchor = self.DeclareAbstractInputPort("anchor", AbstractValue.Make([]))
-        initial = TouchdownStep(tracker=TouchdownTracker(camera.K_estimated, camera.D, layout))
+        initial = TouchdownStep(tracker=TouchdownTracker(camera.K_estimated, camera.D_estimated, layout))
         self._now = SteppedValue(self, "touchdown", initial, camera.period_s, self._step, lambda s: s.time).now
         self.DeclareAbstractOutputPort("measurement", lambda: AbstractValue.Make([]),
                                        lambda c, o: o.set_value(as_list(self._now.Eval(c).measurement)),
