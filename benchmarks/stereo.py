@@ -1,0 +1,172 @@
+"""Seed 003's stereo altitude on the rendered MYNT EYE pair over textured ground (issue 12 part 2).
+
+    .venv/bin/python benchmarks/stereo.py [--noise 2.0] [--frames 10] [--step 0.1] [--json FILE]
+
+1. Per-frame cost (ms, median over `--frames` frames at 3 m): each eye's render, each eye's pixel noise,
+   SGBM on the window's crop (what StereoAltimeter runs) and on the whole 752 x 480 frame (for scale), the
+   rest (grey conversion, Eq. 11-12, one Kalman step).
+2. The raw altitude's error against the true height at 0.7, 1, 2, 3, 5 and 8 m (Figure 16's heights), and
+   the largest error over a sweep of 0.7-8 m in `--step` steps: Figure 16's bounds are < 0.2 m in 0.7-3 m
+   and < 1 m in 3-8 m. Heights whose disparity (42 / Z px) is a whole number are an exact pixel shift of a
+   rendered pair (1, 2, 3 m): the sweep shows the error between them.
+Prints PASS/FAIL against Figure 16; never a timed assertion in a test.
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from pydrake.math import RigidTransform
+
+from diagrams.stereo_hover import StereoHoverConfig, build_stereo_hover
+from systems.estimators.altitude_kf import AltitudeKfConfig, AltitudeKfState, altitude_kf_step
+from systems.perception.stereo_depth import (
+    depth_from_disparity,
+    disparity,
+    to_gray,
+    window_altitude,
+)
+from systems.sensors.camera import image_to_numpy
+
+TABLE_HEIGHTS = (0.7, 1.0, 2.0, 3.0, 5.0, 8.0)
+
+
+def bound(height: float) -> float:
+    """Figure 16: error < 0.2 m up to 3 m, < 1 m up to 8 m."""
+    return 0.2 if height <= 3.0 else 1.0
+
+
+class Bench:
+    def __init__(self, noise: float):
+        config = StereoHoverConfig()
+        config.stereo.pixel_noise_std = noise
+        self.config = config
+        self.diagram, self.handles = build_stereo_hover(config)
+        self.context = self.diagram.CreateDefaultContext()
+        self.estimator = self.handles.altimeter.estimator
+        self.frame = 0
+
+    def place(self, height: float) -> None:
+        """The left eye `height` above the ground, level, at a new place and frame time (a fresh render)."""
+        self.frame += 1
+        self.context.SetTime(self.frame * self.config.stereo.period_s)
+        x = 0.37 * self.frame % 3.0
+        self.handles.fix_X_WB(self.diagram, self.context,
+                              RigidTransform([x, -0.5, height - self.config.stereo.mount_xyz_m[2]]))
+
+    def images(self, timings: dict | None = None):
+        pair, out = self.handles.pair, []
+        for eye, sensor, noisy in (("left", pair.left_sensor, pair.left), ("right", pair.right_sensor, pair.right)):
+            t0 = time.perf_counter()
+            sensor.color_image_output_port().Eval(sensor.GetMyContextFromRoot(self.context))
+            t1 = time.perf_counter()
+            out.append(image_to_numpy(noisy.get_output_port().Eval(noisy.GetMyContextFromRoot(self.context))))
+            t2 = time.perf_counter()
+            if timings is not None:
+                timings.setdefault(f"render_{eye}", []).append(1e3 * (t1 - t0))
+                timings.setdefault(f"noise_{eye}", []).append(1e3 * (t2 - t1))
+        return out
+
+    def altitude(self, height: float) -> tuple[float, bool, float]:
+        self.place(height)
+        result = self.estimator.estimate(*self.images())
+        return result.altitude_m, result.valid, result.valid_fraction
+
+
+def costs(bench: Bench, frames: int) -> dict:
+    timings: dict = {}
+    est, kf = bench.estimator, AltitudeKfConfig()
+    state = AltitudeKfState()
+    for k in range(frames + 1):
+        bench.place(3.0)
+        left, right = bench.images(timings if k else None)  # the first frame loads the texture
+        t0 = time.perf_counter()
+        gl, gr = to_gray(left), to_gray(right)
+        rows, cols = est.crop
+        gl_crop, gr_crop = np.ascontiguousarray(gl[rows, cols]), np.ascontiguousarray(gr[rows, cols])
+        t1 = time.perf_counter()
+        d = disparity(gl_crop, gr_crop, est.matcher)
+        t2 = time.perf_counter()
+        depth = depth_from_disparity(est.window_of(d), est.camera.focal_length_px, est.camera.baseline_m)
+        z, valid, _ = window_altitude(depth, est.config.min_valid_fraction, est.config.estimator)
+        state = altitude_kf_step(state, z, valid, k * bench.config.stereo.period_s, kf)
+        t3 = time.perf_counter()
+        disparity(gl, gr, est.matcher)
+        t4 = time.perf_counter()
+        if k:
+            timings.setdefault("sgbm_window_crop", []).append(1e3 * (t2 - t1))
+            timings.setdefault("rest", []).append(1e3 * ((t1 - t0) + (t3 - t2)))
+            timings.setdefault("sgbm_full_frame", []).append(1e3 * (t4 - t3))
+    return {name: float(np.median(values)) for name, values in timings.items()}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--noise", type=float, default=2.0, help="pixel noise std per eye, 8-bit levels")
+    parser.add_argument("--frames", type=int, default=10, help="frames timed at 3 m")
+    parser.add_argument("--step", type=float, default=0.1, help="sweep step (m); 0 skips the sweep")
+    parser.add_argument("--json", type=Path, help="write the figures here")
+    args = parser.parse_args()
+
+    t0 = time.perf_counter()
+    bench = Bench(args.noise)
+    build_s = time.perf_counter() - t0
+    print(f"stereo pair {bench.config.stereo.width} x {bench.config.stereo.height}, f "
+          f"{bench.config.stereo.focal_length_px:.1f} px, baseline {bench.config.stereo.baseline_m} m, "
+          f"SGBM numDisparities {bench.estimator.num_disparities}, block {bench.estimator.config.block_size}, "
+          f"window {bench.estimator.config.window_rows} x {bench.estimator.config.window_cols}, "
+          f"crop {bench.estimator.crop[0].stop - bench.estimator.crop[0].start} x "
+          f"{bench.estimator.crop[1].stop - bench.estimator.crop[1].start} px, pixel noise {args.noise} levels; "
+          f"build {build_s:.2f} s")
+
+    per_frame = costs(bench, args.frames)
+    print("\nper-frame cost (median ms):")
+    for name in ("render_left", "render_right", "noise_left", "noise_right", "sgbm_window_crop", "rest",
+                 "sgbm_full_frame"):
+        print(f"  {name:18s} {per_frame[name]:8.2f}")
+    altimeter = per_frame["sgbm_window_crop"] + per_frame["rest"]
+    print(f"  the altimeter (crop SGBM + rest) {altimeter:.2f} ms; with the renders and noise "
+          f"{altimeter + sum(per_frame[k] for k in per_frame if k.startswith(('render', 'noise'))):.1f} ms")
+
+    print("\nraw altitude error (Eq. 11-12) against the true height:")
+    print("  height m   disparity px   altitude m   error m   valid px   Figure 16")
+    table, ok = [], True
+    for height in TABLE_HEIGHTS:
+        altitude, valid, fraction = bench.altitude(height)
+        error = altitude - height
+        passed = valid and abs(error) < bound(height)
+        ok &= passed
+        table.append({"height_m": height, "altitude_m": altitude, "error_m": error, "valid": valid,
+                      "valid_fraction": fraction})
+        print(f"  {height:8.2f}   {42.0 / height:12.2f}   {altitude:10.3f}   {error:+7.3f}   {fraction:8.2f}   "
+              f"< {bound(height):.1f} {'PASS' if passed else 'FAIL'}")
+
+    sweep = {}
+    if args.step > 0:
+        heights = np.round(np.arange(0.7, 8.0 + 1e-9, args.step), 6)
+        results = [bench.altitude(h) for h in heights]
+        errors = np.array([a - h if v else np.inf for h, (a, v, _) in zip(heights, results)])
+        for name, band in (("0.7-3 m", heights <= 3.0), ("3-8 m", heights > 3.0)):
+            worst = float(np.abs(errors[band]).max())
+            rms = float(np.sqrt(np.mean(errors[band] ** 2)))
+            limit = 0.2 if name == "0.7-3 m" else 1.0
+            ok &= worst < limit
+            sweep[name] = {"max_abs_error_m": worst, "rms_error_m": rms, "heights": int(band.sum())}
+            print(f"  sweep {name} ({band.sum()} heights, step {args.step} m): max |error| {worst:.3f} m, "
+                  f"rms {rms:.3f} m  (< {limit:.1f}: {'PASS' if worst < limit else 'FAIL'})")
+        scale = float(np.sqrt(np.mean((errors / heights**2) ** 2)))
+        sweep["rms_error_over_Z2"] = scale
+        print(f"  rms of error / Z^2 over the sweep: {scale:.4f} 1/m (the filter's measurement_std_per_m2)")
+
+    print(f"\nFigure 16 bounds: {'PASS' if ok else 'FAIL'}")
+    if args.json:
+        args.json.write_text(json.dumps({"per_frame_ms": per_frame, "table": table, "sweep": sweep,
+                                         "noise": args.noise, "pass": bool(ok)}, indent=2))
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,100 @@
+"""A stereo pair over textured ground: seed 003's downward MYNT EYE on the airframe, a flat ground with a
+random corner-rich texture (models/ground_texture.py), the stereo altimeter and the altitude filter.
+
+The body pose is the diagram's input `X_WB` (fix it per case, or connect a flight), so one built diagram
+serves every height:
+
+    diagram, handles = build_stereo_hover()
+    context = diagram.CreateDefaultContext()
+    handles.fix_X_WB(context, RigidTransform([0, 0, 3.0]))
+    handles.altimeter.GetOutputPort("altitude").Eval(handles.altimeter.GetMyContextFromRoot(context))
+"""
+
+from dataclasses import dataclass, field
+
+from pydrake.geometry import Mesh, SceneGraph
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import Diagram, DiagramBuilder
+
+from models.ground_texture import ground_texture_mesh
+from systems.config import require
+from systems.estimators.altitude_kf import AltitudeFilterSystem, AltitudeKfConfig
+from systems.geometry import register_visual
+from systems.perception.stereo_depth import StereoAltimeter, StereoDepthConfig
+from systems.sensors.camera import add_renderer
+from systems.sensors.stereo import StereoConfig, StereoPair, add_stereo_pair
+from systems.vehicles.airframe import AirframeConfig, AirframeGeometry
+
+
+@dataclass
+class GroundConfig:
+    """The textured ground: a square of `size_m` in z = 0 centred on the world origin."""
+
+    size_m: float = 20.0  # wider than the 17.2 x 11 m an image covers from 8 m
+    texture_seed: int = 0
+    texture_pixels: int = 4096  # 4.9 mm per texel over 20 m: the finest squares (2 texels) are 4.9 px at 0.7 m
+
+    def validate(self, prefix: str = "ground") -> None:
+        require(self.size_m > 0, f"{prefix}.size_m must be positive, got {self.size_m}")
+        require(64 <= self.texture_pixels <= 8192, f"{prefix}.texture_pixels must lie in 64..8192")
+
+
+@dataclass
+class StereoHoverConfig:
+    seed: int = 0
+    stereo: StereoConfig = field(default_factory=StereoConfig)
+    depth: StereoDepthConfig = field(default_factory=StereoDepthConfig)
+    altitude_kf: AltitudeKfConfig = field(default_factory=AltitudeKfConfig)
+    ground: GroundConfig = field(default_factory=GroundConfig)
+    uav: AirframeConfig = field(default_factory=AirframeConfig)
+
+    def validate(self) -> None:
+        self.stereo.validate("stereo")
+        self.depth.validate("depth", self.stereo)
+        self.altitude_kf.validate("altitude_kf")
+        self.ground.validate("ground")
+        self.uav.validate("uav")
+
+
+@dataclass
+class StereoHoverHandles:
+    scene_graph: SceneGraph
+    airframe: AirframeGeometry
+    pair: StereoPair
+    altimeter: StereoAltimeter
+    altitude_filter: AltitudeFilterSystem
+    X_WB_input_index: int
+
+    def fix_X_WB(self, diagram: Diagram, context, X_WB: RigidTransform) -> None:
+        """Holds the body at X_WB in this (root) context."""
+        diagram.get_input_port(self.X_WB_input_index).FixValue(context, X_WB)
+
+
+def add_textured_ground(scene_graph: SceneGraph, config: GroundConfig) -> None:
+    """The ground quad with its texture, seen by the cameras, in z = 0."""
+    source = scene_graph.RegisterSource("textured_ground")
+    mesh = ground_texture_mesh(config.texture_seed, config.texture_pixels)
+    register_visual(scene_graph, source, scene_graph.world_frame_id(), RigidTransform(), Mesh(str(mesh), config.size_m), "textured_ground",
+                    rgba=None)
+
+
+def build_stereo_hover(config: StereoHoverConfig | None = None) -> tuple[Diagram, StereoHoverHandles]:
+    """The scene, the pair, the altimeter on its images and the filter on the altimeter."""
+    config = config or StereoHoverConfig()
+    config.validate()
+    builder = DiagramBuilder()
+    scene_graph = builder.AddSystem(SceneGraph())
+    add_renderer(scene_graph)
+    add_textured_ground(scene_graph, config.ground)
+    airframe = builder.AddSystem(AirframeGeometry(config.uav, scene_graph))
+    builder.Connect(airframe.get_output_port(), scene_graph.get_source_pose_port(airframe.source_id))
+    X_WB_input_index = builder.ExportInput(airframe.get_input_port(), "X_WB")
+    pair = add_stereo_pair(builder, scene_graph, airframe.body_frame_id, config.stereo, config.seed)
+    altimeter = builder.AddSystem(StereoAltimeter(config.stereo, config.depth))
+    builder.Connect(pair.left_image, altimeter.GetInputPort("left_image"))
+    builder.Connect(pair.right_image, altimeter.GetInputPort("right_image"))
+    altitude_filter = builder.AddSystem(AltitudeFilterSystem(config.altitude_kf, config.stereo.period_s))
+    builder.Connect(altimeter.GetOutputPort("altitude"), altitude_filter.GetInputPort("altitude"))
+    builder.Connect(altimeter.GetOutputPort("altitude_valid"), altitude_filter.GetInputPort("altitude_valid"))
+    diagram = builder.Build()
+    return diagram, StereoHoverHandles(scene_graph, airframe, pair, altimeter, altitude_filter, X_WB_input_index)

@@ -1,0 +1,157 @@
+"""Seed 003's altitude Kalman filter (section 2.2.2, Eq. 13-14) on the stereo altimeter's raw altitude.
+
+The paper's model, per camera frame k:
+    x_k = A x_{k-1} + w_k      (Eq. 13)   x = [d, Delta d]: the depth and its change per frame, A = [1, 1; 0, 1]
+    z_k = H x_k + v_k          (Eq. 14)   z = [Z, Delta Z]: the measured altitude and its change, H = [1, 0; 0, 1]
+with w, v white Gaussian noise N(0, xi). Here the change is carried as a rate (m/s): x = [d, d_dot] with
+A = [1, T; 0, 1] and z = [Z_k, (Z_k - Z_{k-1}) / T], the same filter with Delta d = d_dot T, so the
+period T may be any camera rate and a coasted gap of several frames is one prediction.
+
+The paper gives no value for xi. Q is the discrete white-noise-acceleration model of `accel_std_mps2`
+(a vertical acceleration the airframe does not report); R follows stereo's error growth,
+sigma_Z = measurement_std_m + measurement_std_per_m2 * Z^2 (sigma_Z = Z^2 sigma_d / (f T_x)), and the
+measured change's noise follows from it: var(Delta Z / T) = 2 sigma_Z^2 / T^2, cov(Z, Delta Z / T) = sigma_Z^2 / T.
+Without the previous frame's measurement, only Z is used (H = [1, 0]).
+
+Invalid input: the filter predicts (coasts); it turns invalid when `max_coast_s` has passed since the
+last measurement it used, and the next valid measurement starts it afresh. Before its first
+measurement, and when invalid, its outputs are NaN with valid 0.
+"""
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from systems.config import require, require_non_negative, require_positive
+from systems.stepped import SteppedValue
+
+
+@dataclass
+class AltitudeKfConfig:
+    """Noise (m, m/s^2) and coasting (s). The paper gives Eq. 13-14's form, not its noise (xi)."""
+
+    accel_std_mps2: float = 1.0  # process noise: white vertical acceleration
+    measurement_std_m: float = 0.01  # sigma_Z = measurement_std_m + measurement_std_per_m2 * Z^2
+    measurement_std_per_m2: float = 0.004  # the raw altitude's rms error over 0.7-8 m: 0.0035 Z^2 (benchmarks/stereo.py)
+    initial_speed_std_mps: float = 1.0  # the speed is unknown at the first measurement
+    use_rate_measurement: bool = True  # Eq. 14's H = I: the measured change Delta Z is a measurement too
+    max_coast_s: float = 0.5  # invalid after this long without a measurement
+
+    def validate(self, prefix: str = "altitude_kf") -> None:
+        require_positive(self.accel_std_mps2, f"{prefix}.accel_std_mps2")
+        require_non_negative(self.measurement_std_per_m2, f"{prefix}.measurement_std_per_m2")
+        require(self.measurement_std_m > 0 or self.measurement_std_per_m2 > 0,
+                f"{prefix}: measurement_std_m and measurement_std_per_m2 cannot both be zero")
+        require_non_negative(self.measurement_std_m, f"{prefix}.measurement_std_m")
+        require_positive(self.initial_speed_std_mps, f"{prefix}.initial_speed_std_mps")
+        require_non_negative(self.max_coast_s, f"{prefix}.max_coast_s")
+
+    def measurement_std(self, altitude_m: float) -> float:
+        return self.measurement_std_m + self.measurement_std_per_m2 * altitude_m**2
+
+
+@dataclass
+class AltitudeKfState:
+    """x = [altitude d (m), its rate d_dot (m/s)], covariance P; `time` of the last step (None before
+    the first); `last_measurement` the previous step's altitude measurement (None when that step had
+    none); `coast_s` time since the last measurement used; `valid`."""
+
+    x: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    P: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
+    time: float | None = None
+    last_measurement: float | None = None
+    coast_s: float = math.inf
+    valid: bool = False
+
+
+def transition(T: float) -> np.ndarray:
+    """Eq. 13's A for a step of T seconds, the depth's change carried as a rate: [1, T; 0, 1]."""
+    return np.array([[1.0, T], [0.0, 1.0]])
+
+
+def process_noise(T: float, accel_std: float) -> np.ndarray:
+    """Eq. 13's w covariance: a white acceleration of std `accel_std` held over the step."""
+    return accel_std**2 * np.array([[T**4 / 4, T**3 / 2], [T**3 / 2, T**2]])
+
+
+def predict(x: np.ndarray, P: np.ndarray, T: float, config: AltitudeKfConfig) -> tuple[np.ndarray, np.ndarray]:
+    A = transition(T)
+    return A @ x, A @ P @ A.T + process_noise(T, config.accel_std_mps2)
+
+
+def measurement(z: float, previous: float | None, T: float,
+                config: AltitudeKfConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. 14's (z, H, R): [Z, Delta Z / T] with H = I when the previous step measured, else [Z], H = [1, 0]."""
+    var = config.measurement_std(z) ** 2
+    if config.use_rate_measurement and previous is not None and T > 0:
+        return (np.array([z, (z - previous) / T]), np.eye(2),
+                np.array([[var, var / T], [var / T, 2 * var / T**2]]))
+    return np.array([z]), np.array([[1.0, 0.0]]), np.array([[var]])
+
+
+def altitude_kf_step(state: AltitudeKfState, z: float, z_valid: bool, t: float,
+                     config: AltitudeKfConfig) -> AltitudeKfState:
+    """The filter after the frame at time t (s) with raw altitude z (m) and its flag; `state` unchanged.
+
+    A valid finite z updates the prediction (or starts the filter when it is not valid); otherwise the
+    filter coasts on its prediction and turns invalid once `config.max_coast_s` has passed."""
+    has_z = bool(z_valid) and math.isfinite(z)
+    T = 0.0 if state.time is None else t - state.time
+    if not state.valid:
+        if not has_z:
+            return AltitudeKfState(time=t)
+        P0 = np.diag([config.measurement_std(z) ** 2, config.initial_speed_std_mps**2])
+        return AltitudeKfState(np.array([z, 0.0]), P0, t, z, 0.0, True)
+    x, P = predict(state.x, state.P, T, config)
+    if not has_z:
+        coast = state.coast_s + T
+        if coast > config.max_coast_s:
+            return AltitudeKfState(time=t)
+        return AltitudeKfState(x, P, t, None, coast, True)
+    zv, H, R = measurement(z, state.last_measurement, T, config)
+    S = H @ P @ H.T + R
+    K = np.linalg.solve(S, H @ P).T
+    x = x + K @ (zv - H @ x)
+    I_KH = np.eye(2) - K @ H
+    P = I_KH @ P @ I_KH.T + K @ R @ K.T  # Joseph form: stays symmetric positive definite
+    return AltitudeKfState(x, P, t, z, 0.0, True)
+
+
+class AltitudeFilterSystem(LeafSystem):
+    """The altitude filter stepped at the camera rate (period_s).
+
+    Inputs `altitude` (1, m) and `altitude_valid` (1: > 0.5 is valid), read at the steps (the
+    StereoAltimeter's outputs, so the images render at the camera rate). Outputs `altitude` (1, m) and
+    `vertical_speed` (1, m/s, the altitude's rate: negative descending), predicted from the last step
+    to the context's time, and `valid` (1: 1.0 or 0.0); NaN altitude and speed when not valid. At a
+    step time the outputs include that step (`SteppedValue`)."""
+
+    def __init__(self, config: AltitudeKfConfig | None = None, period_s: float = 1.0 / 60.0):
+        super().__init__()
+        self.config = config or AltitudeKfConfig()
+        self.config.validate()
+        require_positive(period_s, "altitude filter period_s")
+        self._altitude = self.DeclareVectorInputPort("altitude", 1)
+        self._valid = self.DeclareVectorInputPort("altitude_valid", 1)
+        self._stepped = SteppedValue(self, "altitude_kf", AltitudeKfState(), period_s, self._step, lambda s: s.time)
+        tickets = {self._stepped.now.ticket()}
+        self.DeclareVectorOutputPort("altitude", 1, lambda c, o: o.SetAtIndex(0, self._predicted(c)[0]), tickets)
+        self.DeclareVectorOutputPort("vertical_speed", 1, lambda c, o: o.SetAtIndex(0, self._predicted(c)[1]),
+                                     tickets)
+        self.DeclareVectorOutputPort("valid", 1, lambda c, o: o.SetAtIndex(0, float(self.state(c).valid)), tickets)
+
+    def state(self, context) -> AltitudeKfState:
+        """The filter after its last step at or before the context's time."""
+        return self._stepped.now.Eval(context)
+
+    def _step(self, context, state: AltitudeKfState) -> AltitudeKfState:
+        z = float(self._altitude.Eval(context)[0])
+        return altitude_kf_step(state, z, self._valid.Eval(context)[0] > 0.5, context.get_time(), self.config)
+
+    def _predicted(self, context) -> np.ndarray:
+        s = self.state(context)
+        if not s.valid:
+            return np.full(2, np.nan)
+        return transition(context.get_time() - s.time) @ s.x

@@ -1,0 +1,207 @@
+"""The fisheye camera (seed 003 section 2.1): the analytic model against cv2.fisheye, the face layout's
+coverage, the composition on analytic face images, and rendered markers against
+cv2.fisheye.projectPoints (the scene: diagrams/fisheye_markers.py)."""
+
+import cv2
+import numpy as np
+import pytest
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.systems.sensors import ImageRgba8U
+
+from diagrams.fisheye_markers import BACKGROUND, MarkerScene, blob_centroids, marker_points_C, projection_errors
+from systems.config import ConfigError
+from systems.sensors.fisheye import (
+    BLACK,
+    FACE_MARGIN_PX,
+    FisheyeCamera,
+    FisheyeConfig,
+    fisheye_layout,
+    in_field_of_view,
+    pixel_rays,
+    project_points,
+    rectified_K,
+    rectify_maps,
+)
+
+# Tolerances from measurement (benchmarks/fisheye.py, default config): mean 0.059 px, max 0.182 px (at
+# 74 deg, where the 75 deg rim clips the blob); forgetting Drake's half-pixel offset gives mean 0.49 px.
+MEAN_TOLERANCE_PX = 0.25
+MAX_TOLERANCE_PX = 0.5
+
+
+def synthetic_face_images(layout) -> list[np.ndarray]:
+    """Face images painted from a smooth function of the ray's direction in C (`direction_colour`)."""
+    images = []
+    for face in layout.faces:
+        u, v = np.meshgrid(np.arange(face.width, dtype=float), np.arange(face.height, dtype=float))
+        rays_F = np.stack([(u - face.cx) / face.focal_px, (v - face.cy) / face.focal_px, np.ones_like(u)], axis=-1)
+        rays_C = rays_F @ face.R_CF.matrix().T
+        images.append(direction_colour(rays_C / np.linalg.norm(rays_C, axis=-1, keepdims=True)))
+    return images
+
+
+def direction_colour(rays: np.ndarray) -> np.ndarray:
+    """RGBA uint8 of unit rays (..., 3): each channel linear in one component."""
+    rgb = np.clip(np.rint(127.5 + 120.0 * rays), 0, 255)
+    return np.concatenate([rgb, np.full(rgb.shape[:-1] + (1,), 255.0)], axis=-1).astype(np.uint8)
+
+
+# ---------------------------------------------------------------- the model
+
+
+def test_default_intrinsics_fit_150_deg_into_512_px():
+    config = FisheyeConfig()
+    config.validate()
+    assert (config.width, config.height, config.fov_deg) == (512, 512, 150.0)
+    # r = f theta (1 + k1 theta^2 + k2 theta^4) at 75 deg, by hand.
+    theta = np.radians(75.0)
+    radius = 200.0 * theta * (1 - 0.02 * theta**2 + 0.001 * theta**4)
+    assert radius == pytest.approx(config.radius_px) and 250 < radius < 256
+
+
+def test_projection_is_opencvs_equidistant_model_and_the_ray_inverts_it():
+    config = FisheyeConfig()
+    rng = np.random.default_rng(3)
+    theta = rng.uniform(0.0, config.theta_max, 500)
+    phi = rng.uniform(-np.pi, np.pi, 500)
+    rays = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    distance = rng.uniform(0.5, 20.0, (500, 1))
+    pixels = project_points(distance * rays, config)
+    r = config.f * theta * (1 + config.k1 * theta**2 + config.k2 * theta**4)
+    by_hand = np.column_stack([config.cx + r * np.cos(phi), config.cy + r * np.sin(phi)])
+    np.testing.assert_allclose(pixels, by_hand, atol=1e-9)
+    angle = np.arccos(np.clip(np.sum(pixel_rays(pixels, config) * rays, axis=1), -1.0, 1.0))
+    assert angle.max() < 1e-7
+    assert in_field_of_view(pixels, config).all()
+    assert not in_field_of_view(project_points([[np.sin(1.32), 0.0, np.cos(1.32)]], config), config).any()
+
+
+# ---------------------------------------------------------------- the faces and the composition
+
+
+def test_every_pixel_of_the_circle_has_a_face_and_none_outside():
+    config = FisheyeConfig()
+    layout = fisheye_layout(config)
+    u, v = np.meshgrid(np.arange(config.width), np.arange(config.height))
+    inside = in_field_of_view(np.column_stack([u.ravel(), v.ravel()]), config).reshape(u.shape)
+    np.testing.assert_array_equal(layout.face_of_pixel >= 0, inside)
+    assert set(np.unique(layout.face_of_pixel[inside])) == set(range(5))
+    for index, face in enumerate(layout.faces):
+        uv = layout.face_uv[layout.face_of_pixel == index]
+        # Bilinear interpolation reads (floor, floor + 1): inside the render, with the margin.
+        assert uv.min() >= FACE_MARGIN_PX - 1e-9
+        assert (uv[:, 0].max() <= face.width - 1 - FACE_MARGIN_PX + 1e-9
+                and uv[:, 1].max() <= face.height - 1 - FACE_MARGIN_PX + 1e-9)
+    # Far fewer pixels rendered than five full cube faces.
+    assert sum(face.width * face.height for face in layout.faces) < 0.5 * 5 * config.face_px**2
+
+
+def fixed_camera(config, face_images):
+    camera = FisheyeCamera(config)
+    context = camera.CreateDefaultContext()
+    for index, image in enumerate(face_images):
+        value = ImageRgba8U(image.shape[1], image.shape[0])
+        value.mutable_data[:] = image
+        camera.get_input_port(index).FixValue(context, value)
+    return camera, context
+
+
+def test_composition_of_analytic_faces_matches_the_rays():
+    """Faces painted from the ray's direction compose into the same function of each fisheye pixel's
+    ray: the face frames, intrinsics and tables agree with the model, seams included."""
+    config = FisheyeConfig()
+    camera, context = fixed_camera(config, synthetic_face_images(fisheye_layout(config)))
+    image = camera.GetOutputPort("color_image").Eval(context).data
+    layout = camera.layout
+    inside = layout.face_of_pixel >= 0
+    rows, cols = np.nonzero(inside)
+    expected = direction_colour(pixel_rays(np.column_stack([cols, rows]), config))
+    difference = np.abs(image[inside].astype(int) - expected.astype(int))
+    # Each channel moves at most 120 levels per radian; the remap's 1/32 px steps and rounding give <= 2.
+    assert difference.max() <= 2, difference.max()
+    assert (image[~inside] == BLACK).all()
+
+
+def test_rectified_view_is_the_pinhole_view_with_the_new_K():
+    """The rectified view painted from directions is `direction_colour` of K_new's pinhole rays."""
+    config = FisheyeConfig()
+    camera, context = fixed_camera(config, synthetic_face_images(fisheye_layout(config)))
+    rectified = camera.GetOutputPort("rectified_image").Eval(context).data
+    K_new = rectified_K(config)
+    u, v = np.meshgrid(np.arange(config.width, dtype=float), np.arange(config.height, dtype=float))
+    rays = np.stack([(u - K_new[0, 2]) / K_new[0, 0], (v - K_new[1, 2]) / K_new[1, 1], np.ones_like(u)], axis=-1)
+    expected = direction_colour(rays / np.linalg.norm(rays, axis=-1, keepdims=True))
+    assert np.abs(rectified.astype(int) - expected.astype(int)).max() <= 3
+    # The maps are OpenCV's: a rectified pixel reads the fisheye where projectPoints puts its ray.
+    maps = cv2.convertMaps(*rectify_maps(config), cv2.CV_32FC1)
+    np.testing.assert_allclose(np.column_stack([maps[0][100, 300], maps[1][100, 300]]),
+                               project_points(rays[100, 300], config), atol=0.05)
+
+
+# ---------------------------------------------------------------- rendered
+
+
+@pytest.fixture(scope="module")
+def marker_scene():
+    return MarkerScene(FisheyeConfig(), marker_points_C())
+
+
+@pytest.mark.slow
+def test_rendered_markers_land_where_projectpoints_puts_them(marker_scene):
+    error = projection_errors(marker_scene)
+    assert np.isfinite(error).all(), f"markers not found: {np.flatnonzero(~np.isfinite(error))}"
+    assert error.mean() < MEAN_TOLERANCE_PX and error.max() < MAX_TOLERANCE_PX, f"errors {np.round(error, 3)} px"
+
+
+@pytest.mark.slow
+def test_rendered_circle_is_filled_without_gaps(marker_scene):
+    config = marker_scene.config
+    image = marker_scene.fisheye_image()
+    u, v = np.meshgrid(np.arange(config.width), np.arange(config.height))
+    inside = in_field_of_view(np.column_stack([u.ravel(), v.ravel()]), config).reshape(u.shape)
+    near_marker = np.zeros_like(inside)
+    for x, y in project_points(marker_scene.points_C, config):
+        near_marker |= np.hypot(u - x, v - y) < 15
+    background = inside & ~near_marker
+    assert (np.abs(image[background][:, :3].astype(int) - BACKGROUND).max(axis=1) <= 1).all()
+    assert (image[~inside] == BLACK).all()
+
+
+@pytest.mark.slow
+def test_rendered_markers_in_the_rectified_view(marker_scene):
+    """Markers within the rectified view land on the pinhole projection with `rectified_K`."""
+    config = marker_scene.config
+    points = marker_scene.points_C
+    pixels, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), rectified_K(config), None)
+    pixels = pixels.reshape(-1, 2)
+    visible = (pixels > 15).all(axis=1) & (pixels < config.width - 16).all(axis=1) & (points[:, 2] > 0)
+    assert visible.sum() >= 5
+    error = np.linalg.norm(blob_centroids(marker_scene.rectified_image(), pixels[visible]) - pixels[visible], axis=1)
+    assert error.max() < 2 * MAX_TOLERANCE_PX, f"errors {np.round(error, 3)} px"
+
+
+# ---------------------------------------------------------------- configuration
+
+
+@pytest.mark.parametrize("change, field", [
+    ({"fov_deg": 180.0}, "fisheye.fov_deg"),
+    ({"fov_deg": 0.0}, "fisheye.fov_deg"),
+    ({"k1": -0.3}, "fisheye.k1 and fisheye.k2 fold"),
+    ({"k2": -0.08}, "fisheye.k1 and fisheye.k2 fold"),
+    ({"f": 0.0}, "fisheye.f must be positive"),
+    ({"cx": 600.0}, "fisheye.cx"),
+    ({"face_px": 8}, "fisheye.face_px"),
+    ({"side_axis_deg": 95.0}, "fisheye.side_axis_deg"),
+    ({"mount_rpy_deg": [180.0, 0.0]}, "fisheye.mount_rpy_deg"),
+    ({"rectified_fov_deg": 180.0}, "fisheye.rectified_fov_deg"),
+    ({"far_m": 0.01}, "fisheye.far_m"),
+])
+def test_bad_config_raises_naming_the_field(change, field):
+    config = FisheyeConfig(**change)
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        config.validate()
+
+
+def test_config_loads_from_yaml():
+    config = yaml_load_typed(schema=FisheyeConfig, data="fov_deg: 120.0\nmount_xyz_m: [0.1, 0.0, -0.05]\n")
+    assert config.fov_deg == 120.0 and config.mount_xyz_m == [0.1, 0.0, -0.05] and config.k1 == -0.02

@@ -1,0 +1,334 @@
+"""Seed 003's stereo altitude: the rendered MYNT EYE pair over textured ground against Figure 16's
+bounds, the depth functions and the altimeter on synthetic pairs, the altitude Kalman filter (Eq. 13-14)
+on analytic cases, and bad configurations."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.sensors import ImageRgba8U
+
+from diagrams.stereo_hover import StereoHoverConfig, build_stereo_hover
+from models.ground_texture import ground_texture_image
+from systems.config import ConfigError
+from systems.estimators.altitude_kf import (
+    AltitudeFilterSystem,
+    AltitudeKfConfig,
+    AltitudeKfState,
+    altitude_kf_step,
+)
+from systems.perception.stereo_depth import (
+    StereoAltimeter,
+    StereoAltitudeEstimator,
+    StereoDepthConfig,
+    central_window,
+    depth_from_disparity,
+    window_altitude,
+)
+from systems.sensors.stereo import StereoConfig, add_stereo_pair
+
+F_PX = 350.0  # 2.1 mm / 6 um
+BASELINE = 0.12
+
+# ---------------------------------------------------------------------------------------------
+# The rendered pair
+
+
+@pytest.fixture(scope="module")
+def hover():
+    """The pair over the textured ground, with 2 levels of pixel noise per eye; (diagram, handles)."""
+    config = StereoHoverConfig()
+    config.stereo.pixel_noise_std = 2.0
+    return build_stereo_hover(config)
+
+
+def raw_altitude(hover, X_WB: RigidTransform, t: float = 0.0) -> tuple[float, float]:
+    diagram, handles = hover
+    context = diagram.CreateDefaultContext()
+    context.SetTime(t)
+    handles.fix_X_WB(diagram, context, X_WB)
+    altimeter_context = handles.altimeter.GetMyContextFromRoot(context)
+    return (handles.altimeter.GetOutputPort("altitude").Eval(altimeter_context)[0],
+            handles.altimeter.GetOutputPort("altitude_valid").Eval(altimeter_context)[0])
+
+
+def camera_height(X_WB: RigidTransform) -> float:
+    """The left eye's height above the ground (z = 0): the true altitude of a level pair."""
+    return X_WB.multiply(StereoConfig().X_BL).translation()[2]
+
+
+# Heights of the left eye (m); none of them an integer disparity (42 / Z px), where a rendered pair is
+# an exact pixel shift and every matcher is exact. Figure 16: error < 0.2 m in 0.7-3 m, < 1 m in 3-8 m.
+HEIGHTS = [0.75, 1.3, 2.45, 2.95, 4.4, 5.45, 6.7, 7.9]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("height", HEIGHTS)
+def test_rendered_altitude_is_within_figure_16_bounds(hover, height):
+    X_WB = RigidTransform([0.4 * height, -0.3, height - StereoConfig().mount_xyz_m[2]])
+    assert camera_height(X_WB) == pytest.approx(height, abs=1e-12)
+    altitude, valid = raw_altitude(hover, X_WB, t=height)
+    bound = 0.2 if height < 3.0 else 1.0
+    assert valid == 1.0
+    # Measured (benchmarks/stereo.py): at most 0.03 m below 3 m and 0.31 m up to 8 m (SGBM's sub-pixel
+    # bias towards whole disparities), with these 2 levels of noise.
+    assert abs(altitude - height) < bound, f"raw altitude {altitude:.3f} m at {height} m"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("where", ["too_close", "off_the_ground"])
+def test_rendered_altitude_is_invalid_without_a_match(hover, where):
+    # the eyes 0.5 m up: 84 px of disparity, beyond the 64 searched; 60 m off the 20 m ground: the sky's flat colour.
+    X_WB = RigidTransform([0.0, 0.0, 0.45]) if where == "too_close" else RigidTransform([60.0, 0.0, 3.0])
+    altitude, valid = raw_altitude(hover, X_WB)
+    assert valid == 0.0 and math.isnan(altitude)
+
+
+def test_the_eyes_are_a_rectified_pair_one_baseline_apart():
+    from pydrake.geometry import SceneGraph
+    from pydrake.systems.framework import DiagramBuilder
+
+    builder = DiagramBuilder()
+    scene_graph = builder.AddSystem(SceneGraph())
+    pair = add_stereo_pair(builder, scene_graph, scene_graph.world_frame_id(), StereoConfig())
+    X_BL, X_BR = pair.left_sensor.default_X_PB(), pair.right_sensor.default_X_PB()  # the sensors' poses on the body
+    X_LR = X_BL.inverse().multiply(X_BR)
+    np.testing.assert_allclose(X_LR.rotation().matrix(), np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(X_LR.translation(), [BASELINE, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(X_BL.rotation().col(2), [0.0, 0.0, -1.0], atol=1e-12)  # looking down
+    np.testing.assert_allclose(X_BL.rotation().col(0), [1.0, 0.0, 0.0], atol=1e-12)  # image right = forward
+    for sensor in (pair.left_sensor, pair.right_sensor):
+        info = sensor.default_color_render_camera().core().intrinsics()
+        assert (info.width(), info.height()) == (752, 480)
+        np.testing.assert_allclose([info.focal_x(), info.focal_y(), info.center_x(), info.center_y()],
+                                   [F_PX, F_PX, 376.0, 240.0], rtol=1e-12)  # Drake's centre: OpenCV's + 0.5
+
+
+# ---------------------------------------------------------------------------------------------
+# Depth functions and the altimeter on synthetic pairs
+
+
+def test_defaults_are_the_paper_camera():
+    c = StereoConfig()
+    assert (c.width, c.height, c.baseline_m, c.rate_hz) == (752, 480, 0.12, 60.0)
+    assert c.focal_length_px == pytest.approx(F_PX)
+    assert StereoDepthConfig().disparities_for(c) == 64  # 350 * 0.12 / 0.7 = 60 px, rounded up to 16s
+    assert central_window((480, 752), (c.cx, c.cy), 100, 100) == (slice(190, 290), slice(326, 426))
+
+
+def test_depth_from_disparity_is_eq_11():
+    d = np.array([42.0, 21.0, 0.0, -1.0, np.nan])
+    np.testing.assert_allclose(depth_from_disparity(d, F_PX, BASELINE), [1.0, 2.0, np.nan, np.nan, np.nan])
+
+
+def test_window_altitude_is_eq_12_over_valid_pixels():
+    depth = np.full((10, 10), 2.0)
+    depth[:3] = 4.0
+    depth[9] = np.nan
+    altitude, valid, fraction = window_altitude(depth, 0.5)
+    assert valid and fraction == 0.9 and altitude == pytest.approx((30 * 4.0 + 60 * 2.0) / 90)
+    assert window_altitude(depth, 0.5, "median")[0] == 2.0
+    depth[:6] = np.nan
+    altitude, valid, fraction = window_altitude(depth, 0.5)
+    assert not valid and math.isnan(altitude) and fraction == pytest.approx(0.3)
+
+
+def shifted_pair(d: int, noise_std: float = 0.0, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """A textured left image and its right image, the scene d px further left (a plane at f B / d)."""
+    texture = ground_texture_image(seed, 1024, 2, 7)[:480, : 752 + d]
+    left = texture[:, :752].copy()  # left pixel x sees the texture's column x,
+    right = texture[:, d:].copy()  # the right eye sees it at x - d
+    rng = np.random.default_rng(seed)
+    noisy = [np.clip(image + rng.normal(0, noise_std, image.shape), 0, 255).astype(np.uint8) for image in (left, right)]
+    return noisy[0], noisy[1]
+
+
+@pytest.mark.parametrize("d", [6, 14, 42, 60])
+def test_altitude_of_a_shifted_pair_is_f_b_over_d(d):
+    left, right = shifted_pair(d, noise_std=2.0)
+    result = StereoAltitudeEstimator(StereoConfig()).estimate(left, right)
+    assert result.valid
+    assert result.altitude_m == pytest.approx(F_PX * BASELINE / d, rel=0.01)
+    # matching the whole frame gives the same window
+    full = StereoAltitudeEstimator(StereoConfig(), crop=False).estimate(left, right)
+    assert full.altitude_m == pytest.approx(result.altitude_m, rel=0.01)
+
+
+def rgba(gray: np.ndarray) -> ImageRgba8U:
+    image = ImageRgba8U(gray.shape[1], gray.shape[0])
+    image.mutable_data[..., :3] = gray[..., None]
+    image.mutable_data[..., 3] = 255
+    return image
+
+
+def test_altimeter_system_outputs_the_altitude_and_its_flag():
+    altimeter = StereoAltimeter(StereoConfig())
+    context = altimeter.CreateDefaultContext()
+    left, right = shifted_pair(21)
+    altimeter.GetInputPort("left_image").FixValue(context, rgba(left))
+    altimeter.GetInputPort("right_image").FixValue(context, rgba(right))
+    assert altimeter.GetOutputPort("altitude").Eval(context)[0] == pytest.approx(2.0, rel=1e-3)
+    assert altimeter.GetOutputPort("altitude_valid").Eval(context)[0] == 1.0
+    blank = np.full((480, 752), 128, np.uint8)  # no texture: nothing to match
+    altimeter.GetInputPort("left_image").FixValue(context, rgba(blank))
+    altimeter.GetInputPort("right_image").FixValue(context, rgba(blank))
+    assert altimeter.GetOutputPort("altitude_valid").Eval(context)[0] == 0.0
+    assert math.isnan(altimeter.GetOutputPort("altitude").Eval(context)[0])
+
+
+# ---------------------------------------------------------------------------------------------
+# The altitude Kalman filter (Eq. 13-14)
+
+T = 1.0 / 60.0
+KF = AltitudeKfConfig()
+STD = 0.1
+MATCHED = AltitudeKfConfig(measurement_std_m=STD, measurement_std_per_m2=0.0)  # the filter knows the noise
+
+
+def run_kf(truth, std, valid=None, seed=0, config=KF):
+    """Steps the filter on truth(t) plus N(0, std) noise at 60 Hz; returns the states."""
+    rng = np.random.default_rng(seed)
+    state, states = AltitudeKfState(), []
+    for k, z in enumerate(truth):
+        ok = True if valid is None else valid[k]
+        state = altitude_kf_step(state, z + std * rng.standard_normal(), ok, k * T, config)
+        states.append(state)
+    return states
+
+
+def errors(states, truth, rate):
+    """Altitude and speed errors over the second half (after the start-up transient)."""
+    half = len(states) // 2
+    altitude = np.array([s.x[0] for s in states[half:]]) - truth[half:]
+    speed = np.array([s.x[1] for s in states[half:]]) - rate
+    return altitude, speed
+
+
+def rms(e):
+    return float(np.sqrt(np.mean(e**2)))
+
+
+def test_kf_constant_altitude_with_noise_converges():
+    n = 600
+    truth = np.full(n, 3.0)
+    states = run_kf(truth, STD, config=MATCHED)
+    altitude, speed = errors(states, truth, 0.0)
+    # measured: 0.025 m and 0.058 m/s rms (0.1 m raw noise at 60 Hz, 1 m/s^2 process noise)
+    assert rms(altitude) < STD / 3, f"filtered rms {rms(altitude):.4f} m against raw {STD}"
+    assert rms(speed) < 0.1 and abs(speed.mean()) < 0.03
+    assert all(s.valid for s in states)
+    # the covariance settles: symmetric, positive definite, steady
+    P = states[-1].P
+    np.testing.assert_allclose(P, P.T, atol=1e-15)
+    assert np.all(np.linalg.eigvalsh(P) > 0)
+    np.testing.assert_allclose(P, states[-2].P, rtol=1e-3)
+
+
+def test_kf_tracks_a_constant_descent_rate():
+    rate, n = -0.5, 600
+    truth = 6.0 + rate * np.arange(n) * T
+    states = run_kf(truth, STD, seed=3, config=MATCHED)
+    altitude, speed = errors(states, truth, rate)
+    # no lag: a constant rate is in the model (a position-only filter would trail the ramp)
+    assert abs(altitude.mean()) < 0.01 and rms(altitude) < STD / 3
+    assert abs(speed.mean()) < 0.03 and rms(speed) < 0.1
+
+
+def test_kf_coasts_on_invalid_input_then_turns_invalid():
+    rate, n, lost = -0.5, 360, 240  # measured for 4 s, then nothing
+    truth = 6.0 + rate * np.arange(n) * T
+    valid = np.arange(n) < lost
+    states = run_kf(np.where(valid, truth, np.nan), 0.02, valid, seed=5)
+    limit = int(KF.max_coast_s / T)  # 30 frames
+    coasting = states[lost:lost + limit]
+    assert all(s.valid for s in coasting)
+    # the prediction follows the descent: after 0.5 s without a frame it is still within 3 cm
+    assert abs(coasting[-1].x[0] - truth[lost + limit - 1]) < 0.03
+    assert coasting[-1].P[0, 0] > states[lost - 1].P[0, 0]  # and knows it is less sure
+    after = states[lost + limit + 1:]
+    assert after and not any(s.valid for s in after) and all(np.isnan(s.x).all() for s in after)
+    # a valid measurement starts it again, at that measurement, speed unknown (0)
+    restarted = altitude_kf_step(after[-1], 2.0, True, n * T, KF)
+    assert restarted.valid and restarted.x[0] == 2.0 and restarted.x[1] == 0.0
+
+
+def test_kf_takes_nan_flagged_valid_as_invalid_and_starts_invalid():
+    state = altitude_kf_step(AltitudeKfState(), math.nan, True, 0.0, KF)
+    assert not state.valid
+    state = altitude_kf_step(state, 3.0, True, T, KF)
+    state = altitude_kf_step(state, math.nan, True, 2 * T, KF)
+    assert state.valid and state.coast_s == pytest.approx(T) and np.isfinite(state.x).all()
+
+
+def test_kf_system_steps_at_the_camera_rate_and_coasts():
+    system = AltitudeFilterSystem(KF, T)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    system.GetInputPort("altitude").FixValue(context, [2.0])
+    system.GetInputPort("altitude_valid").FixValue(context, [1.0])
+    simulator.AdvanceTo(1.0)
+    out = {name: system.GetOutputPort(name).Eval(context)[0] for name in ("altitude", "vertical_speed", "valid")}
+    assert out["valid"] == 1.0 and out["altitude"] == pytest.approx(2.0, abs=1e-9)
+    assert out["vertical_speed"] == pytest.approx(0.0, abs=1e-9)
+    assert system.state(context).time == pytest.approx(1.0)  # the step at t is seen at t
+    system.GetInputPort("altitude").FixValue(context, [np.nan])
+    system.GetInputPort("altitude_valid").FixValue(context, [0.0])
+    simulator.AdvanceTo(1.4)
+    assert system.GetOutputPort("valid").Eval(context)[0] == 1.0
+    assert system.GetOutputPort("altitude").Eval(context)[0] == pytest.approx(2.0, abs=1e-9)
+    simulator.AdvanceTo(1.6)
+    assert system.GetOutputPort("valid").Eval(context)[0] == 0.0
+    assert math.isnan(system.GetOutputPort("altitude").Eval(context)[0])
+
+
+# ---------------------------------------------------------------------------------------------
+# Bad configurations
+
+
+@pytest.mark.parametrize("config, message", [
+    (StereoConfig(baseline_m=0.0), "stereo.baseline_m must be positive"),
+    (StereoConfig(focal_length_px=-1.0), "stereo.focal_length_px must be positive"),
+    (StereoConfig(cx=800.0), "stereo.cx must lie inside the image"),
+    (StereoConfig(pixel_noise_std=-2.0), "stereo.pixel_noise_std must not be negative"),
+    (StereoConfig(mount_xyz_m=[0.0, 0.0]), "stereo.mount_xyz_m needs 3 numbers"),
+    (StereoConfig(min_altitude_m=0.11), "must be under half the image width"),
+    (StereoConfig(max_altitude_m=60.0), "must lie within the clipping range"),
+])
+def test_bad_stereo_config_names_the_field(config, message):
+    with pytest.raises(ConfigError, match=message):
+        config.validate("stereo")
+
+
+def test_add_stereo_pair_validates():
+    from pydrake.geometry import SceneGraph
+    from pydrake.systems.framework import DiagramBuilder
+
+    builder = DiagramBuilder()
+    scene_graph = builder.AddSystem(SceneGraph())
+    with pytest.raises(ConfigError, match="stereo.rate_hz must be positive"):
+        add_stereo_pair(builder, scene_graph, scene_graph.world_frame_id(), StereoConfig(rate_hz=0.0))
+
+
+@pytest.mark.parametrize("config, message", [
+    (StereoDepthConfig(block_size=4), "stereo_depth.block_size must be odd"),
+    (StereoDepthConfig(num_disparities=40), "multiple of 16"),
+    (StereoDepthConfig(num_disparities=32), r"does not reach the disparity at min_altitude_m \(60.0 px\)"),
+    (StereoDepthConfig(window_rows=500), "larger than the 752 x 480 image"),
+    (StereoDepthConfig(min_valid_fraction=0.0), "min_valid_fraction must lie in"),
+    (StereoDepthConfig(estimator="mode"), "estimator must be 'mean' or 'median'"),
+])
+def test_bad_depth_config_names_the_field(config, message):
+    with pytest.raises(ConfigError, match=message):
+        config.validate(camera=StereoConfig())
+
+
+@pytest.mark.parametrize("config, message", [
+    (AltitudeKfConfig(accel_std_mps2=0.0), "altitude_kf.accel_std_mps2 must be positive"),
+    (AltitudeKfConfig(measurement_std_m=0.0, measurement_std_per_m2=0.0), "cannot both be zero"),
+    (AltitudeKfConfig(max_coast_s=-1.0), "altitude_kf.max_coast_s must not be negative"),
+])
+def test_bad_kf_config_names_the_field(config, message):
+    with pytest.raises(ConfigError, match=message):
+        config.validate()
