@@ -18,7 +18,8 @@ from systems.config import require
 from systems.estimators.atda import AtdaEstimator
 from systems.estimators.crhf import CrhfConfig, CrhfEstimator
 from systems.estimators.estimate import PoseEstimateToVector
-from systems.perception.apriltag import TagDetectorSystem
+from systems.perception.apriltag import TagDetection, TagDetectorSystem
+from systems.perception.latency import MeasurementLatency
 from systems.platforms.stewart import StewartPlatform, StewartPlatformConfig
 from systems.sensors.camera import CameraConfig, NoisyCamera, add_camera, add_renderer
 from systems.sensors.ground_truth import RelativePose
@@ -56,10 +57,14 @@ class StewartSceneConfig:
     # Pose estimators of the tag in the camera, X_CT, run on the same camera stream: "atda", "crhf".
     estimators: list[str] = field(default_factory=list)
     crhf: CrhfConfig = field(default_factory=CrhfConfig)
+    # Camera frames from exposure to estimate (issue 13's latency): the estimators get each frame's tag
+    # detection and ranges this many frames late, so their estimates are scored against a later truth.
+    estimate_latency_frames: int = 0
 
     def validate(self) -> None:
         for name in ("platform", "uav", "hover", "camera", "tof", "imu", "crhf"):
             getattr(self, name).validate(name)
+        require(self.estimate_latency_frames >= 0, "estimate_latency_frames must not be negative")
         for name in self.estimators:
             require(name in ESTIMATORS, f"estimators: unknown estimator '{name}' (known: {', '.join(ESTIMATORS)})")
 
@@ -130,6 +135,14 @@ def add_viewers(builder: DiagramBuilder, scene_graph: SceneGraph, meshcat: Meshc
     return visualizer, video
 
 
+def delayed(builder: DiagramBuilder, port, period_s: float, frames: int, model_value):
+    """`port`'s value acquired `frames` samples of `period_s` ago (`MeasurementLatency`); `model_value`
+    (the port's type: an invalid detection, NaN ranges) before the first one is due."""
+    delay = builder.AddSystem(MeasurementLatency(period_s, frames, model_value))
+    builder.Connect(port, delay.get_input_port())
+    return delay.get_output_port()
+
+
 def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshcat: Meshcat | None = None,
                       video_path=None) -> StewartSceneHandles:
     """Adds the scene's systems to `builder` and returns their handles."""
@@ -173,6 +186,11 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
     }.items()}
     loggers["imu"] = LogVectorOutput(imu.get_output_port(), builder, config.imu.period_s)
 
+    detection, ranges = detector.GetOutputPort("tag_detection"), tof.GetOutputPort("ranges")
+    if config.estimate_latency_frames:
+        frames = config.estimate_latency_frames
+        detection = delayed(builder, detection, period, frames, TagDetection())
+        ranges = delayed(builder, ranges, period, frames, np.full(4, np.nan))
     estimators = {}
     for name in config.estimators:
         if name == "atda":
@@ -181,9 +199,9 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
             estimator = builder.AddSystem(CrhfEstimator(
                 config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,
                 config.camera.period_s))
-            builder.Connect(tof.GetOutputPort("ranges"), estimator.GetInputPort("ranges"))
+            builder.Connect(ranges, estimator.GetInputPort("ranges"))
         estimators[name] = estimator
-        builder.Connect(detector.GetOutputPort("tag_detection"), estimator.GetInputPort("tag_detection"))
+        builder.Connect(detection, estimator.GetInputPort("tag_detection"))
         to_vector = builder.AddSystem(PoseEstimateToVector())
         builder.Connect(estimator.GetOutputPort("X_CT_estimate"), to_vector.get_input_port())
         loggers[f"estimate_{name}"] = LogVectorOutput(to_vector.get_output_port(), builder, period)

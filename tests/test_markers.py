@@ -10,6 +10,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource
 from pydrake.systems.sensors import ImageRgba8U
 from scipy.spatial.transform import Rotation
 
@@ -182,6 +183,24 @@ def test_the_latency_delivers_what_was_acquired_whole_samples_before(delay_steps
             assert latency.get_output_port().Eval(context) == expected
         queue, due = delay_queue(queue, [k], delay_steps)  # the pure queue, one sample at a time
         assert due == expected
+
+
+def test_the_latency_delays_one_value_or_a_vector_too():
+    builder = DiagramBuilder()
+    sensor = builder.AddSystem(SampleCounter(0.035))
+    one = builder.AddSystem(MeasurementLatency(0.035, 2, model_value=("none yet",)))
+    vector = builder.AddSystem(MeasurementLatency(0.035, 1, model_value=np.full(2, np.nan)))
+    source = builder.AddSystem(ConstantVectorSource([4.0, 5.0]))
+    builder.Connect(sensor.get_output_port(), one.get_input_port())
+    builder.Connect(source.get_output_port(), vector.get_input_port())
+    simulator = Simulator(builder.Build())
+    one_context, vector_context = (s.GetMyContextFromRoot(simulator.get_context()) for s in (one, vector))
+    # Between samples the output holds what the next sample's consumers read (as in the list test above).
+    simulator.AdvanceTo(0.035 * 0.5)
+    assert one.get_output_port().Eval(one_context) == ("none yet",)
+    np.testing.assert_array_equal(vector.get_output_port().Eval(vector_context), [4.0, 5.0])
+    simulator.AdvanceTo(0.035 * 3.5)
+    assert one.get_output_port().Eval(one_context) == [2]  # acquired at t_2, read at t_4
 
 
 def test_a_latency_must_be_whole_samples():

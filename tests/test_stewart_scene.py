@@ -148,3 +148,23 @@ def test_a_scene_builds_from_the_defaults():
     diagram, handles = build_stewart_scene(StewartSceneConfig())
     assert diagram.get_name() == "stewart_scene"
     assert set(handles.loggers) >= {"X_CP", "ranges", "ranges_valid", "true_ranges", "tag_corners", "imu"}
+
+
+def test_the_estimates_arrive_the_latency_s_frames_late(dynamic_run):
+    import copy
+
+    from pydrake.systems.analysis import Simulator
+
+    from diagrams.stewart_run import collect_log
+
+    scene, _, log = dynamic_run
+    config = copy.deepcopy(scene.config)
+    config.estimate_latency_frames = 2
+    diagram, handles = build_stewart_scene(config)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(0.5)
+    late = collect_log(handles, simulator.get_context(), config)
+    for name in ("estimate_atda", "estimate_crhf"):
+        np.testing.assert_array_equal(late[name][:2, 0], 0.0, err_msg=name)  # nothing due yet: invalid
+        np.testing.assert_array_equal(late[name][2:], log[name][:len(late["t"]) - 2], err_msg=name)
+    np.testing.assert_array_equal(late["X_CP"], log["X_CP"][:len(late["t"])])  # the truth is not late

@@ -5,6 +5,7 @@ t_k reach the filters at t_{k+1}. `delay_queue` is the pure first-in first-out q
 `MeasurementLatency` is the system that holds it between samples.
 """
 
+import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
@@ -29,27 +30,50 @@ class MeasurementLatency(LeafSystem):
     """Input `measurements` (a list, acquired at the samples t_k = k period_s); output `delayed` (a
     list): at t_k, what was acquired at t_{k - delay_steps} (none before). Its periodic update
     acquires at every sample; consumers read the output at the same samples. delay_steps 0 passes
-    the input through."""
+    the input through.
 
-    def __init__(self, period_s: float, delay_steps: int):
+    With `model_value` (any value, or a numpy vector for vector ports) it delays one value instead of a
+    list: ports of that value's type, and `model_value` itself before the first sample is due."""
+
+    def __init__(self, period_s: float, delay_steps: int, model_value=None):
         super().__init__()
         require_positive(period_s, "latency period_s")
         require(delay_steps >= 0, f"latency delay_steps must not be negative, got {delay_steps}")
-        self._delay_steps = delay_steps
-        self._input = self.DeclareAbstractInputPort("measurements", AbstractValue.Make([]))
+        self._delay_steps, self._model = delay_steps, model_value
+        if isinstance(model_value, np.ndarray):
+            self._input = self.DeclareVectorInputPort("measurements", model_value.size)
+        else:
+            self._input = self.DeclareAbstractInputPort("measurements", AbstractValue.Make(self._default()))
         if delay_steps:
             self._queue = self.DeclareAbstractState(AbstractValue.Make(()))
             self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, 0.0, self._acquire)
-            self.DeclareAbstractOutputPort("delayed", lambda: AbstractValue.Make([]), self._calc,
-                                           {self.abstract_state_ticket(self._queue)})
+            self._declare_output(self._due, {self.abstract_state_ticket(self._queue)})
         else:
-            self.DeclareAbstractOutputPort("delayed", lambda: AbstractValue.Make([]),
-                                           lambda c, o: o.set_value(list(self._input.Eval(c))))
+            self._declare_output(lambda c: self._as_output(self._acquired(c)), {self.all_input_ports_ticket()})
+
+    def _default(self):
+        return [] if self._model is None else self._model
+
+    def _declare_output(self, calc, tickets) -> None:
+        if isinstance(self._model, np.ndarray):
+            self.DeclareVectorOutputPort("delayed", self._model.size, lambda c, o: o.SetFromVector(calc(c)), tickets)
+        else:
+            self.DeclareAbstractOutputPort("delayed", lambda: AbstractValue.Make(self._default()),
+                                           lambda c, o: o.set_value(calc(c)), tickets)
+
+    def _acquired(self, context) -> list:
+        value = self._input.Eval(context)
+        return list(value) if self._model is None else [np.array(value) if isinstance(value, np.ndarray) else value]
+
+    def _as_output(self, items: list):
+        if self._model is None:
+            return items
+        return items[0] if items else self._model
 
     def _acquire(self, context, state):
         queue = context.get_abstract_state(self._queue).get_value()
         state.get_mutable_abstract_state(self._queue).set_value(
-            delay_queue(queue, self._input.Eval(context), self._delay_steps)[0])
+            delay_queue(queue, self._acquired(context), self._delay_steps)[0])
 
-    def _calc(self, context, output):
-        output.set_value(due(context.get_abstract_state(self._queue).get_value(), self._delay_steps))
+    def _due(self, context):
+        return self._as_output(due(context.get_abstract_state(self._queue).get_value(), self._delay_steps))
