@@ -1,0 +1,452 @@
+"""Seed 003's tracking-by-detection (Sec. 2.2.1, Eq. 2-6): detector boxes -> tracks -> the UGV's box.
+
+Boxes are [x, y, w, h] in pixels with (x, y) the top-left corner, OpenCV's Rect (the project's box, as
+in motion_compensation.py; the paper's detector gives (x, y) as the centre, Sec. 2.2.1: `centre_form`
+converts); image +x right, +y down. A box covers [x, x + w) x [y, y + h) in pixel-index space (pixel i
+spans [i, i + 1), as in diagrams/ugv_detection_scenes.py); its centre there is (x + w/2, y + h/2), half a
+pixel more than in OpenCV's pixel coordinates (centres at integers). The tracks' Kalman filters work on
+the centre form [x_c, y_c, w, h], where a growing box stays put.
+
+Per frame, as in the paper:
+- IOU of two boxes, Eq. 2, and its cost s_IOU = 1 - IOU, Eq. 3 (`iou`, `iou_matrix`).
+- The appearance: one 1-D histogram of 25 bins per colour channel (R, G, B of the image), concatenated
+  into n = 75 bins and L1-normalised (the 75 sum to 1); similarity by histogram intersection,
+  sum_k min(c_i^k, c_j^k) (cv2.HISTCMP_INTERSECT), cost s_colour = 1 - intersection, Eq. 4
+  (`colour_histogram`, `histogram_similarity`).
+- The combined cost s = a1 s_IOU + a2 s_colour with a1 = a2 = 0.5, Eq. 5, for every (track, detection)
+  pair: the matrix D of Eq. 6, solved by the Hungarian algorithm (scipy's linear_sum_assignment).
+- A Kalman filter predicts each track's box (the paper's refs. 36-37, no model given): constant velocity
+  on [x_c, y_c, w, h] (systems/estimators/track_filter.py's model), so D compares a track's box predicted
+  to this frame (not last frame's box) with this frame's detections, and a missed frame is bridged.
+
+Ours, where the paper is silent:
+- Gates: a pair is not assignable when the detection's innovation chi-square against the track's
+  prediction exceeds `gate_chi2`, when its colour cost exceeds `max_colour_cost`, or its combined cost
+  exceeds `max_cost`. The Hungarian algorithm otherwise pairs every track with some detection, however
+  far; the colour term (its gate, and its half of Eq. 5's cost) is what keeps a differently coloured
+  newcomer from taking a coasting track (tests/test_box_tracker.py).
+- Life cycle (SORT's): an unmatched detection starts a tentative track; `min_hits` matched frames
+  confirm it; a tentative track dies at its first miss, a confirmed one after more than `max_misses`.
+  Detections scoring under `min_score` are not used.
+- A track's appearance is a running mean of its matched detections' histograms (`appearance_update`
+  the weight of the newest), so one frame of a box overlapping another object moves it little.
+- The target: the paper lands on "the" UGV; here the target is locked once, on the track nearest a cue
+  (`cue_px`, the image centre when empty; the first track without either) as soon as that track is
+  confirmed (a distractor confirmed first is not taken), and kept while its track lives. When
+  the locked track dies, the lock passes to the confirmed track nearest the target's last box
+  (within `reacquire_radius_px`) whose colour matches the target's (`max_colour_cost`): a new id, which
+  `count_identity_switches` counts as a switch.
+
+`step_tracker` is a pure function of (TrackerState, detections, image, time, config); `BoxTracker` holds
+the state for scripts; `BoxTrackerSystem` (box_tracker_system.py) holds it in a Drake context.
+"""
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from systems.config import require, require_non_negative, require_positive
+from systems.estimators.track_filter import TrackFilterParams, constant_velocity_model, kalman_predict, kalman_update
+
+BINS_PER_CHANNEL = 25  # Sec. 2.2.1: "each color channel using 25 bins"
+HISTOGRAM_SIZE = 3 * BINS_PER_CHANNEL  # n = 75, Eq. 4
+_INFEASIBLE = 1e6  # cost of a gated pair in the assignment
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One detector box: `box` [x, y, w, h] px ((x, y) the top-left corner), `score` in [0, 1] (Eq. 1's
+    confidence). `truth_id`: the true object's id, for evaluation only (a synthetic detector knows it;
+    the tracker never reads it); -1 when unknown."""
+
+    box: np.ndarray
+    score: float = 1.0
+    truth_id: int = -1
+
+
+@dataclass
+class BoxTrackerConfig:
+    """The tracker's settings: pixels, seconds, Hz. Eq. 5's weights are the paper's; the rest is ours."""
+
+    rate_hz: float = 10.0  # seed 003 runs its pipeline at about 9 Hz (Table 7), the fisheye's 10 Hz
+    iou_weight: float = 0.5  # a1, Eq. 5
+    colour_weight: float = 0.5  # a2, Eq. 5 (a1 + a2 = 1)
+    min_score: float = 0.5  # detections scoring under this are dropped
+    max_cost: float = 0.75  # combined cost (Eq. 5) above which a pair is not assigned: with IOU 0, colour cost <= 0.5
+    max_colour_cost: float = 0.5  # Eq. 4's cost above which a pair is not assigned (intersection under 0.5)
+    gate_chi2: float = 18.47  # innovation chi-square on [x, y, w, h] (4 dof, p = 0.001)
+    min_hits: int = 3  # N: matched frames that confirm a track
+    max_misses: int = 15  # M: missed frames a confirmed track coasts before it dies (1.5 s at 10 Hz)
+    measurement_std_px: float = 2.0  # detector box noise
+    acceleration_std_px_s2: float = 100.0  # the box's unmodelled acceleration in the image (the UAV's own motion)
+    initial_velocity_std_px_s: float = 100.0  # a new track's velocity is unknown
+    appearance_update: float = 0.3  # weight of the newest matched histogram in a track's appearance
+    cue_px: list[float] = field(default_factory=list)  # [u, v] near the target at the start; empty: image centre
+    cue_radius_px: float = 120.0  # the locked track must start this close to the cue (a quarter of the fisheye's width)
+    reacquire_radius_px: float = 150.0  # a lost target is re-locked on a track this close to its last box
+
+    def validate(self, prefix: str = "box_tracker") -> None:
+        for name in ("rate_hz", "measurement_std_px", "acceleration_std_px_s2", "initial_velocity_std_px_s",
+                     "gate_chi2", "max_cost", "max_colour_cost", "cue_radius_px", "reacquire_radius_px"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        for name in ("iou_weight", "colour_weight", "min_score"):
+            require_non_negative(getattr(self, name), f"{prefix}.{name}")
+        require(abs(self.iou_weight + self.colour_weight - 1.0) < 1e-9,
+                f"{prefix}.iou_weight + {prefix}.colour_weight must be 1 (Eq. 5), got "
+                f"{self.iou_weight} + {self.colour_weight}")
+        require(isinstance(self.min_hits, int) and self.min_hits >= 1,
+                f"{prefix}.min_hits must be an integer of at least 1, got {self.min_hits}")
+        require(isinstance(self.max_misses, int) and self.max_misses >= 0,
+                f"{prefix}.max_misses must be a non-negative integer, got {self.max_misses}")
+        require(0 < self.appearance_update <= 1,
+                f"{prefix}.appearance_update must lie in (0, 1], got {self.appearance_update}")
+        require(len(self.cue_px) in (0, 2), f"{prefix}.cue_px needs 2 numbers [u, v] or none, got {len(self.cue_px)}")
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+
+# ----------------------------------------------------------------------------------------------
+# Eq. 2-4: the two similarity measures
+
+
+def box_corners(boxes: np.ndarray) -> np.ndarray:
+    """(..., 4) [x_min, y_min, x_max, y_max] px of (..., 4) boxes [x, y, w, h] ((x, y) the top-left)."""
+    boxes = np.asarray(boxes, dtype=float)
+    return np.concatenate([boxes[..., :2], boxes[..., :2] + boxes[..., 2:]], axis=-1)
+
+
+def centre_form(boxes: np.ndarray) -> np.ndarray:
+    """(..., 4) [x_c, y_c, w, h] px (the centre; the paper's detector form) of boxes [x, y, w, h] (top-left)."""
+    boxes = np.asarray(boxes, dtype=float)
+    return np.concatenate([boxes[..., :2] + boxes[..., 2:] / 2, boxes[..., 2:]], axis=-1)
+
+
+def corner_form(boxes: np.ndarray) -> np.ndarray:
+    """(..., 4) [x, y, w, h] px (top-left) of boxes [x_c, y_c, w, h] (centre); the inverse of centre_form."""
+    boxes = np.asarray(boxes, dtype=float)
+    return np.concatenate([boxes[..., :2] - boxes[..., 2:] / 2, boxes[..., 2:]], axis=-1)
+
+
+def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(p, q) IOU (Eq. 2) of p boxes a against q boxes b, [x, y, w, h] px; 0 for disjoint or empty boxes."""
+    ca, cb = box_corners(np.reshape(a, (-1, 4)))[:, None, :], box_corners(np.reshape(b, (-1, 4)))[None, :, :]
+    w = np.clip(np.minimum(ca[..., 2], cb[..., 2]) - np.maximum(ca[..., 0], cb[..., 0]), 0.0, None)
+    h = np.clip(np.minimum(ca[..., 3], cb[..., 3]) - np.maximum(ca[..., 1], cb[..., 1]), 0.0, None)
+    inter = w * h
+    area_a = (ca[..., 2] - ca[..., 0]) * (ca[..., 3] - ca[..., 1])
+    area_b = (cb[..., 2] - cb[..., 0]) * (cb[..., 3] - cb[..., 1])
+    union = area_a + area_b - inter
+    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    """IOU (Eq. 2) of two boxes [x, y, w, h] px."""
+    return float(iou_matrix(a, b)[0, 0])
+
+
+def box_pixels(box: np.ndarray, width: int, height: int) -> tuple[int, int, int, int]:
+    """The columns and rows (x0, y0, x1, y1), end exclusive, of a box [x, y, w, h] in an image of width x
+    height: its corners rounded (an integer box is cv2.Rect's), clipped to the image."""
+    x_min, y_min, x_max, y_max = (math.floor(v + 0.5) for v in box_corners(box))
+    x0, y0, x1, y1 = max(0, x_min), max(0, y_min), min(width, x_max), min(height, y_max)
+    return x0, y0, max(x0, x1), max(y0, y1)
+
+
+def colour_histogram(image: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """The (75,) float32 appearance of Eq. 4: one 25-bin histogram over [0, 256) of each of the first three
+    channels (R, G, B of an RGB or RGBA uint8 image) of the box's pixels, concatenated and normalised to
+    sum 1 (L1). All zeros when the box covers no pixel of the image."""
+    x0, y0, x1, y1 = box_pixels(box, image.shape[1], image.shape[0])
+    if x1 <= x0 or y1 <= y0:
+        return np.zeros(HISTOGRAM_SIZE, np.float32)
+    roi = np.ascontiguousarray(image[y0:y1, x0:x1])
+    h = np.concatenate([cv2.calcHist([roi], [c], None, [BINS_PER_CHANNEL], [0, 256]).ravel() for c in range(3)])
+    return (h / h.sum()).astype(np.float32)
+
+
+def histogram_similarity(h1: np.ndarray, h2: np.ndarray) -> float:
+    """Histogram intersection sum_k min(h1_k, h2_k) (cv2.compareHist, HISTCMP_INTERSECT): 1 for equal
+    L1-normalised histograms, 0 for disjoint ones. Eq. 4's s_colour is 1 minus this."""
+    return float(cv2.compareHist(np.asarray(h1, np.float32), np.asarray(h2, np.float32), cv2.HISTCMP_INTERSECT))
+
+
+def colour_cost_matrix(track_histograms: np.ndarray, detection_histograms: np.ndarray) -> np.ndarray:
+    """(p, q) Eq. 4 costs 1 - sum_k min(c_i^k, c_j^k) (the intersection vectorised; equal to
+    1 - histogram_similarity pair by pair)."""
+    t = np.reshape(track_histograms, (-1, HISTOGRAM_SIZE))[:, None, :]
+    d = np.reshape(detection_histograms, (-1, HISTOGRAM_SIZE))[None, :, :]
+    return 1.0 - np.minimum(t, d).sum(axis=-1)
+
+
+def combined_cost(iou_values: np.ndarray, colour_costs: np.ndarray, config: BoxTrackerConfig) -> np.ndarray:
+    """Eq. 5 (elementwise, so on Eq. 6's matrix too): a1 (1 - IOU) (Eq. 3) + a2 s_colour (Eq. 4)."""
+    return config.iou_weight * (1.0 - np.asarray(iou_values)) + config.colour_weight * np.asarray(colour_costs)
+
+
+# ----------------------------------------------------------------------------------------------
+# Tracks
+
+
+@dataclass(frozen=True)
+class BoxTrack:
+    """One track after a frame. x: (8,) the centre form [x_c, y_c, w, h] px and its rates px/s; P: its
+    covariance.
+    hits: matched frames; misses: consecutive unmatched frames; confirmed once hits reached min_hits.
+    histogram: the (75,) appearance (zeros without images). detection: index, in that frame's detection
+    list, of the detection it was matched with, or None (coasting)."""
+
+    id: int
+    x: np.ndarray
+    P: np.ndarray
+    hits: int = 1
+    misses: int = 0
+    confirmed: bool = False
+    histogram: np.ndarray = field(default_factory=lambda: np.zeros(HISTOGRAM_SIZE, np.float32))
+    detection: int | None = None
+
+    @property
+    def box(self) -> np.ndarray:
+        """[x, y, w, h] px ((x, y) the top-left): filtered when matched this frame, predicted when coasting."""
+        return corner_form(self.x[:4])
+
+    @property
+    def centre(self) -> np.ndarray:
+        """[x_c, y_c] px, the box's centre (pixel-index space: subtract 0.5 for OpenCV's pixel coordinates)."""
+        return self.x[:2].copy()
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """[dx/dt, dy/dt] px/s of the box's centre."""
+        return self.x[4:6].copy()
+
+
+@dataclass(frozen=True)
+class TargetLock:
+    """The target's identity. track_id: the locked track, or None (never locked, or lost and not yet
+    re-acquired). box, histogram: the target's last box and appearance (for re-acquiring it)."""
+
+    track_id: int | None = None
+    box: np.ndarray | None = None
+    histogram: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class TrackerState:
+    """All tracks after the frame at `time` [s] (None before the first), the next id, and the lock."""
+
+    time: float | None = None
+    tracks: tuple[BoxTrack, ...] = ()
+    next_id: int = 0
+    lock: TargetLock = field(default_factory=TargetLock)
+
+    def track(self, track_id: int | None) -> BoxTrack | None:
+        return next((t for t in self.tracks if t.id == track_id), None)
+
+    @property
+    def target(self) -> BoxTrack | None:
+        """The locked target's track, or None."""
+        return self.track(self.lock.track_id)
+
+
+def _filter_params(config: BoxTrackerConfig, dt: float) -> TrackFilterParams:
+    return TrackFilterParams(dt_s=dt, measurement_std=config.measurement_std_px,
+                             acceleration_std=config.acceleration_std_px_s2,
+                             initial_velocity_std=config.initial_velocity_std_px_s, max_coast_steps=config.max_misses)
+
+
+def predict_track(track: BoxTrack, dt: float, config: BoxTrackerConfig) -> BoxTrack:
+    """The track's box predicted dt [s] ahead by its constant-velocity Kalman filter (Eq. 30-31 of
+    track_filter), its width and height kept at least one pixel."""
+    F, Q, _, _ = constant_velocity_model(_filter_params(config, dt), 4)
+    x, P = kalman_predict(track.x, track.P, F, Q)
+    x[2:4] = np.maximum(x[2:4], 1.0)
+    return replace(track, x=x, P=P, detection=None)
+
+
+def innovation_chi2(track: BoxTrack, boxes: np.ndarray, config: BoxTrackerConfig) -> np.ndarray:
+    """(q,) squared Mahalanobis distances r^T S^-1 r of q detection boxes [x, y, w, h] from a (predicted)
+    track's box in the centre form, S = H P H^T + R."""
+    S = track.P[:4, :4] + config.measurement_std_px**2 * np.eye(4)
+    r = centre_form(np.reshape(boxes, (-1, 4))) - track.x[:4]
+    return np.einsum("qi,qi->q", r, np.linalg.solve(S, r.T).T)
+
+
+def new_track(track_id: int, box: np.ndarray, histogram: np.ndarray, detection: int,
+              config: BoxTrackerConfig) -> BoxTrack:
+    std = np.r_[np.full(4, config.measurement_std_px), np.full(4, config.initial_velocity_std_px_s)]
+    return BoxTrack(track_id, np.r_[centre_form(box), np.zeros(4)], np.diag(std**2), hits=1,
+                    confirmed=config.min_hits <= 1, histogram=histogram, detection=detection)
+
+
+def associate(tracks: Sequence[BoxTrack], boxes: np.ndarray, track_histograms: np.ndarray,
+              detection_histograms: np.ndarray, config: BoxTrackerConfig) -> list[tuple[int, int]]:
+    """(track index, detection index) pairs: Eq. 6's matrix D of Eq. 5 costs between the tracks (boxes
+    already predicted to this frame) and the detections, gated (module docstring), solved by the
+    Hungarian algorithm. Histograms: (p, 75) and (q, 75), or None to use the boxes alone (a2's term 0)."""
+    if not len(tracks) or not len(boxes):
+        return []
+    ious = iou_matrix(np.array([t.box for t in tracks]), boxes)
+    colour = (np.zeros_like(ious) if track_histograms is None or detection_histograms is None
+              else colour_cost_matrix(track_histograms, detection_histograms))
+    D = combined_cost(ious, colour, config)
+    chi2 = np.array([innovation_chi2(t, boxes, config) for t in tracks])
+    feasible = (chi2 <= config.gate_chi2) & (colour <= config.max_colour_cost) & (D <= config.max_cost)
+    rows, cols = linear_sum_assignment(np.where(feasible, D, _INFEASIBLE))
+    return [(int(r), int(c)) for r, c in zip(rows, cols) if feasible[r, c]]
+
+
+def _cue(config: BoxTrackerConfig, image: np.ndarray | None) -> np.ndarray | None:
+    if config.cue_px:
+        return np.asarray(config.cue_px, dtype=float)
+    if image is not None:
+        return np.array([(image.shape[1] - 1) / 2, (image.shape[0] - 1) / 2])
+    return None
+
+
+def _update_lock(lock: TargetLock, tracks: tuple[BoxTrack, ...], image: np.ndarray | None,
+                 config: BoxTrackerConfig, use_colour: bool) -> TargetLock:
+    """The lock after this frame's tracks: kept while its track lives, else (re-)acquired (module docstring)."""
+    locked = next((t for t in tracks if t.id == lock.track_id), None)
+    if locked is None and lock.track_id is not None:  # lost: remember where and what it was
+        lock = TargetLock(None, lock.box, lock.histogram)
+    if locked is None:
+        if lock.box is None:  # never locked: the track nearest the cue, once it is confirmed
+            candidates, cue, radius = list(tracks), _cue(config, image), config.cue_radius_px
+        else:  # re-acquire: the confirmed track nearest the last box, of the target's colour
+            candidates, cue, radius = [t for t in tracks if t.confirmed], centre_form(lock.box)[:2], \
+                config.reacquire_radius_px
+            if use_colour:
+                candidates = [t for t in candidates
+                              if colour_cost_matrix(lock.histogram, t.histogram)[0, 0] <= config.max_colour_cost]
+        if cue is not None:
+            distances = [float(np.linalg.norm(t.centre - cue)) for t in candidates]
+            candidates = [t for d, t in sorted(zip(distances, candidates), key=lambda p: p[0]) if d <= radius]
+        if not candidates or not candidates[0].confirmed:
+            return lock
+        locked = candidates[0]
+    return TargetLock(locked.id, locked.box, locked.histogram.copy())
+
+
+def step_tracker(state: TrackerState, detections: Sequence[Detection], image: np.ndarray | None, time: float,
+                 config: BoxTrackerConfig) -> TrackerState:
+    """One frame at `time` [s]: predict every track to it, associate (Eq. 3-6), update, start, confirm and
+    end tracks, and keep the target's lock. image: the frame (rows, cols, 3 or 4) uint8 the boxes were
+    detected in, for the histograms; None to track on boxes alone. Pure: `state` is not changed."""
+    dt = 0.0 if state.time is None else max(0.0, time - state.time)
+    use_colour = image is not None and config.colour_weight > 0
+    used = [i for i, d in enumerate(detections)
+            if d.score >= config.min_score and np.all(np.isfinite(d.box)) and d.box[2] > 0 and d.box[3] > 0]
+    boxes = np.array([detections[i].box for i in used], dtype=float).reshape(-1, 4)
+    histograms = np.array([colour_histogram(image, b) for b in boxes]) if use_colour else None
+
+    predicted = [predict_track(t, dt, config) for t in state.tracks]
+    track_histograms = np.array([t.histogram for t in predicted]) if use_colour and predicted else None
+    pairs = associate(predicted, boxes, track_histograms, histograms, config)
+
+    matched = dict(pairs)
+    _, _, H, R = constant_velocity_model(_filter_params(config, dt), 4)
+    tracks = []
+    for k, track in enumerate(predicted):
+        if k in matched:
+            j = matched[k]
+            x, P = kalman_update(track.x, track.P, centre_form(boxes[j]), H, R)
+            histogram = track.histogram
+            if use_colour:
+                a = config.appearance_update
+                histogram = histograms[j] if not track.histogram.any() else (1 - a) * track.histogram + a * histograms[j]
+            hits = track.hits + 1
+            tracks.append(replace(track, x=x, P=P, hits=hits, misses=0, confirmed=track.confirmed or
+                                  hits >= config.min_hits, histogram=histogram, detection=used[j]))
+        elif track.confirmed and track.misses < config.max_misses:
+            tracks.append(replace(track, misses=track.misses + 1))
+    next_id = state.next_id
+    for j in sorted(set(range(len(boxes))) - set(matched.values())):
+        histogram = histograms[j] if use_colour else np.zeros(HISTOGRAM_SIZE, np.float32)
+        tracks.append(new_track(next_id, boxes[j], histogram, used[j], config))
+        next_id += 1
+    tracks = tuple(tracks)
+    return TrackerState(time, tracks, next_id, _update_lock(state.lock, tracks, image, config, use_colour))
+
+
+def target_box(state: TrackerState) -> tuple[np.ndarray, bool]:
+    """(box [x, y, w, h] px, top-left, valid): the locked target's box (filtered, or predicted while it coasts), or
+    NaN and False when no target is locked."""
+    target = state.target
+    if target is None:
+        return np.full(4, np.nan), False
+    return target.box, True
+
+
+class BoxTracker:
+    """`step_tracker` with its state held: `tracker.step(detections, image, time)` returns the new state."""
+
+    def __init__(self, config: BoxTrackerConfig | None = None):
+        self.config = config or BoxTrackerConfig()
+        self.config.validate()
+        self.state = TrackerState()
+
+    def step(self, detections: Sequence[Detection], image: np.ndarray | None, time: float) -> TrackerState:
+        self.state = step_tracker(self.state, detections, image, time, self.config)
+        return self.state
+
+
+# ----------------------------------------------------------------------------------------------
+# Evaluation
+
+
+@dataclass(frozen=True)
+class IdentitySwitches:
+    """Identity switches of the locked target over a run. id_changes: frames where the lock came back under
+    another track id than the one it last had (lost and re-acquired, or jumped). object_changes: frames
+    where the locked id, unchanged, was matched with another true object than the one it last matched.
+    A frame counts once (an id change that also changes the object is an id change).
+    frames_on_target, frames_off_target: frames whose locked track matched a detection of, or not of,
+    `target_truth_id` (when given)."""
+
+    id_changes: int = 0
+    object_changes: int = 0
+    frames_on_target: int = 0
+    frames_off_target: int = 0
+
+    @property
+    def total(self) -> int:
+        return self.id_changes + self.object_changes
+
+
+def locked_truth_id(state: TrackerState, truth_ids: Sequence[int]) -> int | None:
+    """The true object id of the detection the locked track was matched with in this frame (truth_ids:
+    one per detection of the frame, as given to step_tracker), or None (no lock, or coasting)."""
+    target = state.target
+    if target is None or target.detection is None:
+        return None
+    return int(truth_ids[target.detection])
+
+
+def count_identity_switches(locked_ids: Sequence[int | None], truth_ids: Sequence[int | None],
+                            target_truth_id: int | None = None) -> IdentitySwitches:
+    """Counts identity switches from, per frame, the locked track's id (None: no lock) and the true object
+    id of the detection it matched (None: no lock or coasting; `locked_truth_id`). See IdentitySwitches."""
+    require(len(locked_ids) == len(truth_ids), "locked_ids and truth_ids need one entry per frame each")
+    id_changes = object_changes = on = off = 0
+    last_id = last_truth = None
+    for locked, truth in zip(locked_ids, truth_ids):
+        if locked is None:
+            continue
+        if last_id is not None and locked != last_id:
+            id_changes += 1
+        elif truth is not None and last_truth is not None and truth != last_truth:
+            object_changes += 1
+        if locked != last_id:
+            last_truth = None
+        last_id = locked
+        if truth is not None:
+            last_truth = truth
+            if target_truth_id is not None:
+                on, off = (on + 1, off) if truth == target_truth_id else (on, off + 1)
+    return IdentitySwitches(id_changes, object_changes, on, off)

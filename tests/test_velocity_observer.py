@@ -1,0 +1,352 @@
+"""Seed 003's velocity observer (Eq. 15-19) and frame transforms (Eq. 20-22),
+systems/estimators/velocity_observer.py: hand-computed transforms, Drake's rotations, the NED boundary,
+constant and turning velocities from seeded noisy positions, the lag on a step, validity, the LeafSystem."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.systems.analysis import Simulator
+
+from systems.config import ConfigError
+from systems.estimators.velocity_observer import (
+    R_B_FRD,
+    R_NW,
+    ObserverState,
+    VelocityObserverConfig,
+    VelocityObserverSystem,
+    camera_to_world,
+    gaussian_weights,
+    ned_to_world,
+    observe_velocities,
+    paper_rotation_matrix,
+    paper_velocity_to_world,
+    pixel_displacement_to_camera,
+    pixel_to_ground_W,
+    rotation_ned_frd,
+    speed_and_heading,
+    step_observer,
+    weighted_velocity,
+    world_to_ned,
+)
+from systems.noise import sample_rng
+
+K = np.array([[200.0, 0.0, 255.5], [0.0, 210.0, 250.0], [0.0, 0.0, 1.0]])  # fx != fy to tell the axes apart
+X_BC = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, -0.04])  # the project's camera mount
+T = 0.1  # the default 10 Hz
+
+
+# ----------------------------------------------------------------------------------------------
+# Frame transforms
+
+
+def test_eq15_pixel_displacement_to_metres():
+    d_C = pixel_displacement_to_camera([10.0, -21.0], 7.5, K)
+    np.testing.assert_allclose(d_C, [10.0 * 7.5 / 200.0, -21.0 * 7.5 / 210.0, 0.0])
+    square = np.diag([200.0, 200.0, 1.0])  # equal focal lengths: Eq. 15's length s_ugv = f_pd Z / f
+    assert np.linalg.norm(pixel_displacement_to_camera([3.0, 4.0], 6.0, square)) == pytest.approx(5.0 * 6.0 / 200.0)
+
+
+def test_eq22_camera_to_world_by_hand_and_against_drake():
+    # level UAV yawed 90 deg: image +x (C) is body forward (B +x), which points along W +y; image +y is
+    # the body's right (-y_B), which points along W +x
+    R_WB = RotationMatrix.MakeZRotation(math.pi / 2)
+    np.testing.assert_allclose(camera_to_world([1.0, 0.0, 0.0], R_WB, X_BC.rotation()), [0.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(camera_to_world([0.0, 1.0, 0.0], R_WB, X_BC.rotation()), [1.0, 0.0, 0.0], atol=1e-12)
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        X_WB = RigidTransform(RollPitchYaw(rng.uniform(-0.4, 0.4, 3) * [1, 1, 8]), rng.normal(0, 5, 3))
+        v_C = rng.normal(0, 1, 3)
+        expected = X_WB.multiply(X_BC).rotation().multiply(v_C)  # a free vector: rotation only (Eq. 22)
+        np.testing.assert_allclose(camera_to_world(v_C, X_WB.rotation(), X_BC.rotation().matrix()), expected,
+                                   atol=1e-12)
+
+
+def test_pixel_to_ground_level_camera_by_hand():
+    X_WB = RigidTransform([1.0, 2.0, 7.54])  # level; the camera 7.5 m above the ground z = 0
+    X_WC = X_WB.multiply(X_BC)
+    p = pixel_to_ground_W([255.5 + 40.0, 250.0 - 42.0], 7.5, K, X_WC)
+    # Eq. 15 in C: [40 * 7.5 / 200, -42 * 7.5 / 210, 7.5] = [1.5, -1.5, 7.5]; C -> W (a half turn about x): [x, -y, -z]
+    np.testing.assert_allclose(p, [1.0 + 1.5, 2.0 + 1.5, 0.0], atol=1e-12)
+    # between two pixels under a still, level camera: Eq. 15 and Eq. 22 on the displacement
+    q = pixel_to_ground_W([255.5 + 33.0, 250.0 - 2.0], 7.5, K, X_WC)
+    d_W = camera_to_world(pixel_displacement_to_camera([33.0 - 40.0, -2.0 + 42.0], 7.5, K), X_WB.rotation(),
+                          X_BC.rotation())
+    np.testing.assert_allclose(q - p, d_W, atol=1e-12)
+
+
+def test_pixel_to_ground_tilted_camera_reprojects():
+    X_WB = RigidTransform(RollPitchYaw(0.15, -0.2, 1.0), [3.0, -1.0, 6.0])
+    X_WC = X_WB.multiply(X_BC)
+    h = X_WC.translation()[2]  # the ground z = 0
+    for uv in ([100.0, 60.0], [255.5, 250.0], [400.0, 420.0]):
+        p = pixel_to_ground_W(uv, h, K, X_WC)
+        assert p[2] == pytest.approx(0.0, abs=1e-12)
+        p_C = X_WC.inverse().multiply(p)
+        np.testing.assert_allclose((K @ p_C)[:2] / p_C[2], uv, atol=1e-9)
+    upside_down = RigidTransform(RotationMatrix(), [0.0, 0.0, 5.0])  # optical axis up: no ground in view
+    assert pixel_to_ground_W([255.5, 250.0], 5.0, K, upside_down) is None
+    assert pixel_to_ground_W([255.5, 250.0], 0.0, K, X_WC) is None
+
+
+def test_ned_boundary():
+    # W read as ENU at the boundary: east (x_W) is NED's second axis, north (y_W) its first, up is -down
+    np.testing.assert_allclose(world_to_ned([1.0, 0.0, 0.0]), [0.0, 1.0, 0.0])
+    np.testing.assert_allclose(world_to_ned([0.0, 1.0, 0.0]), [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(world_to_ned([0.0, 0.0, 1.0]), [0.0, 0.0, -1.0])
+    np.testing.assert_allclose(ned_to_world(world_to_ned([0.3, -2.0, 0.7])), [0.3, -2.0, 0.7])
+    for R in (R_NW, R_B_FRD):
+        assert np.linalg.det(R) == pytest.approx(1.0)  # proper rotations
+    # a level UAV heading north (yaw 90 deg in W) is the FRD body aligned with NED: q = identity
+    R_N_FRD = R_NW @ RotationMatrix.MakeZRotation(math.pi / 2).matrix() @ R_B_FRD
+    np.testing.assert_allclose(R_N_FRD, np.eye(3), atol=1e-12)
+
+
+def test_eq21_is_the_transpose_of_the_hamilton_rotation():
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        q = rng.normal(0, 1, 4)
+        q /= np.linalg.norm(q)
+        R_drake = RotationMatrix(Quaternion(q)).matrix()  # Drake: [w, x, y, z], Hamilton
+        np.testing.assert_allclose(paper_rotation_matrix(q), R_drake.T, atol=1e-12)
+        assert not np.allclose(paper_rotation_matrix(q), R_drake, atol=1e-3)  # as printed, it is not R itself
+
+
+def test_eq22_end_to_end_from_the_papers_frames():
+    """A velocity given as the paper would (FRD body, attitude quaternion of FRD in NED) reaches W as Drake's
+    R_WB does it in our frames."""
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        R_WB = RotationMatrix(RollPitchYaw(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-3, 3)))
+        v_B = rng.normal(0, 1, 3)
+        q = RotationMatrix(R_NW @ R_WB.matrix() @ R_B_FRD).ToQuaternion().wxyz()
+        np.testing.assert_allclose(rotation_ned_frd(q), R_NW @ R_WB.matrix() @ R_B_FRD, atol=1e-12)
+        np.testing.assert_allclose(paper_velocity_to_world(R_B_FRD.T @ v_B, q), R_WB.multiply(v_B), atol=1e-12)
+
+
+# ----------------------------------------------------------------------------------------------
+# Eq. 16-19
+
+
+def noisy_track(positions: np.ndarray, std: float, seed: int) -> np.ndarray:
+    """Positions with seeded Gaussian noise of `std` [m] on x and y, sample k from sample_rng(seed, ...)."""
+    noise = np.array([sample_rng(seed, "target_position", k).normal(0.0, std, 2) for k in range(len(positions))])
+    return positions + np.c_[noise, np.zeros(len(positions))]
+
+
+def noise_gain(config: VelocityObserverConfig) -> float:
+    """The estimate's noise std per axis [m/s] per metre of position noise: the weighted sum of differences
+    is (1/T) sum_k (w_k - w_{k-1}) n_k over the window's positions, w normalised."""
+    w = gaussian_weights(np.arange(round(config.window_s / T) + 1) * T, config.sigma_s)
+    return math.sqrt(w[0] ** 2 + np.sum(np.diff(w) ** 2) + w[-1] ** 2) / T
+
+
+def test_weights_peak_at_the_current_frame_and_sum_to_one():
+    w = gaussian_weights([0.0, 0.1, 0.5, 1.0], 0.5)
+    assert w.sum() == pytest.approx(1.0)
+    assert np.all(np.diff(w) < 0)
+    assert w[2] / w[0] == pytest.approx(math.exp(-0.5))  # one sigma old: e^-1/2 of the peak
+
+
+def test_constant_velocity_from_noisy_positions():
+    """1.3 m/s (x 1.2, y -0.5) with 3 cm of position noise, 60 s at 10 Hz: unbiased, and the scatter is the
+    weights' noise gain (1.54 per metre: 4.6 cm/s per axis)."""
+    config = VelocityObserverConfig()
+    t = np.arange(0.0, 60.0, T)
+    v = np.array([1.2, -0.5, 0.0])
+    estimates, valid = observe_velocities(t, noisy_track(t[:, None] * v + [3.0, 4.0, 0.0], 0.03, seed=1), config)
+    assert not valid[:3].any() and valid[3:].all()  # three instant velocities need four sightings
+    assert np.all(np.isnan(estimates[:3]))
+    error = estimates[20:, :2] - v[:2]  # past the first window
+    assert np.all(np.abs(error.mean(axis=0)) < 0.01)
+    expected = 0.03 * noise_gain(config)
+    assert noise_gain(config) == pytest.approx(1.544, abs=1e-3)
+    np.testing.assert_allclose(error.std(axis=0), expected, rtol=0.2)
+    np.testing.assert_allclose(estimates[20:, 2], 0.0, atol=1e-12)
+
+
+def test_turning_velocity_lags_by_the_weights_mean_age():
+    """A circle of 5 m at 1 m/s (0.2 rad/s) with 3 cm of noise: the estimate's heading lags the truth by
+    omega times the weights' mean delay (0.416 s: sigma sqrt(2/pi) on the ages, plus half a frame for each
+    difference's midpoint), 0.083 rad; its speed is the truth's within 2 %, its error under 0.12 m/s RMS."""
+    config = VelocityObserverConfig()
+    radius, omega = 5.0, 0.2
+    t = np.arange(0.0, 60.0, T)
+    p = np.c_[radius * np.cos(omega * t), radius * np.sin(omega * t), np.zeros_like(t)]
+    v_true = np.c_[-radius * omega * np.sin(omega * t), radius * omega * np.cos(omega * t)]
+    estimates, _ = observe_velocities(t, noisy_track(p, 0.03, seed=2), config)
+    speed, heading = speed_and_heading(estimates[20:])
+    lag = np.remainder(np.arctan2(v_true[20:, 1], v_true[20:, 0]) - heading + np.pi, 2 * np.pi) - np.pi
+    ages = np.arange(16) * T
+    delay = gaussian_weights(ages, config.sigma_s) @ (ages + T / 2)
+    assert delay == pytest.approx(0.416, abs=1e-3)
+    assert lag.mean() == pytest.approx(omega * delay, rel=0.15)
+    assert speed.mean() == pytest.approx(radius * omega, rel=0.02)
+    assert np.sqrt(np.mean(np.sum((estimates[20:, :2] - v_true[20:]) ** 2, axis=1))) < 0.12
+
+
+def test_lag_on_a_velocity_step():
+    """Standing, then 1 m/s along x from t0 = 3 s (noise-free): k frames after the step the estimate is the
+    weight of the k newest instant velocities: 15 % after one frame, over half after 0.4 s, 92 % after
+    0.9 s, all of it after the 1.5 s window."""
+    config = VelocityObserverConfig()
+    t = np.arange(0.0, 8.0, T)
+    estimates, _ = observe_velocities(t, np.c_[np.maximum(t - 3.0, 0.0), np.zeros((len(t), 2))], config)
+    k0 = 30
+    w = gaussian_weights(np.arange(16) * T, config.sigma_s)
+    np.testing.assert_allclose(estimates[k0 + 1:k0 + 17, 0], np.cumsum(w), atol=1e-12)
+    np.testing.assert_allclose(estimates[k0 - 10:k0 + 1, 0], 0.0, atol=1e-12)
+    assert estimates[k0 + 3, 0] < 0.5 < estimates[k0 + 4, 0]  # the half-way delay: 0.4 s
+    assert estimates[k0 + 8, 0] < 0.9 < estimates[k0 + 9, 0]  # 90 %: 0.9 s
+
+
+def test_speed_heading_mode_reads_noise_as_speed():
+    """Eq. 18-19 as printed (speed and direction averaged apart) agree with the vector mean on a straight
+    run, but on a standing target with 3 cm of noise every instant speed is positive: it reads about
+    0.5 m/s where the vector mean reads a few cm/s."""
+    t = np.arange(0.0, 30.0, T)
+    straight = np.c_[0.8 * t, 0.3 * t, np.zeros_like(t)]
+    vector, _ = observe_velocities(t, straight, VelocityObserverConfig())
+    printed, _ = observe_velocities(t, straight, VelocityObserverConfig(combine="speed_heading"))
+    np.testing.assert_allclose(printed[3:], vector[3:], atol=1e-12)
+    np.testing.assert_allclose(vector[3:, :2], np.tile([0.8, 0.3], (len(t) - 3, 1)), atol=1e-12)
+    standing = noisy_track(np.zeros((len(t), 3)), 0.03, seed=3)
+    vector, _ = observe_velocities(t, standing, VelocityObserverConfig())
+    printed, _ = observe_velocities(t, standing, VelocityObserverConfig(combine="speed_heading"))
+    assert np.mean(np.linalg.norm(vector[20:], axis=1)) < 0.08
+    assert np.mean(np.linalg.norm(printed[20:], axis=1)) > 0.35
+
+
+def test_validity_history_and_gaps():
+    config = VelocityObserverConfig()
+    state = ObserverState()
+    v = np.array([0.5, 0.0, 0.0])
+    for k in range(10):
+        state = step_observer(state, k * T, config, p_W=v * k * T)
+    assert state.valid and np.allclose(state.estimate, v)
+    # lost: the estimate holds on the window's old velocities, then turns invalid (NaN) once fewer than
+    # three instant velocities are at most 1.5 s old
+    for k in range(10, 40):
+        state = step_observer(state, k * T, config, p_W=np.full(3, np.nan))
+        if k * T <= 0.7 + 1.5 + 1e-9:  # the third newest instant velocity, at 0.7 s, is 1.5 s old at 2.2 s
+            assert state.valid and np.allclose(state.estimate, v)
+        else:
+            assert not state.valid and np.all(np.isnan(state.estimate))
+    # seen again 5 m away after 3 s: no instant velocity across the gap (max_gap_s), valid after four sightings
+    for k in range(40, 44):
+        state = step_observer(state, k * T, config, p_W=np.array([5.0, 0.0, 0.0]) + v * (k - 40) * T)
+        assert state.valid == (k == 43)
+    np.testing.assert_allclose(state.estimate, v)
+    # one frame missed: the difference over two frames is still an instant velocity
+    state = step_observer(state, 45 * T, config, p_W=np.array([5.0, 0.0, 0.0]) + v * 5 * T)
+    np.testing.assert_allclose(state.times[-1], 45 * T)
+    np.testing.assert_allclose(state.velocities[-1], v)
+    estimate, valid = weighted_velocity(np.array([0.0]), np.array([[1.0, 0.0, 0.0]]), 0.0, config)
+    assert not valid and np.all(np.isnan(estimate))
+
+
+def test_bad_configs_name_the_field():
+    for kwargs, name in (({"sigma_s": 0.0}, "velocity_observer.sigma_s"),
+                         ({"window_s": -1.0}, "velocity_observer.window_s"),
+                         ({"window_s": 0.05}, "velocity_observer.window_s"),
+                         ({"min_samples": 0}, "velocity_observer.min_samples"),
+                         ({"combine": "median"}, "velocity_observer.combine"),
+                         ({"source": "gps"}, "velocity_observer.source"),
+                         ({"rate_hz": -10.0}, "velocity_observer.rate_hz")):
+        with pytest.raises(ConfigError, match=name.replace(".", r"\.")):
+            VelocityObserverConfig(**kwargs).validate()
+    with pytest.raises(ConfigError, match=r"observer\.max_gap_s"):
+        VelocityObserverConfig(max_gap_s=0.0).validate("observer")
+    with pytest.raises(ConfigError, match="needs the camera's 3x3 intrinsics K"):
+        VelocityObserverSystem(VelocityObserverConfig(source="pixel"))
+    with pytest.raises(ConfigError, match="needs the camera's pose X_BC"):
+        VelocityObserverSystem(VelocityObserverConfig(source="displacement"), K=K)
+
+
+# ----------------------------------------------------------------------------------------------
+# The LeafSystem
+
+
+def drive(system, inputs, times):
+    """Steps a system through frames: inputs(k, t) fixes the ports for frame k; returns per frame (v_WT,
+    valid) read at the frame time (which includes that frame's step)."""
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    out = []
+    for k, t in enumerate(times):
+        inputs(context, k, t)
+        simulator.AdvanceTo(t)
+        out.append((system.GetOutputPort("v_WT").Eval(context).copy(), system.GetOutputPort("valid").Eval(context)[0]))
+        simulator.AdvanceTo(t + T / 2)  # the update at t stores the step with frame k's inputs
+    return out
+
+
+def test_system_world_source_matches_the_batch_observer():
+    config = VelocityObserverConfig()
+    system = VelocityObserverSystem(config)
+    t = np.arange(0.0, 3.0, T)
+    p = noisy_track(np.c_[0.7 * t, -0.2 * t, 0.1 * t], 0.02, seed=4)
+    out = drive(system, lambda c, k, _: system.GetInputPort("p_WT").FixValue(c, p[k]), t)
+    expected, valid = observe_velocities(t, p, config)
+    assert [o[1] for o in out] == [float(v) for v in valid]
+    np.testing.assert_allclose(np.array([o[0] for o in out]), expected, atol=1e-12)  # NaN where invalid
+
+
+def ground_pixel(p_W: np.ndarray, X_WC: RigidTransform) -> np.ndarray:
+    p_C = X_WC.inverse().multiply(p_W)
+    return (K @ p_C)[:2] / p_C[2]
+
+
+@pytest.mark.parametrize("source", ["pixel", "displacement"])
+def test_system_from_pixels_recovers_the_ground_velocity(source):
+    """A level UAV yawed 30 deg, flying at (2, -1) m/s at 7.5 m while the target drives at (0.8, 0.3) m/s:
+    from its pixel (through the UAV's pose) or from its motion-compensated displacement (Eq. 15, Eq. 22),
+    the observer reads the target's own velocity exactly (noise-free)."""
+    config = VelocityObserverConfig(source=source)
+    system = VelocityObserverSystem(config, K=K, X_BC=X_BC)
+    v_target, v_uav = np.array([0.8, 0.3, 0.0]), np.array([2.0, -1.0, 0.0])
+    t = np.arange(0.0, 2.0, T)
+
+    def X_WC(tk):
+        return RigidTransform(RotationMatrix.MakeZRotation(math.radians(30)), [1.0, 1.0, 7.54] + v_uav * tk).multiply(
+            X_BC)
+
+    def inputs(context, k, tk):
+        X_WB = X_WC(tk).multiply(X_BC.inverse())
+        target = [2.0, 0.5, 0.0] + v_target * tk
+        if source == "pixel":
+            value = ground_pixel(target, X_WC(tk))
+        else:  # the homography of the ground maps the previous pixel into this frame: the current pose
+            value = ground_pixel(target, X_WC(tk)) - ground_pixel(target - v_target * T, X_WC(tk))
+        system.GetInputPort(f"target_{source}").FixValue(context, value)
+        system.GetInputPort("altitude").FixValue(context, [7.5])
+        system.GetInputPort("X_WB").FixValue(context, X_WB)
+
+    out = drive(system, inputs, t)
+    first_valid = 3 if source == "pixel" else 2  # positions need one more frame than displacements
+    assert [o[1] for o in out[:first_valid + 1]] == [0.0] * first_valid + [1.0]
+    for v, valid in out[first_valid:]:
+        assert valid == 1.0
+        np.testing.assert_allclose(v, v_target, atol=1e-9)
+
+
+def test_system_invalid_altitude_is_no_sighting():
+    config = VelocityObserverConfig(source="pixel")
+    system = VelocityObserverSystem(config, K=K, X_BC=X_BC)
+    X_WB = RigidTransform([0.0, 0.0, 7.54])
+
+    def inputs(context, k, tk):
+        system.GetInputPort("target_pixel").FixValue(context, ground_pixel([0.1 * tk, 0.0, 0.0], X_WB.multiply(X_BC)))
+        system.GetInputPort("altitude").FixValue(context, [7.5 if k % 2 == 0 else np.nan])
+        system.GetInputPort("altitude_valid").FixValue(context, [1.0 if k < 10 else 0.0])
+        system.GetInputPort("X_WB").FixValue(context, X_WB)
+
+    out = drive(system, inputs, np.arange(0.0, 4.0, T))
+    # every other altitude unknown: sightings at even frames (0.2 s apart); valid from the fourth (k = 6)
+    assert [o[1] for o in out[:8]] == [0.0] * 6 + [1.0, 1.0]
+    np.testing.assert_allclose(out[8][0], [0.1, 0.0, 0.0], atol=1e-9)
+    # altitude flagged invalid from k = 10: the window empties and the estimate turns invalid, never NaN-as-valid
+    assert out[-1][1] == 0.0 and np.all(np.isnan(out[-1][0]))
+    assert all(np.all(np.isfinite(v)) for v, valid in out if valid == 1.0)
