@@ -76,7 +76,7 @@ class DeckLandingHandles:
 
 
 def _add_estimators(builder: DiagramBuilder, config: DeckLandingConfig, color_image: OutputPort,
-                    tof: TofSensors, quad: Quadrotor) -> tuple[TagDetectorSystem, dict]:
+                    tof: TofSensors, camera_velocity: CameraVelocity) -> tuple[TagDetectorSystem, dict]:
     """The tag detector, ATDA and CRHF on the camera stream; CRHF's range track told the camera's own
     velocity (from the UAV's state, here the truth)."""
     detector = builder.AddNamedSystem("tag_detector", TagDetectorSystem(
@@ -88,10 +88,7 @@ def _add_estimators(builder: DiagramBuilder, config: DeckLandingConfig, color_im
         config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,
         config.camera.period_s))
     builder.Connect(tof.GetOutputPort("ranges"), crhf.GetInputPort("ranges"))
-    camera_velocity = builder.AddNamedSystem("camera_velocity", CameraVelocity(config.X_BC))
-    builder.Connect(quad.GetOutputPort("X_WB"), camera_velocity.GetInputPort("X_WB"))
-    builder.Connect(quad.GetOutputPort("V_WB"), camera_velocity.GetInputPort("V_WB"))
-    builder.Connect(camera_velocity.get_output_port(), crhf.GetInputPort("camera_velocity_C"))
+    builder.Connect(camera_velocity.GetOutputPort("v_C"), crhf.GetInputPort("camera_velocity_C"))
     for estimator in (atda, crhf):
         builder.Connect(detector.GetOutputPort("tag_detection"), estimator.GetInputPort("tag_detection"))
     return detector, {"atda": atda, "crhf": crhf}
@@ -113,8 +110,13 @@ def add_deck_landing(builder: DiagramBuilder, config: DeckLandingConfig, meshcat
     builder.Connect(airframe.GetOutputPort("geometry_pose"), scene_graph.get_source_pose_port(airframe.source_id))
     _, noisy_camera, tof = add_uav_sensors(builder, scene_graph, airframe.body_frame_id, config.camera, config.tof,
                                            config.seed)
+    camera_velocity = builder.AddNamedSystem("camera_velocity", CameraVelocity(config.X_BC))
+    builder.Connect(quad.GetOutputPort("X_WB"), camera_velocity.GetInputPort("X_WB"))
+    builder.Connect(quad.GetOutputPort("V_WB"), camera_velocity.GetInputPort("V_WB"))
+    if config.camera.exposure_s > 0:
+        builder.Connect(camera_velocity.GetOutputPort("w_C"), noisy_camera.GetInputPort("w_C"))
     color_image = noisy_camera.get_output_port()
-    detector, estimators = _add_estimators(builder, config, color_image, tof, quad)
+    detector, estimators = _add_estimators(builder, config, color_image, tof, camera_velocity)
 
     truth = builder.AddNamedSystem("true_relative_state", PadMotionTruth(config.perception.field_of_view_deg,
                                                                         config.perception.max_range_m))

@@ -9,7 +9,14 @@ from pydrake.systems.sensors import ImageRgba8U
 from systems.config import ConfigError
 from systems.perception.apriltag import AprilTagDetector, TagDetectorSystem
 from systems.platforms.stewart import TAG_ABOVE_DECK_M
-from systems.sensors.camera import CameraConfig, NoisyCamera, add_pixel_noise, image_to_numpy
+from systems.sensors.camera import (
+    CameraConfig,
+    NoisyCamera,
+    add_pixel_noise,
+    image_to_numpy,
+    motion_blur_flow,
+    motion_blur_kernel,
+)
 
 # Seed 000 Eq. (10).
 K_EQ10 = np.array([[458.5, 0.0, 258.7735], [0.0, 457.855, 252.308], [0.0, 0.0, 1.0]])
@@ -193,6 +200,51 @@ def test_sensor_noise_is_shot_noise_plus_read_noise():
     assert np.sqrt(200 * gain) > 2.5 * np.sqrt(20 * gain)  # the two levels' noise differs clearly
 
 
+def test_the_blur_flow_is_how_far_a_turn_moves_the_axis_point_in_the_image():
+    K, T = CameraConfig().K, 0.01
+    for w_C in ([0.0, 0.6, 0.0], [-0.4, 0.0, 0.0], [0.3, -0.2, 1.0]):
+        # The camera turned by w_C T: the point that was on the axis, seen from the turned camera.
+        rvec = -np.asarray(w_C) * T
+        moved, _ = cv2.projectPoints(np.array([[0.0, 0.0, 2.0]]), rvec, np.zeros(3), K, None)
+        # first order in the angle: within 1 % of the finite turn
+        np.testing.assert_allclose(motion_blur_flow(K, np.asarray(w_C), T), moved.ravel() - K[:2, 2], rtol=0.01)
+
+
+def test_a_blur_kernel_is_a_centred_line_of_the_flow_s_length():
+    assert motion_blur_kernel(np.array([0.3, 0.2])) is None
+    flow = np.array([6.0, -3.0])
+    kernel = motion_blur_kernel(flow).astype(float)
+    assert kernel.sum() == pytest.approx(1.0)
+    centre = kernel.shape[0] // 2
+    v, u = np.mgrid[:kernel.shape[0], :kernel.shape[1]] - centre
+    np.testing.assert_allclose([np.sum(kernel * u), np.sum(kernel * v)], 0.0, atol=1e-9)
+    along = (u * flow[0] + v * flow[1]) / np.linalg.norm(flow)
+    across = (u * flow[1] - v * flow[0]) / np.linalg.norm(flow)
+    # A uniform segment of length L has variance L^2 / 12 along it (plus the bilinear share's spread).
+    assert np.sum(kernel * along**2) == pytest.approx(np.linalg.norm(flow) ** 2 / 12, rel=0.1)
+    assert np.sum(kernel * across**2) < 0.2
+
+
+def test_the_camera_smears_a_point_along_its_turn_over_the_exposure():
+    config = CameraConfig(width=96, height=96, cx=48, cy=48, exposure_s=0.01)
+    image = ImageRgba8U(96, 96)
+    image.mutable_data[..., :3] = 0
+    image.mutable_data[..., 3] = 255
+    image.mutable_data[48, 48, :3] = 255
+    camera = NoisyCamera(config)
+    context = camera.CreateDefaultContext()
+    camera.GetInputPort("rendered_image").FixValue(context, image)
+    # Unconnected: no smear.
+    np.testing.assert_array_equal(image_to_numpy(camera.get_output_port().Eval(context)), image.data)
+    camera.GetInputPort("w_C").FixValue(context, [0.0, 2.0, 0.0])  # 2 rad/s about y: 9.2 px along u
+    out = image_to_numpy(camera.get_output_port().Eval(context))[..., 0].astype(float)
+    columns = np.flatnonzero(out.sum(axis=0) > 0)
+    assert np.flatnonzero(out.sum(axis=1) > 0).tolist() == [48]
+    assert 8 <= columns[-1] - columns[0] <= 11 and out.sum() == pytest.approx(255, abs=12)
+    assert "w_C" not in [camera_port.get_name() for camera_port in (
+        NoisyCamera(CameraConfig()).get_input_port(i) for i in range(NoisyCamera(CameraConfig()).num_input_ports()))]
+
+
 def test_same_seed_and_time_give_identical_noise():
     _, a = noisy_output(3.0, 0.25, seed=1)
     _, b = noisy_output(3.0, 0.25, seed=1)
@@ -223,6 +275,8 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     ({"far_m": 0.01}, "camera.far_m"),
     ({"pixel_noise_std": -1.0}, "camera.pixel_noise_std"),
     ({"full_well_e": -1.0}, "camera.full_well_e"),
+    ({"exposure_s": -0.001}, "camera.exposure_s"),
+    ({"exposure_s": 0.06}, "camera.exposure_s"),
     ({"read_noise_e": 3.0}, "camera.read_noise_e needs camera.full_well_e"),
     ({"distortion": [0.1, 0.0]}, "camera.distortion needs 5 numbers"),
     ({"distortion": [-0.9, 0.0, 0.0, 0.0, 0.0]}, "camera.distortion folds the image"),
@@ -245,7 +299,9 @@ def test_camera_velocity_adds_the_lever_arm_and_turns_into_the_camera_frame():
     # Descending at 0.4 m/s, yawing at 1 rad/s: the camera, 0.1 m ahead (W +y after the yaw), moves
     # 0.1 m/s towards W -x, and along its optical axis (W -z) at 0.4 m/s.
     system.GetInputPort("V_WB").FixValue(context, [0.0, 0.0, 1.0, 0.0, 0.0, -0.4])
-    v_C = system.get_output_port().Eval(context)
+    v_C = system.GetOutputPort("v_C").Eval(context)
     R_WC = X_WB.rotation().multiply(X_BC.rotation())
     np.testing.assert_allclose(R_WC.multiply(v_C), [-0.1, 0.0, -0.4], atol=1e-12)
     assert v_C[2] == pytest.approx(0.4)
+    # The yaw about W +z is, for the downward camera (+z_C = -z_B), a turn about C's -z.
+    np.testing.assert_allclose(system.GetOutputPort("w_C").Eval(context), [0.0, 0.0, -1.0], atol=1e-12)

@@ -80,6 +80,9 @@ class CameraConfig:
     mount_xyz_m: list[float] = field(default_factory=lambda: [0.0, 0.0, -0.04])
     # Lens distortion applied to the rendered (pinhole) image: OpenCV's [k1, k2, p1, p2, k3].
     distortion: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0, 0.0])
+    # Motion blur (issue 13): the exposure time [s]; 0: none. The smear is the camera's own rotation
+    # over the exposure at the principal point (`motion_blur_kernel`); its translation is not modelled.
+    exposure_s: float = 0.0
     # Faults: [start, end] intervals [s] in which the lens is covered (black frames).
     blackouts_s: list[list[float]] = field(default_factory=list)
     # The estimators' intrinsics (K_estimated) against the renderer's (K).
@@ -95,6 +98,8 @@ class CameraConfig:
         require(self.pixel_noise_std >= 0, f"{prefix}.pixel_noise_std must not be negative")
         require(self.full_well_e >= 0, f"{prefix}.full_well_e must not be negative")
         require(self.read_noise_e >= 0, f"{prefix}.read_noise_e must not be negative")
+        require(0 <= self.exposure_s < self.period_s,
+                f"{prefix}.exposure_s must lie within 0 and the frame period ({self.period_s:g} s), got {self.exposure_s}")
         require(self.read_noise_e == 0 or self.full_well_e > 0,
                 f"{prefix}.read_noise_e needs {prefix}.full_well_e (the electrons at level 255) to convert it")
         require(len(self.mount_xyz_m) == 3, f"{prefix}.mount_xyz_m needs 3 numbers")
@@ -192,7 +197,7 @@ def add_camera(builder: DiagramBuilder, scene_graph: SceneGraph, body_frame_id, 
     camera = builder.AddSystem(make_camera(config, body_frame_id, config.X_BC))
     builder.Connect(scene_graph.get_query_output_port(), camera.query_object_input_port())
     noisy_camera = builder.AddSystem(NoisyCamera(config, seed))
-    builder.Connect(camera.color_image_output_port(), noisy_camera.get_input_port())
+    builder.Connect(camera.color_image_output_port(), noisy_camera.GetInputPort("rendered_image"))
     return camera, noisy_camera
 
 
@@ -221,6 +226,29 @@ def noise_std_by_level(config: CameraConfig) -> np.ndarray:
     return np.sqrt(variance)
 
 
+def motion_blur_flow(K: np.ndarray, w_C: np.ndarray, exposure_s: float) -> np.ndarray:
+    """How far (px, [du, dv]) the scene at the principal point moves in the image while the camera
+    turns at w_C (rad/s, in C) for the exposure: a static point on the axis moves at
+    (du, dv)/dt = (-fx w_y, fy w_x) (p_C' = -w x p_C)."""
+    return np.array([-K[0, 0] * w_C[1], K[1, 1] * w_C[0]]) * exposure_s
+
+
+def motion_blur_kernel(flow_px: np.ndarray) -> np.ndarray | None:
+    """The image of a point smeared uniformly along `flow_px` (a line of that length, centred, sub-pixel
+    positions shared bilinearly; sums to 1), or None when the smear is under half a pixel."""
+    length = float(np.hypot(*flow_px))
+    if length < 0.5:
+        return None
+    size = 2 * int(np.ceil(length / 2)) + 3
+    kernel = np.zeros((size, size))
+    for t in np.linspace(-0.5, 0.5, 8 * int(np.ceil(length)) + 1):
+        u, v = size // 2 + t * flow_px[0], size // 2 + t * flow_px[1]
+        u0, v0 = int(np.floor(u)), int(np.floor(v))
+        a, b = u - u0, v - v0
+        kernel[v0:v0 + 2, u0:u0 + 2] += [[(1 - a) * (1 - b), a * (1 - b)], [(1 - a) * b, a * b]]
+    return (kernel / kernel.sum()).astype(np.float32)
+
+
 def add_pixel_noise(rgba: np.ndarray, std, rng: np.random.Generator) -> np.ndarray:
     """RGBA uint8 image plus zero-mean Gaussian noise on R, G, B (rounded and saturated to 0-255); alpha
     untouched. `std` (8-bit levels) is one number, or 256 numbers: the std at each pixel level."""
@@ -236,7 +264,9 @@ def add_pixel_noise(rgba: np.ndarray, std, rng: np.random.Generator) -> np.ndarr
 
 class NoisyCamera(LeafSystem):
     """The lens and the sensor: the rendered pinhole image distorted by `config.distortion`
-    (cv2.remap) and given seeded pixel noise (`noise_std_by_level`); black within `config.blackouts_s`.
+    (cv2.remap), smeared by the camera's rotation over `config.exposure_s` (input `w_C`, rad/s in C,
+    declared only with an exposure; unconnected: no smear) and given seeded pixel noise
+    (`noise_std_by_level`); black within `config.blackouts_s`.
 
     Input `rendered_image` and output `color_image` are ImageRgba8U. The output is a pure function
     of the time's frame index, so it is computed (and the scene rendered) only when a consumer
@@ -249,8 +279,10 @@ class NoisyCamera(LeafSystem):
         self._period, self._seed = config.period_s, seed
         self._maps = distortion_maps(config) if any(config.distortion) else None
         self._blackouts = [tuple(interval) for interval in config.blackouts_s]
+        self._K, self._exposure = config.K, config.exposure_s
         blank = ImageRgba8U(config.width, config.height)
-        self.DeclareAbstractInputPort("rendered_image", AbstractValue.Make(blank))
+        self._rendered = self.DeclareAbstractInputPort("rendered_image", AbstractValue.Make(blank))
+        self._w_C = self.DeclareVectorInputPort("w_C", 3) if config.exposure_s > 0 else None
         self.DeclareAbstractOutputPort("color_image", lambda: AbstractValue.Make(blank), self._calc_image)
 
     def _calc_image(self, context, output):
@@ -259,14 +291,19 @@ class NoisyCamera(LeafSystem):
             output.get_mutable_value().mutable_data[:] = 0
             output.get_mutable_value().mutable_data[..., 3] = 255
             return
-        rendered = self.get_input_port().Eval(context)
+        rendered = self._rendered.Eval(context)
         noisy = np.any(self._std)
-        if not noisy and self._maps is None:
+        blur = None
+        if self._w_C is not None and self._w_C.HasValue(context):
+            blur = motion_blur_kernel(motion_blur_flow(self._K, self._w_C.Eval(context), self._exposure))
+        if not noisy and self._maps is None and blur is None:
             output.set_value(rendered)
             return
         image = image_to_numpy(rendered)
         if self._maps is not None:
             image = cv2.remap(image, *self._maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if blur is not None:
+            image = cv2.filter2D(image, -1, blur, borderType=cv2.BORDER_REPLICATE)
         if noisy:
             k = sample_index(context.get_time(), self._period)
             image = add_pixel_noise(image, self._std, sample_rng(self._seed, "camera_pixels", k))

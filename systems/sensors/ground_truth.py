@@ -22,6 +22,11 @@ class CameraVelocity(LeafSystem):
         self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
         self._V_WB = self.DeclareVectorInputPort("V_WB", 6)
         self.DeclareVectorOutputPort("v_C", 3, self._calc)
+        self.DeclareVectorOutputPort("w_C", 3, lambda c, o: o.SetFromVector(
+            self._R_WC(c).inverse().multiply(self._V_WB.Eval(c)[:3])))
+
+    def _R_WC(self, context):
+        return self._X_WB.Eval(context).rotation().multiply(self._X_BC.rotation())
 
     def _calc(self, context, output):
         X_WB, V_WB = self._X_WB.Eval(context), self._V_WB.Eval(context)

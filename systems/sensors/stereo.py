@@ -146,7 +146,7 @@ def add_stereo_pair(builder: DiagramBuilder, scene_graph: SceneGraph, body_frame
         builder.Connect(scene_graph.get_query_output_port(), sensor.query_object_input_port())
         camera = builder.AddSystem(NoisyCamera(eye, eye_seed(seed, name)))
         camera.set_name(f"stereo_{name}")
-        builder.Connect(sensor.color_image_output_port(), camera.get_input_port())
+        builder.Connect(sensor.color_image_output_port(), camera.GetInputPort("rendered_image"))
         sensors.append(sensor)
         noisy.append(camera)
     return StereoPair(sensors[0], sensors[1], noisy[0], noisy[1])
