@@ -38,10 +38,10 @@ from systems.perception.motion_compensation import (
     map_point,
     match_features,
 )
+from systems.sensors.fisheye import FisheyeConfig, rectified_K
 
-SIZE = 512
-FOCAL = (SIZE / 2) / np.tan(np.radians(50))  # the fisheye's rectified view (100 deg across)
-K = np.array([[FOCAL, 0.0, (SIZE - 1) / 2], [0.0, FOCAL, (SIZE - 1) / 2], [0.0, 0.0, 1.0]])
+K = rectified_K(FisheyeConfig())  # the fisheye's rectified view (100 deg across)
+SIZE, FOCAL = FisheyeConfig().width, K[0, 0]
 TEXELS = 2048
 HEIGHT_M = 4.0
 TEXEL_M = HEIGHT_M / FOCAL
