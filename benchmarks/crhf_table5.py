@@ -58,7 +58,10 @@ def hardware_cases() -> dict[str, tuple[str, list[str]]]:
     """{case: (scenario, overrides)}: stewart-hardware whole, then each effect alone on stewart-dynamic,
     its values read from scenarios/stewart-hardware.yaml."""
     raw = read_yaml(scenario_path("stewart-hardware"))
-    cases = {"stewart-hardware": ("stewart-hardware", [])}
+    # The VL53L1X's narrowest region of interest (4x4 of its 16x16 SPADs, about 15 deg: ST's AN5191): the
+    # cone a user would set to keep the footprint on a 1 m deck from 2 m.
+    cases = {"stewart-hardware": ("stewart-hardware", []),
+             "stewart-hardware, ToF ROI 15 deg": ("stewart-hardware", ["tof.cone_deg=15.0"])}
     for effect, keys in HARDWARE_EFFECTS.items():
         overrides = []
         for key in keys:
