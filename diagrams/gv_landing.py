@@ -260,7 +260,7 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
     perception = perception_source(config.perception.source).add(
         builder, PerceptionInputs(config, nav_X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"), quad_state,
                                   vehicle_state, truth.get_output_port(), measurements.delayed,
-                                  measurements.color_image, filters))
+                                  measurements.color_image, filters, scene_graph, airframe.body_frame_id))
     rendezvous = None
     if config.rendezvous.source == "broadcast":  # the vehicle's navigation by radio: a coarse target
         broadcast = builder.AddNamedSystem("vehicle_broadcast", VehicleBroadcast(config.rendezvous, config.seed))

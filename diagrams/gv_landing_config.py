@@ -4,7 +4,8 @@ one dataclass per YAML section, every paper number a default with its source.
 Sections beyond the systems' own configs: `perception` (what steers: `source`, a name in
 diagrams/perception_sources.py, and when its estimate is valid), `estimation` (the marker
 measurement stream and the filters that run on it), `federated` (seed 001's camera, IMU and
-federated filter, for perception.source federated), `wind` (systems/environment/wind.py: it acts
+federated filter, for perception.source federated), `hybrid` (seed 003's fisheye + stereo array and
+what runs on it, for perception.source hybrid: diagrams/hybrid_perception.py), `wind` (systems/environment/wind.py: it acts
 through the quadrotor's rotor drag), `faults` (systems/perception/marker_faults.py: in the marker
 stream), `navigation` (systems/sensors/navigation.py: the UAV's own state), `rendezvous`
 (systems/perception/rendezvous.py: the vehicle's broadcast navigation), `start`, `integration`.
@@ -17,6 +18,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 
 from diagrams.federated_perception import FederatedPerceptionConfig
+from diagrams.hybrid_perception import HybridPerceptionConfig
 from diagrams.perception_sources import perception_source
 from systems.config import require, require_positive
 from systems.control.flight_controller import BACKENDS, FlightControllerConfig
@@ -193,6 +195,7 @@ class GvLandingConfig(FlightConfig):
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     estimation: MarkerEstimationConfig = field(default_factory=MarkerEstimationConfig)
     federated: FederatedPerceptionConfig = field(default_factory=FederatedPerceptionConfig)
+    hybrid: HybridPerceptionConfig = field(default_factory=HybridPerceptionConfig)  # perception.source hybrid
     wind: WindConfig = field(default_factory=WindConfig)  # calm by default
     faults: FaultsConfig = field(default_factory=FaultsConfig)  # in the marker stream; none by default
     navigation: NavigationConfig = field(default_factory=NavigationConfig)  # the UAV's own; the truth by default
@@ -200,8 +203,8 @@ class GvLandingConfig(FlightConfig):
 
     def validate(self) -> None:
         FlightConfig.validate(self)
-        for name in ("vehicle", "platform", "perception", "estimation", "federated", "wind", "faults", "navigation",
-                     "rendezvous"):
+        for name in ("vehicle", "platform", "perception", "estimation", "federated", "hybrid", "wind", "faults",
+                     "navigation", "rendezvous"):
             getattr(self, name).validate(name)
         require(self.navigation.source == "truth" or self.perception.source != "federated",
                 "perception.source federated drives its IMU from the UAV's pose: navigation.source must be truth")
@@ -224,6 +227,9 @@ class GvLandingConfig(FlightConfig):
         if self.perception.source == "federated":
             require(self.platform.pattern == "rqrlp",
                     "perception.source federated looks for seed 001's pattern: set platform.pattern to rqrlp")
+        if self.perception.source == "hybrid":
+            require(self.platform.carrier == "vehicle",
+                    "perception.source hybrid detects the UGV: platform.carrier must be vehicle")
         require(stream == "none" or self.platform.pattern == "markers",
                 f"estimation.source {stream} measures the ArUco markers, and platform.pattern is "
                 f"{self.platform.pattern}")

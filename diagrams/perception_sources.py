@@ -17,12 +17,15 @@ pad in W (and, where it has them, the pad's velocity and acceleration).
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from pydrake.geometry import SceneGraph
 from pydrake.systems.framework import DiagramBuilder, OutputPort
 from pydrake.systems.primitives import LogVectorOutput
 
 from diagrams.federated_metrics import federated_log, federated_metrics
 from diagrams.federated_perception import add_federated_perception
 from diagrams.federated_plots import plot_federated
+from diagrams.hybrid_metrics import hybrid_metrics, plot_hybrid
+from diagrams.hybrid_perception import add_hybrid_perception
 from systems.config import ConfigError
 from systems.estimators.marker_ekf import FILTERS, MarkerFilterSystem
 from systems.perception.seam import EstimateToSeam
@@ -42,6 +45,10 @@ class PerceptionInputs:
     marker_measurements: OutputPort | None  # list of MarkerMeasurement, after the latency; None: no stream
     color_image: OutputPort | None  # the downward camera's images (ImageRgba8U, with noise); None: no camera
     filters: dict[str, MarkerFilterSystem] = field(default_factory=dict)  # marker filters by name
+    # For a source that brings its own sensors (`hybrid`): the scene (its renderers, geometry) and the
+    # UAV's body frame in it, on which cameras mount. None where the scene offers none.
+    scene_graph: SceneGraph | None = None
+    body_frame_id: object = None
 
 
 @dataclass
@@ -117,11 +124,26 @@ def _federated_plot(log: dict, config, out_dir) -> None:
     plot_federated(federated_log(log, config.platform), out_dir)
 
 
+def _hybrid(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
+    """Seed 003: the fisheye + stereo array, the UGV detector and tracker, the stereo altitude, the hybrid pad
+    estimate and the velocity observer (diagrams/hybrid_perception.py), on the scene's own geometry."""
+    config = inputs.config
+    hybrid = add_hybrid_perception(builder, config.hybrid, inputs.scene_graph, inputs.body_frame_id,
+                                   float(config.platform.p_VP[2]), config.seed, inputs.X_WB)
+    ports = add_estimate_to_seam(builder, inputs, hybrid.estimator.GetOutputPort("X_WP_estimate"), hybrid.v_WP)
+    period = config.hybrid.fisheye.period_s
+    ports.logs = {**hybrid.logs, "quadrotor_state": LogVectorOutput(inputs.quadrotor_state, builder, period),
+                  "vehicle_state": LogVectorOutput(inputs.vehicle_state, builder, period),
+                  "true_relative_state": LogVectorOutput(inputs.true_relative_state, builder, period)}
+    return ports
+
+
 SOURCES: dict[str, PerceptionSource] = {
     "truth": PerceptionSource(_truth),
     **{name: PerceptionSource(_marker_filter(name), needs_markers=True) for name in FILTERS},
     "federated": PerceptionSource(_federated, needs_camera=True, camera=lambda config: config.federated.camera,
                                   metrics=_federated_metrics, plot=_federated_plot),
+    "hybrid": PerceptionSource(_hybrid, metrics=hybrid_metrics, plot=plot_hybrid),
 }
 
 

@@ -1,0 +1,149 @@
+"""Seed 003's figures for a run steered by the hybrid array (`perception.source: hybrid`), from its logs at the
+fisheye's frames (diagrams/hybrid_perception.py): the pad's position and velocity against the truth, the
+stereo altitude against the camera's true height, the detector's precision / recall / F1 against the UGV's
+true box (its 3-D bounding box projected with the fisheye's model, diagrams/ugv_detection_scenes.py's
+`projected_box`; a detection is right at IOU >= 0.5), and the tracker's identity switches.
+"""
+
+import itertools
+
+import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw
+
+from diagrams.ugv_detection_scenes import box_surface_points, projected_box, ugv_bounds_V
+from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
+from systems.perception.seam import P_BP_W, V_WP
+from systems.perception.ugv_detector import iou
+from systems.vehicles.quadrotor import P_WB, Q_WB
+
+IOU_MATCH = 0.5
+
+
+def axis_stats(error: np.ndarray) -> dict:
+    """MAE and RMSE per axis of errors (N, 3), NaN rows left out."""
+    error = error[np.all(np.isfinite(error), axis=1)]
+    if len(error) == 0:
+        return {"samples": 0}
+    return {"mae_xyz": np.abs(error).mean(axis=0).tolist(), "rmse_xyz": np.sqrt((error**2).mean(axis=0)).tolist(),
+            "rmse_horizontal": float(np.sqrt((error[:, :2] ** 2).sum(axis=1).mean())), "samples": len(error)}
+
+
+def true_ugv_boxes(quadrotor_state: np.ndarray, vehicle_state: np.ndarray, config) -> list:
+    """The UGV's true box (or None) in each frame's fisheye image."""
+    fisheye = config.hybrid.fisheye
+    low, high = ugv_bounds_V(config.platform, config.vehicle.wheelbase_m)
+    points_V = box_surface_points(low, high, 9)
+    boxes = []
+    for q, v in zip(quadrotor_state, vehicle_state):
+        X_WB = RigidTransform(_quaternion(q[Q_WB]), q[P_WB])
+        X_WV = RigidTransform(RollPitchYaw(0.0, 0.0, v[2]), [v[0], v[1], 0.0])
+        X_CV = X_WB.multiply(fisheye.X_BC).inverse().multiply(X_WV)
+        boxes.append(projected_box(X_CV.multiply(points_V.T).T, fisheye))
+    return boxes
+
+
+def _quaternion(wxyz):
+    from pydrake.common.eigen_geometry import Quaternion
+
+    q = np.asarray(wxyz, float)
+    return Quaternion(q / np.linalg.norm(q))
+
+
+def detection_scores(detections: np.ndarray, truth: list) -> dict:
+    """Precision, recall and F1 of the logged detections (N, 15: [valid, x, y, w, h] x 3) against the true boxes."""
+    tp = fp = fn = 0
+    for row, true_box in zip(detections, truth):
+        boxes = [row[5 * k + 1:5 * k + 5] for k in range(len(row) // 5) if row[5 * k] > 0.5]
+        matched = False
+        for box in boxes:
+            if true_box is not None and not matched and iou(box, true_box) >= IOU_MATCH:
+                tp, matched = tp + 1, True
+            else:
+                fp += 1
+        if true_box is not None and not matched:
+            fn += 1
+    precision = tp / (tp + fp) if tp + fp else None
+    recall = tp / (tp + fn) if tp + fn else None
+    f1 = 2 * precision * recall / (precision + recall) if precision and recall else None
+    return {"precision": precision, "recall": recall, "f1": f1, "true_positives": tp, "false_positives": fp,
+            "false_negatives": fn, "iou_match": IOU_MATCH, "frames_with_ugv_in_view": int(sum(b is not None for b in truth))}
+
+
+def identity_switches(lock: np.ndarray) -> dict:
+    """Changes of the locked track's id between frames with a lock (one UGV: every change is a switch)."""
+    ids = [int(i) for i in lock[:, 0] if i >= 0]
+    switches = sum(1 for a, b in itertools.pairwise(ids) if a != b)
+    return {"identity_switches": switches, "frames_locked": len(ids), "tracks_locked": len(set(ids))}
+
+
+def hybrid_metrics(log: dict, config, end_s: float | None) -> dict:
+    """metrics.json's `estimators.hybrid` (and its detector's and altitude's figures) from the source's logs."""
+    t = log["t"]
+    keep = t <= end_s + 1e-9 if end_s is not None else np.ones(len(t), bool)
+    hybrid = log["hybrid"][keep].reshape(-1, HYBRID_VECTOR_SIZE)
+    truth = log["true_relative_state"][keep]
+    quad, vehicle = log["quadrotor_state"][keep], log["vehicle_state"][keep]
+    p_WP_true = quad[:, P_WB] + truth[:, P_BP_W]
+    valid = hybrid[:, 0] > 0.5
+    p_error = np.where(valid[:, None], hybrid[:, 1:4] - p_WP_true, np.nan)
+    v_valid = log["v_valid"][keep][:, 0] > 0.5
+    v_error = np.where(v_valid[:, None], log["v_WP"][keep] - truth[:, V_WP], np.nan)
+    boxes = true_ugv_boxes(quad, vehicle, config)
+    in_view = np.array([b is not None for b in boxes], bool)
+    out = {"frames": len(t[keep]), "valid_fraction": float(valid.mean()) if len(valid) else 0.0,
+           "measured_fraction": float((hybrid[:, 4] > 0.5).mean()) if len(valid) else 0.0,
+           "valid_fraction_in_view": float(valid[in_view].mean()) if in_view.any() else None,
+           "velocity_valid_fraction": float(v_valid.mean()) if len(valid) else 0.0,
+           "position_m": axis_stats(p_error), "velocity_mps": axis_stats(v_error)}
+    position = out["position_m"]
+    if position["samples"]:
+        out.update({"mae_xyz_m": position["mae_xyz"], "rmse_xyz_m": position["rmse_xyz"]})
+    # The camera's true height above the ground against the stereo altimeter (raw) and its filter.
+    p_WC = np.array([RigidTransform(_quaternion(q[Q_WB]), q[P_WB]).multiply(config.hybrid.fisheye.X_BC).translation()
+                     for q in quad]).reshape(-1, 3)
+    h_true = p_WC[:, 2] if len(p_WC) else np.zeros(0)
+    stereo = {}
+    for name, value, ok in (("raw", "stereo_altitude", "stereo_valid"), ("filtered", "altitude", "altitude_valid")):
+        good = log[ok][keep][:, 0] > 0.5
+        e = log[value][keep][good, 0] - h_true[good]
+        e = e[np.isfinite(e)]
+        stereo[name] = {"valid_fraction": float(good.mean()) if len(good) else 0.0,
+                        **({"mae_m": float(np.abs(e).mean()), "rmse_m": float(np.sqrt((e**2).mean())),
+                            "bias_m": float(e.mean())} if len(e) else {})}
+    stereo["note"] = "against the camera's true height above the ground; over the UGV the window sees its roof"
+    detector = {"type": config.hybrid.detector, **detection_scores(log["detections"][keep], boxes),
+                **identity_switches(log["lock"][keep])}
+    return {"hybrid": out, "hybrid_stereo_altitude": stereo, "hybrid_detector": detector}
+
+
+def plot_hybrid(log: dict, config, out_dir) -> None:
+    """hybrid.png: the pad's x, y from the hybrid estimate against the truth, its error, the stereo altitude
+    against the camera's true height, and the tracker's lock."""
+    import matplotlib.pyplot as plt
+
+    from diagrams.outputs import save_figure
+
+    t, hybrid, truth, quad = log["t"], log["hybrid"], log["true_relative_state"], log["quadrotor_state"]
+    p_true = quad[:, P_WB] + truth[:, P_BP_W]
+    valid = hybrid[:, 0] > 0.5
+    p = np.where(valid[:, None], hybrid[:, 1:4], np.nan)
+    fig, axes = plt.subplots(4, 1, figsize=(10, 11), sharex=True)
+    for k, (axis, colour) in enumerate((("x", "tab:blue"), ("y", "tab:orange"))):
+        axes[0].plot(t, p_true[:, k], "-", color=colour, lw=1.2, label=f"true {axis}")
+        axes[0].plot(t, p[:, k], ".", color=colour, ms=2, label=f"hybrid {axis}")
+    axes[1].plot(t, np.linalg.norm(p[:, :2] - p_true[:, :2], axis=1), ".", ms=2, color="tab:red")
+    axes[2].plot(t, quad[:, P_WB][:, 2], "-", color="k", lw=1, label="body height (truth)")
+    axes[2].plot(t, np.where(log["stereo_valid"][:, 0] > 0.5, log["stereo_altitude"][:, 0], np.nan), ".", ms=2,
+                 label="stereo (raw)")
+    axes[2].plot(t, np.where(log["altitude_valid"][:, 0] > 0.5, log["altitude"][:, 0], np.nan), "-", lw=1,
+                 label="stereo filter")
+    axes[3].plot(t, log["lock"][:, 0], ".", ms=2, label="locked track id")
+    axes[3].plot(t, hybrid[:, 4], "-", lw=0.8, label="measured")
+    axes[3].plot(t, valid.astype(float), "--", lw=0.8, label="valid")
+    for ax, label in zip(axes, ("pad x, y in W (m)", "horizontal error (m)", "height (m)", "tracker")):
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize=7, ncol=3)
+    axes[-1].set_xlabel("time (s)")
+    axes[0].set_title("Seed 003: the hybrid array's pad estimate")
+    save_figure(fig, out_dir / "hybrid.png")

@@ -1,0 +1,165 @@
+"""Seed 003's hybrid camera array in a gv diagram (`perception.source: hybrid`): the fisheye and the
+stereo pair on the UAV, the UGV detector, the tracker, the stereo altimeter and its filter, the hybrid
+pad estimate (systems/perception/hybrid_pad.py) and the velocity observer, into the seam.
+
+    fisheye --color_image--> UGV detector (learned | classical) --> box tracker --target_box-->
+    stereo pair --> StereoAltimeter (Eq. 11-12) --> AltitudeFilterSystem (Eq. 13-14) --altitude-->
+        HybridPadEstimator (ray -> World -> pad plane) --X_WP_estimate--> seam
+                           --p_WP_measured--> VelocityObserverSystem (world, Eq. 15-19) --v_WP--> seam
+                           (while it coasts past the observer's window: the estimator's own velocity)
+
+The source brings its own sensors (PerceptionInputs.scene_graph, .body_frame_id) and a textured ground
+(diagrams/stereo_hover.py's, the detector's training ground) a millimetre above the gv scene's plain one:
+stereo matching needs texture. Its logs at the fisheye's rate feed `hybrid_metrics`.
+"""
+
+from dataclasses import dataclass, field
+
+from pydrake.geometry import Mesh
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from diagrams.stereo_hover import GroundConfig
+from models.ground_texture import ground_texture_mesh
+from systems.config import require
+from systems.estimators.altitude_kf import AltitudeFilterSystem, AltitudeKfConfig
+from systems.estimators.velocity_observer import VelocityObserverConfig, VelocityObserverSystem
+from systems.geometry import register_visual
+from systems.perception.box_tracker import BoxTrackerConfig
+from systems.perception.box_tracker_system import BoxTrackerSystem
+from systems.perception.hybrid_pad import (
+    DetectionsToTracker,
+    FirstFinite,
+    HybridPadConfig,
+    HybridPadEstimator,
+    LockedTrackVector,
+)
+from systems.perception.stereo_depth import StereoAltimeter, StereoDepthConfig
+from systems.perception.ugv_detector import ColourPadConfig, ColourPadDetector, HogSvmDetector, UgvDetectorSystem
+from systems.sensors.camera import RENDERER_NAME, add_renderer
+from systems.sensors.fisheye import FisheyeConfig, add_fisheye_camera
+from systems.sensors.stereo import StereoConfig, add_stereo_pair
+
+DETECTORS = ("learned", "classical")
+GROUND_LIFT_M = 0.001  # the textured ground over the plain one (no z-fighting)
+
+
+def hybrid_stereo() -> StereoConfig:
+    """The MYNT EYE pair (systems/sensors/stereo.py) at the fisheye's 10 Hz: the paper's pipeline runs at
+    about 9 Hz (Table 7), and two 752 x 480 renders at 60 Hz would triple the run's cost."""
+    return StereoConfig(rate_hz=10.0, pixel_noise_std=2.0)
+
+
+@dataclass
+class HybridPerceptionConfig:
+    """Seed 003's camera array and what runs on it (rates in Hz in each part's section)."""
+
+    detector: str = "learned"  # "learned" (HOG + colour, linear SVM) or "classical" (colour + pad white)
+    model_path: str = ""  # the learned detector's model; empty: models/ugv_detector.yml
+    classical: ColourPadConfig = field(default_factory=ColourPadConfig)
+    fisheye: FisheyeConfig = field(default_factory=FisheyeConfig)  # 10 Hz
+    stereo: StereoConfig = field(default_factory=hybrid_stereo)
+    depth: StereoDepthConfig = field(default_factory=StereoDepthConfig)
+    altitude_kf: AltitudeKfConfig = field(default_factory=AltitudeKfConfig)
+    tracker: BoxTrackerConfig = field(default_factory=BoxTrackerConfig)
+    velocity_observer: VelocityObserverConfig = field(default_factory=VelocityObserverConfig)
+    estimator: HybridPadConfig = field(default_factory=HybridPadConfig)
+    ground: GroundConfig = field(default_factory=lambda: GroundConfig(size_m=100.0, texture_seed=0))
+
+    def validate(self, prefix: str = "hybrid") -> None:
+        require(self.detector in DETECTORS, f"{prefix}.detector '{self.detector}' is not one of: {', '.join(DETECTORS)}")
+        self.classical.validate(f"{prefix}.classical")
+        self.fisheye.validate(f"{prefix}.fisheye")
+        self.stereo.validate(f"{prefix}.stereo")
+        self.depth.validate(f"{prefix}.depth", self.stereo)
+        self.altitude_kf.validate(f"{prefix}.altitude_kf")
+        self.tracker.validate(f"{prefix}.tracker")
+        self.velocity_observer.validate(f"{prefix}.velocity_observer")
+        self.estimator.validate(f"{prefix}.estimator")
+        self.ground.validate(f"{prefix}.ground")
+        require(self.velocity_observer.source == "world",
+                f"{prefix}.velocity_observer.source must be world: the observer reads the hybrid p_WP")
+        for name, rate in (("tracker", self.tracker.rate_hz), ("velocity_observer", self.velocity_observer.rate_hz)):
+            require(abs(rate - self.fisheye.rate_hz) < 1e-9,
+                    f"{prefix}.{name}.rate_hz ({rate:g}) must be {prefix}.fisheye.rate_hz ({self.fisheye.rate_hz:g}): "
+                    f"one step per frame")
+
+    def make_detector(self):
+        if self.detector == "classical":
+            return ColourPadDetector(self.classical)
+        return HogSvmDetector(self.model_path) if self.model_path else HogSvmDetector()
+
+
+@dataclass
+class HybridPorts:
+    detector: UgvDetectorSystem
+    tracker: BoxTrackerSystem
+    altimeter: StereoAltimeter
+    altitude_filter: AltitudeFilterSystem
+    estimator: HybridPadEstimator
+    observer: VelocityObserverSystem
+    v_WP: object  # the observer's velocity, else the coasting estimate's, else zero
+    logs: dict
+
+
+def add_textured_ground_lifted(scene_graph, config: GroundConfig, lift_m: float = GROUND_LIFT_M) -> None:
+    source = scene_graph.RegisterSource("hybrid_textured_ground")
+    mesh = ground_texture_mesh(config.texture_seed, config.texture_pixels)
+    register_visual(scene_graph, source, scene_graph.world_frame_id(), RigidTransform([0.0, 0.0, lift_m]),
+                    Mesh(str(mesh), config.size_m), "hybrid_textured_ground", rgba=None)
+
+
+def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfig, scene_graph, body_frame_id,
+                          z_pad: float, seed: int, X_WB) -> HybridPorts:
+    """The array on `body_frame_id`, its perception, the estimate on X_WB (the UAV's navigation)."""
+    add_textured_ground_lifted(scene_graph, config.ground)
+    if not scene_graph.HasRenderer(RENDERER_NAME):
+        add_renderer(scene_graph)
+    rig = add_fisheye_camera(builder, scene_graph, body_frame_id, config.fisheye)
+    pair = add_stereo_pair(builder, scene_graph, body_frame_id, config.stereo, seed)
+    fe = config.fisheye
+    detector = builder.AddNamedSystem("ugv_detector", UgvDetectorSystem(config.make_detector(), fe.width, fe.height))
+    builder.Connect(rig.color_image, detector.get_input_port())
+    to_tracker = builder.AddNamedSystem("ugv_detections", DetectionsToTracker())
+    builder.Connect(detector.get_output_port(), to_tracker.get_input_port())
+    tracker = builder.AddNamedSystem("box_tracker", BoxTrackerSystem(config.tracker, fe.width, fe.height))
+    builder.Connect(to_tracker.GetOutputPort("detections"), tracker.GetInputPort("detections"))
+    builder.Connect(rig.color_image, tracker.GetInputPort("color_image"))
+    altimeter = builder.AddNamedSystem("stereo_altimeter", StereoAltimeter(config.stereo, config.depth))
+    builder.Connect(pair.left_image, altimeter.GetInputPort("left_image"))
+    builder.Connect(pair.right_image, altimeter.GetInputPort("right_image"))
+    altitude = builder.AddNamedSystem("altitude_filter", AltitudeFilterSystem(config.altitude_kf,
+                                                                              config.stereo.period_s))
+    builder.Connect(altimeter.GetOutputPort("altitude"), altitude.GetInputPort("altitude"))
+    builder.Connect(altimeter.GetOutputPort("altitude_valid"), altitude.GetInputPort("altitude_valid"))
+    estimator = builder.AddNamedSystem("hybrid_pad", HybridPadEstimator(fe, z_pad, config.estimator,
+                                                                        config.velocity_observer))
+    builder.Connect(tracker.GetOutputPort("target_box"), estimator.GetInputPort("target_box"))
+    builder.Connect(tracker.GetOutputPort("target_valid"), estimator.GetInputPort("target_valid"))
+    builder.Connect(altitude.GetOutputPort("altitude"), estimator.GetInputPort("altitude"))
+    builder.Connect(altitude.GetOutputPort("valid"), estimator.GetInputPort("altitude_valid"))
+    builder.Connect(X_WB, estimator.GetInputPort("X_WB"))
+    lock = builder.AddNamedSystem("locked_track", LockedTrackVector())
+    builder.Connect(tracker.GetOutputPort("tracks"), lock.GetInputPort("tracks"))
+    builder.Connect(tracker.GetOutputPort("target_box"), lock.GetInputPort("target_box"))
+    builder.Connect(lock.get_output_port(), estimator.GetInputPort("target_lock"))
+    observer = builder.AddNamedSystem("velocity_observer", VelocityObserverSystem(config.velocity_observer))
+    builder.Connect(estimator.GetOutputPort("p_WP_measured"), observer.GetInputPort("p_WT"))
+    v_WP = builder.AddNamedSystem("velocity_select", FirstFinite(3, 2))
+    builder.Connect(observer.GetOutputPort("v_WT"), v_WP.GetInputPort("u0"))
+    builder.Connect(estimator.GetOutputPort("v_WP_coast"), v_WP.GetInputPort("u1"))
+    period = fe.period_s
+    logs = {"hybrid": LogVectorOutput(estimator.GetOutputPort("hybrid_vector"), builder, period),
+            "v_WP": LogVectorOutput(observer.GetOutputPort("v_WT"), builder, period),
+            "v_valid": LogVectorOutput(observer.GetOutputPort("valid"), builder, period),
+            "target_box": LogVectorOutput(tracker.GetOutputPort("target_box"), builder, period),
+            "target_valid": LogVectorOutput(tracker.GetOutputPort("target_valid"), builder, period),
+            "lock": LogVectorOutput(lock.get_output_port(), builder, period),
+            "detections": LogVectorOutput(to_tracker.GetOutputPort("detection_vector"), builder, period),
+            "stereo_altitude": LogVectorOutput(altimeter.GetOutputPort("altitude"), builder, period),
+            "stereo_valid": LogVectorOutput(altimeter.GetOutputPort("altitude_valid"), builder, period),
+            "altitude": LogVectorOutput(altitude.GetOutputPort("altitude"), builder, period),
+            "altitude_valid": LogVectorOutput(altitude.GetOutputPort("valid"), builder, period)}
+    return HybridPorts(detector, tracker, altimeter, altitude, estimator, observer, v_WP.get_output_port(), logs)
+

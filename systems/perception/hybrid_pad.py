@@ -1,0 +1,309 @@
+"""Seed 003's hybrid estimate of the pad (Sec. 2.2-2.3): the tracked UGV box in the fisheye image, the stereo
+altitude, and the UAV's own attitude -> the pad's position in World.
+
+Per fisheye frame k (all in the project's frames, W z up; seed 003 writes NED, velocity_observer.py converts):
+- the tracked box's centre (u, v), OpenCV's pixel coordinates (a box [x, y, w, h] covers [x, x + w) in
+  pixel-index space, so its centre is x + w/2 - 0.5), becomes its unit ray r_C by the fisheye model
+  (`pixel_rays`: cv2.fisheye's inverse of Sec. 2.1's K and D);
+- r_W = R_WB R_BC r_C with the UAV's attitude from its navigation (Eq. 20-22's rotation, here Drake's);
+- the camera's height above the ground h comes from the stereo altitude filter (Eq. 11-14), so the camera
+  is h - z_P above the pad's horizontal plane z = z_P (the pad's top above the ground, known from the
+  vehicle); the ray meets that plane at s = (h - z_P) / (-r_W,z) (the paper's Eq. 15 scales pixels to
+  metres with the altitude the same way, for a ray along the axis), and
+  p_WP = [x_WC, y_WC, z_P] + s r_W, with the camera's x, y from the UAV's navigation.
+
+Ours, where the paper is silent:
+- Over the UGV the stereo window sees the roof, not the ground: h reads up to z_P low. The ray is then
+  near the axis, where the horizontal error h tan(theta) is small; off-axis the window sees the ground.
+- When the stereo altitude is invalid (under its 0.7 m range, the last metre of a landing), h is carried
+  on from its last valid value by the navigation's change in height, for `altitude_coast_s`.
+- In the final landing (within `landing_zone_m` over the pad's plane) a measurement far from a valid
+  estimate's prediction is an outlier and not used (`gate_m`), and without a measurement the estimate
+  coasts at the last observed velocity (Eq. 15-19's observer run on the measured positions) for
+  `max_coast_s`, then turns invalid; higher, it coasts only while that observer is valid. The paper lands
+  below LH blind, as its target floods the fisheye; the supervisor here stops a landing on an invalid
+  estimate. The seam's v_WP is the observer's, else (past its window) the coasting estimate's velocity.
+- Invalid is PoseEstimate's valid False; `p_WP_measured` is NaN in a frame without a measurement.
+"""
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import LeafSystem
+
+from systems.config import require, require_non_negative, require_positive
+from systems.estimators.estimate import PoseEstimate
+from systems.estimators.velocity_observer import ObserverState, VelocityObserverConfig, step_observer
+from systems.perception.box_tracker import Detection
+from systems.sensors.fisheye import FisheyeConfig, in_field_of_view, pixel_rays
+from systems.stepped import SteppedValue
+
+# [valid, p_WP (3), measured, h (1), h_source (0 none, 1 stereo, 2 carried), coast_s]
+HYBRID_VECTOR_SIZE = 8
+
+
+@dataclass
+class HybridPadConfig:
+    """Coasting (s) and the reported covariance (m): ours, the paper gives none."""
+
+    # The estimate predicted without a measurement for this long, then invalid: below about 1 m over the pad
+    # the UGV fills the fisheye and the detector's boxes stop matching the track (measured), which leaves
+    # the last 1 m of LH's 1.5 m at 0.3 m/s to the prediction, as the paper lands blind below LH.
+    max_coast_s: float = 4.0
+    # A measurement further than gate_m + gate_growth_m_s * (time since the last one) from the prediction
+    # of a valid estimate is an outlier (a part of the UGV, or the ground, boxed at close range), not used.
+    gate_m: float = 0.5
+    gate_growth_m_s: float = 0.3
+    # The long coast and the gate apply only this close over the pad's plane (the final landing: LH is 1.5 m):
+    # higher, an unmeasured frame coasts only while the observer's velocity is valid, and nothing is gated,
+    # since the early, oblique measurements of the climb give velocities of 1-2 m/s off (measured: a 4 s
+    # coast on them sent the UAV 5 m away, and the gate then refused the UGV's true position).
+    landing_zone_m: float = 2.0
+    altitude_coast_s: float = 5.0  # h carried on by the navigation's height change for this long
+    position_std_m: float = 0.1  # the reported std per axis of a measured estimate
+    # And its growth per second of coasting (the observed velocity's error, 0.05-0.1 m/s measured): the seam
+    # refuses sqrt(trace) over perception.max_position_std_m (1 m), which 0.2 m/s reached 2.4 s into a coast.
+    coast_std_growth_m_s: float = 0.1
+    height_std_m: float = 0.05  # z: the pad's plane is known
+    # Only rays within 60 deg of the vertical measure (-r_W,z >= cos 60 deg): seen obliquely, the box's centre is
+    # the UGV's side as much as its roof, and from a low camera the plane's intersection runs metres off
+    # (measured: 2.5 m off at 80 deg from 0.4 m above the pad, in the take-off).
+    min_ray_down: float = 0.5
+
+    def validate(self, prefix: str = "hybrid.estimator") -> None:
+        for name in ("max_coast_s", "altitude_coast_s", "coast_std_growth_m_s", "gate_m", "gate_growth_m_s",
+                     "landing_zone_m"):
+            require_non_negative(getattr(self, name), f"{prefix}.{name}")
+        require_positive(self.position_std_m, f"{prefix}.position_std_m")
+        require_positive(self.height_std_m, f"{prefix}.height_std_m")
+        require(0 < self.min_ray_down <= 1, f"{prefix}.min_ray_down must lie in (0, 1], got {self.min_ray_down}")
+
+
+def box_centre_pixel(box: np.ndarray) -> np.ndarray:
+    """The centre of a box [x, y, w, h] (pixel-index space) in OpenCV's pixel coordinates (centres at integers)."""
+    x, y, w, h = np.asarray(box, float)
+    return np.array([x + w / 2 - 0.5, y + h / 2 - 0.5])
+
+
+def ray_to_plane(p_WC: np.ndarray, ray_W: np.ndarray, height_above_plane: float, z_plane: float,
+                 min_ray_down: float = 0.5) -> np.ndarray | None:
+    """Where a ray from a camera `height_above_plane` [m] above the horizontal plane z = z_plane meets it (W),
+    the camera's x, y from p_WC; None when the ray does not point down enough or the height is not positive."""
+    down = -float(ray_W[2])
+    if down < min_ray_down or not height_above_plane > 0:
+        return None
+    s = height_above_plane / down
+    return np.array([p_WC[0] + s * ray_W[0], p_WC[1] + s * ray_W[1], z_plane])
+
+
+def pad_from_box(box: np.ndarray, camera_height_m: float, X_WB: RigidTransform, fisheye: FisheyeConfig,
+                 z_pad: float, min_ray_down: float = 0.5) -> np.ndarray | None:
+    """p_WP [m] from the tracked box (module docstring), or None (centre outside the field of view, ray
+    not meeting the pad's plane, camera not above it)."""
+    uv = box_centre_pixel(box)
+    if not np.all(np.isfinite(uv)) or not in_field_of_view(uv, fisheye)[0]:
+        return None
+    X_WC = X_WB.multiply(fisheye.X_BC)
+    ray_W = X_WC.rotation().multiply(pixel_rays(uv, fisheye)[0])
+    return ray_to_plane(X_WC.translation(), ray_W, camera_height_m - z_pad, z_pad, min_ray_down)
+
+
+@dataclass(frozen=True)
+class HybridPadState:
+    """After the step at `time`: the estimate, whether this frame measured it, the last measurement's
+    time, the camera height used and how (0 none, 1 stereo, 2 carried), the stereo height's anchor
+    (its value and the navigation's camera z then), and the observer run on the measurements."""
+
+    time: float | None = None
+    estimate: PoseEstimate = field(default_factory=lambda: PoseEstimate.invalid(0.0, "W", "P"))
+    measured: bool = False
+    last_measured_s: float | None = None
+    last_p_WP: np.ndarray | None = None
+    height_m: float = math.nan
+    height_source: int = 0
+    anchor: tuple | None = None  # (h, z_WC, time)
+    observer: ObserverState = field(default_factory=ObserverState)
+    velocity: np.ndarray | None = None  # the observer's last valid velocity (W), for coasting
+    gated: int = 0  # measurements rejected by the gate so far
+    landing: bool = False  # within landing_zone_m over the pad's plane (sticky while valid)
+
+
+def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: bool, altitude: float,
+                altitude_valid: bool, X_WB: RigidTransform, fisheye: FisheyeConfig, z_pad: float,
+                config: HybridPadConfig, observer_config: VelocityObserverConfig) -> HybridPadState:
+    """One frame (pure)."""
+    z_WC = X_WB.multiply(fisheye.X_BC).translation()[2]
+    anchor, h, source = state.anchor, math.nan, 0
+    if altitude_valid and math.isfinite(altitude) and altitude > 0:
+        h, source, anchor = altitude, 1, (altitude, z_WC, time)
+    elif anchor is not None and time - anchor[2] <= config.altitude_coast_s + 1e-9:
+        h, source = anchor[0] + (z_WC - anchor[1]), 2
+    p = None
+    if box_valid and source:
+        p = pad_from_box(box, h, X_WB, fisheye, z_pad, config.min_ray_down)
+    last_measured, last_p, velocity, gated = state.last_measured_s, state.last_p_WP, state.velocity, state.gated
+
+    def predicted() -> np.ndarray:
+        return last_p + (time - last_measured) * np.array([*velocity[:2], 0.0])
+
+    # Sticky while the estimate stays valid: close over the pad the stereo window reads spikes of 2-3 m
+    # (measured, at 0.5 m over the pad), which must not end the landing's coast.
+    landing = (bool(source) and h - z_pad <= config.landing_zone_m) or (state.landing and state.estimate.valid)
+    if (landing and p is not None and state.estimate.valid and velocity is not None
+            and last_measured is not None):
+        gate = config.gate_m + config.gate_growth_m_s * (time - last_measured)
+        if np.linalg.norm((p - predicted())[:2]) > gate:
+            p, gated = None, gated + 1
+    observer = step_observer(state.observer, time, observer_config, p_W=p)
+    if observer.valid:
+        velocity = observer.estimate
+    if p is not None:
+        last_measured, last_p, coast = time, p, 0.0
+    elif (state.estimate.valid and last_measured is not None and velocity is not None
+          and time - last_measured <= config.max_coast_s + 1e-9 and (landing or observer.valid)):
+        coast = time - last_measured
+        p = predicted()
+    else:
+        coast = math.nan
+    if p is None:
+        estimate = PoseEstimate.invalid(time, "W", "P")
+    else:
+        std = config.position_std_m + config.coast_std_growth_m_s * coast
+        estimate = PoseEstimate(time, RigidTransform(p), True,
+                                np.diag([1.0] * 3 + [std**2, std**2, config.height_std_m**2]), "W", "P")
+    return replace(state, time=time, estimate=estimate, measured=coast == 0.0, last_measured_s=last_measured,
+                   last_p_WP=last_p, height_m=h, height_source=source, anchor=anchor, observer=observer,
+                   velocity=velocity, gated=gated, landing=landing and estimate.valid)
+
+
+def hybrid_vector(state: HybridPadState) -> np.ndarray:
+    """HYBRID_VECTOR_SIZE numbers for logging; NaN position when not valid."""
+    e = state.estimate
+    p = e.X_RT.translation() if e.valid else np.full(3, np.nan)
+    coast = 0.0 if state.measured else (state.time - state.last_measured_s if e.valid else math.nan)
+    return np.array([float(e.valid), *p, float(state.measured), state.height_m, float(state.height_source), coast])
+
+
+class HybridPadEstimator(LeafSystem):
+    """The hybrid estimate (module docstring), stepped at the fisheye's rate (SteppedValue: a reader at a
+    frame time sees that frame).
+
+    Inputs: `target_box` (4, px: the tracker's [x, y, w, h] on the raw fisheye image), `target_valid` (1),
+    optional `target_lock` (2: LockedTrackVector's [id, matched]; connected, a frame measures only when the
+    locked track was matched with a detection in it: the tracker's image-space prediction knows nothing of
+    the UAV's own motion, and a coasting box drifts off the UGV as the UAV moves),
+    `altitude` (1, m: the camera above the ground, the stereo filter's), `altitude_valid` (1), `X_WB`
+    (RigidTransform: the UAV's navigation). Outputs: `X_WP_estimate` (PoseEstimate, frames "W"/"P"),
+    `p_WP_measured` (3, m: this frame's measurement, NaN without one: the velocity observer's input),
+    `v_WP_coast` (3, m/s: the velocity it predicts with while valid, NaN otherwise) and
+    `hybrid_vector` (HYBRID_VECTOR_SIZE)."""
+
+    def __init__(self, fisheye: FisheyeConfig, z_pad: float, config: HybridPadConfig | None = None,
+                 observer_config: VelocityObserverConfig | None = None):
+        super().__init__()
+        self._fisheye, self._z_pad = fisheye, float(z_pad)
+        self._config = config or HybridPadConfig()
+        self._config.validate()
+        self._observer_config = observer_config or VelocityObserverConfig()
+        self._box = self.DeclareVectorInputPort("target_box", 4)
+        self._box_valid = self.DeclareVectorInputPort("target_valid", 1)
+        self._altitude = self.DeclareVectorInputPort("altitude", 1)
+        self._altitude_valid = self.DeclareVectorInputPort("altitude_valid", 1)
+        self._lock = self.DeclareVectorInputPort("target_lock", 2)
+        self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
+        self._stepped = SteppedValue(self, "hybrid_pad", HybridPadState(), fisheye.period_s, self._step,
+                                     lambda s: s.time)
+        tickets = {self._stepped.now.ticket()}
+        self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()),
+                                       lambda c, o: o.set_value(self.state(c).estimate), tickets)
+        self.DeclareVectorOutputPort("p_WP_measured", 3, self._calc_measured, tickets)
+        self.DeclareVectorOutputPort("v_WP_coast", 3, self._calc_coast_velocity, tickets)
+        self.DeclareVectorOutputPort("hybrid_vector", HYBRID_VECTOR_SIZE,
+                                     lambda c, o: o.SetFromVector(hybrid_vector(self.state(c))), tickets)
+
+    def state(self, context) -> HybridPadState:
+        return self._stepped.now.Eval(context)
+
+    def _calc_coast_velocity(self, context, output):
+        s = self.state(context)
+        ok = s.estimate.valid and s.velocity is not None
+        output.SetFromVector(np.array([*s.velocity[:2], 0.0]) if ok else np.full(3, np.nan))
+
+    def _calc_measured(self, context, output):
+        s = self.state(context)
+        output.SetFromVector(s.estimate.X_RT.translation() if s.measured else np.full(3, np.nan))
+
+    def _step(self, context, state: HybridPadState) -> HybridPadState:
+        seen = self._box_valid.Eval(context)[0] > 0.5
+        if self._lock.HasValue(context):  # only a box matched with this frame's detection measures
+            seen = seen and self._lock.Eval(context)[1] > 0.5
+        return hybrid_step(state, context.get_time(), self._box.Eval(context), seen,
+                           float(self._altitude.Eval(context)[0]), self._altitude_valid.Eval(context)[0] > 0.5,
+                           self._X_WB.Eval(context), self._fisheye, self._z_pad, self._config, self._observer_config)
+
+
+class DetectionsToTracker(LeafSystem):
+    """The UGV detector's (box, score) pairs as the tracker's `Detection`s (input `detections`, output
+    `detections`), and the best three as a vector `detection_vector` (15: [valid, x, y, w, h] each) for logs."""
+
+    def __init__(self, max_logged: int = 3):
+        super().__init__()
+        self._n = max_logged
+        self._input = self.DeclareAbstractInputPort("detections", AbstractValue.Make([]))
+        self.DeclareAbstractOutputPort("detections", lambda: AbstractValue.Make([]), self._calc)
+        self.DeclareVectorOutputPort("detection_vector", 5 * max_logged, self._calc_vector)
+
+    def _calc(self, context, output):
+        output.set_value([Detection(np.asarray(box, float), float(score)) for box, score in self._input.Eval(context)])
+
+    def _calc_vector(self, context, output):
+        v = np.zeros(5 * self._n)
+        for k, (box, _score) in enumerate(self._input.Eval(context)[:self._n]):
+            v[5 * k:5 * k + 5] = [1.0, *box]
+        output.SetFromVector(v)
+
+
+class FirstFinite(LeafSystem):
+    """Inputs `u0`, `u1`, ... (n each), output `y`: the first input whose entries are all finite, else zeros.
+    The seam's v_WP: the velocity observer's, else (its window emptied in a blind landing) the coasting
+    estimate's, else none (a NaN velocity must not reach the seam)."""
+
+    def __init__(self, size: int = 3, count: int = 2):
+        super().__init__()
+        self._inputs = [self.DeclareVectorInputPort(f"u{k}", size) for k in range(count)]
+        self._size = size
+        self.DeclareVectorOutputPort("y", size, self._calc)
+
+    def _calc(self, context, output):
+        for port in self._inputs:
+            if port.HasValue(context):
+                u = port.Eval(context)
+                if np.all(np.isfinite(u)):
+                    output.SetFromVector(u)
+                    return
+        output.SetFromVector(np.zeros(self._size))
+
+
+class LockedTrackVector(LeafSystem):
+    """For logs: inputs `tracks` (the tracker's list of BoxTrack) and `target_box` (4); output `lock` (2:
+    [the locked track's id, or -1; 1.0 when it was matched with a detection this frame]). The locked track
+    is the one whose box is the target's."""
+
+    def __init__(self):
+        super().__init__()
+        self._tracks = self.DeclareAbstractInputPort("tracks", AbstractValue.Make([]))
+        self._box = self.DeclareVectorInputPort("target_box", 4)
+        self.DeclareVectorOutputPort("lock", 2, self._calc)
+
+    def _calc(self, context, output):
+        box = self._box.Eval(context)
+        out = [-1.0, 0.0]
+        if np.all(np.isfinite(box)):
+            for track in self._tracks.Eval(context):
+                if np.allclose(track.box, box, atol=1e-6):
+                    out = [float(track.id), float(track.detection is not None)]
+                    break
+        output.SetFromVector(out)
