@@ -11,12 +11,9 @@ Each run renders the fisheye (five faces) and the stereo pair at 10 Hz and runs 
 
 import argparse
 import json
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np
 
