@@ -15,17 +15,13 @@ stereo matching needs texture. Its logs at the fisheye's rate feed `hybrid_metri
 
 from dataclasses import dataclass, field
 
-from pydrake.geometry import Mesh
-from pydrake.math import RigidTransform
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from diagrams.stereo_hover import GroundConfig
-from models.ground_texture import ground_texture_mesh
+from diagrams.stereo_hover import GroundConfig, add_textured_ground
 from systems.config import require
 from systems.estimators.altitude_kf import AltitudeFilterSystem, AltitudeKfConfig
 from systems.estimators.velocity_observer import VelocityObserverConfig, VelocityObserverSystem
-from systems.geometry import register_visual
 from systems.perception.box_tracker import BoxTrackerConfig
 from systems.perception.box_tracker_system import BoxTrackerSystem
 from systems.perception.hybrid_pad import (
@@ -103,17 +99,10 @@ class HybridPorts:
     logs: dict
 
 
-def add_textured_ground_lifted(scene_graph, config: GroundConfig, lift_m: float = GROUND_LIFT_M) -> None:
-    source = scene_graph.RegisterSource("hybrid_textured_ground")
-    mesh = ground_texture_mesh(config.texture_seed, config.texture_pixels)
-    register_visual(scene_graph, source, scene_graph.world_frame_id(), RigidTransform([0.0, 0.0, lift_m]),
-                    Mesh(str(mesh), config.size_m), "hybrid_textured_ground", rgba=None)
-
-
 def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfig, scene_graph, body_frame_id,
                           z_pad: float, seed: int, X_WB) -> HybridPorts:
     """The array on `body_frame_id`, its perception, the estimate on X_WB (the UAV's navigation)."""
-    add_textured_ground_lifted(scene_graph, config.ground)
+    add_textured_ground(scene_graph, config.ground, GROUND_LIFT_M)
     if not scene_graph.HasRenderer(RENDERER_NAME):
         add_renderer(scene_graph)
     rig = add_fisheye_camera(builder, scene_graph, body_frame_id, config.fisheye)

@@ -70,12 +70,12 @@ class StereoHoverHandles:
         diagram.get_input_port(self.X_WB_input_index).FixValue(context, X_WB)
 
 
-def add_textured_ground(scene_graph: SceneGraph, config: GroundConfig) -> None:
-    """The ground quad with its texture, seen by the cameras, in z = 0."""
+def add_textured_ground(scene_graph: SceneGraph, config: GroundConfig, height_m: float = 0.0) -> None:
+    """The ground quad with its texture, seen by the cameras, in z = `height_m` (m; 0: the ground)."""
     source = scene_graph.RegisterSource("textured_ground")
     mesh = ground_texture_mesh(config.texture_seed, config.texture_pixels)
-    register_visual(scene_graph, source, scene_graph.world_frame_id(), RigidTransform(), Mesh(str(mesh), config.size_m), "textured_ground",
-                    rgba=None)
+    register_visual(scene_graph, source, scene_graph.world_frame_id(), RigidTransform([0.0, 0.0, height_m]),
+                    Mesh(str(mesh), config.size_m), "textured_ground", rgba=None)
 
 
 def build_stereo_hover(config: StereoHoverConfig | None = None) -> tuple[Diagram, StereoHoverHandles]:

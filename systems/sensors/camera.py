@@ -240,12 +240,13 @@ def motion_blur_kernel(flow_px: np.ndarray) -> np.ndarray | None:
     if length < 0.5:
         return None
     size = 2 * int(np.ceil(length / 2)) + 3
+    t = np.linspace(-0.5, 0.5, 8 * int(np.ceil(length)) + 1)
+    u, v = size // 2 + t * flow_px[0], size // 2 + t * flow_px[1]
+    u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
+    a, b = u - u0, v - v0
     kernel = np.zeros((size, size))
-    for t in np.linspace(-0.5, 0.5, 8 * int(np.ceil(length)) + 1):
-        u, v = size // 2 + t * flow_px[0], size // 2 + t * flow_px[1]
-        u0, v0 = int(np.floor(u)), int(np.floor(v))
-        a, b = u - u0, v - v0
-        kernel[v0:v0 + 2, u0:u0 + 2] += [[(1 - a) * (1 - b), a * (1 - b)], [(1 - a) * b, a * b]]
+    for du, dv, share in ((0, 0, (1 - a) * (1 - b)), (1, 0, a * (1 - b)), (0, 1, (1 - a) * b), (1, 1, a * b)):
+        np.add.at(kernel, (v0 + dv, u0 + du), share)
     return (kernel / kernel.sum()).astype(np.float32)
 
 
