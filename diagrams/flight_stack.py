@@ -54,8 +54,9 @@ def add_flight_stack(builder: DiagramBuilder, config: FlightConfig, quad: Quadro
     # Not held with the discretised quadrotor: it samples and holds the law at the period itself.
     controller = builder.AddNamedSystem("flight_controller", make_flight_controller(
         config.quadrotor, config.controller, config.controller_implementation, held=not config.integration.discrete))
-    monitor = builder.AddNamedSystem("monitor", LandingMonitor(config.termination, carrier,
-                                                               config.landing.touchdown_height_m))
+    monitor = builder.AddNamedSystem("monitor", LandingMonitor(
+        config.termination, carrier, config.landing.touchdown_height_m,
+        ends_on_landed=config.landing.touchdown_by == "estimate"))
     altitude = builder.AddNamedSystem("altitude", Demultiplexer([2, 1, STATE_SIZE - 3]))
     builder.Connect(nav_state, altitude.get_input_port())
     for name in ("target_offset", "target_velocity", "target_valid"):

@@ -14,7 +14,7 @@ All in World W (z up):
         --> landing supervisor (50 Hz) --command--> flight controller (200 Hz) --> quadrotor
     wind (`wind`, unless calm: mean, Dryden turbulence, gusts) --air velocity--> quadrotor's rotor drag
     navigation (`navigation.source` gnss_ins: the truth plus its errors) --> controller, supervisor, filters
-    vehicle broadcast (`rendezvous.source` broadcast: its GNSS by radio) --coarse seam--> PID where unseen
+    vehicle broadcast (`rendezvous.source` broadcast: its GNSS by radio) [--> search spiral] --coarse seam--> PID where unseen
 
 Both vehicles integrate their equations over each 5 ms controller period in C++
 (`integration.discrete`), so Python runs only at the rates the systems declare.
@@ -55,6 +55,7 @@ from systems.perception.marker_detector import MarkerDetectorSystem
 from systems.perception.marker_faults import MarkerFaults
 from systems.perception.markers import MarkerMeasurementsToVector
 from systems.perception.rendezvous import VehicleBroadcast
+from systems.perception.rendezvous_search import RendezvousSearch
 from systems.perception.synthetic_markers import SyntheticMarkerSource
 from systems.perception.truth import PadPose, RelativeStateTruth
 from systems.sensors.camera import add_camera, add_renderer
@@ -268,6 +269,14 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         builder.Connect(quad_state, broadcast.GetInputPort("quadrotor_state"))
         builder.Connect(nav_X_WB, broadcast.GetInputPort("X_WB"))
         rendezvous = broadcast.get_output_port()
+        r = config.rendezvous
+        if r.search_spacing_m > 0:  # swept about the broadcast while vision is lost
+            search = builder.AddNamedSystem("rendezvous_search", RendezvousSearch(
+                r.search_spacing_m, r.search_radius_m, r.search_speed_m_s, r.search_after_s))
+            builder.Connect(rendezvous, search.GetInputPort("rendezvous"))
+            builder.Connect(perception.relative_state, search.GetInputPort("vision"))
+            builder.Connect(nav_X_WB, search.GetInputPort("X_WB"))
+            rendezvous = search.get_output_port()
     stack = add_flight_stack(builder, config, quad, nav_state, perception.relative_state, vehicle_state,
                              truth.get_output_port(), config.platform, rendezvous)
     pid, supervisor = stack.pid, stack.supervisor

@@ -69,6 +69,7 @@ def test_unstable_gains_end_as_a_failure_in_the_metrics():
     landing = metrics["landing"]
     assert not landing["success"] and not landing["meets_targets"]
     assert landing["failure_reason"] in FAILURE_REASONS and landing["failure_detail"]
+    assert not landing["failure_detail"].startswith(landing["failure_reason"])  # said once: "diverged: ..."
 
 
 @pytest.mark.parametrize("assignment, field", [
@@ -201,6 +202,10 @@ def test_monitor_names_each_way_a_run_ends():
     beside = touching.copy()
     beside[P_BP_W] = [0.9, 0.0, -0.08]  # as low, but off the 1 m pad: no touchdown
     assert check(relative=beside) is None
+    contact = LandingMonitor(config.termination, config.platform, config.landing.touchdown_height_m,
+                             ends_on_landed=False)  # landing.touchdown_by contact: LANDED descends on to the touch
+    assert contact.check(1.0, quad, vehicle, relative, Mode.LANDED, 1.0) is None
+    assert contact.check(1.0, quad, vehicle, touching, Mode.LANDED, 1.0).startswith("landed: the gear touched")
     nan = quad.copy()
     nan[8] = np.nan
     assert check(quad=nan).startswith("diverged")

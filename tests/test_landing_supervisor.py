@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_load_typed
@@ -250,3 +252,37 @@ def test_a_run_ended_on_the_gears_touch_is_a_touchdown_even_if_the_log_missed_it
     assert out["success"] and out["touchdown_by"] == "contact" and out["time_to_land_s"] == pytest.approx(0.08, abs=0.01)
     out = landing_metrics(log, "timeout: no touchdown", config)
     assert not out["success"]
+
+
+def test_touchdown_by_contact_descends_on_at_landing_speed_from_landed():
+    config = LandingConfig(touchdown_by="contact")
+    machine = LandingStateMachine(config)
+    machine.memory = machine.memory._replace(mode=Mode.LAND)
+    inputs = SupervisorInputs(time_s=0.0, altitude_m=1.7, height_above_target_m=0.05, target_valid=True,
+                              target_velocity_m_s=TARGET_VELOCITY, tracking_velocity_m_s=TRACKING)
+    command = machine.step(inputs)
+    assert machine.mode == Mode.LANDED and command[2] == -config.landing_speed_m_s
+    np.testing.assert_allclose(command[:2], TARGET_VELOCITY)
+    command = machine.step(dataclasses.replace(inputs, time_s=0.02, target_valid=False))
+    assert machine.mode == Mode.LANDED and command[2] == -config.landing_speed_m_s  # committed: on to the touch
+    with pytest.raises(ValueError, match="landing.touchdown_by must be one of estimate, contact, not 'gear'"):
+        LandingConfig(touchdown_by="gear").validate()
+
+
+def test_with_touchdown_by_contact_only_the_gears_touch_is_the_touchdown():
+    # The supervisor's LANDED 5 cm early; the UAV goes on at 0.3 m/s and the gear touches two samples later.
+    n = 7
+    relative = np.zeros((n, 14))
+    relative[:, HEIGHT] = np.linspace(0.25, 0.07, n)
+    quad = np.zeros((n, 17))
+    quad[:, 9] = -0.3  # v_WB z
+    log = {"t": 0.02 * np.arange(n), "mode": np.array([Mode.LAND] * 3 + [Mode.LANDED] * 4, dtype=int),
+           "true_relative_state": relative, "quadrotor_state": quad, "vehicle_state": np.zeros((n, 4)),
+           "vehicle_speed": np.zeros(n)}
+    config = load_scenario("marker-landing-wind")[1]
+    assert config.landing.touchdown_by == "contact"
+    out = landing_metrics(log, "landed: the gear touched the pad at t = 0.12 s", config)
+    assert out["touchdown_by"] == "contact" and out["touchdown_gap_m"] == 0.0
+    assert out["touchdown_rel_speed_mps"] == pytest.approx(0.3)  # no fall
+    assert np.flatnonzero(relative[:, HEIGHT] <= config.landing.touchdown_height_m)[0] == 5
+    assert out["time_to_land_s"] == pytest.approx(0.10)

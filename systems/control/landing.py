@@ -29,7 +29,8 @@ Modes and what they command (velocities in World, z up; "hold" is a P loop on al
               the window closes                                           -> WAIT
     WAIT      track, hold LH above the target; window open                -> LAND
               not seen -> HOLD; target off centre -> FOLLOW
-    LANDED    keep the target's velocity, no vertical speed (the run ends)
+    LANDED    keep the target's velocity; no vertical speed (the motors stop and the run ends), or, with
+              touchdown_by contact, on down at landing speed until the gear touches
     HOLD      not seen in FOLLOW/APPROACH: coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
     SEARCH    no horizontal speed, climb back to IH (never descend); seen -> FOLLOW
     ABORT     coast, climb towards IH at climb speed; seen -> FOLLOW (a retry); lost_hold_s -> SEARCH
@@ -62,6 +63,9 @@ class Mode(IntEnum):
     WAIT = 9
 
 
+TOUCHDOWN_BY = ("estimate", "contact")
+
+
 @dataclass
 class LandingConfig:
     rate_hz: float = 50.0  # supervisor update rate (not in the paper)
@@ -78,6 +82,11 @@ class LandingConfig:
     off_centre_radius_m: float = 1.0  # stop descending when it is this far (hysteresis)
     lost_hold_s: float = 1.0  # hold before climbing to search
     touchdown_height_m: float = 0.1  # height above the landing surface that is touchdown
+    # What ends the landing: "estimate", the motors stop at LANDED (the estimated height at touchdown_height_m)
+    # and the UAV falls what is left; "contact", LANDED descends on at landing speed until the gear touches
+    # (a contact switch on the gear, or an autopilot's land detector: PX4 descends at its land speed until
+    # it detects the ground), so an estimate a little high or low costs no fall.
+    touchdown_by: str = "estimate"
     yaw_deg: float = 0.0  # commanded heading
 
     def validate(self, prefix: str = "landing") -> None:
@@ -93,6 +102,8 @@ class LandingConfig:
                 f"{prefix}.takeoff_height_m must be below {prefix}.initial_height_m")
         require(self.touchdown_height_m < self.landing_height_m,
                 f"{prefix}.touchdown_height_m must be below {prefix}.landing_height_m")
+        require(self.touchdown_by in TOUCHDOWN_BY,
+                f"{prefix}.touchdown_by must be one of {', '.join(TOUCHDOWN_BY)}, not {self.touchdown_by!r}")
         require(self.off_centre_radius_m >= self.centred_radius_m,
                 f"{prefix}.off_centre_radius_m must be at least {prefix}.centred_radius_m")
 
@@ -186,7 +197,8 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
         rate = config.altitude_gain * (config.landing_height_m - inputs.height_above_target_m)
         horizontal, vertical = tracking, min(max(rate, -config.descent_speed_m_s), config.climb_speed_m_s)
     elif mode == Mode.LANDED:
-        horizontal, acceleration, vertical = coast, _ZERO, 0.0
+        horizontal, acceleration = coast, _ZERO
+        vertical = -config.landing_speed_m_s if config.touchdown_by == "contact" else 0.0
     elif mode == Mode.HOLD:
         horizontal, vertical = tracking, towards(memory.altitude_hold_m)
     elif mode == Mode.ABORT:

@@ -57,9 +57,13 @@ class LandingMonitor(LeafSystem):
     """Inputs `quadrotor_state` (17), `vehicle_state` (4), `true_relative_state` (the seam's layout,
     from the truth), `target_valid` (1, the seam's flag: what steers) and `mode` (1)."""
 
-    def __init__(self, termination: TerminationConfig, platform: PlatformConfig, touchdown_height_m: float):
+    def __init__(self, termination: TerminationConfig, platform: PlatformConfig, touchdown_height_m: float,
+                 ends_on_landed: bool = True):
+        """`ends_on_landed`: the supervisor's LANDED ends the run (its motors stop there); false where it
+        descends on until the gear touches (landing.touchdown_by contact)."""
         super().__init__()
         self._termination, self._platform, self._touchdown = termination, platform, touchdown_height_m
+        self._ends_on_landed = ends_on_landed
         self._quad = self.DeclareVectorInputPort("quadrotor_state", STATE_SIZE)
         self._vehicle = self.DeclareVectorInputPort("vehicle_state", 4)
         self._relative = self.DeclareVectorInputPort("true_relative_state", RELATIVE_STATE_SIZE)
@@ -74,7 +78,7 @@ class LandingMonitor(LeafSystem):
         term, platform = self._termination, self._platform
         if not (np.isfinite(quad).all() and np.isfinite(vehicle).all()):
             return f"diverged: non-finite state at t = {t:.2f} s"
-        if mode == Mode.LANDED:
+        if mode == Mode.LANDED and self._ends_on_landed:
             return f"{SUPERVISOR_LANDED} by t = {t:.2f} s" if term.stop_on_landed else None
         offset = pad_offset(relative, vehicle[GV_HEADING])
         if (term.stop_on_landed and relative[HEIGHT] <= self._touchdown

@@ -39,12 +39,23 @@ class RendezvousConfig:
     position_std_m: float = 2.0
     position_time_constant_s: float = 60.0
     max_age_s: float = 1.0
+    # The search about the broadcast where vision is lost (systems/perception/rendezvous_search.py); ours.
+    search_spacing_m: float = 0.0  # between the spiral's turns; 0: no search
+    search_radius_m: float = 8.0
+    search_speed_m_s: float = 2.0
+    search_after_s: float = 2.0  # vision invalid this long before the search begins
 
     def validate(self, prefix: str = "rendezvous") -> None:
         require(self.source in SOURCES, f"{prefix}.source '{self.source}' is not one of {', '.join(SOURCES)}")
         for name in ("rate_hz", "position_time_constant_s", "max_age_s"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
         require_non_negative(self.position_std_m, f"{prefix}.position_std_m")
+        require_non_negative(self.search_spacing_m, f"{prefix}.search_spacing_m")
+        for name in ("search_radius_m", "search_speed_m_s"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        require_non_negative(self.search_after_s, f"{prefix}.search_after_s")
+        require(self.search_spacing_m <= self.search_radius_m,
+                f"{prefix}.search_spacing_m must not exceed {prefix}.search_radius_m")
         require(self.latency_periods >= 0, f"{prefix}.latency_periods must not be negative")
 
 
