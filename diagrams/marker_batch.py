@@ -5,8 +5,10 @@ measurements. A campaign worker flies each setting once (`flight_samples`, kept 
 keyed by the scenario without its seed and estimation settings), and each run then replays it at the
 filter steps through the functions the Diagram's systems call: the seeded noise of each sample
 (`draw_noise` from `sample_rng`) applied by `noisy_marker_poses` to the true marker poses (here
-computed for all samples at once), the latency queue (`delay_queue`) and the filters' `step` and
-`estimate_vector`. tests/test_marker_batch.py checks both give the same estimates to 1e-9 on the same
+computed for all samples at once), the latency queue (`delay_queue`) and the filters' `step`, with the
+camera of every sample computed at once (`MarkerFilter.camera` on stacks) and every sample's estimate
+vector made at the end from the filters' `record`s (`estimate_vectors`, the vector `estimate_vector`
+gives at each step). tests/test_marker_batch.py checks both give the same estimates to 1e-9 on the same
 seed. Only for `perception.source: truth` with `estimation.source: synthetic`.
 """
 
@@ -21,8 +23,8 @@ from diagrams.gv_landing_config import GvLandingConfig
 from diagrams.marker_metrics import SampledRun, pad_truth, true_marker_poses_C
 from diagrams.simulate import simulate
 from systems.config import require
-from systems.estimators.marker_ekf import FILTERS
-from systems.estimators.marker_ekf.engine import ESTIMATE_VECTOR_SIZE
+from systems.estimators.marker_ekf import FILTERS, Camera, MarkerFilter
+from systems.estimators.marker_ekf.engine import EST_VALID, ESTIMATE_VECTOR_SIZE
 from systems.noise import sample_index, sample_rng
 from systems.perception.latency import delay_queue
 from systems.perception.markers import MarkerMeasurement
@@ -74,16 +76,32 @@ def batch_run(config: GvLandingConfig, duration_s: float) -> SampledRun:
     p_CM, q_CM = noisy_marker_poses(p_true, drake_to_paper(q_CP), *(np.array(part) for part in zip(*noise)))
     q_BR = drake_to_paper(truth.q_WB)  # the UAV's attitude, the paper's way, for the filters' camera
     filters = {name: FILTERS[name](layout, est.X_BC, est.ekf) for name in config.filter_names}
-    estimates = {name: np.empty((len(t), ESTIMATE_VECTOR_SIZE)) for name in filters}
-    p_WM = {name: np.empty((len(t), n, 3)) for name in filters}
+    cameras = next(iter(filters.values())).camera(truth.p_WB, q_BR)  # every filter's camera is at est.X_BC
+    records = {name: [None] * len(t) for name in filters}
     queue = ()
     for k, t_k in enumerate(t.tolist()):
         acquired = [MarkerMeasurement(t_k, marker_id, p, q) for marker_id, p, q in zip(layout.ids, p_CM[k], q_CM[k])]
         queue, arrived = delay_queue(queue, acquired, est.latency_periods)
-        camera = next(iter(filters.values())).camera(truth.p_WB[k], q_BR[k])  # every filter's camera is at est.X_BC
+        camera = Camera(*(part[k] for part in cameras))
         for name, f in filters.items():
             f.step(t_k, None, arrived, camera)
-            estimates[name][k], p_WM[name][k] = f.estimate_vector(t_k)
+            records[name][k] = f.record()
+    estimates, p_WM = {}, {}
+    for name, f in filters.items():
+        estimates[name], p_WM[name] = estimate_vectors(f, records[name])
     return SampledRun(t, quad, vehicle, np.concatenate([p_CM, q_CM], axis=-1), estimates, p_WM,
                       {name: dataclasses.asdict(f.stats) for name, f in filters.items()},
                       {name: f.compute_s for name, f in filters.items()})
+
+
+def estimate_vectors(marker_filter: MarkerFilter, records: list) -> tuple[np.ndarray, np.ndarray]:
+    """(estimate vectors (N, ESTIMATE_VECTOR_SIZE), p_WM (N, n, 3)) of the filter's `record` at N steps:
+    what `estimate_vector` gave at each (NaN, not valid, before the start)."""
+    vectors = np.full((len(records), ESTIMATE_VECTOR_SIZE), np.nan)
+    vectors[:, EST_VALID] = 0.0
+    p_WM = np.full((len(records), len(marker_filter.p_PM), 3), np.nan)
+    started = [k for k, r in enumerate(records) if r is not None]
+    if started:
+        x, variance, last = (np.array(part) for part in zip(*(records[k] for k in started)))
+        vectors[started], p_WM[started], _ = marker_filter.estimate_vectors(x, variance, last)
+    return vectors, p_WM

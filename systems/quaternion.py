@@ -85,24 +85,40 @@ def quaternion_rate(q, w_B):
 # Paper order [x, y, z, w] (seed 002 Sec. 2.1)
 
 
+def _floats(v):
+    """The components of one vector, or of a stack (..., k) as k arrays (...). One vector's as Python
+    floats (a 1-D array's tolist(): the matrices below are built several times per filter step, and
+    numpy scalars cost more than the arithmetic); any other sequence as it is."""
+    if isinstance(v, np.ndarray):
+        return v.tolist() if v.ndim == 1 else np.moveaxis(v, -1, 0)
+    return v
+
+
+def _matrix(rows) -> np.ndarray:
+    """np.array(rows) of components from `_floats`: (r, c) for one vector, (..., r, c) for a stack
+    (every entry a component: no constants, which would not broadcast)."""
+    m = np.array(rows)
+    return m if m.ndim == 2 else np.moveaxis(m, (0, 1), (-2, -1))
+
+
 def skew(v: np.ndarray) -> np.ndarray:
     """[v x] of Eq. (3) (zero diagonal): skew(a) @ b = a x b."""
-    x, y, z = v
+    x, y, z = _floats(v)
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def otimes_matrix(q: np.ndarray) -> np.ndarray:
     """[q (x)] = [[q4 I3 - [q_{1:3} x], q_{1:3}], [-q_{1:3}^T, q4]] of Eq. (1), so that
-    otimes(q, p) = otimes_matrix(q) @ p."""
-    x, y, z, w = q
-    return np.array([[w, z, -y, x], [-z, w, x, y], [y, -x, w, z], [-x, -y, -z, w]])
+    otimes(q, p) = otimes_matrix(q) @ p. A stack q (..., 4) gives (..., 4, 4)."""
+    x, y, z, w = _floats(q)
+    return _matrix([[w, z, -y, x], [-z, w, x, y], [y, -x, w, z], [-x, -y, -z, w]])
 
 
 def odot_matrix(q: np.ndarray) -> np.ndarray:
     """[q (.)] = [[q4 I3 + [q_{1:3} x], q_{1:3}], [-q_{1:3}^T, q4]] of Eq. (2), so that
-    odot(q, p) = odot_matrix(q) @ p."""
-    x, y, z, w = q
-    return np.array([[w, -z, y, x], [z, w, -x, y], [-y, x, w, z], [-x, -y, -z, w]])
+    odot(q, p) = odot_matrix(q) @ p. A stack q (..., 4) gives (..., 4, 4)."""
+    x, y, z, w = _floats(q)
+    return _matrix([[w, -z, y, x], [z, w, -x, y], [-y, x, w, z], [-x, -y, -z, w]])
 
 
 def otimes(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
@@ -115,16 +131,19 @@ def odot(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     return odot_matrix(qa) @ qb
 
 
+_INVERSE = np.array([-1.0, -1.0, -1.0, 1.0])
+
+
 def inverse(q: np.ndarray) -> np.ndarray:
-    """q^-1 of a unit quaternion (its conjugate [-q_{1:3}, q4]): (q^{B/A})^-1 = q^{A/B}."""
-    return np.array([-q[0], -q[1], -q[2], q[3]])
+    """q^-1 of a unit quaternion (its conjugate [-q_{1:3}, q4]), or of a stack (..., 4): (q^{B/A})^-1 = q^{A/B}."""
+    return np.asarray(q) * _INVERSE
 
 
 def dcm(q: np.ndarray) -> np.ndarray:
     """D(q) = (q4^2 - |q_{1:3}|^2) I3 - 2 q4 [q_{1:3} x] + 2 q_{1:3} q_{1:3}^T (Sec. 2.1, typo fixed);
-    q must be unit. D(q^{B/A}) = D^{B/A} = R_BA."""
-    x, y, z, w = q
-    return np.array([
+    q must be unit. D(q^{B/A}) = D^{B/A} = R_BA. A stack q (..., 4) gives (..., 3, 3)."""
+    x, y, z, w = _floats(q)
+    return _matrix([
         [w * w + x * x - y * y - z * z, 2 * (x * y + w * z), 2 * (x * z - w * y)],
         [2 * (x * y - w * z), w * w - x * x + y * y - z * z, 2 * (y * z + w * x)],
         [2 * (x * z + w * y), 2 * (y * z - w * x), w * w - x * x - y * y + z * z]])
@@ -132,15 +151,15 @@ def dcm(q: np.ndarray) -> np.ndarray:
 
 def xi(q: np.ndarray) -> np.ndarray:
     """Xi(q) = [q4 I3 + [q_{1:3} x]; -q_{1:3}^T] (4x3) of Eq. (11): dq/dt = Xi(q) omega / 2 for the
-    angular velocity omega of the frame expressed in that (body) frame."""
-    x, y, z, w = q
-    return np.array([[w, -z, y], [z, w, -x], [-y, x, w], [-x, -y, -z]])
+    angular velocity omega of the frame expressed in that (body) frame. A stack q (..., 4) gives (..., 4, 3)."""
+    x, y, z, w = _floats(q)
+    return _matrix([[w, -z, y], [z, w, -x], [-y, x, w], [-x, -y, -z]])
 
 
 def omega_matrix(omega: np.ndarray) -> np.ndarray:
     """Omega(omega) = [[-[omega x], omega], [-omega^T, 0]] (4x4), with Xi(q) omega = Omega(omega) q:
     the Jacobian of Eq. (11)'s quaternion step with respect to q."""
-    x, y, z = omega
+    x, y, z = _floats(omega)
     return np.array([[0.0, z, -y, x], [-z, 0.0, x, y], [y, -x, 0.0, z], [-x, -y, -z, 0.0]])
 
 
@@ -148,9 +167,11 @@ def rotation_vector(q: np.ndarray) -> np.ndarray:
     """The rotation vector (angle times unit axis, rad) of unit quaternions q (..., 4); the angle
     is in [0, pi] (q and -q give the same vector)."""
     v, w = q[..., :3], q[..., 3:]
-    s = np.sqrt(np.sum(v * v, axis=-1, keepdims=True))  # sin(angle / 2)
-    # angle = 2 atan2(s, |w|) about the axis sign(w) v / s (zero vector when s = 0)
-    return v * np.copysign(2 * np.arctan2(s, np.abs(w)) / np.where(s > 0, s, 1.0), w)
+    s = np.sqrt((v * v).sum(axis=-1, keepdims=True))  # sin(angle / 2)
+    # angle = 2 atan2(s, |w|) about the axis sign(w) v / s (zero vector when s = 0: angle 0)
+    scale = 2 * np.arctan2(s, np.abs(w))
+    np.divide(scale, s, out=scale, where=s > 0)
+    return v * np.copysign(scale, w)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -21,15 +21,22 @@ from systems.geometry import wrap_angle
 from systems.quaternion import dcm, inverse, odot_matrix, rotation_vector
 
 
-def _rot_z(psi: float) -> np.ndarray:
-    """R_z(psi), a rotation by psi about z (3x3)."""
+def _rot_z(psi) -> np.ndarray:
+    """R_z(psi), a rotation by psi [rad] about z: (3, 3), or (..., 3, 3) for angles (...)."""
+    if isinstance(psi, float):  # a Python float or a numpy float64
+        c, s = math.cos(psi), math.sin(psi)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     c, s = np.cos(psi), np.sin(psi)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    zero, one = np.zeros_like(c), np.ones_like(c)
+    return np.moveaxis(np.array([[c, -s, zero], [s, c, zero], [zero, zero, one]]), (0, 1), (-2, -1))
 
 
-def _yaw_quaternion(psi: float) -> np.ndarray:
-    """q^{P/R} of a level pad yawed by psi about W's z."""
-    return np.array([0.0, 0.0, np.sin(psi / 2), np.cos(psi / 2)])
+def _yaw_quaternion(psi) -> np.ndarray:
+    """q^{P/R} of a level pad yawed by psi [rad] about W's z: (4,), or (..., 4) for angles (...)."""
+    if isinstance(psi, float):  # a Python float or a numpy float64
+        return np.array([0.0, 0.0, math.sin(psi / 2), math.cos(psi / 2)])
+    zero = np.zeros_like(psi)
+    return np.stack([zero, zero, np.sin(psi / 2), np.cos(psi / 2)], axis=-1)
 
 
 def _turn_terms(theta: float) -> tuple[float, float, float, float]:
@@ -97,15 +104,16 @@ class ConstantTurnEkf(MarkerFilter):
         return Q
 
     def predict_measurements(self, x, slots, camera):
-        return self._predict_positions(x, slots, camera), camera.Q_RC @ _yaw_quaternion(x[self.PSI])  # Eq. (12)
+        return self._predict_positions(x, slots, camera), camera.Q_RC @ _yaw_quaternion(float(x[self.PSI]))  # Eq. (12)
 
     def _predict_positions(self, x, slots, camera):
-        p_WM = x[:3] + self.p_PM[slots] @ _rot_z(x[self.PSI]).T
+        p_WM = x[:3] + self.p_PM[slots] @ _rot_z(float(x[self.PSI])).T
         return (p_WM - camera.p_WC) @ camera.R_CW.T
 
     def measurement_jacobian(self, x, slots, camera):
         k = len(slots)
-        c, s = np.cos(x[self.PSI]), np.sin(x[self.PSI])
+        psi = float(x[self.PSI])
+        c, s = math.cos(psi), math.sin(psi)
         dR_WP = np.array([[-s, -c, 0.0], [c, -s, 0.0], [0.0, 0.0, 0.0]])  # d R_z(psi) / d psi
         H = np.zeros((k, 6, 8))
         H[:, :3, :3] = camera.R_CW
@@ -115,15 +123,18 @@ class ConstantTurnEkf(MarkerFilter):
 
     def innovations(self, x, slots, camera, p_CM, q_MC):
         # q^{M/R} = [q^{C/R} (.)] q^{M/C} (Eq. 5) = dq (x) q_pred: dq = [q_pred^-1 (.)] q^{M/R}
-        to_error = odot_matrix(inverse(_yaw_quaternion(x[self.PSI]))) @ camera.M_CR
-        return np.hstack([p_CM - self._predict_positions(x, slots, camera), rotation_vector(q_MC @ to_error.T)])
+        to_error = odot_matrix(inverse(_yaw_quaternion(float(x[self.PSI])))) @ camera.M_CR
+        return np.concatenate([p_CM - self._predict_positions(x, slots, camera), rotation_vector(q_MC @ to_error.T)],
+                              axis=1)
 
     def normalized(self, x):
-        x[self.PSI] = wrap_angle(x[self.PSI])
+        x[self.PSI] = wrap_angle(float(x[self.PSI]))
         return x
 
     def platform(self, x):
-        return x[:3].copy(), _yaw_quaternion(x[self.PSI]), x[:3] + self.p_PM @ _rot_z(x[self.PSI]).T
+        psi = x[..., self.PSI]
+        p_WM = x[..., None, :3] + self.p_PM @ np.swapaxes(_rot_z(psi), -1, -2)
+        return x[..., :3].copy(), _yaw_quaternion(psi), p_WM
 
     def platform_covariance(self, x, P):
         J = np.zeros((6, 8))
@@ -133,5 +144,5 @@ class ConstantTurnEkf(MarkerFilter):
 
     def platform_rates(self, x):
         """v_WP, and the coordinated turn's acceleration: the horizontal velocity turning at omega."""
-        vx, vy = x[3], x[4]
-        return x[3:6].copy(), np.array([-x[self.OMEGA] * vy, x[self.OMEGA] * vx, 0.0])
+        vx, vy, omega = x[..., 3], x[..., 4], x[..., self.OMEGA]
+        return x[..., 3:6].copy(), np.stack([-omega * vy, omega * vx, np.zeros_like(vx)], axis=-1)

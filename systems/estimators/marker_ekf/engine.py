@@ -22,11 +22,13 @@ package docstring):
 import copy
 import math
 from dataclasses import dataclass
+from operator import attrgetter
 from time import perf_counter
 from typing import NamedTuple
 
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
+from scipy.linalg import lapack
 from scipy.stats import chi2
 
 from systems.config import require, require_positive
@@ -35,6 +37,7 @@ from systems.perception.markers import MarkerLayout, MarkerMeasurement
 from systems.quaternion import dcm, drake_to_paper, inverse, odot_matrix, paper_to_drake
 
 TIME_TOLERANCE_S = 1e-9
+_TIME = attrgetter("time")
 
 
 @dataclass
@@ -80,6 +83,8 @@ class FilterStats:
         return FilterStats(self.accepted + other.accepted, self.gated + other.gated, self.invalid + other.invalid,
                            self.too_late + other.too_late, self.resets + other.resets)
 
+
+_NO_COUNTS = FilterStats()
 
 # A filter's estimate as one vector (`MarkerFilter.estimate_vector`, logged every filter step).
 EST_VALID, EST_P_WP, EST_YAW, EST_V_WP, EST_A_WP, EST_POSITION_STD, EST_LAST_MEASUREMENT = (
@@ -142,6 +147,15 @@ class _Step(NamedTuple):
     gated_streak: int  # steps in a row, up to this one, whose measurements were all gated out
 
 
+def _solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A^-1 B by LAPACK's dgesv, the routine np.linalg.solve calls, without its per-call overhead
+    (twice per update, on matrices of 30-35 rows)."""
+    _, _, X, info = lapack.dgesv(A, B)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular matrix in the marker filter update (dgesv info {info})")
+    return X
+
+
 def cv_noise(psd: float, dt: float) -> np.ndarray:
     """2x2 covariance of [position, velocity] after dt under white acceleration of spectral
     density psd: psd [[dt^3/3, dt^2/2], [dt^2/2, dt]]."""
@@ -174,9 +188,11 @@ class MarkerFilter:
         self._odot_q_BC = odot_matrix(self._q_BC)
         sigma_q = np.radians(self.config.attitude_std_deg)
         self._sigma_q = sigma_q
-        self._R_marker = self.marker_noise(self.config.position_std_m, sigma_q)
+        self._R_marker = self.marker_noise(self.config.position_std_m, sigma_q)  # diagonal
+        require(np.count_nonzero(self._R_marker - np.diag(np.diag(self._R_marker))) == 0,
+                f"{self.name}: the marker noise R must be diagonal")
         self._gate = chi2.ppf(self.config.gate_probability, self.rows)
-        self._R_stacked: dict[int, np.ndarray] = {}  # shared by copies: a cache of constants
+        self._R_stacked: dict[int, tuple] = {}  # shared by copies: a cache of constants
         self._constants_by_dt: dict[float, object] = {}  # shared by copies, like _R_stacked
         # Predictions already made, by (id of the prior belief, time): a late measurement re-runs
         # the step it belongs to from the same prior to the same time (a pure function of both).
@@ -231,7 +247,8 @@ class MarkerFilter:
         return x
 
     def platform(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(p_WP, q^{P/R}, p_WM (n, 3)) of the state x; p_WP is x[:3] in every model."""
+        """(p_WP (..., 3), q^{P/R} (..., 4), p_WM (..., n, 3)) of states x (..., n), one or a stack;
+        p_WP is x[..., :3] in every model."""
         raise NotImplementedError
 
     def platform_covariance(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -239,16 +256,18 @@ class MarkerFilter:
         raise NotImplementedError
 
     def platform_rates(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(v_WP [m/s], a_WP [m/s^2]) of the pad frame's origin in W; a_WP zero where the model has
-        no acceleration."""
+        """(v_WP (..., 3) [m/s], a_WP (..., 3) [m/s^2]) of the pad frame's origin in W for states x
+        (..., n); a_WP zero where the model has no acceleration."""
         raise NotImplementedError
 
     # ---- camera ------------------------------------------------------------------------------
 
     def camera(self, p_WB: np.ndarray, q_BR: np.ndarray) -> Camera:
-        """The camera's pose for the UAV at p_WB with attitude q^{B/R}."""
+        """The camera's pose for the UAV at p_WB [m] with attitude q^{B/R}: p_WB (3,) and q_BR (4,), or
+        stacks (..., 3) and (..., 4) for a Camera of stacked fields (`Camera(*(f[k] for f in
+        cameras))` is the k-th)."""
         D_BR = dcm(q_BR)
-        q_RC = self._odot_q_BC @ inverse(q_BR)  # q^{B/C} (.) (q^{B/R})^-1 of Eq. (12), = q^{R/C}
+        q_RC = inverse(q_BR) @ self._odot_q_BC.T  # q^{B/C} (.) (q^{B/R})^-1 of Eq. (12), = q^{R/C}
         return Camera(p_WB, q_BR, self._D_CB @ D_BR, p_WB + self._c_B @ D_BR, odot_matrix(q_RC))
 
     def camera_at(self, X_WB: RigidTransform) -> Camera:
@@ -270,12 +289,14 @@ class MarkerFilter:
         history = self._history
         if history and t <= history[-1].time + TIME_TOLERANCE_S:
             raise ValueError(f"step at t = {t} s does not follow the previous step at {history[-1].time} s")
-        usable, settled = self._screen(measurements, t)
+        usable, invalid = self._screen(measurements, t)
+        too_late = 0
         current, late = [], {}  # late: history index -> measurements taken in that step
+        index = {}  # step index by measurement time (a frame's markers share one)
         for m in usable:
-            j = self._step_index(m.time, t)
+            j = index[m.time] if m.time in index else index.setdefault(m.time, self._step_index(m.time, t))
             if j is None:
-                settled += FilterStats(too_late=1)
+                too_late += 1
             elif j == len(history):
                 current.append(m)
             else:
@@ -291,18 +312,21 @@ class MarkerFilter:
         for s in steps[first:]:  # the steps run now, old ones re-run included
             if s.stats.accepted:
                 self._last_measurement_s = max(self._last_measurement_s, max(m.time for m in s.measurements))
+        settled = self._settled
+        if invalid or too_late:
+            settled = settled + FilterStats(invalid=invalid, too_late=too_late)
         while len(steps) > 1 and steps[0].time < t - self.config.history_s - TIME_TOLERANCE_S:
-            settled += steps.pop(0).stats
+            settled = settled + steps.pop(0).stats
             self._has_evicted = True
-        self._settled += settled
+        self._settled = settled
         self._history = tuple(steps)
         self.compute_s += perf_counter() - start
 
-    def _screen(self, measurements, t: float) -> tuple[list[MarkerMeasurement], FilterStats]:
+    def _screen(self, measurements, t: float) -> tuple[list[MarkerMeasurement], int]:
         """The measurements that can be fused, and the count of those that cannot."""
         measurements = list(measurements)
         usable = [m for m in measurements if self._usable(m, t)]
-        return usable, FilterStats(invalid=len(measurements) - len(usable))
+        return usable, len(measurements) - len(usable)
 
     def _usable(self, m: MarkerMeasurement, t: float) -> bool:
         """A known marker, taken by time t, finite, with a unit quaternion (to tolerance)."""
@@ -336,7 +360,7 @@ class MarkerFilter:
         streak = previous.gated_streak if previous else 0
         accepted = gated = resets = 0
         groups = {}
-        for m in sorted(measurements, key=lambda m: m.time):
+        for m in sorted(measurements, key=_TIME):
             groups.setdefault(m.time, []).append(m)
         last = None
         for tm, group in groups.items():
@@ -358,7 +382,8 @@ class MarkerFilter:
             belief, streak, resets = self._start(*last), 0, 1
         if belief is not None:
             belief = self._predict_to(belief, time)
-        return _Step(time, camera, tuple(measurements), belief, FilterStats(accepted, gated, 0, 0, resets), streak)
+        stats = FilterStats(accepted, gated, 0, 0, resets) if accepted or gated or resets else _NO_COUNTS
+        return _Step(time, camera, tuple(measurements), belief, stats, streak)
 
     def _start(self, time: float, group, camera: Camera) -> _Belief:
         slots, p_CM, q_MC = self._arrays(group)
@@ -407,29 +432,32 @@ class MarkerFilter:
         nu = self.innovations(x, slots, camera, p_CM, q_MC)
         H = self.measurement_jacobian(x, slots, camera)
         k, d = nu.shape
+        R, r, blocks = self._stacked_noise(k)
         PHt = P @ H.T  # P^XY
-        S = H @ PHt + self._stacked_noise(k)  # P^Y
-        # chi-square gate, one marker measurement at a time: nu_i^T S_ii^-1 nu_i
-        blocks = np.arange(k)
-        S_ii = S.reshape(k, d, k, d)[blocks, :, blocks, :]
-        nis = np.einsum("ki,ki->k", nu, np.linalg.solve(S_ii, nu[:, :, None])[:, :, 0])
+        S = H @ PHt + R  # P^Y
+        # chi-square gate, one marker measurement at a time: nu_i^T S_ii^-1 nu_i, every S_ii^-1 nu_i
+        # from one solve with the block diagonal of S (the blocks do not mix: each is solved alone)
+        nu = nu.ravel()
+        nis = (nu * _solve(S * blocks, nu)).reshape(k, d).sum(axis=1)
         keep = nis <= self._gate
         fused = int(keep.sum())
         if fused == 0:
             return belief, 0
         if fused < k:
-            rows = ((d * blocks[keep])[:, None] + np.arange(d)).ravel()
-            S, PHt, H, nu = S[np.ix_(rows, rows)], PHt[:, rows], H[rows], nu[keep]
-        K = np.linalg.solve(S, PHt.T).T  # K = P^XY (P^Y)^-1
-        x = self.normalized(x + K @ nu.ravel())
+            rows = ((d * np.flatnonzero(keep))[:, None] + np.arange(d)).ravel()
+            S, PHt, H, nu, r = S[np.ix_(rows, rows)], PHt[:, rows], H[rows], nu[rows], r[rows]
+        K = _solve(S, PHt.T).T  # K = P^XY (P^Y)^-1
+        x = self.normalized(x + K @ nu)
         I_KH = self._I - K @ H
-        P = I_KH @ P @ I_KH.T + K @ self._stacked_noise(fused) @ K.T  # Joseph form, as Sec. 3 writes it
+        P = I_KH @ P @ I_KH.T + (K * r) @ K.T  # Joseph form, as Sec. 3 writes it (R diagonal: K R = K * r)
         return _Belief(belief.time, x, (P + P.T) / 2), fused
 
-    def _stacked_noise(self, k: int) -> np.ndarray:
-        """R of k stacked marker measurements (block diagonal), cached."""
+    def _stacked_noise(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(R of k stacked marker measurements (block diagonal), its diagonal, the 0/1 mask of its
+        blocks), cached."""
         if k not in self._R_stacked:
-            self._R_stacked[k] = np.kron(np.eye(k), self._R_marker)
+            R = np.kron(np.eye(k), self._R_marker)
+            self._R_stacked[k] = R, np.diag(R).copy(), np.kron(np.eye(k), np.ones(self._R_marker.shape))
         return self._R_stacked[k]
 
     # ---- results -----------------------------------------------------------------------------
@@ -466,7 +494,9 @@ class MarkerFilter:
             vector[EST_VALID] = 0.0
             return MarkerFilterEstimate(PoseEstimate.invalid(time, "W", "P"), vector,
                                         np.full((len(self.p_PM), 3), np.nan))
-        belief, q_PR, vector, p_WM = self._summary(t)
+        belief = self._latest(t)
+        vector, p_WM, q_PR = self.estimate_vectors(belief.x, self._position_variance(belief.P),
+                                                   self._last_measurement_s)
         X_WP = RigidTransform(RotationMatrix(paper_to_drake(q_PR)), vector[EST_P_WP])
         covariance = self.platform_covariance(belief.x, belief.P)
         estimate = PoseEstimate(belief.time, X_WP, bool(vector[EST_VALID]), covariance, "W", "P")
@@ -478,23 +508,44 @@ class MarkerFilter:
             vector = np.full(ESTIMATE_VECTOR_SIZE, np.nan)
             vector[EST_VALID] = 0.0
             return vector, np.full((len(self.p_PM), 3), np.nan)
-        _, _, vector, p_WM = self._summary(t)
+        belief = self._latest(t)
+        vector, p_WM, _ = self.estimate_vectors(belief.x, self._position_variance(belief.P),
+                                                self._last_measurement_s)
         return vector, p_WM
 
-    def _summary(self, t: float | None):
-        """(belief, unit q^{P/R}, estimate vector, p_WM) of the latest posterior predicted to t."""
+    def record(self) -> tuple[np.ndarray, float, float] | None:
+        """What `estimate_vectors` needs of the latest step, None before the start: (x, the pad
+        position's variance [m^2], the newest fused measurement's time [s]). A loop over many steps
+        keeps one per step and makes every estimate vector at the end, at once."""
+        if not self.started:
+            return None
         belief = self._history[-1].belief
-        if t is not None:
-            belief = self._predict_to(belief, t)
-        p_WP, q_PR, p_WM = self.platform(belief.x)
-        q_PR = q_PR / np.linalg.norm(q_PR)
-        position_std = math.sqrt(np.trace(belief.P[:3, :3]))  # p_WP = x[:3]
-        x, y, z, w = q_PR.tolist()  # scalar last; yaw = atan2(R_WP[1, 0], R_WP[0, 0])
-        yaw = math.atan2(2.0 * (x * y + w * z), 1.0 - 2.0 * (y * y + z * z))
-        v_WP, a_WP = self.platform_rates(belief.x)
-        last = self._last_measurement_s if math.isfinite(self._last_measurement_s) else math.nan
-        vector = np.empty(ESTIMATE_VECTOR_SIZE)
-        vector[EST_VALID] = position_std <= self.config.max_valid_position_std_m
-        vector[EST_P_WP], vector[EST_YAW], vector[EST_V_WP], vector[EST_A_WP] = p_WP, yaw, v_WP, a_WP
-        vector[EST_POSITION_STD], vector[EST_LAST_MEASUREMENT] = position_std, last
-        return belief, q_PR, vector, p_WM
+        return belief.x, self._position_variance(belief.P), self._last_measurement_s
+
+    def estimate_vectors(self, x: np.ndarray, position_variance, last_measurement_s
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(estimate vectors (..., ESTIMATE_VECTOR_SIZE) in the EST_* layout, p_WM (..., n, 3) [m],
+        unit q^{P/R} (..., 4)) of states x (..., n) with the pad position's variance (...) [m^2] and
+        the newest fused measurement's time (...) [s] (-inf: none yet): one step, or a stack of
+        steps (`record`) at once."""
+        p_WP, q_PR, p_WM = self.platform(x)
+        q_PR = q_PR / np.linalg.norm(q_PR, axis=-1, keepdims=True)
+        position_std = np.sqrt(position_variance)
+        qx, qy, qz, qw = np.moveaxis(q_PR, -1, 0)  # scalar last; yaw = atan2(R_WP[1, 0], R_WP[0, 0])
+        yaw = np.arctan2(2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qy * qy + qz * qz))
+        v_WP, a_WP = self.platform_rates(x)
+        last = np.where(np.isfinite(last_measurement_s), last_measurement_s, np.nan)
+        valid = position_std <= self.config.max_valid_position_std_m
+        columns = [np.asarray(c, dtype=float)[..., None] for c in (valid, yaw, position_std, last)]
+        vector = np.concatenate([columns[0], p_WP, columns[1], v_WP, a_WP, columns[2], columns[3]], axis=-1)
+        return vector, p_WM, q_PR
+
+    def _latest(self, t: float | None) -> _Belief:
+        """The latest posterior predicted to t (default: the latest step's time)."""
+        belief = self._history[-1].belief
+        return belief if t is None else self._predict_to(belief, t)
+
+    @staticmethod
+    def _position_variance(P: np.ndarray) -> float:
+        """trace of the covariance of p_WP = x[:3] [m^2]."""
+        return P[0, 0] + P[1, 1] + P[2, 2]

@@ -12,6 +12,8 @@ kinematics of a body-frame rate, so omega here is in P (the same for a pad turni
 vertical).
 """
 
+import math
+
 import numpy as np
 from pydrake.math import RigidTransform
 
@@ -62,33 +64,36 @@ class PaperMarkerEkf(MarkerFilter):
         markers = f[:6 * m].reshape(m, 6)
         markers[:, :3] += dt * markers[:, 3:]
         q, omega = x[self._q], x[self._w]
-        f[self._q] = q + dt / 2 * xi(q) @ omega
+        Xi_dt = dt / 2 * xi(q)
+        f[self._q] = q + Xi_dt @ omega
         F = self.constants(dt)[0].copy()
         F[self._q, self._q] += dt / 2 * omega_matrix(omega)
-        F[self._q, self._w] = dt / 2 * xi(q)
+        F[self._q, self._w] = Xi_dt
         return f, F
 
     def process_noise(self, x, dt):
         """Q: white acceleration on each marker axis; white angular acceleration on omega, reaching
         q through Xi(q)/2 (the same [[dt^3/3, dt^2/2], [dt^2/2, dt]] shape)."""
-        Q = self.constants(dt)[1].copy()
+        _, Q, rotation = self.constants(dt)
+        Q = Q.copy()
         G = xi(x[self._q]) / 2
-        rotation = cv_noise(self.config.angular_acceleration_psd, dt)
         Q[self._q, self._q] = rotation[0, 0] * G @ G.T
         Q[self._q, self._w] = rotation[0, 1] * G
-        Q[self._w, self._q] = rotation[0, 1] * G.T
+        Q[self._w, self._q] = Q[self._q, self._w].T
         return Q
 
     def constant_parts(self, dt):
-        """F and Q of Eq. (11) without the quaternion's blocks, which depend on the state."""
+        """F and Q of Eq. (11) without the quaternion's blocks, which depend on the state, and the
+        angular velocity's [[dt^3/3, dt^2/2], [dt^2/2, dt]] psd they are made of."""
         c, m = self.config, len(self.p_PM)
         F = np.eye(self.n)
         F[:6 * m, :6 * m] = np.kron(np.eye(m), np.kron([[1.0, dt], [0.0, 1.0]], np.eye(3)))
         psd = np.diag([c.acceleration_psd, c.acceleration_psd, c.vertical_acceleration_psd])
         Q = np.zeros((self.n, self.n))
         Q[:6 * m, :6 * m] = np.kron(np.eye(m), np.kron(cv_noise(1.0, dt), psd))
-        Q[self._w, self._w] = cv_noise(c.angular_acceleration_psd, dt)[1, 1] * np.eye(3)
-        return F, Q
+        rotation = cv_noise(c.angular_acceleration_psd, dt)
+        Q[self._w, self._w] = rotation[1, 1] * np.eye(3)
+        return F, Q, rotation
 
     def predict_measurements(self, x, slots, camera):
         m = len(self.p_PM)
@@ -106,15 +111,16 @@ class PaperMarkerEkf(MarkerFilter):
     def innovations(self, x, slots, camera, p_CM, q_MC):
         p_hat, q_hat = self.predict_measurements(x, slots, camera)
         q_MC = q_MC * np.where(q_MC @ q_hat < 0, -1.0, 1.0)[:, None]  # q and -q: the same attitude
-        return np.hstack([p_CM - p_hat, q_MC - q_hat])
+        return np.concatenate([p_CM - p_hat, q_MC - q_hat], axis=1)
 
     def normalized(self, x):
-        x[self._q] /= np.linalg.norm(x[self._q])
+        q = x[self._q]
+        q /= math.sqrt(q @ q)  # |q|, as np.linalg.norm computes it
         return x
 
     def platform(self, x):
         m = len(self.p_PM)
-        return x[:3].copy(), x[self._q].copy(), x[:6 * m].reshape(m, 6)[:, :3].copy()
+        return x[..., :3].copy(), x[..., self._q].copy(), x[..., :6 * m].reshape(x.shape[:-1] + (m, 6))[..., :3].copy()
 
     def platform_covariance(self, x, P):
         J = np.zeros((6, self.n))  # [small rotation in P; position of marker 0] from x
@@ -124,4 +130,4 @@ class PaperMarkerEkf(MarkerFilter):
 
     def platform_rates(self, x):
         """Marker 0's velocity; Eq. (11) moves each marker at constant velocity: no acceleration."""
-        return x[3:6].copy(), np.zeros(3)
+        return x[..., 3:6].copy(), np.zeros(x.shape[:-1] + (3,))
