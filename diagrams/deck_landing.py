@@ -10,6 +10,7 @@ All in World W (z up), the deck's base at the origin:
     camera (render, pixel noise) --> AprilTag detector --> ATDA, CRHF (with the four ToF ranges) --X_CT-->
         deck tracker (systems/estimators/deck_tracker.py: X_WP through the UAV's pose, coasting) --> seam
     deck motion (the tracker's, or the truth's) + seam height --> landing window --> supervisor
+        (with `window.prediction: autoregressive`, through the deck predictor: systems/estimators/deck_predictor.py)
     seam --> tracking PID --> landing supervisor --> flight controller --> quadrotor   (diagrams/flight_stack.py)
 
 Both estimators run on the same stream whatever steers (`perception.source`), and are scored against
@@ -29,6 +30,7 @@ from diagrams.stewart_scene import add_uav_sensors, add_viewers
 from systems.control.landing_window import LandingWindow
 from systems.estimators.atda import AtdaEstimator
 from systems.estimators.crhf import CrhfEstimator
+from systems.estimators.deck_predictor import DeckPredictor
 from systems.estimators.deck_tracker import DeckTracker
 from systems.estimators.estimate import PoseEstimateToVector
 from systems.perception.apriltag import TagDetectorSystem
@@ -146,6 +148,11 @@ def add_deck_landing(builder: DiagramBuilder, config: DeckLandingConfig, meshcat
     builder.Connect(quad_state, vertical.get_input_port())
     builder.Connect(vertical.get_output_port(1), window.GetInputPort("vertical_velocity"))
     builder.Connect(deck_motion, window.GetInputPort("deck_motion"))
+    if config.window.prediction == "autoregressive":  # else the window predicts at constant rate itself
+        predictor = builder.AddNamedSystem("deck_predictor", DeckPredictor(config.window.predictor,
+                                                                           config.camera.period_s))
+        builder.Connect(deck_motion, predictor.get_input_port())
+        builder.Connect(predictor.get_output_port(), window.GetInputPort("deck_prediction"))
     builder.Connect(stack.seam.GetOutputPort("height_above_target"), window.GetInputPort("height_above_target"))
     builder.Connect(window.get_output_port(), stack.supervisor.GetInputPort("landing_window"))
 

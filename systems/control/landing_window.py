@@ -14,18 +14,25 @@ the predicted tilt stays within `max_tilt_deg` over tau +- `timing_margin_s` and
 `abort_tilt_deg` and twice the heave rate (the hysteresis keeps one noisy frame from aborting it), and
 always within `no_return_s` of touchdown, where climbing out would take longer than landing (and where
 the tag leaves the camera's view, and the estimate passes from the tag to the ToF plane).
+
+With `prediction: autoregressive` the tilt and the heave rate come instead from the deck predictor's
+output (systems/estimators/deck_predictor.py: an autoregressive model of the tracked deck's recent history,
+on a grid of horizons; the input `deck_prediction`), the heave rate too at the predicted touchdown; where
+its history is short it is the constant-rate prediction itself.
 """
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from systems.config import require, require_positive
+from systems.estimators.deck_predictor import DeckPredictorConfig, prediction_size, sample_prediction
 from systems.estimators.deck_tracker import DECK_MOTION_SIZE
 
 WINDOW_SAMPLES = 5  # predictions over tau +- the margin
+PREDICTIONS = ("constant_rate", "autoregressive")
 
 
 @dataclass
@@ -38,8 +45,13 @@ class LandingWindowConfig:
     max_heave_rate_m_s: float = 0.1
     timing_margin_s: float = 0.3  # the touchdown's timing error: the quadrotor's response to the descent
     no_return_s: float = 1.0  # a descent this close to touchdown is not aborted
+    prediction: str = "constant_rate"  # or autoregressive: the deck predictor's (module docstring)
+    predictor: DeckPredictorConfig = field(default_factory=DeckPredictorConfig)  # autoregressive's settings
 
     def validate(self, prefix: str = "window") -> None:
+        require(self.prediction in PREDICTIONS,
+                f"{prefix}.prediction '{self.prediction}' is not one of: {', '.join(PREDICTIONS)}")
+        self.predictor.validate(f"{prefix}.predictor")
         for name in ("max_tilt_deg", "max_heave_rate_m_s"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
         require(self.abort_tilt_deg >= self.max_tilt_deg, f"{prefix}.abort_tilt_deg must be at least max_tilt_deg")
@@ -54,16 +66,23 @@ def predicted_tilt_deg(deck_motion: np.ndarray, horizon_s: np.ndarray) -> np.nda
     return np.degrees(np.arcsin(np.minimum(np.hypot(n_x, n_y), 1.0)))
 
 
-def window_flags(deck_motion: np.ndarray, time_to_touchdown_s: float,
-                 config: LandingWindowConfig) -> tuple[bool, bool]:
+def window_flags(deck_motion: np.ndarray, time_to_touchdown_s: float, config: LandingWindowConfig,
+                 prediction: np.ndarray | None = None) -> tuple[bool, bool]:
     """(open: commit now, holds: a committed descent may go on) for the deck's motion (DECK_MOTION_SIZE) and
-    the time left to touchdown [s]; both False without a valid estimate."""
+    the time left to touchdown [s]; both False without a valid estimate. `prediction`: the deck predictor's
+    output (systems/estimators/deck_predictor.py, prediction_size), used where given and valid for the tilt
+    and the heave rate over tau +- the margin; None: the constant rate."""
     if deck_motion[6] < 0.5 or not math.isfinite(time_to_touchdown_s):
         return False, False
     tau = max(time_to_touchdown_s, 0.0)
     horizon = np.linspace(max(tau - config.timing_margin_s, 0.0), tau + config.timing_margin_s, WINDOW_SAMPLES)
-    tilt = float(predicted_tilt_deg(deck_motion, horizon).max())
-    heave_rate = abs(float(deck_motion[5]))
+    if prediction is not None and prediction[0] >= 0.5:
+        predicted = sample_prediction(prediction, horizon)
+        tilt = float(np.degrees(np.arcsin(np.minimum(np.hypot(predicted[:, 0], predicted[:, 1]), 1.0))).max())
+        heave_rate = float(np.abs(predicted[:, 3]).max())
+    else:
+        tilt = float(predicted_tilt_deg(deck_motion, horizon).max())
+        heave_rate = abs(float(deck_motion[5]))
     return (tilt <= config.max_tilt_deg and heave_rate <= config.max_heave_rate_m_s,
             tau <= config.no_return_s or (tilt <= config.abort_tilt_deg and heave_rate <= 2 * config.max_heave_rate_m_s))
 
@@ -79,7 +98,8 @@ def time_to_touchdown(height_to_go_m: float, landing_speed_m_s: float, descent_s
 class LandingWindow(LeafSystem):
     """Inputs `deck_motion` (DECK_MOTION_SIZE), `height_above_target` (1, m: the seam's) and optionally
     `vertical_velocity` (1, the UAV's z velocity in W [m/s], from its navigation; unconnected: the
-    descent's lag is left out). Output `landing_window` (2: [open, holds], 1 or 0), computed when pulled,
+    descent's lag is left out) and `deck_prediction` (prediction_size(config.predictor), the deck predictor's;
+    unconnected: the constant rate). Output `landing_window` (2: [open, holds], 1 or 0), computed when pulled,
     for the landing supervisor; the time to touchdown is `time_to_touchdown` of the height less
     `touchdown_height_m`, `landing_speed_m_s` and `response_time_s` (1 / the flight controller's K_v,z)."""
 
@@ -92,10 +112,13 @@ class LandingWindow(LeafSystem):
         self._motion = self.DeclareVectorInputPort("deck_motion", DECK_MOTION_SIZE)
         self._height = self.DeclareVectorInputPort("height_above_target", 1)
         self._vertical = self.DeclareVectorInputPort("vertical_velocity", 1)
+        self._prediction = self.DeclareVectorInputPort("deck_prediction", prediction_size(config.predictor))
         self.DeclareVectorOutputPort("landing_window", 2, self._calc)
 
     def _calc(self, context, output):
         descent = -float(self._vertical.Eval(context)[0]) if self._vertical.HasValue(context) else self._speed
         tau = time_to_touchdown(float(self._height.Eval(context)[0]) - self._touchdown, self._speed, descent,
                                 self._response)
-        output.SetFromVector([float(flag) for flag in window_flags(self._motion.Eval(context), tau, self._config)])
+        prediction = self._prediction.Eval(context) if self._prediction.HasValue(context) else None
+        output.SetFromVector([float(flag) for flag in window_flags(self._motion.Eval(context), tau, self._config,
+                                                                   prediction)])
