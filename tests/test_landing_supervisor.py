@@ -262,9 +262,9 @@ def test_touchdown_by_contact_descends_on_at_landing_speed_from_landed():
                               target_velocity_m_s=TARGET_VELOCITY, tracking_velocity_m_s=TRACKING)
     command = machine.step(inputs)
     assert machine.mode == Mode.LANDED and command[2] == -config.landing_speed_m_s
-    np.testing.assert_allclose(command[:2], TARGET_VELOCITY)
+    np.testing.assert_allclose(command[:2], TRACKING)  # still tracking the pad (at 12 m/s it curves away)
     command = machine.step(dataclasses.replace(inputs, time_s=0.02, target_valid=False))
-    assert machine.mode == Mode.LANDED and command[2] == -config.landing_speed_m_s  # committed: on to the touch
+    assert machine.mode == Mode.ABORT and command[2] == config.climb_speed_m_s  # it never descends unseen
     with pytest.raises(ValueError, match="landing.touchdown_by must be one of estimate, contact, not 'gear'"):
         LandingConfig(touchdown_by="gear").validate()
 

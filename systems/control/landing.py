@@ -30,7 +30,8 @@ Modes and what they command (velocities in World, z up; "hold" is a P loop on al
     WAIT      track, hold LH above the target; window open                -> LAND
               not seen -> HOLD; target off centre -> FOLLOW
     LANDED    keep the target's velocity; no vertical speed (the motors stop and the run ends), or, with
-              touchdown_by contact, on down at landing speed until the gear touches
+              touchdown_by contact, track and descend at landing speed as in LAND until the gear touches
+              (not seen -> ABORT, as in LAND)
     HOLD      not seen in FOLLOW/APPROACH: coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
     SEARCH    no horizontal speed, climb back to IH (never descend); seen -> FOLLOW
     ABORT     coast, climb towards IH at climb speed; seen -> FOLLOW (a retry); lost_hold_s -> SEARCH
@@ -139,8 +140,8 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
         return Mode.CLIMB
     if mode == Mode.CLIMB and abs(inputs.altitude_m - config.initial_height_m) <= config.altitude_tolerance_m:
         return Mode.FOLLOW if seen else Mode.SEARCH
-    if mode == Mode.LAND and not seen:
-        return Mode.ABORT
+    if not seen and (mode == Mode.LAND or (mode == Mode.LANDED and config.touchdown_by == "contact")):
+        return Mode.ABORT  # (a touchdown by contact still descends: it needs the estimate as LAND does)
     if mode in (Mode.FOLLOW, Mode.APPROACH, Mode.WAIT) and not seen:
         return Mode.HOLD
     if mode == Mode.FOLLOW and offset <= config.centred_radius_m:
@@ -196,9 +197,10 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
     elif mode == Mode.WAIT:  # LH above the target, from above or (after an abort) from below
         rate = config.altitude_gain * (config.landing_height_m - inputs.height_above_target_m)
         horizontal, vertical = tracking, min(max(rate, -config.descent_speed_m_s), config.climb_speed_m_s)
+    elif mode == Mode.LANDED and config.touchdown_by == "contact":  # on down to the gear's touch, as in LAND
+        horizontal, vertical = tracking, -config.landing_speed_m_s
     elif mode == Mode.LANDED:
-        horizontal, acceleration = coast, _ZERO
-        vertical = -config.landing_speed_m_s if config.touchdown_by == "contact" else 0.0
+        horizontal, acceleration, vertical = coast, _ZERO, 0.0
     elif mode == Mode.HOLD:
         horizontal, vertical = tracking, towards(memory.altitude_hold_m)
     elif mode == Mode.ABORT:
