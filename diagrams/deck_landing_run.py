@@ -87,7 +87,7 @@ def deck_landing_metrics(flight: DeckFlight, config: DeckLandingConfig) -> dict:
     log = flight.log
     out, k = pad_landing(log, flight.status, log["carrier_state"][:, GV_HEADING], config.platform.deck_size_m,
                          config.landing.touchdown_height_m, config.quadrotor.gravity_m_s2,
-                         config.landing.touchdown_by == "estimate")
+                         config.landing.motors_stop_at_landed)
     if k is not None:
         out["deck_tilt_at_touchdown_deg"] = float(tilt_deg(log["true_deck_motion"][k]))
         out["deck_heave_rate_at_touchdown_m_s"] = float(log["true_deck_motion"][k, 5])

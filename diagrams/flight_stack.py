@@ -56,7 +56,7 @@ def add_flight_stack(builder: DiagramBuilder, config: FlightConfig, quad: Quadro
         config.quadrotor, config.controller, config.controller_implementation, held=not config.integration.discrete))
     monitor = builder.AddNamedSystem("monitor", LandingMonitor(
         config.termination, carrier, config.landing.touchdown_height_m,
-        ends_on_landed=config.landing.touchdown_by == "estimate"))
+        ends_on_landed=config.landing.motors_stop_at_landed))
     altitude = builder.AddNamedSystem("altitude", Demultiplexer([2, 1, STATE_SIZE - 3]))
     builder.Connect(nav_state, altitude.get_input_port())
     for name in ("target_offset", "target_velocity", "target_valid"):

@@ -180,7 +180,7 @@ class FlightConfig:
                 f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
         require(self.controller.max_vertical_accel_m_s2 < self.quadrotor.gravity_m_s2,
                 "controller.max_vertical_accel_m_s2 must be below quadrotor.gravity_m_s2")
-        require(self.landing.touchdown_by == "estimate" or self.termination.stop_on_landed,
+        require(self.landing.motors_stop_at_landed or self.termination.stop_on_landed,
                 "landing.touchdown_by contact descends until the gear touches, and termination.stop_on_landed "
                 "is false: the run would fly on through the pad")
 

@@ -143,7 +143,8 @@ def plot_hybrid(log: dict, config, out_dir) -> None:
     for ax, label in zip(axes, ("pad x, y in W (m)", "horizontal error (m)", "height (m)", "tracker")):
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-        ax.legend(loc="best", fontsize=7, ncol=3)
+        if ax.get_legend_handles_labels()[0]:  # a run that never saw the UGV draws nothing in some panels
+            ax.legend(loc="best", fontsize=7, ncol=3)
     axes[-1].set_xlabel("time (s)")
     axes[0].set_title("Seed 003: the hybrid array's pad estimate")
     save_figure(fig, out_dir / "hybrid.png")

@@ -62,7 +62,7 @@ def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
     """A gv flight's "landing" section: `pad_landing`'s, with the vehicle's speed and turn radius at touchdown."""
     out, k = pad_landing(log, status, log["vehicle_state"][:, GV_HEADING], config.platform.pad_size_m,
                          config.landing.touchdown_height_m, config.quadrotor.gravity_m_s2,
-                         config.landing.touchdown_by == "estimate")
+                         config.landing.motors_stop_at_landed)
     if k is not None:
         steering = log["vehicle_state"][k, GV_STEERING]
         out["vehicle_speed_at_touchdown_m_s"] = float(log["vehicle_speed"][k])

@@ -284,5 +284,4 @@ def test_with_touchdown_by_contact_only_the_gears_touch_is_the_touchdown():
     out = landing_metrics(log, "landed: the gear touched the pad at t = 0.12 s", config)
     assert out["touchdown_by"] == "contact" and out["touchdown_gap_m"] == 0.0
     assert out["touchdown_rel_speed_mps"] == pytest.approx(0.3)  # no fall
-    assert np.flatnonzero(relative[:, HEIGHT] <= config.landing.touchdown_height_m)[0] == 5
     assert out["time_to_land_s"] == pytest.approx(0.10)

@@ -90,6 +90,11 @@ class LandingConfig:
     touchdown_by: str = "estimate"
     yaw_deg: float = 0.0  # commanded heading
 
+    @property
+    def motors_stop_at_landed(self) -> bool:
+        """The supervisor's LANDED ends the landing (touchdown_by estimate), rather than the gear's touch."""
+        return self.touchdown_by == "estimate"
+
     def validate(self, prefix: str = "landing") -> None:
         for name in ("rate_hz", "initial_height_m", "landing_height_m", "takeoff_height_m",
                      "climb_speed_m_s", "descent_speed_m_s", "landing_speed_m_s", "altitude_gain",
@@ -140,7 +145,7 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
         return Mode.CLIMB
     if mode == Mode.CLIMB and abs(inputs.altitude_m - config.initial_height_m) <= config.altitude_tolerance_m:
         return Mode.FOLLOW if seen else Mode.SEARCH
-    if not seen and (mode == Mode.LAND or (mode == Mode.LANDED and config.touchdown_by == "contact")):
+    if not seen and (mode == Mode.LAND or (mode == Mode.LANDED and not config.motors_stop_at_landed)):
         return Mode.ABORT  # (a touchdown by contact still descends: it needs the estimate as LAND does)
     if mode in (Mode.FOLLOW, Mode.APPROACH, Mode.WAIT) and not seen:
         return Mode.HOLD
@@ -197,7 +202,7 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
     elif mode == Mode.WAIT:  # LH above the target, from above or (after an abort) from below
         rate = config.altitude_gain * (config.landing_height_m - inputs.height_above_target_m)
         horizontal, vertical = tracking, min(max(rate, -config.descent_speed_m_s), config.climb_speed_m_s)
-    elif mode == Mode.LANDED and config.touchdown_by == "contact":  # on down to the gear's touch, as in LAND
+    elif mode == Mode.LANDED and not config.motors_stop_at_landed:  # on down to the gear's touch, as in LAND
         horizontal, vertical = tracking, -config.landing_speed_m_s
     elif mode == Mode.LANDED:
         horizontal, acceleration, vertical = coast, _ZERO, 0.0
