@@ -92,6 +92,7 @@ def hybrid_metrics(log: dict, config, end_s: float | None) -> dict:
     in_view = np.array([b is not None for b in boxes], bool)
     out = {"frames": len(t[keep]), "valid_fraction": float(valid.mean()) if len(valid) else 0.0,
            "measured_fraction": float((hybrid[:, 4] > 0.5).mean()) if len(valid) else 0.0,
+           "stereo_pad_fraction": float((hybrid[:, 4] > 1.5).mean()) if len(valid) else 0.0,
            "valid_fraction_in_view": float(valid[in_view].mean()) if in_view.any() else None,
            "velocity_valid_fraction": float(v_valid.mean()) if len(valid) else 0.0,
            "position_m": axis_stats(p_error), "velocity_mps": axis_stats(v_error)}

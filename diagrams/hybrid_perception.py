@@ -7,6 +7,7 @@ pad estimate (systems/perception/hybrid_pad.py) and the velocity observer, into 
         HybridPadEstimator (ray -> World -> pad plane) --X_WP_estimate--> seam
                            --p_WP_measured--> VelocityObserverSystem (world, Eq. 15-19) --v_WP--> seam
                            (while it coasts past the observer's window: the estimator's own velocity)
+    stereo left eye --> StereoPadFinder (the pad's markers, in the last metres) --pad_fix--> HybridPadEstimator
 
 The source brings its own sensors (PerceptionInputs.scene_graph, .body_frame_id) and a textured ground
 (diagrams/stereo_hover.py's, the detector's training ground) a millimetre above the gv scene's plain one:
@@ -31,7 +32,9 @@ from systems.perception.hybrid_pad import (
     HybridPadEstimator,
     LockedTrackVector,
 )
+from systems.perception.markers import MarkerLayout
 from systems.perception.stereo_depth import StereoAltimeter, StereoDepthConfig
+from systems.perception.stereo_pad import StereoPadConfig, StereoPadFinder
 from systems.perception.ugv_detector import ColourPadConfig, ColourPadDetector, HogSvmDetector, UgvDetectorSystem
 from systems.sensors.camera import RENDERER_NAME, add_renderer
 from systems.sensors.fisheye import FisheyeConfig, add_fisheye_camera
@@ -61,6 +64,7 @@ class HybridPerceptionConfig:
     tracker: BoxTrackerConfig = field(default_factory=BoxTrackerConfig)
     velocity_observer: VelocityObserverConfig = field(default_factory=VelocityObserverConfig)
     estimator: HybridPadConfig = field(default_factory=HybridPadConfig)
+    stereo_pad: StereoPadConfig = field(default_factory=StereoPadConfig)  # the last metres (ours)
     ground: GroundConfig = field(default_factory=lambda: GroundConfig(size_m=100.0, texture_seed=0))
 
     def validate(self, prefix: str = "hybrid") -> None:
@@ -73,6 +77,7 @@ class HybridPerceptionConfig:
         self.tracker.validate(f"{prefix}.tracker")
         self.velocity_observer.validate(f"{prefix}.velocity_observer")
         self.estimator.validate(f"{prefix}.estimator")
+        self.stereo_pad.validate(f"{prefix}.stereo_pad")
         self.ground.validate(f"{prefix}.ground")
         require(self.velocity_observer.source == "world",
                 f"{prefix}.velocity_observer.source must be world: the observer reads the hybrid p_WP")
@@ -100,8 +105,9 @@ class HybridPorts:
 
 
 def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfig, scene_graph, body_frame_id,
-                          z_pad: float, seed: int, X_WB) -> HybridPorts:
-    """The array on `body_frame_id`, its perception, the estimate on X_WB (the UAV's navigation)."""
+                          z_pad: float, seed: int, X_WB, markers: MarkerLayout | None = None) -> HybridPorts:
+    """The array on `body_frame_id`, its perception, the estimate on X_WB (the UAV's navigation); with the
+    pad's `markers` (and hybrid.stereo_pad.enabled) the left eye's pad fix for the last metres."""
     add_textured_ground(scene_graph, config.ground, GROUND_LIFT_M)
     if not scene_graph.HasRenderer(RENDERER_NAME):
         add_renderer(scene_graph)
@@ -129,6 +135,11 @@ def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfi
     builder.Connect(altitude.GetOutputPort("altitude"), estimator.GetInputPort("altitude"))
     builder.Connect(altitude.GetOutputPort("valid"), estimator.GetInputPort("altitude_valid"))
     builder.Connect(X_WB, estimator.GetInputPort("X_WB"))
+    if markers is not None and config.stereo_pad.enabled:
+        finder = builder.AddNamedSystem("stereo_pad", StereoPadFinder(config.stereo, markers, z_pad, config.stereo_pad))
+        builder.Connect(pair.left_image, finder.GetInputPort("left_image"))
+        builder.Connect(X_WB, finder.GetInputPort("X_WB"))
+        builder.Connect(finder.get_output_port(), estimator.GetInputPort("pad_fix"))
     lock = builder.AddNamedSystem("locked_track", LockedTrackVector())
     builder.Connect(tracker.GetOutputPort("tracks"), lock.GetInputPort("tracks"))
     builder.Connect(tracker.GetOutputPort("target_box"), lock.GetInputPort("target_box"))

@@ -129,7 +129,8 @@ def _hybrid(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
     estimate and the velocity observer (diagrams/hybrid_perception.py), on the scene's own geometry."""
     config = inputs.config
     hybrid = add_hybrid_perception(builder, config.hybrid, inputs.scene_graph, inputs.body_frame_id,
-                                   float(config.platform.p_VP[2]), config.seed, inputs.X_WB)
+                                   float(config.platform.p_VP[2]), config.seed, inputs.X_WB,
+                                   config.platform.markers if config.platform.pattern == "markers" else None)
     ports = add_estimate_to_seam(builder, inputs, hybrid.estimator.GetOutputPort("X_WP_estimate"), hybrid.v_WP)
     period = config.hybrid.fisheye.period_s
     ports.logs = {**hybrid.logs, "quadrotor_state": LogVectorOutput(inputs.quadrotor_state, builder, period),

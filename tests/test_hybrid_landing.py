@@ -91,6 +91,20 @@ def test_estimator_valid_coasts_then_invalid():
         assert not s.estimate.valid or np.all(np.isfinite(s.estimate.X_RT.translation()))
 
 
+@pytest.mark.parametrize("height_m, measures", [(7.5, True), (2.0, False)])
+def test_oblique_ray_measures_only_above_the_landing_zone(height_m, measures):
+    """A UGV 70 deg off the vertical: followed from IH (approach_min_ray_down's 78 deg) with its std grown by
+    1 / cos 70 deg, but not measured within landing_zone_m over the pad (min_ray_down's 60 deg)."""
+    h = RigidTransform([0.0, 0.0, height_m]).multiply(FISHEYE.X_BC).translation()[2]
+    p = np.array([(h - Z_PAD) * math.tan(math.radians(70)), 0.0, Z_PAD])
+    state = _run([(0.1 * k, True, True, p) for k in range(3)], height_m=height_m)[-1]
+    assert state.estimate.valid == measures
+    if measures:
+        assert np.allclose(state.estimate.X_RT.translation(), p, atol=1e-6)
+        std = math.sqrt(state.estimate.covariance[3, 3])
+        assert std == pytest.approx(HybridPadConfig().position_std_m / math.cos(math.radians(70)), rel=1e-5)
+
+
 def test_estimator_without_altitude_is_invalid():
     states = _run([(0.1 * k, True, False, (0.0, 0.0, Z_PAD)) for k in range(5)])
     assert not any(s.estimate.valid for s in states)

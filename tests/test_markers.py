@@ -31,20 +31,21 @@ PAD_M = 1.0  # the default pad's edge (diagrams/gv_landing.PlatformConfig)
 LOOKING_DOWN = RotationMatrix.MakeXRotation(np.pi)  # R_CP of a level pad under a level downward camera
 
 
-def render_pad(X_CP: RigidTransform, supersample: int = 4, background: int = 90) -> np.ndarray:
-    """The pad texture as the default camera sees it at X_CP (grey, 512x512): the plane's homography
-    at `supersample` times the resolution, averaged down (a renderer's antialiasing)."""
+def render_pad(X_CP: RigidTransform, supersample: int = 4, background: int = 90,
+               camera: CameraConfig = CAMERA) -> np.ndarray:
+    """The pad texture as `camera` (default: the default camera, 512x512) sees it at X_CP (grey): the plane's
+    homography at `supersample` times the resolution, averaged down (a renderer's antialiasing)."""
     texture = pad_texture(LAYOUT, PAD_M)
     scale, half = texture.shape[0] / PAD_M, PAD_M / 2
     texel_to_P = np.array([[1 / scale, 0, 0.5 / scale - half], [0, -1 / scale, half - 0.5 / scale], [0, 0, 1]])
-    K_big = K.copy()
+    K_big = camera.K.copy()
     K_big[:2] *= supersample
-    K_big[:2, 2] = (K[:2, 2] + 0.5) * supersample - 0.5
+    K_big[:2, 2] = (camera.K[:2, 2] + 0.5) * supersample - 0.5
     R, t = X_CP.rotation().matrix(), X_CP.translation()
     homography = K_big @ np.column_stack([R[:, 0], R[:, 1], t]) @ texel_to_P
-    size = (CAMERA.width * supersample, CAMERA.height * supersample)
+    size = (camera.width * supersample, camera.height * supersample)
     big = cv2.warpPerspective(texture, homography, size, flags=cv2.INTER_LINEAR, borderValue=background)
-    return cv2.resize(big, (CAMERA.width, CAMERA.height), interpolation=cv2.INTER_AREA)
+    return cv2.resize(big, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
 
 
 def X_CP_at(height_m: float, xy=(0.03, -0.02), yaw_deg: float = 23.0) -> RigidTransform:

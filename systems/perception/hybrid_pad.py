@@ -23,6 +23,10 @@ Ours, where the paper is silent:
   `max_coast_s`, then turns invalid; higher, it coasts only while that observer is valid. The paper lands
   below LH blind, as its target floods the fisheye; the supervisor here stops a landing on an invalid
   estimate. The seam's v_WP is the observer's, else (past its window) the coasting estimate's velocity.
+- In the landing zone a fix of the pad from the stereo pair's left eye (its markers, stereo_pad.py), where
+  there is one, measures instead of the box, ungated: the box's centre marks the pad poorly at close range.
+- Rays more oblique than `min_ray_down` do not measure in the final landing, nor more oblique than
+  `approach_min_ray_down` above it; a measurement's reported std grows with the ray's obliquity.
 - Invalid is PoseEstimate's valid False; `p_WP_measured` is NaN in a frame without a measurement.
 """
 
@@ -41,7 +45,8 @@ from systems.perception.box_tracker import Detection
 from systems.sensors.fisheye import FisheyeConfig, in_field_of_view, pixel_rays
 from systems.stepped import SteppedValue
 
-# [valid, p_WP (3), measured, h (1), h_source (0 none, 1 stereo, 2 carried), coast_s]
+# [valid, p_WP (3), measured (0 no, 1 by the box, 2 by the stereo pad fix), h (1), h_source (0 none, 1 stereo,
+#  2 carried), coast_s]
 HYBRID_VECTOR_SIZE = 8
 
 
@@ -68,10 +73,16 @@ class HybridPadConfig:
     # refuses sqrt(trace) over perception.max_position_std_m (1 m), which 0.2 m/s reached 2.4 s into a coast.
     coast_std_growth_m_s: float = 0.1
     height_std_m: float = 0.05  # z: the pad's plane is known
-    # Only rays within 60 deg of the vertical measure (-r_W,z >= cos 60 deg): seen obliquely, the box's centre is
-    # the UGV's side as much as its roof, and from a low camera the plane's intersection runs metres off
-    # (measured: 2.5 m off at 80 deg from 0.4 m above the pad, in the take-off).
+    # In the landing zone only rays within 60 deg of the vertical measure (-r_W,z >= cos 60 deg): seen obliquely,
+    # the box's centre is the UGV's side as much as its roof, and from a low camera the plane's intersection
+    # runs metres off (measured: 2.5 m off at 80 deg from 0.4 m above the pad, in the take-off).
     min_ray_down: float = 0.5
+    # Above it (the climb to IH and the follow) rays up to 78 deg measure, so that a UGV that drives off
+    # while the UAV climbs stays an estimate to follow (at 1.5 m/s it is 60-70 deg off the vertical when the
+    # UAV reaches IH: with 60 deg the estimate was valid in 1 frame of 150 and the UAV never followed).
+    # Their reported std grows as 1 / -r_W,z (the plane's intersection moves by the height's error times
+    # tan(theta)); the supervisor descends only once the UAV is over the target, where the rays are steep.
+    approach_min_ray_down: float = 0.2
 
     def validate(self, prefix: str = "hybrid.estimator") -> None:
         for name in ("max_coast_s", "altitude_coast_s", "coast_std_growth_m_s", "gate_m", "gate_growth_m_s",
@@ -79,7 +90,9 @@ class HybridPadConfig:
             require_non_negative(getattr(self, name), f"{prefix}.{name}")
         require_positive(self.position_std_m, f"{prefix}.position_std_m")
         require_positive(self.height_std_m, f"{prefix}.height_std_m")
-        require(0 < self.min_ray_down <= 1, f"{prefix}.min_ray_down must lie in (0, 1], got {self.min_ray_down}")
+        for name in ("min_ray_down", "approach_min_ray_down"):
+            value = getattr(self, name)
+            require(0 < value <= 1, f"{prefix}.{name} must lie in (0, 1], got {value}")
 
 
 def box_centre_pixel(box: np.ndarray) -> np.ndarray:
@@ -129,30 +142,40 @@ class HybridPadState:
     velocity: np.ndarray | None = None  # the observer's last valid velocity (W), for coasting
     gated: int = 0  # measurements rejected by the gate so far
     landing: bool = False  # within landing_zone_m over the pad's plane (sticky while valid)
+    ray_scale: float = 1.0  # 1 / -r_W,z of the last measured ray: its reported std is position_std_m times it
+    fixed: bool = False  # this frame measured by the stereo eye's pad fix (stereo_pad.py), not the box
 
 
 def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: bool, altitude: float,
                 altitude_valid: bool, X_WB: RigidTransform, fisheye: FisheyeConfig, z_pad: float,
-                config: HybridPadConfig, observer_config: VelocityObserverConfig) -> HybridPadState:
-    """One frame (pure)."""
-    z_WC = X_WB.multiply(fisheye.X_BC).translation()[2]
+                config: HybridPadConfig, observer_config: VelocityObserverConfig,
+                pad_fix: np.ndarray | None = None) -> HybridPadState:
+    """One frame (pure). pad_fix: the stereo eye's p_WP (stereo_pad.py) or None/NaN; in the landing zone it
+    measures instead of the box, ungated."""
+    p_WC = X_WB.multiply(fisheye.X_BC).translation()
+    z_WC = p_WC[2]
     anchor, h, source = state.anchor, math.nan, 0
     if altitude_valid and math.isfinite(altitude) and altitude > 0:
         h, source, anchor = altitude, 1, (altitude, z_WC, time)
     elif anchor is not None and time - anchor[2] <= config.altitude_coast_s + 1e-9:
         h, source = anchor[0] + (z_WC - anchor[1]), 2
-    p = None
-    if box_valid and source:
-        p = pad_from_box(box, h, X_WB, fisheye, z_pad, config.min_ray_down)
+    # Sticky while the estimate stays valid: close over the pad the stereo window reads spikes of 2-3 m
+    # (measured, at 0.5 m over the pad), which must not end the landing's coast.
+    landing = (bool(source) and h - z_pad <= config.landing_zone_m) or (state.landing and state.estimate.valid)
+    p, ray_scale, fixed = None, state.ray_scale, False
+    if landing and pad_fix is not None and np.all(np.isfinite(pad_fix)):
+        p, ray_scale, fixed = np.array([pad_fix[0], pad_fix[1], z_pad]), 1.0, True
+    elif box_valid and source:
+        p = pad_from_box(box, h, X_WB, fisheye, z_pad,
+                         config.min_ray_down if landing else config.approach_min_ray_down)
+        if p is not None:  # 1 / -r_W,z of this ray: the camera's slant distance to the point over its height above
+            ray_scale = math.hypot(h - z_pad, math.dist(p[:2], p_WC[:2])) / (h - z_pad)
     last_measured, last_p, velocity, gated = state.last_measured_s, state.last_p_WP, state.velocity, state.gated
 
     def predicted() -> np.ndarray:
         return last_p + (time - last_measured) * np.array([*velocity[:2], 0.0])
 
-    # Sticky while the estimate stays valid: close over the pad the stereo window reads spikes of 2-3 m
-    # (measured, at 0.5 m over the pad), which must not end the landing's coast.
-    landing = (bool(source) and h - z_pad <= config.landing_zone_m) or (state.landing and state.estimate.valid)
-    if (landing and p is not None and state.estimate.valid and velocity is not None
+    if (landing and p is not None and not fixed and state.estimate.valid and velocity is not None
             and last_measured is not None):
         gate = config.gate_m + config.gate_growth_m_s * (time - last_measured)
         if np.linalg.norm((p - predicted())[:2]) > gate:
@@ -171,12 +194,13 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
     if p is None:
         estimate = PoseEstimate.invalid(time, "W", "P")
     else:
-        std = config.position_std_m + config.coast_std_growth_m_s * coast
+        std = config.position_std_m * ray_scale + config.coast_std_growth_m_s * coast
         estimate = PoseEstimate(time, RigidTransform(p), True,
                                 np.diag([1.0] * 3 + [std**2, std**2, config.height_std_m**2]), "W", "P")
     return replace(state, time=time, estimate=estimate, measured=coast == 0.0, last_measured_s=last_measured,
                    last_p_WP=last_p, height_m=h, height_source=source, anchor=anchor, observer=observer,
-                   velocity=velocity, gated=gated, landing=landing and estimate.valid)
+                   velocity=velocity, gated=gated, landing=landing and estimate.valid, ray_scale=ray_scale,
+                   fixed=fixed)
 
 
 def hybrid_vector(state: HybridPadState) -> np.ndarray:
@@ -184,7 +208,8 @@ def hybrid_vector(state: HybridPadState) -> np.ndarray:
     e = state.estimate
     p = e.X_RT.translation() if e.valid else np.full(3, np.nan)
     coast = 0.0 if state.measured else (state.time - state.last_measured_s if e.valid else math.nan)
-    return np.array([float(e.valid), *p, float(state.measured), state.height_m, float(state.height_source), coast])
+    measured = (2.0 if state.fixed else 1.0) if state.measured else 0.0
+    return np.array([float(e.valid), *p, measured, state.height_m, float(state.height_source), coast])
 
 
 class HybridPadEstimator(LeafSystem):
@@ -194,7 +219,9 @@ class HybridPadEstimator(LeafSystem):
     Inputs: `target_box` (4, px: the tracker's [x, y, w, h] on the raw fisheye image), `target_valid` (1),
     optional `target_lock` (2: LockedTrackVector's [id, matched]; connected, a frame measures only when the
     locked track was matched with a detection in it: the tracker's image-space prediction knows nothing of
-    the UAV's own motion, and a coasting box drifts off the UGV as the UAV moves),
+    the UAV's own motion, and a coasting box drifts off the UGV as the UAV moves), optional `pad_fix` (3, m:
+    the stereo eye's p_WP, NaN without one, systems/perception/stereo_pad.py; connected, it measures in the
+    landing zone),
     `altitude` (1, m: the camera above the ground, the stereo filter's), `altitude_valid` (1), `X_WB`
     (RigidTransform: the UAV's navigation). Outputs: `X_WP_estimate` (PoseEstimate, frames "W"/"P"),
     `p_WP_measured` (3, m: this frame's measurement, NaN without one: the velocity observer's input),
@@ -213,6 +240,7 @@ class HybridPadEstimator(LeafSystem):
         self._altitude = self.DeclareVectorInputPort("altitude", 1)
         self._altitude_valid = self.DeclareVectorInputPort("altitude_valid", 1)
         self._lock = self.DeclareVectorInputPort("target_lock", 2)
+        self._pad_fix = self.DeclareVectorInputPort("pad_fix", 3)
         self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
         self._stepped = SteppedValue(self, "hybrid_pad", HybridPadState(), fisheye.period_s, self._step,
                                      lambda s: s.time)
@@ -240,9 +268,11 @@ class HybridPadEstimator(LeafSystem):
         seen = self._box_valid.Eval(context)[0] > 0.5
         if self._lock.HasValue(context):  # only a box matched with this frame's detection measures
             seen = seen and self._lock.Eval(context)[1] > 0.5
+        fix = self._pad_fix.Eval(context) if self._pad_fix.HasValue(context) else None
         return hybrid_step(state, context.get_time(), self._box.Eval(context), seen,
                            float(self._altitude.Eval(context)[0]), self._altitude_valid.Eval(context)[0] > 0.5,
-                           self._X_WB.Eval(context), self._fisheye, self._z_pad, self._config, self._observer_config)
+                           self._X_WB.Eval(context), self._fisheye, self._z_pad, self._config, self._observer_config,
+                           fix)
 
 
 class DetectionsToTracker(LeafSystem):

@@ -1,0 +1,69 @@
+"""The stereo left eye's pad fix (systems/perception/stereo_pad.py): the pad's centre from its markers against
+the pose a synthetic view was drawn at, the World transform and the plane check, and the hybrid estimator's
+use of the fix in the landing zone only."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform
+
+from diagrams.hybrid_perception import hybrid_stereo
+from systems.estimators.velocity_observer import VelocityObserverConfig
+from systems.perception.hybrid_pad import HybridPadConfig, HybridPadState, hybrid_step
+from systems.perception.stereo_pad import StereoPadConfig, StereoPadFinder, pad_centre_in_eye
+from systems.sensors.fisheye import FisheyeConfig
+from tests.test_markers import LAYOUT, X_CP_at, render_pad
+
+STEREO = hybrid_stereo()
+EYE = STEREO.eye()
+Z_PAD = 0.5
+
+
+@pytest.mark.parametrize("height_m, xy, yaw_deg", [(2.0, (0.2, -0.1), 23.0), (1.0, (0.1, 0.05), -40.0),
+                                                   (0.5, (0.05, 0.0), 90.0), (0.3, (0.0, 0.02), 5.0)])
+def test_pad_centre_from_the_markers(height_m, xy, yaw_deg):
+    """From 2 m down to 0.3 m (only the centre marker in view), the centre within 1 % of the distance."""
+    X_LP = X_CP_at(height_m, xy, yaw_deg)
+    p_LP = pad_centre_in_eye(render_pad(X_LP, camera=EYE), EYE.K, LAYOUT)
+    assert p_LP is not None
+    assert np.linalg.norm(p_LP - X_LP.translation()) < 0.01 * height_m
+
+
+def test_no_markers_no_fix():
+    assert pad_centre_in_eye(np.full((EYE.height, EYE.width), 120, np.uint8), EYE.K, LAYOUT) is None
+
+
+def _finder_view(z_pad: float, config: StereoPadConfig | None = None):
+    """The finder and the view of a pad whose centre is at p_WP = [2, 1, 0.5], the left eye 1 m over it."""
+    X_LP = X_CP_at(1.0, (0.1, -0.05), 30.0)
+    X_WP = RigidTransform([2.0, 1.0, Z_PAD])
+    X_WB = X_WP.multiply(X_LP.inverse()).multiply(STEREO.X_BL.inverse())
+    return StereoPadFinder(STEREO, LAYOUT, z_pad, config), render_pad(X_LP, camera=EYE), X_WB
+
+
+def test_finder_places_the_pad_in_world():
+    finder, image, X_WB = _finder_view(Z_PAD)
+    assert np.allclose(finder.find(image, X_WB), [2.0, 1.0, Z_PAD], atol=0.01)
+
+
+@pytest.mark.parametrize("z_pad, config", [(Z_PAD + 0.3, None), (Z_PAD, StereoPadConfig(enabled=False))])
+def test_finder_off_the_plane_or_disabled_is_nan(z_pad, config):
+    finder, image, X_WB = _finder_view(z_pad, config)
+    assert np.all(np.isnan(finder.find(image, X_WB)))
+
+
+@pytest.mark.parametrize("height_m, used", [(2.0, True), (7.5, False)])
+def test_estimator_uses_the_fix_in_the_landing_zone_only(height_m, used):
+    """No box at all: the fix alone measures 1.45 m over the pad (inside landing_zone_m), not from IH."""
+    fisheye, X_WB = FisheyeConfig(), RigidTransform([0.0, 0.0, height_m])
+    h = X_WB.multiply(fisheye.X_BC).translation()[2]
+    state = HybridPadState()
+    for k in range(3):
+        fix = np.array([0.3 + 0.05 * k, -0.2, Z_PAD + 0.02])
+        state = hybrid_step(state, 0.1 * k, np.full(4, np.nan), False, h, True, X_WB, fisheye, Z_PAD,
+                            HybridPadConfig(), VelocityObserverConfig(), pad_fix=fix)
+    assert state.estimate.valid == used and state.fixed == used
+    if used:  # on the pad's known plane, the fix's own height not used
+        assert np.allclose(state.estimate.X_RT.translation(), [0.4, -0.2, Z_PAD])
+        assert math.sqrt(state.estimate.covariance[3, 3]) == pytest.approx(HybridPadConfig().position_std_m)
