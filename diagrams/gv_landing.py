@@ -65,6 +65,7 @@ from systems.vehicles.ground_vehicle import GroundVehicle, GroundVehicleConfig
 from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry
 from systems.vehicles.paths import make_path
 from systems.vehicles.quadrotor import P_WB, STATE_SIZE, Quadrotor, hover_state
+from systems.vehicles.traffic import Traffic, draw_distractors
 from systems.viewers import MeshcatArrow, MeshcatTrail, VideoRecorder
 
 # Logged at the supervisor's rate (the sample before the first LANDED holds what the supervisor saw
@@ -247,6 +248,10 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         config.vehicle.wheelbase_m, config.platform, scene_graph))
     builder.Connect(vehicle_state, vehicle_geometry.get_input_port())
     builder.Connect(vehicle_geometry.get_output_port(), scene_graph.get_source_pose_port(vehicle_geometry.source_id))
+    if config.distractors.count:
+        traffic = builder.AddNamedSystem("traffic", Traffic(
+            scene_graph, vehicle.path, draw_distractors(config.distractors, config.vehicle.speed, config.seed)))
+        builder.Connect(traffic.get_output_port(), scene_graph.get_source_pose_port(traffic.source_id))
 
     measurements = _add_measurements(builder, config, scene_graph, airframe.body_frame_id, X_WB, vehicle_state,
                                      video_path)

@@ -36,6 +36,7 @@ from systems.vehicles.airframe import AirframeConfig
 from systems.vehicles.ground_vehicle import GroundVehicleConfig
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
 from systems.vehicles.quadrotor import QuadrotorParams
+from systems.vehicles.traffic import DistractorsConfig
 
 MEASUREMENT_SOURCES = ("none", "synthetic", "detector")
 
@@ -203,11 +204,12 @@ class GvLandingConfig(FlightConfig):
     faults: FaultsConfig = field(default_factory=FaultsConfig)  # in the marker stream; none by default
     navigation: NavigationConfig = field(default_factory=NavigationConfig)  # the UAV's own; the truth by default
     rendezvous: RendezvousConfig = field(default_factory=RendezvousConfig)  # the vehicle's broadcast; none by default
+    distractors: DistractorsConfig = field(default_factory=DistractorsConfig)  # other vehicles; none by default
 
     def validate(self) -> None:
         FlightConfig.validate(self)
         for name in ("vehicle", "platform", "perception", "estimation", "federated", "hybrid", "wind", "faults",
-                     "navigation", "rendezvous"):
+                     "navigation", "rendezvous", "distractors"):
             getattr(self, name).validate(name)
         require(self.navigation.source == "truth" or self.perception.source != "federated",
                 "perception.source federated drives its IMU from the UAV's pose: navigation.source must be truth")

@@ -47,14 +47,8 @@ from systems.geometry import register_visual
 from systems.noise import sample_rng
 from systems.sensors.fisheye import FisheyeConfig, add_fisheye_camera, project_points
 from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry, PlatformConfig
+from systems.vehicles.traffic import DISTRACTOR_COLOURS
 
-UGV_COLOUR = (0.75, 0.3, 0.15)  # GroundVehicleGeometry's body colour
-# Distractor colours (RGB in [0, 1]): varied hues, greys, and the UGV's own colour last.
-DISTRACTOR_COLOURS = {
-    "red": (0.8, 0.1, 0.1), "green": (0.15, 0.6, 0.2), "blue": (0.15, 0.25, 0.75), "yellow": (0.9, 0.8, 0.15),
-    "white": (0.92, 0.92, 0.92), "dark": (0.18, 0.18, 0.2), "purple": (0.5, 0.2, 0.6), "cyan": (0.2, 0.7, 0.75),
-    "ugv": UGV_COLOUR,
-}
 DISTRACTOR_COPIES = 2  # boxes registered per colour (a frame shows at most this many of one colour)
 PARKED = RigidTransform([1.0e4, 1.0e4, -1.0e3])  # far beyond the far clip
 UGV_WHEELBASE_M = 0.9

@@ -140,9 +140,10 @@ def test_bad_setting_names_the_field(setting, field):
         load_scenario("ugv-hybrid", overrides=[setting])
 
 
-def _hover_flight(xy, duration_s):
+def _hover_flight(xy, duration_s, *overrides):
     """A flight that starts hovering at IH at `xy` over the UGV's start (the UGV drives the straight path)."""
-    _, scenario = load_scenario("ugv-hybrid", overrides=[f"start.xy_m=[{xy[0]}, {xy[1]}]", "start.height_m=7.5"])
+    _, scenario = load_scenario("ugv-hybrid", overrides=[f"start.xy_m=[{xy[0]}, {xy[1]}]", "start.height_m=7.5",
+                                                         *overrides])
     return fly(scenario, duration_s, progress=False)
 
 
@@ -166,6 +167,20 @@ def test_estimate_near_the_truth_once_valid(short_hybrid_run):
     assert metrics["estimators"]["hybrid"]["position_m"]["rmse_horizontal"] < 0.06
     assert metrics["estimators"]["hybrid"]["velocity_mps"]["rmse_horizontal"] < 0.1
     assert flight.log["relative_state"][-1, VALID] == 1.0
+
+
+@pytest.mark.slow
+def test_distractors_in_view_do_not_take_the_lock():
+    """Four vehicles driving beside the UGV, one in its colour: the lock stays on one track, the estimate on the UGV
+    (the same bounds as alone)."""
+    metrics, flight = _hover_flight((0.5, 0.3), 3.0, "distractors.count=4", "distractors.same_colour=1")
+    assert metrics["estimators"]["hybrid_detector"]["identity_switches"] == 0
+    assert metrics["estimators"]["hybrid"]["position_m"]["rmse_horizontal"] < 0.06
+    log = flight.source_log
+    p_true = log["quadrotor_state"][:, P_WB] + log["true_relative_state"][:, P_BP_W]
+    valid = log["hybrid"][:, 0] > 0.5
+    assert valid[3:].all()
+    assert np.linalg.norm(log["hybrid"][valid, 1:3] - p_true[valid, :2], axis=1).max() < 0.12
 
 
 @pytest.mark.slow

@@ -24,6 +24,7 @@ from systems.perception.rqrlp.pattern import RqrlpLayout, rqrlp_image, rqrlp_tex
 from systems.vehicles.ground_vehicle import ground_pose
 
 PATTERNS = ("markers", "rqrlp")
+BODY_RGB = (0.75, 0.3, 0.15)  # the vehicle body's colour
 CARRIERS = ("vehicle", "ground")
 
 
@@ -128,7 +129,7 @@ class GroundVehicleGeometry(LeafSystem):
         top = p.height_m - p.pad_thickness_m
         register_visual(scene_graph, sid, body, RigidTransform(
             [p.body_length_m / 2 - p.rear_overhang_m, 0.0, (p.ground_clearance_m + top) / 2]),
-            Box(p.body_length_m, p.body_width_m, top - p.ground_clearance_m), "gv_body", (0.75, 0.3, 0.15, 1.0))
+            Box(p.body_length_m, p.body_width_m, top - p.ground_clearance_m), "gv_body", (*BODY_RGB, 1.0))
         wheel = Cylinder(p.wheel_radius_m, p.wheel_width_m)
         R_wheel = RotationMatrix.MakeXRotation(np.pi / 2)  # cylinder axis (z) along the axle (y)
         y = p.body_width_m / 2  # wheels half outside the body (no coplanar faces)
