@@ -119,7 +119,7 @@ class GvLandingHandles:
 
     @property
     def video(self) -> VideoRecorder | None:
-        return self.measurements.video
+        return self.measurements.video or self.perception.video
 
     def initialize(self, root_context) -> None:
         """Sets the initial conditions in a context of the built diagram: the UAV at rest at `start`
@@ -203,9 +203,9 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
                    video_path=None) -> GvLandingHandles:
     """Adds the gv systems to `builder`; returns their handles."""
     config.validate()
-    if video_path is not None and config.camera() is None:
-        raise ConfigError("a video records the camera, and this scene has none (estimation.source detector or "
-                          "perception.source federated render one)")
+    if video_path is not None and not config.has_video:
+        raise ConfigError("a video records the camera, and this scene has none (estimation.source detector, "
+                          "perception.source federated or hybrid render one)")
     discrete = config.integration.discrete
     period, integration = (config.period_s, config.integration.simulator_config()) if discrete else (None, None)
     wind = None if config.wind.is_calm else builder.AddNamedSystem("wind", WindSystem(config.wind, config.seed))
@@ -266,7 +266,8 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
     perception = perception_source(config.perception.source).add(
         builder, PerceptionInputs(config, nav_X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"), quad_state,
                                   vehicle_state, truth.get_output_port(), measurements.delayed,
-                                  measurements.color_image, filters, scene_graph, airframe.body_frame_id))
+                                  measurements.color_image, filters, scene_graph, airframe.body_frame_id,
+                                  video_path if measurements.video is None else None))
     rendezvous = None
     if config.rendezvous.source == "broadcast":  # the vehicle's navigation by radio: a coarse target
         broadcast = builder.AddNamedSystem("vehicle_broadcast", VehicleBroadcast(config.rendezvous, config.seed))

@@ -248,6 +248,11 @@ class GvLandingConfig(FlightConfig):
         return self.estimation.camera if self.estimation.source == "detector" else None
 
     @property
+    def has_video(self) -> bool:
+        """Whether --video has a stream to record: the scene's camera, or the perception source's own."""
+        return self.camera() is not None or perception_source(self.perception.source).records_video
+
+    @property
     def pad_size_m(self) -> float:
         """The side of the square landed on: the pad's."""
         return self.platform.pad_size_m

@@ -222,7 +222,7 @@ def run_flight(scenario: GvLandingConfig, ctx, duration_s: float, landing: bool 
     """Builds, flies and writes a gv scenario for the landing-sim command."""
     from diagrams.runner import finish_run
 
-    if ctx.options.video and scenario.camera() is None:
+    if ctx.options.video and not scenario.has_video:
         raise ConfigError(f"--video records the camera, and {ctx.name} has none "
                           f"(--set estimation.source=detector renders it)")
     video_path = ctx.out_dir / "camera.mp4" if ctx.options.video else None

@@ -39,6 +39,7 @@ from systems.perception.ugv_detector import ColourPadConfig, ColourPadDetector, 
 from systems.sensors.camera import RENDERER_NAME, add_renderer
 from systems.sensors.fisheye import FisheyeConfig, add_fisheye_camera
 from systems.sensors.stereo import StereoConfig, add_stereo_pair
+from systems.viewers import TrackOverlay, VideoRecorder
 
 DETECTORS = ("learned", "classical")
 GROUND_LIFT_M = 0.001  # the textured ground over the plain one (no z-fighting)
@@ -102,12 +103,15 @@ class HybridPorts:
     observer: VelocityObserverSystem
     v_WP: object  # the observer's velocity, else the coasting estimate's, else zero
     logs: dict
+    video: VideoRecorder | None = None  # the fisheye stream with the boxes drawn (video_path given)
 
 
 def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfig, scene_graph, body_frame_id,
-                          z_pad: float, seed: int, X_WB, markers: MarkerLayout | None = None) -> HybridPorts:
+                          z_pad: float, seed: int, X_WB, markers: MarkerLayout | None = None,
+                          video_path=None) -> HybridPorts:
     """The array on `body_frame_id`, its perception, the estimate on X_WB (the UAV's navigation); with the
-    pad's `markers` (and hybrid.stereo_pad.enabled) the left eye's pad fix for the last metres."""
+    pad's `markers` (and hybrid.stereo_pad.enabled) the left eye's pad fix for the last metres; with
+    `video_path` a video of the fisheye stream with the detections and the target's box drawn."""
     add_textured_ground(scene_graph, config.ground, GROUND_LIFT_M)
     if not scene_graph.HasRenderer(RENDERER_NAME):
         add_renderer(scene_graph)
@@ -161,5 +165,16 @@ def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfi
             "stereo_valid": LogVectorOutput(altimeter.GetOutputPort("altitude_valid"), builder, period),
             "altitude": LogVectorOutput(altitude.GetOutputPort("altitude"), builder, period),
             "altitude_valid": LogVectorOutput(altitude.GetOutputPort("valid"), builder, period)}
-    return HybridPorts(detector, tracker, altimeter, altitude, estimator, observer, v_WP.get_output_port(), logs)
+    video = None
+    if video_path is not None:
+        overlay = builder.AddNamedSystem("track_overlay", TrackOverlay(fe.width, fe.height))
+        builder.Connect(rig.color_image, overlay.GetInputPort("color_image"))
+        builder.Connect(detector.get_output_port(), overlay.GetInputPort("detections"))
+        builder.Connect(tracker.GetOutputPort("target_box"), overlay.GetInputPort("target_box"))
+        builder.Connect(tracker.GetOutputPort("target_valid"), overlay.GetInputPort("target_valid"))
+        builder.Connect(lock.get_output_port(), overlay.GetInputPort("lock"))
+        video = builder.AddNamedSystem("video", VideoRecorder(video_path, period, fe.width, fe.height))
+        builder.Connect(overlay.GetOutputPort("image"), video.get_input_port())
+    return HybridPorts(detector, tracker, altimeter, altitude, estimator, observer, v_WP.get_output_port(), logs,
+                       video)
 

@@ -16,6 +16,7 @@ pad in W (and, where it has them, the pad's velocity and acceleration).
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from pydrake.geometry import SceneGraph
 from pydrake.systems.framework import DiagramBuilder, OutputPort
@@ -29,6 +30,7 @@ from diagrams.hybrid_perception import add_hybrid_perception
 from systems.config import ConfigError
 from systems.estimators.marker_ekf import FILTERS, MarkerFilterSystem
 from systems.perception.seam import EstimateToSeam
+from systems.viewers import VideoRecorder
 
 
 @dataclass
@@ -49,6 +51,7 @@ class PerceptionInputs:
     # UAV's body frame in it, on which cameras mount. None where the scene offers none.
     scene_graph: SceneGraph | None = None
     body_frame_id: object = None
+    video_path: Path | None = None  # --video: where a source that records its own stream writes it
 
 
 @dataclass
@@ -60,6 +63,7 @@ class SeamPorts:
     X_WP_estimate: OutputPort | None = None
     filter_name: str | None = None  # the marker filter behind it, if any
     logs: dict = field(default_factory=dict)  # the source's own loggers (name -> VectorLogSink), for its metrics
+    video: VideoRecorder | None = None  # its own stream's recorder (--video), where it records one
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,7 @@ class PerceptionSource:
     needs_markers: bool = False  # a marker measurement stream (estimation.source synthetic or detector)
     needs_camera: bool = False  # the rendered camera: estimation.source detector's, or its own
     camera: Callable | None = None  # config -> its own CameraConfig, which the scene adds (None: none of its own)
+    records_video: bool = False  # --video records its own stream (PerceptionInputs.video_path)
     # Its own figures: (arrays of its `logs` by name with their times "t", config, touchdown time or None)
     # -> metrics.json's `estimators` entries; and its plots: (the same arrays, config, out_dir).
     metrics: Callable | None = None
@@ -130,8 +135,10 @@ def _hybrid(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
     config = inputs.config
     hybrid = add_hybrid_perception(builder, config.hybrid, inputs.scene_graph, inputs.body_frame_id,
                                    float(config.platform.p_VP[2]), config.seed, inputs.X_WB,
-                                   config.platform.markers if config.platform.pattern == "markers" else None)
+                                   config.platform.markers if config.platform.pattern == "markers" else None,
+                                   inputs.video_path)
     ports = add_estimate_to_seam(builder, inputs, hybrid.estimator.GetOutputPort("X_WP_estimate"), hybrid.v_WP)
+    ports.video = hybrid.video
     period = config.hybrid.fisheye.period_s
     ports.logs = {**hybrid.logs, "quadrotor_state": LogVectorOutput(inputs.quadrotor_state, builder, period),
                   "vehicle_state": LogVectorOutput(inputs.vehicle_state, builder, period),
@@ -144,7 +151,7 @@ SOURCES: dict[str, PerceptionSource] = {
     **{name: PerceptionSource(_marker_filter(name), needs_markers=True) for name in FILTERS},
     "federated": PerceptionSource(_federated, needs_camera=True, camera=lambda config: config.federated.camera,
                                   metrics=_federated_metrics, plot=_federated_plot),
-    "hybrid": PerceptionSource(_hybrid, metrics=hybrid_metrics, plot=plot_hybrid),
+    "hybrid": PerceptionSource(_hybrid, metrics=hybrid_metrics, plot=plot_hybrid, records_video=True),
 }
 
 

@@ -104,3 +104,42 @@ class VideoRecorder(LeafSystem):
     def discard(self) -> None:
         self._writer.release()
         self._tmp.unlink(missing_ok=True)
+
+
+def draw_boxes(rgb: np.ndarray, detections, target_box: np.ndarray, target_valid: bool, lock: np.ndarray) -> np.ndarray:
+    """A copy of the (H, W, 3 or 4) uint8 image with the detector's boxes (yellow, their scores) and the
+    tracker's target box (green while locked and matched this frame, orange while predicted; its track id)
+    drawn on it; boxes are [x, y, w, h] px (systems/perception/box_tracker.py)."""
+    out = np.ascontiguousarray(rgb[..., :3]).copy()
+    for box, score in detections:
+        x, y, w, h = (round(float(v)) for v in box)
+        cv2.rectangle(out, (x, y), (x + w - 1, y + h - 1), (255, 220, 0), 1)
+        cv2.putText(out, f"{score:.2f}", (x, max(y - 3, 8)), cv2.FONT_HERSHEY_PLAIN, 0.8, (255, 220, 0), 1)
+    if target_valid and np.all(np.isfinite(target_box)):
+        x, y, w, h = (round(float(v)) for v in target_box)
+        colour = (0, 230, 0) if lock[1] > 0.5 else (255, 140, 0)
+        cv2.rectangle(out, (x, y), (x + w - 1, y + h - 1), colour, 2)
+        cv2.putText(out, f"id {int(lock[0])}", (x, y + h + 12), cv2.FONT_HERSHEY_PLAIN, 1.0, colour, 1)
+    return out
+
+
+class TrackOverlay(LeafSystem):
+    """The fisheye stream with the UGV detector's boxes and the tracker's target drawn on it (`draw_boxes`),
+    for `--video`. Inputs `color_image` (ImageRgba8U), `detections` (list of (box, score)), `target_box` (4),
+    `target_valid` (1), `lock` (2: [track id, matched]); output `image` (ImageRgba8U, the same size)."""
+
+    def __init__(self, width: int, height: int):
+        super().__init__()
+        self._image = self.DeclareAbstractInputPort("color_image", AbstractValue.Make(ImageRgba8U(width, height)))
+        self._detections = self.DeclareAbstractInputPort("detections", AbstractValue.Make([]))
+        self._box = self.DeclareVectorInputPort("target_box", 4)
+        self._valid = self.DeclareVectorInputPort("target_valid", 1)
+        self._lock = self.DeclareVectorInputPort("lock", 2)
+        self.DeclareAbstractOutputPort("image", lambda: AbstractValue.Make(ImageRgba8U(width, height)), self._calc)
+
+    def _calc(self, context, output):
+        drawn = draw_boxes(image_to_numpy(self._image.Eval(context)), self._detections.Eval(context),
+                           self._box.Eval(context), self._valid.Eval(context)[0] > 0.5, self._lock.Eval(context))
+        image = output.get_mutable_value()
+        image.mutable_data[..., :3] = drawn
+        image.mutable_data[..., 3] = 255
