@@ -45,6 +45,7 @@ from systems.control.flight_controller import FlightController, SymbolicFlightCo
 from systems.control.landing import LandingSupervisor
 from systems.control.monitor import LandingMonitor
 from systems.control.pid import TrackingPid
+from systems.environment.bridge import register_bridge
 from systems.environment.wind_system import WindSystem
 from systems.estimators.estimate import PoseEstimateToVector
 from systems.estimators.marker_ekf import FILTERS, MarkerFilterSystem
@@ -248,6 +249,8 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         config.vehicle.wheelbase_m, config.platform, scene_graph))
     builder.Connect(vehicle_state, vehicle_geometry.get_input_port())
     builder.Connect(vehicle_geometry.get_output_port(), scene_graph.get_source_pose_port(vehicle_geometry.source_id))
+    if config.bridge.enabled:
+        register_bridge(scene_graph, vehicle.path, config.bridge)
     if config.distractors.count:
         traffic = builder.AddNamedSystem("traffic", Traffic(
             scene_graph, vehicle.path, draw_distractors(config.distractors, config.vehicle.speed, config.seed)))

@@ -25,6 +25,7 @@ from systems.control.flight_controller import BACKENDS, FlightControllerConfig
 from systems.control.landing import LandingConfig
 from systems.control.monitor import TerminationConfig
 from systems.control.pid import TrackingPidConfig
+from systems.environment.bridge import BridgeConfig
 from systems.environment.wind import WindConfig
 from systems.estimators.marker_ekf import FILTERS, MarkerEkfConfig
 from systems.perception.marker_faults import FaultsConfig
@@ -205,12 +206,16 @@ class GvLandingConfig(FlightConfig):
     navigation: NavigationConfig = field(default_factory=NavigationConfig)  # the UAV's own; the truth by default
     rendezvous: RendezvousConfig = field(default_factory=RendezvousConfig)  # the vehicle's broadcast; none by default
     distractors: DistractorsConfig = field(default_factory=DistractorsConfig)  # other vehicles; none by default
+    bridge: BridgeConfig = field(default_factory=BridgeConfig)  # an occluder over the path; none by default
 
     def validate(self) -> None:
         FlightConfig.validate(self)
         for name in ("vehicle", "platform", "perception", "estimation", "federated", "hybrid", "wind", "faults",
-                     "navigation", "rendezvous", "distractors"):
+                     "navigation", "rendezvous", "distractors", "bridge"):
             getattr(self, name).validate(name)
+        require(not self.bridge.enabled or self.bridge.clearance_m > self.platform.height_m,
+                f"bridge.clearance_m ({self.bridge.clearance_m:g} m) must exceed the vehicle's height "
+                f"(platform.height_m, {self.platform.height_m:g} m): it drives under the bridge")
         require(self.navigation.source == "truth" or self.perception.source != "federated",
                 "perception.source federated drives its IMU from the UAV's pose: navigation.source must be truth")
         require(not self.faults.active or self.estimation.source != "none",

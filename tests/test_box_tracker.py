@@ -335,6 +335,40 @@ def test_lost_target_reacquired_under_a_new_id_counts_one_switch():
     assert len({i for i in locked if i is not None}) == 2
 
 
+def test_partial_view_is_not_measured_and_starts_no_track():
+    """A target boxed at 40 % of its width for 1 s (half under a bridge): the fragments are not associated and
+    start no track; the target's track coasts at its own velocity as if unseen (not pulled to the fragments'
+    centre) and, inside max_misses, matches the whole target's box again under its id."""
+    tracker, v = BoxTracker(BoxTrackerConfig()), np.array([20.0, 0.0])  # px/s
+
+    def box(t, width=40.0):
+        return np.array([*(np.array([200.0, 250.0]) + v * t), width, 30.0])
+
+    for k in range(10):
+        state = tracker.step([Detection(box(0.1 * k))], None, 0.1 * k)
+    target_id = state.target.id
+    for k in range(10, 20):
+        state = tracker.step([Detection(box(0.1 * k, width=16.0))], None, 0.1 * k)
+        target = state.target
+        assert target.id == target_id and target.detection is None and target.misses == k - 9
+        assert np.allclose(target.box, box(0.1 * k), atol=1.5)  # the whole box, predicted
+        assert [t.id for t in state.tracks] == [target_id]
+    state = tracker.step([Detection(box(2.0))], None, 2.0)
+    assert state.target.id == target_id and state.target.detection == 0 and state.target.misses == 0
+
+
+def test_lock_takes_only_a_confident_track():
+    """Two steady tracks, the one nearer the cue scoring 0.6 (a marginal box), the other 0.95: with
+    lock_min_score 0.8 the lock takes the confident one; without, the nearer."""
+    marginal, confident = np.array([250.0, 250.0, 30.0, 30.0]), np.array([350.0, 300.0, 30.0, 30.0])
+    for min_score, expected in ((0.8, confident), (0.0, marginal)):
+        tracker = BoxTracker(BoxTrackerConfig(cue_px=[256.0, 256.0], cue_radius_px=300.0, lock_min_score=min_score))
+        for k in range(5):
+            state = tracker.step([Detection(marginal, 0.6), Detection(confident, 0.95)], None, 0.1 * k)
+        assert np.allclose(state.target.box, expected, atol=1e-6)
+        assert state.target.score == (0.95 if min_score else 0.6)
+
+
 def test_false_alarms_are_never_locked_or_confirmed():
     """One-frame false alarms (truth id -1) start tentative tracks that die unconfirmed."""
     sequence = make_sequence(5)

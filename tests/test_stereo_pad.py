@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from pydrake.math import RigidTransform
+from pydrake.systems.sensors import ImageRgba8U
 
 from diagrams.hybrid_perception import hybrid_stereo
 from systems.estimators.velocity_observer import VelocityObserverConfig
@@ -51,6 +52,20 @@ def test_finder_places_the_pad_in_world():
 def test_finder_off_the_plane_or_disabled_is_nan(z_pad, config):
     finder, image, X_WB = _finder_view(z_pad, config)
     assert np.all(np.isnan(finder.find(image, X_WB)))
+
+
+@pytest.mark.parametrize("max_height_m, found", [(3.0, True), (0.5, False)])
+def test_finder_system_searches_only_low_over_the_pad(max_height_m, found):
+    """The system's output: the fix with the eye 1 m over the pad, NaN when that is above max_height_m."""
+    finder, image, X_WB = _finder_view(Z_PAD, StereoPadConfig(max_height_m=max_height_m))
+    context = finder.CreateDefaultContext()
+    frame = ImageRgba8U(EYE.width, EYE.height)
+    frame.mutable_data[..., :3] = image[..., None]
+    frame.mutable_data[..., 3] = 255
+    finder.GetInputPort("left_image").FixValue(context, frame)
+    finder.GetInputPort("X_WB").FixValue(context, X_WB)
+    p_WP = finder.get_output_port().Eval(context)
+    assert np.allclose(p_WP, [2.0, 1.0, Z_PAD], atol=0.01) if found else np.all(np.isnan(p_WP))
 
 
 @pytest.mark.parametrize("height_m, used", [(2.0, True), (7.5, False)])

@@ -28,6 +28,11 @@ Ours, where the paper is silent:
 - Life cycle (SORT's): an unmatched detection starts a tentative track; `min_hits` matched frames
   confirm it; a tentative track dies at its first miss, a confirmed one after more than `max_misses`.
   Detections scoring under `min_score` are not used.
+- A partial view: a detection lying within a confirmed track's predicted box and narrower or shorter than
+  `min_size_ratio` of it (the target half under a bridge, or cut by the image's edge: its centre is not the
+  target's) is neither associated nor starts a track: the track coasts as if unseen (and dies after
+  `max_misses`), nothing measures from the fragment, and the track's appearance stays the whole target's,
+  for the re-acquisition when it reappears.
 - A track's appearance is a running mean of its matched detections' histograms (`appearance_update`
   the weight of the newest), so one frame of a box overlapping another object moves it little.
 - The target: the paper lands on "the" UGV; here the target is locked once, on the track nearest a cue
@@ -35,7 +40,9 @@ Ours, where the paper is silent:
   confirmed (a distractor confirmed first is not taken), and kept while its track lives. When
   the locked track dies, the lock passes to the confirmed track nearest the target's last box
   (within `reacquire_radius_px`) whose colour matches the target's (`max_colour_cost`): a new id, which
-  `count_identity_switches` counts as a switch.
+  `count_identity_switches` counts as a switch. Either way only a track one of whose detections scored at
+  least `lock_min_score` is taken (a detector's confident boxes are the target, its marginal ones often
+  false alarms).
 
 `step_tracker` is a pure function of (TrackerState, detections, image, time, config); `BoxTracker` holds
 the state for scripts; `BoxTrackerSystem` (box_tracker_system.py) holds it in a Drake context.
@@ -55,6 +62,7 @@ from systems.estimators.track_filter import TrackFilterParams, constant_velocity
 BINS_PER_CHANNEL = 25  # Sec. 2.2.1: "each color channel using 25 bins"
 HISTOGRAM_SIZE = 3 * BINS_PER_CHANNEL  # n = 75, Eq. 4
 _INFEASIBLE = 1e6  # cost of a gated pair in the assignment
+PARTIAL_INSIDE = 0.8  # a partial view lies at least this fraction of its area within the track's predicted box
 
 
 @dataclass(frozen=True)
@@ -85,6 +93,8 @@ class BoxTrackerConfig:
     acceleration_std_px_s2: float = 100.0  # the box's unmodelled acceleration in the image (the UAV's own motion)
     initial_velocity_std_px_s: float = 100.0  # a new track's velocity is unknown
     appearance_update: float = 0.3  # weight of the newest matched histogram in a track's appearance
+    min_size_ratio: float = 0.6  # a confirmed track's detection narrower or shorter than this is a partial view
+    lock_min_score: float = 0.0  # the lock takes (or re-takes) only a track with a detection scoring this high
     cue_px: list[float] = field(default_factory=list)  # [u, v] near the target at the start; empty: image centre
     cue_radius_px: float = 120.0  # the locked track must start this close to the cue (a quarter of the fisheye's width)
     reacquire_radius_px: float = 150.0  # a lost target is re-locked on a track this close to its last box
@@ -93,7 +103,7 @@ class BoxTrackerConfig:
         for name in ("rate_hz", "measurement_std_px", "acceleration_std_px_s2", "initial_velocity_std_px_s",
                      "gate_chi2", "max_cost", "max_colour_cost", "cue_radius_px", "reacquire_radius_px"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
-        for name in ("iou_weight", "colour_weight", "min_score"):
+        for name in ("iou_weight", "colour_weight", "min_score", "lock_min_score"):
             require_non_negative(getattr(self, name), f"{prefix}.{name}")
         require(abs(self.iou_weight + self.colour_weight - 1.0) < 1e-9,
                 f"{prefix}.iou_weight + {prefix}.colour_weight must be 1 (Eq. 5), got "
@@ -102,6 +112,7 @@ class BoxTrackerConfig:
                 f"{prefix}.min_hits must be an integer of at least 1, got {self.min_hits}")
         require(isinstance(self.max_misses, int) and self.max_misses >= 0,
                 f"{prefix}.max_misses must be a non-negative integer, got {self.max_misses}")
+        require(0 <= self.min_size_ratio < 1, f"{prefix}.min_size_ratio must lie in [0, 1), got {self.min_size_ratio}")
         require(0 < self.appearance_update <= 1,
                 f"{prefix}.appearance_update must lie in (0, 1], got {self.appearance_update}")
         require(len(self.cue_px) in (0, 2), f"{prefix}.cue_px needs 2 numbers [u, v] or none, got {len(self.cue_px)}")
@@ -133,14 +144,19 @@ def corner_form(boxes: np.ndarray) -> np.ndarray:
     return np.concatenate([boxes[..., :2] - boxes[..., 2:] / 2, boxes[..., 2:]], axis=-1)
 
 
-def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(p, q) IOU (Eq. 2) of p boxes a against q boxes b, [x, y, w, h] px; 0 for disjoint or empty boxes."""
+def intersection_matrix(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(p, q) intersection areas of p boxes a with q boxes b, [x, y, w, h] px, and the areas of a (p, 1) and
+    of b (1, q) [px^2]."""
     ca, cb = box_corners(np.reshape(a, (-1, 4)))[:, None, :], box_corners(np.reshape(b, (-1, 4)))[None, :, :]
     w = np.clip(np.minimum(ca[..., 2], cb[..., 2]) - np.maximum(ca[..., 0], cb[..., 0]), 0.0, None)
     h = np.clip(np.minimum(ca[..., 3], cb[..., 3]) - np.maximum(ca[..., 1], cb[..., 1]), 0.0, None)
-    inter = w * h
-    area_a = (ca[..., 2] - ca[..., 0]) * (ca[..., 3] - ca[..., 1])
-    area_b = (cb[..., 2] - cb[..., 0]) * (cb[..., 3] - cb[..., 1])
+    return (w * h, (ca[..., 2] - ca[..., 0]) * (ca[..., 3] - ca[..., 1]),
+            (cb[..., 2] - cb[..., 0]) * (cb[..., 3] - cb[..., 1]))
+
+
+def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(p, q) IOU (Eq. 2) of p boxes a against q boxes b, [x, y, w, h] px; 0 for disjoint or empty boxes."""
+    inter, area_a, area_b = intersection_matrix(a, b)
     union = area_a + area_b - inter
     return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
 
@@ -199,7 +215,8 @@ class BoxTrack:
     covariance.
     hits: matched frames; misses: consecutive unmatched frames; confirmed once hits reached min_hits.
     histogram: the (75,) appearance (zeros without images). detection: index, in that frame's detection
-    list, of the detection it was matched with, or None (coasting)."""
+    list, of the detection it was matched with, or None (coasting). score: the best detector score among
+    its matched detections (what the lock asks of a track, `lock_min_score`)."""
 
     id: int
     x: np.ndarray
@@ -209,6 +226,7 @@ class BoxTrack:
     confirmed: bool = False
     histogram: np.ndarray = field(default_factory=lambda: np.zeros(HISTOGRAM_SIZE, np.float32))
     detection: int | None = None
+    score: float = 0.0
 
     @property
     def box(self) -> np.ndarray:
@@ -278,10 +296,10 @@ def innovation_chi2(track: BoxTrack, boxes: np.ndarray, config: BoxTrackerConfig
 
 
 def new_track(track_id: int, box: np.ndarray, histogram: np.ndarray, detection: int,
-              config: BoxTrackerConfig) -> BoxTrack:
+              config: BoxTrackerConfig, score: float = 0.0) -> BoxTrack:
     std = np.r_[np.full(4, config.measurement_std_px), np.full(4, config.initial_velocity_std_px_s)]
     return BoxTrack(track_id, np.r_[centre_form(box), np.zeros(4)], np.diag(std**2), hits=1,
-                    confirmed=config.min_hits <= 1, histogram=histogram, detection=detection)
+                    confirmed=config.min_hits <= 1, histogram=histogram, detection=detection, score=score)
 
 
 def associate(tracks: Sequence[BoxTrack], boxes: np.ndarray, track_histograms: np.ndarray,
@@ -316,6 +334,7 @@ def _update_lock(lock: TargetLock, tracks: tuple[BoxTrack, ...], image: np.ndarr
     if locked is None and lock.track_id is not None:  # lost: remember where and what it was
         lock = TargetLock(None, lock.box, lock.histogram)
     if locked is None:
+        tracks = [t for t in tracks if t.score >= config.lock_min_score]
         if lock.box is None:  # never locked: the track nearest the cue, once it is confirmed
             candidates, cue, radius = list(tracks), _cue(config, image), config.cue_radius_px
         else:  # re-acquire: the confirmed track nearest the last box, of the target's colour
@@ -333,6 +352,23 @@ def _update_lock(lock: TargetLock, tracks: tuple[BoxTrack, ...], image: np.ndarr
     return TargetLock(locked.id, locked.box, locked.histogram.copy())
 
 
+def partial_views(tracks: Sequence[BoxTrack], boxes: np.ndarray, min_size_ratio: float) -> dict[int, int]:
+    """{detection index: track index}: detections (q, 4) lying at least PARTIAL_INSIDE within a confirmed
+    track's predicted box and narrower or shorter than `min_size_ratio` of it (module docstring)."""
+    confirmed = [k for k, t in enumerate(tracks) if t.confirmed]
+    if not confirmed or not len(boxes) or min_size_ratio <= 0:
+        return {}
+    predicted = np.array([tracks[k].box for k in confirmed])
+    inter, _, area = intersection_matrix(predicted, boxes)
+    inside = np.divide(inter, area, out=np.zeros_like(inter), where=area > 0) >= PARTIAL_INSIDE
+    smaller = ((boxes[None, :, 2] < min_size_ratio * predicted[:, None, 2])
+               | (boxes[None, :, 3] < min_size_ratio * predicted[:, None, 3]))
+    out = {}
+    for i, j in zip(*np.nonzero(inside & smaller)):
+        out.setdefault(int(j), confirmed[i])
+    return out
+
+
 def step_tracker(state: TrackerState, detections: Sequence[Detection], image: np.ndarray | None, time: float,
                  config: BoxTrackerConfig) -> TrackerState:
     """One frame at `time` [s]: predict every track to it, associate (Eq. 3-6), update, start, confirm and
@@ -346,10 +382,12 @@ def step_tracker(state: TrackerState, detections: Sequence[Detection], image: np
     histograms = np.array([colour_histogram(image, b) for b in boxes]) if use_colour else None
 
     predicted = [predict_track(t, dt, config) for t in state.tracks]
+    partial = partial_views(predicted, boxes, config.min_size_ratio)
+    whole = [j for j in range(len(boxes)) if j not in partial]
     track_histograms = np.array([t.histogram for t in predicted]) if use_colour and predicted else None
-    pairs = associate(predicted, boxes, track_histograms, histograms, config)
+    pairs = associate(predicted, boxes[whole], track_histograms, histograms[whole] if use_colour else None, config)
 
-    matched = dict(pairs)
+    matched = {k: whole[j] for k, j in pairs}
     _, _, H, R = constant_velocity_model(_filter_params(config, dt), 4)
     tracks = []
     for k, track in enumerate(predicted):
@@ -362,13 +400,14 @@ def step_tracker(state: TrackerState, detections: Sequence[Detection], image: np
                 histogram = histograms[j] if not track.histogram.any() else (1 - a) * track.histogram + a * histograms[j]
             hits = track.hits + 1
             tracks.append(replace(track, x=x, P=P, hits=hits, misses=0, confirmed=track.confirmed or
-                                  hits >= config.min_hits, histogram=histogram, detection=used[j]))
+                                  hits >= config.min_hits, histogram=histogram, detection=used[j],
+                                  score=max(track.score, detections[used[j]].score)))
         elif track.confirmed and track.misses < config.max_misses:
             tracks.append(replace(track, misses=track.misses + 1))
     next_id = state.next_id
-    for j in sorted(set(range(len(boxes))) - set(matched.values())):
+    for j in sorted(set(whole) - set(matched.values())):
         histogram = histograms[j] if use_colour else np.zeros(HISTOGRAM_SIZE, np.float32)
-        tracks.append(new_track(next_id, boxes[j], histogram, used[j], config))
+        tracks.append(new_track(next_id, boxes[j], histogram, used[j], config, detections[used[j]].score))
         next_id += 1
     tracks = tuple(tracks)
     return TrackerState(time, tracks, next_id, _update_lock(state.lock, tracks, image, config, use_colour))
