@@ -132,6 +132,8 @@ def test_scenario_loads():
 
 @pytest.mark.parametrize("setting, field", [("hybrid.detector=yolo", "hybrid.detector"),
                                             ("hybrid.tracker.rate_hz=20", "hybrid.tracker.rate_hz"),
+                                            ("hybrid.tracker.lock_min_score=2", "hybrid.tracker.lock_min_score"),
+                                            ("hybrid.stereo_pad.max_height_m=0", "hybrid.stereo_pad.max_height_m"),
                                             ("hybrid.estimator.min_ray_down=2", "hybrid.estimator.min_ray_down"),
                                             ("hybrid.fisheye.fov_deg=200", "hybrid.fisheye.fov_deg"),
                                             ("hybrid.no_such_key=1", "hybrid.no_such_key")])
