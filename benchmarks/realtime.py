@@ -4,9 +4,10 @@
     .venv/bin/python benchmarks/realtime.py [--duration 60] [--scenario stewart-dynamic] [--out FILE]
 
 The breakdown times each stage on its own at the camera's frame times: render (512x512 colour), the
-camera's processing of it (lens, blur and pixel noise), ToF (four depth renders), tag detection;
-"rest" is the simulation's wall time per frame minus those (logging, IMU, events, Python overhead). `--out` writes the figures as JSON too
-(`render_ms`, `per_frame_ms`, their ratio, the real-time factor and the stages), beside the printout.
+camera's processing of it (lens, blur and pixel noise), ToF (the sensors' one shared depth render and
+their readings), tag detection; "rest" is the simulation's wall time per frame minus those (logging,
+IMU, events, Python overhead). `--out` writes the figures as JSON too (`render_ms`, `per_frame_ms`,
+their ratio, the real-time factor and the stages), beside the printout.
 """
 
 import argparse
@@ -25,7 +26,7 @@ from systems.sensors.camera import image_to_numpy
 def stage_times_ms(diagram, handles, period_s: float, frames: int) -> dict[str, float]:
     """Median milliseconds per frame of each stage, evaluated at successive frame times: the render, the
     camera's own processing of it (lens, blur, noise: `NoisyCamera` on the cached render), the ToF
-    sensors' four depth renders and readings, and tag detection."""
+    sensors' shared depth render and readings, and tag detection."""
     context = diagram.CreateDefaultContext()
     camera_context = handles.camera.GetMyContextFromRoot(context)
     noisy_context = handles.noisy_camera.GetMyContextFromRoot(context)
@@ -64,7 +65,7 @@ def main() -> None:
     simulator.AdvanceTo(args.duration)
     wall = time.perf_counter() - start
     simulated = args.duration - scenario.camera.period_s
-    frames = int(round(simulated * scenario.camera.rate_hz))
+    frames = round(simulated * scenario.camera.rate_hz)
 
     stages = stage_times_ms(diagram, handles, scenario.camera.period_s, frames=100)
     per_frame = wall / frames * 1e3

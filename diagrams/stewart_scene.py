@@ -24,7 +24,7 @@ from systems.platforms.stewart import StewartPlatform, StewartPlatformConfig
 from systems.sensors.camera import CameraConfig, NoisyCamera, add_camera, add_renderer
 from systems.sensors.ground_truth import RelativePose
 from systems.sensors.imu import Imu, ImuConfig
-from systems.sensors.tof import TofConfig, TofSensors, make_ray_sensor, sensor_positions_C
+from systems.sensors.tof import TofConfig, TofSensors, make_tof_camera, sensor_positions_C
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry, PrescribedPose
 from systems.viewers import VideoRecorder
 
@@ -108,15 +108,13 @@ def hover_pose(config: StewartSceneConfig, platform: StewartPlatform) -> RigidTr
 
 def add_uav_sensors(builder: DiagramBuilder, scene_graph: SceneGraph, body_frame_id, camera_config: CameraConfig,
                     tof_config: TofConfig, seed: int):
-    """The downward camera (with pixel noise) and the four ToF sensors on the body frame.
-    Returns (RgbdSensor, NoisyCamera, TofSensors)."""
-    X_BC = camera_config.X_BC
+    """The downward camera (with pixel noise) and the four ToF sensors on the body frame, the sensors
+    sharing one depth render (`make_tof_camera`). Returns (RgbdSensor, NoisyCamera, TofSensors)."""
     camera, noisy_camera = add_camera(builder, scene_graph, body_frame_id, camera_config, seed)
     tof = builder.AddSystem(TofSensors(tof_config, seed))
-    for i, p_CS in enumerate(sensor_positions_C(tof_config.arm_m, tof_config.angle_deg)):
-        ray = builder.AddSystem(make_ray_sensor(body_frame_id, X_BC.multiply(RigidTransform(p_CS)), tof_config))
-        builder.Connect(scene_graph.get_query_output_port(), ray.query_object_input_port())
-        builder.Connect(ray.depth_image_32F_output_port(), tof.get_input_port(i))
+    depth_camera = builder.AddSystem(make_tof_camera(body_frame_id, camera_config.X_BC, tof_config))
+    builder.Connect(scene_graph.get_query_output_port(), depth_camera.query_object_input_port())
+    builder.Connect(depth_camera.depth_image_32F_output_port(), tof.get_input_port())
     return camera, noisy_camera, tof
 
 

@@ -1,5 +1,6 @@
-"""ToF range sensors: the range-limit function, the TofSensors system on fixed depth images, and the
-rendered rays against the analytic ray-plane distance to a tilted deck."""
+"""ToF range sensors: the range-limit function, the TofSensors system on fixed images of its shared
+depth camera, and the rendered rays against the analytic ray-plane distance to a tilted and a moving
+deck."""
 
 import copy
 import math
@@ -12,7 +13,14 @@ from scipy.integrate import quad
 from diagrams.stewart_scene import StewartSceneConfig
 from systems.config import ConfigError
 from systems.platforms.stewart import TAG_ABOVE_DECK_M
-from systems.sensors.tof import TofConfig, TofSensors, apply_range_limits, sensor_positions_C, view_intrinsics
+from systems.sensors.tof import (
+    TOF_CAMERA_BACK_M,
+    TofConfig,
+    TofSensors,
+    apply_range_limits,
+    sensor_positions_C,
+    tof_camera_view,
+)
 
 
 def test_sensor_positions_follow_eq_21_to_24():
@@ -40,18 +48,30 @@ def test_apply_range_limits():
     assert ranges[-1] == pytest.approx(4.009)
 
 
-def depth_image(value: float) -> ImageDepth32F:
-    image = ImageDepth32F(3, 3)
-    image.mutable_data[:] = value
+def camera_image(config: TofConfig, depth_of) -> ImageDepth32F:
+    """The shared depth camera's image (`make_tof_camera`) of a scene whose z-depth from the camera plane
+    along K's line of sight at normalised image coordinates (x, y) is depth_of(x, y) (m; 0: too close,
+    inf: nothing)."""
+    pixels, f, c = tof_camera_view(config)
+    x = (np.arange(pixels) - c) / f
+    s = np.broadcast_to(depth_of(x[None, :], x[:, None]), (pixels, pixels))
+    image = ImageDepth32F(pixels, pixels)
+    image.mutable_data[..., 0] = np.where(s == 0, 0.0, TOF_CAMERA_BACK_M + s)
     return image
 
 
-def tof_system(true_ranges, seed=0, **config):
-    tof = TofSensors(TofConfig(**config), seed)
+def tof_with_image(config: TofConfig, depth_of, seed=0):
+    tof = TofSensors(config, seed)
     context = tof.CreateDefaultContext()
-    for i, r in enumerate(true_ranges):
-        tof.get_input_port(i).FixValue(context, depth_image(r))
+    tof.get_input_port().FixValue(context, camera_image(config, depth_of))
     return tof, context
+
+
+def tof_system(true_ranges, seed=0, **config):
+    """TofSensors whose camera sees each sensor's range in that sensor's quadrant (Eq. 21-24's order)."""
+    quadrant_ranges = np.array([[true_ranges[0], true_ranges[3]], [true_ranges[1], true_ranges[2]]])  # [y >= 0][x >= 0]
+    return tof_with_image(TofConfig(**config), lambda x, y: quadrant_ranges[(y >= 0).astype(int), (x >= 0).astype(int)],
+                          seed)
 
 
 def outputs(tof, context, t=0.0):
@@ -59,23 +79,39 @@ def outputs(tof, context, t=0.0):
     return [tof.GetOutputPort(name).Eval(context).copy() for name in ("ranges", "ranges_valid", "true_ranges")]
 
 
-def test_noise_free_readings_are_the_centre_pixels():
-    true = [0.5, 1.25, 2.0, 3.75]  # exact in float32
+def test_noise_free_readings_are_the_ranges_along_the_axes():
+    true = [0.5, 1.25, 2.0, 3.75]
     tof, context = tof_system(true)
     ranges, valid, truth = outputs(tof, context, 0.35)
-    np.testing.assert_array_equal(truth, true)
-    np.testing.assert_array_equal(ranges, true)
+    np.testing.assert_allclose(truth, true, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(ranges, truth)
     np.testing.assert_array_equal(valid, [1, 1, 1, 1])
 
 
-def test_only_the_centre_pixel_counts():
-    tof = TofSensors(TofConfig())
-    context = tof.CreateDefaultContext()
-    for i in range(4):
-        image = depth_image(np.inf)
-        image.mutable_data[1, 1, 0] = 1.0 + i
-        tof.get_input_port(i).FixValue(context, image)
-    np.testing.assert_array_equal(tof.GetOutputPort("true_ranges").Eval(context), [1, 2, 3, 4])
+def test_each_sensor_reads_a_tilted_plane_along_its_own_axis():
+    # The plane z_C = h + a x_C + b y_C; K (TOF_CAMERA_BACK_M behind C) sees it at z-depth
+    # (TOF_CAMERA_BACK_M + h) / (1 - a x - b y) along (x, y), so at z_C = that - TOF_CAMERA_BACK_M.
+    h, a, b = 0.3, np.tan(np.radians(25.0)), -np.tan(np.radians(10.0))
+    tof, context = tof_with_image(TofConfig(), lambda x, y: (TOF_CAMERA_BACK_M + h) / (1 - a * x - b * y)
+                                  - TOF_CAMERA_BACK_M)
+    p_CS = sensor_positions_C(0.135, 45.0)
+    expected = h + a * p_CS[:, 0] + b * p_CS[:, 1]
+    assert np.ptp(expected) > 0.05
+    np.testing.assert_allclose(outputs(tof, context)[2], expected, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("edge_offset_m", np.linspace(-0.03, 0.03, 13))
+def test_a_ray_beside_an_edge_reads_one_of_the_two_surfaces(edge_offset_m):
+    # A deck 1 m away up to x_C = 0.095 m + edge_offset_m, the ground 2 m away beyond: sensors 3 and 4
+    # (x_C = +0.095 m) read the deck or the ground, never a depth in between, and the right one unless the
+    # edge is within a pixel of K (1.6 cm at 1 m) of their axes.
+    edge = 0.095 + edge_offset_m
+    tof, context = tof_with_image(TofConfig(), lambda x, y: np.where(x * (TOF_CAMERA_BACK_M + 1.0) < edge, 1.0, 2.0)
+                                  + 0 * y)
+    truth = outputs(tof, context)[2][2:]
+    assert np.all((np.abs(truth - 1.0) < 1e-9) | (np.abs(truth - 2.0) < 1e-9)), truth
+    if abs(edge_offset_m) > 0.016:
+        np.testing.assert_allclose(truth, 1.0 if edge_offset_m > 0 else 2.0, rtol=0, atol=1e-9)
 
 
 def test_out_of_range_and_unseen_give_nan_and_invalid():
@@ -104,20 +140,10 @@ def test_noise_has_the_configured_std_and_is_seeded():
     assert np.all(outputs(other, other_context, 7 * period)[0] - truth != errors[7])
 
 
-def cone_system(depth, seed=0, **config):
-    """TofSensors with a cone, every sensor's depth image set to `depth` (a function of the view's
-    normalised image coordinates x, y)."""
-    config = TofConfig(**config)
-    pixels, fov_deg = config.view
-    f, c = view_intrinsics(pixels, fov_deg)
-    x = (np.arange(pixels) - c) / f
-    image = ImageDepth32F(pixels, pixels)
-    image.mutable_data[..., 0] = depth(x[None, :], x[:, None])
-    tof = TofSensors(config, seed)
-    context = tof.CreateDefaultContext()
-    for i in range(4):
-        tof.get_input_port(i).FixValue(context, image)
-    return tof, context
+def cone_system(depth_of, **config):
+    """TofSensors with a 27 degree cone whose camera sees the z-depth depth_of(x, y) along its line of
+    sight at normalised image coordinates (x, y)."""
+    return tof_with_image(TofConfig(cone_deg=27.0, **config), depth_of)
 
 
 def test_a_cone_over_a_plane_square_to_its_axis_reads_the_power_weighted_mean_path():
@@ -125,28 +151,30 @@ def test_a_cone_over_a_plane_square_to_its_axis_reads_the_power_weighted_mean_pa
     # solid angle (cos^3 theta dA in the image plane) over the squared path, so the reading is
     # h * integral(cos^4) / integral(cos^5) over the cone's disc tan(theta) <= tan(13.5 deg).
     h, half = 2.0, math.radians(13.5)
-    tof, context = cone_system(lambda x, y: np.full(np.broadcast(x, y).shape, h), cone_deg=27.0)
+    tof, context = cone_system(lambda x, y: h)
     ranges, valid, truth = outputs(tof, context)
     cos = lambda r: 1.0 / math.sqrt(1.0 + r * r)
     expected = h * quad(lambda r: cos(r) ** 4 * r, 0, math.tan(half))[0] / quad(
         lambda r: cos(r) ** 5 * r, 0, math.tan(half))[0]
     np.testing.assert_allclose(ranges, expected, rtol=2e-4)
-    np.testing.assert_array_equal(truth, h)
+    np.testing.assert_allclose(truth, h, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(valid, 1.0)
     assert expected - h > 0.005  # the cone reads long: 7 mm at 2 m
 
 
-def test_a_cone_half_over_an_edge_reads_between_the_two_surfaces_nearer_the_near_one():
-    # Half the footprint on a deck 1 m away, half on the ground 2 m away: the near half returns 4 times
-    # the power per patch.
-    tof, context = cone_system(lambda x, y: np.where(x + 0 * y < 0, 1.0, 2.0), cone_deg=27.0)
+def test_a_cone_partly_over_an_edge_reads_between_the_two_surfaces_nearer_the_near_one():
+    # A deck 1 m away up to x_C = 0.045 m, the ground 2 m away beyond: the cones of sensors 3 and 4
+    # (x_C = +0.095 m) see the deck on their rays more than 0.05 m off their axes towards -x (about 0.37 of
+    # the cone), and it returns 4 times the power per patch; their axes see the ground.
+    edge = 0.045
+    tof, context = cone_system(lambda x, y: np.where(x * (TOF_CAMERA_BACK_M + 1.0) < edge, 1.0, 2.0) + 0 * y)
     ranges, _, truth = outputs(tof, context)
-    assert np.all((ranges > 1.1) & (ranges < 1.5)), ranges
-    np.testing.assert_array_equal(truth, 2.0)  # the axis pixel sees the ground
+    assert np.all((ranges[2:] > 1.1) & (ranges[2:] < 1.5)), ranges
+    np.testing.assert_allclose(truth[2:], 2.0, rtol=0, atol=1e-9)
 
 
 def test_a_cone_that_sees_nothing_is_invalid():
-    tof, context = cone_system(lambda x, y: np.full(np.broadcast(x, y).shape, np.inf), cone_deg=27.0)
+    tof, context = cone_system(lambda x, y: np.inf)
     ranges, valid, _ = outputs(tof, context)
     assert np.all(np.isnan(ranges)) and np.all(valid == 0)
 
@@ -173,12 +201,13 @@ def test_invalid_configuration_names_the_field(changes, field):
         TofSensors(TofConfig(**changes))
 
 
-def analytic_ranges(scene):
+def analytic_ranges(scene, X_WP=None):
     """Distance along +z of each sensor frame (at p_CS_i, oriented like the camera) to the tag plate's
-    top plane, TAG_ABOVE_DECK_M above the deck's top surface; and the hit points in the deck frame."""
+    top plane, TAG_ABOVE_DECK_M above the top surface of the deck at X_WP (the static deck's by default);
+    and the hit points in the deck frame."""
     c = scene.config.tof
     u, v = c.arm_m * math.cos(math.radians(c.angle_deg)), c.arm_m * math.sin(math.radians(c.angle_deg))
-    X_WC, X_WP = scene.X_WC(), scene.X_WP_static()
+    X_WC, X_WP = scene.X_WC(), X_WP or scene.X_WP_static()
     d_W = X_WC.rotation().matrix()[:, 2]
     n_W = X_WP.rotation().matrix()[:, 2]
     p_plane = X_WP.multiply(np.array([0.0, 0.0, TAG_ABOVE_DECK_M]))
@@ -206,6 +235,18 @@ def test_rendered_ranges_match_the_ray_plane_distance(scene_name, request):
     np.testing.assert_allclose(truth, expected, rtol=0, atol=1e-4)
     np.testing.assert_array_equal(scene.eval(scene.handles.tof, "ranges", context), truth)
     np.testing.assert_array_equal(scene.eval(scene.handles.tof, "ranges_valid", context), [1, 1, 1, 1])
+
+
+def test_rendered_ranges_follow_the_moving_deck(dynamic_run):
+    # stewart-dynamic's deck (8 deg of roll and pitch, 10 of yaw, centimetres of translation) at 40 times
+    # over its 200 s: the one shared depth render gives each ray's analytic distance to the tag plate.
+    scene = dynamic_run[0]
+    errors = []
+    for t in np.linspace(0.0, 200.0, 40):
+        expected, hits_P = analytic_ranges(scene, scene.handles.platform.X_WP(t))
+        assert np.all(np.abs(hits_P[:, :2]) < scene.config.platform.tag_size_m * 10 / 8 / 2 - 0.02)
+        errors.append(scene.eval(scene.handles.tof, "true_ranges", scene.context(t)) - expected)
+    assert np.max(np.abs(errors)) < 1e-4, np.max(np.abs(errors))
 
 
 def test_noisy_ranges_scatter_about_the_rendered_truth(tilted_scene, build_scene):

@@ -74,22 +74,21 @@ class Imu(LeafSystem):
         bias_rng = sample_rng(seed, "imu_bias", 0)
         self.accel_bias = bias_rng.standard_normal(3) * config.accel_bias_std_ug * 1e-6 * STANDARD_GRAVITY
         self.gyro_bias = bias_rng.standard_normal(3) * np.deg2rad(config.gyro_bias_std_deg_h / 3600.0)
-        self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
-        self.DeclareVectorInputPort("V_WB", 6)
-        self.DeclareVectorInputPort("A_WB", 6)
+        self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
+        self._V_WB = self.DeclareVectorInputPort("V_WB", 6)
+        self._A_WB = self.DeclareVectorInputPort("A_WB", 6)
+        # [f_B; w_B] of a sample = clip(ideal + bias + standard normal x std, -limit, limit), per component.
+        self._bias = np.concatenate([self.accel_bias, self.gyro_bias])
+        self._std = np.repeat([config.accel_sample_std_m_s2, config.gyro_sample_std_rad_s], 3)
+        self._limit = np.repeat([config.accel_range_m_s2, np.deg2rad(config.gyro_range_deg_s)], 3)
         state = self.DeclareDiscreteState(BasicVector([0.0, 0.0, config.gravity_m_s2, 0.0, 0.0, 0.0]))
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._sample)
         self.DeclareStateOutputPort("imu", state)
 
     def _sample(self, context, discrete_state):
         c = self._config
-        X_WB = self.get_input_port(0).Eval(context)
-        w_WB = self.get_input_port(1).Eval(context)[:3]
-        a_WB = self.get_input_port(2).Eval(context)[3:]
-        f_B, w_B = ideal_imu(X_WB.rotation(), w_WB, a_WB, c.gravity_m_s2)
+        f_B, w_B = ideal_imu(self._X_WB.Eval(context).rotation(), self._V_WB.Eval(context)[:3],
+                             self._A_WB.Eval(context)[3:], c.gravity_m_s2)
         noise = sample_rng(self._seed, "imu", sample_index(context.get_time(), c.period_s)).standard_normal(6)
-        f_B = np.clip(f_B + self.accel_bias + noise[:3] * c.accel_sample_std_m_s2,
-                      -c.accel_range_m_s2, c.accel_range_m_s2)
-        w_B = np.clip(w_B + self.gyro_bias + noise[3:] * c.gyro_sample_std_rad_s,
-                      -np.deg2rad(c.gyro_range_deg_s), np.deg2rad(c.gyro_range_deg_s))
-        discrete_state.get_mutable_vector().SetFromVector(np.concatenate([f_B, w_B]))
+        reading = np.clip(np.concatenate([f_B, w_B]) + self._bias + noise * self._std, -self._limit, self._limit)
+        discrete_state.get_mutable_vector().SetFromVector(reading)

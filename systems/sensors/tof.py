@@ -1,19 +1,26 @@
 """Four downward time-of-flight range sensors under the propellers (seed 000 Eq. 21-24, Fig. 20).
 
-Each sensor is a small depth camera at the sensor, so the tilted, moving deck, its tag and anything
-else in the scene are seen as they are. By default it is an ideal ray along its axis (3x3 pixels, 1
-degree field of view; the reading is the centre pixel's distance), as the paper treats each reading.
-With `cone_deg` set it is a real sensor's cone (a VL53L1X's is 27 degrees): the reading is the mean
-path length over the cone's footprint, each pixel weighted by the power it returns (`cone_range`),
-so a tilted or partly covered footprint biases it as it does on hardware. The sensors' frames S_i
-have the camera's orientation (+z down along the ray) and sit in the camera plane at the positions of
-Eq. (21)-(24):
+By default each sensor is an ideal ray along its axis, as the paper treats each reading. With
+`cone_deg` set it is a real sensor's cone (a VL53L1X's is 27 degrees) sampled by a 31x31 pixel grid:
+the reading is the mean path length over the cone's footprint, each pixel weighted by the power it
+returns (`cone_range`), so a tilted or partly covered footprint biases it as it does on hardware. The
+sensors' frames S_i have the camera's orientation (+z down along the ray) and sit in the camera plane
+at the positions of Eq. (21)-(24):
     p_CS1 = [-a c, -a c, 0], p_CS2 = [-a c, a c, 0], p_CS3 = [a c, a c, 0], p_CS4 = [a c, -a c, 0]
 with c = cos(AngleCam2Sensors) = cos(45 deg) and a the distance from the camera axis (see
 `sensor_positions_C`).
+
+The four sensors share one depth render (`make_tof_camera`): a narrow depth camera K, oriented like C,
+TOF_CAMERA_BACK_M (45 m) behind the camera plane on the camera axis, X_CK = [I, (0, 0, -45 m)], whose
+near clipping plane is the sensors' own (5 mm in front of the camera plane), so the drone's own geometry
+is clipped as it was for a camera at each sensor. Its lines of sight are within 0.2 degrees of the
+sensors' axes (a near-orthographic view of the deck), and each ray of each sensor is followed to the
+surface K sees along it (`ray_depths`): exact where K sees what the sensor's ray hits (a plane, up to
+the pixel of K where it ends; not a surface hidden from K by an edge the sensor looks past).
 """
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -21,14 +28,27 @@ from pydrake.geometry import ClippingRange, DepthRange, DepthRenderCamera, Rende
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem, ValueProducer
 from pydrake.systems.sensors import ImageDepth32F, RgbdSensor
+from scipy.ndimage import map_coordinates
 
 from systems.config import require, require_positive
 from systems.noise import sample_index, sample_rng
 from systems.sensors.camera import RENDERER_NAME, camera_info
 
-_RAY_PIXELS, _RAY_FOV_DEG = 3, 1.0
 _CONE_PIXELS = 31
-_NEAR_M, _FAR_M = 0.005, 20.0  # render range of the truth ray, wider than any sensor's range
+_NEAR_M, _FAR_M = 0.005, 20.0  # the sensors' render range (from the camera plane), wider than any sensor's range
+_MIN_DEPTH_M, _MAX_DEPTH_M = _NEAR_M * 1.01, _FAR_M * 0.99  # nearer: 0 (too close); farther: inf (nothing seen)
+# The shared depth camera K's distance behind the camera plane; with the 19.8 m of range it stays under
+# the 65.5 m an RgbdSensor's 16-bit depth output can hold (Drake warns otherwise).
+TOF_CAMERA_BACK_M = 45.0
+# K's pixels per side: an ideal ray's footprint moves ~2 px over the whole range; a cone's 31 x 31 rays
+# need about their own 3 cm spacing at 2 m, over the cones out to 2 x max_range_m.
+_K_RAY_PIXELS, _K_CONE_PIXELS = 16, 128
+# `ray_depths`' fixed point: at most this many steps, each shrinking the error by about the ray's slope in
+# K's view times the surface's (a cone's edge ray, 0.24, over a 12 deg deck: 0.05, 5 steps from 2 m to
+# 0.2 um); a ray stops when its inverse depth q moves less than _Q_TOLERANCE (1/m), i.e. its depth less
+# than _Q_TOLERANCE (TOF_CAMERA_BACK_M + s)^2, 0.2 um at 2 m.
+_MAX_ITERATIONS, _Q_TOLERANCE = 8, 1e-10
+_JUMP = 1e-3  # an edge in K's inverse depth between neighbouring pixels (relative; 5 cm at 2 m)
 
 
 @dataclass
@@ -62,8 +82,9 @@ class TofConfig:
 
     @property
     def view(self) -> tuple[int, float]:
-        """(pixels per side, full field of view in deg) of each sensor's depth camera."""
-        return (_CONE_PIXELS, self.cone_deg) if self.cone_deg > 0 else (_RAY_PIXELS, _RAY_FOV_DEG)
+        """(pixels per side, full field of view in deg) of each sensor's own pixel grid: one pixel on
+        the axis for an ideal ray, 31 x 31 filling the cone edge to edge for a cone."""
+        return (_CONE_PIXELS, self.cone_deg) if self.cone_deg > 0 else (1, 0.0)
 
     @property
     def period_s(self) -> float:
@@ -95,6 +116,19 @@ def view_intrinsics(pixels: int, fov_deg: float) -> tuple[float, float]:
     return (pixels / 2) / np.tan(np.deg2rad(fov_deg) / 2), (pixels - 1) / 2
 
 
+@cache
+def view_geometry(pixels: int, fov_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A sensor's own pixel grid (`TofConfig.view`): (x, the normalised image coordinate of each pixel
+    column, the same for rows; stretch, the path length per metre of z-depth of each pixel,
+    sqrt(1 + x^2 + y^2); in_cone, the pixels inside the cone). One pixel on the axis when fov_deg is 0."""
+    if fov_deg == 0:
+        return np.zeros(1), np.ones((1, 1)), np.ones((1, 1), bool)
+    f, c = view_intrinsics(pixels, fov_deg)
+    x = (np.arange(pixels) - c) / f
+    stretch = np.sqrt(1.0 + x[None, :] ** 2 + x[:, None] ** 2)
+    return x, stretch, stretch <= 1.0 / np.cos(np.deg2rad(fov_deg) / 2)
+
+
 def cone_range(depth: np.ndarray, fov_deg: float) -> float:
     """The reading of a sensor whose cone fills the square depth image `depth` (z-depths, m) edge to
     edge: the mean path length over the pixels inside the cone, each weighted by the power it returns
@@ -102,11 +136,7 @@ def cone_range(depth: np.ndarray, fov_deg: float) -> float:
     image-plane units) over the squared path length (the surface's own reflectance and incidence are not
     modelled). Pixels that see nothing (inf) or are too close to render (0) return nothing; NaN when
     none returns."""
-    pixels = depth.shape[0]
-    f, c = view_intrinsics(pixels, fov_deg)
-    x = (np.arange(pixels) - c) / f
-    stretch = np.sqrt(1.0 + x[None, :] ** 2 + x[:, None] ** 2)  # path length per metre of z-depth
-    in_cone = stretch <= 1.0 / np.cos(np.deg2rad(fov_deg) / 2)
+    _, stretch, in_cone = view_geometry(depth.shape[0], fov_deg)
     z = depth.astype(float)
     returns = in_cone & np.isfinite(z) & (z > 0)
     if not returns.any():
@@ -116,21 +146,81 @@ def cone_range(depth: np.ndarray, fov_deg: float) -> float:
     return float(np.sum(weight * path) / np.sum(weight))
 
 
-def make_ray_sensor(parent_frame_id, X_PS: RigidTransform, config: TofConfig | None = None) -> RgbdSensor:
-    """The depth-only RgbdSensor that looks along +z of frame S (pose X_PS in the parent frame): the
-    ray or the cone of `config` (an ideal ray by default)."""
-    pixels, fov_deg = (config or TofConfig()).view
-    f, centre = view_intrinsics(pixels, fov_deg)
-    core = RenderCameraCore(RENDERER_NAME, camera_info(pixels, pixels, f, f, centre, centre),
-                            ClippingRange(_NEAR_M, _FAR_M), RigidTransform())
-    return RgbdSensor(parent_frame_id, X_PS, DepthRenderCamera(core, DepthRange(_NEAR_M * 1.01, _FAR_M * 0.99)))
+def tof_camera_view(config: TofConfig) -> tuple[int, float, float]:
+    """(pixels per side, f, c in px, OpenCV convention) of the shared depth camera K: square, centred on
+    the camera axis, wide enough for every sensor's rays from the camera plane out to 20 m (an ideal
+    ray) or 2 x max_range_m (a cone's), with two pixels of margin."""
+    pixels, fov_deg = config.view
+    x, _, _ = view_geometry(pixels, fov_deg)
+    reach = _FAR_M if config.cone_deg == 0 else min(_FAR_M, 2 * config.max_range_m)
+    offset = np.max(np.abs(sensor_positions_C(config.arm_m, config.angle_deg)[:, :2]))
+    # |x_K| = |p_S + s x| / (TOF_CAMERA_BACK_M + s) along a ray is largest at one end of s in [0, reach].
+    tan_half = max(offset / TOF_CAMERA_BACK_M, (offset + reach * np.max(np.abs(x))) / (TOF_CAMERA_BACK_M + reach))
+    k_pixels = _K_CONE_PIXELS if config.cone_deg > 0 else _K_RAY_PIXELS
+    f = (k_pixels / 2 - 2) / tan_half
+    return k_pixels, f, (k_pixels - 1) / 2
+
+
+def make_tof_camera(parent_frame_id, X_PC: RigidTransform, config: TofConfig | None = None) -> RgbdSensor:
+    """The depth-only RgbdSensor of the shared depth camera K (`tof_camera_view`) for the sensors of
+    `config` (ideal rays by default) around the camera at X_PC in the parent frame: at
+    X_PK = X_PC [I, (0, 0, -TOF_CAMERA_BACK_M)], its clipping and depth ranges the sensors' own from the
+    camera plane."""
+    pixels, f, c = tof_camera_view(config or TofConfig())
+    core = RenderCameraCore(RENDERER_NAME, camera_info(pixels, pixels, f, f, c, c),
+                            ClippingRange(TOF_CAMERA_BACK_M + _NEAR_M, TOF_CAMERA_BACK_M + _FAR_M), RigidTransform())
+    X_PK = X_PC.multiply(RigidTransform([0.0, 0.0, -TOF_CAMERA_BACK_M]))
+    return RgbdSensor(parent_frame_id, X_PK, DepthRenderCamera(core, DepthRange(TOF_CAMERA_BACK_M + _MIN_DEPTH_M,
+                                                                                  TOF_CAMERA_BACK_M + _MAX_DEPTH_M)))
+
+
+def ray_depths(depth_K: np.ndarray, f: float, c: float, p_CS: np.ndarray, x_S: np.ndarray, y_S: np.ndarray):
+    """z-depths (m, from the camera plane) at which rays from sensor origins p_CS (n x 3, in the camera
+    plane) along directions [x_S, y_S, 1] (n, in C) meet the surface the depth image `depth_K` (z-depths
+    of camera K, `make_tof_camera`'s with intrinsics f, c) sees; 0 where it is nearer than 5.05 mm,
+    inf where nothing is within 19.8 m or the ray leaves K's image.
+
+    A point at depth s on a ray, p_CS + s [x_S, y_S, 1], is seen by K at normalised image coordinates
+    p_CS q + [x_S, y_S] (1 - TOF_CAMERA_BACK_M q), q = 1 / (TOF_CAMERA_BACK_M + s); the ray meets the
+    surface where K's inverse depth W there equals q, found by the fixed point q <- W(q) from the camera
+    plane on (it converges by the ray's slope in K's view times the surface's, ~0.002 for an ideal ray,
+    and from the near side, so a ray that clears an edge goes on to what lies beyond it). W is
+    interpolated bilinearly, exact on a plane (inverse depth is affine in the image coordinates there),
+    except between pixels that straddle a jump in depth (an edge: over _JUMP of the inverse depth,
+    ~5 cm), where the nearest pixel's is taken, so an edge is placed to half a pixel of K rather than
+    blurred into depths that nothing has."""
+    D = depth_K.astype(float)
+    q_near, q_far = 1.0 / (TOF_CAMERA_BACK_M + _NEAR_M), 1.0 / (TOF_CAMERA_BACK_M + _FAR_M)
+    with np.errstate(divide="ignore"):
+        W = np.where(D == 0, q_near, 1.0 / D)  # 0 where nothing is seen (inf)
+    corners = np.stack([W[:-1, :-1], W[1:, :-1], W[:-1, 1:], W[1:, 1:]])
+    jump = np.ptp(corners, axis=0) > _JUMP * corners.max(axis=0)  # per 2x2 cell, at its top-left pixel
+    last = W.shape[0] - 2
+    q = np.full(len(x_S), q_near)
+    moving = np.arange(len(x_S))  # the rays whose q still moves
+    for _ in range(_MAX_ITERATIONS):
+        q_ray = np.clip(q[moving], q_far, q_near)  # the rays end at the far clipping plane (nothing seen: q = 0)
+        u = c + f * (p_CS[moving, 0] * q_ray + x_S[moving] * (1 - TOF_CAMERA_BACK_M * q_ray))
+        v = c + f * (p_CS[moving, 1] * q_ray + y_S[moving] * (1 - TOF_CAMERA_BACK_M * q_ray))
+        q_new = map_coordinates(W, [v, u], order=1, mode="constant", cval=0.0)
+        at_jump = jump[np.clip(v.astype(int), 0, last), np.clip(u.astype(int), 0, last)]
+        if at_jump.any():
+            q_new[at_jump] = map_coordinates(W, [v[at_jump], u[at_jump]], order=0, mode="constant", cval=0.0)
+        still = np.abs(q_new - q[moving]) >= _Q_TOLERANCE
+        q[moving] = q_new
+        moving = moving[still]
+        if not moving.size:
+            break
+    with np.errstate(divide="ignore"):
+        s = 1.0 / q - TOF_CAMERA_BACK_M
+    return np.where(s < _MIN_DEPTH_M, 0.0, np.where(s > _MAX_DEPTH_M, np.inf, s))
 
 
 class TofSensors(LeafSystem):
-    """Turns the four ray sensors' depth images into range readings.
+    """Turns the shared depth camera's image into the four sensors' range readings.
 
-    Inputs depth_image_0..3 (ImageDepth32F, `make_ray_sensor`'s for the same config). Outputs, evaluated
-    at the sensor rate by consumers:
+    Input depth_image (ImageDepth32F, `make_tof_camera`'s for the same config). Outputs, evaluated at the
+    sensor rate by consumers:
       ranges: 4 readings (m) with noise (std noise_std_m + noise_std_per_m x range) and bias_m; NaN
         where invalid.
       ranges_valid: 4 flags, 1.0 for a valid reading, 0.0 when out of range or nothing is seen.
@@ -142,37 +232,43 @@ class TofSensors(LeafSystem):
         config.validate()
         self._config, self._seed = config, seed
         self._pixels, self._fov_deg = config.view
-        blank = ImageDepth32F(self._pixels, self._pixels)
-        for i in range(4):
-            self.DeclareAbstractInputPort(f"depth_image_{i}", AbstractValue.Make(blank))
-        # One reading per frame, shared by the ranges and ranges_valid outputs.
+        k_pixels, self._f, self._c = tof_camera_view(config)
+        # Every ray of every sensor: origins p_CS and directions [x, y, 1] (in C) of the pixels inside each
+        # sensor's cone (its axis alone for an ideal ray), sensor by sensor.
+        x, _, in_cone = view_geometry(self._pixels, self._fov_deg)
+        self._rows, self._cols = np.nonzero(in_cone)
+        n = len(self._rows)
+        self._p_CS = np.repeat(sensor_positions_C(config.arm_m, config.angle_deg), n, axis=0)
+        self._x_S, self._y_S = np.tile(x[self._cols], 4), np.tile(x[self._rows], 4)
+        self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F(k_pixels, k_pixels)))
+        # One set of readings per frame, shared by the three outputs.
         readings = self.DeclareCacheEntry("readings", ValueProducer(
-            allocate=lambda: AbstractValue.Make((np.zeros(4), np.zeros(4))),
+            allocate=lambda: AbstractValue.Make((np.zeros(4), np.zeros(4), np.zeros(4))),
             calc=lambda c, value: value.set_value(self.readings(c))))
-        self.DeclareVectorOutputPort("ranges", 4, lambda c, o: o.SetFromVector(readings.Eval(c)[0]),
-                                     {readings.ticket()})
-        self.DeclareVectorOutputPort("ranges_valid", 4, lambda c, o: o.SetFromVector(readings.Eval(c)[1]),
-                                     {readings.ticket()})
-        self.DeclareVectorOutputPort("true_ranges", 4, lambda c, o: o.SetFromVector(self.true_ranges(c)))
+        for i, name in enumerate(("ranges", "ranges_valid", "true_ranges")):
+            self.DeclareVectorOutputPort(name, 4, lambda c, o, i=i: o.SetFromVector(readings.Eval(c)[i]),
+                                         {readings.ticket()})
 
-    def true_ranges(self, context) -> np.ndarray:
-        """Noise-free distance (m) along each sensor's axis: inf when nothing is within 20 m, 0 when
-        something is closer than 5 mm (Drake's depth-image conventions)."""
-        centre = self._pixels // 2
-        return np.array([float(self.get_input_port(i).Eval(context).data[centre, centre, 0]) for i in range(4)])
-
-    def measured_ranges(self, context) -> np.ndarray:
-        """Noise-free readings (m): the axis distances for ideal rays, `cone_range` for cones."""
-        if self._config.cone_deg == 0:
-            return self.true_ranges(context)
-        return np.array([cone_range(self.get_input_port(i).Eval(context).data[..., 0], self._fov_deg)
-                         for i in range(4)])
+    def sensor_depths(self, context) -> np.ndarray:
+        """The z-depths (m) each sensor's own pixel grid sees (4 x pixels x pixels; inf outside the
+        cone)."""
+        depth = ray_depths(self.get_input_port().Eval(context).data[..., 0], self._f, self._c, self._p_CS,
+                           self._x_S, self._y_S)
+        images = np.full((4, self._pixels, self._pixels), np.inf)
+        images[:, self._rows, self._cols] = depth.reshape(4, -1)
+        return images
 
     def readings(self, context):
-        """(ranges with NaN where invalid, valid flags) at the context's time."""
+        """(ranges with NaN where invalid, valid flags, true ranges) at the context's time. True ranges:
+        the noise-free distance (m) along each sensor's axis, inf when nothing is within 19.8 m, 0 when
+        something is closer than 5.05 mm (Drake's depth-image conventions); the noise-free readings are
+        these for ideal rays, `cone_range` for cones."""
         c = self._config
+        depths = self.sensor_depths(context)
+        centre = self._pixels // 2
+        true_ranges = depths[:, centre, centre]
+        measured = true_ranges if c.cone_deg == 0 else np.array([cone_range(d, self._fov_deg) for d in depths])
         k = sample_index(context.get_time(), c.period_s)
-        measured = self.measured_ranges(context)
         std = c.noise_std_m + c.noise_std_per_m * np.where(np.isfinite(measured), measured, 0.0)
         noise = sample_rng(self._seed, "tof", k).standard_normal(4) * std + c.bias_m
-        return apply_range_limits(measured, noise, c.min_range_m, c.max_range_m)
+        return (*apply_range_limits(measured, noise, c.min_range_m, c.max_range_m), true_ranges)

@@ -41,11 +41,11 @@ class PrescribedPose(LeafSystem):
     def __init__(self, X_WB0: RigidTransform, v_WB=(0.0, 0.0, 0.0)):
         super().__init__()
         self._X_WB0, self._v_WB = X_WB0, np.asarray(v_WB, dtype=float)
+        V_WB, A_WB = np.concatenate([np.zeros(3), self._v_WB]), np.zeros(6)
         self.DeclareAbstractOutputPort("X_WB", lambda: AbstractValue.Make(RigidTransform()),
                                        lambda context, output: output.set_value(self.X_WB(context.get_time())))
-        self.DeclareVectorOutputPort("V_WB", 6,
-                                     lambda context, output: output.SetFromVector(np.r_[np.zeros(3), self._v_WB]))
-        self.DeclareVectorOutputPort("A_WB", 6, lambda context, output: output.SetFromVector(np.zeros(6)))
+        self.DeclareVectorOutputPort("V_WB", 6, lambda context, output: output.SetFromVector(V_WB))
+        self.DeclareVectorOutputPort("A_WB", 6, lambda context, output: output.SetFromVector(A_WB))
 
     def X_WB(self, t: float) -> RigidTransform:
         return RigidTransform(self._X_WB0.rotation(), self._X_WB0.translation() + self._v_WB * t)
