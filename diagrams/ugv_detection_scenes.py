@@ -37,17 +37,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import Box, FramePoseVector, GeometryFrame, SceneGraph
+from pydrake.geometry import FramePoseVector, GeometryFrame, SceneGraph
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from diagrams.stereo_hover import GroundConfig, add_textured_ground
 from systems.config import require
-from systems.geometry import register_visual
 from systems.noise import sample_rng
 from systems.sensors.fisheye import FisheyeConfig, add_fisheye_camera, project_points
 from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry, PlatformConfig
-from systems.vehicles.traffic import DISTRACTOR_COLOURS
+from systems.vehicles.traffic import DISTRACTOR_COLOURS, DISTRACTOR_SIZE_HIGH_M, DISTRACTOR_SIZE_LOW_M, register_box
 
 DISTRACTOR_COPIES = 2  # boxes registered per colour (a frame shows at most this many of one colour)
 PARKED = RigidTransform([1.0e4, 1.0e4, -1.0e3])  # far beyond the far clip
@@ -166,8 +165,8 @@ class UgvSceneConfig:
     fisheye: FisheyeConfig = field(default_factory=FisheyeConfig)
     platform: PlatformConfig = field(default_factory=seed003_ugv_platform)
     # Distractor boxes' sizes [m]: length, width, height drawn once per pool box from this range.
-    distractor_size_low_m: list[float] = field(default_factory=lambda: [1.1, 0.8, 0.35])
-    distractor_size_high_m: list[float] = field(default_factory=lambda: [1.9, 1.2, 0.7])
+    distractor_size_low_m: list[float] = field(default_factory=lambda: list(DISTRACTOR_SIZE_LOW_M))
+    distractor_size_high_m: list[float] = field(default_factory=lambda: list(DISTRACTOR_SIZE_HIGH_M))
 
     def validate(self, prefix: str = "ugv_scenes") -> None:
         for name in ("height_range_m", "small_height_range_m", "small_off_axis_range_deg"):
@@ -341,13 +340,8 @@ class ScenePoser(LeafSystem):
         super().__init__()
         self.source_id = scene_graph.RegisterSource("ugv_detection_scene")
         self.body_frame_id = scene_graph.RegisterFrame(self.source_id, GeometryFrame("ugv_scene_uav"))
-        self._frames = [self.body_frame_id]
-        for i, box in enumerate(pool):
-            frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"distractor_{i}"))
-            length, width, height = box.size_m
-            register_visual(scene_graph, self.source_id, frame, RigidTransform([0.0, 0.0, height / 2]),
-                            Box(length, width, height), f"distractor_{i}", (*box.rgb, 1.0))
-            self._frames.append(frame)
+        self._frames = [self.body_frame_id] + [register_box(scene_graph, self.source_id, f"distractor_{i}", box.size_m,
+                                                            box.rgb) for i, box in enumerate(pool)]
         self._poses = self.DeclareAbstractInputPort(
             "poses", AbstractValue.Make([RigidTransform()] + [PARKED] * len(pool)))
         self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc)

@@ -9,7 +9,9 @@ import pytest
 from pydrake.math import RigidTransform
 from pydrake.systems.sensors import ImageRgba8U
 
+from diagrams.gv_landing import build_gv_landing
 from diagrams.hybrid_perception import hybrid_stereo
+from diagrams.runner import load_scenario
 from systems.estimators.velocity_observer import VelocityObserverConfig
 from systems.perception.hybrid_pad import HybridPadConfig, HybridPadState, hybrid_step
 from systems.perception.stereo_pad import StereoPadConfig, StereoPadFinder, pad_centre_in_eye
@@ -48,10 +50,16 @@ def test_finder_places_the_pad_in_world():
     assert np.allclose(finder.find(image, X_WB), [2.0, 1.0, Z_PAD], atol=0.01)
 
 
-@pytest.mark.parametrize("z_pad, config", [(Z_PAD + 0.3, None), (Z_PAD, StereoPadConfig(enabled=False))])
-def test_finder_off_the_plane_or_disabled_is_nan(z_pad, config):
-    finder, image, X_WB = _finder_view(z_pad, config)
+def test_finder_off_the_plane_is_nan():
+    finder, image, X_WB = _finder_view(Z_PAD + 0.3)
     assert np.all(np.isnan(finder.find(image, X_WB)))
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_disabled_fix_is_not_in_the_diagram(enabled):
+    _, scenario = load_scenario("ugv-hybrid", overrides=[f"hybrid.stereo_pad.enabled={str(enabled).lower()}"])
+    diagram, _ = build_gv_landing(scenario)
+    assert diagram.HasSubsystemNamed("stereo_pad") == enabled
 
 
 @pytest.mark.parametrize("max_height_m, found", [(3.0, True), (0.5, False)])

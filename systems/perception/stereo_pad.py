@@ -30,7 +30,7 @@ from systems.sensors.stereo import StereoConfig
 class StereoPadConfig:
     """The left eye's pad fix (metres). Ours: the paper has no such stage."""
 
-    enabled: bool = True
+    enabled: bool = True  # the builder adds the finder only when enabled (diagrams/hybrid_perception.py)
     height_tolerance_m: float = 0.15  # a fix further from the pad's plane is a wrong detection, not used
     # Searched only with the eye at most this high over the pad's plane (the UAV's navigation): the estimator
     # uses the fix in its 2 m landing zone, and ArUco over the whole 752 x 480 eye costs 8-13 ms a frame.
@@ -53,7 +53,7 @@ def pad_centre_in_eye(image: np.ndarray, K: np.ndarray, layout: MarkerLayout) ->
 
 class StereoPadFinder(LeafSystem):
     """Inputs `left_image` (ImageRgba8U: the left eye's stream) and `X_WB` (RigidTransform: the UAV's
-    navigation); output `p_WP` (3, m: the pad's centre in W, NaN when not found, disabled, or the eye higher
+    navigation); output `p_WP` (3, m: the pad's centre in W, NaN when not found or the eye higher
     than `max_height_m` over the pad's plane).
     `z_pad` [m]: the pad's top above the ground, for the plane check."""
 
@@ -69,14 +69,14 @@ class StereoPadFinder(LeafSystem):
     def _calc(self, context, output):
         X_WB = self._X_WB.Eval(context)
         X_WL = X_WB.multiply(self._X_BL)
-        if not self._config.enabled or X_WL.translation()[2] - self._z_pad > self._config.max_height_m:
+        if X_WL.translation()[2] - self._z_pad > self._config.max_height_m:
             output.SetFromVector(np.full(3, np.nan))  # the image not even fetched: no render for it
             return
         output.SetFromVector(self.find(image_to_numpy(self._image.Eval(context)), X_WB))
 
     def find(self, image: np.ndarray, X_WB: RigidTransform) -> np.ndarray:
         """p_WP [m] from one left-eye image, NaN when not found (module docstring)."""
-        p_LP = pad_centre_in_eye(image, self._K, self._layout) if self._config.enabled else None
+        p_LP = pad_centre_in_eye(image, self._K, self._layout)
         if p_LP is None:
             return np.full(3, np.nan)
         p_WP = X_WB.multiply(self._X_BL).multiply(p_LP)

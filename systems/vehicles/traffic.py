@@ -31,6 +31,10 @@ DISTRACTOR_COLOURS = {
     "ugv": BODY_RGB,
 }
 MAX_DISTRACTORS = 16
+# A distractor box's size range [m] (length, width, height): car-like boxes about the UGV's 1.4 x 1.0 x 0.5 m,
+# shared with the detector's training scenes (diagrams/ugv_detection_scenes.py).
+DISTRACTOR_SIZE_LOW_M = (1.1, 0.8, 0.35)
+DISTRACTOR_SIZE_HIGH_M = (1.9, 1.2, 0.7)
 
 
 @dataclass
@@ -44,8 +48,8 @@ class DistractorsConfig:
     ahead_max_m: float = 15.0  # s0 uniform in [0, ahead_max_m] of the path
     speed_factor_range: list[float] = field(default_factory=lambda: [0.6, 1.4])  # of the UGV's speed
     # Box sizes [m] (length, width, height), drawn per distractor: the detector's training distractors' range.
-    size_low_m: list[float] = field(default_factory=lambda: [1.1, 0.8, 0.35])
-    size_high_m: list[float] = field(default_factory=lambda: [1.9, 1.2, 0.7])
+    size_low_m: list[float] = field(default_factory=lambda: list(DISTRACTOR_SIZE_LOW_M))
+    size_high_m: list[float] = field(default_factory=lambda: list(DISTRACTOR_SIZE_HIGH_M))
 
     def validate(self, prefix: str = "distractors") -> None:
         require(isinstance(self.count, int) and 0 <= self.count <= MAX_DISTRACTORS,
@@ -98,6 +102,17 @@ def distractor_pose(path: Path, d: Distractor, time: float) -> RigidTransform:
     return RigidTransform(RotationMatrix.MakeZRotation(heading), [*(path.position(s) + d.lane_m * left), 0.0])
 
 
+def register_box(scene_graph: SceneGraph, source_id, name: str, size_m, rgb) -> object:
+    """A new frame D named `name` with a box of `size_m` (length along x_D, width, height) standing on D's
+    origin, coloured `rgb`, seen by Meshcat and the cameras; returns D's FrameId (pose it through the
+    source's pose port)."""
+    frame = scene_graph.RegisterFrame(source_id, GeometryFrame(name))
+    length, width, height = size_m
+    register_visual(scene_graph, source_id, frame, RigidTransform([0.0, 0.0, height / 2]),
+                    Box(length, width, height), name, (*rgb, 1.0))
+    return frame
+
+
 class Traffic(LeafSystem):
     """Registers the distractors' boxes with SceneGraph (source `traffic`) and poses them from the context's
     time: output `geometry_pose` (FramePoseVector), for scene_graph.get_source_pose_port(source_id)."""
@@ -105,13 +120,9 @@ class Traffic(LeafSystem):
     def __init__(self, scene_graph: SceneGraph, path: Path, distractors: list[Distractor]):
         super().__init__()
         self.source_id = scene_graph.RegisterSource("traffic")
-        self._path, self._distractors, self._frames = path, distractors, []
-        for i, d in enumerate(distractors):
-            frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"distractor_{i}"))
-            length, width, height = d.size_m
-            register_visual(scene_graph, self.source_id, frame, RigidTransform([0.0, 0.0, height / 2]),
-                            Box(length, width, height), f"distractor_{i}", (*d.rgb, 1.0))
-            self._frames.append(frame)
+        self._path, self._distractors = path, distractors
+        self._frames = [register_box(scene_graph, self.source_id, f"distractor_{i}", d.size_m, d.rgb)
+                        for i, d in enumerate(distractors)]
         self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc)
 
     def _calc(self, context, output):
