@@ -181,6 +181,7 @@ def test_waits_and_wave_offs_are_counted():
     ("landing_height_m: 8.0", r"must be above landing.landing_height_m \(LH = 8.0\)"),
     ("climb_speed_m_s: 0.0", "landing.climb_speed_m_s must be positive"),
     ("off_centre_radius_m: 0.2", "landing.off_centre_radius_m must be at least"),
+    ("land_acceptance_radius_m: -0.1", "landing.land_acceptance_radius_m must not be negative"),
 ])
 def test_bad_config_is_rejected_by_name(yaml, message):
     config = yaml_load_typed(schema=LandingConfig, data=yaml)
@@ -285,3 +286,29 @@ def test_with_touchdown_by_contact_only_the_gears_touch_is_the_touchdown():
     assert out["touchdown_by"] == "contact" and out["touchdown_gap_m"] == 0.0
     assert out["touchdown_rel_speed_mps"] == pytest.approx(0.3)  # no fall
     assert out["time_to_land_s"] == pytest.approx(0.10)
+
+
+@pytest.mark.parametrize("touchdown_by", ["estimate", "contact"])
+def test_final_descent_holds_its_height_while_the_target_is_beyond_the_acceptance_radius(touchdown_by):
+    config = LandingConfig(land_acceptance_radius_m=0.15, touchdown_by=touchdown_by)
+    machine = LandingStateMachine(config)
+    machine.memory = machine.memory._replace(mode=Mode.LAND)
+
+    def step(time, offset, height=0.6):
+        inputs = SupervisorInputs(time_s=time, altitude_m=2.2, height_above_target_m=height, target_valid=True,
+                                  target_offset_m=np.asarray(offset, float), target_velocity_m_s=TARGET_VELOCITY,
+                                  tracking_velocity_m_s=TRACKING)
+        return machine.step(inputs)
+
+    command = step(0.0, (0.12, 0.12))  # 0.17 m off: hold, track, no abort
+    assert machine.mode == Mode.LAND and command[2] == 0.0
+    np.testing.assert_allclose(command[:2], TRACKING)
+    assert step(0.02, (0.1, 0.1))[2] == -config.landing_speed_m_s  # 0.14 m: descend
+    command = step(0.04, (0.0, 0.2), height=0.05)  # at touchdown height 0.2 m off
+    assert machine.mode == Mode.LANDED
+    assert command[2] == 0.0  # contact: waits there for the pad; estimate: the motors stop
+    assert step(0.06, (0.0, 0.1), height=0.05)[2] == (-config.landing_speed_m_s if touchdown_by == "contact" else 0.0)
+    # Without a radius (the default) the final descent goes on whatever the offset.
+    machine = LandingStateMachine(LandingConfig(touchdown_by=touchdown_by))
+    machine.memory = machine.memory._replace(mode=Mode.LAND)
+    assert step(0.0, (0.5, 0.5))[2] == -LandingConfig().landing_speed_m_s

@@ -24,7 +24,8 @@ Modes and what they command (velocities in World, z up; "hold" is a P loop on al
     FOLLOW    track, hold altitude; target centred                        -> APPROACH
     APPROACH  track, descend; height above target <= LH                   -> LAND (window open) / WAIT
               target off centre                                           -> FOLLOW
-    LAND      track, descend at landing speed; touchdown                  -> LANDED
+    LAND      track, descend at landing speed (hold the height while the target is beyond
+              land_acceptance_radius_m, where set); touchdown             -> LANDED
               not seen                                                    -> ABORT
               the window closes                                           -> WAIT
     WAIT      track, hold LH above the target; window open                -> LAND
@@ -81,6 +82,10 @@ class LandingConfig:
     altitude_tolerance_m: float = 0.2  # IH reached
     centred_radius_m: float = 0.5  # start descending when the target is this close horizontally
     off_centre_radius_m: float = 1.0  # stop descending when it is this far (hysteresis)
+    # LAND descends only while the target is this close horizontally, else holds its height and tracks
+    # (PX4's precision landing, PLD_HACC_RAD; 0.2 m there): a pad that drifted off the centre during a
+    # coast is caught up with before the gear comes down. 0: LAND descends whatever the offset.
+    land_acceptance_radius_m: float = 0.0
     lost_hold_s: float = 1.0  # hold before climbing to search
     touchdown_height_m: float = 0.1  # height above the landing surface that is touchdown
     # What ends the landing: "estimate", the motors stop at LANDED (the estimated height at touchdown_height_m)
@@ -112,6 +117,7 @@ class LandingConfig:
                 f"{prefix}.touchdown_by must be one of {', '.join(TOUCHDOWN_BY)}, not {self.touchdown_by!r}")
         require(self.off_centre_radius_m >= self.centred_radius_m,
                 f"{prefix}.off_centre_radius_m must be at least {prefix}.centred_radius_m")
+        require(self.land_acceptance_radius_m >= 0, f"{prefix}.land_acceptance_radius_m must not be negative")
 
 
 @dataclass
@@ -171,6 +177,15 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
 _ZERO = (0.0, 0.0)
 
 
+def landing_rate(inputs: SupervisorInputs, config: LandingConfig) -> float:
+    """The final descent's vertical speed [m/s, World z up]: down at landing speed, or none while the target
+    lies beyond `land_acceptance_radius_m` (where set)."""
+    radius = config.land_acceptance_radius_m
+    if radius > 0 and math.hypot(inputs.target_offset_m[0], inputs.target_offset_m[1]) > radius:
+        return 0.0
+    return -config.landing_speed_m_s
+
+
 def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: LandingConfig) -> np.ndarray:
     """The FlightController command for memory.mode: [v_WB_desired (3, m/s), yaw (rad),
     a_WB_feed_forward (3, m/s^2)]. The acceleration feed-forward is the tracking PID's while it
@@ -198,12 +213,12 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
     elif mode == Mode.APPROACH:
         horizontal, vertical = tracking, -config.descent_speed_m_s
     elif mode == Mode.LAND:
-        horizontal, vertical = tracking, -config.landing_speed_m_s
+        horizontal, vertical = tracking, landing_rate(inputs, config)
     elif mode == Mode.WAIT:  # LH above the target, from above or (after an abort) from below
         rate = config.altitude_gain * (config.landing_height_m - inputs.height_above_target_m)
         horizontal, vertical = tracking, min(max(rate, -config.descent_speed_m_s), config.climb_speed_m_s)
     elif mode == Mode.LANDED and not config.motors_stop_at_landed:  # on down to the gear's touch, as in LAND
-        horizontal, vertical = tracking, -config.landing_speed_m_s
+        horizontal, vertical = tracking, landing_rate(inputs, config)
     elif mode == Mode.LANDED:
         horizontal, acceleration, vertical = coast, _ZERO, 0.0
     elif mode == Mode.HOLD:
