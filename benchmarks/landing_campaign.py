@@ -2,7 +2,8 @@
 navigation and through occlusions; and the campaign's throughput.
 
     .venv/bin/python benchmarks/landing_campaign.py [--runs 20] [--rendered-runs 5] [--workers 2]
-        [--throughput-runs 100] [--scaling-runs 20] [--only GROUP ...] [--out DIR] [--json FILE]
+        [--throughput-runs 100] [--scaling-runs 20] [--only GROUP ...] [--set KEY=VALUE ...] [--out DIR]
+        [--json FILE]
 
 Every group is a `landing-sim montecarlo marker-landing-wind --case ...` campaign (diagrams/montecarlo/grid.py)
 steered by ct_ekf, on Eq. 13's path (sine), the vehicle's broadcast as the rendezvous target, the gear's contact
@@ -36,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from diagrams.montecarlo import run_campaign  # noqa: E402
 from diagrams.montecarlo.grid import grid_settings  # noqa: E402
+from systems.config import ConfigError  # noqa: E402
 
 SCENARIO = "marker-landing-wind"
 STILL_AIR = ["wind.mean_m_s=0", "wind.turbulence=none", "wind.gusts=[]"]
@@ -51,11 +53,13 @@ STREAMS = {"synthetic": "estimation.source=synthetic", "rendered": "estimation.s
 FENG_2018_M = 0.37  # Feng et al. 2018 (Drones 2(4)): within 0.37 m of the platform's centre at 12 m/s
 
 
-def campaign(group: str, stream: str, runs: int, workers: int, out: Path, speeds: str | None = None) -> dict:
-    """One group's campaign on one stream: its summary (diagrams/montecarlo/campaign.py)."""
+def campaign(group: str, stream: str, runs: int, workers: int, out: Path, speeds: str | None = None,
+             extra: tuple[str, ...] = ()) -> dict:
+    """One group's campaign on one stream, `extra` scenario overrides after the group's: its summary
+    (diagrams/montecarlo/campaign.py)."""
     group_speeds, overrides = GROUPS[group]
     definition, settings = grid_settings(SCENARIO, [f"vehicle.speed={speeds or group_speeds}"], runs, 0,
-                                         COMMON + overrides + [STREAMS[stream]])
+                                         COMMON + overrides + [STREAMS[stream], *extra])
     return run_campaign(definition, settings, out, workers=workers, progress=False)
 
 
@@ -144,13 +148,21 @@ def main() -> int:
     parser.add_argument("--only", nargs="+", choices=sorted(GROUPS), default=sorted(GROUPS))
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "landing-campaign")
     parser.add_argument("--json", type=Path, help="write the figures and checks here")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scenario field in every group's runs (repeatable), e.g. "
+                             "landing.land_acceptance_radius_m=0.15")
     args = parser.parse_args()
     report, checks = {}, []
+    try:
+        grid_settings(SCENARIO, ["vehicle.speed=3"], 1, 0, COMMON + args.set)
+    except ConfigError as e:
+        print(f"landing_campaign: {e}", file=sys.stderr)
+        return 2
     for group in args.only:
         for stream, runs in (("synthetic", args.runs), ("rendered", args.rendered_runs)):
             if runs <= 0:
                 continue
-            summary = campaign(group, stream, runs, args.workers, args.out / f"{group}-{stream}")
+            summary = campaign(group, stream, runs, args.workers, args.out / f"{group}-{stream}", extra=tuple(args.set))
             print_table(f"{group}, {stream} stream", summary)
             report[f"{group}-{stream}"] = {"wall_time_s": summary["wall_time_s"], "cases": summary["cases"]}
             checks += checks_for(group, stream, summary)
