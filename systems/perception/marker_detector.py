@@ -1,5 +1,5 @@
 """The markers' real measurement source: the rendered image, OpenCV's ArUco detection and one
-cv2.solvePnP per marker (SOLVEPNP_SQPNP: OpenCV 5.0's IPPE_SQUARE fails on fronto-parallel
+cv2.solvePnP per marker (SOLVEPNP_SQPNP: IPPE_SQUARE before OpenCV 5.1 fails on fronto-parallel
 squares, see systems/estimators/atda.py); markers not detected are simply absent."""
 
 import cv2
