@@ -6,9 +6,9 @@ CRHF is fairer on identical corners). The solver is `SOLVEPNP_SQPNP`, the global
 minimiser of the reprojection error, not `SOLVEPNP_IPPE_SQUARE`: before OpenCV 5.1 (4.10 and 5.0,
 which the project allows) IPPE_SQUARE returns a wrong pose whenever the tag is exactly parallel to the
 image plane (head-on under a hovering camera both of its solutions reproject 80 px off; yawed 30
-degrees the chosen one is 6.4 degrees off), which `tests/test_atda.py` shows; 5.1 solves it. A planar square admits two poses of nearly equal reprojection error
-under noise; taking the smaller one is what makes single-tag poses "flip", and the benchmark counts
-such frames.
+degrees the chosen one is 6.4 degrees off), which `tests/test_atda.py` shows; 5.1 solves it. A planar
+square admits two poses of nearly equal reprojection error under noise; taking the smaller one is what
+makes single-tag poses "flip", and the benchmark counts such frames.
 """
 
 import cv2
