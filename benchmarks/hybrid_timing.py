@@ -15,7 +15,7 @@
    figure), as CPU time of the calling thread (time.thread_time) with OpenCV on one thread
    (cv2.setNumThreads(1)): the machine is shared with other jobs, so wall time would measure them too.
    Per-frame modules: fisheye correction (rectify; the composition of the five faces, our simulated lens, on
-   its own row), stereo matching, detection (learned HOG + SVM and classical colour pads, each), tracking
+   its own row), stereo matching, detection (learned CNN and classical colour pads, each), tracking
    (each detector's detections through the tracker, in order), motion compensation (ORB + RANSAC homography
    on the rectified view, the UGV's box excluded). Recorded calls, replayed: the altitude filter, the hybrid
    estimate, the stereo eye's pad fix (ArUco), the velocity observer, PID and supervisor; control per frame at
@@ -341,7 +341,7 @@ def print_table(result: dict, repeats: int) -> None:
     row("stereo depth (SGBM window + filter)", "stereo", "stereo")
     row("stereo matching", "stereo_match", indent=True)
     row("altitude filter (per call)", "altitude_filter", indent=True)
-    row("detection, learned (HOG + SVM)", "detection_learned", "detection")
+    row("detection, learned (CNN, cv2.dnn)", "detection_learned", "detection")
     row("detection, classical (colour pads)", "detection_classical")
     row("tracking (learned detections)", "tracking_learned", "tracking")
     row("tracking (classical detections)", "tracking_classical")

@@ -35,7 +35,8 @@ from systems.perception.hybrid_pad import (
 from systems.perception.markers import MarkerLayout
 from systems.perception.stereo_depth import StereoAltimeter, StereoDepthConfig
 from systems.perception.stereo_pad import StereoPadConfig, StereoPadFinder
-from systems.perception.ugv_detector import ColourPadConfig, ColourPadDetector, HogSvmDetector, UgvDetectorSystem
+from systems.perception.ugv_cnn_detector import CnnDetector
+from systems.perception.ugv_detector import ColourPadConfig, ColourPadDetector, UgvDetectorSystem
 from systems.sensors.camera import RENDERER_NAME, add_renderer
 from systems.sensors.fisheye import FisheyeConfig, add_fisheye_camera
 from systems.sensors.stereo import StereoConfig, add_stereo_pair
@@ -55,8 +56,8 @@ def hybrid_stereo() -> StereoConfig:
 class HybridPerceptionConfig:
     """Seed 003's camera array and what runs on it (rates in Hz in each part's section)."""
 
-    detector: str = "learned"  # "learned" (HOG + colour, linear SVM) or "classical" (colour + pad white)
-    model_path: str = ""  # the learned detector's model; empty: models/ugv_detector.yml
+    detector: str = "learned"  # "learned" (a small CNN, ONNX through cv2.dnn) or "classical" (colour + pad white)
+    model_path: str = ""  # the learned detector's model; empty: models/ugv_detector.onnx
     classical: ColourPadConfig = field(default_factory=ColourPadConfig)
     fisheye: FisheyeConfig = field(default_factory=FisheyeConfig)  # 10 Hz
     stereo: StereoConfig = field(default_factory=hybrid_stereo)
@@ -72,6 +73,9 @@ class HybridPerceptionConfig:
         require(self.detector in DETECTORS, f"{prefix}.detector '{self.detector}' is not one of: {', '.join(DETECTORS)}")
         self.classical.validate(f"{prefix}.classical")
         self.fisheye.validate(f"{prefix}.fisheye")
+        require(self.detector != "learned" or (self.fisheye.width, self.fisheye.height) == (512, 512),
+                f"{prefix}.fisheye.width and height must be 512 for the learned detector (its network's input), "
+                f"got {self.fisheye.width} x {self.fisheye.height}")
         self.stereo.validate(f"{prefix}.stereo")
         self.depth.validate(f"{prefix}.depth", self.stereo)
         self.altitude_kf.validate(f"{prefix}.altitude_kf")
@@ -90,7 +94,7 @@ class HybridPerceptionConfig:
     def make_detector(self):
         if self.detector == "classical":
             return ColourPadDetector(self.classical)
-        return HogSvmDetector(self.model_path) if self.model_path else HogSvmDetector()
+        return CnnDetector(self.model_path) if self.model_path else CnnDetector()
 
 
 @dataclass

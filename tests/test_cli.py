@@ -82,12 +82,18 @@ def bad_config(tmp_path):
     (["run", "deck-landing", "--set", "platform.z_amplitude_m=[0.3]"], "stroke"),
     (["run", "deck-landing", "--set", "perception.source=ct_ekf"], "perception.source"),
     (["run", "deck-landing", "--set", "landing.initial_height_m=1.2"], "landing.initial_height_m"),
+    (["run", "ugv-hybrid", "--set", "hybrid.model_path={missing_model}"], "missing.onnx"),
+    (["run", "ugv-hybrid", "--set", "hybrid.model_path={corrupt_model}"], "corrupt.onnx"),
 ], ids=["bad-name", "unknown-key", "negative-rate", "tag-too-big", "negative-duration", "type-error",
         "name-and-config", "unknown-option", "missing-config", "federated-on-markers", "two-cameras",
-        "backward-blackout", "imu-rate", "empty-manoeuvre", "deck-beyond-stroke", "deck-source", "deck-ih"])
+        "backward-blackout", "imu-rate", "empty-manoeuvre", "deck-beyond-stroke", "deck-source", "deck-ih",
+        "missing-detector-model", "corrupt-detector-model"])
 def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path, bad_config, args, named):
     out = tmp_path / "out"
-    args = [a.format(bad_config=bad_config, missing=tmp_path / "missing.yaml") for a in args]
+    corrupt = tmp_path / "corrupt.onnx"
+    corrupt.write_bytes(b"\x08\x07not a network")
+    args = [a.format(bad_config=bad_config, missing=tmp_path / "missing.yaml", missing_model=tmp_path / "missing.onnx",
+                     corrupt_model=corrupt) for a in args]
     code, stdout, stderr = run_main(capfd, *args, "--out", str(out), "--quiet")
     assert code == 2
     assert stderr.count("\n") == 1 and stderr.startswith("landing-sim: error: "), stderr

@@ -91,6 +91,19 @@ def test_estimator_valid_coasts_then_invalid():
         assert not s.estimate.valid or np.all(np.isfinite(s.estimate.X_RT.translation()))
 
 
+@pytest.mark.parametrize("height_m, approach_coast_s, valid_after_s", [(7.5, 0.3, 0.3), (7.5, 2.0, 1.3), (1.0, 0.3, 2.0)])
+def test_coast_above_the_landing_zone_is_short(height_m, approach_coast_s, valid_after_s):
+    """Above the landing zone the estimate coasts at most approach_max_coast_s (and only while the observer is
+    valid: 1.3 s here, while the third-last sample, 0.2 s before the last, is in its 1.5 s window); in the
+    landing zone, max_coast_s."""
+    v = np.array([0.5, 0.0, 0.0])
+    seen = [(0.1 * k, True, True, np.array([0.0, 0.0, Z_PAD]) + v * 0.1 * k) for k in range(10)]
+    blind = [(0.1 * k, False, True, None) for k in range(10, 40)]
+    states = _run(seen + blind, HybridPadConfig(max_coast_s=2.0, approach_max_coast_s=approach_coast_s), height_m)
+    valid = [round(s.time - 0.9, 6) for s in states[10:] if s.estimate.valid]
+    assert valid and max(valid) == pytest.approx(valid_after_s)
+
+
 @pytest.mark.parametrize("height_m, measures", [(7.5, True), (2.0, False)])
 def test_oblique_ray_measures_only_above_the_landing_zone(height_m, measures):
     """A UGV 70 deg off the vertical: followed from IH (approach_min_ray_down's 78 deg) with its std grown by
@@ -136,6 +149,7 @@ def test_scenario_loads():
                                             ("hybrid.stereo_pad.max_height_m=0", "hybrid.stereo_pad.max_height_m"),
                                             ("hybrid.estimator.min_ray_down=2", "hybrid.estimator.min_ray_down"),
                                             ("hybrid.fisheye.fov_deg=200", "hybrid.fisheye.fov_deg"),
+                                            ("hybrid.fisheye.width=640", "hybrid.fisheye.width"),
                                             ("hybrid.no_such_key=1", "hybrid.no_such_key")])
 def test_bad_setting_names_the_field(setting, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):

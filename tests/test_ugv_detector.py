@@ -1,7 +1,7 @@
 """Seed 003's UGV detectors (Sec. 2.2.1; systems/perception/ugv_detector.py) on rendered held-out fisheye
 frames (diagrams/ugv_detection_scenes.py): both find the UGV and not a distractor of another colour; the
-learned one's model file missing or corrupt is one ConfigError line naming it; the true box's projection
-against a hand case; the pieces of the HOG scan against each other."""
+true box's projection against a hand case; IOU and greedy NMS on hand cases. The learned detector's own
+parts: tests/test_ugv_cnn_detector.py."""
 
 import math
 
@@ -21,25 +21,8 @@ from diagrams.ugv_detection_scenes import (
     sample_scene,
     ugv_box,
 )
-from systems.config import ConfigError
-from systems.perception.ugv_detector import (
-    DEFAULT_MODEL_PATH,
-    ColourPadDetector,
-    HogLayout,
-    HogSvmDetector,
-    HogSvmModel,
-    UgvDetectorSystem,
-    apply_regression,
-    colour_cells,
-    crop_patch,
-    iou,
-    level_maps,
-    non_maximum_suppression,
-    patch_features,
-    regression_targets,
-    window_features,
-    window_scores,
-)
+from systems.perception.ugv_cnn_detector import CnnDetector
+from systems.perception.ugv_detector import ColourPadDetector, UgvDetectorSystem, iou, non_maximum_suppression
 from systems.sensors.fisheye import FisheyeConfig, theta_distorted
 
 FRAMES = 3  # held-out frames rendered for the detectors
@@ -92,109 +75,14 @@ def test_motion_blur_kernel_is_a_normalised_line_of_the_given_length():
     assert motion_blur_kernel(0.5, 1.0).shape == (1, 1)
 
 
-# ---------------------------------------------------------------- the HOG scan's pieces
-
-
-def test_window_scores_are_the_dot_products_of_the_window_features():
-    layout = HogLayout()
-    rng = np.random.default_rng(0)
-    image = rng.integers(0, 255, (64, 80, 3), dtype=np.uint8)
-    maps = level_maps(image, layout)
-    weights = rng.normal(size=layout.feature_size).astype(np.float32)
-    scores = window_scores(maps, weights, layout)
-    assert scores.shape == (64 // 4 - layout.window_cells + 1, 80 // 4 - layout.window_cells + 1)
-    rows, cols = np.array([0, 3, scores.shape[0] - 1]), np.array([0, 5, scores.shape[1] - 1])
-    direct = window_features(maps, rows, cols, layout) @ weights
-    np.testing.assert_allclose(scores[rows, cols], direct, rtol=1e-4, atol=1e-4)
-
-
-def test_a_cropped_window_has_the_dense_scans_features():
-    """crop_patch + patch_features (training) give the scan's features of a cell-aligned window at scale 1."""
-    layout = HogLayout()
-    image = np.random.default_rng(1).integers(0, 255, (96, 96, 3), dtype=np.uint8)
-    row, col = 5, 7  # the window's top-left cell
-    centre = (col * layout.cell_px + layout.window_px / 2, row * layout.cell_px + layout.window_px / 2)
-    dense = window_features(level_maps(image, layout), [row], [col], layout)[0]
-    np.testing.assert_allclose(patch_features(crop_patch(image, centre, 1.0, layout), layout), dense, atol=1e-5)
-
-
-def test_colour_cells_put_a_saturated_colour_in_its_hue_bin():
-    layout = HogLayout()
-    image = np.zeros((8, 8, 3), np.uint8)
-    image[:4, :4] = (200, 0, 0)  # red: hue 0, bin 0
-    image[:4, 4:] = (0, 0, 200)  # blue: hue 120 deg, OpenCV 120, bin 4 of 6
-    image[4:, :] = 128  # grey: no saturation
-    cells = colour_cells(image, layout)
-    np.testing.assert_allclose(cells[0, 0], [1, 0, 0, 0, 0, 0, 200 / 255], atol=1e-6)
-    np.testing.assert_allclose(cells[0, 1], [0, 0, 0, 0, 1, 0, 200 / 255], atol=1e-6)
-    np.testing.assert_allclose(cells[1, 0], [0, 0, 0, 0, 0, 0, 128 / 255], atol=1e-6)
-
-
-def test_box_regression_targets_round_trip_and_nms_keeps_the_best():
-    windows = np.array([[10.0, 20.0, 40.0, 40.0], [0.0, 0.0, 24.0, 24.0]])
-    boxes = np.array([[12.0, 25.0, 30.0, 22.0], [3.0, 1.0, 10.0, 20.0]])
-    np.testing.assert_allclose(apply_regression(windows, regression_targets(windows, boxes)), boxes)
+def test_nms_keeps_the_best_and_drops_a_part_inside_a_better_box():
     keep = non_maximum_suppression(np.array([[0, 0, 10, 10], [1, 1, 10, 10], [30, 30, 10, 10]]),
                                    np.array([0.6, 0.9, 0.5]), 0.3)
     assert list(keep) == [1, 2]
     assert iou([0, 0, 10, 10], [5, 0, 10, 10]) == pytest.approx(1 / 3)
-
-
-# ---------------------------------------------------------------- the model file
-
-
-def test_missing_model_file_is_one_config_error_line_naming_it(tmp_path):
-    path = tmp_path / "ugv_detector.yml"
-    with pytest.raises(ConfigError) as error:
-        HogSvmDetector(path)
-    message = str(error.value)
-    assert str(path) in message and "\n" not in message
-
-
-@pytest.mark.parametrize("content", [
-    b"\x00\x01garbage{{{ not yaml",  # not OpenCV YAML at all
-    b"%YAML:1.0\n---\nformat: ugv_hog_svm_v2\ncell_px: 4\n",  # a model cut short
-    b"%YAML:1.0\n---\nformat: something_else\n",  # another file
-])
-def test_corrupt_model_file_is_one_config_error_line_naming_it(tmp_path, content):
-    path = tmp_path / "ugv_detector.yml"
-    path.write_bytes(content)
-    with pytest.raises(ConfigError) as error:
-        HogSvmDetector(path)
-    message = str(error.value)
-    assert str(path) in message and "\n" not in message
-
-
-def test_truncated_model_file_is_one_config_error_line_naming_it(tmp_path):
-    path = tmp_path / "ugv_detector.yml"
-    path.write_bytes(DEFAULT_MODEL_PATH.read_bytes()[:40_000])  # cut inside the weights
-    with pytest.raises(ConfigError) as error:
-        HogSvmDetector(path)
-    message = str(error.value)
-    assert str(path) in message and "\n" not in message
-
-
-def test_model_with_wrong_weight_count_is_a_config_error(tmp_path):
-    model = HogSvmModel.load(DEFAULT_MODEL_PATH)
-    path = tmp_path / "short.yml"
-    model.save(path)
-    text = path.read_text()
-    assert "window_cells: 6" in text
-    path.write_text(text.replace("window_cells: 6", "window_cells: 7"))
-    with pytest.raises(ConfigError, match="weights"):
-        HogSvmModel.load(path)
-
-
-def test_model_file_round_trips(tmp_path):
-    model = HogSvmModel.load(DEFAULT_MODEL_PATH)
-    assert DEFAULT_MODEL_PATH.stat().st_size < 2_000_000
-    model.save(tmp_path / "copy.yml")
-    again = HogSvmModel.load(tmp_path / "copy.yml")
-    assert again.layout == model.layout
-    np.testing.assert_allclose(again.thresholds, model.thresholds)
-    np.testing.assert_array_equal(again.level_component, model.level_component)
-    np.testing.assert_allclose(again.weights, model.weights)
-    np.testing.assert_allclose(again.regression, model.regression, rtol=1e-6)
+    boxes, scores = np.array([[0, 0, 40, 40], [2, 2, 12, 12]]), np.array([0.9, 0.7])  # IOU 0.09, all inside
+    assert list(non_maximum_suppression(boxes, scores, 0.3)) == [0, 1]
+    assert list(non_maximum_suppression(boxes, scores, 0.3, containment=0.6)) == [0]
 
 
 # ---------------------------------------------------------------- rendered held-out frames
@@ -232,7 +120,7 @@ def held_out():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("make", [HogSvmDetector, ColourPadDetector], ids=["learned", "classical"])
+@pytest.mark.parametrize("make", [CnnDetector, ColourPadDetector], ids=["learned", "classical"])
 def test_detector_finds_the_ugv_and_not_a_distractor_of_another_colour(held_out, make):
     detector = make()
     for image, truth, distractors in held_out:

@@ -20,7 +20,8 @@ Ours, where the paper is silent:
 - In the final landing (within `landing_zone_m` over the pad's plane) a measurement far from a valid
   estimate's prediction is an outlier and not used (`gate_m`), and without a measurement the estimate
   coasts at the last observed velocity (Eq. 15-19's observer run on the measured positions) for
-  `max_coast_s`, then turns invalid; higher, it coasts only while that observer is valid. The paper lands
+  `max_coast_s`, then turns invalid; higher, it coasts only while that observer is valid, and at most
+  `approach_max_coast_s`. The paper lands
   below LH blind, as its target floods the fisheye; the supervisor here stops a landing on an invalid
   estimate. The seam's v_WP is the observer's, else (past its window) the coasting estimate's velocity.
 - In the landing zone a fix of the pad from the stereo pair's left eye (its markers, stereo_pad.py), where
@@ -67,6 +68,10 @@ class HybridPadConfig:
     # since the early, oblique measurements of the climb give velocities of 1-2 m/s off (measured: a 4 s
     # coast on them sent the UAV 5 m away, and the gate then refused the UGV's true position).
     landing_zone_m: float = 2.0
+    # Above it an unmeasured frame coasts at most this long (and only while the observer is valid): under a
+    # bridge the learned detector boxed the part of the UGV still in view until 0.7 s before the pad was
+    # wholly hidden, and the observer-long coast after it (1.3 s) was 0.4-0.6 m off and valid (measured, seed 0).
+    approach_max_coast_s: float = 0.5
     altitude_coast_s: float = 5.0  # h carried on by the navigation's height change for this long
     position_std_m: float = 0.1  # the reported std per axis of a measured estimate
     # And its growth per second of coasting (the observed velocity's error, 0.05-0.1 m/s measured): the seam
@@ -85,8 +90,8 @@ class HybridPadConfig:
     approach_min_ray_down: float = 0.2
 
     def validate(self, prefix: str = "hybrid.estimator") -> None:
-        for name in ("max_coast_s", "altitude_coast_s", "coast_std_growth_m_s", "gate_m", "gate_growth_m_s",
-                     "landing_zone_m"):
+        for name in ("max_coast_s", "approach_max_coast_s", "altitude_coast_s", "coast_std_growth_m_s", "gate_m",
+                     "gate_growth_m_s", "landing_zone_m"):
             require_non_negative(getattr(self, name), f"{prefix}.{name}")
         require_positive(self.position_std_m, f"{prefix}.position_std_m")
         require_positive(self.height_std_m, f"{prefix}.height_std_m")
@@ -186,7 +191,8 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
     if p is not None:
         last_measured, last_p, coast = time, p, 0.0
     elif (state.estimate.valid and last_measured is not None and velocity is not None
-          and time - last_measured <= config.max_coast_s + 1e-9 and (landing or observer.valid)):
+          and time - last_measured <= config.max_coast_s + 1e-9
+          and (landing or (observer.valid and time - last_measured <= config.approach_max_coast_s + 1e-9))):
         coast = time - last_measured
         p = predicted()
     else:

@@ -1,0 +1,100 @@
+"""The learned UGV detector's network (systems/perception/ugv_cnn_detector.py) and its trainer's pure parts
+(models/train_ugv_cnn.py, importable without the train extra): the trainer's targets decode to the box they
+were made from, its turned boxes follow np.rot90 and np.fliplr, and a missing or corrupt model file is one
+ConfigError line naming it. Finding the UGV on rendered held-out frames: tests/test_ugv_detector.py."""
+
+import numpy as np
+import pytest
+
+from diagrams.ugv_detection_scenes import UgvDataset
+from models.train_ugv_cnn import CROP_PX, STRIDE, best_threshold, sample, targets_for, turn_box
+from systems.config import ConfigError
+from systems.perception.ugv_cnn_detector import DEFAULT_MODEL_PATH, CnnDetector, decode
+
+
+@pytest.mark.parametrize("box", [[100.0, 60.0, 40.0, 30.0], [7.3, 250.9, 13.0, 11.5], [300.2, 301.7, 150.0, 170.0]])
+def test_training_targets_decode_to_their_box(box):
+    t = targets_for(np.array(box), 512)
+    out = np.transpose(t[..., :5], (2, 0, 1)).copy()  # heat, offset x/y, log w/h, as the network gives them
+    found = decode(out, STRIDE, min_score=0.5)
+    assert len(found) == 1
+    np.testing.assert_allclose(found[0][0], box, atol=1e-4)
+    assert found[0][1] == 1.0
+
+
+def test_a_box_centred_outside_the_crop_has_no_target():
+    t = targets_for(np.array([-30.0, 10.0, 40.0, 40.0]), 320)  # centre at x = -10 px
+    assert t.max() == 0.0
+
+
+@pytest.mark.parametrize("flip", [False, True])
+@pytest.mark.parametrize("turns", [0, 1, 2, 3])
+def test_turned_box_follows_the_turned_pixels(flip, turns):
+    mask = np.zeros((20, 20), bool)
+    mask[5:12, 3:7] = True  # the box [3, 5, 4, 7]
+    turned = np.rot90(np.fliplr(mask) if flip else mask, turns)
+    ys, xs = np.nonzero(turned)
+    expected = [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+    np.testing.assert_array_equal(turn_box(np.array([3, 5, 4, 7]), 20, turns, flip), expected)
+
+
+def test_augmented_crops_keep_their_targets_on_the_object():
+    """A white box on black: in every sampled crop (turned, mirrored, brightness jittered) the decoded target,
+    cut to the crop, is the box of the crop's bright pixels."""
+    image = np.zeros((512, 512, 3), np.uint8)
+    image[200:230, 300:345] = 255  # the box [300, 200, 45, 30]
+    dataset = UgvDataset(image[None], np.array([[300.0, 200.0, 45.0, 30.0]]), [np.zeros((0, 4))], np.array([0]),
+                         np.array([0.0]), np.array([False]))
+    rng = np.random.default_rng(3)
+    found = 0
+    for _ in range(40):
+        crop, t = sample(dataset, rng)
+        assert crop.shape == (CROP_PX, CROP_PX, 3) and crop.dtype == np.float32
+        bright = crop.mean(axis=2) > 0.6
+        decoded = decode(np.transpose(t[..., :5], (2, 0, 1)).copy(), STRIDE, min_score=0.5)
+        if t[..., 5].sum() == 0:
+            continue  # the box's centre fell outside this crop
+        found += 1
+        x, y, w, h = decoded[0][0]
+        x0, y0, x1, y1 = np.clip([x, y, x + w, y + h], 0, CROP_PX)  # the crop may cut the box
+        ys, xs = np.nonzero(bright)
+        np.testing.assert_allclose([x0, y0, x1, y1], [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], atol=1e-4)
+    assert found >= 20  # two crops in three are drawn around the object
+
+
+def test_best_threshold_maximises_f1():
+    scores = np.array([0.9, 0.8, 0.7, 0.6, 0.3])
+    hits = np.array([True, True, False, True, False])
+    threshold, p, r, f1 = best_threshold(scores, hits, targets=4)
+    assert threshold == 0.6  # 3 of 4 found, 1 false: F1 0.75; at 0.8: 2 of 4, none false: 0.667
+    assert (p, r) == (0.75, 0.75) and f1 == pytest.approx(0.75)
+
+
+def test_shipped_model_loads_and_scores_a_blank_frame_below_threshold():
+    detector = CnnDetector()
+    assert detector.stride == STRIDE
+    assert detector.detect(np.full((512, 512, 3), 128, np.uint8)) == []
+
+
+def test_missing_model_file_is_one_config_error_line_naming_it(tmp_path):
+    path = tmp_path / "ugv_detector.onnx"
+    with pytest.raises(ConfigError) as error:
+        CnnDetector(path)
+    message = str(error.value)
+    assert str(path) in message and "\n" not in message
+
+
+@pytest.mark.parametrize("content", [b"\x00\x01garbage{{{ not onnx", DEFAULT_MODEL_PATH.read_bytes()[:20_000]],
+                         ids=["garbage", "truncated"])
+def test_corrupt_model_file_is_one_config_error_line_naming_it(tmp_path, content):
+    path = tmp_path / "ugv_detector.onnx"
+    path.write_bytes(content)
+    with pytest.raises(ConfigError) as error:
+        CnnDetector(path)
+    message = str(error.value)
+    assert str(path) in message and "\n" not in message
+
+
+def test_frame_of_another_size_is_a_config_error():
+    with pytest.raises(ConfigError, match="512 x 512"):
+        CnnDetector().detect(np.zeros((480, 640, 3), np.uint8))
