@@ -25,7 +25,8 @@ Ours, where the paper is silent:
   below LH blind, as its target floods the fisheye; the supervisor here stops a landing on an invalid
   estimate. The seam's v_WP is the observer's, else (past its window) the coasting estimate's velocity.
 - In the landing zone a fix of the pad from the stereo pair's left eye (its markers, stereo_pad.py), where
-  there is one, measures instead of the box, ungated: the box's centre marks the pad poorly at close range.
+  there is one, measures instead of the box, ungated: the box's centre marks the pad poorly at close range,
+  and below `box_min_height_m` the box does not measure at all.
 - Rays more oblique than `min_ray_down` do not measure in the final landing, nor more oblique than
   `approach_min_ray_down` above it; a measurement's reported std grows with the ray's obliquity.
 - Invalid is PoseEstimate's valid False; `p_WP_measured` is NaN in a frame without a measurement.
@@ -72,6 +73,11 @@ class HybridPadConfig:
     # bridge the learned detector boxed the part of the UGV still in view until 0.7 s before the pad was
     # wholly hidden, and the observer-long coast after it (1.3 s) was 0.4-0.6 m off and valid (measured, seed 0).
     approach_max_coast_s: float = 0.5
+    # Below this camera height over the pad's plane (the UAV's navigation) the fisheye's box does not measure:
+    # the UGV floods the fisheye and the learned detector boxes parts of it (measured: a 58 px box 0.49 m off at
+    # 0.4 m over the pad, 1.5 m/s figure-eight, passed the gate, and the velocity it gave sent the coast 2.4 m
+    # off); the stereo eye's fix measures there, else the estimate coasts.
+    box_min_height_m: float = 1.0
     altitude_coast_s: float = 5.0  # h carried on by the navigation's height change for this long
     position_std_m: float = 0.1  # the reported std per axis of a measured estimate
     # And its growth per second of coasting (the observed velocity's error, 0.05-0.1 m/s measured): the seam
@@ -90,8 +96,8 @@ class HybridPadConfig:
     approach_min_ray_down: float = 0.2
 
     def validate(self, prefix: str = "hybrid.estimator") -> None:
-        for name in ("max_coast_s", "approach_max_coast_s", "altitude_coast_s", "coast_std_growth_m_s", "gate_m",
-                     "gate_growth_m_s", "landing_zone_m"):
+        for name in ("max_coast_s", "approach_max_coast_s", "box_min_height_m", "altitude_coast_s",
+                     "coast_std_growth_m_s", "gate_m", "gate_growth_m_s", "landing_zone_m"):
             require_non_negative(getattr(self, name), f"{prefix}.{name}")
         require_positive(self.position_std_m, f"{prefix}.position_std_m")
         require_positive(self.height_std_m, f"{prefix}.height_std_m")
@@ -170,7 +176,7 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
     p, ray_scale, fixed = None, state.ray_scale, False
     if landing and pad_fix is not None and np.all(np.isfinite(pad_fix)):
         p, ray_scale, fixed = np.array([pad_fix[0], pad_fix[1], z_pad]), 1.0, True
-    elif box_valid and source:
+    elif box_valid and source and z_WC - z_pad >= config.box_min_height_m:
         p = pad_from_box(box, h, X_WB, fisheye, z_pad,
                          config.min_ray_down if landing else config.approach_min_ray_down)
         if p is not None:  # 1 / -r_W,z of this ray: the camera's slant distance to the point over its height above
