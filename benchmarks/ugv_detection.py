@@ -34,7 +34,7 @@ from diagrams.ugv_detection_scenes import (
 )
 from systems.config import ConfigError
 from systems.perception.ugv_cnn_detector import DEFAULT_MODEL_PATH, CnnDetector
-from systems.perception.ugv_detector import ColourPadDetector, iou_many
+from systems.perception.ugv_detector import ColourPadDetector, iou_many, match_truth
 
 TABLE3 = {"precision": 0.9962, "recall": 0.9959, "f1": 0.9960}  # seed 003 Table 3, "Total"
 TABLE7_DETECTION_MS = (51.24, 55.69)  # seed 003 Table 7: mean, standard deviation
@@ -43,13 +43,7 @@ TABLE7_DETECTION_MS = (51.24, 55.69)  # seed 003 Table 7: mean, standard deviati
 def score_frame(detections, truth: np.ndarray | None, distractors: np.ndarray) -> dict:
     """TP/FP/FN counts of one frame's detections (module docstring), and how many false positives lie
     on a distractor (IOU >= 0.3 with one's box)."""
-    boxes = np.array([box for box, _ in detections], float).reshape(-1, 4)
-    scores = np.array([score for _, score in detections], float)
-    matched = np.zeros(len(boxes), bool)
-    if truth is not None and len(boxes):
-        hits = np.flatnonzero(iou_many(truth, boxes) >= 0.5)
-        if hits.size:
-            matched[hits[np.argmax(scores[hits])]] = True
+    boxes, _, matched = match_truth(detections, truth)
     on_distractor = 0
     for box in boxes[~matched]:
         if len(distractors) and np.any(iou_many(box, distractors) >= 0.3):

@@ -41,7 +41,7 @@ from diagrams.ugv_detection_scenes import (
     training_scene_config,
 )
 from systems.perception.ugv_cnn_detector import DEFAULT_MODEL_PATH, CnnDetector
-from systems.perception.ugv_detector import iou_many
+from systems.perception.ugv_detector import match_truth
 
 STRIDE = 4
 CROP_PX = 320
@@ -252,15 +252,7 @@ def validation_f1(detector: CnnDetector, dataset: UgvDataset) -> tuple[np.ndarra
     is the frame's true positive (IOU >= 0.5, the best-scoring match); and the count of frames with the UGV."""
     scores, hits = [], []
     for i in range(len(dataset)):
-        found = detector.detect(dataset.images[i])
-        truth = dataset.ugv_box(i)
-        boxes = np.array([b for b, _ in found], float).reshape(-1, 4)
-        s = np.array([v for _, v in found], float)
-        match = np.zeros(len(s), bool)
-        if truth is not None and len(s):
-            ok = np.flatnonzero(iou_many(truth, boxes) >= 0.5)
-            if ok.size:
-                match[ok[np.argmax(s[ok])]] = True
+        _, s, match = match_truth(detector.detect(dataset.images[i]), dataset.ugv_box(i))
         scores.append(s)
         hits.append(match)
     targets = int(np.sum(~np.isnan(dataset.ugv_boxes[:, 0])))

@@ -22,7 +22,13 @@ from diagrams.ugv_detection_scenes import (
     ugv_box,
 )
 from systems.perception.ugv_cnn_detector import CnnDetector
-from systems.perception.ugv_detector import ColourPadDetector, UgvDetectorSystem, iou, non_maximum_suppression
+from systems.perception.ugv_detector import (
+    ColourPadDetector,
+    UgvDetectorSystem,
+    iou,
+    match_truth,
+    non_maximum_suppression,
+)
 from systems.sensors.fisheye import FisheyeConfig, theta_distorted
 
 FRAMES = 3  # held-out frames rendered for the detectors
@@ -83,6 +89,15 @@ def test_nms_keeps_the_best_and_drops_a_part_inside_a_better_box():
     boxes, scores = np.array([[0, 0, 40, 40], [2, 2, 12, 12]]), np.array([0.9, 0.7])  # IOU 0.09, all inside
     assert list(non_maximum_suppression(boxes, scores, 0.3)) == [0, 1]
     assert list(non_maximum_suppression(boxes, scores, 0.3, containment=0.6)) == [0]
+
+
+def test_match_truth_takes_the_best_scoring_overlap_only():
+    truth = np.array([10.0, 10.0, 20.0, 20.0])
+    detections = [(np.array([11.0, 10.0, 20.0, 20.0]), 0.6), (np.array([10.0, 12.0, 20.0, 20.0]), 0.9),
+                  (np.array([100.0, 100.0, 20.0, 20.0]), 0.95)]
+    _, scores, matched = match_truth(detections, truth)
+    assert list(matched) == [False, True, False] and list(scores) == [0.6, 0.9, 0.95]
+    assert not match_truth(detections, None)[2].any()
 
 
 # ---------------------------------------------------------------- rendered held-out frames

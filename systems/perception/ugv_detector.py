@@ -89,6 +89,19 @@ def non_maximum_suppression(boxes: np.ndarray, scores: np.ndarray, iou_threshold
     return np.asarray(keep, int)
 
 
+def match_truth(detections: list[Detection], truth: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Seed 003 Table 3's scoring of one frame: boxes (N, 4), scores (N,) and which one is the true positive
+    (the highest-scoring detection with IOU >= 0.5 against the true box; none without a true box)."""
+    boxes = np.array([box for box, _ in detections], float).reshape(-1, 4)
+    scores = np.array([score for _, score in detections], float)
+    matched = np.zeros(len(boxes), bool)
+    if truth is not None and len(boxes):
+        hits = np.flatnonzero(iou_many(truth, boxes) >= 0.5)
+        if hits.size:
+            matched[hits[np.argmax(scores[hits])]] = True
+    return boxes, scores, matched
+
+
 def to_rgb(image: np.ndarray) -> np.ndarray:
     """The RGB channels of an RGB or RGBA uint8 image (a view)."""
     require(image.ndim == 3 and image.shape[2] in (3, 4) and image.dtype == np.uint8,
