@@ -1,5 +1,6 @@
 """Seed 003's UGV detection (Sec. 2.2.1, Table 3): the learned (a small CNN through cv2.dnn,
-systems/perception/ugv_cnn_detector.py) and the classical (HSV body colour + pad,
+systems/perception/ugv_cnn_detector.py), the learned with its boxes re-measured by the colour
+(systems/perception/ugv_box_refiner.py, the loop's default) and the classical (HSV body colour + pad,
 systems/perception/ugv_detector.py) detectors on the same held-out rendered
 fisheye frames (diagrams/ugv_detection_scenes.py: heights 2-10 m, distractor vehicles, one of the UGV's
 own colour in 30 % of frames, motion blur in 40 %, small far off-axis targets in 20 %, no UGV in 10 %).
@@ -9,7 +10,8 @@ own colour in 30 % of frames, motion blur in 40 %, small far off-axis targets in
 Scoring, per frame: a detection with IOU >= 0.5 against the true UGV box is a true positive (the
 highest-scoring one, if several); every other detection is a false positive (on a distractor or not);
 a frame whose UGV is seen and not matched is a false negative. Precision, recall and F1 over all frames,
-against Table 3's totals (P 99.62 %, R 99.59 %, F1 99.60 %), and by kind of frame. Per-frame cost:
+against Table 3's totals (P 99.62 %, R 99.59 %, F1 99.60 %), and by kind of frame; the true positives'
+centres' distance from the pad's centre in px (the hybrid estimate takes a box's centre for it). Per-frame cost:
 median and mean wall time of `detect` on one 512 x 512 RGB frame, OpenCV on one thread, against Table 7's
 detection (51.24 +- 55.69 ms, YOLOv3 on a Jetson TX2's GPU). The frames are rendered once and cached under
 results/; the held-out seeds and ground texture are never used in training (models/train_ugv_cnn.py).
@@ -30,9 +32,12 @@ from diagrams.ugv_detection_scenes import (
     UgvSceneConfig,
     distractor_pool,
     load_or_render_dataset,
+    pad_centre_pixel,
     sample_scene,
 )
 from systems.config import ConfigError
+from systems.perception.hybrid_pad import box_centre_pixel
+from systems.perception.ugv_box_refiner import ColourRefinedDetector
 from systems.perception.ugv_cnn_detector import DEFAULT_MODEL_PATH, CnnDetector
 from systems.perception.ugv_detector import ColourPadDetector, iou_many, match_truth
 
@@ -40,16 +45,18 @@ TABLE3 = {"precision": 0.9962, "recall": 0.9959, "f1": 0.9960}  # seed 003 Table
 TABLE7_DETECTION_MS = (51.24, 55.69)  # seed 003 Table 7: mean, standard deviation
 
 
-def score_frame(detections, truth: np.ndarray | None, distractors: np.ndarray) -> dict:
-    """TP/FP/FN counts of one frame's detections (module docstring), and how many false positives lie
-    on a distractor (IOU >= 0.3 with one's box)."""
+def score_frame(detections, truth: np.ndarray | None, distractors: np.ndarray, pad_px: np.ndarray | None) -> dict:
+    """TP/FP/FN counts of one frame's detections (module docstring), how many false positives lie on a
+    distractor (IOU >= 0.3 with one's box), and the true positive's centre distance from the pad's centre
+    `pad_px` [px] (the point the hybrid estimate takes it for)."""
     boxes, _, matched = match_truth(detections, truth)
     on_distractor = 0
     for box in boxes[~matched]:
         if len(distractors) and np.any(iou_many(box, distractors) >= 0.3):
             on_distractor += 1
+    centre_px = [float(np.hypot(*(box_centre_pixel(box) - pad_px))) for box in boxes[matched] if pad_px is not None]
     return {"tp": int(matched.sum()), "fp": int((~matched).sum()), "fn": int(truth is not None and not matched.any()),
-            "fp_on_distractor": on_distractor}
+            "fp_on_distractor": on_distractor, "centre_px": centre_px}
 
 
 def summary(counts: list[dict]) -> dict:
@@ -57,9 +64,12 @@ def summary(counts: list[dict]) -> dict:
     precision = tp / (tp + fp) if tp + fp else 1.0
     recall = tp / (tp + fn) if tp + fn else 1.0
     f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
+    centre_px = [d for c in counts for d in c["centre_px"]]
     return {"frames": len(counts), "targets": tp + fn, "tp": tp, "fp": fp, "fn": fn,
             "fp_on_distractor": sum(c["fp_on_distractor"] for c in counts),
-            "precision": precision, "recall": recall, "f1": f1}
+            "precision": precision, "recall": recall, "f1": f1,
+            "centre_error_px": {"median": float(np.median(centre_px)) if centre_px else None,
+                                "p95": float(np.percentile(centre_px, 95)) if centre_px else None}}
 
 
 def frame_kinds(dataset: UgvDataset, config: UgvSceneConfig) -> dict[str, np.ndarray]:
@@ -74,14 +84,14 @@ def frame_kinds(dataset: UgvDataset, config: UgvSceneConfig) -> dict[str, np.nda
             "UGV box under 20 px": sizes < 20}
 
 
-def run(detector, dataset: UgvDataset) -> tuple[list[dict], np.ndarray]:
+def run(detector, dataset: UgvDataset, pads: list) -> tuple[list[dict], np.ndarray]:
     counts, times = [], []
     detector.detect(dataset.images[0])  # warm-up (caches)
     for i in range(len(dataset)):
         t0 = time.perf_counter()
         detections = detector.detect(dataset.images[i])
         times.append(1e3 * (time.perf_counter() - t0))
-        counts.append(score_frame(detections, dataset.ugv_box(i), dataset.distractor_boxes[i]))
+        counts.append(score_frame(detections, dataset.ugv_box(i), dataset.distractor_boxes[i], pads[i]))
     return counts, np.asarray(times)
 
 
@@ -106,16 +116,20 @@ def main() -> int:
           f"{int(np.sum(~np.isnan(dataset.ugv_boxes[:, 0])))} with the UGV in view")
     print(f"learned model: {args.model}")
     kinds = frame_kinds(dataset, config)
+    pool = distractor_pool(config)
+    pads = [pad_centre_pixel(sample_scene(int(seed), config, pool), config) for seed in dataset.seeds]
     results = {}
-    for name, detector in (("learned_cnn", learned), ("classical_colour_pad", ColourPadDetector())):
-        counts, times = run(detector, dataset)
+    detectors = {"learned_cnn": learned, "learned_refined": ColourRefinedDetector(learned, ColourPadDetector()),
+                 "classical_colour_pad": ColourPadDetector()}
+    for name, detector in detectors.items():
+        counts, times = run(detector, dataset, pads)
         total = summary(counts)
         total["per_frame_ms"] = {"median": float(np.median(times)), "mean": float(np.mean(times)),
                                  "std": float(np.std(times)), "p95": float(np.percentile(times, 95))}
         total["by_kind"] = {kind: summary([c for c, m in zip(counts, mask) if m]) for kind, mask in kinds.items()}
         results[name] = total
     print("\n                       frames targets   TP   FP (on distr.)  FN   precision  recall     F1     ms/frame "
-          "(median, mean +- std)")
+          "(median, mean +- std)   centre from the pad's, px (median, p95)")
     print(f"  {'Table 3 (YOLOv3)':20s} {'':6s} {5898:7d} {5874:4d} {2:4d} {'':10s} {24:4d}   "
           f"{100 * TABLE3['precision']:7.2f}%  {100 * TABLE3['recall']:6.2f}%  {100 * TABLE3['f1']:6.2f}%   "
           f"{'':8s}{TABLE7_DETECTION_MS[0]:.2f} +- {TABLE7_DETECTION_MS[1]:.2f} (Table 7, TX2 GPU)")
@@ -123,13 +137,14 @@ def main() -> int:
         ms = r["per_frame_ms"]
         print(f"  {name:20s} {r['frames']:6d} {r['targets']:7d} {r['tp']:4d} {r['fp']:4d} ({r['fp_on_distractor']:4d})    "
               f"{r['fn']:4d}   {100 * r['precision']:7.2f}%  {100 * r['recall']:6.2f}%  {100 * r['f1']:6.2f}%   "
-              f"{ms['median']:8.1f}, {ms['mean']:.1f} +- {ms['std']:.1f}")
+              f"{ms['median']:8.1f}, {ms['mean']:.1f} +- {ms['std']:.1f}       "
+              f"{r['centre_error_px']['median']:.2f}, {r['centre_error_px']['p95']:.2f}")
     print("\nby kind of frame (precision / recall / F1 %, targets, FP):")
     for kind, mask in kinds.items():
         line = f"  {kind:36s} {int(mask.sum()):4d} frames"
         for name, r in results.items():
             k = r["by_kind"][kind]
-            line += (f" | {name.split('_')[0]}: {100 * k['precision']:6.2f} / {100 * k['recall']:6.2f} / "
+            line += (f" | {name}: {100 * k['precision']:6.2f} / {100 * k['recall']:6.2f} / "
                      f"{100 * k['f1']:6.2f}, {k['targets']:3d}, {k['fp']:2d}")
         print(line)
     if args.json:

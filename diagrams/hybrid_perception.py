@@ -35,6 +35,7 @@ from systems.perception.hybrid_pad import (
 from systems.perception.markers import MarkerLayout
 from systems.perception.stereo_depth import StereoAltimeter, StereoDepthConfig
 from systems.perception.stereo_pad import StereoPadConfig, StereoPadFinder
+from systems.perception.ugv_box_refiner import BoxRefinementConfig, ColourRefinedDetector
 from systems.perception.ugv_cnn_detector import CnnDetector
 from systems.perception.ugv_detector import ColourPadConfig, ColourPadDetector, UgvDetectorSystem
 from systems.sensors.camera import RENDERER_NAME, add_renderer
@@ -59,6 +60,9 @@ class HybridPerceptionConfig:
     detector: str = "learned"  # "learned" (a small CNN, ONNX through cv2.dnn) or "classical" (colour + pad white)
     model_path: str = ""  # the learned detector's model; empty: models/ugv_detector.onnx
     classical: ColourPadConfig = field(default_factory=ColourPadConfig)
+    # The learned detector's boxes re-measured by the classical one's colour segmentation around them
+    # (systems/perception/ugv_box_refiner.py); method "none": the network's boxes as they come.
+    refinement: BoxRefinementConfig = field(default_factory=BoxRefinementConfig)
     fisheye: FisheyeConfig = field(default_factory=FisheyeConfig)  # 10 Hz
     stereo: StereoConfig = field(default_factory=hybrid_stereo)
     depth: StereoDepthConfig = field(default_factory=StereoDepthConfig)
@@ -72,6 +76,7 @@ class HybridPerceptionConfig:
     def validate(self, prefix: str = "hybrid") -> None:
         require(self.detector in DETECTORS, f"{prefix}.detector '{self.detector}' is not one of: {', '.join(DETECTORS)}")
         self.classical.validate(f"{prefix}.classical")
+        self.refinement.validate(f"{prefix}.refinement")
         self.fisheye.validate(f"{prefix}.fisheye")
         require(self.detector != "learned" or (self.fisheye.width, self.fisheye.height) == (512, 512),
                 f"{prefix}.fisheye.width and height must be 512 for the learned detector (its network's input), "
@@ -92,9 +97,14 @@ class HybridPerceptionConfig:
                     f"one step per frame")
 
     def make_detector(self):
+        """The `detector` named: the learned one with its boxes re-measured by the colour unless
+        `refinement.method` is none; the classical one's boxes are its own."""
         if self.detector == "classical":
             return ColourPadDetector(self.classical)
-        return CnnDetector(self.model_path) if self.model_path else CnnDetector()
+        learned = CnnDetector(self.model_path) if self.model_path else CnnDetector()
+        if self.refinement.method == "none":
+            return learned
+        return ColourRefinedDetector(learned, ColourPadDetector(self.classical), self.refinement)
 
 
 @dataclass

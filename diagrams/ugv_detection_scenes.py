@@ -314,6 +314,20 @@ def ugv_box(scene: UgvScene, config: UgvSceneConfig) -> np.ndarray | None:
     return _object_box(scene, X_WV, *ugv_bounds_V(config.platform), config)
 
 
+def pad_centre_pixel(scene: UgvScene, config: UgvSceneConfig) -> np.ndarray | None:
+    """The pad's centre (on the roof, pad_offset_m ahead of V) in the frame [u, v] px, the point the hybrid
+    estimate takes a box's centre for; None when the UGV is absent or the point beyond the field of view."""
+    if scene.ugv_state is None:
+        return None
+    x, y, heading, _ = scene.ugv_state
+    X_WV = RigidTransform(RotationMatrix.MakeZRotation(heading), [x, y, 0.0])
+    X_CV = scene.X_WB.multiply(config.fisheye.X_BC).inverse().multiply(X_WV)
+    p_C = X_CV.multiply(np.array([config.platform.pad_offset_m, 0.0, config.platform.height_m]))
+    if np.arctan2(np.hypot(p_C[0], p_C[1]), p_C[2]) > config.fisheye.theta_max:
+        return None
+    return project_points(p_C.reshape(1, 3), config.fisheye)[0]
+
+
 def distractor_boxes(scene: UgvScene, config: UgvSceneConfig, pool: list[DistractorBox]) -> list[np.ndarray]:
     """The shown distractors' true boxes (those seen)."""
     boxes = []

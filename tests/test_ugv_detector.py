@@ -1,22 +1,26 @@
 """Seed 003's UGV detectors (Sec. 2.2.1; systems/perception/ugv_detector.py) on rendered held-out fisheye
 frames (diagrams/ugv_detection_scenes.py): both find the UGV and not a distractor of another colour; the
-true box's projection against a hand case; IOU and greedy NMS on hand cases. The learned detector's own
+true box's and the pad centre's projections against hand cases; IOU and greedy NMS on hand cases. The learned detector's own
 parts: tests/test_ugv_cnn_detector.py."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
+from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.sensors import ImageRgba8U
 
 from diagrams.ugv_detection_scenes import (
     HELD_OUT_SEEDS,
+    UgvScene,
     UgvSceneConfig,
     UgvSceneRenderer,
     box_surface_points,
     distractor_boxes,
     distractor_pool,
     motion_blur_kernel,
+    pad_centre_pixel,
     projected_box,
     sample_scene,
     ugv_box,
@@ -49,6 +53,24 @@ def test_true_box_of_a_square_under_the_lens_matches_the_hand_projection():
     np.testing.assert_allclose(box, [centre - r, centre - r, 2 * r, 2 * r], atol=1e-6)
     corner_r = config.f * theta_distorted(math.atan(a * math.sqrt(2) / d), config.k1, config.k2)
     assert corner_r / math.sqrt(2) < r - 0.9  # the corners alone: a box about 2 px narrower
+
+
+@pytest.mark.parametrize("heading, direction", [(0.0, (1.0, 0.0)), (math.pi / 2, (0.0, -1.0))])
+def test_pad_centre_pixel_matches_the_hand_projection(heading, direction):
+    """The lens 7.5 m up over the UGV's origin looking straight down (C's x = W's x, C's y = -W's y): the pad's
+    centre, pad_offset_m ahead of the origin and 0.5 m up, is f theta_d(atan(0.45 / 7)) px from the principal
+    point, to the right at heading 0, up the image at 90 deg. Absent, or beyond the rim: None."""
+    config = UgvSceneConfig()
+    X_WC = RigidTransform(RollPitchYaw(math.pi, 0.0, 0.0), [0.0, 0.0, 7.5])
+    X_WB = X_WC.multiply(config.fisheye.X_BC.inverse())
+    scene = UgvScene(0, X_WB, np.array([0.0, 0.0, heading, 0.0]), [], 0.0, 0.0, False)
+    f = config.fisheye
+    r = f.f * theta_distorted(math.atan(config.platform.pad_offset_m / (7.5 - config.platform.height_m)), f.k1, f.k2)
+    np.testing.assert_allclose(pad_centre_pixel(scene, config), np.array([f.cx, f.cy]) + r * np.array(direction),
+                               atol=1e-6)
+    assert pad_centre_pixel(dataclasses.replace(scene, ugv_state=None), config) is None
+    far = dataclasses.replace(scene, ugv_state=np.array([60.0, 0.0, 0.0, 0.0]))  # 83 deg off the axis
+    assert pad_centre_pixel(far, config) is None
 
 
 def test_true_box_is_clipped_to_the_field_of_view_and_none_behind_the_lens():

@@ -1,0 +1,109 @@
+"""The learned detector's boxes re-measured by the colour (systems/perception/ugv_box_refiner.py), on drawn
+frames: a UGV seen from above (two body-coloured end strips, the pad's white between them) on a grey ground,
+whose enclosing box the classical detector finds exactly."""
+
+import numpy as np
+import pytest
+
+from diagrams.hybrid_perception import HybridPerceptionConfig
+from systems.config import ConfigError
+from systems.perception.ugv_box_refiner import BoxRefinementConfig, ColourRefinedDetector
+from systems.perception.ugv_cnn_detector import CnnDetector
+from systems.perception.ugv_detector import ColourPadDetector
+
+BODY = (191, 77, 38)  # GroundVehicleGeometry's (0.75, 0.3, 0.15)
+
+
+def draw_ugv(image: np.ndarray, x: int, y: int, width: int = 40) -> np.ndarray:
+    """A UGV from above with its top-left corner at (x, y): strips of 10 px, the pad 30 px; its box [x, y, w, 50]."""
+    image[y:y + 10, x:x + width] = BODY
+    image[y + 10:y + 40, x:x + width] = 240
+    image[y + 40:y + 50, x:x + width] = BODY
+    return np.array([x, y, width, 50], float)
+
+
+def ground(rows: int = 200, cols: int = 300) -> np.ndarray:
+    return np.full((rows, cols, 3), 110, np.uint8)
+
+
+class FixedDetector:
+    """A stand-in learned detector: the given detections, whatever the frame."""
+
+    def __init__(self, *detections):
+        self.detections = list(detections)
+
+    def detect(self, rgb):
+        return [(np.array(box, float), score) for box, score in self.detections]
+
+
+def refined(detections, image, **config):
+    return ColourRefinedDetector(FixedDetector(*detections), ColourPadDetector(), BoxRefinementConfig(**config)
+                                 ).detect(image)
+
+
+def test_an_agreeing_box_becomes_the_colour_box_and_keeps_its_score():
+    image = ground()
+    truth = draw_ugv(image, 100, 80)
+    (box, score), = refined([([103.5, 76.0, 46.0, 55.0], 0.83)], image)
+    np.testing.assert_array_equal(box, truth)
+    assert score == 0.83
+
+
+def test_a_box_without_the_colour_in_its_window_is_kept():
+    image = ground()
+    draw_ugv(image, 200, 120)
+    (box, _), = refined([([20.0, 20.0, 40.0, 50.0], 0.7)], image)
+    np.testing.assert_array_equal(box, [20.0, 20.0, 40.0, 50.0])
+
+
+def test_a_colour_box_that_disagrees_is_not_taken():
+    """A small box on one corner of the UGV (IOU with its whole box 0.15): the network's part, not the whole."""
+    image = ground()
+    draw_ugv(image, 100, 80)
+    part = [120.0, 76.0, 24.0, 20.0]
+    (box, _), = refined([(part, 0.6)], image, margin=3.0)
+    np.testing.assert_array_equal(box, part)
+    (box, _), = refined([(part, 0.6)], image, margin=3.0, min_iou=0.1)  # the same window, a lax agreement
+    np.testing.assert_array_equal(box, [100, 80, 40, 50])
+
+
+def test_a_colour_box_cut_by_the_window_is_not_taken():
+    """The window around a box on the UGV's left 70 % ends inside the UGV (at x = 131): the colour box there,
+    [100, 80, 31, 50], agrees with it (IOU 0.9) but is cut by the window."""
+    image = ground()
+    draw_ugv(image, 100, 80)
+    left = [100.0, 80.0, 28.0, 50.0]
+    (box, _), = refined([(left, 0.9)], image, margin=0.1, min_margin_px=0)
+    np.testing.assert_array_equal(box, left)
+
+
+def test_a_ugv_at_the_image_edge_is_refined():
+    """A window clipped by the image is not a cut: the UGV in the corner is still re-measured."""
+    image = ground()
+    truth = draw_ugv(image, 0, 0)
+    (box, _), = refined([([0.0, 0.0, 44.0, 54.0], 0.9)], image)
+    np.testing.assert_array_equal(box, truth)
+
+
+def test_every_detection_is_refined_on_its_own():
+    image = ground()
+    first, second = draw_ugv(image, 30, 30), draw_ugv(image, 200, 120)
+    out = refined([([32.0, 28.0, 42.0, 52.0], 0.9), ([197.0, 122.0, 45.0, 46.0], 0.6)], image)
+    np.testing.assert_array_equal(out[0][0], first)
+    np.testing.assert_array_equal(out[1][0], second)
+    assert [score for _, score in out] == [0.9, 0.6]
+
+
+@pytest.mark.parametrize("setting, named", [({"method": "yolo"}, "method"), ({"margin": -1.0}, "margin"),
+                                            ({"min_iou": 0.0}, "min_iou")])
+def test_bad_settings_name_the_field(setting, named):
+    with pytest.raises(ConfigError, match=f"hybrid.refinement.{named}"):
+        BoxRefinementConfig(**setting).validate()
+
+
+@pytest.mark.parametrize("detector, method, made", [("learned", "colour", ColourRefinedDetector),
+                                                    ("learned", "none", CnnDetector),
+                                                    ("classical", "colour", ColourPadDetector)])
+def test_the_scenario_refines_the_learned_detector_only(detector, method, made):
+    config = HybridPerceptionConfig(detector=detector, refinement=BoxRefinementConfig(method=method))
+    assert type(config.make_detector()) is made
