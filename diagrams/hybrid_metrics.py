@@ -17,6 +17,7 @@ from systems.perception.ugv_detector import iou
 from systems.vehicles.quadrotor import P_WB, Q_WB
 
 IOU_MATCH = 0.5
+CLIMBED_FRACTION = 0.95  # of IH: the climb has ended
 
 
 def axis_stats(error: np.ndarray) -> dict:
@@ -26,6 +27,12 @@ def axis_stats(error: np.ndarray) -> dict:
         return {"samples": 0}
     return {"mae_xyz": np.abs(error).mean(axis=0).tolist(), "rmse_xyz": np.sqrt((error**2).mean(axis=0)).tolist(),
             "rmse_horizontal": float(np.sqrt((error[:, :2] ** 2).sum(axis=1).mean())), "samples": len(error)}
+
+
+def climb_end_index(z_WB: np.ndarray, initial_height_m: float) -> int | None:
+    """The first frame whose UAV height z_WB [m] is within CLIMBED_FRACTION of IH, None if none is."""
+    climbed = np.asarray(z_WB) >= CLIMBED_FRACTION * initial_height_m
+    return int(np.argmax(climbed)) if climbed.any() else None
 
 
 def true_ugv_boxes(quadrotor_state: np.ndarray, vehicle_state: np.ndarray, config) -> list:
@@ -96,6 +103,10 @@ def hybrid_metrics(log: dict, config, end_s: float | None) -> dict:
            "valid_fraction_in_view": float(valid[in_view].mean()) if in_view.any() else None,
            "velocity_valid_fraction": float(v_valid.mean()) if len(valid) else 0.0,
            "position_m": axis_stats(p_error), "velocity_mps": axis_stats(v_error)}
+    # Seed 003 section 3.1.2's error "after settling": from the climb's end on.
+    start = climb_end_index(quad[:, P_WB][:, 2], config.landing.initial_height_m)
+    if start is not None:
+        out["position_m_after_climb"] = axis_stats(p_error[start:])
     position = out["position_m"]
     if position["samples"]:
         out.update({"mae_xyz_m": position["mae_xyz"], "rmse_xyz_m": position["rmse_xyz"]})

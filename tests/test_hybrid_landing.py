@@ -9,6 +9,7 @@ import pytest
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from diagrams.gv_landing_run import fly
+from diagrams.hybrid_metrics import climb_end_index
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.estimators.velocity_observer import VelocityObserverConfig
@@ -195,6 +196,14 @@ def test_estimate_near_the_truth_once_valid(short_hybrid_run):
     assert metrics["estimators"]["hybrid"]["position_m"]["rmse_horizontal"] < 0.03
     assert metrics["estimators"]["hybrid"]["velocity_mps"]["rmse_horizontal"] < 0.1
     assert flight.log["relative_state"][-1, VALID] == 1.0
+    # The flight starts at IH: "after the climb" is all of it.
+    assert metrics["estimators"]["hybrid"]["position_m_after_climb"] == metrics["estimators"]["hybrid"]["position_m"]
+
+
+def test_climb_ends_within_five_percent_of_ih():
+    z = np.array([0.0, 3.0, 7.0, 7.2, 7.6, 7.4])
+    assert climb_end_index(z, 7.5) == 3  # 7.125 m and above
+    assert climb_end_index(z[:3], 7.5) is None
 
 
 @pytest.mark.slow

@@ -1,7 +1,7 @@
 """Seed 003's UGV detectors (Sec. 2.2.1; systems/perception/ugv_detector.py) on rendered held-out fisheye
 frames (diagrams/ugv_detection_scenes.py): both find the UGV and not a distractor of another colour; the
-true box's and the pad centre's projections against hand cases; IOU and greedy NMS on hand cases. The learned detector's own
-parts: tests/test_ugv_cnn_detector.py."""
+true box's and the pad centre's projections against hand cases; IOU and greedy NMS on hand cases. The
+learned detector's own parts: tests/test_ugv_cnn_detector.py."""
 
 import dataclasses
 import math
