@@ -204,6 +204,10 @@ def summary_lines(name: str, metrics: dict) -> list[str]:
                      f"{perception['rms_heading_deg']:.2f} deg, valid {perception['valid_fraction']:.0%}, longest "
                      f"without a valid estimate {perception['longest_invalid_s']:.2f} s"
                      + (f", last measurement {coast:.2f} s before touchdown" if coast is not None else ""))
+    after_climb = metrics.get("estimators", {}).get("hybrid", {}).get("position_m_after_climb", {})
+    if after_climb.get("samples"):
+        lines.append("hybrid from the climb's end on: MAE x / y / z "
+                     + " / ".join(f"{v:.4f}" for v in after_climb["mae_xyz"]) + " m")
     settle = metrics.get("measurements", {}).get("settle_s", 0.0)
     for filter_name, m in metrics.get("estimators", {}).items():
         if "rms_position_m" in m:

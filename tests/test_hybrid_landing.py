@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw
 
-from diagrams.gv_landing_run import fly
+from diagrams.gv_landing_run import fly, summary_lines
 from diagrams.hybrid_metrics import climb_end_index
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
@@ -198,6 +198,15 @@ def test_estimate_near_the_truth_once_valid(short_hybrid_run):
     assert flight.log["relative_state"][-1, VALID] == 1.0
     # The flight starts at IH: "after the climb" is all of it.
     assert metrics["estimators"]["hybrid"]["position_m_after_climb"] == metrics["estimators"]["hybrid"]["position_m"]
+
+
+def test_run_prints_the_error_after_the_climb():
+    metrics = {"perception": {"source": "hybrid"},
+               "estimators": {"hybrid": {"position_m_after_climb": {"mae_xyz": [0.0046, 0.0068, 0.0], "samples": 90}}}}
+    assert "ugv-hybrid: hybrid from the climb's end on: MAE x / y / z 0.0046 / 0.0068 / 0.0000 m" in summary_lines(
+        "ugv-hybrid", metrics)
+    metrics["estimators"]["hybrid"]["position_m_after_climb"] = {"samples": 0}  # never valid after it
+    assert not any("climb" in line for line in summary_lines("ugv-hybrid", metrics))
 
 
 def test_climb_ends_within_five_percent_of_ih():
