@@ -85,6 +85,17 @@ def test_a_ugv_at_the_image_edge_is_refined():
     np.testing.assert_array_equal(box, truth)
 
 
+def test_a_box_over_max_box_px_keeps_its_own():
+    """Close up (a box over 80 px) the network's box stays; allowed larger boxes, the colour's is taken."""
+    image = ground(400, 400)
+    truth = draw_ugv(image, 100, 80, width=110)  # 110 x 50 px
+    detection = ([98.0, 76.0, 116.0, 58.0], 0.9)
+    (box, _), = refined([detection], image)
+    np.testing.assert_array_equal(box, detection[0])
+    (box, _), = refined([detection], image, max_box_px=120.0)
+    np.testing.assert_array_equal(box, truth)
+
+
 def test_every_detection_is_refined_on_its_own():
     image = ground()
     first, second = draw_ugv(image, 30, 30), draw_ugv(image, 200, 120)
@@ -95,7 +106,7 @@ def test_every_detection_is_refined_on_its_own():
 
 
 @pytest.mark.parametrize("setting, named", [({"method": "yolo"}, "method"), ({"margin": -1.0}, "margin"),
-                                            ({"min_iou": 0.0}, "min_iou")])
+                                            ({"min_iou": 0.0}, "min_iou"), ({"max_box_px": 0.0}, "max_box_px")])
 def test_bad_settings_name_the_field(setting, named):
     with pytest.raises(ConfigError, match=f"hybrid.refinement.{named}"):
         BoxRefinementConfig(**setting).validate()

@@ -8,7 +8,8 @@ body colour, whole pixels of the image itself. So `ColourRefinedDetector` keeps 
 decisions (which detections, their scores) and takes each box from the classical detector run on a window
 around it (the box grown by `margin` of its width and height on each side, at least `min_margin_px`): its
 best box there, when the two agree (IOU >= `min_iou`) and the window did not cut it (it does not touch a
-window edge that is not the image's). Otherwise the detection keeps its own box.
+window edge that is not the image's). Otherwise, and for a box over `max_box_px` (close up, where the two
+detectors box different extents of the UGV), the detection keeps its own box.
 
 Boxes are [x, y, w, h] px in pixel-index space (systems/perception/ugv_detector.py).
 """
@@ -17,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from systems.config import require, require_non_negative
+from systems.config import require, require_non_negative, require_positive
 from systems.perception.ugv_detector import ColourPadDetector, Detection, UgvDetector, iou_many, to_rgb
 
 REFINEMENTS = ("colour", "none")
@@ -31,12 +32,18 @@ class BoxRefinementConfig:
     margin: float = 0.5  # the window's growth on each side, in the box's width and height
     min_margin_px: int = 8
     min_iou: float = 0.5  # the classical box must agree this well with the learned one
+    # Larger boxes (the UGV within about 4 m) keep the network's box: a pixel there is under 2 cm, and close up
+    # the colour's box (the roof and a side) and the network's (the whole body) differ by tens of pixels, so
+    # taking one in some frames and the other in the rest made the track jump (measured: 40 px between frames
+    # in the climb, figure-eight path at 0.2 m/s, and the lock was lost for good).
+    max_box_px: float = 80.0
 
     def validate(self, prefix: str = "hybrid.refinement") -> None:
         require(self.method in REFINEMENTS, f"{prefix}.method '{self.method}' is not one of: {', '.join(REFINEMENTS)}")
         require_non_negative(self.margin, f"{prefix}.margin")
         require_non_negative(self.min_margin_px, f"{prefix}.min_margin_px")
         require(0 < self.min_iou <= 1, f"{prefix}.min_iou must lie in (0, 1], got {self.min_iou}")
+        require_positive(self.max_box_px, f"{prefix}.max_box_px")
 
 
 class ColourRefinedDetector:
@@ -61,7 +68,10 @@ class ColourRefinedDetector:
                 min(int(np.ceil(x + w + mx)), cols), min(int(np.ceil(y + h + my)), rows))
 
     def refine(self, rgb: np.ndarray, box: np.ndarray) -> np.ndarray:
-        """The classical detector's box agreeing with `box` in the window around it, else `box`."""
+        """The classical detector's box agreeing with `box` in the window around it, else `box` (and for a box
+        larger than `max_box_px` either way)."""
+        if max(box[2], box[3]) > self.config.max_box_px:
+            return box
         x0, y0, x1, y1 = self.window(box, rgb.shape[:2])
         if x1 - x0 < 2 or y1 - y0 < 2:
             return box
