@@ -61,7 +61,7 @@ class HybridPerceptionConfig:
     model_path: str = ""  # the learned detector's model; empty: models/ugv_detector.onnx
     classical: ColourPadConfig = field(default_factory=ColourPadConfig)
     # The learned detector's boxes re-measured by the classical one's colour segmentation around them
-    # (systems/perception/ugv_box_refiner.py); method "none": the network's boxes as they come.
+    # (systems/perception/ugv_box_refiner.py, method "colour"); "none", the default: the network's boxes as they come.
     refinement: BoxRefinementConfig = field(default_factory=BoxRefinementConfig)
     fisheye: FisheyeConfig = field(default_factory=FisheyeConfig)  # 10 Hz
     stereo: StereoConfig = field(default_factory=hybrid_stereo)
@@ -97,8 +97,8 @@ class HybridPerceptionConfig:
                     f"one step per frame")
 
     def make_detector(self):
-        """The `detector` named: the learned one with its boxes re-measured by the colour unless
-        `refinement.method` is none; the classical one's boxes are its own."""
+        """The `detector` named: the learned one with its boxes re-measured by the colour where
+        `refinement.method` is colour; the classical one's boxes are its own."""
         if self.detector == "classical":
             return ColourPadDetector(self.classical)
         learned = CnnDetector(self.model_path) if self.model_path else CnnDetector()
