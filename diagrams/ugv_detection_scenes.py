@@ -309,9 +309,13 @@ def ugv_box(scene: UgvScene, config: UgvSceneConfig) -> np.ndarray | None:
     """The UGV's true box [x, y, w, h] px in the frame (module docstring), None when absent or unseen."""
     if scene.ugv_state is None:
         return None
+    return _object_box(scene, _X_WV(scene), *ugv_bounds_V(config.platform), config)
+
+
+def _X_WV(scene: UgvScene) -> RigidTransform:
+    """The UGV's pose in W from its state [x, y, heading, _] (on the ground)."""
     x, y, heading, _ = scene.ugv_state
-    X_WV = RigidTransform(RotationMatrix.MakeZRotation(heading), [x, y, 0.0])
-    return _object_box(scene, X_WV, *ugv_bounds_V(config.platform), config)
+    return RigidTransform(RotationMatrix.MakeZRotation(heading), [x, y, 0.0])
 
 
 def pad_centre_pixel(scene: UgvScene, config: UgvSceneConfig) -> np.ndarray | None:
@@ -319,9 +323,7 @@ def pad_centre_pixel(scene: UgvScene, config: UgvSceneConfig) -> np.ndarray | No
     estimate takes a box's centre for; None when the UGV is absent or the point beyond the field of view."""
     if scene.ugv_state is None:
         return None
-    x, y, heading, _ = scene.ugv_state
-    X_WV = RigidTransform(RotationMatrix.MakeZRotation(heading), [x, y, 0.0])
-    X_CV = scene.X_WB.multiply(config.fisheye.X_BC).inverse().multiply(X_WV)
+    X_CV = scene.X_WB.multiply(config.fisheye.X_BC).inverse().multiply(_X_WV(scene))
     p_C = X_CV.multiply(np.array([config.platform.pad_offset_m, 0.0, config.platform.height_m]))
     if np.arctan2(np.hypot(p_C[0], p_C[1]), p_C[2]) > config.fisheye.theta_max:
         return None
