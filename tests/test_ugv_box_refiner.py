@@ -1,4 +1,4 @@
-"""The learned detector's boxes re-measured by the colour (systems/perception/ugv_box_refiner.py), on drawn
+"""The learned detector's boxes re-centred by the colour (systems/perception/ugv_box_refiner.py), on drawn
 frames: a UGV seen from above (two body-coloured end strips, the pad's white between them) on a grey ground,
 whose enclosing box the classical detector finds exactly."""
 
@@ -41,12 +41,27 @@ def refined(detections, image, **config):
                                  ).detect(image)
 
 
-def test_an_agreeing_box_becomes_the_colour_box_and_keeps_its_score():
+def centre(box) -> np.ndarray:
+    return np.asarray(box[:2]) + np.asarray(box[2:]) / 2
+
+
+def test_a_box_around_the_roof_takes_its_centre_and_keeps_its_size_and_score():
     image = ground()
     truth = draw_ugv(image, 100, 80)
     (box, score), = refined([([103.5, 76.0, 46.0, 55.0], 0.83)], image)
-    np.testing.assert_array_equal(box, truth)
+    np.testing.assert_array_equal(centre(box), centre(truth))
+    np.testing.assert_array_equal(box[2:], [46.0, 55.0])
     assert score == 0.83
+
+
+def test_an_oblique_view_is_recentred_where_the_boxes_disagree_in_size():
+    """The network boxes the whole vehicle, its side too (70 x 75 px); the colour the roof in its top-left part
+    (40 x 50 px, IOU 0.38): the roof lies within the network's box, so the box moves onto it, its size kept."""
+    image = ground()
+    truth = draw_ugv(image, 100, 80)
+    (box, _), = refined([([98.0, 78.0, 70.0, 75.0], 0.9)], image)
+    np.testing.assert_array_equal(centre(box), centre(truth))
+    np.testing.assert_array_equal(box[2:], [70.0, 75.0])
 
 
 def test_a_box_without_the_colour_in_its_window_is_kept():
@@ -56,15 +71,16 @@ def test_a_box_without_the_colour_in_its_window_is_kept():
     np.testing.assert_array_equal(box, [20.0, 20.0, 40.0, 50.0])
 
 
-def test_a_colour_box_that_disagrees_is_not_taken():
-    """A small box on one corner of the UGV (IOU with its whole box 0.15): the network's part, not the whole."""
+def test_a_colour_box_not_within_the_network_box_is_not_taken():
+    """A small box on one corner of the UGV: the colour's box (the whole roof) lies 0.16 within it, the
+    network's part, not the whole."""
     image = ground()
-    draw_ugv(image, 100, 80)
+    truth = draw_ugv(image, 100, 80)
     part = [120.0, 76.0, 24.0, 20.0]
     (box, _), = refined([(part, 0.6)], image, margin=3.0)
     np.testing.assert_array_equal(box, part)
-    (box, _), = refined([(part, 0.6)], image, margin=3.0, min_iou=0.1)  # the same window, a lax agreement
-    np.testing.assert_array_equal(box, [100, 80, 40, 50])
+    (box, _), = refined([(part, 0.6)], image, margin=3.0, min_inside=0.1)  # the same window, a lax agreement
+    np.testing.assert_array_equal(centre(box), centre(truth))
 
 
 def test_a_colour_box_cut_by_the_window_is_not_taken():
@@ -82,7 +98,7 @@ def test_a_ugv_at_the_image_edge_is_refined():
     image = ground()
     truth = draw_ugv(image, 0, 0)
     (box, _), = refined([([0.0, 0.0, 44.0, 54.0], 0.9)], image)
-    np.testing.assert_array_equal(box, truth)
+    np.testing.assert_array_equal(centre(box), centre(truth))
 
 
 def test_a_box_over_max_box_px_keeps_its_own():
@@ -93,20 +109,20 @@ def test_a_box_over_max_box_px_keeps_its_own():
     (box, _), = refined([detection], image)
     np.testing.assert_array_equal(box, detection[0])
     (box, _), = refined([detection], image, max_box_px=120.0)
-    np.testing.assert_array_equal(box, truth)
+    np.testing.assert_array_equal(centre(box), centre(truth))
 
 
 def test_every_detection_is_refined_on_its_own():
     image = ground()
     first, second = draw_ugv(image, 30, 30), draw_ugv(image, 200, 120)
     out = refined([([32.0, 28.0, 42.0, 52.0], 0.9), ([197.0, 122.0, 45.0, 46.0], 0.6)], image)
-    np.testing.assert_array_equal(out[0][0], first)
-    np.testing.assert_array_equal(out[1][0], second)
+    np.testing.assert_array_equal(centre(out[0][0]), centre(first))
+    np.testing.assert_array_equal(centre(out[1][0]), centre(second))
     assert [score for _, score in out] == [0.9, 0.6]
 
 
 @pytest.mark.parametrize("setting, named", [({"method": "yolo"}, "method"), ({"margin": -1.0}, "margin"),
-                                            ({"min_iou": 0.0}, "min_iou"), ({"max_box_px": 0.0}, "max_box_px")])
+                                            ({"min_inside": 0.0}, "min_inside"), ({"max_box_px": 0.0}, "max_box_px")])
 def test_bad_settings_name_the_field(setting, named):
     with pytest.raises(ConfigError, match=f"hybrid.refinement.{named}"):
         BoxRefinementConfig(**setting).validate()
