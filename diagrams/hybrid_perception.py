@@ -60,8 +60,8 @@ class HybridPerceptionConfig:
     detector: str = "learned"  # "learned" (a small CNN, ONNX through cv2.dnn) or "classical" (colour + pad white)
     model_path: str = ""  # the learned detector's model; empty: models/ugv_detector.onnx
     classical: ColourPadConfig = field(default_factory=ColourPadConfig)
-    # The learned detector's boxes re-measured by the classical one's colour segmentation around them
-    # (systems/perception/ugv_box_refiner.py, method "colour"); "none", the default: the network's boxes as they come.
+    # The learned detector's boxes re-centred on the pad by the classical one's colour segmentation around them
+    # (systems/perception/ugv_box_refiner.py, method "colour", the default); "none": the network's boxes as they come.
     refinement: BoxRefinementConfig = field(default_factory=BoxRefinementConfig)
     fisheye: FisheyeConfig = field(default_factory=FisheyeConfig)  # 10 Hz
     stereo: StereoConfig = field(default_factory=hybrid_stereo)
@@ -97,7 +97,7 @@ class HybridPerceptionConfig:
                     f"one step per frame")
 
     def make_detector(self):
-        """The `detector` named: the learned one with its boxes re-measured by the colour where
+        """The `detector` named: the learned one with its boxes re-centred by the colour where
         `refinement.method` is colour; the classical one's boxes are its own."""
         if self.detector == "classical":
             return ColourPadDetector(self.classical)

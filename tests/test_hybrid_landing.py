@@ -177,15 +177,15 @@ def _hover_flight(xy, duration_s, *overrides):
 
 @pytest.fixture(scope="module")
 def short_hybrid_run():
-    return _hover_flight((0.5, 0.3), 3.0, "hybrid.refinement.method=colour")
+    return _hover_flight((0.5, 0.3), 3.0)
 
 
 @pytest.mark.slow
 def test_estimate_near_the_truth_once_valid(short_hybrid_run):
-    """Measured (seed 0, hovering 7.5 m over the UGV, 3 s, the learned detector with its boxes re-measured by
-    the colour, `hybrid.refinement.method=colour`): valid from 0.2 s on (the tracker confirms a track in 3 frames), horizontal error at most
+    """Measured (seed 0, hovering 7.5 m over the UGV, 3 s, the learned detector with its boxes re-centred by the
+    colour, the default): valid from 0.2 s on (the tracker confirms a track in 3 frames), horizontal error at most
     0.039 m, rms 0.020 m; the velocity's rms error 0.035 m/s. Asserted with about 1.5x margin on the position
-    (the network's boxes as they come: 0.069 m, rms 0.033 m, which fails it)."""
+    (the network's boxes as they come, `hybrid.refinement.method=none`: 0.069 m, rms 0.033 m, which fails it)."""
     metrics, flight = short_hybrid_run
     log = flight.source_log
     valid = log["hybrid"][:, 0] > 0.5
