@@ -13,6 +13,7 @@ seed. Only for `perception.source: truth` with `estimation.source: synthetic`.
 """
 
 import dataclasses
+import time
 
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
@@ -25,6 +26,7 @@ from diagrams.simulate import simulate
 from systems.config import require
 from systems.estimators.marker_ekf import FILTERS, Camera, MarkerFilter
 from systems.estimators.marker_ekf.engine import EST_VALID, ESTIMATE_VECTOR_SIZE
+from systems.estimators.marker_ekf.stack import run_stack
 from systems.noise import sample_index, sample_rng
 from systems.perception.latency import delay_queue
 from systems.perception.markers import MarkerMeasurement
@@ -63,18 +65,9 @@ def flight_samples(config: GvLandingConfig, duration_s: float) -> tuple[np.ndarr
 
 def batch_run(config: GvLandingConfig, duration_s: float) -> SampledRun:
     """The sampled run the Diagram would give for `config` (its seed) over `duration_s`."""
-    est = config.estimation
-    require(config.perception.source == "truth" and est.source == "synthetic",
-            "the batch path replays an open-loop flight: perception.source truth, estimation.source synthetic")
-    t, quad, vehicle = flight_samples(config, duration_s)
-    layout, n = config.platform.markers, len(config.platform.markers.ids)
-    # The stream: every sample's true marker poses at once, each sample's noise from its own generator.
-    truth = pad_truth(quad, vehicle, config.platform)
-    p_true, q_CP = true_marker_poses_C(truth, layout, est.X_BC)
-    noise = [draw_noise(sample_rng(config.seed, STREAM, sample_index(t_k, est.ekf.period_s)), n, est.sigma_p_m,
-                        est.sigma_deg) for t_k in t.tolist()]
-    p_CM, q_CM = noisy_marker_poses(p_true, drake_to_paper(q_CP), *(np.array(part) for part in zip(*noise)))
-    q_BR = drake_to_paper(truth.q_WB)  # the UAV's attitude, the paper's way, for the filters' camera
+    t, quad, vehicle, truth, q_BR = _flight(config, duration_s)
+    est, layout = config.estimation, config.platform.markers
+    p_CM, q_CM = _stream(config, t, truth, config.seed)
     filters = {name: FILTERS[name](layout, est.X_BC, est.ekf) for name in config.filter_names}
     cameras = next(iter(filters.values())).camera(truth.p_WB, q_BR)  # every filter's camera is at est.X_BC
     records = {name: [None] * len(t) for name in filters}
@@ -94,14 +87,68 @@ def batch_run(config: GvLandingConfig, duration_s: float) -> SampledRun:
                       {name: f.compute_s for name, f in filters.items()})
 
 
+def batch_runs(config: GvLandingConfig, seeds: list[int], duration_s: float) -> list[SampledRun]:
+    """`batch_run` of `config` with each of `seeds`, the filters of every run stepped together
+    (systems/estimators/marker_ekf/stack.py); the same runs to 1e-9 (tests/test_marker_stack.py).
+    Each run's compute_s is its share of the filters' time."""
+    t, quad, vehicle, truth, q_BR = _flight(config, duration_s)
+    est, layout = config.estimation, config.platform.markers
+    streams = [_stream(config, t, truth, seed) for seed in seeds]
+    p_CM, q_CM = (np.array(part) for part in zip(*streams))
+    estimates, p_WM, stats, compute_s = {}, {}, {}, {}
+    for name in config.filter_names:
+        f = FILTERS[name](layout, est.X_BC, est.ekf)
+        start = time.process_time()
+        stack = run_stack(f, t, f.camera(truth.p_WB, q_BR), p_CM, q_CM, est.latency_periods)
+        compute_s[name] = (time.process_time() - start) / len(seeds)
+        vectors = [_vectors(f, stack.started, x, v, last)
+                   for x, v, last in zip(stack.x, stack.position_variance, stack.last_measurement_s)]
+        estimates[name], p_WM[name] = zip(*vectors)
+        stats[name] = stack.stats
+    return [SampledRun(t, quad, vehicle, np.concatenate([p_CM[i], q_CM[i]], axis=-1),
+                       {name: estimates[name][i] for name in estimates}, {name: p_WM[name][i] for name in p_WM},
+                       {name: dataclasses.asdict(stats[name][i]) for name in stats}, dict(compute_s))
+            for i in range(len(seeds))]
+
+
+def _flight(config: GvLandingConfig, duration_s: float):
+    """(t, quadrotor states, vehicle states, `pad_truth`, the UAV's attitude q^{B/R} (N, 4), the
+    paper's way, for the filters' camera) of the flight the batch path replays."""
+    require(config.perception.source == "truth" and config.estimation.source == "synthetic",
+            "the batch path replays an open-loop flight: perception.source truth, estimation.source synthetic")
+    t, quad, vehicle = flight_samples(config, duration_s)
+    truth = pad_truth(quad, vehicle, config.platform)
+    return t, quad, vehicle, truth, drake_to_paper(truth.q_WB)
+
+
+def _stream(config: GvLandingConfig, t: np.ndarray, truth, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The measured (p_CM (N, n, 3) [m], q^{M/C} (N, n, 4)) of run `seed`: every sample's true marker
+    poses at once, each sample's noise from its own generator."""
+    est, layout = config.estimation, config.platform.markers
+    p_true, q_CP = true_marker_poses_C(truth, layout, est.X_BC)
+    noise = [draw_noise(sample_rng(seed, STREAM, sample_index(t_k, est.ekf.period_s)), len(layout.ids),
+                        est.sigma_p_m, est.sigma_deg) for t_k in t.tolist()]
+    return noisy_marker_poses(p_true, drake_to_paper(q_CP), *(np.array(part) for part in zip(*noise)))
+
+
 def estimate_vectors(marker_filter: MarkerFilter, records: list) -> tuple[np.ndarray, np.ndarray]:
     """(estimate vectors (N, ESTIMATE_VECTOR_SIZE), p_WM (N, n, 3)) of the filter's `record` at N steps:
     what `estimate_vector` gave at each (NaN, not valid, before the start)."""
-    vectors = np.full((len(records), ESTIMATE_VECTOR_SIZE), np.nan)
+    started = np.array([r is not None for r in records], dtype=bool)
+    if not started.any():
+        return _vectors(marker_filter, started, None, None, None)
+    x, variance, last = (np.array(part) for part in zip(*(r for r in records if r is not None)))
+    return _vectors(marker_filter, started, x, variance, last)
+
+
+def _vectors(marker_filter: MarkerFilter, started: np.ndarray, x, variance, last) -> tuple[np.ndarray, np.ndarray]:
+    """`estimate_vectors` of the started steps' states x, position variances and newest measurement
+    times (all steps', or the started ones')."""
+    vectors = np.full((len(started), ESTIMATE_VECTOR_SIZE), np.nan)
     vectors[:, EST_VALID] = 0.0
-    p_WM = np.full((len(records), len(marker_filter.p_PM), 3), np.nan)
-    started = [k for k, r in enumerate(records) if r is not None]
-    if started:
-        x, variance, last = (np.array(part) for part in zip(*(records[k] for k in started)))
+    p_WM = np.full((len(started), len(marker_filter.p_PM), 3), np.nan)
+    if started.any():
+        if len(x) == len(started):
+            x, variance, last = x[started], variance[started], last[started]
         vectors[started], p_WM[started], _ = marker_filter.estimate_vectors(x, variance, last)
     return vectors, p_WM

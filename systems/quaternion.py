@@ -158,9 +158,10 @@ def xi(q: np.ndarray) -> np.ndarray:
 
 def omega_matrix(omega: np.ndarray) -> np.ndarray:
     """Omega(omega) = [[-[omega x], omega], [-omega^T, 0]] (4x4), with Xi(q) omega = Omega(omega) q:
-    the Jacobian of Eq. (11)'s quaternion step with respect to q."""
+    the Jacobian of Eq. (11)'s quaternion step with respect to q. A stack omega (..., 3) gives (..., 4, 4)."""
     x, y, z = _floats(omega)
-    return np.array([[0.0, z, -y, x], [-z, 0.0, x, y], [y, -x, 0.0, z], [-x, -y, -z, 0.0]])
+    zero = np.zeros_like(x) if isinstance(x, np.ndarray) else 0.0
+    return _matrix([[zero, z, -y, x], [-z, zero, x, y], [y, -x, zero, z], [-x, -y, -z, zero]])
 
 
 def rotation_vector(q: np.ndarray) -> np.ndarray:

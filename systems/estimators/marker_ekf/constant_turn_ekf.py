@@ -47,6 +47,16 @@ def _turn_terms(theta: float) -> tuple[float, float, float, float]:
     return s / theta, (1 - c) / theta, (theta * c - s) / theta**2, (theta * s - (1 - c)) / theta**2
 
 
+def _turn_terms_stack(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_turn_terms` of angles theta (S,) [rad]."""
+    small = np.abs(theta) < 1e-4
+    th = np.where(small, 1.0, theta)
+    s, c = np.sin(th), np.cos(th)
+    return (np.where(small, 1 - theta**2 / 6, s / th), np.where(small, theta / 2 - theta**3 / 24, (1 - c) / th),
+            np.where(small, -theta / 3, (th * c - s) / th**2),
+            np.where(small, 0.5 - theta**2 / 8, (th * s - (1 - c)) / th**2))
+
+
 class ConstantTurnEkf(MarkerFilter):
     """The coordinated-turn EKF (module docstring). State x (8): [p_WP (3, m), v_WP (3, m/s), psi
     (rad), omega (rad/s)]: the pad frame's origin (marker 0) and velocity in W, its yaw and yaw rate."""
@@ -126,6 +136,52 @@ class ConstantTurnEkf(MarkerFilter):
         to_error = odot_matrix(inverse(_yaw_quaternion(float(x[self.PSI])))) @ camera.M_CR
         return np.concatenate([p_CM - self._predict_positions(x, slots, camera), rotation_vector(q_MC @ to_error.T)],
                               axis=1)
+
+    def process_stack(self, x, dt):
+        vx, vy, vz, omega = x[:, 3], x[:, 4], x[:, 5], x[:, self.OMEGA]
+        f1, f2, d1, d2 = _turn_terms_stack(omega * dt)
+        c, s = np.cos(omega * dt), np.sin(omega * dt)
+        a, b = dt * f1, dt * f2
+        f = x.copy()
+        f[:, 0] += a * vx - b * vy
+        f[:, 1] += b * vx + a * vy
+        f[:, 2] += dt * vz
+        f[:, 3], f[:, 4] = c * vx - s * vy, s * vx + c * vy
+        f[:, self.PSI] += omega * dt
+        F = np.repeat(np.eye(8)[None], len(x), axis=0)
+        F[:, 0, 3], F[:, 0, 4], F[:, 1, 3], F[:, 1, 4] = a, -b, b, a
+        F[:, 0, 7], F[:, 1, 7] = dt * dt * (d1 * vx - d2 * vy), dt * dt * (d2 * vx + d1 * vy)
+        F[:, 3, 3], F[:, 3, 4], F[:, 4, 3], F[:, 4, 4] = c, -s, s, c
+        F[:, 3, 7], F[:, 4, 7] = -dt * (s * vx + c * vy), dt * (c * vx - s * vy)
+        F[:, 2, 5] = F[:, self.PSI, self.OMEGA] = dt
+        return f, F
+
+    def process_noise_stack(self, x, dt):
+        return self.constants(dt)
+
+    def _predict_positions_stack(self, x, camera):
+        p_WM = x[:, None, :3] + self.p_PM @ np.swapaxes(_rot_z(x[:, self.PSI]), -1, -2)
+        return (p_WM - camera.p_WC) @ camera.R_CW.T
+
+    def innovations_stack(self, x, camera, p_CM, q_MC):
+        to_error = odot_matrix(inverse(_yaw_quaternion(x[:, self.PSI]))) @ camera.M_CR  # (S, 4, 4)
+        return np.concatenate([p_CM - self._predict_positions_stack(x, camera),
+                               rotation_vector(q_MC @ np.swapaxes(to_error, -1, -2))], axis=-1)
+
+    def jacobian_stack(self, x, camera):
+        psi = x[:, self.PSI]
+        c, s, zero = np.cos(psi), np.sin(psi), np.zeros_like(psi)
+        dR_WP = np.moveaxis(np.array([[-s, -c, zero], [c, -s, zero], [zero, zero, zero]]), (0, 1), (-2, -1))
+        m = len(self.p_PM)
+        H = np.zeros((len(x), m, 6, 8))
+        H[:, :, :3, :3] = camera.R_CW
+        H[:, :, :3, self.PSI] = self.p_PM @ np.swapaxes(camera.R_CW @ dR_WP, -1, -2)
+        H[:, :, 5, self.PSI] = 1.0
+        return H.reshape(len(x), 6 * m, 8)
+
+    def normalized_stack(self, x):
+        x[:, self.PSI] = wrap_angle(x[:, self.PSI])
+        return x
 
     def normalized(self, x):
         x[self.PSI] = wrap_angle(float(x[self.PSI]))

@@ -246,6 +246,27 @@ class MarkerFilter:
     def normalized(self, x: np.ndarray) -> np.ndarray:
         return x
 
+    # Stack hooks: the above on S runs at once, for stack.py (states x (S, n); every marker, in layout order).
+
+    def process_stack(self, x: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(f(x) (S, n), F (S, n, n)) of `process` on a stack."""
+        raise NotImplementedError
+
+    def process_noise_stack(self, x: np.ndarray, dt: float) -> np.ndarray:
+        """Q (S, n, n), or (n, n) for every run, of `process_noise` on a stack."""
+        raise NotImplementedError
+
+    def innovations_stack(self, x: np.ndarray, camera: Camera, p_CM: np.ndarray, q_MC: np.ndarray) -> np.ndarray:
+        """(S, m, rows) `innovations` of every marker for one camera, measured p_CM (S, m, 3), q^{M/C} (S, m, 4)."""
+        raise NotImplementedError
+
+    def jacobian_stack(self, x: np.ndarray, camera: Camera) -> np.ndarray:
+        """H (S, m rows, n), or (m rows, n) for every run, of every marker for one camera."""
+        raise NotImplementedError
+
+    def normalized_stack(self, x: np.ndarray) -> np.ndarray:
+        return x
+
     def platform(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(p_WP (..., 3), q^{P/R} (..., 4), p_WM (..., n, 3)) of states x (..., n), one or a stack;
         p_WP is x[..., :3] in every model."""

@@ -113,6 +113,43 @@ class PaperMarkerEkf(MarkerFilter):
         q_MC = q_MC * np.where(q_MC @ q_hat < 0, -1.0, 1.0)[:, None]  # q and -q: the same attitude
         return np.concatenate([p_CM - p_hat, q_MC - q_hat], axis=1)
 
+    def process_stack(self, x, dt):
+        m = len(self.p_PM)
+        f = x.copy()
+        markers = f[:, :6 * m].reshape(len(x), m, 6)
+        markers[..., :3] += dt * markers[..., 3:]
+        q, omega = x[:, self._q], x[:, self._w]
+        Xi_dt = dt / 2 * xi(q)
+        f[:, self._q] = q + (Xi_dt @ omega[..., None])[..., 0]
+        F = np.repeat(self.constants(dt)[0][None], len(x), axis=0)
+        F[:, self._q, self._q] += dt / 2 * omega_matrix(omega)
+        F[:, self._q, self._w] = Xi_dt
+        return f, F
+
+    def process_noise_stack(self, x, dt):
+        _, Q, rotation = self.constants(dt)
+        Q = np.repeat(Q[None], len(x), axis=0)
+        G = xi(x[:, self._q]) / 2
+        Q[:, self._q, self._q] = rotation[0, 0] * G @ np.swapaxes(G, -1, -2)
+        Q[:, self._q, self._w] = rotation[0, 1] * G
+        Q[:, self._w, self._q] = np.swapaxes(Q[:, self._q, self._w], -1, -2)
+        return Q
+
+    def innovations_stack(self, x, camera, p_CM, q_MC):
+        m = len(self.p_PM)
+        p_hat = (x[:, :6 * m].reshape(len(x), m, 6)[..., :3] - camera.p_WC) @ camera.R_CW.T
+        q_hat = x[:, self._q] @ camera.Q_RC.T
+        q_MC = q_MC * np.where(np.sum(q_MC * q_hat[:, None], axis=-1) < 0, -1.0, 1.0)[..., None]
+        return np.concatenate([p_CM - p_hat, q_MC - q_hat[:, None]], axis=-1)
+
+    def jacobian_stack(self, x, camera):
+        return self.measurement_jacobian(x[0], np.arange(len(self.p_PM)), camera)  # H does not depend on x
+
+    def normalized_stack(self, x):
+        q = x[:, self._q]
+        x[:, self._q] = q / np.sqrt(np.sum(q * q, axis=-1, keepdims=True))
+        return x
+
     def normalized(self, x):
         q = x[self._q]
         q /= math.sqrt(q @ q)  # |q|, as np.linalg.norm computes it
