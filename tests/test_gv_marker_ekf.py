@@ -248,3 +248,32 @@ def test_bad_scenario_values():
         scenario(12, 0, "estimation.camera.rate_hz=20")
     with pytest.raises(ConfigError, match="gv-marker-ekf needs a measurement stream"):
         scenario(12, 0, "estimation.source=none", "estimation.filters=[]")
+
+
+def _figures(metrics: dict, prefix: str = "") -> dict:
+    """The metrics' figures by path, without the timings (which depend on the machine)."""
+    out = {}
+    for key, value in metrics.items():
+        if key in ("estimation_wall_time_s", "per_frame_ms"):
+            continue
+        out.update(_figures(value, f"{prefix}{key}/") if isinstance(value, dict) else {f"{prefix}{key}": value})
+    return out
+
+
+def test_a_group_of_runs_gives_each_runs_own_output():
+    from diagrams.gv_marker_ekf_mc import CAMPAIGN, run_group, run_task
+
+    s = campaign_settings(CAMPAIGN, "gv-marker-ekf", cases=["12"], runs=3, overrides=["duration_s=4"])
+    tasks = s.tasks(CAMPAIGN.case_key)
+    for task, grouped in zip(tasks, run_group(tasks), strict=True):
+        alone = run_task(task)
+        assert set(grouped.arrays) == set(alone.arrays)
+        for key in alone.arrays:
+            np.testing.assert_allclose(grouped.arrays[key], alone.arrays[key], rtol=1e-6, atol=1e-6)
+        figures, alone_figures = _figures(grouped.metrics), _figures(alone.metrics)
+        assert set(figures) == set(alone_figures) and grouped.metrics["seed"] == task.seed
+        for key, value in alone_figures.items():
+            if isinstance(value, str):
+                assert figures[key] == value, key
+            else:
+                np.testing.assert_allclose(figures[key], value, rtol=0, atol=1e-9, err_msg=key)

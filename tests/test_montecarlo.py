@@ -394,3 +394,35 @@ def test_command_refuses_a_directory_with_another_campaign(capfd, pool_campaigns
     captured = capfd.readouterr()
     assert code == 2 and captured.err.count("\n") == 1 and "runs: 4 there, 7 asked" in captured.err
     assert snapshot(out) == before
+
+
+# ---- runs in groups -----------------------------------------------------------------------------
+
+def toy_group(tasks: list[RunTask]) -> list[RunOutput]:
+    """`toy_run` of runs of one case at once, its metrics marking the group's size."""
+    assert len({task.case for task in tasks}) == 1
+    return [RunOutput({**toy_run(task).metrics, "group": len(tasks)}, toy_run(task).arrays) for task in tasks]
+
+
+def failing_group(tasks: list[RunTask]):
+    raise ValueError("the group failed")
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_runs_in_groups_give_the_runs_one_by_one_a_record_each(tmp_path, workers):
+    grouped = toy(run_group=toy_group, group_size=3)
+    one_by_one = run_campaign(TOY, settings(), tmp_path / "one", workers=0, progress=False)
+    summary = run_campaign(grouped, settings(grouped), tmp_path / "grouped", workers=workers, progress=False)
+    assert summary["filters"] == one_by_one["filters"]
+    records = read_records(tmp_path / "grouped", settings(grouped))
+    assert len(records) == RUNS * len(SPEEDS)
+    # groups of up to 3 consecutive runs of one case: 3 + 1 runs in each case (a run alone by `run`)
+    assert sorted(r.metrics.get("group", 1) for r in records.values()) == [1] * 3 + [3] * 9
+
+
+def test_a_failed_group_runs_one_by_one(tmp_path):
+    grouped = toy(run_group=failing_group, group_size=RUNS)
+    summary = run_campaign(grouped, settings(grouped), tmp_path / "grouped", workers=0, progress=False)
+    one_by_one = run_campaign(TOY, settings(), tmp_path / "one", workers=0, progress=False)
+    assert summary["filters"] == one_by_one["filters"]
+    assert summary["runs"]["done"] == RUNS * len(SPEEDS)

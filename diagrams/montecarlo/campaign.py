@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from diagrams.montecarlo.definition import CampaignDefinition
 from diagrams.montecarlo.executors import _check_executor, _check_workers, _Inline, _open_executor
-from diagrams.montecarlo.records import RunRecord, _execute, _failure, _Outcome, _write_record, read_records
+from diagrams.montecarlo.records import RunRecord, _execute_group, _failure, _Outcome, _write_record, read_records
 from diagrams.montecarlo.settings import CampaignSettings, RunTask
 from diagrams.outputs import check_writable, write_json
 from systems.config import ConfigError
@@ -95,7 +95,7 @@ def run_campaign(definition: CampaignDefinition, settings: CampaignSettings, out
                     bar.set_postfix(failed=failed)
                 bar.update(1)
 
-            _drive(pool, definition.run, todo, keep)
+            _drive(pool, definition.run, _groups(todo, definition), keep, definition.run_group)
         wall = time.perf_counter() - start
         aborted = False
     except KeyboardInterrupt:
@@ -108,20 +108,34 @@ def run_campaign(definition: CampaignDefinition, settings: CampaignSettings, out
     return write_summary(definition, settings, out_dir, wall, computed=len(todo))
 
 
-def _drive(pool, run: Callable, tasks: Sequence[RunTask], keep: Callable[[RunTask, _Outcome], None]) -> None:
-    """Submits the tasks through `pool`, a window at a time, and hands each outcome to `keep` as it
-    arrives. When a process pool dies, it is replaced and the runs it held become suspects, run one
-    at a time; a run that takes down a pool while alone in it is kept as failed."""
-    queue = deque(tasks)
-    suspects: deque[RunTask] = deque()
-    in_flight: dict[cf.Future, RunTask] = {}
+def _groups(tasks: Sequence[RunTask], definition: CampaignDefinition) -> list[tuple[RunTask, ...]]:
+    """The tasks in groups of consecutive runs of one case, up to the definition's group_size (one
+    each without `run_group`)."""
+    size = definition.group_size if definition.run_group is not None else 1
+    groups: list[tuple[RunTask, ...]] = []
+    for task in tasks:
+        if groups and len(groups[-1]) < size and groups[-1][-1].case == task.case:
+            groups[-1] += (task,)
+        else:
+            groups.append((task,))
+    return groups
+
+
+def _drive(pool, run: Callable, groups: Sequence[tuple[RunTask, ...]], keep: Callable[[RunTask, _Outcome], None],
+           run_group: Callable | None = None) -> None:
+    """Submits the groups of tasks through `pool` (`_execute_group`), a window at a time, and hands each
+    outcome to `keep` as it arrives. When a process pool dies, it is replaced and the runs it held
+    become suspects, run one at a time; a run that takes down a pool while alone in it is kept as failed."""
+    queue = deque(groups)
+    suspects: deque[tuple[RunTask, ...]] = deque()
+    in_flight: dict[cf.Future, tuple[RunTask, ...]] = {}
     window = 2 * pool.workers
     deaths_without_progress = 0
 
     def refill() -> None:
         while (queue or suspects) and len(in_flight) < (1 if suspects else window):
-            task = (suspects or queue).popleft()
-            in_flight[pool.executor.submit(_execute, run, task)] = task
+            group = (suspects or queue).popleft()
+            in_flight[pool.executor.submit(_execute_group, run, run_group, group)] = group
 
     try:
         refill()
@@ -129,27 +143,30 @@ def _drive(pool, run: Callable, tasks: Sequence[RunTask], keep: Callable[[RunTas
             done, _ = cf.wait(in_flight, return_when=cf.FIRST_COMPLETED)
             broken = False
             for future in done:
+                group = in_flight[future]
                 try:
-                    outcome = future.result()
+                    outcomes = future.result()
                 except BrokenProcessPool:
                     broken = True
                     continue
                 except cf.CancelledError:  # not the run's doing (a Dask scheduler that went away): stop
-                    raise RuntimeError(f"the executor cancelled run {in_flight[future].index} of "
-                                       f"{in_flight[future].case}; stopping (finished runs are kept)") from None
-                except Exception as e:  # the executor's own verdict on this run (e.g. Dask's KilledWorker)
-                    outcome = _failure(type(e).__name__, str(e))
-                keep(in_flight.pop(future), outcome)
+                    raise RuntimeError(f"the executor cancelled run {group[0].index} of "
+                                       f"{group[0].case}; stopping (finished runs are kept)") from None
+                except Exception as e:  # the executor's own verdict on these runs (e.g. Dask's KilledWorker)
+                    outcomes = [_failure(type(e).__name__, str(e))] * len(group)
+                del in_flight[future]
+                for task, outcome in zip(group, outcomes, strict=True):
+                    keep(task, outcome)
                 deaths_without_progress = 0
             if broken:
                 deaths_without_progress += 1
                 if deaths_without_progress > MAX_POOL_DEATHS:
                     raise RuntimeError(f"the worker processes died {deaths_without_progress} times in a row with no "
                                        f"run finishing; stopping (finished runs are kept)")
-                held = list(in_flight.values())  # every run the dead pool held
+                held = [(task,) for group in in_flight.values() for task in group]  # every run the dead pool held
                 in_flight.clear()
                 if len(held) == 1:
-                    keep(held[0], _failure("WorkerDied", "the worker process running this run died (a crash in "
+                    keep(held[0][0], _failure("WorkerDied", "the worker process running this run died (a crash in "
                                                          "native code, or killed for lack of memory)"))
                 else:
                     suspects.extend(held)
@@ -157,9 +174,10 @@ def _drive(pool, run: Callable, tasks: Sequence[RunTask], keep: Callable[[RunTas
             refill()
     except BaseException:
         # Interrupted: keep what finished, drop the rest (it is redone on resume).
-        for future, task in in_flight.items():
+        for future, group in in_flight.items():
             if future.done() and not future.cancelled() and future.exception() is None:
-                keep(task, future.result())
+                for task, outcome in zip(group, future.result(), strict=True):
+                    keep(task, outcome)
             future.cancel()
         raise
 

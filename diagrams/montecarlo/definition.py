@@ -55,6 +55,9 @@ class CampaignDefinition:
     paired: bool = False  # run i of every case gets the same seed (CampaignSettings.paired)
     case_summary: Callable[[list[RunRecord]], dict] | None = None  # a case's done runs -> figures added
     #   to its entry in summary.json's "cases"
+    run_group: Callable[[list[RunTask]], list[dict | RunOutput]] | None = None  # up to `group_size` runs of
+    #   one case at once, an output per run, each the one `run` gives for it (picklable, like `run`)
+    group_size: int = 1  # runs per worker task when `run_group` is given; each still gets its own record
 
 
 # Scenario name -> its campaign: a CampaignDefinition or "module:attribute" (imported when used, so

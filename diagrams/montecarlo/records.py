@@ -41,10 +41,26 @@ class _Outcome:
     pid: int
 
 
-def _execute(run: Callable, task: RunTask) -> _Outcome:
-    """Runs one task in a worker; an Exception becomes a failed outcome (KeyboardInterrupt and
-    SystemExit pass: they interrupt the campaign rather than fail the run)."""
+def _execute_group(run: Callable, run_group: Callable | None, tasks: tuple[RunTask, ...]) -> list[_Outcome]:
+    """Runs tasks in a worker, an outcome each: together by `run_group` (each outcome's duration its
+    share of the group's), or one by one by `run` (without `run_group`, or when the group raised: a
+    failure stays its own run's)."""
+    if run_group is None or len(tasks) == 1:
+        return [_execute(run, task) for task in tasks]
     start = time.perf_counter()
+    try:
+        outputs = run_group(list(tasks))
+    except Exception:
+        return [_execute(run, task) for task in tasks]
+    share = (time.perf_counter() - start) / len(tasks)
+    return [_execute(lambda _, out=out: out, task, share) for task, out in zip(tasks, outputs, strict=True)]
+
+
+def _execute(run: Callable, task: RunTask, extra_s: float = 0.0) -> _Outcome:
+    """Runs one task in a worker; an Exception becomes a failed outcome (KeyboardInterrupt and
+    SystemExit pass: they interrupt the campaign rather than fail the run). `extra_s`: time spent on
+    it before [s], added to its duration."""
+    start = time.perf_counter() - extra_s
     try:
         out = run(task)
         if isinstance(out, RunOutput):
