@@ -101,7 +101,8 @@ def batch_runs(config: GvLandingConfig, seeds: list[int], duration_s: float) -> 
         start = time.perf_counter()
         stack = run_stack(f, t, f.camera(truth.p_WB, q_BR), p_CM, q_CM, est.latency_periods)
         compute_s[name] = (time.perf_counter() - start) / len(seeds)
-        vectors = [_vectors(f, stack.started, x, v, last)
+        on = stack.started
+        vectors = [_vectors(f, on, x[on], v[on], last[on])
                    for x, v, last in zip(stack.x, stack.position_variance, stack.last_measurement_s)]
         estimates[name], p_WM[name] = zip(*vectors)
         stats[name] = stack.stats
@@ -142,13 +143,11 @@ def estimate_vectors(marker_filter: MarkerFilter, records: list) -> tuple[np.nda
 
 
 def _vectors(marker_filter: MarkerFilter, started: np.ndarray, x, variance, last) -> tuple[np.ndarray, np.ndarray]:
-    """`estimate_vectors` of the started steps' states x, position variances and newest measurement
-    times (all steps', or the started ones')."""
+    """`estimate_vectors` at N steps, `started` (N,) of them with states x, position variances and newest
+    measurement times (`MarkerFilter.record`'s)."""
     vectors = np.full((len(started), ESTIMATE_VECTOR_SIZE), np.nan)
     vectors[:, EST_VALID] = 0.0
     p_WM = np.full((len(started), len(marker_filter.p_PM), 3), np.nan)
     if started.any():
-        if len(x) == len(started):
-            x, variance, last = x[started], variance[started], last[started]
         vectors[started], p_WM[started], _ = marker_filter.estimate_vectors(x, variance, last)
     return vectors, p_WM
