@@ -158,6 +158,8 @@ def test_scenario_loads():
                                             ("hybrid.tracker.rate_hz=20", "hybrid.tracker.rate_hz"),
                                             ("hybrid.tracker.lock_min_score=2", "hybrid.tracker.lock_min_score"),
                                             ("hybrid.stereo_pad.max_height_m=0", "hybrid.stereo_pad.max_height_m"),
+                                            ("hybrid.stereo_pad.threshold_window_px=4",
+                                             "hybrid.stereo_pad.threshold_window_px"),
                                             ("hybrid.estimator.min_ray_down=2", "hybrid.estimator.min_ray_down"),
                                             ("hybrid.fisheye.fov_deg=200", "hybrid.fisheye.fov_deg"),
                                             ("hybrid.fisheye.width=640", "hybrid.fisheye.width"),

@@ -3,6 +3,7 @@
 were made from, its turned boxes follow np.rot90 and np.fliplr, and a missing or corrupt model file is one
 ConfigError line naming it. Finding the UGV on rendered held-out frames: tests/test_ugv_detector.py."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -74,6 +75,19 @@ def test_shipped_model_loads_and_scores_a_blank_frame_below_threshold():
     detector = CnnDetector()
     assert detector.stride == STRIDE
     assert detector.detect(np.full((512, 512, 3), 128, np.uint8)) == []
+
+
+def test_network_input_is_opencvs_blob_of_the_frame():
+    """The detector's own NCHW [0, 1] input gives the network's output on cv2.dnn.blobFromImage's, exactly, from
+    an RGB frame and from the RGB view of an RGBA one (the camera's)."""
+    rgba = np.random.default_rng(3).integers(0, 256, (512, 512, 4), np.uint8)
+    rgb = np.ascontiguousarray(rgba[..., :3])
+    detector = CnnDetector()
+    ours, from_view = detector._forward(rgb).copy(), detector._forward(rgba[..., :3]).copy()
+    detector.net.setInput(cv2.dnn.blobFromImage(rgb, scalefactor=1.0 / 255.0))
+    opencv = np.asarray(detector.net.forward())[0]
+    np.testing.assert_array_equal(ours, opencv)
+    np.testing.assert_array_equal(from_view, opencv)
 
 
 def test_missing_model_file_is_one_config_error_line_naming_it(tmp_path):

@@ -48,10 +48,7 @@ class AprilTagDetector:
 
     def __init__(self, tag_id: int, threshold_window_px: int = 23):
         self.tag_id = tag_id
-        self._detector = subpix_detector("DICT_APRILTAG_36h11")
-        parameters = self._detector.getDetectorParameters()
-        parameters.adaptiveThreshWinSizeMin = parameters.adaptiveThreshWinSizeMax = threshold_window_px
-        self._detector.setDetectorParameters(parameters)
+        self._detector = subpix_detector("DICT_APRILTAG_36h11", threshold_window_px)
 
     def detect(self, rgb: np.ndarray) -> np.ndarray | None:
         """Corners (4x2 px) of the tag in an RGB, RGBA or grey uint8 image, or None."""

@@ -15,12 +15,17 @@ def aruco_dictionary(name: str):
 
 
 @lru_cache(maxsize=None)
-def subpix_detector(dictionary: str) -> cv2.aruco.ArucoDetector:
+def subpix_detector(dictionary: str, threshold_window_px: int | None = None) -> cv2.aruco.ArucoDetector:
     """A detector for the named dictionary, corners refined with CORNER_REFINE_SUBPIX
     (CORNER_REFINE_APRILTAG returned whole-pixel corners on rendered frames, and at many times the
-    cost: docs/results.md)."""
+    cost: docs/results.md). With `threshold_window_px` (odd, >= 3) the image is thresholded once, with
+    that adaptive window, where OpenCV's default thresholds it three times (windows of 3, 13 and 23 px):
+    the thresholding and its contours are most of the detection's cost. The corners are refined on the
+    grey image either way."""
     parameters = cv2.aruco.DetectorParameters()
     parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    if threshold_window_px is not None:
+        parameters.adaptiveThreshWinSizeMin = parameters.adaptiveThreshWinSizeMax = threshold_window_px
     return cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), parameters)
 
 

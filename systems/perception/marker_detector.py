@@ -15,12 +15,13 @@ from systems.quaternion import drake_to_paper
 from systems.sensors.camera import image_to_numpy
 
 
-def detect_marker_poses(rgb: np.ndarray, K: np.ndarray, layout: MarkerLayout,
-                        time: float = 0.0) -> list[MarkerMeasurement]:
+def detect_marker_poses(rgb: np.ndarray, K: np.ndarray, layout: MarkerLayout, time: float = 0.0,
+                        threshold_window_px: int | None = None) -> list[MarkerMeasurement]:
     """X_CM of every layout marker found in an RGB, RGBA (or grey) uint8 image from an undistorted
     pinhole camera with intrinsics K (OpenCV convention), stamped `time` [s]. Markers not found,
-    found twice, or whose PnP fails are absent."""
-    corners, ids, _ = subpix_detector(layout.dictionary).detectMarkers(to_grey(rgb))
+    found twice, or whose PnP fails are absent. `threshold_window_px`: one adaptive threshold window
+    (px) instead of OpenCV's three (`aruco.subpix_detector`)."""
+    corners, ids, _ = subpix_detector(layout.dictionary, threshold_window_px).detectMarkers(to_grey(rgb))
     if ids is None:
         return []
     ids = ids.ravel()

@@ -44,7 +44,12 @@ class MotionCompensationConfig:
     """Features, matching, RANSAC (px) and the validity checks; the rate in Hz."""
 
     detector: str = "orb"  # "orb" or "sift" (the paper's, section 2.2.2)
-    max_features: int = 1000  # per frame
+    max_features: int = 500  # per frame
+    # ORB only: its pyramid's levels (scale 1.2 each; 3 span 1.44x, the per-frame scale check's 1.5 nearly)
+    # and FAST's corner threshold (grey levels). With 1000 features, 8 levels and threshold 20 (OpenCV's
+    # defaults) the homography was no more accurate, at twice the cost (benchmarks/motion_compensation.py).
+    orb_levels: int = 3
+    orb_fast_threshold: int = 30
     ratio: float = 0.8  # Lowe's ratio test: best match distance < ratio x second best
     # Sub-pixel refinement of RANSAC's inliers by Lucas-Kanade in a window of this side (px; 0: none):
     # ORB's keypoints lie on its pyramid levels' pixel grids (0.5-1.3 px rms), LK's points to about 0.1 px.
@@ -64,6 +69,9 @@ class MotionCompensationConfig:
     def validate(self, prefix: str = "motion_compensation") -> None:
         require(self.detector in DETECTORS, f"{prefix}.detector must be one of {DETECTORS}, got '{self.detector}'")
         require(self.max_features >= 4, f"{prefix}.max_features must be at least 4, got {self.max_features}")
+        require(self.orb_levels >= 1, f"{prefix}.orb_levels must be at least 1, got {self.orb_levels}")
+        require(1 <= self.orb_fast_threshold <= 254,
+                f"{prefix}.orb_fast_threshold must lie in [1, 254] grey levels, got {self.orb_fast_threshold}")
         require(0 < self.ratio <= 1, f"{prefix}.ratio must lie in (0, 1], got {self.ratio}")
         require(self.refine_window_px == 0 or self.refine_window_px >= 5,
                 f"{prefix}.refine_window_px must be 0 (no refinement) or at least 5, got {self.refine_window_px}")
@@ -121,10 +129,11 @@ class MotionCompensation:
 
 
 def make_detector(config: MotionCompensationConfig) -> cv2.Feature2D:
-    """cv2's ORB or SIFT with `max_features`."""
+    """cv2's ORB (with the config's levels and FAST threshold) or SIFT, with `max_features`."""
     if config.detector == "sift":
         return cv2.SIFT_create(nfeatures=config.max_features)
-    return cv2.ORB_create(nfeatures=config.max_features)
+    return cv2.ORB_create(nfeatures=config.max_features, nlevels=config.orb_levels,
+                          fastThreshold=config.orb_fast_threshold)
 
 
 def make_matcher(config: MotionCompensationConfig) -> cv2.DescriptorMatcher:

@@ -57,15 +57,19 @@ class CnnDetector:
         self.stride = 512 // out.shape[1]
 
     def _forward(self, rgb: np.ndarray) -> np.ndarray:
-        """The network's output (5, H / s, W / s) for an RGB uint8 frame."""
-        self.net.setInput(cv2.dnn.blobFromImage(rgb, scalefactor=1.0 / 255.0))  # RGB as given, NCHW, [0, 1]
+        """The network's output (5, H / s, W / s) for an RGB uint8 frame (any strides: a view of RGBA will do)."""
+        # RGB as given, NCHW, [0, 1]: the values of cv2.dnn.blobFromImage(rgb, 1 / 255), bit for bit, at a tenth
+        # of its cost (0.3 against 2.8 ms a 512 x 512 frame here; tests/test_ugv_cnn_detector.py).
+        blob = rgb.transpose(2, 0, 1)[None].astype(np.float32, order="C")
+        blob *= np.float32(1.0 / 255.0)
+        self.net.setInput(blob)
         return np.asarray(self.net.forward())[0]
 
     def detect(self, rgb: np.ndarray) -> list[Detection]:
         """The UGV's boxes and scores in a 512 x 512 fisheye frame (module docstring), highest score first."""
         rgb = to_rgb(rgb)
         require(rgb.shape[:2] == (512, 512), f"the CNN detector takes 512 x 512 frames, got {rgb.shape[:2]}")
-        return decode(self._forward(np.ascontiguousarray(rgb)), self.stride, self.min_score, self.nms_iou,
+        return decode(self._forward(rgb), self.stride, self.min_score, self.nms_iou,
                       self.max_detections)
 
 
