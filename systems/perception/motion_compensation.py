@@ -12,9 +12,9 @@ default, where the paper used SIFT-GPU; `detector: sift` gives the paper's choic
 its pyramid levels' pixel grids, so its homography alone was 0.4 px off at the image's corners (median;
 up to 1.1 px). A step the paper does not describe fixes that: RANSAC's inliers are refined by
 Lucas-Kanade on the previous frame warped by RANSAC's first H, and RANSAC runs again on them. With it
-both detectors land within 0.03 px (median 0.02 ORB, 0.01 SIFT, at up to 30 deg of yaw a frame), and an
-ORB step costs 33 ms against SIFT's 152 ms on one core at 512 x 512, most of SIFT's in its detection
-(benchmarks/motion_compensation.py): hence ORB.
+both detectors land within 0.04 px (median 0.015 px, at up to 30 deg of yaw a frame), and an ORB step
+costs 6.8 ms against SIFT's 60.6 ms on one core at 512 x 512 (500 features each), most of SIFT's in its
+detection (benchmarks/motion_compensation.py): hence ORB.
 
 A frame pair whose ground gives too few matches or inliers, inliers over too small a part of the image,
 or an implausible H (a fold, or a scale change past `max_scale_change`) is flagged invalid, with the
