@@ -64,11 +64,29 @@ def test_an_oblique_view_is_recentred_where_the_boxes_disagree_in_size():
     np.testing.assert_array_equal(box[2:], [70.0, 75.0])
 
 
-def test_a_box_without_the_colour_in_its_window_is_kept():
+def test_a_box_without_the_classical_detection_in_its_window_keeps_its_box():
+    """Body colour in the box (a lone strip: no pad, so not the classical detector's UGV): kept, not moved."""
     image = ground()
     draw_ugv(image, 200, 120)
+    image[40:50, 25:55] = BODY
     (box, _), = refined([([20.0, 20.0, 40.0, 50.0], 0.7)], image)
     np.testing.assert_array_equal(box, [20.0, 20.0, 40.0, 50.0])
+
+
+@pytest.mark.parametrize("body_px, kept", [(0, False), (4, False), (5, True), (40, True)])
+def test_a_box_without_the_body_colour_is_dropped(body_px, kept):
+    """A learned box over another colour's vehicle holding `body_px` pixels of the UGV's colour: dropped under
+    min_body_px (5), the UGV's own box beside it kept either way; with min_body_px 0 every box is kept."""
+    image = ground()
+    truth = draw_ugv(image, 200, 120)
+    image[30:80, 30:70] = (40, 90, 200)  # a blue vehicle
+    for k in range(body_px):  # in rows of 5
+        image[30 + k // 5, 30 + k % 5] = BODY
+    detections = [([28.0, 28.0, 44.0, 54.0], 0.8), ([198.0, 118.0, 44.0, 54.0], 0.9)]
+    out = refined(detections, image)
+    assert [score for _, score in out] == ([0.8, 0.9] if kept else [0.9])
+    np.testing.assert_array_equal(centre(out[-1][0]), centre(truth))
+    assert len(refined(detections, image, min_body_px=0)) == 2
 
 
 def test_a_colour_box_not_within_the_network_box_is_not_taken():
@@ -122,7 +140,8 @@ def test_every_detection_is_refined_on_its_own():
 
 
 @pytest.mark.parametrize("setting, named", [({"method": "yolo"}, "method"), ({"margin": -1.0}, "margin"),
-                                            ({"min_inside": 0.0}, "min_inside"), ({"max_box_px": 0.0}, "max_box_px")])
+                                            ({"min_inside": 0.0}, "min_inside"), ({"max_box_px": 0.0}, "max_box_px"),
+                                            ({"min_body_px": -1}, "min_body_px")])
 def test_bad_settings_name_the_field(setting, named):
     with pytest.raises(ConfigError, match=f"hybrid.refinement.{named}"):
         BoxRefinementConfig(**setting).validate()
