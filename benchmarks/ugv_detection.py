@@ -1,6 +1,6 @@
 """Seed 003's UGV detection (Sec. 2.2.1, Table 3): the learned (a small CNN through cv2.dnn,
-systems/perception/ugv_cnn_detector.py), the learned with its boxes re-centred by the colour
-(systems/perception/ugv_box_refiner.py; the loop's default, hybrid.refinement.method colour) and the
+systems/perception/ugv_cnn_detector.py), the learned with its boxes checked for the UGV's colour and re-centred
+on it (systems/perception/ugv_box_refiner.py; the loop's default, hybrid.refinement.method colour) and the
 classical (HSV body colour + pad, systems/perception/ugv_detector.py) detectors on the same held-out rendered
 fisheye frames (diagrams/ugv_detection_scenes.py: heights 2-10 m, distractor vehicles, one of the UGV's
 own colour in 30 % of frames, motion blur in 40 %, small far off-axis targets in 20 %, no UGV in 10 %).
