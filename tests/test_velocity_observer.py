@@ -152,8 +152,8 @@ def test_weights_peak_at_the_current_frame_and_sum_to_one():
 
 def test_constant_velocity_from_noisy_positions():
     """1.3 m/s (x 1.2, y -0.5) with 3 cm of position noise, 60 s at 10 Hz: unbiased, and the scatter is the
-    weights' noise gain (1.54 per metre: 4.6 cm/s per axis)."""
-    config = VelocityObserverConfig()
+    weights' noise gain (1.54 per metre: 4.6 cm/s per axis), with Eq. 18-19's weighted mean."""
+    config = VelocityObserverConfig(fit="mean")
     t = np.arange(0.0, 60.0, T)
     v = np.array([1.2, -0.5, 0.0])
     estimates, valid = observe_velocities(t, noisy_track(t[:, None] * v + [3.0, 4.0, 0.0], 0.03, seed=1), config)
@@ -170,8 +170,9 @@ def test_constant_velocity_from_noisy_positions():
 def test_turning_velocity_lags_by_the_weights_mean_age():
     """A circle of 5 m at 1 m/s (0.2 rad/s) with 3 cm of noise: the estimate's heading lags the truth by
     omega times the weights' mean delay (0.416 s: sigma sqrt(2/pi) on the ages, plus half a frame for each
-    difference's midpoint), 0.083 rad; its speed is the truth's within 2 %, its error under 0.12 m/s RMS."""
-    config = VelocityObserverConfig()
+    difference's midpoint), 0.083 rad; its speed is the truth's within 2 %, its error under 0.12 m/s RMS.
+    Eq. 18-19's weighted mean (`fit="mean"`)."""
+    config = VelocityObserverConfig(fit="mean")
     radius, omega = 5.0, 0.2
     t = np.arange(0.0, 60.0, T)
     p = np.c_[radius * np.cos(omega * t), radius * np.sin(omega * t), np.zeros_like(t)]
@@ -190,8 +191,8 @@ def test_turning_velocity_lags_by_the_weights_mean_age():
 def test_lag_on_a_velocity_step():
     """Standing, then 1 m/s along x from t0 = 3 s (noise-free): k frames after the step the estimate is the
     weight of the k newest instant velocities: 15 % after one frame, over half after 0.4 s, 92 % after
-    0.9 s, all of it after the 1.5 s window."""
-    config = VelocityObserverConfig()
+    0.9 s, all of it after the 1.5 s window. Eq. 18-19's weighted mean (`fit="mean"`)."""
+    config = VelocityObserverConfig(fit="mean")
     t = np.arange(0.0, 8.0, T)
     estimates, _ = observe_velocities(t, np.c_[np.maximum(t - 3.0, 0.0), np.zeros((len(t), 2))], config)
     k0 = 30
@@ -202,18 +203,70 @@ def test_lag_on_a_velocity_step():
     assert estimates[k0 + 8, 0] < 0.9 < estimates[k0 + 9, 0]  # 90 %: 0.9 s
 
 
+def linear_noise_gain(config: VelocityObserverConfig) -> float:
+    """The linear fit's noise std per axis [m/s] per metre of position noise: its value now is sum_j c_j v_j
+    over the instant velocities, c_j = w_j (1 + (a_j - m)(0 - m) / s) (m, s the weights' mean age and its
+    spread), so, as for the mean, a weighted sum of differences of the window's positions."""
+    ages = np.arange(round(config.window_s / T) + 1) * T
+    w = gaussian_weights(ages, config.sigma_s)
+    m = w @ ages
+    c = w * (1 - (ages - m) * m / (w @ (ages - m) ** 2))
+    return math.sqrt(c[0] ** 2 + np.sum(np.diff(c) ** 2) + c[-1] ** 2) / T
+
+
+def test_linear_fit_reads_a_constant_velocity_with_more_noise_than_the_mean():
+    """`fit="linear"` (a weighted line through the instant velocities, taken now) on the constant 1.3 m/s of
+    the test above: unbiased, its scatter the line's noise gain (3.92 per metre against the mean's 1.54: 11.7
+    against 4.6 cm/s per axis), the price of reading the velocity now rather than 0.4 s ago."""
+    config = VelocityObserverConfig(fit="linear")
+    t = np.arange(0.0, 60.0, T)
+    v = np.array([1.2, -0.5, 0.0])
+    estimates, valid = observe_velocities(t, noisy_track(t[:, None] * v + [3.0, 4.0, 0.0], 0.03, seed=1), config)
+    assert valid[3:].all()
+    error = estimates[20:, :2] - v[:2]
+    assert np.all(np.abs(error.mean(axis=0)) < 0.015)
+    assert linear_noise_gain(config) == pytest.approx(3.915, abs=1e-3)
+    np.testing.assert_allclose(error.std(axis=0), 0.03 * linear_noise_gain(config), rtol=0.2)
+
+
+def test_linear_fit_does_not_lag_on_a_turn():
+    """The 5 m circle at 1 m/s of the lag test, noise-free: the mean's heading lags 0.083 rad; the line's only
+    by the newest difference's half frame (it stands for the velocity at its interval's midpoint), omega T / 2
+    = 0.010 rad, within 5 % (a constant turn is a constant acceleration but for its third-order change)."""
+    radius, omega = 5.0, 0.2
+    t = np.arange(0.0, 60.0, T)
+    p = np.c_[radius * np.cos(omega * t), radius * np.sin(omega * t), np.zeros_like(t)]
+    truth = np.arctan2(np.cos(omega * t[20:]), -np.sin(omega * t[20:]))
+    lags = {}
+    for fit in ("mean", "linear"):
+        estimates, _ = observe_velocities(t, p, VelocityObserverConfig(fit=fit))
+        _, heading = speed_and_heading(estimates[20:])
+        lags[fit] = np.abs(np.remainder(truth - heading + np.pi, 2 * np.pi) - np.pi).mean()
+    assert lags["mean"] == pytest.approx(0.083, abs=0.005)
+    assert lags["linear"] == pytest.approx(omega * T / 2, rel=0.05)
+
+
+def test_linear_fit_is_exact_on_a_constant_acceleration():
+    """x = 0.3 t^2 (noise-free): the instant velocities lie on a line, so the fit's value now is the
+    acceleration's line at the newest difference's midpoint, 0.6 (t - T/2), to rounding."""
+    t = np.arange(0.0, 6.0, T)
+    track = np.c_[0.3 * t ** 2, np.zeros((len(t), 2))]
+    estimates, _ = observe_velocities(t, track, VelocityObserverConfig(fit="linear"))
+    np.testing.assert_allclose(estimates[20:, 0], 0.6 * (t[20:] - T / 2), atol=1e-9)
+
+
 def test_speed_heading_mode_reads_noise_as_speed():
     """Eq. 18-19 as printed (speed and direction averaged apart) agree with the vector mean on a straight
     run, but on a standing target with 3 cm of noise every instant speed is positive: it reads about
     0.5 m/s where the vector mean reads a few cm/s."""
     t = np.arange(0.0, 30.0, T)
     straight = np.c_[0.8 * t, 0.3 * t, np.zeros_like(t)]
-    vector, _ = observe_velocities(t, straight, VelocityObserverConfig())
+    vector, _ = observe_velocities(t, straight, VelocityObserverConfig(fit="mean"))
     printed, _ = observe_velocities(t, straight, VelocityObserverConfig(combine="speed_heading"))
     np.testing.assert_allclose(printed[3:], vector[3:], atol=1e-12)
     np.testing.assert_allclose(vector[3:, :2], np.tile([0.8, 0.3], (len(t) - 3, 1)), atol=1e-12)
     standing = noisy_track(np.zeros((len(t), 3)), 0.03, seed=3)
-    vector, _ = observe_velocities(t, standing, VelocityObserverConfig())
+    vector, _ = observe_velocities(t, standing, VelocityObserverConfig(fit="mean"))
     printed, _ = observe_velocities(t, standing, VelocityObserverConfig(combine="speed_heading"))
     assert np.mean(np.linalg.norm(vector[20:], axis=1)) < 0.08
     assert np.mean(np.linalg.norm(printed[20:], axis=1)) > 0.35
@@ -253,6 +306,8 @@ def test_bad_configs_name_the_field():
                          ({"window_s": 0.05}, "velocity_observer.window_s"),
                          ({"min_samples": 0}, "velocity_observer.min_samples"),
                          ({"combine": "median"}, "velocity_observer.combine"),
+                         ({"fit": "quadratic"}, "velocity_observer.fit"),
+                         ({"combine": "speed_heading", "fit": "linear"}, "velocity_observer.fit"),
                          ({"source": "gps"}, "velocity_observer.source"),
                          ({"rate_hz": -10.0}, "velocity_observer.rate_hz")):
         with pytest.raises(ConfigError, match=name.replace(".", r"\.")):
