@@ -68,7 +68,8 @@ class HybridPerceptionConfig:
     depth: StereoDepthConfig = field(default_factory=StereoDepthConfig)
     altitude_kf: AltitudeKfConfig = field(default_factory=AltitudeKfConfig)
     tracker: BoxTrackerConfig = field(default_factory=BoxTrackerConfig)
-    velocity_observer: VelocityObserverConfig = field(default_factory=VelocityObserverConfig)
+    # The linear fit on the stereo eye's fixes only (systems/estimators/velocity_observer.py; "mean" is Eq. 18-19's).
+    velocity_observer: VelocityObserverConfig = field(default_factory=lambda: VelocityObserverConfig(fit="linear"))
     estimator: HybridPadConfig = field(default_factory=HybridPadConfig)
     stereo_pad: StereoPadConfig = field(default_factory=StereoPadConfig)  # the last metres (ours)
     ground: GroundConfig = field(default_factory=lambda: GroundConfig(size_m=100.0, texture_seed=0))
@@ -164,6 +165,7 @@ def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfi
     builder.Connect(lock.get_output_port(), estimator.GetInputPort("target_lock"))
     observer = builder.AddNamedSystem("velocity_observer", VelocityObserverSystem(config.velocity_observer))
     builder.Connect(estimator.GetOutputPort("p_WP_measured"), observer.GetInputPort("p_WT"))
+    builder.Connect(estimator.GetOutputPort("measured_by_fix"), observer.GetInputPort("precise"))
     v_WP = builder.AddNamedSystem("velocity_select", FirstFinite(3, 2))
     builder.Connect(observer.GetOutputPort("v_WT"), v_WP.GetInputPort("u0"))
     builder.Connect(estimator.GetOutputPort("v_WP_coast"), v_WP.GetInputPort("u1"))

@@ -30,9 +30,12 @@ Ours, where the paper is silent or where we differ (each named where it is done)
   on a 15 m turn at 1.5 m/s the UAV followed 0.10 m off the pad in the landing zone on an exact stereo fix
   and touched down 0.14 m off. The line is exact for a constant acceleration (but for the newest
   difference's half frame) and noisier: 3.9 against 1.5 m/s per axis per metre of white position noise at
-  10 Hz, 12 against 5 cm/s on the fisheye box's 3 cm. Measured over ugv-hybrid's eight paths (docs/results.md):
-  touchdown p95 0.141 -> 0.072 m at 1.5 m/s, but the estimate from the climb's end within 0.01 m on 0 of 16
-  runs there (8 with the mean) and one run at 0.5 m/s 0.058 m off: not the default.
+  10 Hz, 12 against 5 cm/s on the fisheye box's 3 cm. So it is taken only where every instant velocity in
+  the window joins two sightings flagged `precise` (step_observer's argument, the system's optional input;
+  unflagged: precise), else the mean. The hybrid loop flags the stereo eye's marker fixes (millimetres);
+  over ugv-hybrid's eight paths with every sighting flagged, the estimate from the climb's end was within
+  0.01 m on 0 of 16 runs at 1.5 m/s (8 with the mean) and one run at 0.5 m/s ended 0.058 m off
+  (docs/results.md).
 - Eq. 17 is atan((x_j - x_i)/(y_j - y_i)), an angle from the image's y axis that loses the quadrant;
   here the heading is atan2(v_y, v_x) in W (from +x_W, counter-clockwise about +z_W).
 - A target seen again after more than `max_gap_s` restarts the differences (the step is no instant
@@ -181,11 +184,12 @@ def gaussian_weights(ages: np.ndarray, sigma: float) -> np.ndarray:
     return w / w.sum()
 
 
-def weighted_velocity(times: np.ndarray, velocities: np.ndarray, now: float,
-                      config: VelocityObserverConfig) -> tuple[np.ndarray, bool]:
+def weighted_velocity(times: np.ndarray, velocities: np.ndarray, now: float, config: VelocityObserverConfig,
+                      precise: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
     """Eq. 18-19: (v_W [m/s] (3,), valid) at `now` [s] from the instant velocities (n, 3) stamped `times` [s]
     (the end of each sample's interval). Only those at most `window_s` old count; invalid (NaN) with
-    fewer than `min_samples` of them."""
+    fewer than `min_samples` of them. `precise` (n,) bool: which samples the linear fit may use (None: all);
+    it is taken only when every sample counted is precise (module docstring)."""
     times, velocities = np.asarray(times, dtype=float), np.reshape(np.asarray(velocities, dtype=float), (-1, 3))
     ages = now - times
     keep = (ages >= -1e-9) & (ages <= config.window_s + 1e-9)
@@ -193,7 +197,8 @@ def weighted_velocity(times: np.ndarray, velocities: np.ndarray, now: float,
         return np.full(3, np.nan), False
     w, v = gaussian_weights(ages[keep], config.sigma_s), velocities[keep]
     if config.combine == "vector":
-        return (linear_fit_now(ages[keep], v, w) if config.fit == "linear" else w @ v), True
+        linear = config.fit == "linear" and (precise is None or bool(np.all(np.asarray(precise, bool)[keep])))
+        return (linear_fit_now(ages[keep], v, w) if linear else w @ v), True
     speed, heading = speed_and_heading(v)
     newest = heading[np.argmin(ages[keep])]
     heading = newest + np.remainder(heading - newest + np.pi, 2 * np.pi) - np.pi  # unwrapped next to the newest
@@ -216,38 +221,44 @@ def linear_fit_now(ages: np.ndarray, velocities: np.ndarray, w: np.ndarray) -> n
 @dataclass(frozen=True)
 class ObserverState:
     """The observer after its step at `time` [s] (None before the first): the last sighting (time [s],
-    p_W [m]; None when none), the instant velocities in the window (times [s], v_W [m/s]) and the estimate
-    then (v_W [m/s], NaN when not valid)."""
+    p_W [m]; None when none; whether it was precise), the instant velocities in the window (times [s], v_W
+    [m/s], whether each joins two precise sightings) and the estimate then (v_W [m/s], NaN when not valid)."""
 
     time: float | None = None
     last_time: float | None = None
     last_position: np.ndarray | None = None
     times: tuple[float, ...] = ()
     velocities: tuple[np.ndarray, ...] = ()
+    last_precise: bool = True
+    precise: tuple[bool, ...] = ()
     estimate: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     valid: bool = False
 
 
 def step_observer(state: ObserverState, time: float, config: VelocityObserverConfig,
-                  p_W: np.ndarray | None = None, v_W: np.ndarray | None = None) -> ObserverState:
+                  p_W: np.ndarray | None = None, v_W: np.ndarray | None = None, precise: bool = True) -> ObserverState:
     """One step at `time` [s] with this frame's target position p_W [m] (sources world and pixel), or with an
     instant velocity v_W [m/s] already made (source displacement: Eq. 15-16 on the compensated
-    displacement), or neither (not seen). Pure: `state` is not changed."""
-    times, velocities = list(state.times), list(state.velocities)
-    last_time, last_position = state.last_time, state.last_position
+    displacement), or neither (not seen). `precise`: this frame's sighting may feed the linear fit (module
+    docstring). Pure: `state` is not changed."""
+    times, velocities, flags = list(state.times), list(state.velocities), list(state.precise)
+    last_time, last_position, last_precise = state.last_time, state.last_position, state.last_precise
     if p_W is not None and np.all(np.isfinite(p_W)):
         p_W = np.asarray(p_W, dtype=float)
         if last_time is not None and 0 < time - last_time <= config.max_gap_s + 1e-9:
             times.append(time)
             velocities.append(instant_velocity(last_position, p_W, time - last_time))  # Eq. 16
-        last_time, last_position = time, p_W
+            flags.append(precise and last_precise)
+        last_time, last_position, last_precise = time, p_W, precise
     elif v_W is not None and np.all(np.isfinite(v_W)):
         times.append(time)
         velocities.append(np.asarray(v_W, dtype=float))
+        flags.append(precise)
     keep = [k for k, t in enumerate(times) if time - t <= config.window_s + 1e-9]
-    times, velocities = tuple(times[k] for k in keep), tuple(velocities[k] for k in keep)
-    estimate, valid = weighted_velocity(np.array(times), np.array(velocities).reshape(-1, 3), time, config)
-    return ObserverState(time, last_time, last_position, times, velocities, estimate, valid)
+    times, velocities, flags = (tuple(x[k] for k in keep) for x in (times, velocities, flags))
+    estimate, valid = weighted_velocity(np.array(times), np.array(velocities).reshape(-1, 3), time, config,
+                                        np.array(flags, bool))
+    return ObserverState(time, last_time, last_position, times, velocities, last_precise, flags, estimate, valid)
 
 
 def observe_velocities(times: Sequence[float], positions: np.ndarray,
@@ -270,7 +281,8 @@ class VelocityObserverSystem(LeafSystem):
     """Seed 003's velocity observer, stepped at `config.rate_hz` from t = 0 (SteppedValue: a reader at a
     step time sees that step). Inputs by `config.source`:
 
-    - "world": `p_WT` (3, m: the target in W; NaN when not seen).
+    - "world": `p_WT` (3, m: the target in W; NaN when not seen) and optional `precise` (1: 1.0 when this
+      frame's p_WT may feed the linear fit; unconnected: every one may).
     - "pixel": `target_pixel` (2, px: the target's centre in the rectified image of intrinsics K, OpenCV's
       pixel coordinates (centres at integers: a box's centre x + w/2 less half a pixel); NaN when not seen), `altitude` (1, m: the camera's height above the target's plane; not positive or NaN:
       unknown), optional `altitude_valid` (1; unconnected: valid) and `X_WB` (RigidTransform, the UAV's own
@@ -292,6 +304,7 @@ class VelocityObserverSystem(LeafSystem):
         source = self._config.source
         if source == "world":
             self._p_WT = self.DeclareVectorInputPort("p_WT", 3)
+            self._precise = self.DeclareVectorInputPort("precise", 1)
         else:
             require(K is not None and np.shape(K) == (3, 3),
                     f"velocity_observer.source '{source}' needs the camera's 3x3 intrinsics K")
@@ -325,7 +338,8 @@ class VelocityObserverSystem(LeafSystem):
     def _step(self, context, state: ObserverState) -> ObserverState:
         t, source = context.get_time(), self._config.source
         if source == "world":
-            return step_observer(state, t, self._config, p_W=self._p_WT.Eval(context))
+            precise = not self._precise.HasValue(context) or self._precise.Eval(context)[0] > 0.5
+            return step_observer(state, t, self._config, p_W=self._p_WT.Eval(context), precise=precise)
         target, h = self._target.Eval(context), self._altitude_now(context)
         if h is None or not np.all(np.isfinite(target)):
             return step_observer(state, t, self._config)

@@ -192,7 +192,7 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
         gate = config.gate_m + config.gate_growth_m_s * (time - last_measured)
         if np.linalg.norm((p - predicted())[:2]) > gate:
             p, gated = None, gated + 1
-    observer = step_observer(state.observer, time, observer_config, p_W=p)
+    observer = step_observer(state.observer, time, observer_config, p_W=p, precise=fixed)
     if observer.valid:
         velocity = observer.estimate
     if p is not None:
@@ -238,6 +238,7 @@ class HybridPadEstimator(LeafSystem):
     `altitude` (1, m: the camera above the ground, the stereo filter's), `altitude_valid` (1), `X_WB`
     (RigidTransform: the UAV's navigation). Outputs: `X_WP_estimate` (PoseEstimate, frames "W"/"P"),
     `p_WP_measured` (3, m: this frame's measurement, NaN without one: the velocity observer's input),
+    `measured_by_fix` (1: 1.0 when that measurement is the stereo eye's fix: the observer's `precise`),
     `v_WP_coast` (3, m/s: the velocity it predicts with while valid, NaN otherwise) and
     `hybrid_vector` (HYBRID_VECTOR_SIZE)."""
 
@@ -261,6 +262,8 @@ class HybridPadEstimator(LeafSystem):
         self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()),
                                        lambda c, o: o.set_value(self.state(c).estimate), tickets)
         self.DeclareVectorOutputPort("p_WP_measured", 3, self._calc_measured, tickets)
+        self.DeclareVectorOutputPort("measured_by_fix", 1, lambda c, o: o.SetFromVector(
+            [float(self.state(c).measured and self.state(c).fixed)]), tickets)
         self.DeclareVectorOutputPort("v_WP_coast", 3, self._calc_coast_velocity, tickets)
         self.DeclareVectorOutputPort("hybrid_vector", HYBRID_VECTOR_SIZE,
                                      lambda c, o: o.SetFromVector(hybrid_vector(self.state(c))), tickets)
