@@ -107,6 +107,7 @@ def test_estimator_uses_the_fix_in_the_landing_zone_only(height_m, used):
         state = hybrid_step(state, 0.1 * k, np.full(4, np.nan), False, h, True, X_WB, fisheye, Z_PAD,
                             HybridPadConfig(), VelocityObserverConfig(), pad_fix=fix)
     assert state.estimate.valid == used and state.fixed == used
+    assert state.observer.precise == ((True,) * 2 if used else ())  # the fixes feed the observer's line
     if used:  # on the pad's known plane, the fix's own height not used
         assert np.allclose(state.estimate.X_RT.translation(), [0.4, -0.2, Z_PAD])
         assert math.sqrt(state.estimate.covariance[3, 3]) == pytest.approx(HybridPadConfig().position_std_m)

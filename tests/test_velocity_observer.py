@@ -255,6 +255,28 @@ def test_linear_fit_is_exact_on_a_constant_acceleration():
     np.testing.assert_allclose(estimates[20:, 0], 0.6 * (t[20:] - T / 2), atol=1e-9)
 
 
+def test_linear_fit_only_on_a_window_of_precise_sightings():
+    """The circle above, each sighting flagged precise or not: the line is taken only where every instant
+    velocity in the window joins two precise sightings; one imprecise sighting gives the mean (exactly) until
+    the window has passed it, then the line again."""
+    radius, omega = 5.0, 0.2
+    t = np.arange(0.0, 12.0, T)
+    p = np.c_[radius * np.cos(omega * t), radius * np.sin(omega * t), np.zeros_like(t)]
+    linear, mean = VelocityObserverConfig(fit="linear"), VelocityObserverConfig(fit="mean")
+    lined, _ = observe_velocities(t, p, linear)
+    averaged, _ = observe_velocities(t, p, mean)
+    flagged, state = [], ObserverState()
+    for k, (tk, pk) in enumerate(zip(t, p)):
+        state = step_observer(state, float(tk), linear, p_W=pk, precise=k != 60)
+        flagged.append(state.estimate)
+    flagged = np.array(flagged)
+    # Sighting 60 is imprecise: the differences ending at 60 and 61 are too, for the 1.5 s window after each.
+    np.testing.assert_allclose(flagged[20:60], lined[20:60], atol=1e-12)
+    np.testing.assert_allclose(flagged[60:77], averaged[60:77], atol=1e-12)
+    np.testing.assert_allclose(flagged[77:], lined[77:], atol=1e-12)
+    assert np.abs(lined[70] - averaged[70]).max() > 0.01  # the two fits differ here
+
+
 def test_speed_heading_mode_reads_noise_as_speed():
     """Eq. 18-19 as printed (speed and direction averaged apart) agree with the vector mean on a straight
     run, but on a standing target with 3 cm of noise every instant speed is positive: it reads about
@@ -347,6 +369,23 @@ def test_system_world_source_matches_the_batch_observer():
     expected, valid = observe_velocities(t, p, config)
     assert [o[1] for o in out] == [float(v) for v in valid]
     np.testing.assert_allclose(np.array([o[0] for o in out]), expected, atol=1e-12)  # NaN where invalid
+
+
+@pytest.mark.parametrize("precise", [None, 1.0, 0.0])
+def test_system_precise_input_selects_the_fit(precise):
+    """fit linear: unconnected or 1.0, the system gives the batch observer's line; 0.0, Eq. 18-19's mean."""
+    system = VelocityObserverSystem(VelocityObserverConfig(fit="linear"))
+    t = np.arange(0.0, 3.0, T)
+    p = np.c_[0.5 * t ** 2, -0.2 * t, np.zeros_like(t)]
+
+    def inputs(c, k, _):
+        system.GetInputPort("p_WT").FixValue(c, p[k])
+        if precise is not None:
+            system.GetInputPort("precise").FixValue(c, [precise])
+
+    out = np.array([o[0] for o in drive(system, inputs, t)])
+    expected, _ = observe_velocities(t, p, VelocityObserverConfig(fit="mean" if precise == 0.0 else "linear"))
+    np.testing.assert_allclose(out, expected, atol=1e-12)
 
 
 def ground_pixel(p_W: np.ndarray, X_WC: RigidTransform) -> np.ndarray:
