@@ -277,6 +277,22 @@ def test_linear_fit_only_on_a_window_of_precise_sightings():
     assert np.abs(lined[70] - averaged[70]).max() > 0.01  # the two fits differ here
 
 
+def test_linear_fit_needs_linear_min_samples():
+    """Precise sightings from frame 0 on: the first instant velocities give the mean until linear_min_samples (8)
+    of them are in the window, then the line."""
+    t = np.arange(0.0, 3.0, T)
+    p = np.c_[0.5 * t ** 2, np.zeros((len(t), 2))]
+    config = VelocityObserverConfig(fit="linear")
+    lined, valid = observe_velocities(t, p, config)
+    averaged, _ = observe_velocities(t, p, VelocityObserverConfig(fit="mean"))
+    first = config.linear_min_samples  # frame k holds k instant velocities
+    np.testing.assert_allclose(lined[config.min_samples:first], averaged[config.min_samples:first], atol=1e-12)
+    np.testing.assert_allclose(lined[first:, 0], 1.0 * (t[first:] - T / 2), atol=1e-9)  # exact: a = 1 m/s^2
+    assert np.all(np.abs(lined[first:, 0] - averaged[first:, 0]) > 0.1)
+    with pytest.raises(ConfigError, match="linear_min_samples"):
+        VelocityObserverConfig(linear_min_samples=1).validate()
+
+
 def test_speed_heading_mode_reads_noise_as_speed():
     """Eq. 18-19 as printed (speed and direction averaged apart) agree with the vector mean on a straight
     run, but on a standing target with 3 cm of noise every instant speed is positive: it reads about
