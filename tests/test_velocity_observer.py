@@ -283,7 +283,7 @@ def test_linear_fit_needs_linear_min_samples():
     t = np.arange(0.0, 3.0, T)
     p = np.c_[0.5 * t ** 2, np.zeros((len(t), 2))]
     config = VelocityObserverConfig(fit="linear")
-    lined, valid = observe_velocities(t, p, config)
+    lined, _ = observe_velocities(t, p, config)
     averaged, _ = observe_velocities(t, p, VelocityObserverConfig(fit="mean"))
     first = config.linear_min_samples  # frame k holds k instant velocities
     np.testing.assert_allclose(lined[config.min_samples:first], averaged[config.min_samples:first], atol=1e-12)
