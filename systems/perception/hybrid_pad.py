@@ -262,8 +262,8 @@ class HybridPadEstimator(LeafSystem):
         self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()),
                                        lambda c, o: o.set_value(self.state(c).estimate), tickets)
         self.DeclareVectorOutputPort("p_WP_measured", 3, self._calc_measured, tickets)
-        self.DeclareVectorOutputPort("measured_by_fix", 1, lambda c, o: o.SetFromVector(
-            [float(self.state(c).measured and self.state(c).fixed)]), tickets)
+        self.DeclareVectorOutputPort("measured_by_fix", 1,
+                                     lambda c, o: o.SetFromVector([float(self.state(c).fixed)]), tickets)
         self.DeclareVectorOutputPort("v_WP_coast", 3, self._calc_coast_velocity, tickets)
         self.DeclareVectorOutputPort("hybrid_vector", HYBRID_VECTOR_SIZE,
                                      lambda c, o: o.SetFromVector(hybrid_vector(self.state(c))), tickets)
