@@ -8,8 +8,8 @@
    frame's five fisheye faces, the fisheye image, its rectified view and both stereo eyes are read from the
    simulator's context, the faces and eyes rendered afresh and timed (the simulator's cost, reported apart,
    as process CPU time and wall time: VTK renders on its GL driver's threads). The loop's own calls of the
-   small steps (altitude filter, hybrid estimate with the UAV's navigation X_WB, stereo pad fix, velocity
-   observer, PID, supervisor) are recorded with their arguments while it flies (the re-render makes the
+   small steps (altitude filter, hybrid estimate with the UAV's navigation X_WB, stereo pad fix, the velocity
+   observer inside the hybrid estimate, PID, supervisor) are recorded with their arguments while it flies (the re-render makes the
    loop take its frame's steps twice, with the same arguments: duplicates, same times).
 2. Times each module on those frames, `--repeats` times each (the median of the repeats is the frame's
    figure), as CPU time of the calling thread (time.thread_time) with OpenCV on one thread
@@ -18,7 +18,8 @@
    its own row), stereo matching, detection (learned CNN and classical colour pads, each), tracking
    (each detector's detections through the tracker, in order), motion compensation (ORB + RANSAC homography
    on the rectified view, the UGV's box excluded). Recorded calls, replayed: the altitude filter, the hybrid
-   estimate, the stereo eye's pad fix (ArUco), the velocity observer, PID and supervisor; control per frame at
+   estimate (its velocity observer included, and also timed alone), the stereo eye's pad fix (ArUco), PID and
+   supervisor; control per frame at
    the loop's rates (PID at pid.rate_hz, supervisor at landing.rate_hz, per 0.1 s frame).
 3. Prints a table beside the paper's Table 7 (Jetson TX2, its nodes in parallel: total = slowest thread);
    ours is one core, the modules in series: whole pipeline per frame = the sum, with either detector.
@@ -41,7 +42,6 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 import systems.control.landing as landing_module
 import systems.control.pid as pid_module
 import systems.estimators.altitude_kf as altitude_kf_module
-import systems.estimators.velocity_observer as observer_module
 import systems.perception.hybrid_pad as hybrid_module
 from diagrams.gv_landing import build_gv_landing
 from diagrams.runner import load_scenario
@@ -119,7 +119,7 @@ def recording_calls(calls: dict[str, list], finder, flight: str):
     look up at call time; the stereo pad finder's `find` on the instance)."""
     targets = [(altitude_kf_module, "altitude_kf_step", "altitude_filter"),
                (hybrid_module, "hybrid_step", "hybrid_estimate"),
-               (observer_module, "step_observer", "velocity_observer"),
+               (hybrid_module, "step_observer", "velocity_observer"),
                (pid_module, "pid_step", "pid"), (landing_module, "supervisor_step", "supervisor")]
     originals = [(module, attr, getattr(module, attr)) for module, attr, _ in targets]
 
@@ -278,7 +278,7 @@ def summarise(times: dict[str, list[float]], record: Recording) -> dict:
                      "detection_learned": np.array(times["detection_learned"]),
                      "detection_classical": np.array(times["detection_classical"]),
                      "motion_compensation": np.array(times["motion_compensation"])}
-    estimate = medians["hybrid_estimate"] + medians.get("stereo_pad_fix", 0.0) + medians["velocity_observer"]
+    estimate = medians["hybrid_estimate"] + medians.get("stereo_pad_fix", 0.0)  # the observer is the estimate's
     control = medians["pid"] * per_frame_pid + medians["supervisor"] * per_frame_supervisor
     rows = {"fisheye_correction": stats(frame_modules["fisheye_correction"]),
             "fisheye_composition": stats(times["fisheye_compose"]),
@@ -346,10 +346,10 @@ def print_table(result: dict, repeats: int) -> None:
     row("tracking (learned detections)", "tracking_learned", "tracking")
     row("tracking (classical detections)", "tracking_classical")
     row("motion compensation (ORB + RANSAC H)", "motion_compensation", "motion_compensation")
-    row("estimate (hybrid + pad fix + observer)", "estimate")
+    row("estimate (hybrid + pad fix)", "estimate")
     row("hybrid estimate (per call)", "hybrid_estimate", indent=True)
     row("stereo pad fix, ArUco (per call)", "stereo_pad_fix", indent=True)
-    row("velocity observer (per call)", "velocity_observer", indent=True)
+    row("of which velocity observer (per call)", "velocity_observer", indent=True)
     c = m["control"]
     print(f"{'control (PID + supervisor, loop rates)':<42}{c['median_ms']:8.3f}{'':>8}   "
           f"{paper['control'][0]:8.2f} ({paper['control'][1]:.2f})")

@@ -1,12 +1,11 @@
 """Seed 003's hybrid camera array in a gv diagram (`perception.source: hybrid`): the fisheye and the
 stereo pair on the UAV, the UGV detector, the tracker, the stereo altimeter and its filter, the hybrid
-pad estimate (systems/perception/hybrid_pad.py) and the velocity observer, into the seam.
+pad estimate (systems/perception/hybrid_pad.py) with its velocity observer, into the seam.
 
     fisheye --color_image--> UGV detector (learned | classical) --> box tracker --target_box-->
     stereo pair --> StereoAltimeter (Eq. 11-12) --> AltitudeFilterSystem (Eq. 13-14) --altitude-->
         HybridPadEstimator (ray -> World -> pad plane) --X_WP_estimate--> seam
-                           --p_WP_measured--> VelocityObserverSystem (world, Eq. 15-19) --v_WP--> seam
-                           (while it coasts past the observer's window: the estimator's own velocity)
+                           (its velocity observer on the measurements, world, Eq. 15-19) --v_WP--> seam
     stereo left eye --> StereoPadFinder (the pad's markers, in the last metres) --pad_fix--> HybridPadEstimator
 
 The source brings its own sensors (PerceptionInputs.scene_graph, .body_frame_id) and a textured ground
@@ -22,12 +21,11 @@ from pydrake.systems.primitives import LogVectorOutput
 from diagrams.stereo_hover import GroundConfig, add_textured_ground
 from systems.config import require
 from systems.estimators.altitude_kf import AltitudeFilterSystem, AltitudeKfConfig
-from systems.estimators.velocity_observer import VelocityObserverConfig, VelocityObserverSystem
+from systems.estimators.velocity_observer import VelocityObserverConfig
 from systems.perception.box_tracker import BoxTrackerConfig
 from systems.perception.box_tracker_system import BoxTrackerSystem
 from systems.perception.hybrid_pad import (
     DetectionsToTracker,
-    FirstFinite,
     HybridPadConfig,
     HybridPadEstimator,
     LockedTrackVector,
@@ -115,8 +113,7 @@ class HybridPorts:
     altimeter: StereoAltimeter
     altitude_filter: AltitudeFilterSystem
     estimator: HybridPadEstimator
-    observer: VelocityObserverSystem
-    v_WP: object  # the observer's velocity, else the coasting estimate's, else zero
+    v_WP: object  # the estimator's observer's velocity, else the coasting estimate's, else zero
     logs: dict
     video: VideoRecorder | None = None  # the fisheye stream with the boxes drawn (video_path given)
 
@@ -163,16 +160,10 @@ def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfi
     builder.Connect(tracker.GetOutputPort("tracks"), lock.GetInputPort("tracks"))
     builder.Connect(tracker.GetOutputPort("target_box"), lock.GetInputPort("target_box"))
     builder.Connect(lock.get_output_port(), estimator.GetInputPort("target_lock"))
-    observer = builder.AddNamedSystem("velocity_observer", VelocityObserverSystem(config.velocity_observer))
-    builder.Connect(estimator.GetOutputPort("p_WP_measured"), observer.GetInputPort("p_WT"))
-    builder.Connect(estimator.GetOutputPort("measured_by_fix"), observer.GetInputPort("precise"))
-    v_WP = builder.AddNamedSystem("velocity_select", FirstFinite(3, 2))
-    builder.Connect(observer.GetOutputPort("v_WT"), v_WP.GetInputPort("u0"))
-    builder.Connect(estimator.GetOutputPort("v_WP_coast"), v_WP.GetInputPort("u1"))
     period = fe.period_s
     logs = {"hybrid": LogVectorOutput(estimator.GetOutputPort("hybrid_vector"), builder, period),
-            "v_WP": LogVectorOutput(observer.GetOutputPort("v_WT"), builder, period),
-            "v_valid": LogVectorOutput(observer.GetOutputPort("valid"), builder, period),
+            "v_WP": LogVectorOutput(estimator.GetOutputPort("v_WP_observed"), builder, period),
+            "v_valid": LogVectorOutput(estimator.GetOutputPort("v_valid"), builder, period),
             "target_box": LogVectorOutput(tracker.GetOutputPort("target_box"), builder, period),
             "target_valid": LogVectorOutput(tracker.GetOutputPort("target_valid"), builder, period),
             "lock": LogVectorOutput(lock.get_output_port(), builder, period),
@@ -191,6 +182,6 @@ def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfi
         builder.Connect(lock.get_output_port(), overlay.GetInputPort("lock"))
         video = builder.AddNamedSystem("video", VideoRecorder(video_path, period, fe.width, fe.height))
         builder.Connect(overlay.GetOutputPort("image"), video.get_input_port())
-    return HybridPorts(detector, tracker, altimeter, altitude, estimator, observer, v_WP.get_output_port(), logs,
+    return HybridPorts(detector, tracker, altimeter, altitude, estimator, estimator.GetOutputPort("v_WP"), logs,
                        video)
 

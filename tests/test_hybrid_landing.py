@@ -144,7 +144,9 @@ def test_estimator_system_builds():
     system.GetInputPort("X_WB").FixValue(context, RigidTransform([0.0, 0.0, 7.5]))
     estimate = system.GetOutputPort("X_WP_estimate").Eval(context)
     assert not estimate.valid and estimate.frames == "X_WP"
-    assert np.all(np.isnan(system.GetOutputPort("p_WP_measured").Eval(context)))
+    assert np.all(np.isnan(system.GetOutputPort("v_WP_observed").Eval(context)))
+    assert system.GetOutputPort("v_valid").Eval(context)[0] == 0.0
+    assert np.array_equal(system.GetOutputPort("v_WP").Eval(context), np.zeros(3))  # never NaN to the seam
 
 
 def test_scenario_loads():

@@ -23,13 +23,14 @@ Ours, where the paper is silent:
   `max_coast_s`, then turns invalid; higher, it coasts only while that observer is valid, and at most
   `approach_max_coast_s`. The paper lands
   below LH blind, as its target floods the fisheye; the supervisor here stops a landing on an invalid
-  estimate. The seam's v_WP is the observer's, else (past its window) the coasting estimate's velocity.
+  estimate. The seam's v_WP (`v_WP` output) is that observer's, else (past its window) the coasting
+  estimate's velocity, else zero: never NaN.
 - In the landing zone a fix of the pad from the stereo pair's left eye (its markers, stereo_pad.py), where
   there is one, measures instead of the box, ungated: the box's centre marks the pad poorly at close range,
   and below `box_min_height_m` the box does not measure at all.
 - Rays more oblique than `min_ray_down` do not measure in the final landing, nor more oblique than
   `approach_min_ray_down` above it; a measurement's reported std grows with the ray's obliquity.
-- Invalid is PoseEstimate's valid False; `p_WP_measured` is NaN in a frame without a measurement.
+- Invalid is PoseEstimate's valid False; `v_WP_observed` is NaN while the observer is not valid.
 """
 
 import math
@@ -237,10 +238,11 @@ class HybridPadEstimator(LeafSystem):
     landing zone),
     `altitude` (1, m: the camera above the ground, the stereo filter's), `altitude_valid` (1), `X_WB`
     (RigidTransform: the UAV's navigation). Outputs: `X_WP_estimate` (PoseEstimate, frames "W"/"P"),
-    `p_WP_measured` (3, m: this frame's measurement, NaN without one: the velocity observer's input),
-    `measured_by_fix` (1: 1.0 when that measurement is the stereo eye's fix: the observer's `precise`),
-    `v_WP_coast` (3, m/s: the velocity it predicts with while valid, NaN otherwise) and
-    `hybrid_vector` (HYBRID_VECTOR_SIZE)."""
+    `v_WP` (3, m/s, W: the seam's velocity: the observer's, else the velocity the estimate coasts with while
+    valid, else zero), `v_WP_observed` (3, m/s, W: the observer's, NaN while it is not valid), `v_valid` (1:
+    1.0 while the observer is valid) and `hybrid_vector` (HYBRID_VECTOR_SIZE). The observer (Eq. 15-19,
+    `observer_config`, source world) is the one the estimate coasts with, run on this frame's measurement
+    with the stereo eye's fixes flagged precise."""
 
     def __init__(self, fisheye: FisheyeConfig, z_pad: float, config: HybridPadConfig | None = None,
                  observer_config: VelocityObserverConfig | None = None):
@@ -261,24 +263,25 @@ class HybridPadEstimator(LeafSystem):
         tickets = {self._stepped.now.ticket()}
         self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()),
                                        lambda c, o: o.set_value(self.state(c).estimate), tickets)
-        self.DeclareVectorOutputPort("p_WP_measured", 3, self._calc_measured, tickets)
-        self.DeclareVectorOutputPort("measured_by_fix", 1,
-                                     lambda c, o: o.SetFromVector([float(self.state(c).fixed)]), tickets)
-        self.DeclareVectorOutputPort("v_WP_coast", 3, self._calc_coast_velocity, tickets)
+        self.DeclareVectorOutputPort("v_WP", 3, self._calc_velocity, tickets)
+        self.DeclareVectorOutputPort("v_WP_observed", 3,
+                                     lambda c, o: o.SetFromVector(self.state(c).observer.estimate), tickets)
+        self.DeclareVectorOutputPort("v_valid", 1,
+                                     lambda c, o: o.SetFromVector([float(self.state(c).observer.valid)]), tickets)
         self.DeclareVectorOutputPort("hybrid_vector", HYBRID_VECTOR_SIZE,
                                      lambda c, o: o.SetFromVector(hybrid_vector(self.state(c))), tickets)
 
     def state(self, context) -> HybridPadState:
         return self._stepped.now.Eval(context)
 
-    def _calc_coast_velocity(self, context, output):
+    def _calc_velocity(self, context, output):
         s = self.state(context)
-        ok = s.estimate.valid and s.velocity is not None
-        output.SetFromVector(np.array([*s.velocity[:2], 0.0]) if ok else np.full(3, np.nan))
-
-    def _calc_measured(self, context, output):
-        s = self.state(context)
-        output.SetFromVector(s.estimate.X_RT.translation() if s.measured else np.full(3, np.nan))
+        if s.observer.valid:
+            output.SetFromVector(s.observer.estimate)
+        elif s.estimate.valid and s.velocity is not None:
+            output.SetFromVector(np.array([*s.velocity[:2], 0.0]))
+        else:
+            output.SetFromVector(np.zeros(3))
 
     def _step(self, context, state: HybridPadState) -> HybridPadState:
         seen = self._box_valid.Eval(context)[0] > 0.5
@@ -310,27 +313,6 @@ class DetectionsToTracker(LeafSystem):
         for k, (box, _score) in enumerate(self._input.Eval(context)[:self._n]):
             v[5 * k:5 * k + 5] = [1.0, *box]
         output.SetFromVector(v)
-
-
-class FirstFinite(LeafSystem):
-    """Inputs `u0`, `u1`, ... (n each), output `y`: the first input whose entries are all finite, else zeros.
-    The seam's v_WP: the velocity observer's, else (its window emptied in a blind landing) the coasting
-    estimate's, else none (a NaN velocity must not reach the seam)."""
-
-    def __init__(self, size: int = 3, count: int = 2):
-        super().__init__()
-        self._inputs = [self.DeclareVectorInputPort(f"u{k}", size) for k in range(count)]
-        self._size = size
-        self.DeclareVectorOutputPort("y", size, self._calc)
-
-    def _calc(self, context, output):
-        for port in self._inputs:
-            if port.HasValue(context):
-                u = port.Eval(context)
-                if np.all(np.isfinite(u)):
-                    output.SetFromVector(u)
-                    return
-        output.SetFromVector(np.zeros(self._size))
 
 
 class LockedTrackVector(LeafSystem):
