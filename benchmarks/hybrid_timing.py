@@ -348,8 +348,8 @@ def print_table(result: dict, repeats: int) -> None:
     row("motion compensation (ORB + RANSAC H)", "motion_compensation", "motion_compensation")
     row("estimate (hybrid + pad fix)", "estimate")
     row("hybrid estimate (per call)", "hybrid_estimate", indent=True)
+    row("  its velocity observer (per call)", "velocity_observer", indent=True)
     row("stereo pad fix, ArUco (per call)", "stereo_pad_fix", indent=True)
-    row("of which velocity observer (per call)", "velocity_observer", indent=True)
     c = m["control"]
     print(f"{'control (PID + supervisor, loop rates)':<42}{c['median_ms']:8.3f}{'':>8}   "
           f"{paper['control'][0]:8.2f} ({paper['control'][1]:.2f})")
