@@ -17,7 +17,7 @@ from systems.estimators.crhf import CrhfConfig
 from systems.estimators.deck_tracker import DeckTrackerConfig
 from systems.noise import sample_rng
 from systems.perception.seam import SeamConfig
-from systems.platforms.stewart import StewartGeometry, StewartPlatformConfig, stroke_violation
+from systems.platforms.stewart import StewartGeometry, StewartPlatformConfig, require_within_stroke
 from systems.sensors.camera import CameraConfig
 from systems.sensors.tof import TofConfig
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
@@ -70,9 +70,7 @@ class DeckLandingConfig(FlightConfig):
 
     def check_motion(self, duration_s: float) -> None:
         """The deck's motion within the legs' stroke over the run (ConfigError naming where it is not)."""
-        violation = stroke_violation(self.deck(), duration_s, self.seed)
-        require(violation is None, f"platform: the motion leaves the legs' stroke "
-                                   f"[{self.platform.leg_min_m:g}, {self.platform.leg_max_m:g}] m ({violation})")
+        require_within_stroke(self.deck(), duration_s, self.seed)
 
     def deck(self) -> StewartPlatformConfig:
         """The platform as this run meets it: platform.time_offset_s plus the seed's draw of random_deck_time_s."""

@@ -14,6 +14,7 @@ from diagrams.scenario import RunSettings
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import require_positive
 from systems.perception.apriltag import project_points
+from systems.platforms.stewart import require_within_stroke
 from systems.sensors.ground_truth import pose_vector
 
 
@@ -24,6 +25,7 @@ class Scenario(RunSettings, StewartSceneConfig):
     def validate(self) -> None:
         require_positive(self.duration_s, "duration_s")
         StewartSceneConfig.validate(self)
+        require_within_stroke(self.platform, self.duration_s, self.seed)
 
 
 def pose_from_vector(v: np.ndarray) -> RigidTransform:

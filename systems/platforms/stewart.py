@@ -232,6 +232,14 @@ def stroke_violation(config: StewartPlatformConfig, duration_s: float, seed: int
     return None
 
 
+def require_within_stroke(config: StewartPlatformConfig, duration_s: float, seed: int = 0) -> None:
+    """ConfigError (one line naming where) when the configured motion leaves the legs' stroke within
+    duration_s: a platform cannot follow it."""
+    violation = stroke_violation(config, duration_s, seed)
+    require(violation is None, f"platform: the motion leaves the legs' stroke "
+                               f"[{config.leg_min_m:g}, {config.leg_max_m:g}] m ({violation})")
+
+
 class StewartPlatform(LeafSystem):
     """The Stewart platform as a kinematic source, with its geometry registered in SceneGraph.
 
