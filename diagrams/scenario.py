@@ -70,6 +70,8 @@ def _check_scalar(value, kind, dotted: str) -> None:
     accepted, description = _SCALAR_KINDS.get(kind, ((object,), ""))
     if not isinstance(value, accepted) or (kind is not bool and isinstance(value, bool)):
         raise ConfigError(f"{dotted} must be {description}, got {value!r}")
+    if kind is float and value != value:  # NaN: no setting means it, and every comparison with it is false
+        raise ConfigError(f"{dotted} must be a number, got .nan")
 
 
 def normalise(raw: dict, schema, path: str = "") -> dict:

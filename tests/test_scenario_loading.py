@@ -130,6 +130,8 @@ def test_type_errors_are_config_errors(assignment):
     ("seed=1.5", "seed"),
     ("platform.motion=[1, 2]", "platform.motion"),
     ("platform.roll_amplitude_deg=[1, x]", "platform.roll_amplitude_deg"),
+    ("tof.bias_m=.nan", "tof.bias_m"),  # accepted before: every reading NaN, silently invalid
+    ("platform.roll_amplitude_deg=[1.0, .nan]", "platform.roll_amplitude_deg"),
 ])
 def test_a_type_error_names_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
