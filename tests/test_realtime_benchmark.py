@@ -1,0 +1,24 @@
+"""benchmarks/realtime.py on a short run (slow: it renders): the JSON it writes is the printout's figures,
+consistent with each other. No assertion on how long anything takes."""
+
+import json
+
+import pytest
+
+from benchmarks.realtime import main
+
+
+@pytest.mark.slow
+def test_a_short_run_writes_consistent_figures(tmp_path, capsys):
+    out = tmp_path / "realtime.json"
+    main(["--duration", "2.05", "--out", str(out)])
+    figures = json.loads(out.read_text())
+    assert figures["frames"] == 40 and figures["simulated_s"] == pytest.approx(2.0)
+    stages = figures["stages_ms"]
+    assert all(stages[name] > 0 for name in ("render", "noise", "tof", "detection"))
+    assert figures["render_ms"] == stages["render"]
+    assert figures["per_frame_ms"] == pytest.approx(1e3 * figures["wall_s"] / figures["frames"])
+    assert figures["per_frame_over_render"] == pytest.approx(figures["per_frame_ms"] / figures["render_ms"])
+    assert figures["realtime_factor"] == pytest.approx(figures["simulated_s"] / figures["wall_s"])
+    assert sum(stages.values()) == pytest.approx(figures["per_frame_ms"])  # "rest" is what the stages leave
+    assert f"{figures['per_frame_over_render']:.2f}x the render" in capsys.readouterr().out
