@@ -24,6 +24,7 @@ from diagrams.perception_metrics import GV_HEADING, perception_metrics
 from diagrams.scenario import RunSettings
 from diagrams.simulate import Simulation, simulate
 from diagrams.stewart_run import pose_from_vector
+from systems.config import require_positive
 from systems.control.landing import Mode
 from systems.perception.seam import HEIGHT
 from systems.sensors.ground_truth import pose_vector
@@ -40,6 +41,7 @@ class Scenario(RunSettings, DeckLandingConfig):
     duration_s: float = 120.0
 
     def validate(self) -> None:
+        require_positive(self.duration_s, "duration_s")
         DeckLandingConfig.validate(self)
         self.check_motion(self.duration_s)
 

@@ -8,6 +8,7 @@ unknown key by its full dotted path.
 
 import dataclasses
 import difflib
+import math
 import re
 import typing
 from pathlib import Path
@@ -44,6 +45,23 @@ class RunSettings:
     duration_s: float = 20.0
 
 
+def check_seeds(scenario) -> None:
+    """Every seed of a scenario (a field named `seed` or `*_seed`, at any depth) non-negative, as numpy's
+    generators take them, whatever its diagram: ConfigError naming the field otherwise."""
+    for dotted, value in _seeds(scenario):
+        if value < 0:
+            raise ConfigError(f"{dotted} must not be negative (a seed), got {value}")
+
+
+def _seeds(config, prefix: str = ""):
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value):
+            yield from _seeds(value, f"{prefix}{f.name}.")
+        elif isinstance(value, int) and not isinstance(value, bool) and (f.name == "seed" or f.name.endswith("_seed")):
+            yield f"{prefix}{f.name}", value
+
+
 def scenario_names() -> list[str]:
     return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
 
@@ -70,7 +88,7 @@ def _check_scalar(value, kind, dotted: str) -> None:
     accepted, description = _SCALAR_KINDS.get(kind, ((object,), ""))
     if not isinstance(value, accepted) or (kind is not bool and isinstance(value, bool)):
         raise ConfigError(f"{dotted} must be {description}, got {value!r}")
-    if kind is float and value != value:  # NaN: no setting means it, and every comparison with it is false
+    if kind is float and math.isnan(value):  # no setting means NaN, and every comparison with it is false
         raise ConfigError(f"{dotted} must be a number, got .nan")
 
 

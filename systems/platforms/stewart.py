@@ -80,8 +80,8 @@ class StewartPlatformConfig:
     time_offset_s: float = 0.0  # the motion's own time at t = 0: a run that finds the deck mid-motion
 
     def validate(self, prefix: str = "platform") -> None:
-        for name in ("base_radius_m", "platform_radius_m", "nominal_height_m", "leg_min_m", "deck_size_m",
-                     "deck_thickness_m", "tag_size_m", "random_walk_time_constant_s",
+        for name in ("base_radius_m", "platform_radius_m", "base_joint_height_m", "nominal_height_m", "leg_min_m",
+                     "deck_size_m", "deck_thickness_m", "tag_size_m", "random_walk_time_constant_s",
                      "random_walk_knot_interval_s"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
         require(len(self.base_joint_angles_deg) == 6, f"{prefix}.base_joint_angles_deg needs 6 angles")
