@@ -82,6 +82,7 @@ def bad_config(tmp_path):
     (["run", "deck-landing", "--set", "platform.z_amplitude_m=[0.3]"], "stroke"),
     (["run", "stewart-hardware", "--set", "platform.z_amplitude_m=[0.5]"], "stroke"),
     (["run", "stewart-dynamic", "--seed", "-1"], "seed"),
+    (["run", "stewart-dynamic", "--set", "tof.angle_deg=0.0"], "tof.angle_deg"),
     (["run", "ugv-hybrid", "--set", "hybrid.ground.texture_seed=-1"], "hybrid.ground.texture_seed"),
     (["run", "deck-landing", "--duration", "-1"], "duration_s"),
     (["run", "stewart-dynamic", "--set", "platform.base_joint_height_m=-1.0"], "platform.base_joint_height_m"),
@@ -91,7 +92,7 @@ def bad_config(tmp_path):
     (["run", "ugv-hybrid", "--set", "hybrid.model_path={corrupt_model}"], "corrupt.onnx"),
 ], ids=["bad-name", "unknown-key", "negative-rate", "tag-too-big", "negative-duration", "type-error",
         "name-and-config", "unknown-option", "missing-config", "federated-on-markers", "two-cameras",
-        "backward-blackout", "imu-rate", "empty-manoeuvre", "deck-beyond-stroke", "stewart-beyond-stroke", "negative-seed", "negative-texture-seed", "negative-duration-deck", "negative-joint-height", "deck-source", "deck-ih",
+        "backward-blackout", "imu-rate", "empty-manoeuvre", "deck-beyond-stroke", "stewart-beyond-stroke", "negative-seed", "tof-on-the-axes", "negative-texture-seed", "negative-duration-deck", "negative-joint-height", "deck-source", "deck-ih",
         "missing-detector-model", "corrupt-detector-model"])
 def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path, bad_config, args, named):
     out = tmp_path / "out"

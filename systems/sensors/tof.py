@@ -79,6 +79,8 @@ class TofConfig:
         require(self.noise_std_m >= 0, f"{prefix}.noise_std_m must not be negative")
         require(self.noise_std_per_m >= 0, f"{prefix}.noise_std_per_m must not be negative")
         require(0 <= self.cone_deg <= 90, f"{prefix}.cone_deg must lie within 0-90 deg, got {self.cone_deg}")
+        require(0 < self.angle_deg < 90, f"{prefix}.angle_deg must lie strictly within 0-90 deg (on the camera's "
+                                         f"axes the sensors leave Eq. 40-45's focal lengths undefined), got {self.angle_deg}")
 
     @property
     def view(self) -> tuple[int, float]:
