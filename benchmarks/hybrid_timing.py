@@ -9,8 +9,9 @@
    simulator's context, the faces and eyes rendered afresh and timed (the simulator's cost, reported apart,
    as process CPU time and wall time: VTK renders on its GL driver's threads). The loop's own calls of the
    small steps (altitude filter, hybrid estimate with the UAV's navigation X_WB, stereo pad fix, the velocity
-   observer inside the hybrid estimate, PID, supervisor) are recorded with their arguments while it flies (the re-render makes the
-   loop take its frame's steps twice, with the same arguments: duplicates, same times).
+   observer inside the hybrid estimate, PID, supervisor) are recorded with their arguments while it flies
+   (the re-render makes the loop take its frame's steps twice, with the same arguments: duplicates, same
+   times).
 2. Times each module on those frames, `--repeats` times each (the median of the repeats is the frame's
    figure), as CPU time of the calling thread (time.thread_time) with OpenCV on one thread
    (cv2.setNumThreads(1)): the machine is shared with other jobs, so wall time would measure them too.
@@ -19,8 +20,8 @@
    (each detector's detections through the tracker, in order), motion compensation (ORB + RANSAC homography
    on the rectified view, the UGV's box excluded). Recorded calls, replayed: the altitude filter, the hybrid
    estimate (its velocity observer included, and also timed alone), the stereo eye's pad fix (ArUco), PID and
-   supervisor; control per frame at
-   the loop's rates (PID at pid.rate_hz, supervisor at landing.rate_hz, per 0.1 s frame).
+   supervisor; control per frame at the loop's rates (PID at pid.rate_hz, supervisor at landing.rate_hz, per
+   0.1 s frame).
 3. Prints a table beside the paper's Table 7 (Jetson TX2, its nodes in parallel: total = slowest thread);
    ours is one core, the modules in series: whole pipeline per frame = the sum, with either detector.
 No assertion on time anywhere (tests/test_hybrid_timing.py only checks the entries exist).

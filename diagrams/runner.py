@@ -8,7 +8,7 @@ from pathlib import Path
 from pydrake.geometry import Meshcat, MeshcatParams
 
 from diagrams.outputs import check_writable, write_json, write_text
-from diagrams.scenario import check_seeds, load_typed, normalise, read_yaml, scenario_path, set_override
+from diagrams.scenario import load_typed, normalise, read_yaml, scenario_path, set_override
 from diagrams.simulate import simulate
 from systems.config import ConfigError
 
@@ -73,7 +73,6 @@ def load_scenario(name: str | None = None, config_path: str | Path | None = None
     schema = diagrams[diagram].Scenario
     scenario = load_typed(normalise(raw, schema), schema, str(path))
     scenario.validate()
-    check_seeds(scenario)
     return path.stem, scenario
 
 

@@ -45,23 +45,6 @@ class RunSettings:
     duration_s: float = 20.0
 
 
-def check_seeds(scenario) -> None:
-    """Every seed of a scenario (a field named `seed` or `*_seed`, at any depth) non-negative, as numpy's
-    generators take them, whatever its diagram: ConfigError naming the field otherwise."""
-    for dotted, value in _seeds(scenario):
-        if value < 0:
-            raise ConfigError(f"{dotted} must not be negative (a seed), got {value}")
-
-
-def _seeds(config, prefix: str = ""):
-    for f in dataclasses.fields(config):
-        value = getattr(config, f.name)
-        if dataclasses.is_dataclass(value):
-            yield from _seeds(value, f"{prefix}{f.name}.")
-        elif isinstance(value, int) and not isinstance(value, bool) and (f.name == "seed" or f.name.endswith("_seed")):
-            yield f"{prefix}{f.name}", value
-
-
 def scenario_names() -> list[str]:
     return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
 
@@ -90,6 +73,8 @@ def _check_scalar(value, kind, dotted: str) -> None:
         raise ConfigError(f"{dotted} must be {description}, got {value!r}")
     if kind is float and math.isnan(value):  # no setting means NaN, and every comparison with it is false
         raise ConfigError(f"{dotted} must be a number, got .nan")
+    if kind is int and (dotted == "seed" or dotted.endswith((".seed", "_seed"))) and value < 0:
+        raise ConfigError(f"{dotted} must not be negative (a seed, as numpy's generators take them), got {value}")
 
 
 def normalise(raw: dict, schema, path: str = "") -> dict:

@@ -92,7 +92,9 @@ def bad_config(tmp_path):
     (["run", "ugv-hybrid", "--set", "hybrid.model_path={corrupt_model}"], "corrupt.onnx"),
 ], ids=["bad-name", "unknown-key", "negative-rate", "tag-too-big", "negative-duration", "type-error",
         "name-and-config", "unknown-option", "missing-config", "federated-on-markers", "two-cameras",
-        "backward-blackout", "imu-rate", "empty-manoeuvre", "deck-beyond-stroke", "stewart-beyond-stroke", "negative-seed", "tof-on-the-axes", "negative-texture-seed", "negative-duration-deck", "negative-joint-height", "deck-source", "deck-ih",
+        "backward-blackout", "imu-rate", "empty-manoeuvre", "deck-beyond-stroke", "stewart-beyond-stroke",
+        "negative-seed", "tof-on-the-axes", "negative-texture-seed", "negative-duration-deck", "negative-joint-height",
+        "deck-source", "deck-ih",
         "missing-detector-model", "corrupt-detector-model"])
 def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path, bad_config, args, named):
     out = tmp_path / "out"
