@@ -7,8 +7,9 @@ supervisor, lands on seed 000's moving Stewart deck steered by CRHF's (or ATDA's
 All in World W (z up), the deck's base at the origin:
 
     Stewart deck --pad motion--> true relative state (systems/perception/truth.py) --> monitor, logs
-    camera (render, pixel noise) --> AprilTag detector --> ATDA, CRHF (with the four ToF ranges) --X_CT-->
-        deck tracker (systems/estimators/deck_tracker.py: X_WP through the UAV's pose, coasting) --> seam
+    camera (render, pixel noise) --> AprilTag detector --(estimate_latency_frames late)--> ATDA, CRHF (with the
+        four ToF ranges) --X_CT--> deck tracker (systems/estimators/deck_tracker.py: X_WP through the UAV's pose
+        at the frame's exposure, predicted to now, coasting) --> seam
     deck motion (the tracker's, or the truth's) + seam height --> landing window --> supervisor
         (with `window.prediction: autoregressive`, through the deck predictor: systems/estimators/deck_predictor.py)
     seam --> tracking PID --> landing supervisor --> flight controller --> quadrotor   (diagrams/flight_stack.py)
@@ -21,19 +22,20 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.geometry import Meshcat, MeshcatVisualizer, SceneGraph
+from pydrake.math import RigidTransform
 from pydrake.systems.framework import Diagram, DiagramBuilder, OutputPort
 from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, VectorLogSink
 
 from diagrams.deck_landing_config import DeckLandingConfig
 from diagrams.flight_stack import FlightStack, add_flight_stack
-from diagrams.stewart_scene import add_uav_sensors, add_viewers
+from diagrams.stewart_scene import add_uav_sensors, add_viewers, delayed
 from systems.control.landing_window import LandingWindow
 from systems.estimators.atda import AtdaEstimator
 from systems.estimators.crhf import CrhfEstimator
 from systems.estimators.deck_predictor import DeckPredictor
 from systems.estimators.deck_tracker import DeckTracker
 from systems.estimators.estimate import PoseEstimateToVector
-from systems.perception.apriltag import TagDetectorSystem
+from systems.perception.apriltag import TagDetection, TagDetectorSystem
 from systems.perception.seam import EstimateToSeam
 from systems.perception.truth import PadMotionTruth
 from systems.platforms.stewart import StewartPlatform
@@ -79,20 +81,27 @@ class DeckLandingHandles:
 
 def _add_estimators(builder: DiagramBuilder, config: DeckLandingConfig, color_image: OutputPort,
                     tof: TofSensors, camera_velocity: CameraVelocity) -> tuple[TagDetectorSystem, dict]:
-    """The tag detector, ATDA and CRHF on the camera stream; CRHF's range track told the camera's own
-    velocity (from the UAV's state, here the truth)."""
+    """The tag detector, ATDA and CRHF on the camera stream, `estimate_latency_frames` late; CRHF's range
+    track told the camera's own velocity at the frame's exposure (from the UAV's state, here the truth)."""
     detector = builder.AddNamedSystem("tag_detector", TagDetectorSystem(
         config.platform.tag_id, config.camera.width, config.camera.height,
         (config.camera.K_estimated, config.camera.D_estimated)))
     builder.Connect(color_image, detector.get_input_port())
+    detection, ranges, v_C = (detector.GetOutputPort("tag_detection"), tof.GetOutputPort("ranges"),
+                              camera_velocity.GetOutputPort("v_C"))
+    if frames := config.estimate_latency_frames:
+        period = config.camera.period_s
+        detection = delayed(builder, detection, period, frames, TagDetection())
+        ranges = delayed(builder, ranges, period, frames, np.full(4, np.nan))
+        v_C = delayed(builder, v_C, period, frames, np.zeros(3))
     atda = builder.AddNamedSystem("atda", AtdaEstimator(config.camera.K_estimated, config.platform.tag_size_m))
     crhf = builder.AddNamedSystem("crhf", CrhfEstimator(
         config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,
         config.camera.period_s))
-    builder.Connect(tof.GetOutputPort("ranges"), crhf.GetInputPort("ranges"))
-    builder.Connect(camera_velocity.GetOutputPort("v_C"), crhf.GetInputPort("camera_velocity_C"))
+    builder.Connect(ranges, crhf.GetInputPort("ranges"))
+    builder.Connect(v_C, crhf.GetInputPort("camera_velocity_C"))
     for estimator in (atda, crhf):
-        builder.Connect(detector.GetOutputPort("tag_detection"), estimator.GetInputPort("tag_detection"))
+        builder.Connect(detection, estimator.GetInputPort("tag_detection"))
     return detector, {"atda": atda, "crhf": crhf}
 
 
@@ -128,11 +137,13 @@ def add_deck_landing(builder: DiagramBuilder, config: DeckLandingConfig, meshcat
     tracker = None
     relative_state, deck_motion = truth.get_output_port(), platform.GetOutputPort("deck_motion")
     if config.perception.source != "truth":
+        period, frames = config.camera.period_s, config.estimate_latency_frames
         tracker = builder.AddNamedSystem("deck_tracker", DeckTracker(config.tracker, config.X_BC,
-                                                                     platform.X_PT.inverse(), config.camera.period_s))
+                                                                     platform.X_PT.inverse(), period, frames * period))
         builder.Connect(estimators[config.perception.source].GetOutputPort("X_CT_estimate"),
                         tracker.GetInputPort("X_CT_estimate"))
-        builder.Connect(X_WB, tracker.GetInputPort("X_WB"))
+        X_WB_exposure = delayed(builder, X_WB, period, frames, RigidTransform()) if frames else X_WB
+        builder.Connect(X_WB_exposure, tracker.GetInputPort("X_WB"))
         adapter = builder.AddNamedSystem("estimate_to_seam", EstimateToSeam(config.perception))
         builder.Connect(X_WB, adapter.GetInputPort("X_WB"))
         builder.Connect(tracker.GetOutputPort("X_WP_estimate"), adapter.GetInputPort("X_WP_estimate"))

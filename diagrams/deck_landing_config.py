@@ -56,6 +56,9 @@ class DeckLandingConfig(FlightConfig):
     tracker: DeckTrackerConfig = field(default_factory=DeckTrackerConfig)
     window: LandingWindowConfig = field(default_factory=LandingWindowConfig)
     perception: DeckPerceptionConfig = field(default_factory=DeckPerceptionConfig)
+    # Camera frames from exposure to estimate (issue 13's latency, as in the Stewart scenes): ATDA and CRHF get
+    # each frame's detection and ranges this late, the deck tracker the UAV's pose at that frame's exposure.
+    estimate_latency_frames: int = 0
 
     def validate(self) -> None:
         FlightConfig.validate(self)
@@ -63,6 +66,7 @@ class DeckLandingConfig(FlightConfig):
             getattr(self, name).validate(name)
         require(self.integration.discrete, "integration.discrete must be true in deck-landing")
         require(self.random_deck_time_s >= 0, "random_deck_time_s must not be negative")
+        require(self.estimate_latency_frames >= 0, "estimate_latency_frames must not be negative")
         top = self.deck_top_m
         require(self.landing.initial_height_m > top + self.landing.landing_height_m,
                 f"landing.initial_height_m ({self.landing.initial_height_m:g} m above the ground) must be above the "

@@ -52,3 +52,18 @@ def test_a_covered_lens_is_coasted_then_flagged_and_never_descended_on():
     assert np.all(log["command"][~valid, COMMAND_VZ] >= 0.0)  # no descent on it
     assert Mode.HOLD in log["mode"][covered]
     assert metrics["landing"]["success"]  # and it lands once the lens is clear
+
+
+def test_estimates_two_frames_late_are_of_their_exposure_and_the_deck_is_predicted_to_now():
+    _, config = load_scenario("deck-landing", overrides=["seed=0", "estimate_latency_frames=2"])
+    metrics, flight = fly(config, 8.0)
+    frames, late = flight.frames, 2
+    z_true, z_crhf = frames["X_CT"][:, 2], frames["estimate_crhf"][:, 3]  # [valid, x, y, z, ...]
+    assert not frames["estimate_crhf"][:late, 0].any() and frames["estimate_crhf"][late, 0] == 1.0
+    # The UAV descends at 0.4 m/s through these frames: each estimate is of the frame exposed two frames before.
+    k = np.arange(20, len(z_true))
+    exposure_error, arrival_error = np.nanmedian(np.abs(z_crhf[k] - z_true[k - late])), np.nanmedian(
+        np.abs(z_crhf[k] - z_true[k]))
+    assert exposure_error < 0.3 * arrival_error
+    # The deck tracker, told the latency, composes each frame with the UAV's pose at its exposure.
+    assert metrics["perception"]["rms_position_m"] < 0.01

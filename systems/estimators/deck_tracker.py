@@ -25,7 +25,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
-from systems.config import require_positive
+from systems.config import require, require_positive
 from systems.estimators.estimate import PoseEstimate
 from systems.estimators.track_filter import Track, TrackFilterParams, innovation_distance, step_track
 from systems.stepped import SteppedValue
@@ -85,11 +85,13 @@ def attitude_rotation(coordinates: np.ndarray) -> RotationMatrix:
 
 @dataclass(frozen=True)
 class DeckTrack:
-    """The tracks at `time` [s] (None before the first frame): position (p_WP) and attitude."""
+    """The tracks stepped at `time` [s] (None before the first frame): position (p_WP) and attitude, of the
+    deck as it was `lag_s` [s] earlier (the frames' age when they arrive: exposure to estimate)."""
 
     time: float | None = None
     position: Track = field(default_factory=Track)
     attitude: Track = field(default_factory=Track)
+    lag_s: float = 0.0
 
     @property
     def valid(self) -> bool:
@@ -101,8 +103,9 @@ class DeckTrack:
 
 
 def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time: float,
-                    config: DeckTrackerConfig, period_s: float) -> DeckTrack:
-    """One camera frame: the tracks advanced by period_s and updated with X_WP_measured (None: coast)."""
+                    config: DeckTrackerConfig, period_s: float, lag_s: float = 0.0) -> DeckTrack:
+    """One camera frame arriving at `time`: the tracks advanced by period_s and updated with X_WP_measured
+    (None: coast), the deck as it was at time - lag_s [s] (the frame's exposure)."""
     position_params, attitude_params = (replace(config.position, dt_s=period_s),
                                         replace(config.attitude, dt_s=period_s))
     position = attitude = None
@@ -116,12 +119,12 @@ def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time
                                innovation_distance(track.attitude, attitude, attitude_params)) > config.gate_chi2:
             position = attitude = None
     return DeckTrack(time, step_track(track.position, position, position_params),
-                     step_track(track.attitude, attitude, attitude_params))
+                     step_track(track.attitude, attitude, attitude_params), lag_s)
 
 
 def predicted(track: Track, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(values, rates, values' variances) of a valid constant-velocity track predicted dt [s] ahead
-    (without the process noise over dt: dt is under a frame)."""
+    (without the process noise over dt: dt is under a frame plus the frames' lag, a tenth of a second)."""
     n = len(track.x) // 2
     values, rates = track.x[:n] + dt * track.x[n:], track.x[n:]
     P = track.P
@@ -131,11 +134,11 @@ def predicted(track: Track, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 def deck_estimate(track: DeckTrack, time: float) -> tuple[PoseEstimate, np.ndarray, np.ndarray]:
     """(PoseEstimate of X_WP, v_WP [m/s], deck_motion (DECK_MOTION_SIZE)) at `time` [s]: the tracks
-    predicted from their last frame; invalid (zeros) when they are not tracking."""
+    predicted from their last frame's exposure; invalid (zeros) when they are not tracking."""
     motion = np.zeros(DECK_MOTION_SIZE)
     if not track.valid:
         return PoseEstimate.invalid(time, "W", "P"), np.zeros(3), motion
-    dt = time - track.time
+    dt = time - (track.time - track.lag_s)
     p, v, p_var = predicted(track.position, dt)
     a, a_rate, a_var = predicted(track.attitude, dt)
     covariance = np.diag(np.r_[a_var[1], a_var[0], a_var[2], p_var])  # [roll, pitch, yaw, x, y, z]: small tilts
@@ -150,12 +153,18 @@ class DeckTracker(LeafSystem):
     the estimator only then; SteppedValue: a reader at a frame time sees that frame). Outputs at any
     time, predicted to it: `X_WP_estimate` (PoseEstimate of the deck in W), `v_WP_estimate` (3, m/s)
     and `deck_motion` (DECK_MOTION_SIZE: module docstring's tilt components and rates, heave and its
-    rate, valid, coasted frames)."""
+    rate, valid, coasted frames).
 
-    def __init__(self, config: DeckTrackerConfig, X_BC: RigidTransform, X_TP: RigidTransform, period_s: float):
+    latency_s [s]: the frames' age on arrival (exposure to estimate). Both inputs are then of the exposure
+    (the diagram delays X_WB as the estimator's frames are delayed), and the outputs are predicted from it."""
+
+    def __init__(self, config: DeckTrackerConfig, X_BC: RigidTransform, X_TP: RigidTransform, period_s: float,
+                 latency_s: float = 0.0):
         super().__init__()
         config.validate()
+        require(latency_s >= 0, f"deck tracker latency_s must not be negative, got {latency_s}")
         self._config, self._X_BC, self._X_TP, self._period = config, X_BC, X_TP, period_s
+        self._latency = latency_s
         self._estimate_in = self.DeclareAbstractInputPort("X_CT_estimate", AbstractValue.Make(PoseEstimate()))
         self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
         now = SteppedValue(self, "deck_track", DeckTrack(), period_s, self._step, lambda track: track.time).now
@@ -175,4 +184,4 @@ class DeckTracker(LeafSystem):
         X_WP = None
         if estimate.valid:
             X_WP = self._X_WB.Eval(context).multiply(self._X_BC).multiply(estimate.X_CT).multiply(self._X_TP)
-        return step_deck_track(track, X_WP, context.get_time(), self._config, self._period)
+        return step_deck_track(track, X_WP, context.get_time(), self._config, self._period, self._latency)
