@@ -2,6 +2,7 @@
 rotations, and its tracks against a moving deck's truth, with the tag seen and lost."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -58,7 +59,7 @@ def track_run(frames, measured=lambda k: True, noise_m=0.002, noise_rad=0.002, s
 
 
 def errors(track, t):
-    estimate, v_WP, motion = deck_estimate(track, t)
+    estimate, v_WP, motion = deck_estimate(track, t, CONFIG)
     true = deck_pose(t)
     h = 1e-4
     true_rate = (deck_pose(t + h).translation() - deck_pose(t - h).translation()) / (2 * h)
@@ -79,22 +80,22 @@ def test_tracks_a_moving_deck_from_noisy_frames():
     # Predicted between frames: the estimate at t + 0.02 s is the track moved by its rates.
     later, _, _, _, _ = errors(track, 399 * PERIOD + 0.02)
     step = later.X_WP.translation() - estimate.X_WP.translation()
-    np.testing.assert_allclose(step, 0.02 * deck_estimate(track, 399 * PERIOD)[1], atol=1e-12)
+    np.testing.assert_allclose(step, 0.02 * deck_estimate(track, 399 * PERIOD, CONFIG)[1], atol=1e-12)
 
 
 def test_coasts_then_turns_invalid_without_measurements():
     seen = 200
     track = track_run(range(seen + CONFIG.position.max_coast_steps), measured=lambda k: k < seen)
-    assert track.valid and track.coasted_steps == CONFIG.position.max_coast_steps
+    assert track.tracking and track.coasted_steps == CONFIG.position.max_coast_steps
     track = step_deck_track(track, None, (seen + 40) * PERIOD, CONFIG, PERIOD)
-    estimate, v_WP, motion = deck_estimate(track, (seen + 40) * PERIOD)
+    estimate, v_WP, motion = deck_estimate(track, (seen + 40) * PERIOD, CONFIG)
     assert not estimate.valid and motion[6] == 0.0 and not np.any(v_WP)
 
 
 def test_the_system_measures_the_deck_through_the_uav_pose():
     X_BC = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, -0.04])
     X_PT = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, 0.0005])
-    tracker = DeckTracker(CONFIG, X_BC, X_PT.inverse(), PERIOD)
+    tracker = DeckTracker(replace(CONFIG, confirm_frames=1), X_BC, X_PT.inverse(), PERIOD)  # one frame steers
     context = tracker.CreateDefaultContext()
     X_WB = RigidTransform(RollPitchYaw(0.05, -0.03, 0.4), [0.1, -0.2, 2.7])
     X_WP = deck_pose(0.0)
@@ -115,7 +116,7 @@ def test_a_wrong_frame_is_gated_and_the_tracks_keep_the_deck():
     wrong = RigidTransform(true.rotation(), true.translation() + [0.1, -0.1, -0.6])  # a sensor off the edge
     gated = step_deck_track(track, wrong, t, CONFIG, PERIOD)
     assert gated.coasted_steps == 1  # not used: coasted
-    estimate, _, _ = deck_estimate(gated, t)
+    estimate, _, _ = deck_estimate(gated, t, CONFIG)
     assert np.linalg.norm(estimate.X_WP.translation() - true.translation()) < 0.005
     assert step_deck_track(track, true, t, CONFIG, PERIOD).coasted_steps == 0  # the right one is used
 
@@ -131,7 +132,7 @@ def late_frames_heave_rms(lag_s: float, tracker_lag_s: float) -> tuple[DeckTrack
         X = RigidTransform(exposed.rotation(), exposed.translation() + 0.0005 * rng.standard_normal(3))
         track = step_deck_track(track, X, t, CONFIG, PERIOD, tracker_lag_s)
         if k >= 400:
-            errors.append(deck_estimate(track, t)[0].X_WP.translation()[2] - deck_pose(t).translation()[2])
+            errors.append(deck_estimate(track, t, CONFIG)[0].X_WP.translation()[2] - deck_pose(t).translation()[2])
     return track, float(np.sqrt(np.mean(np.square(errors))))
 
 
@@ -144,7 +145,35 @@ def test_late_frames_are_predicted_from_their_exposure_to_now():
     _, prompt_rms = late_frames_heave_rms(0.0, 0.0)
     assert told.lag_s == lag and told.time == untold.time
     # The same tracks: told the lag, its estimate now is the untold one's a lag later.
-    np.testing.assert_allclose(deck_estimate(told, told.time - lag)[0].X_WP.translation(),
-                               deck_estimate(untold, untold.time)[0].X_WP.translation(), atol=1e-12)
+    np.testing.assert_allclose(deck_estimate(told, told.time - lag, CONFIG)[0].X_WP.translation(),
+                               deck_estimate(untold, untold.time, CONFIG)[0].X_WP.translation(), atol=1e-12)
     assert untold_rms > 2e-3  # the deck heaves up to 3 mm in 0.2 s
     assert told_rms < 0.4 * untold_rms and told_rms < 2.0 * prompt_rms
+
+
+def test_a_track_started_on_a_wrong_frame_restarts_on_the_right_ones():
+    """The first frame 9 deg and 5 cm off (CRHF's first frame with stewart-hardware's sensors), the rest
+    right: the track restarts on the second, steers from the fourth and holds the deck; confirmed on one
+    frame, it would gate the right frames and coast on the wrong one."""
+    rng = np.random.default_rng(2)
+    tilt = RotationMatrix(RollPitchYaw(math.radians(9.0), 0.0, 0.0))
+
+    def run(config):
+        track, errors = DeckTrack(), []
+        for k in range(30):
+            t = k * PERIOD
+            true = deck_pose(t)
+            X = RigidTransform(true.rotation(), true.translation() + 0.001 * rng.standard_normal(3))
+            if k == 0:
+                X = RigidTransform(tilt.multiply(true.rotation()), true.translation() + [0.05, 0.0, 0.0])
+            track = step_deck_track(track, X, t, config, PERIOD)
+            estimate = deck_estimate(track, t, config)[0]
+            errors.append(math.degrees(estimate.X_WP.rotation().InvertAndCompose(true.rotation()).ToAngleAxis().angle())
+                          if estimate.valid else None)
+        return errors
+
+    confirmed = run(CONFIG)
+    assert confirmed[:3] == [None, None, None] and None not in confirmed[3:]  # the 2nd, 3rd, 4th frames agree
+    assert max(confirmed[3:]) < 0.5
+    at_once = run(replace(CONFIG, confirm_frames=1))
+    assert None not in at_once and max(at_once) > 20.0  # a rate fitted to the jump; the right frames gated after

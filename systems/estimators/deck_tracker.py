@@ -8,7 +8,8 @@ for its attitude [n_x, n_y, yaw] [rad]: the x and y components of the deck's nor
 tilt: |n_xy| = sin(tilt)) and the heading left after removing that tilt,
     R_WP = R_tilt(n) Rz(yaw),   R_tilt(n) the smallest rotation taking z_W onto n.
 A frame whose pose is far from the tracks' prediction (its innovation's chi-square beyond `gate_chi2`, on
-the centre or on the attitude: a wrong frame from the estimator) is not used. Between frames the
+the centre or on the attitude: a wrong frame from the estimator) is not used; a new track steers only once
+`confirm_frames` frames in a row agree, and until then a frame outside the gate starts it afresh. Between frames the
 tracks coast; a frame without a valid (or a gated) X_CT (the tag out of view, as in the last
 half metre of a landing) is a coasted step, and after `max_coast_steps` of them the estimate turns
 invalid. (Updating the heave and tilt from the four ToF ranges' plane in those frames was tried: each
@@ -46,9 +47,15 @@ class DeckTrackerConfig:
     attitude: TrackFilterParams = field(default_factory=lambda: TrackFilterParams(
         measurement_std=0.005, acceleration_std=0.05, initial_velocity_std=0.2, max_coast_steps=30))  # rad
     gate_chi2: float = 30.0  # chi-square with 3 degrees of freedom beyond which a frame is an outlier (p = 1e-6)
+    # Frames in a row, each within the gate of the track the ones before it made, before a new track is valid.
+    # Until then a frame outside the gate starts the track afresh from itself: a track started on one wrong
+    # frame (CRHF's first frame, 9 deg off with stewart-hardware's sensors) would otherwise gate every right
+    # frame after it and steer, coasting and wrong, for max_coast_steps.
+    confirm_frames: int = 3
 
     def validate(self, prefix: str = "deck_tracker") -> None:
         require_positive(self.gate_chi2, f"{prefix}.gate_chi2")
+        require(self.confirm_frames >= 1, f"{prefix}.confirm_frames must be at least 1")
         for name in ("position", "attitude"):
             params = getattr(self, name)
             for field_name in ("measurement_std", "acceleration_std", "initial_velocity_std"):
@@ -92,10 +99,16 @@ class DeckTrack:
     position: Track = field(default_factory=Track)
     attitude: Track = field(default_factory=Track)
     lag_s: float = 0.0
+    frames_used: int = 0  # since the tracks started
 
     @property
-    def valid(self) -> bool:
+    def tracking(self) -> bool:
+        """The tracks hold the deck, confirmed or not."""
         return self.position.valid and self.attitude.valid
+
+    def confirmed(self, config: DeckTrackerConfig) -> bool:
+        """Tracking, on at least config.confirm_frames frames: the estimate may steer."""
+        return self.tracking and self.frames_used >= config.confirm_frames
 
     @property
     def coasted_steps(self) -> int:
@@ -105,7 +118,8 @@ class DeckTrack:
 def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time: float,
                     config: DeckTrackerConfig, period_s: float, lag_s: float = 0.0) -> DeckTrack:
     """One camera frame arriving at `time`: the tracks advanced by period_s and updated with X_WP_measured
-    (None: coast), the deck as it was at time - lag_s [s] (the frame's exposure)."""
+    (None: coast), the deck as it was at time - lag_s [s] (the frame's exposure). A frame outside the gate
+    is not used by confirmed tracks, and starts unconfirmed ones afresh."""
     position_params, attitude_params = (replace(config.position, dt_s=period_s),
                                         replace(config.attitude, dt_s=period_s))
     position = attitude = None
@@ -115,11 +129,16 @@ def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time
         if track.attitude.valid:  # the heading's measurement unwrapped next to the track's
             yaw = track.attitude.x[2]
             attitude[2] = yaw + math.remainder(attitude[2] - yaw, 2 * math.pi)
-        if track.valid and max(innovation_distance(track.position, position, position_params),
-                               innovation_distance(track.attitude, attitude, attitude_params)) > config.gate_chi2:
-            position = attitude = None
-    return DeckTrack(time, step_track(track.position, position, position_params),
-                     step_track(track.attitude, attitude, attitude_params), lag_s)
+        if track.tracking and max(innovation_distance(track.position, position, position_params),
+                                  innovation_distance(track.attitude, attitude, attitude_params)) > config.gate_chi2:
+            if track.confirmed(config):
+                position = attitude = None
+            else:
+                track = DeckTrack()
+    stepped = DeckTrack(time, step_track(track.position, position, position_params),
+                        step_track(track.attitude, attitude, attitude_params), lag_s,
+                        track.frames_used + (position is not None))
+    return stepped if stepped.tracking else replace(stepped, frames_used=0)
 
 
 def predicted(track: Track, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -132,11 +151,12 @@ def predicted(track: Track, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return values, rates, variances
 
 
-def deck_estimate(track: DeckTrack, time: float) -> tuple[PoseEstimate, np.ndarray, np.ndarray]:
+def deck_estimate(track: DeckTrack, time: float, config: DeckTrackerConfig) -> tuple[PoseEstimate, np.ndarray,
+                                                                                       np.ndarray]:
     """(PoseEstimate of X_WP, v_WP [m/s], deck_motion (DECK_MOTION_SIZE)) at `time` [s]: the tracks
-    predicted from their last frame's exposure; invalid (zeros) when they are not tracking."""
+    predicted from their last frame's exposure; invalid (zeros) unless they are tracking, confirmed."""
     motion = np.zeros(DECK_MOTION_SIZE)
-    if not track.valid:
+    if not track.confirmed(config):
         return PoseEstimate.invalid(time, "W", "P"), np.zeros(3), motion
     dt = time - (track.time - track.lag_s)
     p, v, p_var = predicted(track.position, dt)
@@ -169,8 +189,8 @@ class DeckTracker(LeafSystem):
         self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
         now = SteppedValue(self, "deck_track", DeckTrack(), period_s, self._step, lambda track: track.time).now
         self._estimate = self.DeclareCacheEntry("estimate", ValueProducer(
-            allocate=lambda: AbstractValue.Make(deck_estimate(DeckTrack(), 0.0)),
-            calc=lambda c, v: v.set_value(deck_estimate(now.Eval(c), c.get_time()))), {now.ticket()})
+            allocate=lambda: AbstractValue.Make(deck_estimate(DeckTrack(), 0.0, config)),
+            calc=lambda c, v: v.set_value(deck_estimate(now.Eval(c), c.get_time(), config))), {now.ticket()})
         ticket = {self._estimate.ticket()}
         self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()),
                                        lambda c, o: o.set_value(self._estimate.Eval(c)[0]), ticket)
