@@ -23,7 +23,7 @@ import numpy as np
 
 from diagrams.outputs import write_json
 from diagrams.runner import RunOptions, load_scenario, run
-from diagrams.scenario import read_yaml, scenario_path
+from diagrams.scenario import read_scenario, scenario_path
 from diagrams.stewart_scene import StewartSceneConfig
 from systems.estimators.crhf import CrhfEstimator, CrhfState
 from systems.sensors.tof import sensor_positions_C
@@ -57,7 +57,7 @@ HARDWARE_EFFECTS = {
 def hardware_cases() -> dict[str, tuple[str, list[str]]]:
     """{case: (scenario, overrides)}: stewart-hardware whole, then each effect alone on stewart-dynamic,
     its values read from scenarios/stewart-hardware.yaml."""
-    raw = read_yaml(scenario_path("stewart-hardware"))
+    raw = read_scenario(scenario_path("stewart-hardware"))
     # The VL53L1X's narrowest region of interest (4x4 of its 16x16 SPADs, about 15 deg: ST's AN5191): the
     # cone a user would set to keep the footprint on a 1 m deck from 2 m.
     cases = {"stewart-hardware": ("stewart-hardware", []),

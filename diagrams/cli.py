@@ -13,7 +13,7 @@ with status 2, before anything is written.
 import argparse
 import sys
 
-from diagrams.scenario import read_yaml, scenario_names, scenario_path
+from diagrams.scenario import read_scenario, scenario_names, scenario_path
 from systems.config import ConfigError
 
 DEFAULT_SCENARIO = "stewart-dynamic"
@@ -70,7 +70,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _list() -> None:
     for name in scenario_names():
-        description = read_yaml(scenario_path(name)).get("description", "")
+        description = read_scenario(scenario_path(name)).get("description", "")
         print(f"{name:24s} {description}")
 
 

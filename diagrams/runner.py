@@ -8,7 +8,7 @@ from pathlib import Path
 from pydrake.geometry import Meshcat, MeshcatParams
 
 from diagrams.outputs import check_writable, write_json, write_text
-from diagrams.scenario import load_typed, normalise, read_yaml, scenario_path, set_override
+from diagrams.scenario import load_typed, normalise, read_scenario, scenario_path, set_override
 from diagrams.simulate import simulate
 from systems.config import ConfigError
 
@@ -57,9 +57,7 @@ def load_scenario(name: str | None = None, config_path: str | Path | None = None
                   duration_s: float | None = None, seed: int | None = None):
     """(scenario name, typed scenario) from a named scenario or a YAML file, with `--set` overrides."""
     path = Path(config_path) if config_path else scenario_path(name)
-    raw = read_yaml(path)
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{path} must hold a mapping of keys to values")
+    raw = read_scenario(path)
     for assignment in overrides:
         set_override(raw, assignment)
     if duration_s is not None:

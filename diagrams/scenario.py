@@ -1,7 +1,9 @@
 """Scenarios: YAML files in scenarios/ loaded into typed dataclasses, with command-line overrides.
 
 A scenario file names the diagram that runs it (`diagram:`) and sets any field of that diagram's
-scenario dataclass; fields it leaves out keep their defaults. Loading goes through
+scenario dataclass; fields it leaves out keep their defaults. A file may start from another scenario
+(`base: deck-landing`): its mappings are laid over that one's key by key, and any other value (a list
+too) replaces the base's whole. Loading goes through
 `pydrake.common.yaml.yaml_load_typed` (Drake's scenario idiom) after a check that names any
 unknown key by its full dotted path.
 """
@@ -132,6 +134,31 @@ def load_typed(raw: dict, schema, source: str):
         return yaml_load_typed(schema=schema, data=yaml.safe_dump(raw) if raw else "{}")
     except (RuntimeError, ValueError, TypeError) as e:
         raise ConfigError(f"{source}: {e}") from None
+
+
+def merged(base: dict, over: dict) -> dict:
+    """`over` laid on `base`: mappings merged key by key (recursively), any other value replacing the base's."""
+    out = dict(base)
+    for key, value in over.items():
+        out[key] = merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def read_scenario(path: Path, _from: tuple = ()) -> dict:
+    """A scenario file's data over the scenario it names as `base` (and that one's base, ...). ConfigError
+    for a file that is not a mapping, an unknown base or bases that lead back to the file."""
+    raw = read_yaml(path)
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path} must hold a mapping of keys to values")
+    if "base" not in raw:
+        return raw
+    base = raw.pop("base")
+    if not isinstance(base, str):
+        raise ConfigError(f"{path}: base must be a scenario name, got {base!r}")
+    base_path = scenario_path(base)
+    if base_path.resolve() in (*_from, path.resolve()):
+        raise ConfigError(f"{path}: base '{base}' leads back to this file")
+    return merged(read_scenario(base_path, (*_from, path.resolve())), raw)
 
 
 def read_yaml(path: Path) -> dict:

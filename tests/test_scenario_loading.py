@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from diagrams.runner import load_scenario
-from diagrams.scenario import SCENARIO_DIR, normalise, scenario_names, scenario_path, set_override
+from diagrams.scenario import SCENARIO_DIR, normalise, read_scenario, scenario_names, scenario_path, set_override
 from diagrams.stewart_run import Scenario
 from systems.config import ConfigError
 
@@ -28,7 +28,7 @@ def test_the_named_scenarios_are_the_yaml_files():
 @pytest.mark.parametrize("name", scenario_names())
 def test_every_named_scenario_loads_and_validates(name):
     loaded_name, scenario = load_scenario(name)
-    raw = yaml.safe_load((SCENARIO_DIR / f"{name}.yaml").read_text())
+    raw = read_scenario(SCENARIO_DIR / f"{name}.yaml")  # with its base's
     assert loaded_name == name
     assert dataclasses.is_dataclass(scenario) and scenario.diagram == raw.get("diagram", "stewart_scene")
     assert scenario.duration_s == raw["duration_s"] and scenario.seed == raw["seed"]
@@ -204,3 +204,43 @@ def test_numbers_are_read_as_yaml_1_2_reads_them(tmp_path):
     assert scenario.duration_s == 30.0
     with pytest.raises(ConfigError, match="camera.rate_hz"):
         load_scenario("stewart-dynamic", overrides=["camera.rate_hz=1e"])  # still text, and named
+
+
+def test_a_scenario_starts_from_its_base_and_replaces_what_it_sets(tmp_path):
+    path = write_yaml(tmp_path, {"base": "stewart-dynamic", "duration_s": 5.0,
+                                 "camera": {"full_well_e": 6000.0}, "platform": {"roll_amplitude_deg": [4.0]}})
+    _, scenario = load_scenario(config_path=path)
+    _, base = load_scenario("stewart-dynamic")
+    assert scenario.duration_s == 5.0 and scenario.camera.full_well_e == 6000.0
+    assert scenario.camera.pixel_noise_std == base.camera.pixel_noise_std == 2.0  # the base's, beside the new key
+    assert scenario.platform.roll_amplitude_deg == [4.0]  # a list replaces the base's whole
+    assert scenario.platform.pitch_amplitude_deg == base.platform.pitch_amplitude_deg
+    assert scenario.estimators == base.estimators
+
+
+@pytest.mark.parametrize("base, named", [("no-such-scenario", "no-such-scenario"), (["deck-landing"], "base must be")])
+def test_a_bad_base_is_a_config_error(tmp_path, base, named):
+    path = write_yaml(tmp_path, {"base": base, "duration_s": 1.0})
+    with pytest.raises(ConfigError, match=named):
+        load_scenario(config_path=path)
+
+
+def test_bases_that_lead_back_are_a_config_error(tmp_path, monkeypatch):
+    monkeypatch.setattr("diagrams.scenario.SCENARIO_DIR", tmp_path)
+    write_yaml(tmp_path, {"base": "b", "duration_s": 1.0}, "a.yaml")
+    write_yaml(tmp_path, {"base": "a"}, "b.yaml")
+    with pytest.raises(ConfigError, match="base 'a' leads back"):
+        load_scenario("a")
+
+
+def test_deck_landing_hardware_has_stewart_hardwares_sensors():
+    _, deck = load_scenario("deck-landing-hardware")
+    _, stewart = load_scenario("stewart-hardware")
+    _, plain = load_scenario("deck-landing")
+    assert deck.camera.distortion == stewart.camera.distortion and deck.camera.distortion != plain.camera.distortion
+    assert deck.camera.calibration_error == stewart.camera.calibration_error
+    for name in ("pixel_noise_std", "full_well_e", "read_noise_e"):
+        assert getattr(deck.camera, name) == getattr(stewart.camera, name)
+    assert deck.tof == stewart.tof and deck.crhf.range_filter == stewart.crhf.range_filter
+    assert deck.estimate_latency_frames == stewart.estimate_latency_frames == 1
+    assert deck.platform == plain.platform and deck.landing == plain.landing  # deck-landing's deck and descent
