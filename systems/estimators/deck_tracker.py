@@ -143,7 +143,7 @@ def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time
 
 def predicted(track: Track, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(values, rates, values' variances) of a valid constant-velocity track predicted dt [s] ahead
-    (without the process noise over dt: dt is under a frame plus the frames' lag, a tenth of a second)."""
+    (without the process noise over dt: dt is the frames' lag plus under a frame, a few frames at most)."""
     n = len(track.x) // 2
     values, rates = track.x[:n] + dt * track.x[n:], track.x[n:]
     P = track.P
