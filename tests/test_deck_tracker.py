@@ -153,8 +153,7 @@ def test_late_frames_are_predicted_from_their_exposure_to_now():
 
 def test_a_track_started_on_a_wrong_frame_restarts_on_the_right_ones():
     """The first frame 9 deg and 5 cm off (CRHF's first frame with stewart-hardware's sensors), the rest
-    right: the track restarts on the second, steers from the fourth and holds the deck; confirmed on one
-    frame, it would gate the right frames and coast on the wrong one."""
+    right: the track restarts on the second, steers from the fourth and holds the deck."""
     rng = np.random.default_rng(2)
     tilt = RotationMatrix(RollPitchYaw(math.radians(9.0), 0.0, 0.0))
 
@@ -175,5 +174,39 @@ def test_a_track_started_on_a_wrong_frame_restarts_on_the_right_ones():
     confirmed = run(CONFIG)
     assert confirmed[:3] == [None, None, None] and None not in confirmed[3:]  # the 2nd, 3rd, 4th frames agree
     assert max(confirmed[3:]) < 0.5
+    # Confirmed on one frame, it steers on the wrong one; the three right frames it then gates take over.
     at_once = run(replace(CONFIG, confirm_frames=1))
-    assert None not in at_once and max(at_once) > 20.0  # a rate fitted to the jump; the right frames gated after
+    assert None not in at_once and at_once[0] > 8.0 and max(at_once[7:]) < 0.5
+    # With neither, a rate fitted to the jump: the right frames gated, the tracks coasting away.
+    unchallenged = run(replace(CONFIG, confirm_frames=1, takeover_frames=1000))
+    assert max(unchallenged) > 20.0
+
+
+def test_frames_that_confirmed_tracks_gate_replace_them_when_they_agree():
+    """A confirmed track, then the deck 6 deg and 5 cm from where it was (the tracks gone wrong: on
+    re-acquisition they fitted a rate to the first frames' drift): the tracks gate the frames, the frames
+    agree with each other, and after takeover_frames of them they are the tracks. Wrong frames that do not
+    agree with each other never take over."""
+    track = track_run(range(200))
+    shift = RigidTransform(RollPitchYaw(0.0, math.radians(6.0), 0.0), [0.05, 0.0, 0.0])
+    for k in range(200, 200 + CONFIG.takeover_frames):
+        true = shift.multiply(deck_pose(k * PERIOD))
+        track = step_deck_track(track, true, k * PERIOD, CONFIG, PERIOD)
+        estimate = deck_estimate(track, k * PERIOD, CONFIG)[0]
+        angle = math.degrees(estimate.X_WP.rotation().InvertAndCompose(true.rotation()).ToAngleAxis().angle())
+        if k < 200 + CONFIG.takeover_frames - 1:
+            assert track.coasted_steps == k - 199 and angle > 5.0  # gated, the challenger growing
+            assert track.challenger.frames_used == k - 199
+        else:
+            assert track.coasted_steps == 0 and track.challenger is None and angle < 0.5  # taken over
+            assert estimate.valid and np.linalg.norm(estimate.X_WP.translation() - true.translation()) < 0.005
+    rng = np.random.default_rng(5)
+    track = track_run(range(200))
+    for k in range(200, 230):  # outliers scattered 0.3 m around the deck: each starts the challenger afresh
+        true = deck_pose(k * PERIOD)
+        wrong = RigidTransform(true.rotation(), true.translation() + 0.3 * rng.standard_normal(3))
+        track = step_deck_track(track, wrong, k * PERIOD, CONFIG, PERIOD)
+        estimate = deck_estimate(track, k * PERIOD, CONFIG)[0]
+        assert np.linalg.norm(estimate.X_WP.translation() - true.translation()) < 0.01
+        assert track.challenger.frames_used < CONFIG.takeover_frames
+    assert track.coasted_steps == 30

@@ -9,7 +9,8 @@ tilt: |n_xy| = sin(tilt)) and the heading left after removing that tilt,
     R_WP = R_tilt(n) Rz(yaw),   R_tilt(n) the smallest rotation taking z_W onto n.
 A frame whose pose is far from the tracks' prediction (its innovation's chi-square beyond `gate_chi2`, on
 the centre or on the attitude: a wrong frame from the estimator) is not used; a new track steers only once
-`confirm_frames` frames in a row agree, and until then a frame outside the gate starts it afresh. Between frames the
+`confirm_frames` frames in a row agree, and until then a frame outside the gate starts it afresh; frames that
+confirmed tracks gate start a challenger, which replaces them after `takeover_frames` in a row. Between frames the
 tracks coast; a frame without a valid (or a gated) X_CT (the tag out of view, as in the last
 half metre of a landing) is a coasted step, and after `max_coast_steps` of them the estimate turns
 invalid. (Updating the heave and tilt from the four ToF ranges' plane in those frames was tried: each
@@ -52,10 +53,15 @@ class DeckTrackerConfig:
     # frame (CRHF's first frame, 9 deg off with stewart-hardware's sensors) would otherwise gate every right
     # frame after it and steer, coasting and wrong, for max_coast_steps.
     confirm_frames: int = 3
+    # Frames in a row that confirmed tracks gate but that agree with each other, after which they replace the
+    # tracks: the tracks had gone wrong, not the frames (on the livelier deck, tracks restarted on a re-acquired
+    # tag fitted a rate to its first frames' drift, gated every frame after and coasted 25 deg off for 1.5 s).
+    takeover_frames: int = 3
 
     def validate(self, prefix: str = "deck_tracker") -> None:
         require_positive(self.gate_chi2, f"{prefix}.gate_chi2")
         require(self.confirm_frames >= 1, f"{prefix}.confirm_frames must be at least 1")
+        require(self.takeover_frames >= 2, f"{prefix}.takeover_frames must be at least 2")
         for name in ("position", "attitude"):
             params = getattr(self, name)
             for field_name in ("measurement_std", "acceleration_std", "initial_velocity_std"):
@@ -100,6 +106,7 @@ class DeckTrack:
     attitude: Track = field(default_factory=Track)
     lag_s: float = 0.0
     frames_used: int = 0  # since the tracks started
+    challenger: "DeckTrack | None" = None  # tracks started on the frames these gated in a row, if any
 
     @property
     def tracking(self) -> bool:
@@ -115,30 +122,51 @@ class DeckTrack:
         return self.position.coasted_steps
 
 
+def _measurement(track: DeckTrack, X_WP: RigidTransform, config: DeckTrackerConfig, params: tuple
+                 ) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(position, attitude coordinates, outside the gate) of a frame's X_WP next to `track`: the heading
+    unwrapped next to the track's, the gate's chi-square on the centre or on the attitude."""
+    position = X_WP.translation()
+    attitude = attitude_coordinates(X_WP.rotation())
+    if track.attitude.valid:
+        yaw = track.attitude.x[2]
+        attitude[2] = yaw + math.remainder(attitude[2] - yaw, 2 * math.pi)
+    gated = track.tracking and max(innovation_distance(track.position, position, params[0]),
+                                   innovation_distance(track.attitude, attitude, params[1])) > config.gate_chi2
+    return position, attitude, gated
+
+
+def _stepped(track: DeckTrack, position: np.ndarray | None, attitude: np.ndarray | None, time: float,
+             lag_s: float, params: tuple, challenger: DeckTrack | None = None) -> DeckTrack:
+    """The tracks advanced one frame and updated with a measurement (None: coast), counting the frames used."""
+    stepped = DeckTrack(time, step_track(track.position, position, params[0]),
+                        step_track(track.attitude, attitude, params[1]), lag_s,
+                        track.frames_used + (position is not None), challenger)
+    return stepped if stepped.tracking else replace(stepped, frames_used=0)
+
+
 def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time: float,
                     config: DeckTrackerConfig, period_s: float, lag_s: float = 0.0) -> DeckTrack:
     """One camera frame arriving at `time`: the tracks advanced by period_s and updated with X_WP_measured
     (None: coast), the deck as it was at time - lag_s [s] (the frame's exposure). A frame outside the gate
-    is not used by confirmed tracks, and starts unconfirmed ones afresh."""
-    position_params, attitude_params = (replace(config.position, dt_s=period_s),
-                                        replace(config.attitude, dt_s=period_s))
-    position = attitude = None
-    if X_WP_measured is not None:
-        position = X_WP_measured.translation()
-        attitude = attitude_coordinates(X_WP_measured.rotation())
-        if track.attitude.valid:  # the heading's measurement unwrapped next to the track's
-            yaw = track.attitude.x[2]
-            attitude[2] = yaw + math.remainder(attitude[2] - yaw, 2 * math.pi)
-        if track.tracking and max(innovation_distance(track.position, position, position_params),
-                                  innovation_distance(track.attitude, attitude, attitude_params)) > config.gate_chi2:
-            if track.confirmed(config):
-                position = attitude = None
-            else:
-                track = DeckTrack()
-    stepped = DeckTrack(time, step_track(track.position, position, position_params),
-                        step_track(track.attitude, attitude, attitude_params), lag_s,
-                        track.frames_used + (position is not None))
-    return stepped if stepped.tracking else replace(stepped, frames_used=0)
+    starts unconfirmed tracks afresh; confirmed ones do not use it, and it feeds their challenger instead."""
+    params = replace(config.position, dt_s=period_s), replace(config.attitude, dt_s=period_s)
+    if X_WP_measured is None:
+        return _stepped(track, None, None, time, lag_s, params)
+    position, attitude, gated = _measurement(track, X_WP_measured, config, params)
+    if not gated:
+        return _stepped(track, position, attitude, time, lag_s, params)
+    if not track.confirmed(config):
+        return _stepped(DeckTrack(), *_measurement(DeckTrack(), X_WP_measured, config, params)[:2], time, lag_s,
+                        params)
+    # Gated by confirmed tracks: the frame starts or feeds the challenger (afresh if outside its own gate);
+    # takeover_frames of them in a row that agree replace the tracks, which had gone wrong, not the frames.
+    challenger = track.challenger or DeckTrack()
+    c_position, c_attitude, c_gated = _measurement(challenger, X_WP_measured, config, params)
+    challenger = _stepped(DeckTrack() if c_gated else challenger, c_position, c_attitude, time, lag_s, params)
+    if challenger.frames_used >= config.takeover_frames:
+        return challenger
+    return _stepped(track, None, None, time, lag_s, params, challenger)
 
 
 def predicted(track: Track, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
