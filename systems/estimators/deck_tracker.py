@@ -157,8 +157,7 @@ def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time
     if not gated:
         return _stepped(track, position, attitude, time, lag_s, params)
     if not track.confirmed(config):
-        return _stepped(DeckTrack(), *_measurement(DeckTrack(), X_WP_measured, config, params)[:2], time, lag_s,
-                        params)
+        return _stepped(DeckTrack(), position, attitude, time, lag_s, params)
     # Gated by confirmed tracks: the frame starts or feeds the challenger (afresh if outside its own gate);
     # takeover_frames of them in a row that agree replace the tracks, which had gone wrong, not the frames.
     challenger = track.challenger or DeckTrack()
