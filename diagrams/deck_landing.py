@@ -28,7 +28,7 @@ from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, VectorLog
 
 from diagrams.deck_landing_config import DeckLandingConfig
 from diagrams.flight_stack import FlightStack, add_flight_stack
-from diagrams.stewart_scene import add_uav_sensors, add_viewers, delayed
+from diagrams.stewart_scene import add_axis_flow, add_uav_sensors, add_viewers, delayed
 from systems.control.landing_window import LandingWindow
 from systems.estimators.atda import AtdaEstimator
 from systems.estimators.crhf import CrhfEstimator
@@ -125,7 +125,7 @@ def add_deck_landing(builder: DiagramBuilder, config: DeckLandingConfig, meshcat
     builder.Connect(quad.GetOutputPort("X_WB"), camera_velocity.GetInputPort("X_WB"))
     builder.Connect(quad.GetOutputPort("V_WB"), camera_velocity.GetInputPort("V_WB"))
     if config.camera.exposure_s > 0:
-        builder.Connect(camera_velocity.GetOutputPort("w_C"), noisy_camera.GetInputPort("w_C"))
+        add_axis_flow(builder, config.X_BC, (X_WB, quad.GetOutputPort("V_WB")), platform, noisy_camera)
     color_image = noisy_camera.get_output_port()
     detector, estimators = _add_estimators(builder, config, color_image, tof, camera_velocity)
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydrake.geometry import Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph
 from pydrake.math import RigidTransform, RollPitchYaw
-from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.framework import Diagram, DiagramBuilder, OutputPort
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from systems.config import require
@@ -22,7 +22,7 @@ from systems.perception.apriltag import TagDetection, TagDetectorSystem
 from systems.perception.latency import MeasurementLatency
 from systems.platforms.stewart import StewartPlatform, StewartPlatformConfig
 from systems.sensors.camera import CameraConfig, NoisyCamera, add_camera, add_renderer
-from systems.sensors.ground_truth import RelativePose
+from systems.sensors.ground_truth import AxisFlow, RelativePose
 from systems.sensors.imu import Imu, ImuConfig
 from systems.sensors.tof import TofConfig, TofSensors, make_tof_camera, sensor_positions_C
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry, PrescribedPose
@@ -118,6 +118,19 @@ def add_uav_sensors(builder: DiagramBuilder, scene_graph: SceneGraph, body_frame
     return camera, noisy_camera, tof
 
 
+def add_axis_flow(builder: DiagramBuilder, X_BC: RigidTransform, body: tuple[OutputPort, OutputPort],
+                  platform: StewartPlatform, noisy_camera: NoisyCamera) -> AxisFlow:
+    """Feeds the camera's motion blur: the deck's motion across the image (`AxisFlow`) from the body's
+    (X_WB, V_WB) ports and the deck's pose and spatial velocity."""
+    flow = builder.AddSystem(AxisFlow(X_BC))
+    for name, port in zip(("X_WB", "V_WB"), body):
+        builder.Connect(port, flow.GetInputPort(name))
+    builder.Connect(platform.GetOutputPort("X_WP"), flow.GetInputPort("X_WS"))
+    builder.Connect(platform.GetOutputPort("V_WP"), flow.GetInputPort("V_WS"))
+    builder.Connect(flow.get_output_port(), noisy_camera.GetInputPort("axis_flow"))
+    return flow
+
+
 def add_viewers(builder: DiagramBuilder, scene_graph: SceneGraph, meshcat: Meshcat | None, noisy_camera: NoisyCamera,
                 camera_config: CameraConfig, video_path=None):
     """Meshcat (illustration geometry) when `meshcat` is given, and an MP4 of the camera stream when
@@ -159,6 +172,9 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
     X_BC = config.camera.X_BC
     camera, noisy_camera, tof = add_uav_sensors(builder, scene_graph, airframe.body_frame_id, config.camera,
                                                 config.tof, config.seed)
+
+    if config.camera.exposure_s > 0:
+        add_axis_flow(builder, X_BC, (body.GetOutputPort("X_WB"), body.GetOutputPort("V_WB")), platform, noisy_camera)
 
     imu = builder.AddSystem(Imu(config.imu, config.seed))
     for name in ("X_WB", "V_WB", "A_WB"):

@@ -4,7 +4,9 @@ image view helper, and the pixel-noise system on fixed images."""
 import cv2
 import numpy as np
 import pytest
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.sensors import ImageRgba8U
+from scipy.spatial.transform import Rotation
 
 from systems.config import ConfigError
 from systems.perception.apriltag import AprilTagDetector, TagDetectorSystem
@@ -17,6 +19,7 @@ from systems.sensors.camera import (
     motion_blur_flow,
     motion_blur_kernel,
 )
+from systems.sensors.ground_truth import axis_flow
 
 # Seed 000 Eq. (10).
 K_EQ10 = np.array([[458.5, 0.0, 258.7735], [0.0, 457.855, 252.308], [0.0, 0.0, 1.0]])
@@ -200,14 +203,52 @@ def test_sensor_noise_is_shot_noise_plus_read_noise():
     assert np.sqrt(200 * gain) > 2.5 * np.sqrt(20 * gain)  # the two levels' noise differs clearly
 
 
-def test_the_blur_flow_is_how_far_a_turn_moves_the_axis_point_in_the_image():
+def axis_point_flow_by_projection(K, X_WC, V_WC, X_WS, V_WS, dt=1e-5):
+    """px/s at which the scene point on the camera's axis moves in the image: that point, carried with the
+    plane's frame S for dt, projected by OpenCV into the camera carried for dt (both moved by exact screws)."""
+    def moved(X, V):
+        turn = RotationMatrix(Rotation.from_rotvec(V[:3] * dt).as_matrix())
+        return RigidTransform(turn.multiply(X.rotation()), X.translation() + V[3:] * dt)
+    n, p_WC, z_WC = X_WS.rotation().col(2), X_WC.translation(), X_WC.rotation().col(2)
+    p_W = p_WC + (n @ (X_WS.translation() - p_WC)) / (n @ z_WC) * z_WC
+    p_W_later = moved(X_WS, V_WS).multiply(X_WS.inverse().multiply(p_W))
+    p_C_later = moved(X_WC, V_WC).inverse().multiply(p_W_later)
+    uv, _ = cv2.projectPoints(p_C_later.reshape(1, 3), np.zeros(3), np.zeros(3), K, None)
+    return (uv.ravel() - K[:2, 2]) / dt
+
+
+@pytest.mark.parametrize("camera_velocity, deck_velocity", [
+    ([0.0, 0.6, 0.0, 0.0, 0.0, 0.0], [0.0] * 6),  # the camera turning over a still deck
+    ([0.0, 0.0, 0.0, 0.3, -0.2, -0.4], [0.0] * 6),  # sliding and descending
+    ([0.0] * 6, [0.3, -0.2, 0.1, 0.1, 0.0, 0.2]),  # the deck rolling, pitching and heaving under it
+    ([0.3, -0.2, 1.0, 0.3, 0.1, -0.4], [0.3, -0.2, 0.1, 0.1, 0.0, 0.2]),  # all of it, tilted
+])
+def test_the_axis_flow_is_how_fast_the_scene_on_the_axis_crosses_the_image(camera_velocity, deck_velocity):
     K, T = CameraConfig().K, 0.01
-    for w_C in ([0.0, 0.6, 0.0], [-0.4, 0.0, 0.0], [0.3, -0.2, 1.0]):
-        # The camera turned by w_C T: the point that was on the axis, seen from the turned camera.
-        rvec = -np.asarray(w_C) * T
-        moved, _ = cv2.projectPoints(np.array([[0.0, 0.0, 2.0]]), rvec, np.zeros(3), K, None)
-        # first order in the angle: within 1 % of the finite turn
-        np.testing.assert_allclose(motion_blur_flow(K, np.asarray(w_C), T), moved.ravel() - K[:2, 2], rtol=0.01)
+    tilted = camera_velocity[2] != 0.0
+    X_WC = RigidTransform(RollPitchYaw(np.pi + (0.2 if tilted else 0.0), -0.1 if tilted else 0.0, 0.4),
+                          [0.1, -0.2, 3.0])  # looking down from 3 m
+    X_WS = RigidTransform(RollPitchYaw(0.03, -0.05, 0.2), [0.0, 0.1, 1.0])  # the deck's top, 2 m below
+    V_WC, V_WS = np.array(camera_velocity), np.array(deck_velocity)
+    expected = axis_point_flow_by_projection(K, X_WC, V_WC, X_WS, V_WS)
+    assert np.linalg.norm(expected) > 10.0  # px/s: each case moves the image
+    np.testing.assert_allclose(motion_blur_flow(K, axis_flow(X_WC, V_WC, X_WS, V_WS), T), expected * T,
+                               rtol=1e-3, atol=1e-6)
+
+
+def test_a_camera_turning_over_a_still_scene_smears_by_its_rotation_alone():
+    K = CameraConfig().K
+    X_WC = RigidTransform(RollPitchYaw(np.pi, 0.0, 0.0), [0.0, 0.0, 2.0])
+    w_C = np.array([0.3, -0.2, 1.0])  # in C; C's axes are W's turned about x by pi
+    rate = axis_flow(X_WC, np.concatenate([X_WC.rotation().multiply(w_C), np.zeros(3)]), RigidTransform(),
+                     np.zeros(6))
+    np.testing.assert_allclose(motion_blur_flow(K, rate, 1.0), [-K[0, 0] * w_C[1], K[1, 1] * w_C[0]], rtol=1e-12)
+
+
+def test_no_axis_flow_where_the_axis_misses_the_plane():
+    looking_up = RigidTransform([0.0, 0.0, 2.0])  # C's +z is W's +z: away from the ground
+    assert np.all(axis_flow(looking_up, np.array([0.0, 1.0, 0.0, 0.5, 0.0, 0.0]), RigidTransform(),
+                            np.zeros(6)) == 0.0)
 
 
 def test_a_blur_kernel_is_a_centred_line_of_the_flow_s_length():
@@ -236,12 +277,12 @@ def test_the_camera_smears_a_point_along_its_turn_over_the_exposure():
     camera.GetInputPort("rendered_image").FixValue(context, image)
     # Unconnected: no smear.
     np.testing.assert_array_equal(image_to_numpy(camera.get_output_port().Eval(context)), image.data)
-    camera.GetInputPort("w_C").FixValue(context, [0.0, 2.0, 0.0])  # 2 rad/s about y: 9.2 px along u
+    camera.GetInputPort("axis_flow").FixValue(context, [-2.0, 0.0])  # a turn of 2 rad/s about y: 9.2 px along u
     out = image_to_numpy(camera.get_output_port().Eval(context))[..., 0].astype(float)
     columns = np.flatnonzero(out.sum(axis=0) > 0)
     assert np.flatnonzero(out.sum(axis=1) > 0).tolist() == [48]
     assert 8 <= columns[-1] - columns[0] <= 11 and out.sum() == pytest.approx(255, abs=12)
-    assert "w_C" not in [camera_port.get_name() for camera_port in (
+    assert "axis_flow" not in [camera_port.get_name() for camera_port in (
         NoisyCamera(CameraConfig()).get_input_port(i) for i in range(NoisyCamera(CameraConfig()).num_input_ports()))]
 
 
@@ -287,8 +328,6 @@ def test_invalid_configuration_names_the_field(changes, field):
 
 
 def test_camera_velocity_adds_the_lever_arm_and_turns_into_the_camera_frame():
-    from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
-
     from systems.sensors.ground_truth import CameraVelocity
 
     X_BC = RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.1, 0.0, -0.04])
@@ -303,5 +342,3 @@ def test_camera_velocity_adds_the_lever_arm_and_turns_into_the_camera_frame():
     R_WC = X_WB.rotation().multiply(X_BC.rotation())
     np.testing.assert_allclose(R_WC.multiply(v_C), [-0.1, 0.0, -0.4], atol=1e-12)
     assert v_C[2] == pytest.approx(0.4)
-    # The yaw about W +z is, for the downward camera (+z_C = -z_B), a turn about C's -z.
-    np.testing.assert_allclose(system.GetOutputPort("w_C").Eval(context), [0.0, 0.0, -1.0], atol=1e-12)

@@ -253,6 +253,23 @@ def test_pad_motion_is_the_sinusoids_and_their_derivatives():
     np.testing.assert_allclose(motion[3], 0.05 * wx * math.cos(wx * t), rtol=1e-6)
 
 
+def test_the_deck_s_spatial_velocity_is_drake_s_from_the_angles_rates():
+    a, f = np.deg2rad([6.0, 4.0, 9.0]), [0.05, 0.07, 0.027]
+    platform, context = moving_platform(roll_amplitude_deg=[6.0], roll_frequency_hz=[f[0]],
+                                        pitch_amplitude_deg=[4.0], pitch_frequency_hz=[f[1]],
+                                        yaw_amplitude_deg=[9.0], yaw_frequency_hz=[f[2]],
+                                        x_amplitude_m=[0.05], x_frequency_hz=[0.031])
+    t = 3.1
+    context.SetTime(t)
+    w = 2 * np.pi * np.array(f)
+    rpy, rpy_dt = a * np.sin(w * t), a * w * np.cos(w * t)
+    w_WP = RollPitchYaw(rpy).CalcAngularVelocityInParentFromRpyDt(rpy_dt)
+    V_WP = platform.GetOutputPort("V_WP").Eval(context)
+    np.testing.assert_allclose(V_WP[:3], w_WP, rtol=1e-5, atol=1e-9)  # central differences
+    assert np.linalg.norm(w_WP - rpy_dt) > 1e-3  # the angles' rates alone are not the angular velocity here
+    np.testing.assert_allclose(V_WP[3:], platform.GetOutputPort("pad_motion").Eval(context)[3:6], atol=1e-15)
+
+
 def test_deck_motion_and_carrier_state_describe_the_tilted_yawed_deck():
     platform, context = moving_platform(roll_amplitude_deg=[8.0], roll_frequency_hz=[0.05],
                                         yaw_amplitude_deg=[10.0], yaw_frequency_hz=[0.027])

@@ -150,6 +150,39 @@ def test_a_scene_builds_from_the_defaults():
     assert set(handles.loggers) >= {"X_CP", "ranges", "ranges_valid", "true_ranges", "tag_corners", "imu"}
 
 
+def test_with_an_exposure_the_image_is_smeared_by_the_deck_s_motion_across_the_axis():
+    import copy
+
+    import cv2
+
+    from diagrams.runner import load_scenario
+    from systems.sensors.camera import motion_blur_flow
+
+    _, config = load_scenario("stewart-dynamic")
+    config = copy.deepcopy(config)
+    config.camera.exposure_s = 0.01
+    config.hover.offset_xy_m = [0.3, -0.2]  # the axis off the deck's centre: its tilt moves the point too
+    diagram, handles = build_stewart_scene(config)
+    context = diagram.CreateDefaultContext()
+    K, dt = config.camera.K, 1e-4
+
+    def X_CP(t):
+        context.SetTime(t)
+        return handles.truth.GetOutputPort("X_CP").Eval(handles.truth.GetMyContextFromRoot(context))
+
+    for t in (1.3, 4.6, 9.2):
+        X = X_CP(t)
+        n_C, p_C = X.rotation().col(2), X.translation()
+        p_P = X.inverse().multiply([0.0, 0.0, (n_C @ p_C) / n_C[2]])  # the deck's point on the axis at t
+        uv = [cv2.projectPoints(X_CP(t + d).multiply(p_P).reshape(1, 3), np.zeros(3), np.zeros(3), K, None)[0].ravel()
+              for d in (-dt, dt)]
+        context.SetTime(t)
+        flow = handles.noisy_camera.GetInputPort("axis_flow").Eval(handles.noisy_camera.GetMyContextFromRoot(context))
+        expected = (uv[1] - uv[0]) / (2 * dt)  # px/s
+        assert np.linalg.norm(expected) > 0.5
+        np.testing.assert_allclose(motion_blur_flow(K, flow, 1.0), expected, rtol=1e-3, atol=1e-5)
+
+
 def test_the_estimates_arrive_the_latency_s_frames_late(dynamic_run):
     import copy
 

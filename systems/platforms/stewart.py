@@ -218,6 +218,14 @@ class StewartMotion:
         before, now, after = (self(t + d)[:3] for d in (-h, 0.0, h))
         return (after - before) / (2 * h), (after - 2 * now + before) / h**2
 
+    def angular_velocity(self, t: float) -> np.ndarray:
+        """w_SP [rad/s, in S]: the deck's angular velocity at time t (s), from the rotation across a central
+        difference of RATE_STEP_S (R(t + h) R(t - h)^T = exp([w] 2h))."""
+        h = RATE_STEP_S
+        before, after = (RotationMatrix(RollPitchYaw(self(t + d)[3:])) for d in (-h, h))
+        turn = after.multiply(before.inverse()).ToAngleAxis()
+        return turn.axis() * turn.angle() / (2 * h)
+
 
 def stroke_violation(config: StewartPlatformConfig, duration_s: float, seed: int = 0,
                      step_s: float = 0.05) -> str | None:
@@ -248,6 +256,7 @@ class StewartPlatform(LeafSystem):
       leg_lengths: the six leg lengths (m) from inverse kinematics.
       stroke_exceeded: [1.0] when any leg is outside [leg_min_m, leg_max_m], else [0.0].
       pad_motion: [p_WP (3, m), v_WP (3, m/s), a_WP (3, m/s^2)] of the deck centre in W.
+      V_WP: the deck's spatial velocity [w_WP (rad/s); v_WP (m/s)], both in W.
       carrier_state: [x, y, yaw (rad), 0], the deck centre and heading in the ground vehicle's state layout,
         for what reads a carrier that way (systems/control/monitor.py).
       deck_motion: the true deck in the layout of systems/estimators/deck_tracker.py's estimate (tilt
@@ -270,6 +279,8 @@ class StewartPlatform(LeafSystem):
         self._leg_lengths_port = self.DeclareVectorOutputPort("leg_lengths", 6, self._calc_leg_lengths)
         self.DeclareVectorOutputPort("stroke_exceeded", 1, self._calc_stroke_exceeded)
         self.DeclareVectorOutputPort("pad_motion", 9, self._calc_pad_motion)
+        self.DeclareVectorOutputPort("V_WP", 6, lambda context, output: output.SetFromVector(np.concatenate([
+            self.motion.angular_velocity(context.get_time()), self.motion.translation_rates(context.get_time())[0]])))
         self.DeclareVectorOutputPort("carrier_state", 4, self._calc_carrier_state)
         self.DeclareVectorOutputPort("deck_motion", DECK_MOTION_SIZE, self._calc_deck_motion)
         self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()),

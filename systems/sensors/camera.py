@@ -80,8 +80,9 @@ class CameraConfig:
     mount_xyz_m: list[float] = field(default_factory=lambda: [0.0, 0.0, -0.04])
     # Lens distortion applied to the rendered (pinhole) image: OpenCV's [k1, k2, p1, p2, k3].
     distortion: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0, 0.0])
-    # Motion blur (issue 13): the exposure time [s]; 0: none. The smear is the camera's own rotation
-    # over the exposure at the principal point (`motion_blur_kernel`); its translation is not modelled.
+    # Motion blur (issue 13): the exposure time [s]; 0: none. The smear is how far the scene at the
+    # principal point moves across the image over the exposure, by the camera's rotation and its motion
+    # relative to the deck (`AxisFlow`, `motion_blur_kernel`): one kernel for the whole image.
     exposure_s: float = 0.0
     # Faults: [start, end] intervals [s] in which the lens is covered (black frames).
     blackouts_s: list[list[float]] = field(default_factory=list)
@@ -226,11 +227,11 @@ def noise_std_by_level(config: CameraConfig) -> np.ndarray:
     return np.sqrt(variance)
 
 
-def motion_blur_flow(K: np.ndarray, w_C: np.ndarray, exposure_s: float) -> np.ndarray:
-    """How far (px, [du, dv]) the scene at the principal point moves in the image while the camera
-    turns at w_C (rad/s, in C) for the exposure: a static point on the axis moves at
-    (du, dv)/dt = (-fx w_y, fy w_x) (p_C' = -w x p_C)."""
-    return np.array([-K[0, 0] * w_C[1], K[1, 1] * w_C[0]]) * exposure_s
+def motion_blur_flow(K: np.ndarray, axis_flow: np.ndarray, exposure_s: float) -> np.ndarray:
+    """How far (px, [du, dv]) the scene at the principal point moves in the image over the exposure, for the
+    rate at which it crosses the image (`axis_flow`, rad/s along C's x and y; ground_truth.axis_flow):
+    (fx rate_x, fy rate_y) exposure_s. A camera turning at w_C over a still scene gives (-fx w_y, fy w_x)."""
+    return np.array([K[0, 0] * axis_flow[0], K[1, 1] * axis_flow[1]]) * exposure_s
 
 
 def motion_blur_kernel(flow_px: np.ndarray) -> np.ndarray | None:
@@ -265,8 +266,9 @@ def add_pixel_noise(rgba: np.ndarray, std, rng: np.random.Generator) -> np.ndarr
 
 class NoisyCamera(LeafSystem):
     """The lens and the sensor: the rendered pinhole image distorted by `config.distortion`
-    (cv2.remap), smeared by the camera's rotation over `config.exposure_s` (input `w_C`, rad/s in C,
-    declared only with an exposure; unconnected: no smear) and given seeded pixel noise
+    (cv2.remap), smeared over `config.exposure_s` by the scene's motion across the image (input
+    `axis_flow`, rad/s along C's x and y, from `AxisFlow`; declared only with an exposure; unconnected: no
+    smear) and given seeded pixel noise
     (`noise_std_by_level`); black within `config.blackouts_s`.
 
     Input `rendered_image` and output `color_image` are ImageRgba8U. The output is a pure function
@@ -283,7 +285,7 @@ class NoisyCamera(LeafSystem):
         self._K, self._exposure = config.K, config.exposure_s
         blank = ImageRgba8U(config.width, config.height)
         self._rendered = self.DeclareAbstractInputPort("rendered_image", AbstractValue.Make(blank))
-        self._w_C = self.DeclareVectorInputPort("w_C", 3) if config.exposure_s > 0 else None
+        self._axis_flow = self.DeclareVectorInputPort("axis_flow", 2) if config.exposure_s > 0 else None
         self.DeclareAbstractOutputPort("color_image", lambda: AbstractValue.Make(blank), self._calc_image)
 
     def _calc_image(self, context, output):
@@ -295,8 +297,8 @@ class NoisyCamera(LeafSystem):
         rendered = self._rendered.Eval(context)
         noisy = np.any(self._std)
         blur = None
-        if self._w_C is not None and self._w_C.HasValue(context):
-            blur = motion_blur_kernel(motion_blur_flow(self._K, self._w_C.Eval(context), self._exposure))
+        if self._axis_flow is not None and self._axis_flow.HasValue(context):
+            blur = motion_blur_kernel(motion_blur_flow(self._K, self._axis_flow.Eval(context), self._exposure))
         if not noisy and self._maps is None and blur is None:
             output.set_value(rendered)
             return

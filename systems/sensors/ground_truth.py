@@ -1,4 +1,5 @@
-"""Ground truth: the pose of a target frame P (e.g. the deck) in the camera frame C."""
+"""Ground truth: the camera's velocity, the scene's motion across its image, and the pose of a target frame
+P (e.g. the deck) in the camera frame C."""
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -22,11 +23,6 @@ class CameraVelocity(LeafSystem):
         self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
         self._V_WB = self.DeclareVectorInputPort("V_WB", 6)
         self.DeclareVectorOutputPort("v_C", 3, self._calc)
-        self.DeclareVectorOutputPort("w_C", 3, lambda c, o: o.SetFromVector(
-            self._R_WC(c).inverse().multiply(self._V_WB.Eval(c)[:3])))
-
-    def _R_WC(self, context):
-        return self._X_WB.Eval(context).rotation().multiply(self._X_BC.rotation())
 
     def _calc(self, context, output):
         X_WB, V_WB = self._X_WB.Eval(context), self._V_WB.Eval(context)
@@ -34,6 +30,48 @@ class CameraVelocity(LeafSystem):
         p_BC_W = R_WB.multiply(self._X_BC.translation())
         v_WC = V_WB[3:] + np.cross(V_WB[:3], p_BC_W)
         output.SetFromVector(R_WB.multiply(self._X_BC.rotation()).inverse().multiply(v_WC))
+
+
+def axis_flow(X_WC: RigidTransform, V_WC: np.ndarray, X_WS: RigidTransform, V_WS: np.ndarray) -> np.ndarray:
+    """[rate_x, rate_y] (rad/s): how fast the scene point on the optical axis of a camera C crosses its image,
+    along C's x and y (the image moves at fx rate_x, fy rate_y px/s). The scene is the plane z = 0 of a frame S
+    (the deck's top surface), moving with S. V_WC and V_WS are spatial velocities [w; v] in W of C's and S's
+    origins (rad/s, m/s). The point p on the axis at depth Z, r_C = (0, 0, Z), moves in C at
+    r_C' = R_CW ((v_p - v_C) - w_C x (p - p_C)), with v_p = v_S + w_S x (p - p_S). Zero when the axis does not
+    meet the plane in front of the camera."""
+    R_WC, p_WC = X_WC.rotation().matrix(), X_WC.translation()
+    n_W, p_WS = X_WS.rotation().col(2), X_WS.translation()
+    along = n_W @ R_WC[:, 2]
+    depth = n_W @ (p_WS - p_WC) / along if abs(along) > 1e-9 else -1.0
+    if depth <= 0:
+        return np.zeros(2)
+    p_W = p_WC + depth * R_WC[:, 2]
+    v_p = V_WS[3:] + np.cross(V_WS[:3], p_W - p_WS)
+    r_dot_C = R_WC.T @ (v_p - V_WC[3:] - np.cross(V_WC[:3], p_W - p_WC))
+    return r_dot_C[:2] / depth
+
+
+class AxisFlow(LeafSystem):
+    """`axis_flow` (2, rad/s; `axis_flow`'s) of a camera C mounted at X_BC on a body B over the scene plane
+    z = 0 of a moving frame S: what smears the image over an exposure (`NoisyCamera`'s input).
+
+    Inputs: X_WB (RigidTransform), V_WB (6: [w; v] in W), X_WS (RigidTransform), V_WS (6: [w; v] in W)."""
+
+    def __init__(self, X_BC: RigidTransform):
+        super().__init__()
+        self._X_BC = X_BC
+        self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
+        self._V_WB = self.DeclareVectorInputPort("V_WB", 6)
+        self._X_WS = self.DeclareAbstractInputPort("X_WS", AbstractValue.Make(RigidTransform()))
+        self._V_WS = self.DeclareVectorInputPort("V_WS", 6)
+        self.DeclareVectorOutputPort("axis_flow", 2, self._calc)
+
+    def _calc(self, context, output):
+        X_WB, V_WB = self._X_WB.Eval(context), self._V_WB.Eval(context)
+        p_BC_W = X_WB.rotation().multiply(self._X_BC.translation())
+        V_WC = np.concatenate([V_WB[:3], V_WB[3:] + np.cross(V_WB[:3], p_BC_W)])
+        output.SetFromVector(axis_flow(X_WB.multiply(self._X_BC), V_WC, self._X_WS.Eval(context),
+                                       self._V_WS.Eval(context)))
 
 
 class RelativePose(LeafSystem):
