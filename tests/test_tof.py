@@ -195,6 +195,10 @@ def test_range_noise_grows_with_range_and_the_bias_offsets_every_reading():
     ({"arm_m": -0.1}, "tof.arm_m"),
     ({"cone_deg": 120.0}, "tof.cone_deg"),
     ({"noise_std_per_m": -0.01}, "tof.noise_std_per_m"),
+    ({"trigger": "free"}, "tof.trigger"),
+    ({"trigger": "own_clock", "time_offset_s": 0.05}, "tof.time_offset_s"),
+    ({"trigger": "own_clock", "time_offset_s": -0.01}, "tof.time_offset_s"),
+    ({"time_offset_s": 0.01}, "tof.time_offset_s"),
 ])
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
@@ -247,6 +251,32 @@ def test_rendered_ranges_follow_the_moving_deck(dynamic_run):
         assert np.all(np.abs(hits_P[:, :2]) < scene.config.platform.tag_size_m * 10 / 8 / 2 - 0.02)
         errors.append(scene.eval(scene.handles.tof, "true_ranges", scene.context(t)) - expected)
     assert np.max(np.abs(errors)) < 1e-4, np.max(np.abs(errors))
+
+
+def test_on_its_own_clock_a_frame_reads_the_last_reading_taken_before_it(dynamic_run, build_scene):
+    from pydrake.systems.analysis import Simulator
+
+    from diagrams.stewart_run import collect_log
+
+    config = copy.deepcopy(dynamic_run[0].config)
+    config.tof.trigger, config.tof.rate_hz, config.tof.time_offset_s = "own_clock", 30.0, 0.01
+    config.tof.noise_std_m, config.estimators = 0.0, []
+    scene = build_scene(config)
+    simulator = Simulator(scene.diagram)
+    simulator.AdvanceTo(1.0)
+    log = collect_log(scene.handles, simulator.get_context(), config)
+    frames = log["t"]
+    assert np.all(np.isnan(log["ranges"][frames < 0.01])) and not log["ranges_valid"][frames < 0.01].any()
+    later = frames > 0.01
+    # The readings at 0.01 + k / 30 s; the 20 Hz frames never coincide with them.
+    taken = 0.01 + np.floor((frames[later] - 0.01) * 30.0) / 30.0
+    expected = np.array([analytic_ranges(scene, scene.handles.platform.X_WP(t))[0] for t in taken])
+    np.testing.assert_allclose(log["ranges"][later], expected, rtol=0, atol=1e-4)
+    np.testing.assert_allclose(log["true_ranges"][later], expected, rtol=0, atol=1e-4)
+    # Not the deck at the frame's own time: the readings are 0-33 ms old, the deck moves under them.
+    at_frame = np.array([analytic_ranges(scene, scene.handles.platform.X_WP(t))[0] for t in frames[later]])
+    assert np.max(np.abs(log["ranges"][later] - at_frame)) > 3e-4  # three times the tolerance above
+    assert len(np.unique(log["ranges"][later][:, 0])) == len(taken)  # no reading read twice at 20 of 30 Hz
 
 
 def test_noisy_ranges_scatter_about_the_rendered_truth(tilted_scene, build_scene):

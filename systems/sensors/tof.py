@@ -49,6 +49,7 @@ _K_RAY_PIXELS, _K_CONE_PIXELS = 16, 128
 # than _Q_TOLERANCE (TOF_CAMERA_BACK_M + s)^2, 0.2 um at 2 m.
 _MAX_ITERATIONS, _Q_TOLERANCE = 8, 1e-10
 _JUMP = 1e-3  # an edge in K's inverse depth between neighbouring pixels (relative; 5 cm at 2 m)
+TRIGGERS = ("camera", "own_clock")
 
 
 @dataclass
@@ -70,6 +71,11 @@ class TofConfig:
     cone_deg: float = 0.0
     noise_std_per_m: float = 0.0
     bias_m: float = 0.0
+    # Timing: "camera" (default) ranges at the instant of the camera frame that reads it (triggered with
+    # the camera); "own_clock" ranges at rate_hz from time_offset_s (s) on, free-running, and a frame
+    # reads the last reading completed before it.
+    trigger: str = "camera"
+    time_offset_s: float = 0.0
 
     def validate(self, prefix: str = "tof") -> None:
         for name in ("arm_m", "min_range_m", "rate_hz"):
@@ -78,6 +84,13 @@ class TofConfig:
         require(self.max_range_m < _FAR_M, f"{prefix}.max_range_m must be below {_FAR_M} m")
         require(self.noise_std_m >= 0, f"{prefix}.noise_std_m must not be negative")
         require(self.noise_std_per_m >= 0, f"{prefix}.noise_std_per_m must not be negative")
+        require(self.trigger in TRIGGERS,
+                f"{prefix}.trigger must be one of {', '.join(TRIGGERS)}, got {self.trigger!r}")
+        require(self.trigger == "own_clock" or self.time_offset_s == 0,
+                f"{prefix}.time_offset_s applies to {prefix}.trigger: own_clock only")
+        require(0 <= self.time_offset_s < self.period_s,
+                f"{prefix}.time_offset_s must lie within 0 and the sensors' period ({self.period_s:g} s), "
+                f"got {self.time_offset_s}")
         require(0 <= self.cone_deg <= 90, f"{prefix}.cone_deg must lie within 0-90 deg, got {self.cone_deg}")
         require(0 < self.angle_deg < 90, f"{prefix}.angle_deg must lie strictly within 0-90 deg (on the camera's "
                                          f"axes the sensors leave Eq. 40-45's focal lengths undefined), got {self.angle_deg}")
@@ -221,12 +234,14 @@ def ray_depths(depth_K: np.ndarray, f: float, c: float, p_CS: np.ndarray, x_S: n
 class TofSensors(LeafSystem):
     """Turns the shared depth camera's image into the four sensors' range readings.
 
-    Input depth_image (ImageDepth32F, `make_tof_camera`'s for the same config). Outputs, evaluated at the
-    sensor rate by consumers:
+    Input depth_image (ImageDepth32F, `make_tof_camera`'s for the same config). Outputs:
       ranges: 4 readings (m) with noise (std noise_std_m + noise_std_per_m x range) and bias_m; NaN
         where invalid.
       ranges_valid: 4 flags, 1.0 for a valid reading, 0.0 when out of range or nothing is seen.
       true_ranges: 4 noise-free distances (m) along each axis, ground truth for logging.
+    With `trigger: camera` they are the readings at the time a consumer evaluates them (the camera's frames);
+    with `own_clock` a periodic update takes them at time_offset_s + k / rate_hz and holds them (NaN, 0, inf
+    before the first), so a frame at the same instant as a reading still sees the one before it.
     """
 
     def __init__(self, config: TofConfig, seed: int = 0):
@@ -243,11 +258,20 @@ class TofSensors(LeafSystem):
         self._p_CS = np.repeat(sensor_positions_C(config.arm_m, config.angle_deg), n, axis=0)
         self._x_S, self._y_S = np.tile(x[self._cols], 4), np.tile(x[self._rows], 4)
         self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F(k_pixels, k_pixels)))
+        names = ("ranges", "ranges_valid", "true_ranges")
+        if config.trigger == "own_clock":
+            held = self.DeclareDiscreteState(np.concatenate([np.full(4, np.nan), np.zeros(4), np.full(4, np.inf)]))
+            self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, config.time_offset_s, lambda c, state: (
+                state.get_mutable_vector().SetFromVector(np.concatenate(self.readings(c)))))
+            for i, name in enumerate(names):
+                self.DeclareVectorOutputPort(name, 4, lambda c, o, i=i: o.SetFromVector(
+                    c.get_discrete_state(held).value()[4 * i:4 * i + 4]), {self.xd_ticket()})
+            return
         # One set of readings per frame, shared by the three outputs.
         readings = self.DeclareCacheEntry("readings", ValueProducer(
             allocate=lambda: AbstractValue.Make((np.zeros(4), np.zeros(4), np.zeros(4))),
             calc=lambda c, value: value.set_value(self.readings(c))))
-        for i, name in enumerate(("ranges", "ranges_valid", "true_ranges")):
+        for i, name in enumerate(names):
             self.DeclareVectorOutputPort(name, 4, lambda c, o, i=i: o.SetFromVector(readings.Eval(c)[i]),
                                          {readings.ticket()})
 
@@ -270,7 +294,7 @@ class TofSensors(LeafSystem):
         centre = self._pixels // 2
         true_ranges = depths[:, centre, centre]
         measured = true_ranges if c.cone_deg == 0 else np.array([cone_range(d, self._fov_deg) for d in depths])
-        k = sample_index(context.get_time(), c.period_s)
+        k = sample_index(context.get_time() - c.time_offset_s, c.period_s)
         std = c.noise_std_m + c.noise_std_per_m * np.where(np.isfinite(measured), measured, 0.0)
         noise = sample_rng(self._seed, "tof", k).standard_normal(4) * std + c.bias_m
         return (*apply_range_limits(measured, noise, c.min_range_m, c.max_range_m), true_ranges)
