@@ -51,6 +51,7 @@ HARDWARE_EFFECTS = {
     "motion blur": ["camera.exposure_s"],
     "ToF cone": ["tof.cone_deg"],
     "ToF noise and bias": ["tof.noise_std_m", "tof.noise_std_per_m", "tof.bias_m", "crhf.range_filter"],
+    "ToF clock": ["tof.trigger", "tof.rate_hz", "tof.time_offset_s"],
     "latency": ["estimate_latency_frames"],
 }
 
