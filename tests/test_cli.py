@@ -89,13 +89,14 @@ def bad_config(tmp_path):
     (["run", "deck-landing", "--set", "perception.source=ct_ekf"], "perception.source"),
     (["run", "deck-landing", "--set", "landing.initial_height_m=1.2"], "landing.initial_height_m"),
     (["run", "deck-landing", "--set", "estimate_latency_frames=-1"], "estimate_latency_frames"),
+    (["run", "deck-landing-hardware", "--set", "tof.time_offset_s=0.04"], "tof.time_offset_s"),
     (["run", "ugv-hybrid", "--set", "hybrid.model_path={missing_model}"], "missing.onnx"),
     (["run", "ugv-hybrid", "--set", "hybrid.model_path={corrupt_model}"], "corrupt.onnx"),
 ], ids=["bad-name", "unknown-key", "negative-rate", "tag-too-big", "negative-duration", "type-error",
         "name-and-config", "unknown-option", "missing-config", "federated-on-markers", "two-cameras",
         "backward-blackout", "imu-rate", "empty-manoeuvre", "deck-beyond-stroke", "stewart-beyond-stroke",
         "negative-seed", "tof-on-the-axes", "negative-texture-seed", "negative-duration-deck", "negative-joint-height",
-        "deck-source", "deck-ih", "deck-negative-latency",
+        "deck-source", "deck-ih", "deck-negative-latency", "tof-phase-beyond-period",
         "missing-detector-model", "corrupt-detector-model"])
 def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path, bad_config, args, named):
     out = tmp_path / "out"

@@ -179,6 +179,22 @@ def test_a_cone_that_sees_nothing_is_invalid():
     assert np.all(np.isnan(ranges)) and np.all(valid == 0)
 
 
+def test_triggered_by_a_faster_camera_every_frame_draws_its_own_noise():
+    config = TofConfig(noise_std_m=0.01)  # rate_hz 20: unused when the camera triggers the readings
+    ranges = [2.0, 2.0, 2.0, 2.0]
+    quadrants = lambda x, y: np.full(np.broadcast(x, y).shape, 2.0)  # noqa: E731
+    tof = TofSensors(config, 0, frame_period_s=0.04)  # a 25 Hz camera
+    context = tof.CreateDefaultContext()
+    tof.get_input_port().FixValue(context, camera_image(config, quadrants))
+    readings = np.array([outputs(tof, context, 0.04 * k)[0] for k in range(12)])
+    assert len(np.unique(readings[:, 0])) == 12  # numbered by the camera's frames, none repeated
+    at_own_rate = TofSensors(TofConfig(noise_std_m=0.01, rate_hz=25.0), 0)
+    own_context = at_own_rate.CreateDefaultContext()
+    at_own_rate.get_input_port().FixValue(own_context, camera_image(config, quadrants))
+    np.testing.assert_array_equal(readings, [outputs(at_own_rate, own_context, 0.04 * k)[0] for k in range(12)])
+    assert np.all(np.abs(readings - ranges) < 0.05)
+
+
 def test_range_noise_grows_with_range_and_the_bias_offsets_every_reading():
     period, truth = 1.0 / 20.0, np.array([0.5, 1.0, 2.0, 3.0])
     tof, context = tof_system(truth, noise_std_m=0.002, noise_std_per_m=0.004, bias_m=0.01)

@@ -72,8 +72,8 @@ class TofConfig:
     noise_std_per_m: float = 0.0
     bias_m: float = 0.0
     # Timing: "camera" (default) ranges at the instant of the camera frame that reads it (triggered with
-    # the camera); "own_clock" ranges at rate_hz from time_offset_s (s) on, free-running, and a frame
-    # reads the last reading completed before it.
+    # the camera, at its rate; rate_hz is then unused); "own_clock" ranges at rate_hz from time_offset_s (s)
+    # on, free-running, and a frame reads the last reading completed before it.
     trigger: str = "camera"
     time_offset_s: float = 0.0
 
@@ -244,10 +244,14 @@ class TofSensors(LeafSystem):
     before the first), so a frame at the same instant as a reading still sees the one before it.
     """
 
-    def __init__(self, config: TofConfig, seed: int = 0):
+    def __init__(self, config: TofConfig, seed: int = 0, frame_period_s: float | None = None):
+        """`frame_period_s`: the camera's, which triggers the readings (`trigger: camera`); default rate_hz's."""
         super().__init__()
         config.validate()
         self._config, self._seed = config, seed
+        # Readings are numbered (for their noise) by the clock that takes them.
+        by_camera = config.trigger == "camera" and frame_period_s is not None
+        self._reading_period = frame_period_s if by_camera else config.period_s
         self._pixels, self._fov_deg = config.view
         k_pixels, self._f, self._c = tof_camera_view(config)
         # Every ray of every sensor: origins p_CS and directions [x, y, 1] (in C) of the pixels inside each
@@ -294,7 +298,7 @@ class TofSensors(LeafSystem):
         centre = self._pixels // 2
         true_ranges = depths[:, centre, centre]
         measured = true_ranges if c.cone_deg == 0 else np.array([cone_range(d, self._fov_deg) for d in depths])
-        k = sample_index(context.get_time() - c.time_offset_s, c.period_s)
+        k = sample_index(context.get_time() - c.time_offset_s, self._reading_period)
         std = c.noise_std_m + c.noise_std_per_m * np.where(np.isfinite(measured), measured, 0.0)
         noise = sample_rng(self._seed, "tof", k).standard_normal(4) * std + c.bias_m
         return (*apply_range_limits(measured, noise, c.min_range_m, c.max_range_m), true_ranges)
