@@ -5,7 +5,7 @@
 
 The breakdown times each stage on its own at the camera's frame times: render (512x512 colour), the
 camera's processing of it (lens, blur and pixel noise), ToF (the sensors' one shared depth render and
-their readings), tag detection, 4 frames after each simulated second, so the render and the simulation
+their readings, times the readings per frame when they keep their own clock), tag detection, 4 frames after each simulated second, so the render and the simulation
 are timed under the same load; "rest" is the simulation's wall time per frame minus those (logging,
 IMU, events, Python overhead). `--out` writes the figures as JSON too (`render_ms`, `per_frame_ms`,
 their ratio, the real-time factor and the stages), beside the printout.
@@ -87,12 +87,15 @@ def main(argv: list[str] | None = None) -> None:
     frames = round(simulated * scenario.camera.rate_hz)
 
     stages = timer.medians_ms()
+    # On their own clock the ToF sensors read rate_hz / camera rate times per frame (1.5 at 30 Hz).
+    tof_readings = scenario.tof.rate_hz / scenario.camera.rate_hz if scenario.tof.trigger == "own_clock" else 1.0
+    stages["tof"] *= tof_readings
     per_frame = wall / frames * 1e3
     print(f"{args.scenario}, {simulated:.1f} s simulated in {wall:.1f} s: real-time factor {simulated / wall:.2f}")
     print(f"per frame ({frames} frames at {scenario.camera.rate_hz:g} Hz): {per_frame:.1f} ms, "
           f"{per_frame / stages['render']:.2f}x the render")
     for name, ms in stages.items():
-        print(f"  {name:10s} {ms:6.1f} ms")
+        print(f"  {name:10s} {ms:6.1f} ms" + (f" ({tof_readings:g} readings per frame)" if name == "tof" else ""))
     print(f"  {'rest':10s} {per_frame - sum(stages.values()):6.1f} ms (logging, IMU, events)")
     if args.out is not None:
         write_json(args.out, {"scenario": args.scenario, "simulated_s": simulated, "wall_s": wall,
