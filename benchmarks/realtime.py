@@ -5,10 +5,11 @@
 
 The breakdown times each stage on its own at the camera's frame times: render (512x512 colour), the
 camera's processing of it (lens, blur and pixel noise), ToF (the sensors' one shared depth render and
-their readings, times the readings per frame when they keep their own clock), tag detection, 4 frames after each simulated second, so the render and the simulation
-are timed under the same load; "rest" is the simulation's wall time per frame minus those (logging,
-IMU, events, Python overhead). `--out` writes the figures as JSON too (`render_ms`, `per_frame_ms`,
-their ratio, the real-time factor and the stages), beside the printout.
+their readings, times the readings per frame when they keep their own clock), tag detection, 4 frames
+after each simulated second, so the render and the simulation are timed under the same load; "rest" is
+the simulation's wall time per frame minus those (logging, IMU, events, Python overhead). `--out`
+writes the figures as JSON too (`render_ms`, `per_frame_ms`, their ratio, the real-time factor and the
+stages), beside the printout.
 """
 
 import argparse
