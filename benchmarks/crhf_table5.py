@@ -47,7 +47,7 @@ CASES = {
 HARDWARE_EFFECTS = {
     "lens distortion": ["camera.distortion"],
     "calibration error": ["camera.calibration_error"],
-    "sensor noise": ["camera.pixel_noise_std", "camera.full_well_e", "camera.read_noise_e"],
+    "sensor noise": ["camera.pixel_noise_std", "camera.full_well_e", "camera.read_noise_e", "camera.analog_gain"],
     "motion blur": ["camera.exposure_s"],
     "ToF cone": ["tof.cone_deg"],
     "ToF noise and bias": ["tof.noise_std_m", "tof.noise_std_per_m", "tof.bias_m", "crhf.range_filter"],

@@ -203,6 +203,24 @@ def test_sensor_noise_is_shot_noise_plus_read_noise():
     assert np.sqrt(200 * gain) > 2.5 * np.sqrt(20 * gain)  # the two levels' noise differs clearly
 
 
+def test_analog_gain_amplifies_fewer_electrons_to_the_same_level():
+    # At gain 4 a level holds a quarter of the electrons: shot noise (in levels) doubles, read noise quadruples.
+    full_well, read, level = 4000.0, 3.0, 120
+    image = ImageRgba8U(128, 128)
+    image.mutable_data[...] = level
+    std = {}
+    for gain in (1.0, 4.0):
+        config = CameraConfig(width=128, height=128, cx=64, cy=64, full_well_e=full_well, read_noise_e=read,
+                              analog_gain=gain)
+        camera = NoisyCamera(config, seed=5)
+        context = camera.CreateDefaultContext()
+        camera.get_input_port().FixValue(context, image)
+        std[gain] = np.std(image_to_numpy(camera.get_output_port().Eval(context))[..., :3].astype(float) - level)
+        electrons = level / 255 * full_well / gain
+        assert std[gain] == pytest.approx(np.sqrt(electrons + read**2) * gain * 255 / full_well, rel=0.1)
+    assert std[4.0] > 1.8 * std[1.0]
+
+
 def axis_point_flow_by_projection(K, X_WC, V_WC, X_WS, V_WS, dt=1e-5):
     """px/s at which the scene point on the camera's axis moves in the image: that point, carried with the
     plane's frame S for dt, projected by OpenCV into the camera carried for dt (both moved by exact screws)."""
@@ -319,6 +337,8 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     ({"exposure_s": -0.001}, "camera.exposure_s"),
     ({"exposure_s": 0.06}, "camera.exposure_s"),
     ({"read_noise_e": 3.0}, "camera.read_noise_e needs camera.full_well_e"),
+    ({"analog_gain": 2.0}, "camera.analog_gain needs camera.full_well_e"),
+    ({"analog_gain": 0.5, "full_well_e": 6000.0}, "camera.analog_gain"),
     ({"distortion": [0.1, 0.0]}, "camera.distortion needs 5 numbers"),
     ({"distortion": [-0.9, 0.0, 0.0, 0.0, 0.0]}, "camera.distortion folds the image"),
 ])

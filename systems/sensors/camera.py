@@ -73,6 +73,10 @@ class CameraConfig:
     # noise grows with the square root of the signal) and the read noise in electrons.
     full_well_e: float = 0.0
     read_noise_e: float = 0.0
+    # The sensor's analog gain over the exposure's signal: at gain g a level holds 1/g of the electrons
+    # it holds at unity (a shorter exposure amplified back to the same brightness), so shot noise grows
+    # by sqrt(g) and read noise by g. Needs full_well_e.
+    analog_gain: float = 1.0
     near_m: float = 0.05
     far_m: float = 50.0
     # Camera frame C in the body frame B: below the body, optical axis down (+z_C = -z_B),
@@ -103,6 +107,9 @@ class CameraConfig:
                 f"{prefix}.exposure_s must lie within 0 and the frame period ({self.period_s:g} s), got {self.exposure_s}")
         require(self.read_noise_e == 0 or self.full_well_e > 0,
                 f"{prefix}.read_noise_e needs {prefix}.full_well_e (the electrons at level 255) to convert it")
+        require(self.analog_gain >= 1, f"{prefix}.analog_gain must be at least 1 (unity), got {self.analog_gain}")
+        require(self.analog_gain == 1 or self.full_well_e > 0,
+                f"{prefix}.analog_gain needs {prefix}.full_well_e (the electrons at level 255 at unity gain)")
         require(len(self.mount_xyz_m) == 3, f"{prefix}.mount_xyz_m needs 3 numbers")
         require(len(self.distortion) == 5, f"{prefix}.distortion needs 5 numbers [k1, k2, p1, p2, k3]")
         self.calibration_error.validate(f"{prefix}.calibration_error")
@@ -218,11 +225,11 @@ _Z_RGB[0, :, :3] = (_Z / _Z.std())[:, None]
 def noise_std_by_level(config: CameraConfig) -> np.ndarray:
     """The noise std (8-bit levels) of a pixel at each of the 256 levels: the flat `pixel_noise_std`
     plus, when `full_well_e` is set, photon shot noise (Poisson: variance = the electrons collected, a
-    level v holding v / 255 of the full well) and read noise, each converted at 255 / full_well_e levels
-    per electron; the three add in variance."""
+    level v holding v / 255 of the full well over the analog gain) and read noise, each converted at
+    analog_gain x 255 / full_well_e levels per electron; the three add in variance."""
     variance = np.full(256, config.pixel_noise_std**2)
     if config.full_well_e > 0:
-        gain = 255.0 / config.full_well_e  # levels per electron
+        gain = config.analog_gain * 255.0 / config.full_well_e  # levels per electron
         variance += np.arange(256) * gain + (config.read_noise_e * gain) ** 2
     return np.sqrt(variance)
 
