@@ -10,8 +10,8 @@ tilt: |n_xy| = sin(tilt)) and the heading left after removing that tilt,
 A frame whose pose is far from the tracks' prediction (its innovation's chi-square beyond `gate_chi2`, on
 the centre or on the attitude: a wrong frame from the estimator) is not used; a new track steers only once
 `confirm_frames` frames in a row agree, and until then a frame outside the gate starts it afresh; frames that
-confirmed tracks gate start a challenger, which replaces them after `takeover_frames` in a row. Between frames the
-tracks coast; a frame without a valid (or a gated) X_CT (the tag out of view, as in the last
+confirmed tracks gate start a challenger, which replaces them after `takeover_frames` in a row. Between
+frames the tracks coast; a frame without a valid (or a gated) X_CT (the tag out of view, as in the last
 half metre of a landing) is a coasted step, and after `max_coast_steps` of them the estimate turns
 invalid. (Updating the heave and tilt from the four ToF ranges' plane in those frames was tried: each
 frame's plane tilts by 0.026 rad of noise over the sensors' 0.19 m spacing, and on a ship-like deck the
@@ -99,12 +99,11 @@ def attitude_rotation(coordinates: np.ndarray) -> RotationMatrix:
 @dataclass(frozen=True)
 class DeckTrack:
     """The tracks stepped at `time` [s] (None before the first frame): position (p_WP) and attitude, of the
-    deck as it was `lag_s` [s] earlier (the frames' age when they arrive: exposure to estimate)."""
+    deck as it was at the frames' exposure (`deck_estimate`'s lag_s earlier)."""
 
     time: float | None = None
     position: Track = field(default_factory=Track)
     attitude: Track = field(default_factory=Track)
-    lag_s: float = 0.0
     frames_used: int = 0  # since the tracks started
     challenger: "DeckTrack | None" = None  # tracks started on the frames these gated in a row, if any
 
@@ -137,35 +136,35 @@ def _measurement(track: DeckTrack, X_WP: RigidTransform, config: DeckTrackerConf
 
 
 def _stepped(track: DeckTrack, position: np.ndarray | None, attitude: np.ndarray | None, time: float,
-             lag_s: float, params: tuple, challenger: DeckTrack | None = None) -> DeckTrack:
+             params: tuple, challenger: DeckTrack | None = None) -> DeckTrack:
     """The tracks advanced one frame and updated with a measurement (None: coast), counting the frames used."""
     stepped = DeckTrack(time, step_track(track.position, position, params[0]),
-                        step_track(track.attitude, attitude, params[1]), lag_s,
+                        step_track(track.attitude, attitude, params[1]),
                         track.frames_used + (position is not None), challenger)
     return stepped if stepped.tracking else replace(stepped, frames_used=0)
 
 
 def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time: float,
-                    config: DeckTrackerConfig, period_s: float, lag_s: float = 0.0) -> DeckTrack:
+                    config: DeckTrackerConfig, period_s: float) -> DeckTrack:
     """One camera frame arriving at `time`: the tracks advanced by period_s and updated with X_WP_measured
-    (None: coast), the deck as it was at time - lag_s [s] (the frame's exposure). A frame outside the gate
+    (None: coast), the deck at the frame's exposure. A frame outside the gate
     starts unconfirmed tracks afresh; confirmed ones do not use it, and it feeds their challenger instead."""
     params = replace(config.position, dt_s=period_s), replace(config.attitude, dt_s=period_s)
     if X_WP_measured is None:
-        return _stepped(track, None, None, time, lag_s, params)
+        return _stepped(track, None, None, time, params)
     position, attitude, gated = _measurement(track, X_WP_measured, config, params)
     if not gated:
-        return _stepped(track, position, attitude, time, lag_s, params)
+        return _stepped(track, position, attitude, time, params)
     if not track.confirmed(config):
-        return _stepped(DeckTrack(), position, attitude, time, lag_s, params)
+        return _stepped(DeckTrack(), position, attitude, time, params)
     # Gated by confirmed tracks: the frame starts or feeds the challenger (afresh if outside its own gate);
     # takeover_frames of them in a row that agree replace the tracks, which had gone wrong, not the frames.
     challenger = track.challenger or DeckTrack()
     c_position, c_attitude, c_gated = _measurement(challenger, X_WP_measured, config, params)
-    challenger = _stepped(DeckTrack() if c_gated else challenger, c_position, c_attitude, time, lag_s, params)
+    challenger = _stepped(DeckTrack() if c_gated else challenger, c_position, c_attitude, time, params)
     if challenger.frames_used >= config.takeover_frames:
         return challenger
-    return _stepped(track, None, None, time, lag_s, params, challenger)
+    return _stepped(track, None, None, time, params, challenger)
 
 
 def predicted(track: Track, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -178,14 +177,15 @@ def predicted(track: Track, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return values, rates, variances
 
 
-def deck_estimate(track: DeckTrack, time: float, config: DeckTrackerConfig) -> tuple[PoseEstimate, np.ndarray,
-                                                                                       np.ndarray]:
+def deck_estimate(track: DeckTrack, time: float, config: DeckTrackerConfig, lag_s: float = 0.0
+                  ) -> tuple[PoseEstimate, np.ndarray, np.ndarray]:
     """(PoseEstimate of X_WP, v_WP [m/s], deck_motion (DECK_MOTION_SIZE)) at `time` [s]: the tracks
-    predicted from their last frame's exposure; invalid (zeros) unless they are tracking, confirmed."""
+    predicted from their last frame's exposure, lag_s [s] before it arrived; invalid (zeros) unless they are
+    tracking, confirmed."""
     motion = np.zeros(DECK_MOTION_SIZE)
     if not track.confirmed(config):
         return PoseEstimate.invalid(time, "W", "P"), np.zeros(3), motion
-    dt = time - (track.time - track.lag_s)
+    dt = time - (track.time - lag_s)
     p, v, p_var = predicted(track.position, dt)
     a, a_rate, a_var = predicted(track.attitude, dt)
     covariance = np.diag(np.r_[a_var[1], a_var[0], a_var[2], p_var])  # [roll, pitch, yaw, x, y, z]: small tilts
@@ -211,13 +211,13 @@ class DeckTracker(LeafSystem):
         config.validate()
         require(latency_s >= 0, f"deck tracker latency_s must not be negative, got {latency_s}")
         self._config, self._X_BC, self._X_TP, self._period = config, X_BC, X_TP, period_s
-        self._latency = latency_s
         self._estimate_in = self.DeclareAbstractInputPort("X_CT_estimate", AbstractValue.Make(PoseEstimate()))
         self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
         now = SteppedValue(self, "deck_track", DeckTrack(), period_s, self._step, lambda track: track.time).now
         self._estimate = self.DeclareCacheEntry("estimate", ValueProducer(
             allocate=lambda: AbstractValue.Make(deck_estimate(DeckTrack(), 0.0, config)),
-            calc=lambda c, v: v.set_value(deck_estimate(now.Eval(c), c.get_time(), config))), {now.ticket()})
+            calc=lambda c, v: v.set_value(deck_estimate(now.Eval(c), c.get_time(), config, latency_s))),
+            {now.ticket()})
         ticket = {self._estimate.ticket()}
         self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()),
                                        lambda c, o: o.set_value(self._estimate.Eval(c)[0]), ticket)
@@ -231,4 +231,4 @@ class DeckTracker(LeafSystem):
         X_WP = None
         if estimate.valid:
             X_WP = self._X_WB.Eval(context).multiply(self._X_BC).multiply(estimate.X_CT).multiply(self._X_TP)
-        return step_deck_track(track, X_WP, context.get_time(), self._config, self._period, self._latency)
+        return step_deck_track(track, X_WP, context.get_time(), self._config, self._period)
