@@ -21,14 +21,8 @@ from diagrams.deck_landing_run import fly
 from diagrams.runner import load_scenario
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.sensors.camera import motion_blur_flow
-from systems.sensors.ground_truth import axis_flow
+from systems.sensors.ground_truth import axis_flow, camera_motion
 from systems.vehicles.quadrotor import P_WB, Q_WB, V_WB, W_WB_B
-
-
-def camera_motion(X_WB: RigidTransform, V_WB: np.ndarray, X_BC: RigidTransform) -> tuple[RigidTransform, np.ndarray]:
-    """(X_WC, V_WC [w; v] in W) of a camera mounted at X_BC on a body moving at V_WB ([w; v] in W)."""
-    p_BC_W = X_WB.rotation().multiply(X_BC.translation())
-    return X_WB.multiply(X_BC), np.concatenate([V_WB[:3], V_WB[3:] + np.cross(V_WB[:3], p_BC_W)])
 
 
 def stewart_smears(config: StewartSceneConfig, duration_s: float) -> np.ndarray:

@@ -72,7 +72,7 @@ def test_estimates_two_frames_late_are_of_their_exposure_and_the_deck_is_predict
 def test_with_an_exposure_the_camera_is_smeared_by_the_uav_s_motion_over_the_deck():
     from diagrams.deck_landing import build_deck_landing
     from systems.sensors.camera import NoisyCamera
-    from systems.sensors.ground_truth import axis_flow
+    from systems.sensors.ground_truth import axis_flow, camera_motion
     from systems.vehicles.quadrotor import V_WB, W_WB_B, hover_state
 
     _, config = load_scenario("deck-landing", overrides=["seed=0", "camera.exposure_s=0.01"])
@@ -88,9 +88,7 @@ def test_with_an_exposure_the_camera_is_smeared_by_the_uav_s_motion_over_the_dec
     def port(system, name):
         return system.GetOutputPort(name).Eval(system.GetMyContextFromRoot(context))
 
-    X_WB, V = port(handles.quadrotor, "X_WB"), port(handles.quadrotor, "V_WB")
-    X_WC = X_WB.multiply(config.X_BC)
-    V_WC = np.concatenate([V[:3], V[3:] + np.cross(V[:3], X_WB.rotation().multiply(config.X_BC.translation()))])
+    X_WC, V_WC = camera_motion(port(handles.quadrotor, "X_WB"), port(handles.quadrotor, "V_WB"), config.X_BC)
     expected = axis_flow(X_WC, V_WC, port(handles.platform, "X_WP"), port(handles.platform, "V_WP"))
     assert np.linalg.norm(expected) > 0.1  # rad/s
     np.testing.assert_allclose(flow, expected, rtol=1e-12)

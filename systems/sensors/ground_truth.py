@@ -12,6 +12,13 @@ def pose_vector(X: RigidTransform) -> np.ndarray:
     return np.concatenate([X.translation(), X.rotation().ToQuaternion().wxyz()])
 
 
+def camera_motion(X_WB: RigidTransform, V_WB: np.ndarray, X_BC: RigidTransform) -> tuple[RigidTransform, np.ndarray]:
+    """(X_WC, V_WC: [w; v] in W, rad/s and m/s) of a camera C mounted at X_BC on a body B moving at V_WB
+    ([w; v] of B's origin in W): v_WC = v_WB + w_WB x p_BC_W."""
+    p_BC_W = X_WB.rotation().multiply(X_BC.translation())
+    return X_WB.multiply(X_BC), np.concatenate([V_WB[:3], V_WB[3:] + np.cross(V_WB[:3], p_BC_W)])
+
+
 class CameraVelocity(LeafSystem):
     """The velocity of a camera C mounted at X_BC on a body B, in C [m/s]: v_C = R_CW (v_WB + w_WB x p_BC_W).
 
@@ -25,11 +32,8 @@ class CameraVelocity(LeafSystem):
         self.DeclareVectorOutputPort("v_C", 3, self._calc)
 
     def _calc(self, context, output):
-        X_WB, V_WB = self._X_WB.Eval(context), self._V_WB.Eval(context)
-        R_WB = X_WB.rotation()
-        p_BC_W = R_WB.multiply(self._X_BC.translation())
-        v_WC = V_WB[3:] + np.cross(V_WB[:3], p_BC_W)
-        output.SetFromVector(R_WB.multiply(self._X_BC.rotation()).inverse().multiply(v_WC))
+        X_WC, V_WC = camera_motion(self._X_WB.Eval(context), self._V_WB.Eval(context), self._X_BC)
+        output.SetFromVector(X_WC.rotation().inverse().multiply(V_WC[3:]))
 
 
 def axis_flow(X_WC: RigidTransform, V_WC: np.ndarray, X_WS: RigidTransform, V_WS: np.ndarray) -> np.ndarray:
@@ -67,11 +71,8 @@ class AxisFlow(LeafSystem):
         self.DeclareVectorOutputPort("axis_flow", 2, self._calc)
 
     def _calc(self, context, output):
-        X_WB, V_WB = self._X_WB.Eval(context), self._V_WB.Eval(context)
-        p_BC_W = X_WB.rotation().multiply(self._X_BC.translation())
-        V_WC = np.concatenate([V_WB[:3], V_WB[3:] + np.cross(V_WB[:3], p_BC_W)])
-        output.SetFromVector(axis_flow(X_WB.multiply(self._X_BC), V_WC, self._X_WS.Eval(context),
-                                       self._V_WS.Eval(context)))
+        X_WC, V_WC = camera_motion(self._X_WB.Eval(context), self._V_WB.Eval(context), self._X_BC)
+        output.SetFromVector(axis_flow(X_WC, V_WC, self._X_WS.Eval(context), self._V_WS.Eval(context)))
 
 
 class RelativePose(LeafSystem):
