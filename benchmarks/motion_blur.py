@@ -20,38 +20,41 @@ from diagrams.deck_landing_config import DeckLandingConfig
 from diagrams.deck_landing_run import fly
 from diagrams.runner import load_scenario
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
+from systems.platforms.stewart import StewartPlatform
 from systems.sensors.camera import motion_blur_flow
 from systems.sensors.ground_truth import axis_flow, camera_motion
 from systems.vehicles.quadrotor import P_WB, Q_WB, V_WB, W_WB_B
 
 
+def smear_px(config: StewartSceneConfig | DeckLandingConfig, platform: StewartPlatform, t: float,
+             X_WB: RigidTransform, V_WB: np.ndarray) -> float:
+    """The smear (px) of a frame exposed at t [s] by a body at X_WB moving at V_WB ([w; v] in W)."""
+    X_WC, V_WC = camera_motion(X_WB, V_WB, config.camera.X_BC)
+    flow = axis_flow(X_WC, V_WC, platform.X_WP(t), platform.V_WP(t))
+    return float(np.linalg.norm(motion_blur_flow(config.camera.K, flow, config.camera.exposure_s)))
+
+
 def stewart_smears(config: StewartSceneConfig, duration_s: float) -> np.ndarray:
     """Each camera frame's smear (px) over duration_s of a Stewart scene."""
     _, handles = build_stewart_scene(config)
-    platform, X_WB = handles.platform, handles.body.GetOutputPort("X_WB")
-    context = handles.body.CreateDefaultContext()
-    smears = []
+    body, smears = handles.body, []
+    context = body.CreateDefaultContext()
     for t in np.arange(0.0, duration_s, config.camera.period_s):
         context.SetTime(t)
-        X_WC, V_WC = camera_motion(X_WB.Eval(context), handles.body.GetOutputPort("V_WB").Eval(context), handles.X_BC)
-        V_WP = np.concatenate([platform.motion.angular_velocity(t), platform.motion.translation_rates(t)[0]])
-        smears.append(motion_blur_flow(config.camera.K, axis_flow(X_WC, V_WC, platform.X_WP(t), V_WP),
-                                       config.camera.exposure_s))
-    return np.linalg.norm(smears, axis=1)
+        smears.append(smear_px(config, handles.platform, t, body.GetOutputPort("X_WB").Eval(context),
+                               body.GetOutputPort("V_WB").Eval(context)))
+    return np.array(smears)
 
 
 def flight_smears(config: DeckLandingConfig, duration_s: float) -> np.ndarray:
     """The smear (px) at each supervisor sample of a deck-landing flight of duration_s."""
     _, flight = fly(config, duration_s)
-    platform, smears = flight.handles.platform, []
+    smears = []
     for t, x in zip(flight.log["t"], flight.log["quadrotor_state"]):
         X_WB = RigidTransform(Quaternion(x[Q_WB] / np.linalg.norm(x[Q_WB])), x[P_WB])
-        w_W = X_WB.rotation().multiply(x[W_WB_B])
-        X_WC, V_WC = camera_motion(X_WB, np.concatenate([w_W, x[V_WB]]), config.X_BC)
-        V_WP = np.concatenate([platform.motion.angular_velocity(t), platform.motion.translation_rates(t)[0]])
-        smears.append(motion_blur_flow(config.camera.K, axis_flow(X_WC, V_WC, platform.X_WP(t), V_WP),
-                                       config.camera.exposure_s))
-    return np.linalg.norm(smears, axis=1)
+        V_WB_W = np.concatenate([X_WB.rotation().multiply(x[W_WB_B]), x[V_WB]])
+        smears.append(smear_px(config, flight.handles.platform, t, X_WB, V_WB_W))
+    return np.array(smears)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -279,8 +279,8 @@ class StewartPlatform(LeafSystem):
         self._leg_lengths_port = self.DeclareVectorOutputPort("leg_lengths", 6, self._calc_leg_lengths)
         self.DeclareVectorOutputPort("stroke_exceeded", 1, self._calc_stroke_exceeded)
         self.DeclareVectorOutputPort("pad_motion", 9, self._calc_pad_motion)
-        self.DeclareVectorOutputPort("V_WP", 6, lambda context, output: output.SetFromVector(np.concatenate([
-            self.motion.angular_velocity(context.get_time()), self.motion.translation_rates(context.get_time())[0]])))
+        self.DeclareVectorOutputPort("V_WP", 6, lambda context, output: output.SetFromVector(
+            self.V_WP(context.get_time())))
         self.DeclareVectorOutputPort("carrier_state", 4, self._calc_carrier_state)
         self.DeclareVectorOutputPort("deck_motion", DECK_MOTION_SIZE, self._calc_deck_motion)
         self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()),
@@ -326,6 +326,10 @@ class StewartPlatform(LeafSystem):
 
     def X_WP(self, t: float) -> RigidTransform:
         return self.motion.X_SP(t, self.geometry)
+
+    def V_WP(self, t: float) -> np.ndarray:
+        """The deck's spatial velocity [w_WP (rad/s); v_WP (m/s)], both in W, at time t (s)."""
+        return np.concatenate([self.motion.angular_velocity(t), self.motion.translation_rates(t)[0]])
 
     def _calc_X_WP(self, context, output):
         output.set_value(self.X_WP(context.get_time()))
