@@ -1,5 +1,6 @@
 """Seed 001's figures for a run with the federated filter: each vision node's own measurement, each
-local filter and the fused estimate against the truth (seed 001 Sec. 5, Fig. 8-10).
+local filter and the fused estimate against the truth (seed 001 Sec. 5, Fig. 8-10), and the fused
+height against the local filters' where two nodes overlap (Sec. 5.3, `overlap_metrics`).
 
 Everything is the UAV body B in the pattern frame P (the paper's pose), at the camera's frames:
 `FederatedLog` holds the logs of diagrams/federated_perception.py and the true X_PB. The
@@ -136,8 +137,32 @@ def filter_metrics(log: FederatedLog, window: np.ndarray) -> dict:
     return out
 
 
+OVERLAPS = {"overlap_1": ("approach", "adjustment"), "overlap_2": ("adjustment", "touchdown")}
+
+
+def overlap_metrics(log: FederatedLog, window: np.ndarray) -> dict:
+    """Seed 001 Sec. 5.3's comparison: where two neighbouring nodes both measure (Overlap 1, the
+    approaching and adjustment nodes; Overlap 2, adjustment and touchdown), the height RMSE of their
+    two local filters (after their own updates, Fig. 10d's LF curves) and of the fused estimate (GB)
+    on the same frames, with the frames' count and true altitude band [m]. The paper's figures are
+    Overlap 1's: LF1 0.065, LF2 0.0835, GB 0.037 m."""
+    fed, heights = log.federated, log.X_PB[:, 2]
+    out = {}
+    for name, nodes in OVERLAPS.items():
+        both = window & (fed[:, FED_VALID] > 0.5) & np.logical_and.reduce([log.nodes[n][:, 0] > 0.5 for n in nodes])
+        figures = {"nodes": list(nodes), "frames": int(both.sum()), "altitude_band_m": _band(heights, both)}
+        if both.any():
+            z = {f"local_{n}": fed[both, FED_LOCAL_P][:, 3 * NODES.index(n) + 2] for n in nodes}
+            z["federated"] = fed[both, FED_P_PB][:, 2]
+            figures["rmse_height_m"] = {k: float(np.sqrt(np.mean((v - heights[both]) ** 2))) for k, v in z.items()}
+        out[name] = figures
+    return out
+
+
 def federated_metrics(log: FederatedLog, X_BC: RigidTransform, end_s: float | None = None) -> dict:
     """The `estimators` section: the nodes, the local filters and the fused estimate over the
     frames up to `end_s` (touchdown; None: all)."""
     window = np.ones(len(log.t), bool) if end_s is None else log.t <= end_s
-    return {**node_metrics(log, X_BC, window), **filter_metrics(log, window)}
+    out = {**node_metrics(log, X_BC, window), **filter_metrics(log, window)}
+    out["federated"]["overlaps"] = overlap_metrics(log, window)
+    return out

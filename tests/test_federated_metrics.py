@@ -1,0 +1,54 @@
+"""Seed 001 Sec. 5.3's comparison where two nodes overlap (`overlap_metrics`) on a constructed log whose
+errors are known: the frames where both nodes measured and the fused estimate is valid, and the height
+RMSE of each of their local filters and of the fused estimate on exactly those frames."""
+
+import numpy as np
+
+from diagrams.federated_metrics import FederatedLog, overlap_metrics
+from systems.estimators.federated.system import FED_LOCAL_P, FED_P_PB, FED_VALID, FEDERATED_VECTOR_SIZE
+from systems.perception.rqrlp.measurements import NODE_VECTOR_SIZE
+
+
+def _log() -> tuple[FederatedLog, np.ndarray]:
+    n = 10
+    heights = np.linspace(5.0, 0.5, n)
+    X_PB = np.zeros((n, 7))
+    X_PB[:, 2], X_PB[:, 3] = heights, 1.0
+    federated = np.zeros((n, FEDERATED_VECTOR_SIZE))
+    federated[:, FED_VALID] = 1.0
+    federated[7, FED_VALID] = 0.0  # the fused estimate invalid on one frame where all three nodes measure
+    federated[:, FED_P_PB.start + 2] = heights + 0.01
+    for i, offset in enumerate((0.02, -0.03, 0.04)):  # each local filter's z error, in NODES' order
+        federated[:, FED_LOCAL_P.start + 3 * i + 2] = heights + offset
+    federated[2, FED_LOCAL_P.start + 2] = heights[2] + 0.05  # the approaching filter off by more on one frame
+    present = {"approach": range(0, 6), "adjustment": range(2, 9), "touchdown": range(5, 10)}
+    nodes = {}
+    for name, frames in present.items():
+        nodes[name] = np.zeros((n, NODE_VECTOR_SIZE))
+        nodes[name][list(frames), 0] = 1.0
+    return FederatedLog(np.arange(n) * 0.02, federated, nodes, X_PB), heights
+
+
+def test_overlaps_score_the_two_nodes_local_filters_and_the_fused_estimate_on_their_shared_frames():
+    log, heights = _log()
+    window = np.ones(len(heights), bool)
+    window[3] = False  # frames past touchdown are not scored
+    out = overlap_metrics(log, window)
+    one, two = out["overlap_1"], out["overlap_2"]
+    assert one["nodes"] == ["approach", "adjustment"] and two["nodes"] == ["adjustment", "touchdown"]
+    assert one["frames"] == 3  # 2, 4, 5: both measure from 2 to 5, frame 3 outside the window
+    assert one["altitude_band_m"] == [heights[5], heights[2]]
+    np.testing.assert_allclose(one["rmse_height_m"]["local_approach"], np.sqrt((0.05**2 + 2 * 0.02**2) / 3))
+    np.testing.assert_allclose(one["rmse_height_m"]["local_adjustment"], 0.03)
+    np.testing.assert_allclose(one["rmse_height_m"]["federated"], 0.01)
+    assert "local_touchdown" not in one["rmse_height_m"]
+    assert two["frames"] == 3  # 5, 6, 8: frame 7's fused estimate is invalid
+    np.testing.assert_allclose(two["rmse_height_m"]["local_touchdown"], 0.04)
+
+
+def test_an_overlap_without_shared_frames_has_no_figures():
+    log, heights = _log()
+    log.nodes["adjustment"][:, 0] = 0.0
+    out = overlap_metrics(log, np.ones(len(heights), bool))
+    assert out["overlap_1"]["frames"] == 0 and out["overlap_1"]["altitude_band_m"] is None
+    assert "rmse_height_m" not in out["overlap_1"]
