@@ -72,7 +72,7 @@ def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_side_p
     z = f size_m / side_px, f = sqrt(fx fy), side_px the quadrilateral's sqrt(area). Where the border
     spans MIN_REFINED_BORDER_PX or more, the corners are its fitted sides' crossings
     (`corners_from_sides`, 0.05-0.1 % of depth error against 0.12-0.28 % from the contour at 1.5-5 m);
-    nearer, a contour runs through its edge pixels' centres, half a pixel inside the edge, so
+    farther off, a contour runs through its edge pixels' centres, half a pixel inside the edge, so
     side_px is the contour's sqrt(area) + 1."""
     closed = cv2.morphologyEx(dark_regions(grey), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     # Two levels: the dark regions' outer boundaries and their holes; a region inside a hole (the
@@ -225,13 +225,15 @@ def corners_from_sides(grey: np.ndarray, quads: np.ndarray, search_px: float) ->
             along = (b - a) / length
             normal = np.array([-along[1], along[0]])
             s = np.arange(2.0, length - 1.999, 1.0)  # two pixels clear of each corner
+            if len(s) < 2:
+                break
             xy = a + s[:, None, None] * along + offsets[None, :, None] * normal  # (points, offsets, 2)
             map_x, map_y = xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32)
             across = np.abs(cv2.remap(gx, map_x, map_y, cv2.INTER_LINEAR) * normal[0]
                             + cv2.remap(gy, map_x, map_y, cv2.INTER_LINEAR) * normal[1])
             k = np.argmax(across, axis=1)
             inside = (k > 0) & (k < len(offsets) - 1)
-            if len(s) < 2 or inside.sum() < max(2, len(s) / 2):
+            if inside.sum() < max(2, len(s) / 2):
                 break
             s, k, rows = s[inside], k[inside], np.flatnonzero(inside)
             left, peak, right = across[rows, k - 1], across[rows, k], across[rows, k + 1]
