@@ -87,6 +87,13 @@ def _band(heights: np.ndarray, present: np.ndarray) -> list[float] | None:
     return [float(heights[present].min()), float(heights[present].max())] if present.any() else None
 
 
+def true_p_CP(log: FederatedLog, X_BC: RigidTransform) -> np.ndarray:
+    """(N, 3) the pattern's centre in the camera C [m], what the approaching node measures."""
+    X_CB = X_BC.inverse()
+    p_BP = _rotation(log.X_PB[:, 3:]).inv().apply(-log.X_PB[:, :3])
+    return p_BP @ X_CB.rotation().matrix().T + X_CB.translation()
+
+
 def node_metrics(log: FederatedLog, X_BC: RigidTransform, window: np.ndarray) -> dict:
     """Each node's own measurement: the pose nodes' X_PB as estimators; the approaching node's p_CP
     (MAE/RMSE per axis in C); each one's share of frames and its altitude band."""
@@ -98,9 +105,7 @@ def node_metrics(log: FederatedLog, X_BC: RigidTransform, window: np.ndarray) ->
         figures = {"present_fraction": float(np.mean(present[window])) if window.any() else 0.0,
                    "altitude_band_m": _band(heights, present & window)}
         if name == "approach":
-            X_CB = X_BC.inverse()
-            p_CP = _rotation(log.X_PB[:, 3:]).inv().apply(-log.X_PB[:, :3])  # p_BP in B
-            p_CP = p_CP @ X_CB.rotation().matrix().T + X_CB.translation()
+            p_CP = true_p_CP(log, X_BC)
             error = rows[present & window, 1:4] - p_CP[present & window]
             if len(error):
                 figures.update({"frame": "C", "mae_xyz_m": np.mean(np.abs(error), axis=0).tolist(),

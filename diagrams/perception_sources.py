@@ -126,7 +126,7 @@ def _federated_metrics(log: dict, config, end_s: float | None) -> dict:
 
 
 def _federated_plot(log: dict, config, out_dir) -> None:
-    plot_federated(federated_log(log, config.platform), out_dir)
+    plot_federated(federated_log(log, config.platform), config.federated.camera.X_BC, out_dir)
 
 
 def _hybrid(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:

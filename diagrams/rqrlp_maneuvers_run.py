@@ -70,7 +70,7 @@ def run(scenario: Scenario, ctx) -> dict:
     log = collect_logs(handles, simulation.context)
     metrics = maneuvers_metrics(simulation, log, scenario, ctx.name)
     write_npz(ctx.out_dir / "log.npz", **log)
-    plot_federated(federated_log(log, scenario.platform), ctx.out_dir)
+    plot_federated(federated_log(log, scenario.platform), scenario.federated.camera.X_BC, ctx.out_dir)
     fused = metrics["estimators"]["federated"]
     if "rmse_position_m" in fused:
         print(f"{ctx.name}: federated RMSE position {fused['rmse_position_m']:.4f} m (paper 0.0239), orientation "

@@ -1,12 +1,23 @@
 """Seed 001 Sec. 5.3's comparison where two nodes overlap (`overlap_metrics`) on a constructed log whose
 errors are known: the frames where both nodes measured and the fused estimate is valid, and the height
-RMSE of each of their local filters and of the fused estimate on exactly those frames."""
+RMSE of each of their local filters and of the fused estimate on exactly those frames; Overlap 1's
+frames shaded in federated.png and its figures in what a run prints."""
 
+import matplotlib.pyplot as plt
 import numpy as np
 
 from diagrams.federated_metrics import FederatedLog, overlap_metrics
-from systems.estimators.federated.system import FED_LOCAL_P, FED_P_PB, FED_VALID, FEDERATED_VECTOR_SIZE
+from diagrams.federated_plots import plot_federated, shade_frames
+from diagrams.gv_landing_run import summary_lines
+from systems.estimators.federated.system import (
+    FED_LOCAL_P,
+    FED_LOCAL_TRACES,
+    FED_P_PB,
+    FED_VALID,
+    FEDERATED_VECTOR_SIZE,
+)
 from systems.perception.rqrlp.measurements import NODE_VECTOR_SIZE
+from systems.sensors.camera import CameraConfig
 
 
 def _log() -> tuple[FederatedLog, np.ndarray]:
@@ -52,3 +63,33 @@ def test_an_overlap_without_shared_frames_has_no_figures():
     out = overlap_metrics(log, np.ones(len(heights), bool))
     assert out["overlap_1"]["frames"] == 0 and out["overlap_1"]["altitude_band_m"] is None
     assert "rmse_height_m" not in out["overlap_1"]
+
+
+def test_overlap_1_is_shaded_where_both_nodes_measure():
+    fig, ax = plt.subplots()
+    t = np.arange(10) * 0.02
+    frames = np.array([0, 1, 1, 0, 0, 1, 1, 1, 0, 1], bool)
+    shade_frames(ax, t, frames, "Overlap 1")
+    spans = [patch.get_x() for patch in ax.patches], [patch.get_x() + patch.get_width() for patch in ax.patches]
+    np.testing.assert_allclose(spans[0], [t[1], t[5], t[9]])
+    np.testing.assert_allclose(spans[1], [t[2], t[7], t[9]])
+    assert [patch.get_label() for patch in ax.patches][0] == "Overlap 1"
+    plt.close(fig)
+
+
+def test_the_federated_figure_is_written(tmp_path):
+    log, _ = _log()
+    log.federated[:, FED_LOCAL_TRACES] = 1e-4
+    plot_federated(log, CameraConfig().X_BC, tmp_path)
+    assert (tmp_path / "federated.png").stat().st_size > 10_000
+
+
+def test_a_run_prints_overlap_1s_figures_beside_the_papers():
+    overlap = {"frames": 148, "altitude_band_m": [1.07, 3.75],
+               "rmse_height_m": {"local_approach": 0.0017, "local_adjustment": 0.0018, "federated": 0.0016}}
+    metrics = {"perception": {"source": "federated"}, "estimators": {"federated": {"overlaps": {"overlap_1": overlap}}}}
+    assert ("open-landing: federated in Overlap 1 (1.07-3.75 m, 148 frames): height RMSE 0.0016 m, local filters "
+            "0.0017 / 0.0018 m (paper 0.037; 0.065 / 0.0835)") in summary_lines("open-landing", metrics)
+    overlap["frames"], overlap["altitude_band_m"] = 0, None
+    del overlap["rmse_height_m"]
+    assert not any("Overlap" in line for line in summary_lines("open-landing", metrics))
