@@ -145,6 +145,11 @@ def filter_metrics(log: FederatedLog, window: np.ndarray) -> dict:
 OVERLAPS = {"overlap_1": ("approach", "adjustment"), "overlap_2": ("adjustment", "touchdown")}
 
 
+def measured_by_all(log: FederatedLog, nodes) -> np.ndarray:
+    """(N,) bool: the frames where every one of `nodes` measured."""
+    return np.logical_and.reduce([log.nodes[n][:, 0] > 0.5 for n in nodes])
+
+
 def overlap_metrics(log: FederatedLog, window: np.ndarray) -> dict:
     """Seed 001 Sec. 5.3's comparison: where two neighbouring nodes both measure (Overlap 1, the
     approaching and adjustment nodes; Overlap 2, adjustment and touchdown), the height RMSE of their
@@ -154,7 +159,7 @@ def overlap_metrics(log: FederatedLog, window: np.ndarray) -> dict:
     fed, heights = log.federated, log.X_PB[:, 2]
     out = {}
     for name, nodes in OVERLAPS.items():
-        both = window & (fed[:, FED_VALID] > 0.5) & np.logical_and.reduce([log.nodes[n][:, 0] > 0.5 for n in nodes])
+        both = window & (fed[:, FED_VALID] > 0.5) & measured_by_all(log, nodes)
         figures = {"nodes": list(nodes), "frames": int(both.sum()), "altitude_band_m": _band(heights, both)}
         if both.any():
             z = {f"local_{n}": fed[both, FED_LOCAL_P][:, 3 * NODES.index(n) + 2] for n in nodes}

@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from pydrake.math import RigidTransform
 
-from diagrams.federated_metrics import OVERLAPS, FederatedLog, true_p_CP
+from diagrams.federated_metrics import OVERLAPS, FederatedLog, measured_by_all, true_p_CP
 from diagrams.outputs import save_figure
 from systems.estimators.federated.engine import NODES
 from systems.estimators.federated.system import FED_BETAS, FED_LOCAL_P, FED_LOCAL_TRACES, FED_P_PB, FED_VALID
@@ -46,9 +46,8 @@ def plot_federated(log: FederatedLog, X_BC: RigidTransform, out_dir) -> None:
         axes[2].semilogy(t, fed[:, FED_LOCAL_TRACES][:, i], "-", color=COLOURS[name], lw=1, label=f"LF {name}")
         axes[3].plot(t, fed[:, FED_BETAS][:, i], "-", color=COLOURS[name], lw=1, label=f"beta {name}")
         axes[4].plot(t, fed[:, FED_LOCAL_P][:, 3 * i + 2], "-", color=COLOURS[name], lw=0.8, label=f"LF {name}")
-    overlap_1 = np.logical_and.reduce([log.nodes[n][:, 0] > 0.5 for n in OVERLAPS["overlap_1"]])
     for ax in (axes[1], axes[4]):
-        shade_frames(ax, t, overlap_1, "Overlap 1")
+        shade_frames(ax, t, measured_by_all(log, OVERLAPS["overlap_1"]), "Overlap 1")
     axes[4].plot(t, true_height, "-", color="k", lw=1.2, label="true")
     axes[4].plot(t, fused, "--", color=COLOURS["federated"], lw=1.2, label="federated (valid)")
     labels = ("(a) node heights (m)", "(b) |height error| (m)", "(c) trace P_i, position (m^2)",
