@@ -6,7 +6,8 @@ measurements: one local filter per vision node (local_filter.py), fused and rese
 
 Every step predicts each local filter over the time since the last with the IMU sample (f_B, w_B);
 a step with measurements (a camera frame: a dict, even of Nones) updates each node's own filter
-with its node's measurement, then fuses the filters (Eq. 7-9) and resets them (Eq. 6). The filter
+with its node's measurement, then fuses the filters (Eq. 7-9) and shares the fused covariance and
+the process noise out to them (Eq. 6, 9; `FederatedConfig.reset_states`: the states too). The filter
 starts at the first measurement of any node, and again at the first after max_coast_s without one
 accepted. Frames: B the UAV body, P the pattern (level, z up),
 C the camera at X_BC in B. Units: m, s, rad.
@@ -38,9 +39,15 @@ NODES = ("approach", "adjustment", "touchdown")  # seed 001 Fig. 3, from far to 
 class FederatedConfig(LocalFilterConfig):
     """The local filters' noise and gate (LocalFilterConfig) and when the fused estimate is valid
     (ours): measured by some node within `max_coast_s`, and the pattern's position relative to the
-    body known to `max_relative_std_m` (sqrt of the trace)."""
+    body known to `max_relative_std_m` (sqrt of the trace); and whether the information sharing
+    restarts the local filters from the fused state (`reset_states`) or only shares P and Q out."""
 
     max_coast_s: float = 0.5
+    # Sec. 4.2: beta_i allocates "the prediction noise Q_i and the state covariance P_i for the local filters
+    # at next time"; each filter keeps its own state while its node measures (Fig. 10d's LF1 and LF2, about twice
+    # the fused error), and one whose node did not restarts from the fused estimate. True: Carlson's
+    # fusion-reset, every filter restarts from the fused estimate (the centralised filter's estimate).
+    reset_states: bool = False
     max_relative_std_m: float = 1.0
     gravity_m_s2: float = 9.81  # the IMU's (systems/sensors/imu.py ImuConfig.gravity_m_s2)
 
@@ -136,9 +143,10 @@ def step(state: FederatedState, time: float, imu: np.ndarray, measurements: dict
     if moved:
         filters = tuple(predict(s, f_B, w_B, time - state.time, config, config.gravity_m_s2) for s in filters)
     if measurements is None:
-        # Between frames the fused estimate is predicted alike: the filters share its nominal state
-        # and split its covariance and process noise by the betas (P_i = P_g / beta_i, Q_i = Q / beta_i,
-        # sum beta_i = 1), so the predicted filters' information sums to the predicted fused one's.
+        # Between frames the fused estimate is predicted alike: the filters split its covariance and
+        # process noise by the betas (P_i = P_g / beta_i, Q_i = Q / beta_i, sum beta_i = 1), so the
+        # predicted filters' information sums to the predicted fused one's (to first order where some
+        # keep their own states: their predictions linearise about their own attitudes).
         if moved:
             fused = predict(fused, f_B, w_B, time - state.time, config, config.gravity_m_s2)
         return replace(state, time=time, filters=filters, fused=fused, last_imu=imu)
@@ -156,16 +164,18 @@ def step(state: FederatedState, time: float, imu: np.ndarray, measurements: dict
         state = replace(state, heading_known=pose is not None)
         stats[i] = NodeStats(stats[i].accepted + 1, stats[i].gated, time)
         present = [(j, m) for j, m in present if j != i]
-    updated = list(filters)
+    updated, kept = list(filters), []
     for i, measurement in present:
         after = _update(filters[i], measurement, X_BC, config)
         accepted = after.accepted > filters[i].accepted
         stats[i] = NodeStats(stats[i].accepted + accepted, stats[i].gated + (not accepted),
                              time if accepted else stats[i].last_accepted_s)
         updated[i] = after
+        if accepted and not config.reset_states:
+            kept.append(i)
     fused, betas = fuse(updated)
-    return replace(state, fused=fused, filters=tuple(reset(updated, fused, betas)), local_estimates=tuple(updated),
-                   betas=betas, stats=tuple(stats))
+    return replace(state, fused=fused, filters=tuple(reset(updated, fused, betas, kept)),
+                   local_estimates=tuple(updated), betas=betas, stats=tuple(stats))
 
 
 def last_accepted_s(state: FederatedState) -> float | None:

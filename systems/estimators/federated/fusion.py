@@ -7,8 +7,9 @@ P), so that Eq. (7)-(8) weigh them in one vector space:
 Eq. (9)'s dynamic weight beta_i = trace(P_i^-1) / sum_j trace(P_j^-1), over the marginal position
 block P_i,pp (the paper's 7x7 P_i mixes metres with the quaternion's units: a bearing seen from
 20 m puts a lever arm's worth of attitude information in a full block's trace), shares the process noise out (Eq. 6: Q_i = Q / beta_i,
-so that sum_i Q_i^-1 = Q^-1) and the global covariance back (the information-sharing reset of
-Carlson's federated filter: every local filter restarts from X_g with P_i = P_g / beta_i).
+so that sum_i Q_i^-1 = Q^-1) and the global covariance back (P_i = P_g / beta_i). Carlson's fusion-reset
+also restarts every local filter from X_g (then the fusion equals the centralised filter); seed 001
+shares only P_i and Q_i, and a local filter keeps its own state while its node measures (engine.py).
 """
 
 from dataclasses import replace
@@ -40,8 +41,10 @@ def fuse(states: list[LocalState]) -> tuple[LocalState, np.ndarray]:
     return fused, betas
 
 
-def reset(states: list[LocalState], fused: LocalState, betas: np.ndarray) -> list[LocalState]:
-    """The information-sharing reset: every filter restarts from the global estimate with
-    P_i = P_g / beta_i and a process-noise share of 1 / beta_i."""
-    return [replace(s, p=fused.p.copy(), v=fused.v.copy(), R=fused.R.copy(), P=fused.P / b, q_scale=1.0 / b)
-            for s, b in zip(states, betas)]
+def reset(states: list[LocalState], fused: LocalState, betas: np.ndarray, kept=()) -> list[LocalState]:
+    """The information sharing: every filter gets P_i = P_g / beta_i and a process-noise share of
+    1 / beta_i, and restarts from the global estimate, except those listed in `kept` (indices), which
+    keep their own state."""
+    return [replace(s, P=fused.P / b, q_scale=1.0 / b) if i in kept else
+            replace(s, p=fused.p.copy(), v=fused.v.copy(), R=fused.R.copy(), P=fused.P / b, q_scale=1.0 / b)
+            for i, (s, b) in enumerate(zip(states, betas))]
