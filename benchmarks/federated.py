@@ -12,7 +12,7 @@
    nodes both measure (LF1, LF2 and the fused estimate; paper 0.065, 0.0835 and 0.037 m). The moving
    variant (the pattern on the ground vehicle, pad 1.6 m up, 1 m/s): the same figures, reported.
 3. Cost per camera frame: each node on rendered frames from 20 m down to 0.3 m, one federated step
-   with measurements (the local filters' updates, the fusion and reset) and the fusion alone,
+   with measurements (the local filters' updates, the fusion and the information sharing) and those two alone,
    against the render. Target: the fusion < 1 ms.
 4. The camera of Table 1 at 1080p (f 1280 px) against the default 960 x 540 (f 640 px): the render's
    cost and the figures of 1 and 2 (one seed of open-landing, `--hd-runs` for more: reported);
