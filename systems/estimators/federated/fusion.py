@@ -45,6 +45,6 @@ def reset(states: list[LocalState], fused: LocalState, betas: np.ndarray, kept=(
     """The information sharing: every filter gets P_i = P_g / beta_i and a process-noise share of
     1 / beta_i, and restarts from the global estimate, except those listed in `kept` (indices), which
     keep their own state."""
-    return [replace(s, P=fused.P / b, q_scale=1.0 / b) if i in kept else
-            replace(s, p=fused.p.copy(), v=fused.v.copy(), R=fused.R.copy(), P=fused.P / b, q_scale=1.0 / b)
-            for i, (s, b) in enumerate(zip(states, betas))]
+    shared = [replace(s, P=fused.P / b, q_scale=1.0 / b) for s, b in zip(states, betas)]
+    return [s if i in kept else replace(s, p=fused.p.copy(), v=fused.v.copy(), R=fused.R.copy())
+            for i, s in enumerate(shared)]
