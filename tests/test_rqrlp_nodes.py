@@ -11,7 +11,7 @@ import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from systems.perception.rqrlp.homography import homography_from_pose, pose_from_homography
-from systems.perception.rqrlp.nodes import TouchdownTracker, adjustment, approach, layout_corners
+from systems.perception.rqrlp.nodes import TouchdownTracker, adjustment, approach, corners_from_sides, layout_corners
 from systems.perception.rqrlp.pattern import RqrlpLayout, rqrlp_image
 from systems.sensors.camera import CameraConfig, distortion_maps
 
@@ -151,3 +151,27 @@ def test_touchdown_chains_the_pose_through_a_descent_without_markers_in_view():
     assert worst[0] < 0.01 and worst[1] < 1.0, worst
     assert tracker.chained == 20
     assert TouchdownTracker(K, D, LAYOUT).track(images[1])[1] is None  # no anchor, no pose
+
+
+def point_sampled_square(x0: float, x1: float, y0: float, y1: float, size: int = 80) -> np.ndarray:
+    """A dark square on white as a point-sampling renderer draws it (Drake's): a pixel is dark when its
+    centre (integer coordinates, OpenCV's) lies inside [x0, x1] x [y0, y1]."""
+    c = np.arange(size)
+    inside = ((c >= x0) & (c <= x1))[None, :] & ((c >= y0) & (c <= y1))[:, None]
+    return np.where(inside, 20, 230).astype(np.uint8)
+
+
+@pytest.mark.parametrize("x0, y0", [(20.1, 20.1), (20.4, 19.8), (19.7, 20.6)])
+def test_sides_along_the_pixel_grid_are_refined_to_the_pixel_boundary(x0, y0):
+    """A side along the pixel grid is a step whose gradient is a plateau a pixel wide; the best the
+    image tells is the boundary between its last dark and first light pixels, and the refined corners
+    are there (a parabola through the samples locked onto the plateau's first one, 0.375 px off)."""
+    x1, y1 = x0 + 30.35, y0 + 29.7
+    grey = point_sampled_square(x0, x1, y0, y1)
+    contour = np.array([[np.ceil(x0), np.ceil(y0)], [np.ceil(x0), np.floor(y1)], [np.floor(x1), np.floor(y1)],
+                        [np.floor(x1), np.ceil(y0)]])
+    corners, refined = corners_from_sides(grey, contour[None], 3.0)
+    left, right, top, bottom = np.ceil(x0) - 0.5, np.floor(x1) + 0.5, np.ceil(y0) - 0.5, np.floor(y1) + 0.5
+    expected = np.array([[left, top], [left, bottom], [right, bottom], [right, top]])
+    assert refined[0]
+    np.testing.assert_allclose(corners[0], expected, atol=0.02)

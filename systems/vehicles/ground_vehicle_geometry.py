@@ -26,6 +26,7 @@ from systems.vehicles.ground_vehicle import ground_pose
 PATTERNS = ("markers", "rqrlp")
 BODY_RGB = (0.75, 0.3, 0.15)  # the vehicle body's colour
 CARRIERS = ("vehicle", "ground")
+PATTERN_GAP_M = 0.001  # the pad's face under its pattern (P's plane), against z-fighting
 
 
 @dataclass
@@ -113,9 +114,13 @@ class GroundVehicleGeometry(LeafSystem):
         sid, p = self.source_id, platform
         self.body_frame_id = scene_graph.RegisterFrame(sid, GeometryFrame("gv_body"))
         body = self.body_frame_id
-        register_visual(scene_graph, sid, body, RigidTransform([p.pad_offset_m, 0.0, p.height_m - p.pad_thickness_m / 2]),
-                        Box(p.pad_size_m, p.pad_size_m, p.pad_thickness_m), "gv_pad", (0.95, 0.95, 0.95, 1.0))
-        register_visual(scene_graph, sid, body, RigidTransform([p.pad_offset_m, 0.0, p.height_m + 0.001]),
+        # The pattern lies in P's plane (what the estimators measure is where the truth puts it); the pad's
+        # white face lies PATTERN_GAP_M under it, so the two never share a plane.
+        pad = p.pad_thickness_m - PATTERN_GAP_M
+        register_visual(scene_graph, sid, body,
+                        RigidTransform([p.pad_offset_m, 0.0, p.height_m - PATTERN_GAP_M - pad / 2]),
+                        Box(p.pad_size_m, p.pad_size_m, pad), "gv_pad", (0.95, 0.95, 0.95, 1.0))
+        register_visual(scene_graph, sid, body, RigidTransform([p.pad_offset_m, 0.0, p.height_m]),
                         Mesh(str(pad_texture_mesh(p)), p.pattern_size_m), "gv_pad_pattern", rgba=None)
         self._front = []  # the steered wheels' frames and their positions in V
         if p.carrier == "vehicle":

@@ -34,6 +34,7 @@ MIN_DARK_EDGE = 0.65  # the share of the outline's edges that its black border m
 EDGE_MARGIN_PX = 2  # an outline this close to the image's edge may be cut by it
 EDGE_SEARCH_PX = 3.0  # how far across a square's side its edge is looked for (at most; under half a module)
 EDGE_STEP_PX = 0.25  # the profile across a side is sampled this finely
+EDGE_CENTROID_PX = 2.0  # an edge's gradient peak is weighed this far either side (a plateau a pixel wide, its slopes)
 MAX_CORNER_SHIFT_PX = 2.0  # the contour's corners are within 1.5 px; a refined one further off is another edge's
 MIN_REFINED_BORDER_PX = 3.0  # the outline's corners are refined where its black border is this wide (6.4 m at f 640 px)
 
@@ -204,11 +205,25 @@ def refine_pose(X_CP: RigidTransform, points_P: np.ndarray, pixels: np.ndarray, 
     return RigidTransform(RotationMatrix(cv2.Rodrigues(rvec)[0]), tvec.ravel())
 
 
+def _peak_centroid(profiles: np.ndarray, k: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Each profile's (rows of `profiles`, sampled at `offsets`) peak position: the centroid of its part
+    above half its maximum (at index k) within EDGE_CENTROID_PX of it, within the samples. On a side
+    along the pixel grid the rendered edge is a step whose gradient is a plateau a pixel wide; a
+    parabola through the samples at the plateau's first one locks onto it, 0.375 px off its centre."""
+    half = round(EDGE_CENTROID_PX / EDGE_STEP_PX)
+    index = k[:, None] + np.arange(-half, half + 1)
+    within = (index >= 0) & (index < len(offsets))
+    index = np.clip(index, 0, len(offsets) - 1)
+    rows = np.arange(len(k))[:, None]
+    weight = np.where(within, np.maximum(profiles[rows, index] - 0.5 * profiles[rows, k[:, None]], 0.0), 0.0)
+    return np.sum(weight * offsets[index], axis=1) / np.sum(weight, axis=1)
+
+
 def corners_from_sides(grey: np.ndarray, quads: np.ndarray, search_px: float) -> tuple[np.ndarray, np.ndarray]:
     """Quadrilaterals' corners (N, 4, 2) px refined to where their sides cross: (corners, refined (N,)
     bool). Each side's edge is found across it, at every pixel along it clear of its corners, where
     the grey level's gradient across it peaks (Sobel, sampled every EDGE_STEP_PX within +-search_px,
-    the peak by a parabola; a peak at the window's end is another edge's slope, dropped); cv2.fitLine
+    the peak's centroid, `_peak_centroid`; a peak at the window's end is another edge's slope, dropped); cv2.fitLine
     (Huber) fits the side. A quad keeps its own corners when a side has under half its points or a
     corner would move over MAX_CORNER_SHIFT_PX. Ours: cv2.cornerSubPix leaves these squares' corners
     0.35-0.45 px inside each square on rendered frames (1.5-3.5 m, 5-13 px modules), which made the
@@ -236,10 +251,7 @@ def corners_from_sides(grey: np.ndarray, quads: np.ndarray, search_px: float) ->
             if inside.sum() < max(2, len(s) / 2):
                 break
             s, k, rows = s[inside], k[inside], np.flatnonzero(inside)
-            left, peak, right = across[rows, k - 1], across[rows, k], across[rows, k + 1]
-            curvature = np.minimum(left - 2 * peak + right, -1e-9)
-            shift = np.clip(0.5 * (left - right) / curvature, -0.5, 0.5)
-            points = a + s[:, None] * along + (offsets[k] + shift * EDGE_STEP_PX)[:, None] * normal
+            points = a + s[:, None] * along + _peak_centroid(across[rows], k, offsets)[:, None] * normal
             vx, vy, x0, y0 = cv2.fitLine(points.astype(np.float32), cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
             lines.append(np.cross([x0, y0, 1.0], [x0 + vx, y0 + vy, 1.0]))
         if len(lines) < 4:
