@@ -34,7 +34,6 @@ MIN_DARK_EDGE = 0.65  # the share of the outline's edges that its black border m
 EDGE_MARGIN_PX = 2  # an outline this close to the image's edge may be cut by it
 EDGE_SEARCH_PX = 3.0  # how far across a square's side its edge is looked for (at most; under half a module)
 EDGE_STEP_PX = 0.25  # the profile across a side is sampled this finely
-EDGE_CENTROID_PX = 2.0  # an edge's gradient peak is weighed this far either side (a plateau a pixel wide, its slopes)
 MAX_CORNER_SHIFT_PX = 2.0  # the contour's corners are within 1.5 px; a refined one further off is another edge's
 MIN_REFINED_BORDER_PX = 3.0  # the outline's corners are refined where its black border is this wide (6.4 m at f 640 px)
 
@@ -206,17 +205,18 @@ def refine_pose(X_CP: RigidTransform, points_P: np.ndarray, pixels: np.ndarray, 
 
 
 def _peak_centroid(profiles: np.ndarray, k: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Each profile's (rows of `profiles`, sampled at `offsets`) peak position: the centroid of its part
-    above half its maximum (at index k) within EDGE_CENTROID_PX of it, within the samples. On a side
-    along the pixel grid the rendered edge is a step whose gradient is a plateau a pixel wide; a
-    parabola through the samples at the plateau's first one locks onto it, 0.375 px off its centre."""
-    half = round(EDGE_CENTROID_PX / EDGE_STEP_PX)
-    index = k[:, None] + np.arange(-half, half + 1)
-    within = (index >= 0) & (index < len(offsets))
-    index = np.clip(index, 0, len(offsets) - 1)
-    rows = np.arange(len(k))[:, None]
-    weight = np.where(within, np.maximum(profiles[rows, index] - 0.5 * profiles[rows, k[:, None]], 0.0), 0.0)
-    return np.sum(weight * offsets[index], axis=1) / np.sum(weight, axis=1)
+    """Each profile's (rows of `profiles`, sampled at `offsets`) peak position: the centroid of the run
+    of samples above half its maximum (at index k) that holds it, each weighed by its height above
+    that half. On a side along the pixel grid the rendered edge is a step whose gradient is a plateau
+    a pixel wide; a parabola through the samples at the plateau's first one locks onto it, 0.375 px
+    off its centre. The run ends where the profile dips under the half, before a neighbouring edge."""
+    half = 0.5 * profiles[np.arange(len(k)), k][:, None]
+    index = np.arange(profiles.shape[1])[None, :]
+    low = profiles < half
+    first = np.where(low & (index < k[:, None]), index, -1).max(axis=1) + 1
+    last = np.where(low & (index > k[:, None]), index, profiles.shape[1]).min(axis=1) - 1
+    weight = np.where((index >= first[:, None]) & (index <= last[:, None]), profiles - half, 0.0)
+    return np.sum(weight * offsets[None, :], axis=1) / np.sum(weight, axis=1)
 
 
 def corners_from_sides(grey: np.ndarray, quads: np.ndarray, search_px: float) -> tuple[np.ndarray, np.ndarray]:
