@@ -165,7 +165,7 @@ def point_sampled_square(x0: float, x1: float, y0: float, y1: float, size: int =
 def test_sides_along_the_pixel_grid_are_refined_to_the_pixel_boundary(x0, y0):
     """A side along the pixel grid is a step whose gradient is a plateau a pixel wide; the best the
     image tells is the boundary between its last dark and first light pixels, and the refined corners
-    are there (a parabola through the samples locked onto the plateau's first one, 0.375 px off)."""
+    are there."""
     x1, y1 = x0 + 30.35, y0 + 29.7
     grey = point_sampled_square(x0, x1, y0, y1)
     contour = np.array([[np.ceil(x0), np.ceil(y0)], [np.ceil(x0), np.floor(y1)], [np.floor(x1), np.floor(y1)],

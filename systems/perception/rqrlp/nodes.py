@@ -207,9 +207,9 @@ def refine_pose(X_CP: RigidTransform, points_P: np.ndarray, pixels: np.ndarray, 
 def _peak_centroid(profiles: np.ndarray, k: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """Each profile's (rows of `profiles`, sampled at `offsets`) peak position: the centroid of the run
     of samples above half its maximum (at index k) that holds it, each weighed by its height above
-    that half. On a side along the pixel grid the rendered edge is a step whose gradient is a plateau
-    a pixel wide; a parabola through the samples at the plateau's first one locks onto it, 0.375 px
-    off its centre. The run ends where the profile dips under the half, before a neighbouring edge."""
+    that half: on a side along the pixel grid the rendered edge is a step, whose gradient is a plateau
+    a pixel wide with the edge at its centre, not at its highest sample. The run ends where the profile
+    dips under the half, before a neighbouring edge."""
     half = 0.5 * profiles[np.arange(len(k)), k][:, None]
     index = np.arange(profiles.shape[1])[None, :]
     low = profiles < half
