@@ -64,7 +64,8 @@ class ApproachResult:
     side_px: float  # its apparent size, sqrt of the outline's area [px]
 
 
-def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_side_px: float = 8.0) -> ApproachResult | None:
+def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout,
+             min_side_px: float = 8.0) -> ApproachResult | None:
     """The outline: the largest square-ish dark region (its black border, closed over a pixel's gaps,
     with the dark texture and markers it holds; a white margin keeps it apart from a dark carrier),
     its convex hull a quadrilateral lying wholly in the image, dark along its edges;
