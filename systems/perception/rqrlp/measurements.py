@@ -90,9 +90,9 @@ def adjustment_measurement(X_CP: RigidTransform, points_P: np.ndarray, rms_resid
                            X_BC: RigidTransform, K: np.ndarray) -> NodeMeasurement:
     """The adjustment node's pose (nodes.adjustment) with the covariance of its corners (points_P)
     as independent measurements at its fit's residual (tests/test_federated_landing.py's short landing,
-    square-on: normalised squared pose errors of mean 7.1-7.4, 6 for a consistent covariance; the
-    height's RMS error 0.43, 1.67 and 2.77 mm at 0.8-1.5, 1.5-2.5 and 2.5-3.8 m against 0.42, 1.46 and
-    3.01 mm claimed)."""
+    square-on: normalised squared pose errors of mean 5.8-8.8, 6 for a consistent covariance; the
+    height's RMS error 0.43, 1.37 and 2.83 mm at 0.8-1.5, 1.5-2.5 and 2.5-3.8 m against 0.37, 1.46 and
+    2.92 mm claimed)."""
     X_PB = pose_of_body(X_CP, X_BC)
     pixel_std = max(rms_residual_px, MIN_PIXEL_STD)
     return NodeMeasurement(time, "adjustment", pose_covariance(points_P, X_PB, X_BC, K, pixel_std), X_PB=X_PB,
