@@ -1,5 +1,5 @@
 # landing-sim: `make demo` lands by vision (marker-landing), `make test` runs the test suite, `make bench` the benchmarks.
-# Both set up .venv first (Python 3.12 or newer; drake >= 1.52 needs it) and check the Debian
+# Both set up .venv first (Python 3.12 or newer; drake >= 1.58 needs it) and check the Debian
 # libraries that headless rendering needs.
 SHELL := /bin/bash
 VENV := .venv
@@ -30,7 +30,7 @@ bench: $(STAMP) system-deps
 
 $(STAMP): pyproject.toml
 	@if [ -z "$(PYTHON)" ]; then \
-	  echo "error: no Python 3.12 or newer found (drake >= 1.52 needs it). Install python3.12 and python3.12-venv," \
+	  echo "error: no Python 3.12 or newer found (drake >= 1.58 needs it). Install python3.12 and python3.12-venv," \
 	       "or run make PYTHON=/path/to/python3.12" >&2; exit 1; fi
 	@echo "Setting up $(VENV) with $(PYTHON)"
 	$(PYTHON) -m venv $(VENV)
