@@ -219,3 +219,53 @@ def test_between_frames_the_fused_estimate_is_the_information_sum_of_the_predict
                 shared = reset_states or name == "touchdown"  # the touchdown node never measured
                 assert np.allclose(s.p, state.fused.p, atol=1e-12) == shared
                 assert np.allclose(s.v, state.fused.v, atol=1e-12) == shared
+
+
+def _hover_then_poses(pose_error_m: float, until_s: float = 2.0):
+    """Hovering at p_PB (0.3, -0.2, 4) m with the heading 2 rad, an ideal IMU at 200 Hz; at 50 Hz the
+    approaching node's exact centres, and from 1 s the adjustment node's pose (3 mm claimed) with its
+    height off by pose_error_m in the frame at 1 s and in every later one where `until_s` has not
+    passed, exact after. Returns (times of frames, heading known, fused height, fused yaw) per frame."""
+    config, state, history = FederatedConfig(), FederatedState(), []
+    R = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix()
+    p = np.array([0.3, -0.2, 4.0])
+    X_CP = X_BC.inverse().multiply(RigidTransform(R, p).inverse())
+    imu = np.r_[R.inverse().multiply([0.0, 0.0, G]), 0.0, 0.0, 0.0]
+    for k in range(int(2.5 * 200) + 1):
+        t = k / 200
+        frame = None
+        if k % 4 == 0:
+            frame = {"approach": NodeMeasurement(t, "approach", approach_covariance(X_CP.translation(), 136.0, 640.0),
+                                                 p_CP=X_CP.translation())}
+            if t >= 1.0:
+                off = pose_error_m if t < until_s or t == 1.0 else 0.0
+                frame["adjustment"] = NodeMeasurement(t, "adjustment", np.diag([1e-6] * 3 + [9e-6] * 3),
+                                                      X_PB=RigidTransform(R, p + [0.0, 0.0, off]))
+        state = step(state, t, imu, frame, config, X_BC)
+        if frame is not None:
+            history.append((t, state.heading_known, state.fused.p[2], RollPitchYaw(state.fused.R).yaw_angle()))
+    return np.array(history).T
+
+
+def test_a_first_pose_far_from_what_the_centres_measured_is_left_out_and_the_next_one_turns_the_heading():
+    """The first full pose restarts every filter in the pattern's heading; one 40 mm off in height (13
+    times its 3 mm) would put them all there. It is gated against the centres' estimate, turned to its
+    heading (with the UAV 0.36 m off the centre, a wrong turn would gate the right pose too)."""
+    t, known, height, yaw = _hover_then_poses(0.04, until_s=1.0)
+    def at(when):
+        return np.argmin(np.abs(t - when))
+
+    assert not known[at(1.0)] and abs(height[at(1.0)] - 4.0) < 0.005  # left out: the centres' height
+    assert known[at(1.02)] and abs(yaw[at(1.02)] - 2.0) < 1e-3  # the next, right, pose turned it
+    assert np.abs(height[t >= 1.02] - 4.0).max() < 0.005
+
+
+def test_first_poses_that_go_on_disagreeing_restart_the_filters_after_max_coast():
+    """A pose is the only source of the heading: if every one disagrees with the centres (the centres'
+    estimate may be the one that is off), the filters restart from one after max_coast_s."""
+    t, known, height, _ = _hover_then_poses(0.04, until_s=3.0)
+    max_coast_s = FederatedConfig().max_coast_s
+    assert not known[(t >= 1.0) & (t < 1.0 + max_coast_s - 0.01)].any()
+    restart = np.argmax(known)
+    assert t[restart] == pytest.approx(1.0 + max_coast_s) and known[restart:].all()
+    assert abs(height[restart] - 4.04) < 0.005  # from the pose, which the centres then pull back
