@@ -175,3 +175,18 @@ def test_sides_along_the_pixel_grid_are_refined_to_the_pixel_boundary(x0, y0):
     expected = np.array([[left, top], [left, bottom], [right, bottom], [right, top]])
     assert refined[0]
     np.testing.assert_allclose(corners[0], expected, atol=0.02)
+
+
+def test_a_light_squares_turned_hull_is_refined_to_its_sides():
+    """A light square (a location marker's middle one, a hole in the dark mask) loses its corners' pixels
+    to a high threshold, and its hull's corners come out turned, up to 2.1 px off (measured on a frame over
+    the vehicle, Otsu's threshold 157): the sides' crossings are still the square's."""
+    x0, y0 = 20.3, 19.6
+    x1, y1 = x0 + 38.6, y0 + 38.5
+    grey = 250 - point_sampled_square(x0, x1, y0, y1)
+    left, right, top, bottom = np.ceil(x0) - 0.5, np.floor(x1) + 0.5, np.ceil(y0) - 0.5, np.floor(y1) + 0.5
+    expected = np.array([[left, top], [left, bottom], [right, bottom], [right, top]])
+    turned = expected + [[1.5, 0.1], [-0.5, -1.45], [-1.4, 0.5], [0.5, 2.05]]  # that frame's offsets
+    corners, refined = corners_from_sides(grey, turned[None], 3.0)
+    assert refined[0]
+    np.testing.assert_allclose(corners[0], expected, atol=0.02)

@@ -34,7 +34,10 @@ MIN_DARK_EDGE = 0.65  # the share of the outline's edges that its black border m
 EDGE_MARGIN_PX = 2  # an outline this close to the image's edge may be cut by it
 EDGE_SEARCH_PX = 3.0  # how far across a square's side its edge is looked for (at most; under half a module)
 EDGE_STEP_PX = 0.25  # the profile across a side is sampled this finely
-MAX_CORNER_SHIFT_PX = 2.0  # the contour's corners are within 1.5 px; a refined one further off is another edge's
+# The contour's corners against the sides' crossings: up to 2.1 px where a light square's corners are eaten
+# (a dark carrier in view raised Otsu's threshold from 124 to 157, and the square's hull turned); further
+# off, another edge's.
+MAX_CORNER_SHIFT_PX = 3.0
 MIN_REFINED_BORDER_PX = 3.0  # the outline's corners are refined where its black border is this wide (6.4 m at f 640 px)
 
 
