@@ -221,7 +221,7 @@ def test_between_frames_the_fused_estimate_is_the_information_sum_of_the_predict
                 assert np.allclose(s.v, state.fused.v, atol=1e-12) == shared
 
 
-def _hover_then_poses(pose_error_m: float, until_s: float = 2.0):
+def _hover_then_poses(pose_error_m: float, until_s: float):
     """Hovering at p_PB (0.3, -0.2, 4) m with the heading 2 rad, an ideal IMU at 200 Hz; at 50 Hz the
     approaching node's exact centres, and from 1 s the adjustment node's pose (3 mm claimed) with its
     height off by pose_error_m in the frame at 1 s and in every later one where `until_s` has not

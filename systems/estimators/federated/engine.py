@@ -182,8 +182,9 @@ def step(state: FederatedState, time: float, imu: np.ndarray, measurements: dict
             # Left out, and the poses of this frame with it (the touchdown node's is anchored on the
             # adjustment node's); after max_coast_s of poses that disagree, the filters restart from one.
             state = replace(state, first_pose_doubted_s=time if doubted is None else doubted)
-            for i, _ in (m for m in present if m[1].X_PB is not None):
-                stats[i] = replace(stats[i], gated=stats[i].gated + 1)
+            for i, m in present:
+                if m.X_PB is not None:
+                    stats[i] = replace(stats[i], gated=stats[i].gated + 1)
             present = [(i, m) for i, m in present if m.X_PB is None]
             pose = None
     if present and (not state.started or lost or (not state.heading_known and pose is not None)):
