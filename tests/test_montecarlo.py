@@ -11,6 +11,7 @@ import json
 import multiprocessing
 import os
 import time
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -19,8 +20,8 @@ import pytest
 
 from diagrams.cli import main
 from diagrams.montecarlo import (
-    CAMPAIGNS, CampaignDefinition, RunOutput, RunTask, campaign_settings, executors, parse_number_case, read_records,
-    run_campaign, run_seed,
+    CAMPAIGNS, CampaignDefinition, RunOutput, RunTask, campaign, campaign_settings, executors, parse_number_case,
+    read_records, run_campaign, run_seed,
 )
 from diagrams.outputs import save_figure
 from systems.config import ConfigError
@@ -426,3 +427,33 @@ def test_a_failed_group_runs_one_by_one(tmp_path):
     one_by_one = run_campaign(TOY, settings(), tmp_path / "one", workers=0, progress=False)
     assert summary["filters"] == one_by_one["filters"]
     assert summary["runs"]["done"] == RUNS * len(SPEEDS)
+
+
+class _PoolDyingBetweenRuns:
+    """An in-process pool (one worker) whose executor turns out broken at one submission, when every
+    run it held has already finished (a worker that dies after its last result came in)."""
+
+    workers = 1
+
+    def __init__(self, broken_at: int):
+        self.executor = self
+        self.submissions, self.broken_at, self.restarts = 0, broken_at, 0
+
+    def submit(self, fn, /, *args, **kwargs):
+        self.submissions += 1
+        if self.submissions == self.broken_at:
+            raise BrokenProcessPool("a process in the pool was terminated abruptly")
+        return executors._InlineExecutor().submit(fn, *args, **kwargs)
+
+    def restart(self) -> None:
+        self.restarts += 1
+
+
+def test_a_pool_found_dead_at_a_submission_is_replaced_and_every_run_is_done_once():
+    pool = _PoolDyingBetweenRuns(broken_at=3)  # the window is 2: the third submission follows two finished runs
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(RUNS)]
+    kept = []
+    campaign._drive(pool, toy_run, [(task,) for task in tasks], lambda task, outcome: kept.append((task, outcome)))
+    assert sorted((task for task, _ in kept), key=lambda task: task.index) == tasks  # each once
+    assert [outcome.status for _, outcome in kept] == ["done"] * RUNS
+    assert pool.restarts == 1

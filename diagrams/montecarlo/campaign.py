@@ -132,14 +132,38 @@ def _drive(pool, run: Callable, groups: Sequence[tuple[RunTask, ...]], keep: Cal
     window = 2 * pool.workers
     deaths_without_progress = 0
 
-    def refill() -> None:
+    def refill() -> bool:
+        """Fills the window; False when the pool turned out dead at a submission (the group goes back)."""
         while (queue or suspects) and len(in_flight) < (1 if suspects else window):
-            group = (suspects or queue).popleft()
-            in_flight[pool.executor.submit(_execute_group, run, run_group, group)] = group
+            source = suspects or queue
+            group = source.popleft()
+            try:
+                in_flight[pool.executor.submit(_execute_group, run, run_group, group)] = group
+            except BrokenProcessPool:  # a worker died after its last result came in
+                source.appendleft(group)
+                return False
+        return True
+
+    def pool_died(held: list[tuple[RunTask, ...]]) -> None:
+        nonlocal deaths_without_progress
+        deaths_without_progress += 1
+        if deaths_without_progress > MAX_POOL_DEATHS:
+            raise RuntimeError(f"the worker processes died {deaths_without_progress} times in a row with no "
+                               f"run finishing; stopping (finished runs are kept)")
+        if len(held) == 1:
+            keep(held[0][0], _failure("WorkerDied", "the worker process running this run died (a crash in "
+                                                 "native code, or killed for lack of memory)"))
+        else:
+            suspects.extend(held)
+        pool.restart()
 
     try:
-        refill()
-        while in_flight:
+        while True:
+            if not refill() and not in_flight:  # it died holding no run: nothing to blame
+                pool_died([])
+                continue
+            if not in_flight:
+                break
             done, _ = cf.wait(in_flight, return_when=cf.FIRST_COMPLETED)
             broken = False
             for future in done:
@@ -159,19 +183,9 @@ def _drive(pool, run: Callable, groups: Sequence[tuple[RunTask, ...]], keep: Cal
                     keep(task, outcome)
                 deaths_without_progress = 0
             if broken:
-                deaths_without_progress += 1
-                if deaths_without_progress > MAX_POOL_DEATHS:
-                    raise RuntimeError(f"the worker processes died {deaths_without_progress} times in a row with no "
-                                       f"run finishing; stopping (finished runs are kept)")
                 held = [(task,) for group in in_flight.values() for task in group]  # every run the dead pool held
                 in_flight.clear()
-                if len(held) == 1:
-                    keep(held[0][0], _failure("WorkerDied", "the worker process running this run died (a crash in "
-                                                         "native code, or killed for lack of memory)"))
-                else:
-                    suspects.extend(held)
-                pool.restart()
-            refill()
+                pool_died(held)
     except BaseException:
         # Interrupted: keep what finished, drop the rest (it is redone on resume).
         for future, group in in_flight.items():
