@@ -5,8 +5,9 @@ The state is Eq. (4)'s pose of the body B in the pattern frame P, p_PB and R_PB,
 v_PB (in P) that integrating the IMU's accelerations needs (Eq. 4 lists the pose alone). Error
 state (9): [dp, dv, dtheta], dtheta a rotation vector in P (R = Exp(dtheta) R_nominal). Prediction
 (strapdown, P level and still): R <- R Exp(w_B dt), a = R f_B + g_P, p <- p + v dt + a dt^2 / 2,
-v <- v + a dt. Measurements: a full pose of B in P (the adjustment and touchdown nodes' Z, Eq. 5),
-or the pattern's centre in the camera (the approaching node's rough position). Each is gated by its
+v <- v + a dt. Measurements: a full pose, as Eq. (5)'s Z (the adjustment and touchdown nodes'),
+either of B in P or as the nodes give it, the pattern's pose in the camera (Eq. 2's R and t); or
+the pattern's centre in the camera (the approaching node's rough position). Each is gated by its
 innovation's chi-square quantile. Units: m, s, rad.
 """
 
@@ -145,6 +146,27 @@ def update_pose(state: LocalState, p_PB: np.ndarray, R_PB: np.ndarray, covarianc
     H = np.zeros((6, 9))
     H[0:3, 0:3] = np.eye(3)
     H[3:6, 6:9] = np.eye(3)
+    noise = np.zeros((6, 6))
+    noise[0:3, 0:3], noise[3:6, 3:6] = covariance[3:6, 3:6], covariance[0:3, 0:3]
+    noise[0:3, 3:6], noise[3:6, 0:3] = covariance[3:6, 0:3], covariance[0:3, 3:6]
+    return _update(state, innovation, H, noise, config)
+
+
+def update_pattern_in_camera(state: LocalState, p_CP: np.ndarray, R_CP: np.ndarray, covariance: np.ndarray,
+                             R_BC: np.ndarray, p_BC: np.ndarray, config: LocalFilterConfig) -> LocalState:
+    """The pattern's pose seen from the camera, Eq. (2)'s t and R (p_CP, R_CP; covariance 6x6 over
+    [dtheta (in C), dp (in C)]), the camera at (R_BC, p_BC) in B: h = (R_BC^T (R_PB^T (-p_PB) - p_BC),
+    R_BC^T R_PB^T). Far off, a pose errs mostly along the orbit about the pattern, which moves R_CP
+    and leaves p_CP: in these coordinates that error is linear, where in p_PB it drops the height by
+    the orbit's squared angle (tests/test_federated_filter.py)."""
+    R_BP = state.R.T
+    R_CP_predicted = R_BC.T @ R_BP
+    predicted = R_BC.T @ (R_BP @ (-state.p) - p_BC)
+    innovation = np.r_[np.asarray(p_CP) - predicted, log_so3(np.asarray(R_CP) @ R_CP_predicted.T)]
+    H = np.zeros((6, 9))
+    H[0:3, 0:3] = -R_BC.T @ R_BP
+    H[0:3, 6:9] = -R_BC.T @ R_BP @ skew(state.p)
+    H[3:6, 6:9] = -R_CP_predicted  # R_BC^T R^T Exp(-dtheta) = Exp(-R_CP dtheta) R_CP
     noise = np.zeros((6, 6))
     noise[0:3, 0:3], noise[3:6, 3:6] = covariance[3:6, 3:6], covariance[0:3, 0:3]
     noise[0:3, 3:6], noise[3:6, 0:3] = covariance[3:6, 0:3], covariance[0:3, 3:6]

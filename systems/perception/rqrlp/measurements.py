@@ -1,16 +1,36 @@
 """What seed 001's vision nodes tell the federated filter (`NodeMeasurement`), with covariances from
 the image: a pose's from the reprojection Jacobian of the points it was solved from (first order,
-the pixel noise from the fit's residuals), the rough position's from its apparent size."""
+the pixel noise from the fit's residuals; `PatternView`: about the filter's own pose), the rough
+position's from its apparent size."""
 
 from dataclasses import dataclass
 
 import numpy as np
-from pydrake.math import RigidTransform, RotationMatrix
-from scipy.spatial.transform import Rotation
+from pydrake.math import RigidTransform
+
+from systems.quaternion import skew
 
 MIN_PIXEL_STD = 0.3  # px: no fit is trusted beyond the renderer's quantisation
 APPROACH_PIXEL_STD = 0.4  # px: the outline's sides and centre (open-landing: 0.3-0.4 px from 20 m to 5 m)
 APPROACH_REL_STD = 0.002  # the rough position's relative depth error beyond its pixels' (tilt, lens)
+
+
+@dataclass(frozen=True)
+class PatternView:
+    """A pose node's own result, the pattern's pose in the camera (Eq. 2's R and t), with what it was
+    solved from: the points (N, 3, in P) through the pinhole K (the pixels undistorted) at pixel noise
+    pixel_std (px). A filter takes its covariance (`covariance_at`) linearised about its own estimate:
+    far off, the pose errs along the orbit about the pattern (tilt), and a covariance linearised about
+    such a pose correlates its error with itself (tests/test_federated_filter.py)."""
+
+    X_CP: RigidTransform
+    points_P: np.ndarray
+    K: np.ndarray
+    pixel_std: float
+
+    def covariance_at(self, X_CP: RigidTransform) -> np.ndarray:
+        """(6x6) over [dtheta (in C), dp (in C)] (rad, m), about X_CP."""
+        return pattern_pose_covariance(self.points_P, X_CP, self.K, self.pixel_std)
 
 
 @dataclass(frozen=True)
@@ -26,30 +46,34 @@ class NodeMeasurement:
     X_PB: RigidTransform | None = None
     p_CP: np.ndarray | None = None
     quality: float = 0.0
+    view: PatternView | None = None  # a pose node's own result, which the filters update with
 
 
-def _project(points_P: np.ndarray, X_PB: RigidTransform, X_BC: RigidTransform, K: np.ndarray) -> np.ndarray:
-    X_CP = X_PB.multiply(X_BC).inverse()
-    p_C = X_CP.multiply(points_P.T).T
-    return (p_C[:, :2] / p_C[:, 2:]) * [K[0, 0], K[1, 1]] + K[:2, 2]
-
-
-def pose_covariance(points_P: np.ndarray, X_PB: RigidTransform, X_BC: RigidTransform, K: np.ndarray,
-                    pixel_std: float) -> np.ndarray:
-    """(6x6) covariance over [dtheta, dp] of B's pose in P solved from the points (N, 3, in P) seen
-    by a pinhole camera K at X_BC with pixel noise `pixel_std`: pixel_std^2 (J^T J)^-1, J the
-    reprojections' Jacobian (central differences)."""
-    J = np.empty((2 * len(points_P), 6))
-    step = 1e-6
-    for i in range(6):
-        delta = np.zeros(6)
-        delta[i] = step
-        perturbed = []
-        for sign in (1.0, -1.0):
-            R = RotationMatrix(Rotation.from_rotvec(sign * delta[:3]).as_matrix()).multiply(X_PB.rotation())
-            perturbed.append(_project(points_P, RigidTransform(R, X_PB.translation() + sign * delta[3:]), X_BC, K))
-        J[:, i] = ((perturbed[0] - perturbed[1]) / (2 * step)).ravel()
+def pattern_pose_covariance(points_P: np.ndarray, X_CP: RigidTransform, K: np.ndarray, pixel_std: float) -> np.ndarray:
+    """(6x6) covariance over [dtheta (rotation vector in C), dp (in C)] of the pattern's pose in the
+    camera, X_CP, solved from the points (N, 3, in P) by a pinhole camera K with pixel noise
+    `pixel_std`: pixel_std^2 (J^T J)^-1, J the reprojections' analytic Jacobian."""
+    turned = (X_CP.rotation().matrix() @ np.asarray(points_P, dtype=float).T).T  # R_CP p
+    p_C = turned + X_CP.translation()
+    x, y, z = p_C.T
+    J_pixel = np.zeros((len(p_C), 2, 3))  # d(pixel)/d(p_C)
+    J_pixel[:, 0, 0], J_pixel[:, 0, 2] = K[0, 0] / z, -K[0, 0] * x / z**2
+    J_pixel[:, 1, 1], J_pixel[:, 1, 2] = K[1, 1] / z, -K[1, 1] * y / z**2
+    J_point = np.concatenate([-np.array([skew(p) for p in turned]), np.broadcast_to(np.eye(3), (len(p_C), 3, 3))],
+                             axis=2)  # d(p_C)/d[dtheta, dp]: Exp(dtheta) R_CP p + p_CP + dp
+    J = (J_pixel @ J_point).reshape(-1, 6)
     covariance = max(pixel_std, MIN_PIXEL_STD) ** 2 * np.linalg.inv(J.T @ J)
+    return (covariance + covariance.T) / 2
+
+
+def body_pose_covariance(view: PatternView, X_BC: RigidTransform) -> np.ndarray:
+    """(6x6) covariance over [dtheta (in P), dp (in P)] of the body's pose in P, X_PB = (X_BC X_CP)^-1,
+    from the view's about its own X_CP (first order: dtheta_P = -R_PC dtheta_C, dp_PB = [p_PB]x R_PC
+    dtheta_C - R_PC dp_C)."""
+    R_PC = view.X_CP.rotation().matrix().T
+    p_PB = pose_of_body(view.X_CP, X_BC).translation()
+    A = np.block([[-R_PC, np.zeros((3, 3))], [skew(p_PB) @ R_PC, -R_PC]])
+    covariance = A @ view.covariance_at(view.X_CP) @ A.T
     return (covariance + covariance.T) / 2
 
 
@@ -93,10 +117,9 @@ def adjustment_measurement(X_CP: RigidTransform, points_P: np.ndarray, rms_resid
     square-on: normalised squared pose errors of mean 5.8-8.8, 6 for a consistent covariance; the
     height's RMS error 0.43, 1.37 and 2.83 mm at 0.8-1.5, 1.5-2.5 and 2.5-3.8 m against 0.37, 1.46 and
     2.92 mm claimed)."""
-    X_PB = pose_of_body(X_CP, X_BC)
-    pixel_std = max(rms_residual_px, MIN_PIXEL_STD)
-    return NodeMeasurement(time, "adjustment", pose_covariance(points_P, X_PB, X_BC, K, pixel_std), X_PB=X_PB,
-                           quality=rms_residual_px)
+    view = PatternView(X_CP, points_P, K, max(rms_residual_px, MIN_PIXEL_STD))
+    return NodeMeasurement(time, "adjustment", body_pose_covariance(view, X_BC), X_PB=pose_of_body(X_CP, X_BC),
+                           quality=rms_residual_px, view=view)
 
 
 def touchdown_measurement(X_CP: RigidTransform, outline_P: np.ndarray, anchor_px: float, chained: int, time: float,
@@ -104,10 +127,9 @@ def touchdown_measurement(X_CP: RigidTransform, outline_P: np.ndarray, anchor_px
     """The touchdown node's chained pose (nodes.TouchdownTracker): the covariance of the pattern's
     outline corners (outline_P) at the anchor's pixel noise plus the chain's random walk,
     anchor_px^2 + chained TRACK_STEP_PX^2."""
-    X_PB = pose_of_body(X_CP, X_BC)
-    pixel_std = float(np.sqrt(anchor_px**2 + chained * TRACK_STEP_PX**2))
-    return NodeMeasurement(time, "touchdown", pose_covariance(outline_P, X_PB, X_BC, K, pixel_std), X_PB=X_PB,
-                           quality=chained)
+    view = PatternView(X_CP, outline_P, K, float(np.sqrt(anchor_px**2 + chained * TRACK_STEP_PX**2)))
+    return NodeMeasurement(time, "touchdown", body_pose_covariance(view, X_BC), X_PB=pose_of_body(X_CP, X_BC),
+                           quality=chained, view=view)
 
 
 NODE_VECTOR_SIZE = 9  # node_vector's
