@@ -146,10 +146,7 @@ def update_pose(state: LocalState, p_PB: np.ndarray, R_PB: np.ndarray, covarianc
     H = np.zeros((6, 9))
     H[0:3, 0:3] = np.eye(3)
     H[3:6, 6:9] = np.eye(3)
-    noise = np.zeros((6, 6))
-    noise[0:3, 0:3], noise[3:6, 3:6] = covariance[3:6, 3:6], covariance[0:3, 0:3]
-    noise[0:3, 3:6], noise[3:6, 0:3] = covariance[3:6, 0:3], covariance[0:3, 3:6]
-    return _update(state, innovation, H, noise, config)
+    return _update(state, innovation, H, _position_first(covariance), config)
 
 
 def update_pattern_in_camera(state: LocalState, p_CP: np.ndarray, R_CP: np.ndarray, covariance: np.ndarray,
@@ -159,27 +156,34 @@ def update_pattern_in_camera(state: LocalState, p_CP: np.ndarray, R_CP: np.ndarr
     R_BC^T R_PB^T). Far off, a pose errs mostly along the orbit about the pattern, which moves R_CP
     and leaves p_CP: in these coordinates that error is linear, where in p_PB it drops the height by
     the orbit's squared angle (tests/test_federated_filter.py)."""
-    R_BP = state.R.T
-    R_CP_predicted = R_BC.T @ R_BP
-    predicted = R_BC.T @ (R_BP @ (-state.p) - p_BC)
+    predicted, H_centre = _centre_in_camera(state, R_BC, p_BC)
+    R_CP_predicted = R_BC.T @ state.R.T
     innovation = np.r_[np.asarray(p_CP) - predicted, log_so3(np.asarray(R_CP) @ R_CP_predicted.T)]
     H = np.zeros((6, 9))
-    H[0:3, 0:3] = -R_BC.T @ R_BP
-    H[0:3, 6:9] = -R_BC.T @ R_BP @ skew(state.p)
+    H[0:3] = H_centre
     H[3:6, 6:9] = -R_CP_predicted  # R_BC^T R^T Exp(-dtheta) = Exp(-R_CP dtheta) R_CP
-    noise = np.zeros((6, 6))
-    noise[0:3, 0:3], noise[3:6, 3:6] = covariance[3:6, 3:6], covariance[0:3, 0:3]
-    noise[0:3, 3:6], noise[3:6, 0:3] = covariance[3:6, 0:3], covariance[0:3, 3:6]
-    return _update(state, innovation, H, noise, config)
+    return _update(state, innovation, H, _position_first(covariance), config)
 
 
 def update_centre_in_camera(state: LocalState, p_CP: np.ndarray, covariance: np.ndarray, R_BC: np.ndarray,
                             p_BC: np.ndarray, config: LocalFilterConfig) -> LocalState:
     """The pattern's centre seen from the camera (p_CP in C, m; covariance 3x3), the camera at (R_BC,
     p_BC) in B: h = R_BC^T (R_PB^T (-p_PB) - p_BC)."""
+    predicted, H = _centre_in_camera(state, R_BC, p_BC)
+    return _update(state, np.asarray(p_CP) - predicted, H, np.asarray(covariance), config)
+
+
+def _centre_in_camera(state: LocalState, R_BC: np.ndarray, p_BC: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pattern's centre in the camera that the state predicts, R_BC^T (R_PB^T (-p_PB) - p_BC) (m),
+    and its Jacobian over the error state (3x9)."""
     R_BP = state.R.T
-    predicted = R_BC.T @ (R_BP @ (-state.p) - p_BC)
     H = np.zeros((3, 9))
     H[:, 0:3] = -R_BC.T @ R_BP
     H[:, 6:9] = -R_BC.T @ R_BP @ skew(state.p)  # R_PB^T = R^T Exp(-dtheta): d/d(dtheta) of -R^T (p - dtheta x p)
-    return _update(state, np.asarray(p_CP) - predicted, H, np.asarray(covariance), config)
+    return R_BC.T @ (R_BP @ (-state.p) - p_BC), H
+
+
+def _position_first(covariance: np.ndarray) -> np.ndarray:
+    """A pose's covariance over [dtheta, dp] reordered to the error state's [dp, dtheta]."""
+    order = [3, 4, 5, 0, 1, 2]
+    return np.asarray(covariance)[np.ix_(order, order)]
