@@ -230,30 +230,42 @@ def test_between_frames_the_fused_estimate_is_the_information_sum_of_the_predict
                 assert np.allclose(s.v, state.fused.v, atol=1e-12) == shared
 
 
-def _hover_then_poses(pose_error_m: float, until_s: float):
-    """Hovering at p_PB (0.3, -0.2, 4) m with the heading 2 rad, an ideal IMU at 200 Hz; at 50 Hz the
-    approaching node's exact centres, and from 1 s the adjustment node's pose (3 mm claimed) with its
-    height off by pose_error_m in the frame at 1 s and in every later one where `until_s` has not
-    passed, exact after. Returns (times of frames, heading known, fused height, fused yaw) per frame."""
-    config, state, history = FederatedConfig(), FederatedState(), []
-    R = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix()
-    p = np.array([0.3, -0.2, 4.0])
+def _hover(R: RotationMatrix, p: np.ndarray, seconds: float, side_px: float, focal_px: float, adjustment):
+    """Hovering at p_PB with R_PB (level), an ideal IMU at 200 Hz; at 50 Hz the approaching node's exact
+    centres (with the covariance of an outline side_px wide at focal_px) and, from 1 s, the adjustment
+    node's `adjustment(t, X_CP)`. Returns (t, state) after each frame."""
+    config, state, frames = FederatedConfig(), FederatedState(), []
     X_CP = X_BC.inverse().multiply(RigidTransform(R, p).inverse())
     imu = np.r_[R.inverse().multiply([0.0, 0.0, G]), 0.0, 0.0, 0.0]
-    for k in range(int(2.5 * 200) + 1):
+    for k in range(int(seconds * 200) + 1):
         t = k / 200
-        frame = None
-        if k % 4 == 0:
-            frame = {"approach": NodeMeasurement(t, "approach", approach_covariance(X_CP.translation(), 136.0, 640.0),
-                                                 p_CP=X_CP.translation())}
-            if t >= 1.0:
-                off = pose_error_m if t < until_s or t == 1.0 else 0.0
-                frame["adjustment"] = NodeMeasurement(t, "adjustment", np.diag([1e-6] * 3 + [9e-6] * 3),
-                                                      X_PB=RigidTransform(R, p + [0.0, 0.0, off]))
+        if k % 4:
+            state = step(state, t, imu, None, config, X_BC)
+            continue
+        frame = {"approach": NodeMeasurement(t, "approach", approach_covariance(X_CP.translation(), side_px, focal_px),
+                                             p_CP=X_CP.translation())}
+        if t >= 1.0:
+            frame["adjustment"] = adjustment(t, X_CP)
         state = step(state, t, imu, frame, config, X_BC)
-        if frame is not None:
-            history.append((t, state.heading_known, state.fused.p[2], RollPitchYaw(state.fused.R).yaw_angle()))
-    return np.array(history).T
+        frames.append((t, state))
+    return frames
+
+
+def _hover_then_poses(pose_error_m: float, until_s: float):
+    """`_hover` at p_PB (0.3, -0.2, 4) m with the heading 2 rad, the adjustment node's pose (3 mm
+    claimed) with its height off by pose_error_m in the frame at 1 s and in every later one where
+    `until_s` has not passed, exact after. Returns (times of frames, heading known, fused height, fused
+    yaw) per frame."""
+    R = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix()
+    p = np.array([0.3, -0.2, 4.0])
+
+    def pose(t, X_CP):
+        off = pose_error_m if t < until_s or t == 1.0 else 0.0
+        return NodeMeasurement(t, "adjustment", np.diag([1e-6] * 3 + [9e-6] * 3),
+                               X_PB=RigidTransform(R, p + [0.0, 0.0, off]))
+
+    return np.array([(t, state.heading_known, state.fused.p[2], RollPitchYaw(state.fused.R).yaw_angle())
+                     for t, state in _hover(R, p, 2.5, 136.0, 640.0, pose)]).T
 
 
 def test_a_first_pose_far_from_what_the_centres_measured_is_left_out_and_the_next_one_turns_the_heading():
@@ -299,33 +311,19 @@ def test_the_pattern_seen_from_the_camera_brings_a_filter_to_the_true_pose():
 
 
 def _hover_with_views(height_m: float, seconds: float, rng) -> np.ndarray:
-    """Hovering square-on at height_m over the pattern, an ideal IMU at 200 Hz; at 50 Hz the approaching
-    node's exact centres and, from 1 s, the adjustment node's view of the pattern (seed 001's 36 corners,
-    f 1280 px, 0.3 px) with the error its covariance says, drawn about the truth. The fused height's
-    error [m] per frame from 2 s."""
-    config, state, errors = FederatedConfig(), FederatedState(), []
-    R = RotationMatrix()
-    p = np.array([0.02, -0.03, height_m])
-    X_CP = X_BC.inverse().multiply(RigidTransform(R, p).inverse())
+    """`_hover` square-on at height_m over the pattern, the adjustment node's view of the pattern (seed
+    001's 36 corners, f 1280 px, 0.3 px) with the error its covariance says, drawn about the truth. The
+    fused height's error [m] per frame from 2 s."""
     K = np.array([[1280.0, 0.0, 948.9], [0.0, 1280.0, 543.2], [0.0, 0.0, 1.0]])
     points_P = layout_corners(RqrlpLayout())
-    truth = PatternView(X_CP, points_P, K, 0.3)
-    imu = np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0]
-    for k in range(int(seconds * 200) + 1):
-        t = k / 200
-        frame = None
-        if k % 4 == 0:
-            frame = {"approach": NodeMeasurement(t, "approach", approach_covariance(X_CP.translation(), 155.0, 1280.0),
-                                                 p_CP=X_CP.translation())}
-            if t >= 1.0:
-                d = rng.multivariate_normal(np.zeros(6), truth.covariance_at(X_CP))
-                seen = RigidTransform(RotationMatrix(exp_so3(d[:3]) @ X_CP.rotation().matrix()),
-                                      X_CP.translation() + d[3:])
-                frame["adjustment"] = adjustment_measurement(seen, points_P, 0.3, t, X_BC, K)
-        state = step(state, t, imu, frame, config, X_BC)
-        if frame is not None and t >= 2.0:
-            errors.append(state.fused.p[2] - height_m)
-    return np.array(errors)
+
+    def view(t, X_CP):
+        d = rng.multivariate_normal(np.zeros(6), PatternView(X_CP, points_P, K, 0.3).covariance_at(X_CP))
+        seen = RigidTransform(RotationMatrix(exp_so3(d[:3]) @ X_CP.rotation().matrix()), X_CP.translation() + d[3:])
+        return adjustment_measurement(seen, points_P, 0.3, t, X_BC, K)
+
+    frames = _hover(RotationMatrix(), np.array([0.02, -0.03, height_m]), seconds, 155.0, 1280.0, view)
+    return np.array([state.fused.p[2] - height_m for t, state in frames if t >= 2.0])
 
 
 def test_far_off_a_pose_that_errs_along_the_orbit_about_the_pattern_leaves_the_height_unbiased():

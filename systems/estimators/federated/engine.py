@@ -94,8 +94,8 @@ def _first_state(measurement: NodeMeasurement, X_BC: RigidTransform, f_B: np.nda
     """A filter started by a node's first measurement: a full pose as measured, the approaching
     node's centre with the tilt from the accelerometer and the heading unknown (initial_state)."""
     if measurement.X_PB is not None:
-        P = np.diag(np.r_[np.diag(measurement.covariance)[3:6], np.diag(initial_velocity_covariance(config)),
-                          np.diag(measurement.covariance)[0:3]])
+        variances = np.diag(measurement.pose_covariance(X_BC))
+        P = np.diag(np.r_[variances[3:6], np.diag(initial_velocity_covariance(config)), variances[0:3]])
         return LocalState(measurement.X_PB.translation(), np.zeros(3), measurement.X_PB.rotation().matrix(), P)
     R_BC = X_BC.rotation().matrix()
     return initial_state(X_BC.multiply(measurement.p_CP), R_BC @ measurement.covariance @ R_BC.T, f_B, config)

@@ -36,17 +36,22 @@ class PatternView:
 @dataclass(frozen=True)
 class NodeMeasurement:
     """One node's measurement at `time` [s]: with `X_PB` a full pose of the body B in the pattern
-    frame P, covariance (6x6) over [dtheta (rotation vector in P), dp] (rad, m); else `p_CP`, the
-    pattern's centre in the camera (m), covariance (3x3). `quality`: the node's own figure (features,
-    pixels) for logs."""
+    frame P, covariance (6x6) over [dtheta (rotation vector in P), dp] (rad, m), None where a `view`
+    (a pose node's own result, which the filters update with) gives it (`pose_covariance`); else `p_CP`,
+    the pattern's centre in the camera (m), covariance (3x3). `quality`: the node's own figure
+    (features, pixels) for logs."""
 
     time: float
     node: str
-    covariance: np.ndarray
+    covariance: np.ndarray | None
     X_PB: RigidTransform | None = None
     p_CP: np.ndarray | None = None
     quality: float = 0.0
-    view: PatternView | None = None  # a pose node's own result, which the filters update with
+    view: PatternView | None = None
+
+    def pose_covariance(self, X_BC: RigidTransform) -> np.ndarray:
+        """X_PB's covariance: `covariance`, or derived from the view (only a restart needs it)."""
+        return self.covariance if self.view is None else body_pose_covariance(self.view, X_BC)
 
 
 def pattern_pose_covariance(points_P: np.ndarray, X_CP: RigidTransform, K: np.ndarray, pixel_std: float) -> np.ndarray:
@@ -118,8 +123,8 @@ def adjustment_measurement(X_CP: RigidTransform, points_P: np.ndarray, rms_resid
     height's RMS error 0.43, 1.37 and 2.83 mm at 0.8-1.5, 1.5-2.5 and 2.5-3.8 m against 0.37, 1.46 and
     2.92 mm claimed)."""
     view = PatternView(X_CP, points_P, K, max(rms_residual_px, MIN_PIXEL_STD))
-    return NodeMeasurement(time, "adjustment", body_pose_covariance(view, X_BC), X_PB=pose_of_body(X_CP, X_BC),
-                           quality=rms_residual_px, view=view)
+    return NodeMeasurement(time, "adjustment", None, X_PB=pose_of_body(X_CP, X_BC), quality=rms_residual_px,
+                           view=view)
 
 
 def touchdown_measurement(X_CP: RigidTransform, outline_P: np.ndarray, anchor_px: float, chained: int, time: float,
@@ -128,8 +133,7 @@ def touchdown_measurement(X_CP: RigidTransform, outline_P: np.ndarray, anchor_px
     outline corners (outline_P) at the anchor's pixel noise plus the chain's random walk,
     anchor_px^2 + chained TRACK_STEP_PX^2."""
     view = PatternView(X_CP, outline_P, K, float(np.sqrt(anchor_px**2 + chained * TRACK_STEP_PX**2)))
-    return NodeMeasurement(time, "touchdown", body_pose_covariance(view, X_BC), X_PB=pose_of_body(X_CP, X_BC),
-                           quality=chained, view=view)
+    return NodeMeasurement(time, "touchdown", None, X_PB=pose_of_body(X_CP, X_BC), quality=chained, view=view)
 
 
 NODE_VECTOR_SIZE = 9  # node_vector's
