@@ -25,24 +25,20 @@ from systems.estimators.federated.local_filter import (
     initial_state,
     log_so3,
     predict,
-    update_pattern_points,
+    update_pattern_in_camera,
     update_pose,
 )
-from systems.perception.rqrlp.homography import plane_pose
 from systems.perception.rqrlp.measurements import (
     NodeMeasurement,
     PatternView,
     adjustment_measurement,
     approach_covariance,
 )
-from systems.perception.rqrlp.nodes import layout_corners, refine_pose
+from systems.perception.rqrlp.nodes import layout_corners
 from systems.perception.rqrlp.pattern import RqrlpLayout
-from systems.pinhole import project
 
 G = 9.81
 X_BC = RigidTransform(RollPitchYaw(np.pi, 0.0, 0.0), [0.0, 0.0, -0.04])
-K_TABLE_1 = np.array([[1280.0, 0.0, 948.9], [0.0, 1280.0, 543.2], [0.0, 0.0, 1.0]])  # seed 001's camera
-CORNERS_P = layout_corners(RqrlpLayout())  # the adjustment node's 36
 
 
 def _state(p, P_scale=0.01):
@@ -297,51 +293,43 @@ def test_first_poses_that_go_on_disagreeing_restart_the_filters_after_max_coast(
 
 
 def test_the_pattern_seen_from_the_camera_brings_a_filter_to_the_true_pose():
-    """update_pattern_points' model and Jacobian: from 20 mm and 20 mrad off, updates with the corners'
-    exact pixels, each from the same prior covariance (a Gauss-Newton step), take the filter to the true
-    pose."""
+    """update_pattern_in_camera's model and Jacobian: from 20 mm and 20 mrad off, updates with an exact
+    view (its covariance tiny), each from the same prior covariance (a Gauss-Newton step), take the
+    filter to the true pose."""
     config = LocalFilterConfig()
     R_PB = RollPitchYaw(0.05, -0.02, 1.1).ToRotationMatrix().matrix()
     p_PB = np.array([0.3, -0.2, 3.0])
     X_CP = X_BC.inverse().multiply(RigidTransform(RotationMatrix(R_PB), p_PB).inverse())
-    pixels = PatternView(X_CP, CORNERS_P, K_TABLE_1, 0.3).pixels()
     prior = np.diag([0.05**2] * 3 + [0.1**2] * 3 + [0.05**2] * 3)
     state = LocalState(p_PB + [0.01, -0.02, 0.015], np.zeros(3), exp_so3([0.01, -0.015, 0.02]) @ R_PB, prior)
-    for _ in range(8):  # the prior's weight along the orbit about the pattern leaves a tenth each step
-        state = update_pattern_points(replace(state, P=prior), CORNERS_P, pixels, K_TABLE_1, 0.3,
-                                      X_BC.rotation().matrix(), X_BC.translation(), config)
-    assert state.accepted == 8
+    for _ in range(3):
+        state = update_pattern_in_camera(replace(state, P=prior), X_CP.translation(), X_CP.rotation().matrix(),
+                                         np.eye(6) * 1e-12, X_BC.rotation().matrix(), X_BC.translation(), config)
+    assert state.accepted == 3
     np.testing.assert_allclose(state.p, p_PB, atol=1e-7)
     np.testing.assert_allclose(log_so3(state.R @ R_PB.T), 0.0, atol=1e-7)
 
 
-def _hover_with_views(height_m: float, seconds: float, view) -> np.ndarray:
-    """`_hover` square-on at height_m over the pattern with the adjustment node's measurement
-    view(t, X_CP) (f 1280 px, 0.3 px). The fused height's error [m] per frame from 2 s."""
+def _hover_with_views(height_m: float, seconds: float, rng) -> np.ndarray:
+    """`_hover` square-on at height_m over the pattern, the adjustment node's view of the pattern (seed
+    001's 36 corners, f 1280 px, 0.3 px) with the error its covariance says, drawn about the truth. The
+    fused height's error [m] per frame from 2 s."""
+    K = np.array([[1280.0, 0.0, 948.9], [0.0, 1280.0, 543.2], [0.0, 0.0, 1.0]])
+    points_P = layout_corners(RqrlpLayout())
+
+    def view(t, X_CP):
+        d = rng.multivariate_normal(np.zeros(6), PatternView(X_CP, points_P, K, 0.3).covariance_at(X_CP))
+        seen = RigidTransform(RotationMatrix(exp_so3(d[:3]) @ X_CP.rotation().matrix()), X_CP.translation() + d[3:])
+        return adjustment_measurement(seen, points_P, 0.3, t, X_BC, K)
+
     frames = _hover(RotationMatrix(), np.array([0.02, -0.03, height_m]), seconds, 155.0, 1280.0, view)
     return np.array([state.fused.p[2] - height_m for t, state in frames if t >= 2.0])
 
 
-def test_far_off_a_pose_solved_from_noisy_corners_is_short_and_the_filter_is_not():
-    """At 7 m the 36 corners span 170 px and a pose solved from them has its tilt to about 30 mrad: it errs
-    along the orbit about the pattern (tilt with a sideways shift), which as the body's pose in P, with its
-    covariance about itself, put the fused height 5-6 mm high; and it trades its distance for its tilt (a
-    tilt theta foreshortens the pattern by theta^2), so it comes out short, which as the pattern's pose
-    in the camera put the filter 2.4-3.9 mm low (seeds 2-7 of this hover). Taken as the pixels where it
-    projects the corners (update_pattern_points), about the filter's own pose, it leaves the height
-    unbiased. (Views drawn as Gaussians in the pose, by its covariance, would not do: their tilt
-    foreshortens the pattern with no shorter distance to make up for it, which no solution from pixels
-    has; on those this filter is 2.5 mm high.)"""
-    rng, distance_errors = np.random.default_rng(2), []
-
-    def view(t, X_CP):  # as the adjustment node makes it: the corners' pixels with 0.3 px of noise, the pose solved
-        p_C = CORNERS_P @ X_CP.rotation().matrix().T + X_CP.translation()
-        pixels = project(p_C, K_TABLE_1) + rng.normal(0.0, 0.3, (len(p_C), 2))
-        X_CP_homography, inliers = plane_pose(CORNERS_P, pixels, K_TABLE_1)
-        seen = refine_pose(X_CP_homography, CORNERS_P[inliers], pixels[inliers], K_TABLE_1)
-        distance_errors.append(np.linalg.norm(seen.translation()) - np.linalg.norm(X_CP.translation()))
-        return adjustment_measurement(seen, CORNERS_P, 0.3, t, X_BC, K_TABLE_1)
-
-    errors = _hover_with_views(7.0, 8.0, view)
-    assert np.mean(distance_errors) < -0.002  # the poses: short
-    assert abs(errors.mean()) < 0.001 and np.sqrt(np.mean(errors**2)) < 0.0025  # the filter: not
+def test_far_off_a_pose_that_errs_along_the_orbit_about_the_pattern_leaves_the_height_unbiased():
+    """At 7 m the 36 corners span 170 px and a view's tilt is known to about 30 mrad: the pose errs along
+    the orbit about the pattern (tilt with a sideways shift) and hardly in its distance. Updating in the
+    camera's frame with the covariance about the filter's own pose, that error is linear and the height
+    unbiased; the body's pose in P, with its covariance about itself, put the fused height 5-6 mm high."""
+    errors = _hover_with_views(7.0, 8.0, np.random.default_rng(1))
+    assert abs(errors.mean()) < 0.001 and np.sqrt(np.mean(errors**2)) < 0.0025

@@ -27,7 +27,7 @@ from systems.estimators.federated.local_filter import (
     initial_velocity_covariance,
     predict,
     update_centre_in_camera,
-    update_pattern_points,
+    update_pattern_in_camera,
     update_pose,
 )
 from systems.perception.rqrlp.measurements import NodeMeasurement
@@ -142,10 +142,11 @@ def _lost(state: FederatedState, config: FederatedConfig) -> bool:
 
 def _update(state: LocalState, measurement: NodeMeasurement, X_BC: RigidTransform,
             config: FederatedConfig) -> LocalState:
-    if measurement.view is not None:  # its points' pixels, linearised about the filter's own pose
+    if measurement.view is not None:  # linearised about the filter's own pose, as the EKF's measurement model is
+        X_CP = RigidTransform(RotationMatrix(state.R), state.p).multiply(X_BC).inverse()
         view = measurement.view
-        return update_pattern_points(state, view.points_P, view.pixels(), view.K, view.pixel_std,
-                                     X_BC.rotation().matrix(), X_BC.translation(), config)
+        return update_pattern_in_camera(state, view.X_CP.translation(), view.X_CP.rotation().matrix(),
+                                        view.covariance_at(X_CP), X_BC.rotation().matrix(), X_BC.translation(), config)
     if measurement.X_PB is not None:
         return update_pose(state, measurement.X_PB.translation(), measurement.X_PB.rotation().matrix(),
                            measurement.covariance, config)

@@ -6,9 +6,8 @@ v_PB (in P) that integrating the IMU's accelerations needs (Eq. 4 lists the pose
 state (9): [dp, dv, dtheta], dtheta a rotation vector in P (R = Exp(dtheta) R_nominal). Prediction
 (strapdown, P level and still): R <- R Exp(w_B dt), a = R f_B + g_P, p <- p + v dt + a dt^2 / 2,
 v <- v + a dt. Measurements: a full pose, as Eq. (5)'s Z (the adjustment and touchdown nodes'),
-either of B in P or as the nodes give it, the pattern's pose in the camera (Eq. 2's R and t), taken as
-the pixels where it projects the points it was solved from; or the pattern's centre in the camera (the
-approaching node's rough position). Each is gated by its
+either of B in P or as the nodes give it, the pattern's pose in the camera (Eq. 2's R and t); or
+the pattern's centre in the camera (the approaching node's rough position). Each is gated by its
 innovation's chi-square quantile. Units: m, s, rad.
 """
 
@@ -19,7 +18,6 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from systems.config import require, require_positive
-from systems.pinhole import project, projection_jacobian
 from systems.quaternion import skew
 
 
@@ -128,12 +126,10 @@ def predict(state: LocalState, f_B: np.ndarray, w_B: np.ndarray, dt: float, conf
 
 
 def _update(state: LocalState, innovation: np.ndarray, H: np.ndarray, noise: np.ndarray,
-            config: LocalFilterConfig, dof: int | None = None) -> LocalState:
-    """The EKF update, gated by the innovation's normalised square against the chi-square quantile of
-    the measurement's degrees of freedom (`dof`; None: the innovation's length)."""
+            config: LocalFilterConfig) -> LocalState:
     S = H @ state.P @ H.T + noise
     nis = float(innovation @ np.linalg.solve(S, innovation))
-    if not np.isfinite(nis) or nis > chi2.ppf(config.gate_probability, dof or len(innovation)):
+    if not np.isfinite(nis) or nis > chi2.ppf(config.gate_probability, len(innovation)):
         return replace(state, gated=state.gated + 1)
     K = np.linalg.solve(S, H @ state.P).T
     dx = K @ innovation
@@ -153,27 +149,20 @@ def update_pose(state: LocalState, p_PB: np.ndarray, R_PB: np.ndarray, covarianc
     return _update(state, innovation, H, _position_first(covariance), config)
 
 
-def update_pattern_points(state: LocalState, points_P: np.ndarray, pixels: np.ndarray, K: np.ndarray,
-                          pixel_std: float, R_BC: np.ndarray, p_BC: np.ndarray, config: LocalFilterConfig) -> LocalState:
-    """The pattern's points (N, 3, in P) at `pixels` (N, 2, undistorted) through the pinhole K, each with
-    independent noise pixel_std (px), the camera at (R_BC, p_BC) in B: h_k = pi(K (R_CP p_k + p_CP)) with
-    R_CP = R_BC^T R_PB^T and p_CP = R_BC^T (R_PB^T (-p_PB) - p_BC). A pose node hands on its pose's
-    projection of the points it was solved from (PatternView.pixels): 6 degrees of freedom, the gate's
-    (whose normalised square is then the pose's, with the covariance about the filter's pose). First order
-    the same as taking the pose; but far off, where its tilt is known to tens of mrad, the pose solved
-    from noisy corners trades its distance for its tilt (a tilt theta foreshortens the pattern by
-    theta^2) and comes out short (-3 mm at 7 m), while the pixels it projects hardly move
-    (tests/test_federated_filter.py)."""
+def update_pattern_in_camera(state: LocalState, p_CP: np.ndarray, R_CP: np.ndarray, covariance: np.ndarray,
+                             R_BC: np.ndarray, p_BC: np.ndarray, config: LocalFilterConfig) -> LocalState:
+    """The pattern's pose seen from the camera, Eq. (2)'s t and R (p_CP, R_CP; covariance 6x6 over
+    [dtheta (in C), dp (in C)]), the camera at (R_BC, p_BC) in B: h = (R_BC^T (R_PB^T (-p_PB) - p_BC),
+    R_BC^T R_PB^T). Far off, a pose errs mostly along the orbit about the pattern, which moves R_CP
+    and leaves p_CP: in these coordinates that error is linear, where in p_PB it drops the height by
+    the orbit's squared angle (tests/test_federated_filter.py)."""
     predicted, H_centre = _centre_in_camera(state, R_BC, p_BC)
-    R_CP = R_BC.T @ state.R.T
-    turned = (R_CP @ np.asarray(points_P, dtype=float).T).T
-    p_C = turned + predicted
-    J_point = np.broadcast_to(H_centre, (len(p_C), 3, 9)).copy()  # d(p_C)/d(error state)
-    # R_CP = R_BC^T R^T Exp(-dtheta) = Exp(-R_CP dtheta) R_CP: d(R_CP p) = [R_CP p]x R_CP dtheta
-    J_point[:, :, 6:9] += np.array([skew(t) for t in turned]) @ R_CP
-    innovation = (np.asarray(pixels) - project(p_C, K)).ravel()
-    H = (projection_jacobian(p_C, K) @ J_point).reshape(-1, 9)
-    return _update(state, innovation, H, pixel_std**2 * np.eye(len(innovation)), config, dof=6)
+    R_CP_predicted = R_BC.T @ state.R.T
+    innovation = np.r_[np.asarray(p_CP) - predicted, log_so3(np.asarray(R_CP) @ R_CP_predicted.T)]
+    H = np.zeros((6, 9))
+    H[0:3] = H_centre
+    H[3:6, 6:9] = -R_CP_predicted  # R_BC^T R^T Exp(-dtheta) = Exp(-R_CP dtheta) R_CP
+    return _update(state, innovation, H, _position_first(covariance), config)
 
 
 def update_centre_in_camera(state: LocalState, p_CP: np.ndarray, covariance: np.ndarray, R_BC: np.ndarray,

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.math import RigidTransform
 
-from systems.pinhole import project, projection_jacobian
 from systems.quaternion import skew
 
 MIN_PIXEL_STD = 0.3  # px: no fit is trusted beyond the renderer's quantisation
@@ -20,19 +19,14 @@ APPROACH_REL_STD = 0.002  # the rough position's relative depth error beyond its
 class PatternView:
     """A pose node's own result, the pattern's pose in the camera (Eq. 2's R and t), with what it was
     solved from: the points (N, 3, in P) through the pinhole K (the pixels undistorted) at pixel noise
-    pixel_std (px). A filter takes it as those points' pixels where the pose projects them (`pixels`),
-    about its own pose (local_filter.update_pattern_points): far off, a pose errs along the orbit about
-    the pattern (tilt) and trades its distance for its tilt (a tilt foreshortens the pattern), which
-    taken as a pose biases the filter (tests/test_federated_filter.py), while the pixels hardly move."""
+    pixel_std (px). A filter takes its covariance (`covariance_at`) linearised about its own estimate:
+    far off, the pose errs along the orbit about the pattern (tilt), and a covariance linearised about
+    such a pose correlates its error with itself (tests/test_federated_filter.py)."""
 
     X_CP: RigidTransform
     points_P: np.ndarray
     K: np.ndarray
     pixel_std: float
-
-    def pixels(self) -> np.ndarray:
-        """(N, 2) where the pose projects the points (px, undistorted)."""
-        return project(self.points_P @ self.X_CP.rotation().matrix().T + self.X_CP.translation(), self.K)
 
     def covariance_at(self, X_CP: RigidTransform) -> np.ndarray:
         """(6x6) over [dtheta (in C), dp (in C)] (rad, m), about X_CP."""
@@ -66,9 +60,13 @@ def pattern_pose_covariance(points_P: np.ndarray, X_CP: RigidTransform, K: np.nd
     `pixel_std`: pixel_std^2 (J^T J)^-1, J the reprojections' analytic Jacobian."""
     turned = (X_CP.rotation().matrix() @ np.asarray(points_P, dtype=float).T).T  # R_CP p
     p_C = turned + X_CP.translation()
+    x, y, z = p_C.T
+    J_pixel = np.zeros((len(p_C), 2, 3))  # d(pixel)/d(p_C)
+    J_pixel[:, 0, 0], J_pixel[:, 0, 2] = K[0, 0] / z, -K[0, 0] * x / z**2
+    J_pixel[:, 1, 1], J_pixel[:, 1, 2] = K[1, 1] / z, -K[1, 1] * y / z**2
     J_point = np.concatenate([-np.array([skew(p) for p in turned]), np.broadcast_to(np.eye(3), (len(p_C), 3, 3))],
                              axis=2)  # d(p_C)/d[dtheta, dp]: Exp(dtheta) R_CP p + p_CP + dp
-    J = (projection_jacobian(p_C, K) @ J_point).reshape(-1, 6)
+    J = (J_pixel @ J_point).reshape(-1, 6)
     covariance = max(pixel_std, MIN_PIXEL_STD) ** 2 * np.linalg.inv(J.T @ J)
     return (covariance + covariance.T) / 2
 
