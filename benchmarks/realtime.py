@@ -4,10 +4,10 @@
     .venv/bin/python benchmarks/realtime.py [--duration 60] [--scenario stewart-dynamic] [--out FILE]
 
 The breakdown times each stage on its own at the camera's frame times: render (512x512 colour), the
-camera's processing of it (lens, blur and pixel noise), ToF (the sensors' one shared depth render and
-their readings, times the readings per frame when they keep their own clock), tag detection, 4 frames
-after each simulated second, so the render and the simulation are timed under the same load; "rest" is
-the simulation's wall time per frame minus those (logging, IMU, events, Python overhead). `--out`
+camera's processing of it (lens, blur and pixel noise), ToF (the rays cast on the scene, or the cones'
+shared depth render, and the readings, times the readings per frame when they keep their own clock), tag
+detection, 4 frames after each simulated second, so the render and the simulation are timed under the same
+load; "rest" is the simulation's wall time per frame minus those (logging, IMU, events, Python overhead). `--out`
 writes the figures as JSON too (`render_ms`, `per_frame_ms`, their ratio, the real-time factor and the
 stages), beside the printout.
 """
@@ -28,8 +28,8 @@ from systems.sensors.camera import image_to_numpy
 class StageTimer:
     """Times each stage on its own at successive frame times, in a context of its own: the render, the
     camera's own processing of it (lens, blur, noise: `NoisyCamera` on the cached render), the ToF
-    sensors' shared depth render and readings, and tag detection. `sample` between stretches of the
-    simulation keeps the two under the same machine load."""
+    sensors' readings (their rays cast, or their cones' depth render), and tag detection. `sample`
+    between stretches of the simulation keeps the two under the same machine load."""
 
     def __init__(self, diagram, handles, period_s: float):
         self._handles, self._period, self._k = handles, period_s, 0

@@ -149,16 +149,17 @@ def pad_centres_W(config: Scenario) -> np.ndarray:
 
 
 def add_floor_and_pads(scene_graph: SceneGraph, config: Scenario) -> np.ndarray:
-    """Registers the grey floor (top at z = 0) and the four pads; returns the pads' top centres."""
+    """Registers the grey floor (top at z = 0) and the four pads, seen by the camera and the ToF rays;
+    returns the pads' top centres."""
     source_id = scene_graph.RegisterSource("calibration_floor")
     world = scene_graph.world_frame_id()
     register_visual(scene_graph, source_id, world, RigidTransform([0.0, 0.0, -GROUND_THICKNESS_M / 2]),
-                    Box(GROUND_SIZE_M, GROUND_SIZE_M, GROUND_THICKNESS_M), "floor", GROUND_RGBA)
+                    Box(GROUND_SIZE_M, GROUND_SIZE_M, GROUND_THICKNESS_M), "floor", GROUND_RGBA, collidable=True)
     p_W_pads = pad_centres_W(config)
     for colour, p in zip(PAD_COLOURS, p_W_pads):
         rgba = (*(np.asarray(PAD_RGB[colour]) / 255.0), 1.0)
         register_visual(scene_graph, source_id, world, RigidTransform(p - [0.0, 0.0, PAD_THICKNESS_M / 2]),
-                        Cylinder(config.pad_radius_m, PAD_THICKNESS_M), f"pad_{colour}", rgba)
+                        Cylinder(config.pad_radius_m, PAD_THICKNESS_M), f"pad_{colour}", rgba, collidable=True)
     return p_W_pads
 
 

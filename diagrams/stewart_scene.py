@@ -108,13 +108,17 @@ def hover_pose(config: StewartSceneConfig, platform: StewartPlatform) -> RigidTr
 
 def add_uav_sensors(builder: DiagramBuilder, scene_graph: SceneGraph, body_frame_id, camera_config: CameraConfig,
                     tof_config: TofConfig, seed: int):
-    """The downward camera (with pixel noise) and the four ToF sensors on the body frame, the sensors
-    sharing one depth render (`make_tof_camera`). Returns (RgbdSensor, NoisyCamera, TofSensors)."""
+    """The downward camera (with pixel noise) and the four ToF sensors on the body frame: ideal rays cast
+    on the scene's geometry, or cones sharing one depth render (`make_tof_camera`). Returns (RgbdSensor,
+    NoisyCamera, TofSensors)."""
     camera, noisy_camera = add_camera(builder, scene_graph, body_frame_id, camera_config, seed)
-    tof = builder.AddSystem(TofSensors(tof_config, seed, camera_config.period_s))
-    depth_camera = builder.AddSystem(make_tof_camera(body_frame_id, camera_config.X_BC, tof_config))
-    builder.Connect(scene_graph.get_query_output_port(), depth_camera.query_object_input_port())
-    builder.Connect(depth_camera.depth_image_32F_output_port(), tof.get_input_port())
+    tof = builder.AddSystem(TofSensors(tof_config, seed, camera_config.period_s, (body_frame_id, camera_config.X_BC)))
+    if tof_config.cone_deg > 0:
+        depth_camera = builder.AddSystem(make_tof_camera(body_frame_id, camera_config.X_BC, tof_config))
+        builder.Connect(scene_graph.get_query_output_port(), depth_camera.query_object_input_port())
+        builder.Connect(depth_camera.depth_image_32F_output_port(), tof.get_input_port())
+    else:
+        builder.Connect(scene_graph.get_query_output_port(), tof.get_input_port())
     return camera, noisy_camera, tof
 
 

@@ -45,6 +45,14 @@ def register_visual(
     return geometry_id
 
 
+def register_collision(scene_graph: SceneGraph, source_id, frame_id, X_FG: RigidTransform, shape: Shape, name: str):
+    """Registers `shape` at pose X_FG in frame F for contact and distance queries only (unseen): a simple
+    stand-in for a visual mesh that those queries cannot take. Returns its GeometryId."""
+    geometry_id = scene_graph.RegisterGeometry(source_id, frame_id, GeometryInstance(X_FG, shape, name))
+    scene_graph.AssignRole(source_id, geometry_id, ProximityProperties())
+    return geometry_id
+
+
 def wrap_angle(angle):
     """An angle (rad; a number or an array) wrapped to [-pi, pi)."""
     return (angle + np.pi) % (2 * np.pi) - np.pi

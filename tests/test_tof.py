@@ -1,12 +1,17 @@
-"""ToF range sensors: the range-limit function, the TofSensors system on fixed images of its shared
-depth camera, and the rendered rays against the analytic ray-plane distance to a tilted and a moving
-deck."""
+"""ToF range sensors: the range-limit function, the TofSensors system's ideal rays cast on small
+SceneGraph scenes and its cones on fixed images of their shared depth camera, and the rays in the
+Stewart scenes against the analytic ray-plane distance to a tilted and a moving deck."""
 
 import copy
 import math
 
 import numpy as np
 import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import Box, FramePoseVector, GeometryFrame, GeometryInstance, ProximityProperties, SceneGraph
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource
 from pydrake.systems.sensors import ImageDepth32F
 from scipy.integrate import quad
 
@@ -67,60 +72,98 @@ def tof_with_image(config: TofConfig, depth_of, seed=0):
     return tof, context
 
 
+# The sensors' camera frame C in the tests' scenes: at the world's origin looking down (+z_C = -z_W).
+X_WC_DOWN = RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.0, 0.0, 0.0])
+
+
+def tof_in_scene(boxes, config: TofConfig | None = None, seed=0, frame_period_s=None):
+    """TofSensors with ideal rays in a SceneGraph holding `boxes`, (X_CG, Box) pairs given in C, anchored
+    in the world, and, on the frame the sensors are mounted on, a box of the UAV's own around them (which
+    the rays must ignore). Returns (TofSensors, the diagram's context)."""
+    builder = DiagramBuilder()
+    scene_graph = builder.AddSystem(SceneGraph())
+    source = scene_graph.RegisterSource("test")
+    mount = scene_graph.RegisterFrame(source, GeometryFrame("uav"))
+    shapes = [(scene_graph.world_frame_id(), X_WC_DOWN.multiply(X_CG), box) for X_CG, box in boxes]
+    shapes.append((mount, RigidTransform([0.0, 0.0, -0.01]), Box(0.4, 0.4, 0.05)))
+    for i, (frame, X_FG, box) in enumerate(shapes):
+        geometry = scene_graph.RegisterGeometry(source, frame, GeometryInstance(X_FG, box, f"box{i}"))
+        scene_graph.AssignRole(source, geometry, ProximityProperties())
+    poses = FramePoseVector()
+    poses.set_value(mount, RigidTransform())
+    pose_source = builder.AddSystem(ConstantValueSource(AbstractValue.Make(poses)))
+    builder.Connect(pose_source.get_output_port(), scene_graph.get_source_pose_port(source))
+    tof = builder.AddSystem(TofSensors(config or TofConfig(), seed, frame_period_s, (mount, X_WC_DOWN)))
+    builder.Connect(scene_graph.get_query_output_port(), tof.get_input_port())
+    return tof, builder.Build().CreateDefaultContext()
+
+
+def quadrant_boxes(true_ranges):
+    """A small box under each sensor whose face is true_ranges[i] along its axis (none for inf; around
+    the sensor for 0: the sensor inside it)."""
+    boxes = []
+    for p_CS, r in zip(sensor_positions_C(0.135, 45.0), true_ranges):
+        if np.isfinite(r):
+            depth = 0.1 if r == 0 else 0.01
+            boxes.append((RigidTransform(p_CS + [0.0, 0.0, r + depth / 2 - (0.05 if r == 0 else 0.0)]),
+                          Box(0.05, 0.05, depth)))
+    return boxes
+
+
 def tof_system(true_ranges, seed=0, **config):
-    """TofSensors whose camera sees each sensor's range in that sensor's quadrant (Eq. 21-24's order)."""
-    quadrant_ranges = np.array([[true_ranges[0], true_ranges[3]], [true_ranges[1], true_ranges[2]]])  # [y >= 0][x >= 0]
-    return tof_with_image(TofConfig(**config), lambda x, y: quadrant_ranges[(y >= 0).astype(int), (x >= 0).astype(int)],
-                          seed)
+    """TofSensors whose rays meet a surface at each sensor's range (Eq. 21-24's order)."""
+    return tof_in_scene(quadrant_boxes(true_ranges), TofConfig(**config), seed)
 
 
 def outputs(tof, context, t=0.0):
     context.SetTime(t)
-    return [tof.GetOutputPort(name).Eval(context).copy() for name in ("ranges", "ranges_valid", "true_ranges")]
+    own = tof.GetMyContextFromRoot(context)
+    return [tof.GetOutputPort(name).Eval(own).copy() for name in ("ranges", "ranges_valid", "true_ranges")]
 
 
 def test_noise_free_readings_are_the_ranges_along_the_axes():
     true = [0.5, 1.25, 2.0, 3.75]
     tof, context = tof_system(true)
     ranges, valid, truth = outputs(tof, context, 0.35)
-    np.testing.assert_allclose(truth, true, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(truth, true, rtol=0, atol=1e-6)
     np.testing.assert_array_equal(ranges, truth)
     np.testing.assert_array_equal(valid, [1, 1, 1, 1])
 
 
 def test_each_sensor_reads_a_tilted_plane_along_its_own_axis():
-    # The plane z_C = h + a x_C + b y_C; K (TOF_CAMERA_BACK_M behind C) sees it at z-depth
-    # (TOF_CAMERA_BACK_M + h) / (1 - a x - b y) along (x, y), so at z_C = that - TOF_CAMERA_BACK_M.
+    # The plane z_C = h + a x_C + b y_C: the top face of a large box whose +z axis is the plane's normal
+    # towards the camera.
     h, a, b = 0.3, np.tan(np.radians(25.0)), -np.tan(np.radians(10.0))
-    tof, context = tof_with_image(TofConfig(), lambda x, y: (TOF_CAMERA_BACK_M + h) / (1 - a * x - b * y)
-                                  - TOF_CAMERA_BACK_M)
+    n_C = np.array([a, b, -1.0]) / np.linalg.norm([a, b, -1.0])
+    thickness = 0.1
+    X_CG = RigidTransform(RotationMatrix.MakeFromOneVector(n_C, 2), [0.0, 0.0, h] - n_C * thickness / 2)
+    tof, context = tof_in_scene([(X_CG, Box(3.0, 3.0, thickness))])
     p_CS = sensor_positions_C(0.135, 45.0)
     expected = h + a * p_CS[:, 0] + b * p_CS[:, 1]
     assert np.ptp(expected) > 0.05
-    np.testing.assert_allclose(outputs(tof, context)[2], expected, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(outputs(tof, context)[2], expected, rtol=0, atol=1e-6)
 
 
-@pytest.mark.parametrize("edge_offset_m", np.linspace(-0.03, 0.03, 13))
-def test_a_ray_beside_an_edge_reads_one_of_the_two_surfaces(edge_offset_m):
-    # A deck 1 m away up to x_C = 0.095 m + edge_offset_m, the ground 2 m away beyond: sensors 3 and 4
-    # (x_C = +0.095 m) read the deck or the ground, never a depth in between, and the right one unless the
-    # edge is within a pixel of K (1.6 cm at 1 m) of their axes.
-    edge = 0.095 + edge_offset_m
-    tof, context = tof_with_image(TofConfig(), lambda x, y: np.where(x * (TOF_CAMERA_BACK_M + 1.0) < edge, 1.0, 2.0)
-                                  + 0 * y)
-    truth = outputs(tof, context)[2][2:]
-    assert np.all((np.abs(truth - 1.0) < 1e-9) | (np.abs(truth - 2.0) < 1e-9)), truth
-    if abs(edge_offset_m) > 0.016:
-        np.testing.assert_allclose(truth, 1.0 if edge_offset_m > 0 else 2.0, rtol=0, atol=1e-9)
+@pytest.mark.parametrize("edge_offset_m", [-0.03, -0.01, -1e-3, -1e-5, 1e-5, 1e-3, 0.01, 0.03])
+def test_a_ray_beside_an_edge_reads_the_surface_it_meets(edge_offset_m):
+    # A deck 1 m away up to x_C = edge_offset_m past sensors 3 and 4's axes, the ground 2 m away beyond:
+    # the rays read the deck or the ground, the one their axis meets, however near the edge passes.
+    x_edge = sensor_positions_C(0.135, 45.0)[2, 0] + edge_offset_m
+    deck = (RigidTransform([x_edge - 1.0, 0.0, 1.05]), Box(2.0, 2.0, 0.1))
+    ground = (RigidTransform([0.0, 0.0, 2.05]), Box(5.0, 5.0, 0.1))
+    tof, context = tof_in_scene([deck, ground])
+    truth = outputs(tof, context)[2]
+    np.testing.assert_allclose(truth[:2], 1.0, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(truth[2:], 1.0 if edge_offset_m > 0 else 2.0, rtol=0, atol=1e-6)
 
 
 def test_out_of_range_and_unseen_give_nan_and_invalid():
-    # Nothing seen (inf), too close for the renderer (0), below the 0.04 m minimum, above the 4 m maximum.
+    # Nothing seen (inf), the sensor inside a geometry (0), below the 0.04 m minimum, above the 4 m maximum.
     tof, context = tof_system([np.inf, 0.0, 0.02, 4.5], noise_std_m=0.01)
     ranges, valid, truth = outputs(tof, context, 1.0)
     assert np.all(np.isnan(ranges))
     np.testing.assert_array_equal(valid, [0, 0, 0, 0])
-    assert truth[0] == np.inf and truth[3] == pytest.approx(4.5)
+    assert truth[0] == np.inf and truth[1] == 0.0 and truth[3] == pytest.approx(4.5)
 
 
 def test_noise_has_the_configured_std_and_is_seeded():
@@ -182,15 +225,10 @@ def test_a_cone_that_sees_nothing_is_invalid():
 def test_triggered_by_a_faster_camera_every_frame_draws_its_own_noise():
     config = TofConfig(noise_std_m=0.01)  # rate_hz 20: unused when the camera triggers the readings
     ranges = [2.0, 2.0, 2.0, 2.0]
-    quadrants = lambda x, y: np.full(np.broadcast(x, y).shape, 2.0)  # noqa: E731
-    tof = TofSensors(config, 0, frame_period_s=0.04)  # a 25 Hz camera
-    context = tof.CreateDefaultContext()
-    tof.get_input_port().FixValue(context, camera_image(config, quadrants))
+    tof, context = tof_in_scene(quadrant_boxes(ranges), config, frame_period_s=0.04)  # a 25 Hz camera
     readings = np.array([outputs(tof, context, 0.04 * k)[0] for k in range(12)])
     assert len(np.unique(readings[:, 0])) == 12  # numbered by the camera's frames, none repeated
-    at_own_rate = TofSensors(TofConfig(noise_std_m=0.01, rate_hz=25.0), 0)
-    own_context = at_own_rate.CreateDefaultContext()
-    at_own_rate.get_input_port().FixValue(own_context, camera_image(config, quadrants))
+    at_own_rate, own_context = tof_in_scene(quadrant_boxes(ranges), TofConfig(noise_std_m=0.01, rate_hz=25.0))
     np.testing.assert_array_equal(readings, [outputs(at_own_rate, own_context, 0.04 * k)[0] for k in range(12)])
     assert np.all(np.abs(readings - ranges) < 0.05)
 
@@ -250,23 +288,23 @@ def test_rendered_ranges_match_the_ray_plane_distance(scene_name, request):
         assert np.ptp(expected) > 0.03  # the tilt makes the four ranges differ by centimetres
     context = scene.context()
     truth = scene.eval(scene.handles.tof, "true_ranges", context)
-    # 0.1 mm: well below the 0.5 mm the tag plate floats above the deck, and below the ~1 mm error of
-    # a centre pixel that looks half a pixel (0.17 deg) off the sensor axis onto the 12 deg tilted deck.
-    np.testing.assert_allclose(truth, expected, rtol=0, atol=1e-4)
+    # The rays are cast on the scene's geometry: exact to the cast's 0.1 um, far below the 0.5 mm the tag
+    # plate floats above the deck.
+    np.testing.assert_allclose(truth, expected, rtol=0, atol=1e-6)
     np.testing.assert_array_equal(scene.eval(scene.handles.tof, "ranges", context), truth)
     np.testing.assert_array_equal(scene.eval(scene.handles.tof, "ranges_valid", context), [1, 1, 1, 1])
 
 
 def test_rendered_ranges_follow_the_moving_deck(dynamic_run):
     # stewart-dynamic's deck (8 deg of roll and pitch, 10 of yaw, centimetres of translation) at 40 times
-    # over its 200 s: the one shared depth render gives each ray's analytic distance to the tag plate.
+    # over its 200 s: each ray cast gives its analytic distance to the tag plate.
     scene = dynamic_run[0]
     errors = []
     for t in np.linspace(0.0, 200.0, 40):
         expected, hits_P = analytic_ranges(scene, scene.handles.platform.X_WP(t))
         assert np.all(np.abs(hits_P[:, :2]) < scene.config.platform.tag_size_m * 10 / 8 / 2 - 0.02)
         errors.append(scene.eval(scene.handles.tof, "true_ranges", scene.context(t)) - expected)
-    assert np.max(np.abs(errors)) < 1e-4, np.max(np.abs(errors))
+    assert np.max(np.abs(errors)) < 1e-6, np.max(np.abs(errors))
 
 
 def test_on_its_own_clock_a_frame_reads_the_last_reading_taken_before_it(dynamic_run, build_scene):
@@ -287,11 +325,11 @@ def test_on_its_own_clock_a_frame_reads_the_last_reading_taken_before_it(dynamic
     # The readings at 0.01 + k / 30 s; the 20 Hz frames never coincide with them.
     taken = 0.01 + np.floor((frames[later] - 0.01) * 30.0) / 30.0
     expected = np.array([analytic_ranges(scene, scene.handles.platform.X_WP(t))[0] for t in taken])
-    np.testing.assert_allclose(log["ranges"][later], expected, rtol=0, atol=1e-4)
-    np.testing.assert_allclose(log["true_ranges"][later], expected, rtol=0, atol=1e-4)
+    np.testing.assert_allclose(log["ranges"][later], expected, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(log["true_ranges"][later], expected, rtol=0, atol=1e-6)
     # Not the deck at the frame's own time: the readings are 0-33 ms old, the deck moves under them.
     at_frame = np.array([analytic_ranges(scene, scene.handles.platform.X_WP(t))[0] for t in frames[later]])
-    assert np.max(np.abs(log["ranges"][later] - at_frame)) > 3e-4  # three times the tolerance above
+    assert np.max(np.abs(log["ranges"][later] - at_frame)) > 3e-4
     assert len(np.unique(log["ranges"][later][:, 0])) == len(taken)  # no reading read twice at 20 of 30 Hz
 
 
@@ -316,6 +354,27 @@ def test_out_of_range_hover_gives_nan_and_invalid(build_scene):
     scene = build_scene(config)
     context = scene.context()
     truth = scene.eval(scene.handles.tof, "true_ranges", context)
-    np.testing.assert_allclose(truth, 5.0 - TAG_ABOVE_DECK_M, atol=1e-4)
+    np.testing.assert_allclose(truth, 5.0 - TAG_ABOVE_DECK_M, rtol=0, atol=1e-6)
     assert np.all(np.isnan(scene.eval(scene.handles.tof, "ranges", context)))
     np.testing.assert_array_equal(scene.eval(scene.handles.tof, "ranges_valid", context), [0, 0, 0, 0])
+
+
+def test_the_rays_see_every_geometry_the_camera_sees(hover_scene):
+    # Each frame's camera-seen (perception) geometry has a ray-seen (proximity) counterpart, the UAV's
+    # own excepted (the rays ignore it): the deck and base themselves, the tag's mesh a box to its face.
+    from pydrake.geometry import Role
+
+    from diagrams.crhf_calibration import build_calibration_scene
+    from diagrams.runner import load_scenario
+
+    _, calibration = load_scenario("crhf-calibration")
+    scenes = [(hover_scene.handles.scene_graph, hover_scene.diagram, hover_scene.handles.airframe.body_frame_id)]
+    diagram, handles = build_calibration_scene(calibration)
+    scenes.append((handles.scene_graph, diagram, handles.airframe.body_frame_id))
+    for scene_graph, diagram, uav in scenes:
+        inspector = scene_graph.model_inspector()
+        frames = [f for f in inspector.GetAllFrameIds() if f != uav]
+        seen = {f: inspector.NumGeometriesForFrameWithRole(f, Role.kPerception) for f in frames}
+        ranged = {f: inspector.NumGeometriesForFrameWithRole(f, Role.kProximity) for f in frames}
+        assert sum(seen.values()) >= 5
+        assert all(ranged[f] >= seen[f] for f in frames), {inspector.GetName(f): (seen[f], ranged[f]) for f in frames}

@@ -20,7 +20,7 @@ from scipy.optimize import least_squares
 from models.apriltag import tag_mesh_path, tag_plate_scale
 from systems.config import require, require_positive
 from systems.estimators.deck_tracker import DECK_MOTION_SIZE
-from systems.geometry import frame_between, register_visual
+from systems.geometry import frame_between, register_collision, register_visual
 from systems.noise import sample_rng
 from systems.perception.apriltag import tag_corners_T
 
@@ -309,8 +309,12 @@ class StewartPlatform(LeafSystem):
                         RigidTransform([0, 0, -c.deck_thickness_m / 2]),
                         Box(c.deck_size_m, c.deck_size_m, c.deck_thickness_m), "stewart_deck", deck_grey,
                         collidable=True)
+        plate = tag_plate_scale(c.tag_size_m)
         register_visual(scene_graph, self.source_id, self._deck_frame, RigidTransform(self.X_PT.translation()),
-                        Mesh(str(tag_mesh_path(c.tag_id)), tag_plate_scale(c.tag_size_m)), "apriltag", rgba=None)
+                        Mesh(str(tag_mesh_path(c.tag_id)), plate), "apriltag", rgba=None)
+        # The plate's face for distance queries (the ToF rays): a box from the deck's surface up to it.
+        register_collision(scene_graph, self.source_id, self._deck_frame, RigidTransform([0, 0, TAG_ABOVE_DECK_M / 2]),
+                           Box(plate, plate, TAG_ABOVE_DECK_M), "apriltag_plate")
         # Each leg is a telescoping actuator: a cylinder from the base joint towards the deck joint
         # and a thinner rod from the deck joint towards the base joint.
         half = 0.6 * c.leg_max_m
@@ -319,9 +323,9 @@ class StewartPlatform(LeafSystem):
             lower = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"leg{i}_cylinder"))
             upper = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"leg{i}_rod"))
             register_visual(scene_graph, self.source_id, lower, RigidTransform([0, 0, half / 2]),
-                            Cylinder(0.025, half), f"leg{i}_cylinder", grey)
+                            Cylinder(0.025, half), f"leg{i}_cylinder", grey, collidable=True)
             register_visual(scene_graph, self.source_id, upper, RigidTransform([0, 0, half / 2]),
-                            Cylinder(0.014, half), f"leg{i}_rod", steel)
+                            Cylinder(0.014, half), f"leg{i}_rod", steel, collidable=True)
             self._leg_frames.append((lower, upper))
 
     def X_WP(self, t: float) -> RigidTransform:

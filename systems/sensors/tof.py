@@ -1,7 +1,9 @@
 """Four downward time-of-flight range sensors under the propellers (seed 000 Eq. 21-24, Fig. 20).
 
-By default each sensor is an ideal ray along its axis, as the paper treats each reading. With
-`cone_deg` set it is a real sensor's cone (a VL53L1X's is 27 degrees) sampled by a 31x31 pixel grid:
+By default each sensor is an ideal ray along its axis, as the paper treats each reading, cast on the
+scene's geometry (`ray_cast.cast_rays`: what has a proximity role, less the geometry on the frame the
+sensors are mounted on). With `cone_deg` set it is a real sensor's cone (a VL53L1X's is 27 degrees)
+sampled by a 31x31 pixel grid:
 the reading is the mean path length over the cone's footprint, each pixel weighted by the power it
 returns (`cone_range`), so a tilted or partly covered footprint biases it as it does on hardware. The
 sensors' frames S_i have the camera's orientation (+z down along the ray) and sit in the camera plane
@@ -10,7 +12,7 @@ at the positions of Eq. (21)-(24):
 with c = cos(AngleCam2Sensors) = cos(45 deg) and a the distance from the camera axis (see
 `sensor_positions_C`).
 
-The four sensors share one depth render (`make_tof_camera`): a narrow depth camera K, oriented like C,
+The four cones share one depth render (`make_tof_camera`): a narrow depth camera K, oriented like C,
 TOF_CAMERA_BACK_M (45 m) behind the camera plane on the camera axis, X_CK = [I, (0, 0, -45 m)], whose
 near clipping plane is the sensors' own (5 mm in front of the camera plane), so the drone's own geometry
 is clipped as it was for a camera at each sensor. Its lines of sight are within 0.2 degrees of the
@@ -24,7 +26,7 @@ from functools import cache
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import ClippingRange, DepthRange, DepthRenderCamera, RenderCameraCore
+from pydrake.geometry import ClippingRange, DepthRange, DepthRenderCamera, QueryObject, RenderCameraCore, Role
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem, ValueProducer
 from pydrake.systems.sensors import ImageDepth32F, RgbdSensor
@@ -33,6 +35,7 @@ from scipy.ndimage import map_coordinates
 from systems.config import require, require_positive
 from systems.noise import sample_index, sample_rng
 from systems.sensors.camera import RENDERER_NAME, camera_info
+from systems.sensors.ray_cast import cast_rays
 
 _CONE_PIXELS = 31
 _NEAR_M, _FAR_M = 0.005, 20.0  # the sensors' render range (from the camera plane), wider than any sensor's range
@@ -40,9 +43,9 @@ _MIN_DEPTH_M, _MAX_DEPTH_M = _NEAR_M * 1.01, _FAR_M * 0.99  # nearer: 0 (too clo
 # The shared depth camera K's distance behind the camera plane; with the 19.8 m of range it stays under
 # the 65.5 m an RgbdSensor's 16-bit depth output can hold (Drake warns otherwise).
 TOF_CAMERA_BACK_M = 45.0
-# K's pixels per side: an ideal ray's footprint moves ~2 px over the whole range; a cone's 31 x 31 rays
-# need about their own 3 cm spacing at 2 m, over the cones out to 2 x max_range_m.
-_K_RAY_PIXELS, _K_CONE_PIXELS = 16, 128
+# K's pixels per side: a cone's 31 x 31 rays need about their own 3 cm spacing at 2 m, over the cones out
+# to 2 x max_range_m.
+_K_CONE_PIXELS = 128
 # `ray_depths`' fixed point: at most this many steps, each shrinking the error by about the ray's slope in
 # K's view times the surface's (a cone's edge ray, 0.24, over a 12 deg deck: 0.05, 5 steps from 2 m to
 # 0.2 um); a ray stops when its inverse depth q moves less than _Q_TOLERANCE (1/m), i.e. its depth less
@@ -162,26 +165,24 @@ def cone_range(depth: np.ndarray, fov_deg: float) -> float:
 
 
 def tof_camera_view(config: TofConfig) -> tuple[int, float, float]:
-    """(pixels per side, f, c in px, OpenCV convention) of the shared depth camera K: square, centred on
-    the camera axis, wide enough for every sensor's rays from the camera plane out to 20 m (an ideal
-    ray) or 2 x max_range_m (a cone's), with two pixels of margin."""
-    pixels, fov_deg = config.view
-    x, _, _ = view_geometry(pixels, fov_deg)
-    reach = _FAR_M if config.cone_deg == 0 else min(_FAR_M, 2 * config.max_range_m)
+    """(pixels per side, f, c in px, OpenCV convention) of the cones' shared depth camera K: square,
+    centred on the camera axis, wide enough for every cone's rays from the camera plane out to
+    2 x max_range_m, with two pixels of margin."""
+    require(config.cone_deg > 0, "the shared depth camera is the cones' (tof.cone_deg > 0); ideal rays are cast")
+    x, _, _ = view_geometry(*config.view)
+    reach = min(_FAR_M, 2 * config.max_range_m)
     offset = np.max(np.abs(sensor_positions_C(config.arm_m, config.angle_deg)[:, :2]))
     # |x_K| = |p_S + s x| / (TOF_CAMERA_BACK_M + s) along a ray is largest at one end of s in [0, reach].
     tan_half = max(offset / TOF_CAMERA_BACK_M, (offset + reach * np.max(np.abs(x))) / (TOF_CAMERA_BACK_M + reach))
-    k_pixels = _K_CONE_PIXELS if config.cone_deg > 0 else _K_RAY_PIXELS
-    f = (k_pixels / 2 - 2) / tan_half
-    return k_pixels, f, (k_pixels - 1) / 2
+    f = (_K_CONE_PIXELS / 2 - 2) / tan_half
+    return _K_CONE_PIXELS, f, (_K_CONE_PIXELS - 1) / 2
 
 
-def make_tof_camera(parent_frame_id, X_PC: RigidTransform, config: TofConfig | None = None) -> RgbdSensor:
-    """The depth-only RgbdSensor of the shared depth camera K (`tof_camera_view`) for the sensors of
-    `config` (ideal rays by default) around the camera at X_PC in the parent frame: at
-    X_PK = X_PC [I, (0, 0, -TOF_CAMERA_BACK_M)], its clipping and depth ranges the sensors' own from the
-    camera plane."""
-    pixels, f, c = tof_camera_view(config or TofConfig())
+def make_tof_camera(parent_frame_id, X_PC: RigidTransform, config: TofConfig) -> RgbdSensor:
+    """The depth-only RgbdSensor of the cones' shared depth camera K (`tof_camera_view`) for the sensors
+    of `config` around the camera at X_PC in the parent frame: at X_PK = X_PC [I, (0, 0,
+    -TOF_CAMERA_BACK_M)], its clipping and depth ranges the sensors' own from the camera plane."""
+    pixels, f, c = tof_camera_view(config)
     core = RenderCameraCore(RENDERER_NAME, camera_info(pixels, pixels, f, f, c, c),
                             ClippingRange(TOF_CAMERA_BACK_M + _NEAR_M, TOF_CAMERA_BACK_M + _FAR_M), RigidTransform())
     X_PK = X_PC.multiply(RigidTransform([0.0, 0.0, -TOF_CAMERA_BACK_M]))
@@ -198,7 +199,7 @@ def ray_depths(depth_K: np.ndarray, f: float, c: float, p_CS: np.ndarray, x_S: n
     A point at depth s on a ray, p_CS + s [x_S, y_S, 1], is seen by K at normalised image coordinates
     p_CS q + [x_S, y_S] (1 - TOF_CAMERA_BACK_M q), q = 1 / (TOF_CAMERA_BACK_M + s); the ray meets the
     surface where K's inverse depth W there equals q, found by the fixed point q <- W(q) from the camera
-    plane on (it converges by the ray's slope in K's view times the surface's, ~0.002 for an ideal ray,
+    plane on (it converges by the ray's slope in K's view times the surface's, ~0.002 on a cone's axis,
     and from the near side, so a ray that clears an edge goes on to what lies beyond it). W is
     interpolated bilinearly, exact on a plane (inverse depth is affine in the image coordinates there),
     except between pixels that straddle a jump in depth (an edge: over _JUMP of the inverse depth,
@@ -232,9 +233,11 @@ def ray_depths(depth_K: np.ndarray, f: float, c: float, p_CS: np.ndarray, x_S: n
 
 
 class TofSensors(LeafSystem):
-    """Turns the shared depth camera's image into the four sensors' range readings.
+    """The four sensors' range readings, ideal rays cast on the scene or cones read from their depth render.
 
-    Input depth_image (ImageDepth32F, `make_tof_camera`'s for the same config). Outputs:
+    Input, ideal rays: geometry_query (SceneGraph's QueryObject), the sensors at `mount` = (the frame F
+    they ride on, X_FC the camera frame's pose in it); cones: depth_image (ImageDepth32F, `make_tof_camera`'s
+    for the same config). Outputs:
       ranges: 4 readings (m) with noise (std noise_std_m + noise_std_per_m x range) and bias_m; NaN
         where invalid.
       ranges_valid: 4 flags, 1.0 for a valid reading, 0.0 when out of range or nothing is seen.
@@ -244,16 +247,18 @@ class TofSensors(LeafSystem):
     before the first), so a frame at the same instant as a reading still sees the one before it.
     """
 
-    def __init__(self, config: TofConfig, seed: int = 0, frame_period_s: float | None = None):
-        """`frame_period_s`: the camera's, which triggers the readings (`trigger: camera`); default rate_hz's."""
+    def __init__(self, config: TofConfig, seed: int = 0, frame_period_s: float | None = None,
+                 mount: tuple | None = None):
+        """`frame_period_s`: the camera's, which triggers the readings (`trigger: camera`); default rate_hz's.
+        `mount` (FrameId, RigidTransform X_FC): where ideal rays are cast from; unused by cones."""
         super().__init__()
         config.validate()
-        self._config, self._seed = config, seed
+        require(config.cone_deg > 0 or mount is not None, "ideal ToF rays need the frame they are mounted on")
+        self._config, self._seed, self._mount = config, seed, mount
         # Readings are numbered (for their noise) by the clock that takes them.
         by_camera = config.trigger == "camera" and frame_period_s is not None
         self._reading_period = frame_period_s if by_camera else config.period_s
         self._pixels, self._fov_deg = config.view
-        k_pixels, self._f, self._c = tof_camera_view(config)
         # Every ray of every sensor: origins p_CS and directions [x, y, 1] (in C) of the pixels inside each
         # sensor's cone (its axis alone for an ideal ray), sensor by sensor.
         x, _, in_cone = view_geometry(self._pixels, self._fov_deg)
@@ -261,7 +266,11 @@ class TofSensors(LeafSystem):
         n = len(self._rows)
         self._p_CS = np.repeat(sensor_positions_C(config.arm_m, config.angle_deg), n, axis=0)
         self._x_S, self._y_S = np.tile(x[self._cols], 4), np.tile(x[self._rows], 4)
-        self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F(k_pixels, k_pixels)))
+        if config.cone_deg > 0:
+            k_pixels, self._f, self._c = tof_camera_view(config)
+            self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F(k_pixels, k_pixels)))
+        else:
+            self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         names = ("ranges", "ranges_valid", "true_ranges")
         if config.trigger == "own_clock":
             held = self.DeclareDiscreteState(np.concatenate([np.full(4, np.nan), np.zeros(4), np.full(4, np.inf)]))
@@ -282,17 +291,29 @@ class TofSensors(LeafSystem):
     def sensor_depths(self, context) -> np.ndarray:
         """The z-depths (m) each sensor's own pixel grid sees (4 x pixels x pixels; inf outside the
         cone)."""
-        depth = ray_depths(self.get_input_port().Eval(context).data[..., 0], self._f, self._c, self._p_CS,
-                           self._x_S, self._y_S)
+        if self._config.cone_deg > 0:
+            depth = ray_depths(self.get_input_port().Eval(context).data[..., 0], self._f, self._c, self._p_CS,
+                               self._x_S, self._y_S)
+        else:
+            depth = self._cast_rays(self.get_input_port().Eval(context))
         images = np.full((4, self._pixels, self._pixels), np.inf)
         images[:, self._rows, self._cols] = depth.reshape(4, -1)
         return images
 
+    def _cast_rays(self, query_object) -> np.ndarray:
+        """The four axes' distances (m) to the scene's surfaces: along each sensor's axis (the camera's +z)
+        from its origin in the camera plane, ignoring the geometry of the mount frame (the UAV's own)."""
+        frame_id, X_FC = self._mount
+        X_WC = query_object.GetPoseInWorld(frame_id).multiply(X_FC)
+        own = frozenset(query_object.inspector().GetGeometries(frame_id, Role.kProximity))
+        d_W = np.tile(X_WC.rotation().matrix()[:, 2], (4, 1))
+        return cast_rays(query_object, X_WC.multiply(self._p_CS.T).T, d_W, _FAR_M, own)
+
     def readings(self, context):
         """(ranges with NaN where invalid, valid flags, true ranges) at the context's time. True ranges:
-        the noise-free distance (m) along each sensor's axis, inf when nothing is within 19.8 m, 0 when
-        something is closer than 5.05 mm (Drake's depth-image conventions); the noise-free readings are
-        these for ideal rays, `cone_range` for cones."""
+        the noise-free distance (m) along each sensor's axis, inf when nothing is within 20 m (19.8 m for
+        cones), 0 from inside a geometry (for cones, something closer than 5.05 mm: Drake's depth-image
+        conventions); the noise-free readings are these for ideal rays, `cone_range` for cones."""
         c = self._config
         depths = self.sensor_depths(context)
         centre = self._pixels // 2
