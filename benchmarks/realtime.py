@@ -50,7 +50,7 @@ class StageTimer:
             t1 = time.perf_counter()
             noisy = image_to_numpy(h.color_image.Eval(self._noisy))
             t2 = time.perf_counter()
-            h.tof.readings(self._tof)  # the depth render and the readings, whatever clock the sensors keep
+            h.tof.readings(self._tof)  # the rays (or the cones' depth render) and readings, whatever their clock
             t3 = time.perf_counter()
             h.detector._detector.detect(noisy)
             t4 = time.perf_counter()
