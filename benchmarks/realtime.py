@@ -1,7 +1,8 @@
 """Real-time factor of the stewart-dynamic scene (camera, four ToF sensors and tag detection at
 20 Hz, IMU at 200 Hz), with a per-frame breakdown of where the time goes.
 
-    .venv/bin/python benchmarks/realtime.py [--duration 60] [--scenario stewart-dynamic] [--out FILE]
+    .venv/bin/python benchmarks/realtime.py [--duration 60] [--scenario stewart-dynamic] [--set KEY=VALUE]...
+                                            [--out FILE]
 
 The breakdown times each stage on its own at the camera's frame times: render (512x512 colour), the
 camera's processing of it (lens, blur and pixel noise), ToF (the rays cast on the scene, or the cones'
@@ -9,10 +10,12 @@ shared depth render, and the readings, times the readings per frame when they ke
 detection, 4 frames after each simulated second, so the render and the simulation are timed under the same
 load; "rest" is the simulation's wall time per frame minus those (logging, IMU, events, Python overhead). `--out`
 writes the figures as JSON too (`render_ms`, `per_frame_ms`, their ratio, the real-time factor and the
-stages), beside the printout.
+stages), beside the printout. `--set` overrides a scenario field as `landing-sim run` does (e.g.
+`estimators=[]` or `camera.pixel_noise_std=0.0`, to see what a part of the scene costs).
 """
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -22,6 +25,7 @@ from pydrake.systems.analysis import Simulator
 from diagrams.outputs import write_json
 from diagrams.runner import load_scenario
 from diagrams.stewart_scene import build_stewart_scene
+from systems.config import ConfigError
 from systems.sensors.camera import image_to_numpy
 
 
@@ -62,14 +66,20 @@ class StageTimer:
         return {name: float(np.median(v)) for name, v in self.times.items()}
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds (default 60)")
     parser.add_argument("--scenario", default="stewart-dynamic", help="a Stewart scene (default stewart-dynamic)")
+    parser.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append", default=[],
+                        help="override a scenario field (repeatable), e.g. estimators=[]")
     parser.add_argument("--out", type=Path, help="also write the figures to this JSON file")
     args = parser.parse_args(argv)
 
-    _, scenario = load_scenario(args.scenario, duration_s=args.duration)
+    try:
+        _, scenario = load_scenario(args.scenario, overrides=args.overrides, duration_s=args.duration)
+    except ConfigError as e:
+        print(f"realtime: {e}", file=sys.stderr)
+        return 2
     diagram, handles = build_stewart_scene(scenario)
     simulator = Simulator(diagram)
     simulator.Initialize()
@@ -99,11 +109,13 @@ def main(argv: list[str] | None = None) -> None:
         print(f"  {name:10s} {ms:6.1f} ms" + (f" ({tof_readings:g} readings per frame)" if name == "tof" else ""))
     print(f"  {'rest':10s} {per_frame - sum(stages.values()):6.1f} ms (logging, IMU, events)")
     if args.out is not None:
-        write_json(args.out, {"scenario": args.scenario, "simulated_s": simulated, "wall_s": wall,
+        write_json(args.out, {"scenario": args.scenario, "overrides": args.overrides, "simulated_s": simulated,
+                              "wall_s": wall,
                               "realtime_factor": simulated / wall, "frames": frames, "render_ms": stages["render"],
                               "per_frame_ms": per_frame, "per_frame_over_render": per_frame / stages["render"],
                               "stages_ms": {**stages, "rest": per_frame - sum(stages.values())}})
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -3,10 +3,11 @@ intersections with a tilted box and a cylinder, rays along a face, from inside, 
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import Box, Cylinder, FramePoseVector, GeometryInstance, ProximityProperties, SceneGraph
+from pydrake.geometry import Box, Cylinder, FramePoseVector, SceneGraph
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder
 
+from systems.geometry import register_collision
 from systems.sensors.ray_cast import cast_rays
 
 
@@ -15,10 +16,9 @@ def query_object(shapes):
     builder = DiagramBuilder()
     scene_graph = builder.AddSystem(SceneGraph())
     source = scene_graph.RegisterSource("test")
-    ids = []
-    for i, (X_WG, shape) in enumerate(shapes):
-        ids.append(scene_graph.RegisterAnchoredGeometry(source, GeometryInstance(X_WG, shape, f"g{i}")))
-        scene_graph.AssignRole(source, ids[-1], ProximityProperties())
+    world = scene_graph.world_frame_id()
+    ids = [register_collision(scene_graph, source, world, X_WG, shape, f"g{i}")
+           for i, (X_WG, shape) in enumerate(shapes)]
     diagram = builder.Build()
     context = diagram.CreateDefaultContext()
     scene_graph.get_source_pose_port(source).FixValue(scene_graph.GetMyContextFromRoot(context),

@@ -11,7 +11,7 @@ from benchmarks.realtime import main
 @pytest.mark.slow
 def test_a_short_run_writes_consistent_figures(tmp_path, capsys):
     out = tmp_path / "realtime.json"
-    main(["--duration", "2.05", "--out", str(out)])
+    assert main(["--duration", "2.05", "--out", str(out)]) == 0
     figures = json.loads(out.read_text())
     assert figures["frames"] == 40 and figures["simulated_s"] == pytest.approx(2.0)
     stages = figures["stages_ms"]
@@ -22,3 +22,11 @@ def test_a_short_run_writes_consistent_figures(tmp_path, capsys):
     assert figures["realtime_factor"] == pytest.approx(figures["simulated_s"] / figures["wall_s"])
     assert sum(stages.values()) == pytest.approx(figures["per_frame_ms"])  # "rest" is what the stages leave
     assert f"{figures['per_frame_over_render']:.2f}x the render" in capsys.readouterr().out
+
+
+def test_a_mistyped_setting_is_one_line_and_exit_2(tmp_path, capsys):
+    out = tmp_path / "realtime.json"
+    assert main(["--set", "imu.rate_hzz=20.0", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "imu.rate_hzz" in err and "imu.rate_hz" in err
+    assert not out.exists()

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import Box, FramePoseVector, GeometryFrame, GeometryInstance, ProximityProperties, SceneGraph
+from pydrake.geometry import Box, FramePoseVector, GeometryFrame, SceneGraph
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
@@ -17,6 +17,7 @@ from scipy.integrate import quad
 
 from diagrams.stewart_scene import StewartSceneConfig
 from systems.config import ConfigError
+from systems.geometry import register_collision
 from systems.platforms.stewart import TAG_ABOVE_DECK_M
 from systems.sensors.tof import (
     TOF_CAMERA_BACK_M,
@@ -87,8 +88,7 @@ def tof_in_scene(boxes, config: TofConfig | None = None, seed=0, frame_period_s=
     shapes = [(scene_graph.world_frame_id(), X_WC_DOWN.multiply(X_CG), box) for X_CG, box in boxes]
     shapes.append((mount, RigidTransform([0.0, 0.0, -0.01]), Box(0.4, 0.4, 0.05)))
     for i, (frame, X_FG, box) in enumerate(shapes):
-        geometry = scene_graph.RegisterGeometry(source, frame, GeometryInstance(X_FG, box, f"box{i}"))
-        scene_graph.AssignRole(source, geometry, ProximityProperties())
+        register_collision(scene_graph, source, frame, X_FG, box, f"box{i}")
     poses = FramePoseVector()
     poses.set_value(mount, RigidTransform())
     pose_source = builder.AddSystem(ConstantValueSource(AbstractValue.Make(poses)))
