@@ -139,6 +139,8 @@ def test_missing_calibration_and_bad_settings_are_clear_errors(tmp_path):
         load_scenario("stewart-dynamic", overrides=["crhf.touch_pixels=spline"])
     with pytest.raises(ConfigError, match="crhf.range_filter.measurement_std"):
         load_scenario("stewart-dynamic", overrides=["crhf.range_filter.measurement_std=0"])
+    with pytest.raises(ConfigError, match="crhf.max_tag_residual"):
+        load_scenario("deck-landing", overrides=["crhf.max_tag_residual=-0.1"])
 
 
 def test_running_mean_weights_its_samples():
@@ -204,6 +206,21 @@ def test_four_touch_points_off_one_plane_are_flagged_from_the_first_frame(crhf):
     ranges[0] += 0.3  # on the first frame there is no track to gate against
     _, estimate = crhf.step(CrhfState(), corners, ranges, 0.0)
     assert not estimate.valid
+
+
+@pytest.mark.parametrize("past_edge", [[0.0, 0.0, 0.6, 0.6], [0.6, 0.6, 0.6, 0.6]], ids=["two", "four"])
+def test_sensors_past_the_decks_edge_on_the_first_frame_are_flagged_and_start_no_range_track(crhf, past_edge):
+    # Before any range track exists nothing gates the first readings. Two sensors on the ground 0.6 m below
+    # the deck fit a plane tilted about 70 deg, four fit a level one 0.6 m too deep: either fits its four touch
+    # points exactly, but the corners lifted onto it are not the tag (stretched, or 1.3 times too large).
+    corners, ranges = level_frame()
+    state = CrhfState()
+    for k in range(3):
+        state, estimate = crhf.step(state, corners, ranges + past_edge, 0.05 * k)
+        assert not estimate.valid
+        assert not state.ranges.valid  # the wrong surface starts no track
+    state, estimate = crhf.step(state, corners, ranges, 0.15)  # back on the deck: valid at once
+    assert estimate.valid and estimate.X_CT.translation()[2] == pytest.approx(2.0, abs=1e-3)
 
 
 def test_the_drones_own_motion_keeps_the_range_track_on_the_deck(crhf):

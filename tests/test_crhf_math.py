@@ -6,7 +6,6 @@ import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from scipy.spatial.transform import Rotation
 
-from systems.sensors.tof import sensor_positions_C
 from systems.estimators.crhf_math import (
     NORMAL_GATE,
     CornerNormal,
@@ -24,6 +23,7 @@ from systems.estimators.crhf_math import (
     touch_points,
 )
 from systems.perception.apriltag import tag_corners_T
+from systems.sensors.tof import sensor_positions_C
 
 # Camera intrinsics of seed 000, Eq. 10 (printed transposed there, MATLAB style).
 FX, FY, CX, CY = 458.5, 457.855, 258.7735, 252.308
@@ -253,6 +253,22 @@ def test_crhf_pipeline_recovers_the_tag_pose(X_CT_true):
     np.testing.assert_allclose(estimate.X_CT.GetAsMatrix4(), X_CT_true.GetAsMatrix4(), atol=1e-9)
 
 
+@pytest.mark.parametrize("scale", [1.0, 1.3])
+def test_the_tag_residual_is_zero_on_the_tags_plane_and_grows_with_a_plane_too_deep(scale):
+    # A level tag 2 m below; the ranges put the plane at 2 scale metres. The corners' rays meet it at scale
+    # times their true points, so the lifted tag is `scale` times too large: the rigid fit leaves each corner
+    # (scale - 1) times its distance from the centre, TAG_SIZE / sqrt(2), from the tag's.
+    X_CT_true = RigidTransform([0.0, 0.0, 2.0])
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    p_T = tag_corners_T(TAG_SIZE)
+    uv_corners = project(np.array([X_CT_true.multiply(p) for p in p_T]))
+    ranges = np.full(4, 2.0 * scale)
+    estimate = crhf_tag_pose(p_s, ranges, project(touch_points(p_s, ranges)), uv_corners, p_T,
+                             intrinsics=([FX, FY], [CX, CY]))
+    assert estimate.valid
+    assert estimate.tag_residual_m == pytest.approx((scale - 1.0) * TAG_SIZE / np.sqrt(2.0), abs=1e-12)
+
+
 def test_crhf_pipeline_flags_a_missing_range_without_raising():
     p_s = sensor_positions_C(SENSOR_RADIUS)
     estimate = crhf_tag_pose(
@@ -260,7 +276,7 @@ def test_crhf_pipeline_flags_a_missing_range_without_raising():
         tag_corners_T(TAG_SIZE),
     )
     assert not estimate.valid and estimate.plane.degenerate
-    assert estimate.X_CT.IsExactlyIdentity()
+    assert estimate.X_CT.IsExactlyIdentity() and np.isnan(estimate.tag_residual_m)
 
 
 @pytest.mark.parametrize("normal", [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.3, -0.2, 0.9], [-0.6, 0.7, 0.2]])

@@ -59,16 +59,24 @@ class CrhfConfig:
     filter_ranges: bool = True
     fuse_corner_normal: bool = True
     average_intrinsics: bool = True
-    # A sensor whose ray leaves the deck (past its edge, onto the base or the ground) reads the wrong surface:
-    # ours, a frame is flagged invalid (and the range track coasts) when a range is this far from the range
-    # track's prediction, or when the four touch points are this far from one plane (RMS; a deck's four
-    # points fit one to a few millimetres). Neither ever triggers in the Stewart scenes.
+    # A sensor whose ray leaves the deck (past its edge, onto the base or the ground) reads the wrong surface.
+    # Ours, three checks: a frame is flagged invalid and its range track coasts when a range is this far from
+    # the track's prediction; a frame is flagged invalid and its range track dropped (so that a wrong surface
+    # cannot start one) when the four touch points are this far from one plane (RMS; a deck's four points fit
+    # one to a few millimetres), or when the corners lifted onto the plane leave the rigidly fitted tag
+    # (Eq. 54-61) by more than max_tag_residual of its side (RMS). The last catches what the plane misses:
+    # two sensors past the deck's edge fit a plane tilted 70 deg that stretches the lifted tag, four on the
+    # ground a level one too deep that scales it (by k: (k - 1) / sqrt(2) of the side). Measured (replaying
+    # logged runs): right frames at most 0.013 of the side over 200 s of stewart-dynamic and stewart-hardware,
+    # 0.079 on the livelier deck at 0.8 m; two sensors past the deck's edge 0.23-0.32.
     range_gate_m: float = 0.1
     max_plane_residual_m: float = 0.02
+    max_tag_residual: float = 0.15
 
     def validate(self, prefix: str = "crhf") -> None:
         require_positive(self.range_gate_m, f"{prefix}.range_gate_m")
         require_positive(self.max_plane_residual_m, f"{prefix}.max_plane_residual_m")
+        require_positive(self.max_tag_residual, f"{prefix}.max_tag_residual")
         require(self.touch_pixels in ("pchip", "hyperbola"),
                 f"{prefix}.touch_pixels must be 'pchip' or 'hyperbola', got '{self.touch_pixels}'")
         for name in ("corner_filter", "range_filter"):
@@ -117,8 +125,8 @@ class CrhfEstimator(LeafSystem):
     camera_velocity_C (3, the camera's own velocity in C [m/s], from the drone's navigation: the range
     track's prediction then follows the drone's own motion, Eq. 28's B u; unconnected: a hovering drone). Output:
     X_CT_estimate (PoseEstimate) for the frame at the context's time; invalid when the corner track
-    is lost, a range is invalid, the touch points are degenerate or a touch pixel is outside the
-    calibration.
+    is lost, a range is invalid or gated, the touch points are degenerate or fail `CrhfConfig`'s checks, or a
+    touch pixel is outside the calibration.
 
     The filters' tracks and the running means (`CrhfState`) are state, advanced by a periodic
     update at `period_s`; the output is the estimate from the previous frame's state and this
@@ -135,6 +143,7 @@ class CrhfEstimator(LeafSystem):
         self._range_filter = replace(config.range_filter, dt_s=period_s) if config.filter_ranges else None
         self._range_variance = config.range_filter.measurement_std**2  # raw ranges' covariance / I
         self._range_gate, self._max_residual = config.range_gate_m, config.max_plane_residual_m
+        self._max_tag_residual_m = config.max_tag_residual * tag_size_m
         self._fuse = config.fuse_corner_normal
         self._average_intrinsics = config.average_intrinsics
         self._p_C_sensors = np.asarray(p_C_sensors, dtype=float)
@@ -173,10 +182,21 @@ class CrhfEstimator(LeafSystem):
             ranges = range_track.position if valid else None
             range_covariance = range_track.P[:4, :4] if valid else None
         result = self.estimate(corner_track, ranges, range_covariance, state)
+        if result is not None and not self._ranges_see_the_tag(result):
+            range_track, result = Track(), None
         state = replace(state, corners=corner_track, ranges=range_track)
-        if result is None or not result.valid or not result.plane.rms_residual <= self._max_residual:
+        if result is None or not result.valid:
             return state, PoseEstimate.invalid(time, "C", "T")
         return self._remember(state, result), PoseEstimate(time, result.X_CT, True, reference="C", target="T")
+
+    def _ranges_see_the_tag(self, result: CrhfEstimate) -> bool:
+        """Whether the touch points lie on one plane and the corners lifted onto it fit the tag (`CrhfConfig`'s
+        checks); True for a frame that failed before either could be judged."""
+        if result.plane.degenerate:
+            return True
+        if not result.plane.rms_residual <= self._max_residual:
+            return False
+        return not result.valid or result.tag_residual_m <= self._max_tag_residual_m
 
     def estimate(self, corner_track: Track, ranges: np.ndarray | None, range_covariance: np.ndarray | None,
                  state: CrhfState) -> CrhfEstimate | None:

@@ -310,6 +310,9 @@ class CrhfEstimate:
     p_C_corners: (4, 3) tag corners in C, metres (NaN rows where a ray missed the plane).
     corner_residual_px2: the corners' PnP reprojection residual, px^2, 2 degrees of freedom (NaN
     when the corners' normal was not computed).
+    tag_residual_m: RMS distance of p_C_corners from the tag placed at X_CT (Eq. 54-61's residual), m;
+    NaN when not valid. The lifted corners of the tag's own plane fit it to the corner noise; a plane
+    through another surface stretches or scales them away from it.
     """
 
     X_CT: RigidTransform
@@ -319,6 +322,7 @@ class CrhfEstimate:
     principal_point: np.ndarray
     p_C_corners: np.ndarray
     corner_residual_px2: float = np.nan
+    tag_residual_m: float = np.nan
 
 
 def crhf_tag_pose(
@@ -364,5 +368,9 @@ def crhf_tag_pose(
             plane = fuse_normals(plane, p_C_touch, range_covariance, corners, corner_variance_px2)
     p_C_corners, hit = intersect_pixel_rays_with_plane(uv_corners, f, c, plane)
     valid = valid and bool(np.all(hit))
-    X_CT = arun_rigid_transform(p_T_corners, p_C_corners) if valid else RigidTransform()
-    return CrhfEstimate(X_CT, valid, plane, focal_lengths, principal_point, p_C_corners, residual)
+    if not valid:
+        return CrhfEstimate(RigidTransform(), False, plane, focal_lengths, principal_point, p_C_corners, residual)
+    X_CT = arun_rigid_transform(p_T_corners, p_C_corners)
+    misfit = X_CT.multiply(np.asarray(p_T_corners, dtype=float).T).T - p_C_corners
+    tag_residual = float(np.sqrt(np.mean(np.sum(misfit**2, axis=1))))
+    return CrhfEstimate(X_CT, True, plane, focal_lengths, principal_point, p_C_corners, residual, tag_residual)
