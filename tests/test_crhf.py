@@ -200,12 +200,14 @@ def test_a_sensor_past_the_decks_edge_is_gated_and_does_not_pull_the_range_track
     assert estimate.valid and estimate.X_CT.translation()[2] == pytest.approx(2.0, abs=1e-3)
 
 
-def test_four_touch_points_off_one_plane_are_flagged_from_the_first_frame(crhf):
+def test_four_touch_points_off_one_plane_are_flagged_from_the_first_frame_and_start_no_range_track(crhf):
     corners, ranges = level_frame()
-    ranges = ranges.copy()
-    ranges[0] += 0.3  # on the first frame there is no track to gate against
-    _, estimate = crhf.step(CrhfState(), corners, ranges, 0.0)
-    assert not estimate.valid
+    off_plane = ranges.copy()
+    off_plane[0] += 0.3  # on the first frame there is no track to gate against
+    state, estimate = crhf.step(CrhfState(), corners, off_plane, 0.0)
+    assert not estimate.valid and not state.ranges.valid
+    state, estimate = crhf.step(state, corners, ranges, 0.05)  # a track of the first readings would gate these
+    assert estimate.valid and estimate.X_CT.translation()[2] == pytest.approx(2.0, abs=1e-3)
 
 
 @pytest.mark.parametrize("past_edge", [[0.0, 0.0, 0.6, 0.6], [0.6, 0.6, 0.6, 0.6]], ids=["two", "four"])
