@@ -185,6 +185,23 @@ def test_fusion_and_averaging_switched_off_give_the_papers_pipeline_on_filtered_
     assert not ours_estimate.X_RT.IsNearlyEqualTo(paper_estimate.X_RT, 1e-6)
 
 
+def test_a_tag_tilted_away_from_the_plane_the_ranges_see_is_estimated_from_its_corners(crhf):
+    # The ranges read a level surface through the tag's centre (as hardware cones can, averaging the deck's
+    # surroundings), the corners a tag tilted 15 deg: beyond the normals' gate, with the corners' mirror
+    # (tilted the other way) no closer to the ranges, the corners' normal sets the plane; the touch points
+    # still lie on one plane of their own, so the frame is not flagged.
+    rng = np.random.default_rng(8)
+    X_CT = pose([0.0, 0.0, 2.0], [15.0, 0.0, 0.0])
+    corners = project_points(K, X_CT, tag_corners_T(0.5))
+    state = CrhfState()
+    for k in range(20):
+        state, estimate = crhf.step(state, corners + 0.3 * rng.standard_normal(corners.shape),
+                                    np.full(4, 2.0) + 0.005 * rng.standard_normal(4), 0.05 * k)
+        assert estimate.valid
+    error = estimate.X_RT.rotation().inverse().multiply(X_CT.rotation()).ToAngleAxis().angle()
+    assert np.degrees(error) < 1.0
+
+
 def test_a_sensor_past_the_decks_edge_is_gated_and_does_not_pull_the_range_track(crhf):
     corners, ranges = level_frame()
     state = CrhfState()

@@ -17,6 +17,8 @@ from systems.estimators.crhf_math import (
     fuse_gaussian,
     fuse_normals,
     intersect_pixel_rays_with_plane,
+    mirror_corner_normal,
+    plane_beyond_gate,
     plane_tilt_covariance,
     principal_point_from_touch_points,
     tangent_basis,
@@ -384,10 +386,80 @@ def test_fusing_equally_certain_normals_takes_the_mid_tilt_and_keeps_the_ranges_
     np.testing.assert_allclose(quarter.normal, expected / np.linalg.norm(expected), atol=1e-5)
 
 
-def test_a_corner_normal_beyond_the_gate_leaves_the_range_plane_alone():
+def test_a_corner_normal_beyond_the_gate_is_not_fused():
     plane, p_t, range_covariance, corners = fusion_case([0.2, 0.0, 1.0])  # 11 degrees off, sigma 10 mrad
     assert 0.2**2 / 2e-4 > NORMAL_GATE
-    assert fuse_normals(plane, p_t, range_covariance, corners, 1.0) is plane
+    assert fuse_normals(plane, p_t, range_covariance, corners, 1.0) is None
+    noisier = 2 * 0.2**2 / 1e-4 / NORMAL_GATE  # corners this noisy are within the gate
+    assert fuse_normals(plane, p_t, range_covariance, corners, noisier) is not None
+
+
+def tilted_tag_on_the_axis(tilt_deg, height):
+    """X_CT of a tag centred on the optical axis, tilted about x_C, and its exact corner pixels."""
+    X = RigidTransform(RollPitchYaw(np.radians(tilt_deg), 0.0, 0.0), [0.0, 0.0, height])
+    return X, project(np.array([X.multiply(p) for p in tag_corners_T(TAG_SIZE)]))
+
+
+@pytest.mark.parametrize("tilt_deg, height", [(20.0, 2.0), (5.0, 1.2)])
+def test_the_mirror_of_a_tag_on_the_axis_is_its_reflection_about_the_line_of_sight(tilt_deg, height):
+    # By symmetry a planar PnP's second minimum for a tag centred on the optical axis is the tag tilted the
+    # other way; it reprojects the exact corners only approximately (perspective tells them apart).
+    X, uv = tilted_tag_on_the_axis(tilt_deg, height)
+    p_T = tag_corners_T(TAG_SIZE)
+    corners = corner_normal(uv, [FX, FY], [CX, CY], p_T)
+    mirror = mirror_corner_normal(uv, [FX, FY], [CX, CY], p_T, corners.normal)
+    np.testing.assert_allclose(corners.normal, X.rotation().matrix()[:, 2], atol=1e-9)
+    np.testing.assert_allclose(mirror.normal, corners.normal * [1.0, -1.0, 1.0], atol=1e-7)
+    assert mirror.residual_px2 > 0.1
+    # Asked for the solution far from the mirror's normal, it gives back the true one.
+    again = mirror_corner_normal(uv, [FX, FY], [CX, CY], p_T, mirror.normal)
+    np.testing.assert_allclose(again.normal, corners.normal, atol=1e-7)
+    assert again.residual_px2 < 1e-12
+
+
+def ranges_and_touch_pixels(n, d):
+    """Sensor positions, exact ranges to the plane n . p = d and their touch points' pixels."""
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    ranges = ranges_to_plane(p_s, n, d)
+    return p_s, ranges, project(touch_points(p_s, ranges))
+
+
+def test_corners_that_disagree_with_the_ranges_and_have_no_agreeing_mirror_set_the_plane():
+    # The ranges see a level surface through the tag's centre (a cone reading around the deck), the corners a
+    # tag tilted 15 deg: beyond the gate, and the corners' mirror (tilted -15 deg) agrees with neither, so the
+    # corners' normal is taken through the touch points' centroid: the exact pose.
+    X, uv = tilted_tag_on_the_axis(15.0, 1.2)
+    p_s, ranges, uv_touch = ranges_and_touch_pixels(np.array([0.0, 0.0, 1.0]), 1.2)
+    estimate = crhf_tag_pose(p_s, ranges, uv_touch, uv, tag_corners_T(TAG_SIZE),
+                             range_covariance=0.005**2 * np.eye(4), corner_variance_px2=0.1)
+    assert estimate.valid
+    np.testing.assert_allclose(estimate.plane.normal, X.rotation().matrix()[:, 2], atol=1e-9)
+    np.testing.assert_allclose(estimate.X_CT.GetAsMatrix4(), X.GetAsMatrix4(), atol=1e-8)
+    assert estimate.touch_residual_m < 1e-12  # the touch points' own plane, not the one the corners chose
+    assert estimate.plane.rms_residual > 0.02
+
+
+def test_corners_whose_mirror_agrees_with_the_ranges_leave_the_range_plane():
+    # The ranges see the plane of the corners' mirror pose: the corners are ambiguous, the ranges decide.
+    _, uv = tilted_tag_on_the_axis(15.0, 1.2)
+    count, rvecs, tvecs, _ = cv2.solvePnPGeneric(tag_corners_T(TAG_SIZE), uv.reshape(-1, 1, 2), K, None,
+                                                  flags=cv2.SOLVEPNP_IPPE)
+    mirror = RigidTransform(RotationMatrix(cv2.Rodrigues(rvecs[1])[0]), tvecs[1].ravel())
+    assert count == 2 and mirror.rotation().matrix()[1, 2] > 0.2  # tilted the other way
+    p_s, ranges, uv_touch = ranges_and_touch_pixels(*deck_plane(mirror))
+    estimate = crhf_tag_pose(p_s, ranges, uv_touch, uv, tag_corners_T(TAG_SIZE),
+                             range_covariance=0.005**2 * np.eye(4), corner_variance_px2=0.1)
+    np.testing.assert_allclose(estimate.plane.normal, mirror.rotation().matrix()[:, 2], atol=1e-9)
+    assert estimate.plane.rms_residual < 1e-12
+
+
+def test_without_a_mirror_or_with_corners_facing_the_camera_the_range_plane_stays():
+    plane, p_t, range_covariance, corners = fusion_case([0.2, 0.0, 1.0])
+    assert plane_beyond_gate(plane, p_t, range_covariance, corners, None, 1.0) is plane
+    far = CornerNormal(*corner_normal_at([-0.2, 0.0, 1.0]), 0.0)
+    assert plane_beyond_gate(plane, p_t, range_covariance, corners, far, 1.0).normal[0] > 0.19  # corners taken
+    facing = CornerNormal(*corner_normal_at([0.2, 0.0, -1.0]), 0.0)
+    assert plane_beyond_gate(plane, p_t, range_covariance, facing, far, 1.0) is plane
 
 
 def test_crhf_pipeline_with_fusion_and_given_intrinsics_recovers_the_tag_pose():

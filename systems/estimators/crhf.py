@@ -12,7 +12,9 @@ Two more additions of ours, each with a switch in `CrhfConfig`:
 - fuse_corner_normal: the deck plane's normal from the four ranges (its covariance from the range
   track's) is fused with the tag's normal from the tracked corners (a PnP solution; its covariance
   from the reprojection Jacobian and the corner noise), so the orientation improves as the tag
-  grows in the image; the plane keeps the ranges' offset. The corner noise is not a setting: it is
+  grows in the image; the plane keeps the ranges' offset. Where the two normals disagree beyond noise,
+  the ranges' plane is kept if the corners' mirror pose (the other solution of a planar PnP) agrees with
+  it, and the corners' normal is taken if not (`crhf_math.plane_beyond_gate`). The corner noise is not a setting: it is
   the pooled variance of the PnP reprojection residuals over the frames so far (residual sum of
   squares over degrees of freedom), and the first frame uses the ranges' plane alone.
 - average_intrinsics: the focal lengths and principal point of Eq. 40-45 describe a fixed lens,
@@ -62,9 +64,9 @@ class CrhfConfig:
     # A sensor whose ray leaves the deck (past its edge, onto the base or the ground) reads the wrong surface.
     # Ours, three checks: a frame is flagged invalid and its range track coasts when a range is this far from
     # the track's prediction; a frame is flagged invalid and its range track dropped (so that a wrong surface
-    # cannot start one) when the four touch points are this far (RMS) from the plane the corners are lifted onto
-    # (their fit, its normal fused with the corners'; a deck's four points fit one to a few millimetres), or
-    # when the corners lifted onto that plane leave the rigidly fitted tag (Eq. 54-61) by more than
+    # cannot start one) when the four touch points are this far (RMS) from their own plane (a deck's four
+    # points fit one to a few millimetres), or
+    # when the corners lifted onto the deck plane leave the rigidly fitted tag (Eq. 54-61) by more than
     # max_tag_residual of its side (RMS). The last catches what the plane misses:
     # two sensors past the deck's edge fit a plane tilted 70 deg that stretches the lifted tag, four on the
     # ground a level one too deep that scales it (by k: (k - 1) / sqrt(2) of the side). Measured (replaying
@@ -191,11 +193,11 @@ class CrhfEstimator(LeafSystem):
         return self._remember(state, result), PoseEstimate(time, result.X_CT, True, reference="C", target="T")
 
     def _ranges_see_the_tag(self, result: CrhfEstimate) -> bool:
-        """Whether the touch points lie on one plane and the corners lifted onto it fit the tag (`CrhfConfig`'s
-        checks); True for a frame that failed before either could be judged."""
+        """Whether the touch points lie on one plane and the corners lifted onto the deck plane fit the tag
+        (`CrhfConfig`'s checks); True for a frame that failed before either could be judged."""
         if result.plane.degenerate:
             return True
-        if not result.plane.rms_residual <= self._max_residual:
+        if not result.touch_residual_m <= self._max_residual:
             return False
         return not result.valid or result.tag_residual_m <= self._max_tag_residual_m
 

@@ -9,7 +9,8 @@ Our addition (not in the paper): the plane's normal from the four ranges does no
 tag grows in the image, while the tag's normal from its corners does. Both normals come with a
 covariance (first-order propagation of the range covariance through the plane fit, and of the
 corner noise through the perspective-n-point solution), and their information-weighted mean in the
-plane's tangent space replaces the range normal before the corners are lifted (`fuse_normals`).
+plane's tangent space replaces the range normal before the corners are lifted (`fuse_normals`). When
+they disagree beyond noise, the corners' mirror pose tells which one is wrong (`plane_beyond_gate`).
 
 Frames and units: everything is expressed in the camera frame C (+z along the optical axis,
 +x right, +y down in the image), in metres. Pixels follow OpenCV: u right, v down, pixel centres
@@ -133,14 +134,43 @@ def corner_normal(
     independent corner noise of variance s^2 per coordinate cov(rvec, tvec) = s^2 (J^T J)^-1;
     Rodrigues' Jacobian carries the rvec block to the normal R_CT[:, 2]. None if PnP fails.
     """
-    fx, fy = focal_lengths
-    cx, cy = principal_point
-    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    p_T = np.asarray(p_T_corners, dtype=float)
-    uv = np.asarray(uv_corners, dtype=float).reshape(-1, 2)
+    K, p_T, uv = _pnp_problem(uv_corners, focal_lengths, principal_point, p_T_corners)
     ok, rvec, tvec = cv2.solvePnP(p_T, uv.reshape(-1, 1, 2), K, None, flags=cv2.SOLVEPNP_SQPNP)
     if not ok or not np.all(np.isfinite(rvec)):
         return None
+    return _corner_normal_at(rvec, tvec, K, p_T, uv)
+
+
+def mirror_corner_normal(
+    uv_corners: np.ndarray, focal_lengths: np.ndarray, principal_point: np.ndarray, p_T_corners: np.ndarray,
+    normal: np.ndarray,
+) -> CornerNormal | None:
+    """The other pose the corners of a planar tag allow: of the two solutions of OpenCV's IPPE (Collins and
+    Bartoli's planar PnP; the two minima of the reprojection error), the one whose normal is farther from
+    `normal` (`corner_normal`'s), with its covariance and residual as in `corner_normal` (our addition).
+
+    Arguments as in `corner_normal`. None if IPPE does not give two finite solutions.
+    """
+    K, p_T, uv = _pnp_problem(uv_corners, focal_lengths, principal_point, p_T_corners)
+    count, rvecs, tvecs, _ = cv2.solvePnPGeneric(p_T, uv.reshape(-1, 1, 2), K, None, flags=cv2.SOLVEPNP_IPPE)
+    solutions = [(r, t) for r, t in zip(rvecs, tvecs) if np.all(np.isfinite(r)) and np.all(np.isfinite(t))]
+    if count < 2 or len(solutions) < 2:
+        return None
+    normals = [cv2.Rodrigues(r)[0][:, 2] for r, _ in solutions]
+    farther = int(np.argmin([n @ np.asarray(normal, dtype=float) for n in normals]))
+    return _corner_normal_at(*solutions[farther], K, p_T, uv)
+
+
+def _pnp_problem(uv_corners, focal_lengths, principal_point, p_T_corners):
+    """(K, p_T (N, 3) m, uv (N, 2) px) as float arrays for OpenCV's PnP solvers."""
+    fx, fy = focal_lengths
+    cx, cy = principal_point
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    return K, np.asarray(p_T_corners, dtype=float), np.asarray(uv_corners, dtype=float).reshape(-1, 2)
+
+
+def _corner_normal_at(rvec, tvec, K, p_T, uv) -> CornerNormal:
+    """`corner_normal`'s normal, covariance and residual at the PnP solution (rvec, tvec) of X_CT."""
     uv_model, J = cv2.projectPoints(p_T, rvec, tvec, K, None)
     J = J[:, :6]
     R, dR = cv2.Rodrigues(rvec)  # dR[i, 3 r + c] = d R[r, c] / d rvec[i]
@@ -182,14 +212,14 @@ def fuse_gaussian(mean_a, cov_a, mean_b, cov_b) -> Fusion:
 
 # Gate on the two normals' disagreement: the chi-square quantile with 2 degrees of freedom at
 # 0.999 (its survival function is exp(-x / 2)). Beyond it the corners' normal is not the same
-# plane's within noise (e.g. the mirror solution of a planar PnP) and the range plane is kept.
+# plane's within noise, and `deck_plane` decides which of the two is wrong.
 NORMAL_GATE = -2.0 * np.log(1e-3)
 
 
 def fuse_normals(
     plane: PlaneFit, p_C_touch: np.ndarray, range_covariance: np.ndarray, corners: CornerNormal,
     corner_variance_px2: float,
-) -> PlaneFit:
+) -> PlaneFit | None:
     """The deck plane with its normal fused from the ranges and the corners (our addition).
 
     plane: `fit_plane` of the touch points p_C_touch (N, 3, m, in C); range_covariance (N, N, m^2);
@@ -198,26 +228,53 @@ def fuse_normals(
     `plane_tilt_covariance`; the corners' normal m maps through the gnomonic chart,
     theta = E m / (n . m), whose Jacobian (E - theta n^T) / (n . m) carries its covariance. The
     fused tilt gives the normal; the plane keeps passing through the touch points' centroid, so
-    its offset (and the estimate's depth) stays the ranges'. Beyond `NORMAL_GATE`, or when the two
-    normals point into opposite half-spaces, the range plane is returned unchanged.
+    its offset (and the estimate's depth) stays the ranges'. None beyond `NORMAL_GATE`, or when the
+    two normals point into opposite half-spaces: one of them is not the tag's plane.
     """
     n, m = plane.normal, corners.normal
     E = tangent_basis(n)
     cosine = float(n @ m)
     if cosine <= 0.0:
-        return plane
+        return None
     theta = E @ m / cosine
     chart = (E - np.outer(theta, n)) / cosine
     cov_corners = corner_variance_px2 * chart @ corners.unit_covariance @ chart.T
     cov_ranges = plane_tilt_covariance(p_C_touch, plane, range_covariance, E)
     fused = fuse_gaussian(np.zeros(2), cov_ranges, theta, cov_corners)
     if fused.mahalanobis2 > NORMAL_GATE:
-        return plane
-    normal = n + E.T @ fused.mean
-    normal /= np.linalg.norm(normal)
+        return None
+    return plane_through_centroid(n + E.T @ fused.mean, p_C_touch)
+
+
+def plane_through_centroid(normal: np.ndarray, p_C_touch: np.ndarray) -> PlaneFit:
+    """The plane with the given normal (3,) through the centroid of the touch points (N, 3, m, in C),
+    with their RMS distance from it."""
+    normal = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
     p = np.asarray(p_C_touch, dtype=float)
     offset = float(normal @ p.mean(axis=0))
     return PlaneFit(normal, offset, float(np.sqrt(np.mean((p @ normal - offset) ** 2))), False)
+
+
+def plane_beyond_gate(
+    plane: PlaneFit, p_C_touch: np.ndarray, range_covariance: np.ndarray, corners: CornerNormal,
+    mirror: CornerNormal | None, corner_variance_px2: float,
+) -> PlaneFit:
+    """The plane to lift the corners onto when `fuse_normals` refused the two normals (our addition).
+
+    Arguments as in `fuse_normals`; mirror: `mirror_corner_normal` of the same corners (None if IPPE gave no
+    second solution). One of the two normals is not the tag's plane:
+    - the corners are ambiguous when their other solution (a planar PnP's mirror pose) agrees with the ranges
+      within `NORMAL_GATE`: the range plane is kept;
+    - otherwise the corners fix one plane and the ranges do not see it (a cone reading past the deck's edge,
+      a biased sensor): the corners' normal is taken, through the touch points' centroid as in the fusion.
+    The range plane is also kept when the corners' normal points into the other half-space, or when there
+    is no mirror to judge the corners by.
+    """
+    if mirror is None or corners.normal @ plane.normal <= 0.0:
+        return plane
+    if fuse_normals(plane, p_C_touch, range_covariance, mirror, corner_variance_px2) is not None:
+        return plane
+    return plane_through_centroid(corners.normal, p_C_touch)
 
 
 def principal_point_from_touch_points(p_C_touch: np.ndarray, uv_touch: np.ndarray) -> np.ndarray:
@@ -304,7 +361,9 @@ class CrhfEstimate:
 
     X_CT: tag pose in C (identity when not valid). valid: every step succeeded.
     plane: the deck plane the corners were lifted onto: the touch points' plane, its normal fused
-    with the corners' (`fuse_normals`) when a corner variance was given and the gate passed.
+    with the corners' (`fuse_normals`) when a corner variance was given and the gate passed, else as
+    `plane_beyond_gate` chose. touch_residual_m: RMS distance of the touch points from their own
+    least-squares plane (`fit_plane`), m; NaN when they do not fix one.
     focal_lengths (fx, fy) and principal_point (cx, cy): pixels, measured this frame from the
     touch points (Eq. 40-45), whichever intrinsics the corners were lifted with.
     p_C_corners: (4, 3) tag corners in C, metres (NaN rows where a ray missed the plane).
@@ -318,6 +377,7 @@ class CrhfEstimate:
     X_CT: RigidTransform
     valid: bool
     plane: PlaneFit
+    touch_residual_m: float
     focal_lengths: np.ndarray
     principal_point: np.ndarray
     p_C_corners: np.ndarray
@@ -347,7 +407,8 @@ def crhf_tag_pose(
     corners with instead of this frame's Eq. 40-45 (e.g. their mean over earlier frames);
     range_covariance, (4, 4) m^2 of the ranges: the corners' own normal is computed and its
     residual reported, and with corner_variance_px2 (variance of one corner coordinate, px^2) it
-    is fused with the touch points' normal (`fuse_normals`).
+    is fused with the touch points' normal (`fuse_normals`; beyond its gate `plane_beyond_gate`,
+    which looks for the corners' mirror solution only then).
     Never raises on bad measurements: the estimate is then flagged invalid.
     """
     p_C_touch = touch_points(p_C_sensors, ranges)
@@ -355,22 +416,28 @@ def crhf_tag_pose(
     nan2 = np.full(2, np.nan)
     finite = np.all(np.isfinite(uv_touch)) and np.all(np.isfinite(uv_corners))
     if plane.degenerate or not finite:
-        return CrhfEstimate(RigidTransform(), False, plane, nan2, nan2, np.full((4, 3), np.nan))
+        return CrhfEstimate(RigidTransform(), False, plane, plane.rms_residual, nan2, nan2, np.full((4, 3), np.nan))
     principal_point = principal_point_from_touch_points(p_C_touch, uv_touch)
     focal_lengths = focal_lengths_from_touch_points(p_C_touch, uv_touch, principal_point)
     f, c = (focal_lengths, principal_point) if intrinsics is None else intrinsics
     valid = bool(np.all(focal_lengths > 0) and np.all(np.asarray(f) > 0))
-    residual = np.nan
+    residual, touch_residual = np.nan, plane.rms_residual
     if valid and range_covariance is not None:
         corners = corner_normal(uv_corners, f, c, p_T_corners)
         residual = np.nan if corners is None else corners.residual_px2
         if corners is not None and corner_variance_px2 is not None:
-            plane = fuse_normals(plane, p_C_touch, range_covariance, corners, corner_variance_px2)
+            fused = fuse_normals(plane, p_C_touch, range_covariance, corners, corner_variance_px2)
+            if fused is None:
+                mirror = mirror_corner_normal(uv_corners, f, c, p_T_corners, corners.normal)
+                fused = plane_beyond_gate(plane, p_C_touch, range_covariance, corners, mirror, corner_variance_px2)
+            plane = fused
     p_C_corners, hit = intersect_pixel_rays_with_plane(uv_corners, f, c, plane)
     valid = valid and bool(np.all(hit))
     if not valid:
-        return CrhfEstimate(RigidTransform(), False, plane, focal_lengths, principal_point, p_C_corners, residual)
+        return CrhfEstimate(RigidTransform(), False, plane, touch_residual, focal_lengths, principal_point,
+                            p_C_corners, residual)
     X_CT = arun_rigid_transform(p_T_corners, p_C_corners)
     misfit = X_CT.multiply(np.asarray(p_T_corners, dtype=float).T).T - p_C_corners
     tag_residual = float(np.sqrt(np.mean(np.sum(misfit**2, axis=1))))
-    return CrhfEstimate(X_CT, True, plane, focal_lengths, principal_point, p_C_corners, residual, tag_residual)
+    return CrhfEstimate(X_CT, True, plane, touch_residual, focal_lengths, principal_point, p_C_corners, residual,
+                        tag_residual)
