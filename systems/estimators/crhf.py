@@ -65,9 +65,8 @@ class CrhfConfig:
     # Ours, three checks: a frame is flagged invalid and its range track coasts when a range is this far from
     # the track's prediction; a frame is flagged invalid and its range track dropped (so that a wrong surface
     # cannot start one) when the four touch points are this far (RMS) from their own plane (a deck's four
-    # points fit one to a few millimetres), or
-    # when the corners lifted onto the deck plane leave the rigidly fitted tag (Eq. 54-61) by more than
-    # max_tag_residual of its side (RMS). The last catches what the plane misses:
+    # points fit one to a few millimetres), or when the corners lifted onto the deck plane leave the rigidly
+    # fitted tag (Eq. 54-61) by more than max_tag_residual of its side (RMS). The last catches what the plane misses:
     # two sensors past the deck's edge fit a plane tilted 70 deg that stretches the lifted tag, four on the
     # ground a level one too deep that scales it (by k: (k - 1) / sqrt(2) of the side). Measured (replaying
     # logged runs): right frames at most 0.013 of the side over 200 s of stewart-dynamic and stewart-hardware,
