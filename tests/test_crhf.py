@@ -170,6 +170,21 @@ def test_the_state_remembers_intrinsics_and_the_corner_noise_of_valid_frames(crh
     assert not estimate.valid and state.intrinsics.weight == 40 and state.corner_variance.weight == 80
 
 
+def test_residuals_of_corners_that_fit_no_tag_are_not_pooled_once_the_noise_is_known(crhf):
+    frames = noisy_level_frames(12)
+    bad_corners = frames[0][0].copy()
+    bad_corners[0] += [6.0, 0.0]  # one corner 6 px off: no rigid tag fits
+    state = CrhfState()
+    state, _ = crhf.step(state, bad_corners, frames[0][1], 0.0)
+    assert state.corner_variance.weight == 2  # the first frames are pooled unjudged
+    for k, (corners, ranges) in enumerate(frames[1:], start=1):
+        state, _ = crhf.step(state, corners, ranges, 0.05 * k)
+    pooled = state.corner_variance
+    assert pooled.weight == 24
+    state, estimate = crhf.step(state, bad_corners, frames[-1][1], 0.6)
+    assert estimate.valid and state.corner_variance == pooled  # judged now: not pooled
+
+
 def test_fusion_and_averaging_switched_off_give_the_papers_pipeline_on_filtered_ranges():
     paper = CrhfEstimator(CrhfConfig(fuse_corner_normal=False, average_intrinsics=False), P_C_SENSORS, 0.5, 0.05)
     ours = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05)

@@ -11,6 +11,7 @@ from systems.estimators.crhf_math import (
     CornerNormal,
     arun_rigid_transform,
     corner_normal,
+    corners_fit_a_tag,
     crhf_tag_pose,
     fit_plane,
     focal_lengths_from_touch_points,
@@ -460,6 +461,25 @@ def test_without_a_mirror_or_with_corners_facing_the_camera_the_range_plane_stay
     assert plane_beyond_gate(plane, p_t, range_covariance, corners, far, 1.0).normal[0] > 0.19  # corners taken
     facing = CornerNormal(*corner_normal_at([0.2, 0.0, -1.0]), 0.0)
     assert plane_beyond_gate(plane, p_t, range_covariance, facing, far, 1.0) is plane
+
+
+def test_corners_that_fit_no_rigid_tag_are_not_fused():
+    # One corner 3 px off: the PnP residual (2 dof) is far beyond NORMAL_GATE times a 0.1 px^2 noise, so the plane
+    # stays the ranges' exactly; at a noise that explains it the corners are fused and move the plane.
+    assert corners_fit_a_tag(NORMAL_GATE * 0.1, 0.1) and not corners_fit_a_tag(NORMAL_GATE * 0.1 + 1e-9, 0.1)
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    n, d = deck_plane(X_CT)
+    ranges = ranges_to_plane(p_s, n, d) + np.array([0.004, -0.004, 0.004, -0.004])  # a range plane a little off
+    uv_corners = project(np.array([X_CT.multiply(p) for p in tag_corners_T(TAG_SIZE)]))
+    uv_corners[0] += [3.0, 0.0]
+    uv_touch = project(touch_points(p_s, ranges))
+    args = (p_s, ranges, uv_touch, uv_corners, tag_corners_T(TAG_SIZE))
+    refused = crhf_tag_pose(*args, range_covariance=0.005**2 * np.eye(4), corner_variance_px2=0.1)
+    assert refused.corner_residual_px2 > NORMAL_GATE * 0.1
+    np.testing.assert_allclose(refused.plane.normal, fit_plane(touch_points(p_s, ranges)).normal, atol=1e-12)
+    fused = crhf_tag_pose(*args, range_covariance=0.005**2 * np.eye(4),
+                          corner_variance_px2=refused.corner_residual_px2)
+    assert not np.allclose(fused.plane.normal, refused.plane.normal, atol=1e-6)
 
 
 def test_crhf_pipeline_with_fusion_and_given_intrinsics_recovers_the_tag_pose():

@@ -31,7 +31,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from systems.config import require, require_positive
-from systems.estimators.crhf_math import CrhfEstimate, crhf_tag_pose
+from systems.estimators.crhf_math import CrhfEstimate, corners_fit_a_tag, crhf_tag_pose
 from systems.estimators.estimate import PoseEstimate
 from systems.estimators.pad_calibration import PadCalibration
 from systems.estimators.track_filter import Track, TrackFilterParams, step_track
@@ -40,6 +40,10 @@ from systems.perception.apriltag import TagDetection, tag_corners_T
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent.parent
 DEFAULT_CALIBRATION = "models/crhf_pad_calibration.npz"  # written by `landing-sim run crhf-calibration`
 
+
+# The corner noise is judged by only once ten frames' residuals (20 degrees of freedom) are pooled: one or two
+# frames' estimate is too uncertain to refuse corners by.
+JUDGED_FROM_DOF = 20.0
 
 @dataclass
 class CrhfConfig:
@@ -216,11 +220,13 @@ class CrhfEstimator(LeafSystem):
 
     @staticmethod
     def _remember(state: CrhfState, result: CrhfEstimate) -> CrhfState:
-        """The state with a valid frame's intrinsics and PnP residual (2 degrees of freedom) added."""
+        """The state with a valid frame's intrinsics and PnP residual (2 degrees of freedom) added; once the pool
+        holds `JUDGED_FROM_DOF`, only residuals of corners that fit a rigid tag (`corners_fit_a_tag`), so that
+        corners that fit none do not inflate the noise they are judged by."""
         intrinsics = state.intrinsics.add(np.r_[result.focal_lengths, result.principal_point])
-        variance = state.corner_variance
-        if np.isfinite(result.corner_residual_px2):
-            variance = variance.add(result.corner_residual_px2 / 2.0, 2.0)
+        variance, residual = state.corner_variance, result.corner_residual_px2
+        if np.isfinite(residual) and (variance.weight < JUDGED_FROM_DOF or corners_fit_a_tag(residual, variance.mean)):
+            variance = variance.add(residual / 2.0, 2.0)
         return replace(state, intrinsics=intrinsics, corner_variance=variance)
 
     def _calc_frame(self, context, value):

@@ -216,6 +216,13 @@ def fuse_gaussian(mean_a, cov_a, mean_b, cov_b) -> Fusion:
 NORMAL_GATE = -2.0 * np.log(1e-3)
 
 
+def corners_fit_a_tag(residual_px2: float, corner_variance_px2: float) -> bool:
+    """Whether the corners' PnP reprojection residual (px^2, 2 degrees of freedom) is within `NORMAL_GATE` times the
+    variance of one corner coordinate (px^2): corners that fit no rigid tag (a corner track coasting through a
+    fast turn) give no normal to fuse (our addition)."""
+    return bool(residual_px2 <= NORMAL_GATE * corner_variance_px2)
+
+
 def fuse_normals(
     plane: PlaneFit, p_C_touch: np.ndarray, range_covariance: np.ndarray, corners: CornerNormal,
     corner_variance_px2: float,
@@ -407,8 +414,8 @@ def crhf_tag_pose(
     corners with instead of this frame's Eq. 40-45 (e.g. their mean over earlier frames);
     range_covariance, (4, 4) m^2 of the ranges: the corners' own normal is computed and its
     residual reported, and with corner_variance_px2 (variance of one corner coordinate, px^2) it
-    is fused with the touch points' normal (`fuse_normals`; beyond its gate `plane_beyond_gate`,
-    which looks for the corners' mirror solution only then).
+    is fused with the touch points' normal where the corners fit a rigid tag (`corners_fit_a_tag`;
+    `fuse_normals`; beyond its gate `plane_beyond_gate`, which looks for the corners' mirror solution only then).
     Never raises on bad measurements: the estimate is then flagged invalid.
     """
     p_C_touch = touch_points(p_C_sensors, ranges)
@@ -425,7 +432,8 @@ def crhf_tag_pose(
     if valid and range_covariance is not None:
         corners = corner_normal(uv_corners, f, c, p_T_corners)
         residual = np.nan if corners is None else corners.residual_px2
-        if corners is not None and corner_variance_px2 is not None:
+        if (corners is not None and corner_variance_px2 is not None
+                and corners_fit_a_tag(corners.residual_px2, corner_variance_px2)):
             fused = fuse_normals(plane, p_C_touch, range_covariance, corners, corner_variance_px2)
             if fused is None:
                 mirror = mirror_corner_normal(uv_corners, f, c, p_T_corners, corners.normal)
