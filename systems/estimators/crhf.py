@@ -12,11 +12,13 @@ Two more additions of ours, each with a switch in `CrhfConfig`:
 - fuse_corner_normal: the deck plane's normal from the four ranges (its covariance from the range
   track's) is fused with the tag's normal from the tracked corners (a PnP solution; its covariance
   from the reprojection Jacobian and the corner noise), so the orientation improves as the tag
-  grows in the image; the plane keeps the ranges' offset. Where the two normals disagree beyond noise,
+  grows in the image; the plane keeps the ranges' offset. Corners whose PnP residual the corner noise
+  does not explain fit no rigid tag and give no normal. Where the two normals disagree beyond noise,
   the ranges' plane is kept if the corners' mirror pose (the other solution of a planar PnP) agrees with
-  it, and the corners' normal is taken if not (`crhf_math.plane_beyond_gate`). The corner noise is not a setting: it is
-  the pooled variance of the PnP reprojection residuals over the frames so far (residual sum of
-  squares over degrees of freedom), and the first frame uses the ranges' plane alone.
+  it, and the corners' normal is taken if not (`crhf_math.plane_beyond_gate`). The corner noise is not a
+  setting: it is the pooled variance of the PnP reprojection residuals over the frames so far (residual
+  sum of squares over degrees of freedom; after the first ten frames only residuals it explains are
+  pooled), and the first frame uses the ranges' plane alone.
 - average_intrinsics: the focal lengths and principal point of Eq. 40-45 describe a fixed lens,
   so the corners are lifted with the mean of the earlier frames' measurements (this frame's for
   the first), which averages out the calibration curve's wiggles that each frame's carry.
