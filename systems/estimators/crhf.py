@@ -47,6 +47,7 @@ DEFAULT_CALIBRATION = "models/crhf_pad_calibration.npz"  # written by `landing-s
 # frames' estimate is too uncertain to refuse corners by.
 JUDGED_FROM_DOF = 20.0
 
+
 @dataclass
 class CrhfConfig:
     """calibration_file: the pad calibration (relative paths are tried from the working directory,
@@ -227,7 +228,8 @@ class CrhfEstimator(LeafSystem):
         corners that fit none do not inflate the noise they are judged by."""
         intrinsics = state.intrinsics.add(np.r_[result.focal_lengths, result.principal_point])
         variance, residual = state.corner_variance, result.corner_residual_px2
-        if np.isfinite(residual) and (variance.weight < JUDGED_FROM_DOF or corners_fit_a_tag(residual, variance.mean)):
+        judged = variance.weight >= JUDGED_FROM_DOF
+        if np.isfinite(residual) and (not judged or corners_fit_a_tag(residual, variance.mean)):
             variance = variance.add(residual / 2.0, 2.0)
         return replace(state, intrinsics=intrinsics, corner_variance=variance)
 

@@ -212,7 +212,8 @@ def fuse_gaussian(mean_a, cov_a, mean_b, cov_b) -> Fusion:
 
 # Gate on the two normals' disagreement: the chi-square quantile with 2 degrees of freedom at
 # 0.999 (its survival function is exp(-x / 2)). Beyond it the corners' normal is not the same
-# plane's within noise, and `deck_plane` decides which of the two is wrong.
+# plane's within noise, and `plane_beyond_gate` decides which of the two is wrong. `corners_fit_a_tag`
+# judges the corners' own PnP residual by the same quantile.
 NORMAL_GATE = -2.0 * np.log(1e-3)
 
 
