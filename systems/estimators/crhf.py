@@ -43,8 +43,9 @@ PACKAGE_ROOT = Path(__file__).resolve().parent.parent.parent
 DEFAULT_CALIBRATION = "models/crhf_pad_calibration.npz"  # written by `landing-sim run crhf-calibration`
 
 
-# The corner noise is judged by only once ten frames' residuals (20 degrees of freedom) are pooled: one or two
-# frames' estimate is too uncertain to refuse corners by.
+# Residuals are pooled into the corner noise unjudged until ten frames' (20 degrees of freedom) are in: a noise
+# from one or two frames, by chance small, would keep every later residual out of the pool. (A frame whose
+# corners that early noise does not explain is still lifted onto the ranges' plane alone, as the first frame is.)
 JUDGED_FROM_DOF = 20.0
 
 

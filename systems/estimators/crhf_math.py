@@ -152,9 +152,9 @@ def mirror_corner_normal(
     Arguments as in `corner_normal`. None if IPPE does not give two finite solutions.
     """
     K, p_T, uv = _pnp_problem(uv_corners, focal_lengths, principal_point, p_T_corners)
-    count, rvecs, tvecs, _ = cv2.solvePnPGeneric(p_T, uv.reshape(-1, 1, 2), K, None, flags=cv2.SOLVEPNP_IPPE)
+    _, rvecs, tvecs, _ = cv2.solvePnPGeneric(p_T, uv.reshape(-1, 1, 2), K, None, flags=cv2.SOLVEPNP_IPPE)
     solutions = [(r, t) for r, t in zip(rvecs, tvecs) if np.all(np.isfinite(r)) and np.all(np.isfinite(t))]
-    if count < 2 or len(solutions) < 2:
+    if len(solutions) < 2:
         return None
     normals = [cv2.Rodrigues(r)[0][:, 2] for r, _ in solutions]
     farther = int(np.argmin([n @ np.asarray(normal, dtype=float) for n in normals]))
