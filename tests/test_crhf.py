@@ -1,5 +1,7 @@
 """The CRHF estimator as a system: on rendered scenes against ground truth, and its failure modes."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
@@ -11,6 +13,7 @@ from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import ConfigError
 from systems.estimators.crhf import CrhfConfig, CrhfEstimator, CrhfState, RunningMean
 from systems.estimators.pad_calibration import CalibrationError
+from systems.estimators.track_filter import Track
 from systems.perception.apriltag import TagDetection, project_points, tag_corners_T
 from systems.sensors.camera import CameraConfig
 from systems.sensors.tof import sensor_positions_C
@@ -255,6 +258,22 @@ def test_sensors_past_the_decks_edge_on_the_first_frame_are_flagged_and_start_no
         assert not state.ranges.valid  # the wrong surface starts no track
     state, estimate = crhf.step(state, corners, ranges, 0.15)  # back on the deck: valid at once
     assert estimate.valid and estimate.X_CT.translation()[2] == pytest.approx(2.0, abs=1e-3)
+
+
+def test_sensors_past_the_decks_edge_once_the_corner_noise_is_known_are_flagged(crhf):
+    # Once the corner noise is known the corners' normal is fused; two sensors on the ground 0.6 m below the deck
+    # (a new range track, the old one dropped) are beyond the normals' gate, and the corners' normal is taken
+    # through the touch points' centroid, 0.3 m too deep: a tag 1.15 times too large passes the tag's check, but
+    # two touch points lie 0.3 m from the plane the corners fix, farther than the range gate.
+    frames = noisy_level_frames(12)
+    state = CrhfState()
+    for k, (corners, ranges) in enumerate(frames):
+        state, estimate = crhf.step(state, corners, ranges, 0.05 * k)
+        assert estimate.valid
+    corners, ranges = frames[-1]
+    state = replace(state, ranges=Track())  # as after a failed check
+    state, estimate = crhf.step(state, corners, ranges + [0.0, 0.0, 0.6, 0.6], 0.6)
+    assert not estimate.valid and not state.ranges.valid
 
 
 def test_the_drones_own_motion_keeps_the_range_track_on_the_deck(crhf):

@@ -438,6 +438,10 @@ def test_corners_that_disagree_with_the_ranges_and_have_no_agreeing_mirror_set_t
     np.testing.assert_allclose(estimate.X_CT.GetAsMatrix4(), X.GetAsMatrix4(), atol=1e-8)
     assert estimate.touch_residual_m < 1e-12  # the touch points' own plane, not the one the corners chose
     assert estimate.plane.rms_residual > 0.02
+    # The sensors sit on the diagonals, SENSOR_RADIUS / sqrt(2) off the tilt's axis (x_C): each touch point is
+    # that times sin(15 deg) from the tilted plane through their centroid.
+    assert estimate.touch_offset_m == pytest.approx(SENSOR_RADIUS / np.sqrt(2.0) * np.sin(np.radians(15.0)),
+                                                    abs=1e-12)
 
 
 def test_corners_whose_mirror_agrees_with_the_ranges_leave_the_range_plane():

@@ -70,15 +70,19 @@ class CrhfConfig:
     fuse_corner_normal: bool = True
     average_intrinsics: bool = True
     # A sensor whose ray leaves the deck (past its edge, onto the base or the ground) reads the wrong surface.
-    # Ours, three checks: a frame is flagged invalid and its range track coasts when a range is this far from
+    # Ours, four checks: a frame is flagged invalid and its range track coasts when a range is this far from
     # the track's prediction; a frame is flagged invalid and its range track dropped (so that a wrong surface
     # cannot start one) when the four touch points are this far (RMS) from their own plane (a deck's four
-    # points fit one to a few millimetres), or when the corners lifted onto the deck plane leave the rigidly
-    # fitted tag (Eq. 54-61) by more than max_tag_residual of its side (RMS). The last catches what the plane misses:
-    # two sensors past the deck's edge fit a plane tilted 70 deg that stretches the lifted tag, four on the
-    # ground a level one too deep that scales it (by k: (k - 1) / sqrt(2) of the side). Measured (replaying
-    # logged runs): right frames at most 0.013 of the side over 200 s of stewart-dynamic and stewart-hardware,
-    # 0.079 on the livelier deck at 0.8 m; two sensors past the deck's edge 0.23-0.32.
+    # points fit one to a few millimetres), when the corners lifted onto the deck plane leave the rigidly
+    # fitted tag (Eq. 54-61) by more than max_tag_residual of its side (RMS), or when a touch point is farther
+    # than range_gate_m from that deck plane. The tag's check catches what the plane misses: two sensors past the
+    # deck's edge fit a plane tilted 70 deg that stretches the lifted tag, four on the ground a level one too
+    # deep that scales it (by k: (k - 1) / sqrt(2) of the side). Measured (replaying logged runs): right frames
+    # at most 0.013 of the side over 200 s of stewart-dynamic and stewart-hardware, 0.079 on the livelier deck
+    # at 0.8 m; two sensors past the deck's edge 0.23-0.32. The touch points' check catches what the tag's misses
+    # where the corners' normal is taken beyond the normals' gate (`plane_beyond_gate`): through the centroid of
+    # two touch points on the deck and two on the ground 0.4 m below, that plane is 0.2 m too deep, and the tag
+    # lifted onto it 1.1 times too large (the livelier deck, seed 1387925762 at 6.4 s: 0.17 m too deep, valid).
     range_gate_m: float = 0.1
     max_plane_residual_m: float = 0.02
     max_tag_residual: float = 0.15
@@ -200,13 +204,15 @@ class CrhfEstimator(LeafSystem):
         return self._remember(state, result), PoseEstimate(time, result.X_CT, True, reference="C", target="T")
 
     def _ranges_see_the_tag(self, result: CrhfEstimate) -> bool:
-        """Whether the touch points lie on one plane and the corners lifted onto the deck plane fit the tag
-        (`CrhfConfig`'s checks); True for a frame that failed before either could be judged."""
+        """Whether the touch points lie on one plane, each within the range gate of the deck plane the corners
+        were lifted onto, and the lifted corners fit the tag (`CrhfConfig`'s checks); True for a frame that
+        failed before they could be judged."""
         if result.plane.degenerate:
             return True
         if not result.touch_residual_m <= self._max_residual:
             return False
-        return not result.valid or result.tag_residual_m <= self._max_tag_residual_m
+        return not result.valid or (result.tag_residual_m <= self._max_tag_residual_m
+                                    and result.touch_offset_m <= self._range_gate)
 
     def estimate(self, corner_track: Track, ranges: np.ndarray | None, range_covariance: np.ndarray | None,
                  state: CrhfState) -> CrhfEstimate | None:

@@ -380,6 +380,9 @@ class CrhfEstimate:
     tag_residual_m: RMS distance of p_C_corners from the tag placed at X_CT (Eq. 54-61's residual), m;
     NaN when not valid. The lifted corners of the tag's own plane fit it to the corner noise; a plane
     through another surface stretches or scales them away from it.
+    touch_offset_m: the largest distance of a touch point from `plane`, m (NaN when not valid). Where the
+    corners' normal is taken beyond the gate, a touch point on another surface (the ground past the deck's
+    edge) lies this far from the plane and has moved it along its normal by a quarter of that.
     """
 
     X_CT: RigidTransform
@@ -391,6 +394,7 @@ class CrhfEstimate:
     p_C_corners: np.ndarray
     corner_residual_px2: float = np.nan
     tag_residual_m: float = np.nan
+    touch_offset_m: float = np.nan
 
 
 def crhf_tag_pose(
@@ -448,5 +452,6 @@ def crhf_tag_pose(
     X_CT = arun_rigid_transform(p_T_corners, p_C_corners)
     misfit = X_CT.multiply(np.asarray(p_T_corners, dtype=float).T).T - p_C_corners
     tag_residual = float(np.sqrt(np.mean(np.sum(misfit**2, axis=1))))
+    touch_offset = float(np.max(np.abs(p_C_touch @ plane.normal - plane.offset)))
     return CrhfEstimate(X_CT, True, plane, touch_residual, focal_lengths, principal_point, p_C_corners, residual,
-                        tag_residual)
+                        tag_residual, touch_offset)
