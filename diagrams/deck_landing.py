@@ -82,24 +82,24 @@ class DeckLandingHandles:
 def _add_estimators(builder: DiagramBuilder, config: DeckLandingConfig, color_image: OutputPort,
                     tof: TofSensors, camera_velocity: CameraVelocity) -> tuple[TagDetectorSystem, dict]:
     """The tag detector, ATDA and CRHF on the camera stream, `estimate_latency_frames` late; CRHF's range
-    track told the camera's own velocity at the frame's exposure (from the UAV's state, here the truth)."""
+    track told the camera's own spatial velocity at the frame's exposure (from the UAV's state, here the truth)."""
     detector = builder.AddNamedSystem("tag_detector", TagDetectorSystem(
         config.platform.tag_id, config.camera.width, config.camera.height,
         (config.camera.K_estimated, config.camera.D_estimated)))
     builder.Connect(color_image, detector.get_input_port())
-    detection, ranges, v_C = (detector.GetOutputPort("tag_detection"), tof.GetOutputPort("ranges"),
-                              camera_velocity.GetOutputPort("v_C"))
+    detection, ranges, V_WC_C = (detector.GetOutputPort("tag_detection"), tof.GetOutputPort("ranges"),
+                                 camera_velocity.GetOutputPort("V_WC_C"))
     if frames := config.estimate_latency_frames:
         period = config.camera.period_s
         detection = delayed(builder, detection, period, frames, TagDetection())
         ranges = delayed(builder, ranges, period, frames, np.full(4, np.nan))
-        v_C = delayed(builder, v_C, period, frames, np.zeros(3))
+        V_WC_C = delayed(builder, V_WC_C, period, frames, np.zeros(6))
     atda = builder.AddNamedSystem("atda", AtdaEstimator(config.camera.K_estimated, config.platform.tag_size_m))
     crhf = builder.AddNamedSystem("crhf", CrhfEstimator(
         config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,
         config.camera.period_s))
     builder.Connect(ranges, crhf.GetInputPort("ranges"))
-    builder.Connect(v_C, crhf.GetInputPort("camera_velocity_C"))
+    builder.Connect(V_WC_C, crhf.GetInputPort("V_WC_C"))
     for estimator in (atda, crhf):
         builder.Connect(detection, estimator.GetInputPort("tag_detection"))
     return detector, {"atda": atda, "crhf": crhf}

@@ -358,7 +358,8 @@ def test_camera_velocity_adds_the_lever_arm_and_turns_into_the_camera_frame():
     # Descending at 0.4 m/s, yawing at 1 rad/s: the camera, 0.1 m ahead (W +y after the yaw), moves
     # 0.1 m/s towards W -x, and along its optical axis (W -z) at 0.4 m/s.
     system.GetInputPort("V_WB").FixValue(context, [0.0, 0.0, 1.0, 0.0, 0.0, -0.4])
-    v_C = system.GetOutputPort("v_C").Eval(context)
+    V_WC_C = system.GetOutputPort("V_WC_C").Eval(context)
     R_WC = X_WB.rotation().multiply(X_BC.rotation())
-    np.testing.assert_allclose(R_WC.multiply(v_C), [-0.1, 0.0, -0.4], atol=1e-12)
-    assert v_C[2] == pytest.approx(0.4)
+    np.testing.assert_allclose(R_WC.multiply(V_WC_C[3:]), [-0.1, 0.0, -0.4], atol=1e-12)
+    assert V_WC_C[5] == pytest.approx(0.4)
+    np.testing.assert_allclose(V_WC_C[:3], [0.0, 0.0, -1.0], atol=1e-12)  # the yaw about W +z is about C -z

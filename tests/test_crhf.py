@@ -4,6 +4,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
 from diagrams.metrics import pose_errors
@@ -284,14 +285,42 @@ def test_the_drones_own_motion_keeps_the_range_track_on_the_deck(crhf):
         for k in range(60):
             height = 2.0 - (0.0 if k < 20 else 0.4 * 0.05 * (k - 20))
             corners, ranges = level_frame(height)
-            shift = -0.4 * 0.05 if told and k > 20 else None
-            state, estimate = crhf.step(state, corners, ranges, 0.05 * k, shift)
+            V_WC_C = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.4 if k > 20 else 0.0]) if told else None
+            state, estimate = crhf.step(state, corners, ranges, 0.05 * k, V_WC_C)
             if k > 20:
                 worst = max(worst, abs(estimate.X_CT.translation()[2] - height))
         return worst
 
     assert descend(True) < 0.005
     assert descend(False) > 0.02
+
+
+def test_turning_and_moving_sideways_over_a_tilted_deck_keeps_the_range_track_on_it(crhf):
+    # After 1 s at rest the camera descends at 0.4 m/s, slides sideways at 0.2 m/s and turns at 0.1 rad/s about
+    # x_C, over a deck tilted 16 deg. Told its whole spatial velocity, the range track's prediction follows the
+    # ranges over the tilted plane (`range_shift`); told the motion along its axis alone (a level deck's shift),
+    # the slow track lags by millimetres; told nothing, by centimetres.
+    X_WT = RigidTransform(RollPitchYaw(0.0, np.radians(16.0), 0.0), [0.0, 0.0, 2.0])
+    w_C, v_W = np.array([0.1, 0.0, 0.0]), np.array([0.2, 0.0, 0.4])
+
+    def worst_depth_error(told) -> float:
+        state, worst = CrhfState(), 0.0
+        for k in range(50):
+            moving = max(0.05 * k - 1.0, 0.0)
+            X_WC = RigidTransform(RotationMatrix.MakeXRotation(w_C[0] * moving), v_W * moving)
+            X_CT = X_WC.inverse().multiply(X_WT)
+            n_C = X_CT.rotation().col(2)
+            ranges = (n_C @ X_CT.translation() - P_C_SENSORS @ n_C) / n_C[2]
+            V_WC_C = np.r_[w_C, X_WC.rotation().inverse().multiply(v_W)] if moving > 0.0 else np.zeros(6)
+            state, estimate = crhf.step(state, project_points(K, X_CT, tag_corners_T(0.5)), ranges, 0.05 * k,
+                                        told(V_WC_C))
+            assert estimate.valid
+            worst = max(worst, abs(estimate.X_CT.translation()[2] - X_CT.translation()[2]))
+        return worst
+
+    assert worst_depth_error(lambda V: V) < 0.001
+    assert worst_depth_error(lambda V: np.r_[0.0, 0.0, 0.0, 0.0, 0.0, V[5]]) > 0.003
+    assert worst_depth_error(lambda V: None) > 0.02
 
 
 def test_a_focal_length_error_scales_atdas_depth_and_leaves_crhfs():

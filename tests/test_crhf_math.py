@@ -22,6 +22,7 @@ from systems.estimators.crhf_math import (
     plane_beyond_gate,
     plane_tilt_covariance,
     principal_point_from_touch_points,
+    range_shift,
     tangent_basis,
     touch_points,
 )
@@ -78,6 +79,28 @@ def test_plane_fit_recovers_an_exact_tilted_plane_from_four_touch_points():
     np.testing.assert_allclose(plane.normal, n, atol=1e-12)
     assert plane.offset == pytest.approx(d, abs=1e-12)
     assert plane.rms_residual < 1e-12
+
+
+def test_range_shift_is_the_level_decks_along_the_axis_and_first_order_on_a_tilted_one():
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    level = fit_plane(touch_points(p_s, np.full(4, 1.2)))
+    V_WC_C = np.array([0.0, 0.0, 0.0, 0.3, -0.2, 0.4])  # sideways over a level deck changes no range
+    np.testing.assert_allclose(range_shift(p_s, level, V_WC_C, 0.05), np.full(4, -0.4 * 0.05), atol=1e-15)
+    # Turning and moving over the tilted deck of X_CT: against the ranges from the camera moved rigidly
+    # (rotation vector w dt, translation v dt, in C), the error is second order in dt.
+    n, d = deck_plane(X_CT)
+    plane = fit_plane(touch_points(p_s, ranges_to_plane(p_s, n, d)))
+    V_WC_C = np.array([0.4, -0.3, 0.2, 0.3, -0.2, 0.4])
+
+    def error(dt):
+        """The largest error of the shift over dt, and the largest change of a range."""
+        X_C0C1 = RigidTransform(RotationMatrix(Rotation.from_rotvec(V_WC_C[:3] * dt).as_matrix()), V_WC_C[3:] * dt)
+        change = ranges_to_plane(p_s, *deck_plane(X_C0C1.inverse().multiply(X_CT))) - ranges_to_plane(p_s, n, d)
+        return np.max(np.abs(change - range_shift(p_s, plane, V_WC_C, dt))), np.max(np.abs(change))
+
+    (e1, change), (e2, _) = error(0.05), error(0.025)
+    assert e1 < 0.03 * change  # 0.37 mm of a 31 mm change at these rates
+    assert e2 == pytest.approx(e1 / 4.0, rel=0.1)
 
 
 def test_plane_fit_orients_the_normal_away_from_the_camera():

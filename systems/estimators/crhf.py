@@ -35,7 +35,14 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from systems.config import require, require_positive
-from systems.estimators.crhf_math import CrhfEstimate, corners_fit_a_tag, crhf_tag_pose
+from systems.estimators.crhf_math import (
+    CrhfEstimate,
+    corners_fit_a_tag,
+    crhf_tag_pose,
+    fit_plane,
+    range_shift,
+    touch_points,
+)
 from systems.estimators.estimate import PoseEstimate
 from systems.estimators.pad_calibration import PadCalibration
 from systems.estimators.track_filter import Track, TrackFilterParams, step_track
@@ -138,8 +145,9 @@ class CrhfState:
 
 class CrhfEstimator(LeafSystem):
     """Inputs: tag_detection (TagDetection), ranges (4, m, NaN when invalid) and optionally
-    camera_velocity_C (3, the camera's own velocity in C [m/s], from the drone's navigation: the range
-    track's prediction then follows the drone's own motion, Eq. 28's B u; unconnected: a hovering drone). Output:
+    V_WC_C (6, the camera's own spatial velocity [w; v] in C, rad/s and m/s, from the drone's navigation: the
+    range track's prediction then follows the drone's own motion over the deck plane, Eq. 28's B u; unconnected:
+    a hovering drone). Output:
     X_CT_estimate (PoseEstimate) for the frame at the context's time; invalid when the corner track
     is lost, a range is invalid or gated, the touch points are degenerate or fail `CrhfConfig`'s checks, or a
     touch pixel is outside the calibration.
@@ -166,7 +174,7 @@ class CrhfEstimator(LeafSystem):
         self._p_T_corners = tag_corners_T(tag_size_m)
         self.DeclareAbstractInputPort("tag_detection", AbstractValue.Make(TagDetection()))
         self.DeclareVectorInputPort("ranges", 4)
-        self._camera_velocity = self.DeclareVectorInputPort("camera_velocity_C", 3)
+        self._camera_velocity = self.DeclareVectorInputPort("V_WC_C", 6)
         self._period = period_s
         self._state = self.DeclareAbstractState(AbstractValue.Make(CrhfState()))
         self._frame = self.DeclareCacheEntry(
@@ -178,15 +186,16 @@ class CrhfEstimator(LeafSystem):
                                        {self._frame.ticket()})
 
     def step(self, state: CrhfState, corners: np.ndarray | None, ranges: np.ndarray, time: float,
-             range_shift_m: float | None = None):
+             V_WC_C: np.ndarray | None = None):
         """One frame: (next CrhfState, PoseEstimate) from the previous state, the detected corners
-        (4x2 px or None), the ranges (4, m, NaN when invalid) and the ranges' change over the frame from the
-        camera's own motion (m; Eq. 28's B u, None: unknown, as for a hovering drone)."""
+        (4x2 px or None), the ranges (4, m, NaN when invalid) and the camera's spatial velocity [w; v] in C
+        (rad/s, m/s; None: unknown, as for a hovering drone), whose motion over the range track's plane shifts
+        the ranges' prediction (`crhf_math.range_shift`, Eq. 28's B u)."""
         corner_track = step_track(state.corners, corners, self._corner_filter)
         if self._range_filter is None:
             range_track, range_covariance = Track(), self._range_variance * np.eye(4)
         else:
-            shift = None if range_shift_m is None else np.full(4, range_shift_m)
+            shift = self._range_shift(state.ranges, V_WC_C)
             if state.ranges.valid:  # the gate: a range far from the track's prediction is not the deck
                 predicted = state.ranges.position + self._period * state.ranges.x[4:]
                 if shift is not None:
@@ -204,6 +213,14 @@ class CrhfEstimator(LeafSystem):
         if result is None or not result.valid:
             return state, PoseEstimate.invalid(time, "C", "T")
         return self._remember(state, result), PoseEstimate(time, result.X_CT, True, reference="C", target="T")
+
+    def _range_shift(self, ranges: Track, V_WC_C: np.ndarray | None) -> np.ndarray | None:
+        """The ranges' change over a frame from the camera's own motion over the range track's plane (4, m), or
+        None when the motion is unknown or there is no track."""
+        if V_WC_C is None or not ranges.valid:
+            return None
+        plane = fit_plane(touch_points(self._p_C_sensors, ranges.position))
+        return None if plane.degenerate else range_shift(self._p_C_sensors, plane, V_WC_C, self._period)
 
     def _ranges_see_the_tag(self, result: CrhfEstimate) -> bool:
         """Whether the touch points lie on one plane, each within the range gate of the deck plane the corners
@@ -244,11 +261,9 @@ class CrhfEstimator(LeafSystem):
 
     def _calc_frame(self, context, value):
         state = context.get_abstract_state(self._state).get_value()
-        shift = None
-        if self._camera_velocity.HasValue(context):  # the rays run along +z_C: moving along it shortens them
-            shift = -self._period * float(self._camera_velocity.Eval(context)[2])
+        V_WC_C = self._camera_velocity.Eval(context) if self._camera_velocity.HasValue(context) else None
         value.set_value(self.step(state, self.get_input_port(0).Eval(context).corners,
-                                  self.get_input_port(1).Eval(context), context.get_time(), shift))
+                                  self.get_input_port(1).Eval(context), context.get_time(), V_WC_C))
 
     def _update(self, context, state):
         state.get_mutable_abstract_state(self._state).set_value(self._frame.Eval(context)[0])

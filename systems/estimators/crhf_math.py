@@ -77,6 +77,20 @@ def fit_plane(points: np.ndarray, rel_tol: float = 1e-6, abs_tol: float = 1e-9) 
     return PlaneFit(n, d, float(s[2] / np.sqrt(len(p))), False)
 
 
+def range_shift(p_C_sensors: np.ndarray, plane: PlaneFit, V_WC_C: np.ndarray, dt: float) -> np.ndarray:
+    """Eq. 28's B u for the range track (our model of it): the change of each sensor's range (N,), metres, over
+    dt seconds from the camera's own motion over a still deck plane (`plane`, in C at the step's start).
+
+    V_WC_C: the camera's spatial velocity [w; v] in C, rad/s and m/s. In the camera's frame after the step
+    (first order in dt) the plane is n' = n - (w dt) x n, d' = d - n . v dt, and a sensor at s_i ranges along
+    z_C to r_i = (d - n . s_i) / n_z. Level plane and no rotation: -v_z dt for every sensor."""
+    n, d = plane.normal, plane.offset
+    w, v = np.asarray(V_WC_C[:3], dtype=float) * dt, np.asarray(V_WC_C[3:], dtype=float) * dt
+    n_after = n - np.cross(w, n)
+    s = np.asarray(p_C_sensors, dtype=float)
+    return (d - n @ v - s @ n_after) / n_after[2] - (d - s @ n) / n[2]
+
+
 def tangent_basis(normal: np.ndarray) -> np.ndarray:
     """(2, 3) orthonormal rows spanning the plane perpendicular to the unit vector `normal`.
 

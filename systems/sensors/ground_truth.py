@@ -20,20 +20,22 @@ def camera_motion(X_WB: RigidTransform, V_WB: np.ndarray, X_BC: RigidTransform) 
 
 
 class CameraVelocity(LeafSystem):
-    """The velocity of a camera C mounted at X_BC on a body B, in C [m/s]: v_C = R_CW (v_WB + w_WB x p_BC_W).
+    """The spatial velocity of a camera C mounted at X_BC on a body B, expressed in C: V_WC_C = R_CW [w_WB;
+    v_WB + w_WB x p_BC_W] (rad/s, m/s).
 
-    Inputs: X_WB (RigidTransform) and V_WB (6: [w; v] in W, rad/s and m/s). Output: v_C (3)."""
+    Inputs: X_WB (RigidTransform) and V_WB (6: [w; v] in W, rad/s and m/s). Output: V_WC_C (6: [w; v] in C)."""
 
     def __init__(self, X_BC: RigidTransform):
         super().__init__()
         self._X_BC = X_BC
         self._X_WB = self.DeclareAbstractInputPort("X_WB", AbstractValue.Make(RigidTransform()))
         self._V_WB = self.DeclareVectorInputPort("V_WB", 6)
-        self.DeclareVectorOutputPort("v_C", 3, self._calc)
+        self.DeclareVectorOutputPort("V_WC_C", 6, self._calc)
 
     def _calc(self, context, output):
         X_WC, V_WC = camera_motion(self._X_WB.Eval(context), self._V_WB.Eval(context), self._X_BC)
-        output.SetFromVector(X_WC.rotation().inverse().multiply(V_WC[3:]))
+        R_CW = X_WC.rotation().inverse()
+        output.SetFromVector(np.concatenate([R_CW.multiply(V_WC[:3]), R_CW.multiply(V_WC[3:])]))
 
 
 def axis_flow(X_WC: RigidTransform, V_WC: np.ndarray, X_WS: RigidTransform, V_WS: np.ndarray) -> np.ndarray:
