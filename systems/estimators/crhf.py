@@ -20,7 +20,7 @@ Two more additions of ours, each with a switch in `CrhfConfig`:
   `CrhfConfig`'s checks). The corner noise is not a
   setting: it is the pooled variance of the PnP reprojection residuals over the frames so far (residual
   sum of squares over degrees of freedom; after the first ten frames only residuals it explains are
-  pooled), and the first frame uses the ranges' plane alone.
+  pooled); the first frame's is its own residual.
 - average_intrinsics: the focal lengths and principal point of Eq. 40-45 describe a fixed lens,
   so the corners are lifted with the mean of the earlier frames' measurements (this frame's for
   the first), which averages out the calibration curve's wiggles that each frame's carry.
@@ -54,7 +54,7 @@ DEFAULT_CALIBRATION = "models/crhf_pad_calibration.npz"  # written by `landing-s
 
 # Residuals are pooled into the corner noise unjudged until ten frames' (20 degrees of freedom) are in: a noise
 # from one or two frames, by chance small, would keep every later residual out of the pool. (A frame whose
-# corners that early noise does not explain is still lifted onto the ranges' plane alone, as the first frame is.)
+# corners that early noise does not explain is still lifted onto the ranges' plane alone.)
 JUDGED_FROM_DOF = 20.0
 
 
@@ -241,11 +241,18 @@ class CrhfEstimator(LeafSystem):
             return None
         uv_touch = self._calibration.touch_pixels(ranges, self._touch_method)
         intrinsics = state.intrinsics.mean if self._average_intrinsics else None
-        return crhf_tag_pose(
-            self._p_C_sensors, ranges, uv_touch, corner_track.position.reshape(4, 2), self._p_T_corners,
-            intrinsics=None if intrinsics is None else (intrinsics[:2], intrinsics[2:]),
-            range_covariance=range_covariance if self._fuse else None,
-            corner_variance_px2=state.corner_variance.mean)
+
+        def pose(corner_variance_px2: float | None) -> CrhfEstimate:
+            return crhf_tag_pose(
+                self._p_C_sensors, ranges, uv_touch, corner_track.position.reshape(4, 2), self._p_T_corners,
+                intrinsics=None if intrinsics is None else (intrinsics[:2], intrinsics[2:]),
+                range_covariance=range_covariance if self._fuse else None, corner_variance_px2=corner_variance_px2)
+
+        result = pose(state.corner_variance.mean)
+        if state.corner_variance.weight == 0 and np.isfinite(result.corner_residual_px2):
+            # No residual pooled yet: this frame's own (2 degrees of freedom) is the corner noise so far.
+            result = pose(result.corner_residual_px2 / 2.0)
+        return result
 
     @staticmethod
     def _remember(state: CrhfState, result: CrhfEstimate) -> CrhfState:
