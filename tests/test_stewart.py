@@ -2,11 +2,13 @@
 configuration errors."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from pydrake.geometry import SceneGraph
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.systems.framework import DiagramBuilder
 
 from systems.config import ConfigError
 from systems.platforms.stewart import (
@@ -305,3 +307,38 @@ def test_stroke_violation_names_when_and_which_leg():
     # z + 0.3 sin(0.2 pi t): the legs (0.6 m joint planes apart, max 0.85) pass their stroke before t = 2.5 s.
     assert message is not None and message.startswith("t = ") and "leg" in message
     assert float(message.split()[2]) < 2.5
+
+
+def leg_parts_in_scene(config: StewartPlatformConfig):
+    """The six legs' (cylinder, rod) as (X_WG, length) from SceneGraph, with the platform at its nominal pose."""
+    builder = DiagramBuilder()
+    scene_graph = builder.AddSystem(SceneGraph())
+    platform = builder.AddSystem(StewartPlatform(config, scene_graph))
+    builder.Connect(platform.GetOutputPort("geometry_pose"), scene_graph.get_source_pose_port(platform.source_id))
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
+    query = scene_graph.get_query_output_port().Eval(scene_graph.GetMyContextFromRoot(context))
+    inspector = query.inspector()
+    parts = {inspector.GetName(g): (query.GetPoseInWorld(g), inspector.GetShape(g).length())
+             for g in inspector.GetAllGeometryIds() if inspector.GetName(g).startswith("leg")}
+    return [(parts[f"leg{i}_cylinder"], parts[f"leg{i}_rod"]) for i in range(6)]
+
+
+@pytest.mark.parametrize("leg_m", [0.401, 0.949], ids=["shortest", "longest"])
+def test_leg_cylinders_stay_under_the_deck_and_the_rods_reach_them(leg_m):
+    # A 0.40-0.95 m stroke (the livelier deck's): a cylinder of 0.6 of the longest leg (0.57 m) stood up through
+    # the deck at the shortest legs, over the deck joints at +-45 deg, which lie under the tag's corners.
+    shape = StewartPlatformConfig(leg_min_m=0.4, leg_max_m=0.95)
+    horizontal = hand_leg(replace(shape, nominal_height_m=0.0), 0)  # every leg's joints 30 deg apart
+    config = replace(shape, nominal_height_m=math.sqrt(leg_m**2 - horizontal**2))
+    platform = StewartPlatform(config, SceneGraph())
+    X_WP = platform.X_WP(0.0)
+    np.testing.assert_allclose(leg_lengths(X_WP, platform.geometry), leg_m, atol=1e-12)
+    q_W = X_WP.multiply(platform.geometry.q_P.T).T
+    for (cylinder, rod), b_W, q in zip(leg_parts_in_scene(config), platform.geometry.b_S, q_W):
+        cylinder_end = cylinder[0].multiply([0.0, 0.0, cylinder[1] / 2])
+        rod_end = rod[0].multiply([0.0, 0.0, rod[1] / 2])
+        np.testing.assert_allclose(cylinder[0].multiply([0.0, 0.0, -cylinder[1] / 2]), b_W, atol=1e-12)
+        np.testing.assert_allclose(rod[0].multiply([0.0, 0.0, -rod[1] / 2]), q, atol=1e-12)
+        assert np.linalg.norm(cylinder_end - b_W) <= leg_m + 1e-12  # at or below the deck joint
+        assert np.linalg.norm(rod_end - q) >= np.linalg.norm(cylinder_end - q) - 1e-12  # into the cylinder

@@ -27,6 +27,7 @@ from systems.perception.apriltag import tag_corners_T
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 MOTION_MODES = ("static", "sinusoid", "random_walk")
 TAG_ABOVE_DECK_M = 0.0005  # the tag plate floats this far above the deck surface (no z-fighting)
+LEG_PART_FRACTION = 0.6  # each part of a leg's actuator, cylinder and rod, as a fraction of the longest leg
 RATE_STEP_S = 1e-3  # central-difference step of the deck's velocity and acceleration
 
 
@@ -316,16 +317,19 @@ class StewartPlatform(LeafSystem):
         register_collision(scene_graph, self.source_id, self._deck_frame, RigidTransform([0, 0, TAG_ABOVE_DECK_M / 2]),
                            Box(plate, plate, TAG_ABOVE_DECK_M), "apriltag_plate")
         # Each leg is a telescoping actuator: a cylinder from the base joint towards the deck joint
-        # and a thinner rod from the deck joint towards the base joint.
-        half = 0.6 * c.leg_max_m
+        # and a thinner rod from the deck joint towards the base joint, which reaches the cylinder at the
+        # longest leg. The cylinder is no longer than the shortest leg (an actuator closes no shorter than its
+        # body), so it never stands up through the deck: the deck joints at +-45 deg lie under the tag's corners.
+        cylinder = min(LEG_PART_FRACTION * c.leg_max_m, c.leg_min_m)
+        rod = max(LEG_PART_FRACTION * c.leg_max_m, c.leg_max_m - cylinder)
         self._leg_frames = []
         for i in range(6):
             lower = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"leg{i}_cylinder"))
             upper = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"leg{i}_rod"))
-            register_visual(scene_graph, self.source_id, lower, RigidTransform([0, 0, half / 2]),
-                            Cylinder(0.025, half), f"leg{i}_cylinder", grey, collidable=True)
-            register_visual(scene_graph, self.source_id, upper, RigidTransform([0, 0, half / 2]),
-                            Cylinder(0.014, half), f"leg{i}_rod", steel, collidable=True)
+            register_visual(scene_graph, self.source_id, lower, RigidTransform([0, 0, cylinder / 2]),
+                            Cylinder(0.025, cylinder), f"leg{i}_cylinder", grey, collidable=True)
+            register_visual(scene_graph, self.source_id, upper, RigidTransform([0, 0, rod / 2]),
+                            Cylinder(0.014, rod), f"leg{i}_rod", steel, collidable=True)
             self._leg_frames.append((lower, upper))
 
     def X_WP(self, t: float) -> RigidTransform:
