@@ -309,11 +309,11 @@ def test_stroke_violation_names_when_and_which_leg():
     assert float(message.split()[2]) < 2.5
 
 
-def leg_parts_in_scene(config: StewartPlatformConfig):
-    """The six legs' (cylinder, rod) as (X_WG, length) from SceneGraph, with the platform at its nominal pose."""
+def leg_parts_in_scene(platform: StewartPlatform, scene_graph: SceneGraph):
+    """The six legs' (cylinder, rod) as (X_WG, length) from SceneGraph, with the platform at its pose at t = 0."""
     builder = DiagramBuilder()
-    scene_graph = builder.AddSystem(SceneGraph())
-    platform = builder.AddSystem(StewartPlatform(config, scene_graph))
+    builder.AddSystem(scene_graph)
+    builder.AddSystem(platform)
     builder.Connect(platform.GetOutputPort("geometry_pose"), scene_graph.get_source_pose_port(platform.source_id))
     diagram = builder.Build()
     context = diagram.CreateDefaultContext()
@@ -331,11 +331,12 @@ def test_leg_cylinders_stay_under_the_deck_and_the_rods_reach_them(leg_m):
     shape = StewartPlatformConfig(leg_min_m=0.4, leg_max_m=0.95)
     horizontal = hand_leg(replace(shape, nominal_height_m=0.0), 0)  # every leg's joints 30 deg apart
     config = replace(shape, nominal_height_m=math.sqrt(leg_m**2 - horizontal**2))
-    platform = StewartPlatform(config, SceneGraph())
+    scene_graph = SceneGraph()
+    platform = StewartPlatform(config, scene_graph)
     X_WP = platform.X_WP(0.0)
     np.testing.assert_allclose(leg_lengths(X_WP, platform.geometry), leg_m, atol=1e-12)
     q_W = X_WP.multiply(platform.geometry.q_P.T).T
-    for (cylinder, rod), b_W, q in zip(leg_parts_in_scene(config), platform.geometry.b_S, q_W):
+    for (cylinder, rod), b_W, q in zip(leg_parts_in_scene(platform, scene_graph), platform.geometry.b_S, q_W):
         cylinder_end = cylinder[0].multiply([0.0, 0.0, cylinder[1] / 2])
         rod_end = rod[0].multiply([0.0, 0.0, rod[1] / 2])
         np.testing.assert_allclose(cylinder[0].multiply([0.0, 0.0, -cylinder[1] / 2]), b_W, atol=1e-12)

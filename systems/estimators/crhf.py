@@ -88,10 +88,11 @@ class CrhfConfig:
     # deck's edge fit a plane tilted 70 deg that stretches the lifted tag, four on the ground a level one too
     # deep that scales it (by k: (k - 1) / sqrt(2) of the side). Measured (replaying logged runs): right frames
     # at most 0.013 of the side over 200 s of stewart-dynamic and stewart-hardware, 0.015 over 180 s of the
-    # livelier deck (seed 1387925762); two sensors past the deck's edge 0.23-0.32. The touch points' check catches what the tag's misses
-    # where the corners' normal is taken beyond the normals' gate (`plane_beyond_gate`): through the centroid of
-    # two touch points on the deck and two on the ground 0.4 m below, that plane is 0.2 m too deep, and the tag
-    # lifted onto it 1.1 times too large (the livelier deck, seed 1387925762 at 6.4 s: 0.17 m too deep, valid).
+    # livelier deck (seed 1387925762); two sensors past the deck's edge 0.23-0.32. The touch points' check
+    # catches what the tag's misses where the corners' normal is taken beyond the normals' gate
+    # (`plane_beyond_gate`): through the centroid of two touch points on the deck and two on the ground 0.4 m
+    # below, that plane is 0.2 m too deep, and the tag lifted onto it 1.1 times too large (the livelier deck,
+    # seed 1387925762 at 6.4 s: 0.17 m too deep, valid).
     range_gate_m: float = 0.1
     max_plane_residual_m: float = 0.02
     max_tag_residual: float = 0.15

@@ -27,7 +27,7 @@ from systems.perception.apriltag import tag_corners_T
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 MOTION_MODES = ("static", "sinusoid", "random_walk")
 TAG_ABOVE_DECK_M = 0.0005  # the tag plate floats this far above the deck surface (no z-fighting)
-LEG_PART_FRACTION = 0.6  # each part of a leg's actuator, cylinder and rod, as a fraction of the longest leg
+LEG_PART_FRACTION = 0.6  # a leg's cylinder and rod, each as a fraction of the longest leg, where the stroke allows
 RATE_STEP_S = 1e-3  # central-difference step of the deck's velocity and acceleration
 
 
