@@ -14,8 +14,8 @@ Two more additions of ours, each with a switch in `CrhfConfig`:
   from the reprojection Jacobian and the corner noise), so the orientation improves as the tag
   grows in the image; the plane keeps the ranges' offset. Corners whose PnP residual the corner noise
   does not explain fit no rigid tag and give no normal. Where the two normals disagree beyond noise,
-  the ranges' plane is kept if the corners' mirror pose (the other solution of a planar PnP) fits the corners
-  too and agrees with it, and the corners' normal is taken if not, through the touch points' centroid
+  the ranges' plane is kept if the corners' mirror pose (the other solution of a planar PnP) agrees with
+  it, and the corners' normal is taken if not, through the touch points' centroid
   (`crhf_math.plane_beyond_gate`; a touch point farther than the range gate from that plane flags the frame,
   `CrhfConfig`'s checks). The corner noise is not a
   setting: it is the pooled variance of the PnP reprojection residuals over the frames so far (residual
