@@ -285,19 +285,16 @@ def plane_beyond_gate(
 
     Arguments as in `fuse_normals`; mirror: `mirror_corner_normal` of the same corners (None if IPPE gave no
     second solution). One of the two normals is not the tag's plane:
-    - the corners are ambiguous when their other solution (a planar PnP's mirror pose) fits them too
-      (`corners_fit_a_tag`) and agrees with the ranges within `NORMAL_GATE`: the range plane is kept;
+    - the corners are ambiguous when their other solution (a planar PnP's mirror pose) agrees with the ranges
+      within `NORMAL_GATE`: the range plane is kept;
     - otherwise the corners fix one plane and the ranges do not see it (a cone reading past the deck's edge,
       a biased sensor): the corners' normal is taken, through the touch points' centroid as in the fusion.
-      A mirror that does not fit the corners is no pose of the tag, however near the ranges it lies (a 27 deg
-      cone over a deck tilted 16 deg reads a plane 7-20 deg less tilted, where such a mirror can fall).
     The range plane is also kept when the corners' normal points into the other half-space, or when there
     is no mirror to judge the corners by.
     """
     if mirror is None or corners.normal @ plane.normal <= 0.0:
         return plane
-    if (corners_fit_a_tag(mirror.residual_px2, corner_variance_px2)
-            and fuse_normals(plane, p_C_touch, range_covariance, mirror, corner_variance_px2) is not None):
+    if fuse_normals(plane, p_C_touch, range_covariance, mirror, corner_variance_px2) is not None:
         return plane
     return plane_through_centroid(corners.normal, p_C_touch)
 
