@@ -86,7 +86,7 @@ class CrhfConfig:
     # fitted tag (Eq. 54-61) by more than max_tag_residual of its side (RMS), or when a touch point is farther
     # than range_gate_m from that deck plane. The tag's check catches what the plane misses: two sensors past the
     # deck's edge fit a plane tilted 70 deg that stretches the lifted tag, four on the ground a level one too
-    # deep that scales it (by k: (k - 1) / sqrt(2) of the side). Measured (replaying logged runs): right frames
+    # deep that scales it (by k: (k - 1) / sqrt(2) of the side). Measured (on logged or recorded runs): right frames
     # at most 0.013 of the side over 200 s of stewart-dynamic and stewart-hardware, 0.015 over 180 s of the
     # livelier deck (seed 1387925762); two sensors past the deck's edge 0.23-0.32. The touch points' check
     # catches what the tag's misses where the corners' normal is taken beyond the normals' gate
