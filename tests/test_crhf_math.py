@@ -3,6 +3,7 @@
 import cv2
 import numpy as np
 import pytest
+import scipy.stats
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from scipy.spatial.transform import Rotation
 
@@ -23,6 +24,7 @@ from systems.estimators.crhf_math import (
     plane_tilt_covariance,
     principal_point_from_touch_points,
     range_shift,
+    residual_gate,
     tangent_basis,
     touch_points,
 )
@@ -479,6 +481,35 @@ def test_corners_whose_mirror_agrees_with_the_ranges_leave_the_range_plane():
                              range_covariance=0.005**2 * np.eye(4), corner_variance_px2=0.1)
     np.testing.assert_allclose(estimate.plane.normal, mirror.rotation().matrix()[:, 2], atol=1e-9)
     assert estimate.plane.rms_residual < 1e-12
+
+
+def test_ambiguous_corners_take_whichever_plane_is_nearer_the_previous_frames():
+    # As above, the ranges see the plane of the corners' mirror pose. Where the previous frame's deck had the
+    # corners' normal (the ranges tilted the mirror's way by cones), the corners' plane is taken: the exact pose;
+    # where it had the ranges' (the corners took the wrong one of their two poses), the ranges' plane stays.
+    X, uv = tilted_tag_on_the_axis(15.0, 1.2)
+    _, rvecs, _, _ = cv2.solvePnPGeneric(tag_corners_T(TAG_SIZE), uv.reshape(-1, 1, 2), K, None,
+                                         flags=cv2.SOLVEPNP_IPPE)
+    mirror_normal = cv2.Rodrigues(rvecs[1])[0][:, 2]
+    p_s, ranges, uv_touch = ranges_and_touch_pixels(mirror_normal, float(mirror_normal @ X.translation()))
+    args = (p_s, ranges, uv_touch, uv, tag_corners_T(TAG_SIZE))
+    options = dict(range_covariance=0.005**2 * np.eye(4), corner_variance_px2=0.1)
+    # The previous deck turned a degree either way from each.
+    turned = RotationMatrix(RollPitchYaw(0.0, np.radians(1.0), 0.0)).matrix()
+    corners = crhf_tag_pose(*args, previous_normal=turned @ X.rotation().matrix()[:, 2], **options)
+    np.testing.assert_allclose(corners.X_CT.GetAsMatrix4(), X.GetAsMatrix4(), atol=1e-8)
+    ranges_kept = crhf_tag_pose(*args, previous_normal=turned @ mirror_normal, **options)
+    np.testing.assert_allclose(ranges_kept.plane.normal, mirror_normal, atol=1e-9)
+
+
+def test_the_residual_gate_is_the_f_quantile_of_the_pooled_noise_and_tends_to_the_chi_square_one():
+    # The residual over twice a variance pooled over d degrees of freedom is F(2, d): SciPy's quantile.
+    for dof in (2.0, 10.0, 24.0, 200.0, 1e6):
+        assert residual_gate(dof) == pytest.approx(2.0 * scipy.stats.f.ppf(0.999, 2, dof), rel=1e-9)
+    assert residual_gate(np.inf) == NORMAL_GATE and residual_gate(1e6) == pytest.approx(NORMAL_GATE, rel=1e-5)
+    # The livelier deck with stewart-hardware's sensors, seed 2968811710 at 0.35 s: a 0.457 px^2 residual against
+    # 0.030 px^2 pooled from five frames fits (taken as exact, the pool refused it, and the frame was 11.8 deg off).
+    assert corners_fit_a_tag(0.457, 0.030, 10.0) and not corners_fit_a_tag(0.457, 0.030)
 
 
 def test_without_a_mirror_or_with_corners_facing_the_camera_the_range_plane_stays():

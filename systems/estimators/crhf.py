@@ -14,13 +14,13 @@ Two more additions of ours, each with a switch in `CrhfConfig`:
   from the reprojection Jacobian and the corner noise), so the orientation improves as the tag
   grows in the image; the plane keeps the ranges' offset. Corners whose PnP residual the corner noise
   does not explain fit no rigid tag and give no normal. Where the two normals disagree beyond noise,
-  the ranges' plane is kept if the corners' mirror pose (the other solution of a planar PnP) agrees with
-  it, and the corners' normal is taken if not, through the touch points' centroid
-  (`crhf_math.plane_beyond_gate`; a touch point farther than the range gate from that plane flags the frame,
-  `CrhfConfig`'s checks). The corner noise is not a
+  the corners' normal is taken, through the touch points' centroid, unless the corners' mirror pose (the other
+  solution of a planar PnP) agrees with the ranges: then the one of the two normals nearer the previous valid
+  frame's deck normal is taken (the ranges' without one) (`crhf_math.plane_beyond_gate`; a touch point farther than
+  the range gate from that plane flags the frame, `CrhfConfig`'s checks). The corner noise is not a
   setting: it is the pooled variance of the PnP reprojection residuals over the frames so far (residual
   sum of squares over degrees of freedom; after the first ten frames only residuals it explains are
-  pooled); the first frame's is its own residual.
+  pooled, judged by the F quantile of the pool's degrees of freedom); the first frame's is its own residual.
 - average_intrinsics: the focal lengths and principal point of Eq. 40-45 describe a fixed lens,
   so the corners are lifted with the mean of the earlier frames' measurements (this frame's for
   the first), which averages out the calibration curve's wiggles that each frame's carry.
@@ -136,12 +136,14 @@ class CrhfState:
 
     corners: the corner track (px); ranges: the range track (m); intrinsics: mean of the valid
     frames' [fx, fy, cx, cy] (px); corner_variance: pooled variance of one corner coordinate
-    (px^2), the PnP residuals' sum of squares over their degrees of freedom (2 per frame)."""
+    (px^2), the PnP residuals' sum of squares over their degrees of freedom (2 per frame); deck_normal: the
+    unit normal in C of the plane the previous frame's corners were lifted onto (None after an invalid frame)."""
 
     corners: Track = Track()
     ranges: Track = Track()
     intrinsics: RunningMean = RunningMean()
     corner_variance: RunningMean = RunningMean()
+    deck_normal: np.ndarray | None = None
 
 
 class CrhfEstimator(LeafSystem):
@@ -210,7 +212,7 @@ class CrhfEstimator(LeafSystem):
         result = self.estimate(corner_track, ranges, range_covariance, state)
         if result is not None and not self._ranges_see_the_tag(result):
             range_track, result = Track(), None
-        state = replace(state, corners=corner_track, ranges=range_track)
+        state = replace(state, corners=corner_track, ranges=range_track, deck_normal=None)
         if result is None or not result.valid:
             return state, PoseEstimate.invalid(time, "C", "T")
         return self._remember(state, result), PoseEstimate(time, result.X_CT, True, reference="C", target="T")
@@ -237,35 +239,36 @@ class CrhfEstimator(LeafSystem):
     def estimate(self, corner_track: Track, ranges: np.ndarray | None, range_covariance: np.ndarray | None,
                  state: CrhfState) -> CrhfEstimate | None:
         """The CRHF frame from the tracked corners, four ranges (m) and their covariance (m^2), with
-        the intrinsics and corner noise remembered in `state`; None if corners or ranges are missing."""
+        the intrinsics, corner noise and deck normal remembered in `state`; None if corners or ranges are missing."""
         if not corner_track.valid or ranges is None or not np.all(np.isfinite(ranges)):
             return None
         uv_touch = self._calibration.touch_pixels(ranges, self._touch_method)
         intrinsics = state.intrinsics.mean if self._average_intrinsics else None
 
-        def pose(corner_variance_px2: float | None) -> CrhfEstimate:
+        def pose(corner_variance_px2: float | None, dof: float) -> CrhfEstimate:
             return crhf_tag_pose(
                 self._p_C_sensors, ranges, uv_touch, corner_track.position.reshape(4, 2), self._p_T_corners,
                 intrinsics=None if intrinsics is None else (intrinsics[:2], intrinsics[2:]),
-                range_covariance=range_covariance if self._fuse else None, corner_variance_px2=corner_variance_px2)
+                range_covariance=range_covariance if self._fuse else None, corner_variance_px2=corner_variance_px2,
+                corner_variance_dof=dof, previous_normal=state.deck_normal)
 
-        result = pose(state.corner_variance.mean)
+        result = pose(state.corner_variance.mean, state.corner_variance.weight)
         if state.corner_variance.weight == 0 and np.isfinite(result.corner_residual_px2):
             # No residual pooled yet: this frame's own (2 degrees of freedom) is the corner noise so far.
-            result = pose(result.corner_residual_px2 / 2.0)
+            result = pose(result.corner_residual_px2 / 2.0, 2.0)
         return result
 
     @staticmethod
     def _remember(state: CrhfState, result: CrhfEstimate) -> CrhfState:
-        """The state with a valid frame's intrinsics and PnP residual (2 degrees of freedom) added; once the pool
-        holds `JUDGED_FROM_DOF`, only residuals of corners that fit a rigid tag (`corners_fit_a_tag`), so that
-        corners that fit none do not inflate the noise they are judged by."""
+        """The state with a valid frame's intrinsics, PnP residual (2 degrees of freedom) and deck normal added; once
+        the pool holds `JUDGED_FROM_DOF`, only residuals of corners that fit a rigid tag (`corners_fit_a_tag`), so
+        that corners that fit none do not inflate the noise they are judged by."""
         intrinsics = state.intrinsics.add(np.r_[result.focal_lengths, result.principal_point])
         variance, residual = state.corner_variance, result.corner_residual_px2
         judged = variance.weight >= JUDGED_FROM_DOF
-        if np.isfinite(residual) and (not judged or corners_fit_a_tag(residual, variance.mean)):
+        if np.isfinite(residual) and (not judged or corners_fit_a_tag(residual, variance.mean, variance.weight)):
             variance = variance.add(residual / 2.0, 2.0)
-        return replace(state, intrinsics=intrinsics, corner_variance=variance)
+        return replace(state, intrinsics=intrinsics, corner_variance=variance, deck_normal=result.plane.normal)
 
     def _calc_frame(self, context, value):
         state = context.get_abstract_state(self._state).get_value()

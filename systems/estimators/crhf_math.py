@@ -10,7 +10,8 @@ tag grows in the image, while the tag's normal from its corners does. Both norma
 covariance (first-order propagation of the range covariance through the plane fit, and of the
 corner noise through the perspective-n-point solution), and their information-weighted mean in the
 plane's tangent space replaces the range normal before the corners are lifted (`fuse_normals`). When
-they disagree beyond noise, the corners' mirror pose tells which one is wrong (`plane_beyond_gate`).
+they disagree beyond noise, the corners' mirror pose tells which one is wrong, and where it cannot, the previous
+frame's plane does (`plane_beyond_gate`).
 
 Frames and units: everything is expressed in the camera frame C (+z along the optical axis,
 +x right, +y down in the image), in metres. Pixels follow OpenCV: u right, v down, pixel centres
@@ -227,15 +228,28 @@ def fuse_gaussian(mean_a, cov_a, mean_b, cov_b) -> Fusion:
 # Gate on the two normals' disagreement: the chi-square quantile with 2 degrees of freedom at
 # 0.999 (its survival function is exp(-x / 2)). Beyond it the corners' normal is not the same
 # plane's within noise, and `plane_beyond_gate` decides which of the two is wrong. `corners_fit_a_tag`
-# judges the corners' own PnP residual by the same quantile.
-NORMAL_GATE = -2.0 * np.log(1e-3)
+# judges the corners' own PnP residual at the same probability.
+GATE_PROBABILITY = 0.999
+NORMAL_GATE = -2.0 * np.log(1.0 - GATE_PROBABILITY)
 
 
-def corners_fit_a_tag(residual_px2: float, corner_variance_px2: float) -> bool:
-    """Whether the corners' PnP reprojection residual (px^2, 2 degrees of freedom) is within `NORMAL_GATE` times the
-    variance of one corner coordinate (px^2): corners that fit no rigid tag (a corner track coasting through a
-    fast turn) give no normal to fuse (our addition)."""
-    return bool(residual_px2 <= NORMAL_GATE * corner_variance_px2)
+def residual_gate(pool_dof: float) -> float:
+    """The largest PnP residual (2 degrees of freedom), in units of a corner variance pooled over pool_dof degrees
+    of freedom, that noise explains at `GATE_PROBABILITY` (our addition).
+
+    The residual over 2 times the pooled variance is F(2, pool_dof)-distributed, whose survival function is
+    (1 + 2 x / pool_dof)^(-pool_dof / 2); its quantile, times 2, is pool_dof (exp(NORMAL_GATE / pool_dof) - 1).
+    That is wider than `NORMAL_GATE` while the pool holds a few frames (2.2 times at 10 degrees of freedom), because
+    their variance is itself uncertain, and tends to it as the pool grows (inf: `NORMAL_GATE`).
+    """
+    return NORMAL_GATE if np.isinf(pool_dof) else float(pool_dof * np.expm1(NORMAL_GATE / pool_dof))
+
+
+def corners_fit_a_tag(residual_px2: float, corner_variance_px2: float, pool_dof: float = np.inf) -> bool:
+    """Whether the corners' PnP reprojection residual (px^2, 2 degrees of freedom) is within `residual_gate` times the
+    variance of one corner coordinate (px^2, pooled over pool_dof degrees of freedom; inf: known exactly): corners
+    that fit no rigid tag (a corner track coasting through a fast turn) give no normal to fuse (our addition)."""
+    return bool(residual_px2 <= residual_gate(pool_dof) * corner_variance_px2)
 
 
 def fuse_normals(
@@ -279,22 +293,27 @@ def plane_through_centroid(normal: np.ndarray, p_C_touch: np.ndarray) -> PlaneFi
 
 def plane_beyond_gate(
     plane: PlaneFit, p_C_touch: np.ndarray, range_covariance: np.ndarray, corners: CornerNormal,
-    mirror: CornerNormal | None, corner_variance_px2: float,
+    mirror: CornerNormal | None, corner_variance_px2: float, previous_normal: np.ndarray | None = None,
 ) -> PlaneFit:
     """The plane to lift the corners onto when `fuse_normals` refused the two normals (our addition).
 
     Arguments as in `fuse_normals`; mirror: `mirror_corner_normal` of the same corners (None if IPPE gave no
-    second solution). One of the two normals is not the tag's plane:
-    - the corners are ambiguous when their other solution (a planar PnP's mirror pose) agrees with the ranges
-      within `NORMAL_GATE`: the range plane is kept;
-    - otherwise the corners fix one plane and the ranges do not see it (a cone reading past the deck's edge,
-      a biased sensor): the corners' normal is taken, through the touch points' centroid as in the fusion.
+    second solution); previous_normal: the previous frame's deck normal in C (None: no previous frame). One of
+    the two normals is not the tag's plane:
+    - the corners fix one plane and the ranges do not see it (a cone reading past the deck's edge, a biased
+      sensor): the corners' normal is taken, through the touch points' centroid as in the fusion;
+    - but the corners are ambiguous when their other solution (a planar PnP's mirror pose) agrees with the
+      ranges within `NORMAL_GATE`. Then either the corners chose the wrong one of their two poses (a small tag
+      seen square-on) or the ranges see a plane tilted the mirror's way (cones averaging the deck's surroundings),
+      and the one nearer the previous frame's normal is taken, as deck and camera turn little in a frame (the ranges'
+      plane without a previous normal).
     The range plane is also kept when the corners' normal points into the other half-space, or when there
     is no mirror to judge the corners by.
     """
     if mirror is None or corners.normal @ plane.normal <= 0.0:
         return plane
-    if fuse_normals(plane, p_C_touch, range_covariance, mirror, corner_variance_px2) is not None:
+    ambiguous = fuse_normals(plane, p_C_touch, range_covariance, mirror, corner_variance_px2) is not None
+    if ambiguous and (previous_normal is None or plane.normal @ previous_normal >= corners.normal @ previous_normal):
         return plane
     return plane_through_centroid(corners.normal, p_C_touch)
 
@@ -421,6 +440,8 @@ def crhf_tag_pose(
     intrinsics: tuple[np.ndarray, np.ndarray] | None = None,
     range_covariance: np.ndarray | None = None,
     corner_variance_px2: float | None = None,
+    corner_variance_dof: float = np.inf,
+    previous_normal: np.ndarray | None = None,
 ) -> CrhfEstimate:
     """The CRHF pipeline of Sec. 2.4-2.8 for one frame.
 
@@ -433,8 +454,9 @@ def crhf_tag_pose(
     corners with instead of this frame's Eq. 40-45 (e.g. their mean over earlier frames);
     range_covariance, (4, 4) m^2 of the ranges: the corners' own normal is computed and its
     residual reported, and with corner_variance_px2 (variance of one corner coordinate, px^2) it
-    is fused with the touch points' normal where the corners fit a rigid tag (`corners_fit_a_tag`;
-    `fuse_normals`; beyond its gate `plane_beyond_gate`, which looks for the corners' mirror solution only then).
+    is fused with the touch points' normal where the corners fit a rigid tag (`corners_fit_a_tag`, the variance
+    pooled over corner_variance_dof degrees of freedom; `fuse_normals`; beyond its gate `plane_beyond_gate`, which
+    looks for the corners' mirror solution only then, and previous_normal, the previous frame's deck normal in C).
     Never raises on bad measurements: the estimate is then flagged invalid.
     """
     p_C_touch = touch_points(p_C_sensors, ranges)
@@ -452,11 +474,12 @@ def crhf_tag_pose(
         corners = corner_normal(uv_corners, f, c, p_T_corners)
         residual = np.nan if corners is None else corners.residual_px2
         if (corners is not None and corner_variance_px2 is not None
-                and corners_fit_a_tag(corners.residual_px2, corner_variance_px2)):
+                and corners_fit_a_tag(corners.residual_px2, corner_variance_px2, corner_variance_dof)):
             fused = fuse_normals(plane, p_C_touch, range_covariance, corners, corner_variance_px2)
             if fused is None:
                 mirror = mirror_corner_normal(uv_corners, f, c, p_T_corners, corners.normal)
-                fused = plane_beyond_gate(plane, p_C_touch, range_covariance, corners, mirror, corner_variance_px2)
+                fused = plane_beyond_gate(plane, p_C_touch, range_covariance, corners, mirror, corner_variance_px2,
+                                          previous_normal)
             plane = fused
     p_C_corners, hit = intersect_pixel_rays_with_plane(uv_corners, f, c, plane)
     valid = valid and bool(np.all(hit))
