@@ -508,7 +508,8 @@ def test_the_residual_gate_is_the_f_quantile_of_the_pooled_noise_and_tends_to_th
         assert residual_gate(dof) == pytest.approx(2.0 * scipy.stats.f.ppf(0.999, 2, dof), rel=1e-9)
     assert residual_gate(np.inf) == NORMAL_GATE and residual_gate(1e6) == pytest.approx(NORMAL_GATE, rel=1e-5)
     # The livelier deck with stewart-hardware's sensors, seed 2968811710 at 0.35 s: a 0.457 px^2 residual against
-    # 0.030 px^2 pooled from five frames fits (taken as exact, the pool refused it, and the frame was 11.8 deg off).
+    # 0.030 px^2 pooled from five frames fits (taken as exact, the pool refused it, and the frame was lifted onto the
+    # ranges' plane, 11.8 deg off).
     assert corners_fit_a_tag(0.457, 0.030, 10.0) and not corners_fit_a_tag(0.457, 0.030)
 
 
