@@ -249,6 +249,30 @@ def test_ranges_tilted_the_mirrors_way_do_not_take_over_from_the_corners_the_pre
     assert np.degrees(max(errors[20:])) < 3.0
 
 
+def test_corners_and_ranges_that_agree_on_the_mirrors_plane_from_the_first_frame_are_flagged_until_one_tells(crhf):
+    # The ranges see the corners' mirror plane from the first frame: with no previous frame nothing says whether the
+    # corners took the wrong one of their two poses or the ranges see a plane tilted the mirror's way, so the frames
+    # are flagged (lifted onto the ranges' plane they were 30 deg off) while the range track goes on. When the ranges
+    # read the tag's plane, the corners are no longer ambiguous and the pose is right from that frame on (the range
+    # track followed the ranges through the flagged frames).
+    rng = np.random.default_rng(7)
+    X_CT = pose([0.0, 0.0, 2.0], [15.0, 0.0, 0.0])
+    exact = project_points(K, X_CT, tag_corners_T(0.5))
+    _, rvecs, _, _ = cv2.solvePnPGeneric(tag_corners_T(0.5), exact.reshape(-1, 1, 2), K, None,
+                                         flags=cv2.SOLVEPNP_IPPE)
+    planes = [cv2.Rodrigues(rvecs[1])[0][:, 2], X_CT.rotation().matrix()[:, 2]]  # the mirror's, the tag's
+    mirror_ranges, tag_ranges = ((n @ X_CT.translation() - P_C_SENSORS @ n) / n[2] for n in planes)
+    state, valid, errors = CrhfState(), [], []
+    for k in range(30):
+        ranges = mirror_ranges if k < 5 else tag_ranges
+        state, estimate = crhf.step(state, exact + 0.3 * rng.standard_normal(exact.shape),
+                                    ranges + 0.005 * rng.standard_normal(4), 0.05 * k)
+        valid.append(estimate.valid)
+        if estimate.valid:
+            errors.append(estimate.X_RT.rotation().inverse().multiply(X_CT.rotation()).ToAngleAxis().angle())
+    assert not any(valid[:5]) and all(valid[5:]) and np.degrees(max(errors)) < 3.0
+
+
 def test_the_first_frame_weighs_its_corners_by_their_own_residual(crhf):
     # No residual is pooled before the first frame: its own stands for the corner noise, so its corners' normal
     # is fused (or, as here, beyond the gate, decides) from the first frame. The ranges read a level surface

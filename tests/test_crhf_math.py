@@ -469,8 +469,9 @@ def test_corners_that_disagree_with_the_ranges_and_have_no_agreeing_mirror_set_t
                                                     abs=1e-12)
 
 
-def test_corners_whose_mirror_agrees_with_the_ranges_leave_the_range_plane():
-    # The ranges see the plane of the corners' mirror pose: the corners are ambiguous, the ranges decide.
+def test_corners_whose_mirror_agrees_with_the_ranges_are_flagged_without_a_previous_frame():
+    # The ranges see the plane of the corners' mirror pose: the corners are ambiguous, and with no previous frame
+    # nothing tells which plane is the tag's. The frame is flagged, its plane the ranges'.
     _, uv = tilted_tag_on_the_axis(15.0, 1.2)
     count, rvecs, tvecs, _ = cv2.solvePnPGeneric(tag_corners_T(TAG_SIZE), uv.reshape(-1, 1, 2), K, None,
                                                   flags=cv2.SOLVEPNP_IPPE)
@@ -479,6 +480,7 @@ def test_corners_whose_mirror_agrees_with_the_ranges_leave_the_range_plane():
     p_s, ranges, uv_touch = ranges_and_touch_pixels(*deck_plane(mirror))
     estimate = crhf_tag_pose(p_s, ranges, uv_touch, uv, tag_corners_T(TAG_SIZE),
                              range_covariance=0.005**2 * np.eye(4), corner_variance_px2=0.1)
+    assert not estimate.valid
     np.testing.assert_allclose(estimate.plane.normal, mirror.rotation().matrix()[:, 2], atol=1e-9)
     assert estimate.plane.rms_residual < 1e-12
 

@@ -16,9 +16,9 @@ Two more additions of ours, each with a switch in `CrhfConfig`:
   does not explain fit no rigid tag and give no normal. Where the two normals disagree beyond noise,
   the corners' normal is taken, through the touch points' centroid, unless the corners' mirror pose (the other
   solution of a planar PnP) agrees with the ranges: then the one of the two normals nearer the previous valid
-  frame's deck normal is taken (the ranges' without one) (`crhf_math.plane_beyond_gate`; a touch point farther than
-  the range gate from that plane flags the frame, `CrhfConfig`'s checks). The corner noise is not a
-  setting: it is the pooled variance of the PnP reprojection residuals over the frames so far (residual
+  frame's deck normal is taken, and without one the frame is flagged invalid (`crhf_math.plane_beyond_gate`; a
+  touch point farther than the range gate from that plane flags the frame, `CrhfConfig`'s checks). The corner noise
+  is not a setting: it is the pooled variance of the PnP reprojection residuals over the frames so far (residual
   sum of squares over degrees of freedom; after the first ten frames only residuals it explains are
   pooled, judged by the F quantile of the pool's degrees of freedom); the first frame's is its own residual.
 - average_intrinsics: the focal lengths and principal point of Eq. 40-45 describe a fixed lens,
@@ -152,8 +152,9 @@ class CrhfEstimator(LeafSystem):
     range track's prediction then follows the drone's own motion over the deck plane, Eq. 28's B u; unconnected:
     a hovering drone). Output:
     X_CT_estimate (PoseEstimate) for the frame at the context's time; invalid when the corner track
-    is lost, a range is invalid or gated, the touch points are degenerate or fail `CrhfConfig`'s checks, or a
-    touch pixel is outside the calibration.
+    is lost, a range is invalid or gated, the touch points are degenerate or fail `CrhfConfig`'s checks, a
+    touch pixel is outside the calibration, or the corners and ranges give two planes that no previous valid frame
+    tells apart (`crhf_math.plane_beyond_gate`).
 
     The filters' tracks and the running means (`CrhfState`) are state, advanced by a periodic
     update at `period_s`; the output is the estimate from the previous frame's state and this

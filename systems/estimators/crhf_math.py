@@ -294,8 +294,9 @@ def plane_through_centroid(normal: np.ndarray, p_C_touch: np.ndarray) -> PlaneFi
 def plane_beyond_gate(
     plane: PlaneFit, p_C_touch: np.ndarray, range_covariance: np.ndarray, corners: CornerNormal,
     mirror: CornerNormal | None, corner_variance_px2: float, previous_normal: np.ndarray | None = None,
-) -> PlaneFit:
-    """The plane to lift the corners onto when `fuse_normals` refused the two normals (our addition).
+) -> PlaneFit | None:
+    """The plane to lift the corners onto when `fuse_normals` refused the two normals (our addition); None
+    when the frame cannot tell which of two planes is the deck's.
 
     Arguments as in `fuse_normals`; mirror: `mirror_corner_normal` of the same corners (None if IPPE gave no
     second solution); previous_normal: the previous frame's deck normal in C (None: no previous frame). One of
@@ -305,15 +306,18 @@ def plane_beyond_gate(
     - but the corners are ambiguous when their other solution (a planar PnP's mirror pose) agrees with the
       ranges within `NORMAL_GATE`. Then either the corners chose the wrong one of their two poses (a small tag
       seen square-on) or the ranges see a plane tilted the mirror's way (cones averaging the deck's surroundings),
-      and the one nearer the previous frame's normal is taken, as deck and camera turn little in a frame (the ranges'
-      plane without a previous normal).
+      and the one nearer the previous frame's normal is taken, as deck and camera turn little in a frame. Without a
+      previous normal (the first frame, or the first after an invalid one) nothing tells them apart: None, and the
+      frame is flagged invalid rather than given a plane that may be 10-30 deg off.
     The range plane is also kept when the corners' normal points into the other half-space, or when there
     is no mirror to judge the corners by.
     """
     if mirror is None or corners.normal @ plane.normal <= 0.0:
         return plane
     ambiguous = fuse_normals(plane, p_C_touch, range_covariance, mirror, corner_variance_px2) is not None
-    if ambiguous and (previous_normal is None or plane.normal @ previous_normal >= corners.normal @ previous_normal):
+    if ambiguous and previous_normal is None:
+        return None
+    if ambiguous and plane.normal @ previous_normal >= corners.normal @ previous_normal:
         return plane
     return plane_through_centroid(corners.normal, p_C_touch)
 
@@ -403,8 +407,8 @@ class CrhfEstimate:
     X_CT: tag pose in C (identity when not valid). valid: every step succeeded.
     plane: the deck plane the corners were lifted onto: the touch points' plane, its normal fused
     with the corners' (`fuse_normals`) when a corner variance was given and the gate passed, else as
-    `plane_beyond_gate` chose. touch_residual_m: RMS distance of the touch points from their own
-    least-squares plane (`fit_plane`), m; NaN when they do not fix one.
+    `plane_beyond_gate` chose (the touch points' plane where it could not choose). touch_residual_m: RMS
+    distance of the touch points from their own least-squares plane (`fit_plane`), m; NaN when they do not fix one.
     focal_lengths (fx, fy) and principal_point (cx, cy): pixels, measured this frame from the
     touch points (Eq. 40-45), whichever intrinsics the corners were lifted with.
     p_C_corners: (4, 3) tag corners in C, metres (NaN rows where a ray missed the plane).
@@ -456,7 +460,8 @@ def crhf_tag_pose(
     residual reported, and with corner_variance_px2 (variance of one corner coordinate, px^2) it
     is fused with the touch points' normal where the corners fit a rigid tag (`corners_fit_a_tag`, the variance
     pooled over corner_variance_dof degrees of freedom; `fuse_normals`; beyond its gate `plane_beyond_gate`, which
-    looks for the corners' mirror solution only then, and previous_normal, the previous frame's deck normal in C).
+    looks for the corners' mirror solution only then, and previous_normal, the previous frame's deck normal in C; a
+    frame whose two planes it cannot tell apart is flagged invalid, its plane the ranges').
     Never raises on bad measurements: the estimate is then flagged invalid.
     """
     p_C_touch = touch_points(p_C_sensors, ranges)
@@ -480,7 +485,8 @@ def crhf_tag_pose(
                 mirror = mirror_corner_normal(uv_corners, f, c, p_T_corners, corners.normal)
                 fused = plane_beyond_gate(plane, p_C_touch, range_covariance, corners, mirror, corner_variance_px2,
                                           previous_normal)
-            plane = fused
+            valid = fused is not None
+            plane = plane if fused is None else fused
     p_C_corners, hit = intersect_pixel_rays_with_plane(uv_corners, f, c, plane)
     valid = valid and bool(np.all(hit))
     if not valid:
