@@ -225,19 +225,30 @@ def test_a_tag_tilted_away_from_the_plane_the_ranges_see_is_estimated_from_its_c
     assert np.degrees(error) < 1.0
 
 
+def tag_tilted_15_deg_and_its_mirror():
+    """A 0.5 m tag 2 m ahead tilted 15 deg about x_C: (X_CT, its exact corners in px, the normal in C of the
+    corners' mirror pose, IPPE's other solution, tilted the other way)."""
+    X_CT = pose([0.0, 0.0, 2.0], [15.0, 0.0, 0.0])
+    exact = project_points(K, X_CT, tag_corners_T(0.5))
+    _, rvecs, _, _ = cv2.solvePnPGeneric(tag_corners_T(0.5), exact.reshape(-1, 1, 2), K, None,
+                                         flags=cv2.SOLVEPNP_IPPE)
+    return X_CT, exact, cv2.Rodrigues(rvecs[1])[0][:, 2]
+
+
+def ranges_to_plane(n: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """The four sensors' ranges (along C's z) to the plane with unit normal n through `point` (C, m)."""
+    return (n @ point - P_C_SENSORS @ n) / n[2]
+
+
 def test_ranges_tilted_the_mirrors_way_do_not_take_over_from_the_corners_the_previous_frames_followed(crhf):
     # The livelier deck with stewart-hardware's cones (seed 53917133): the corners see the tag tilted 15 deg and
     # the ranges a flatter plane; their mirror (tilted the other way) agrees with neither, so the corners' normal is
     # taken. Then the ranges tilt towards the mirror's plane and agree with it: the corners are ambiguous, and the
     # previous frame's deck, the corners', keeps the pose on them (on the ranges' plane it is 30 deg off).
     rng = np.random.default_rng(5)
-    X_CT = pose([0.0, 0.0, 2.0], [15.0, 0.0, 0.0])
-    exact = project_points(K, X_CT, tag_corners_T(0.5))
-    _, rvecs, _, _ = cv2.solvePnPGeneric(tag_corners_T(0.5), exact.reshape(-1, 1, 2), K, None,
-                                         flags=cv2.SOLVEPNP_IPPE)
-    n = cv2.Rodrigues(rvecs[1])[0][:, 2]
+    X_CT, exact, n = tag_tilted_15_deg_and_its_mirror()
     assert n[1] > 0.2  # the mirror's normal: tilted the other way
-    mirror_ranges = (n @ X_CT.translation() - P_C_SENSORS @ n) / n[2]
+    mirror_ranges = ranges_to_plane(n, X_CT.translation())
     state, errors = CrhfState(), []
     for k in range(40):
         ranges = np.full(4, 2.0) if k < 20 else mirror_ranges
@@ -256,12 +267,9 @@ def test_corners_and_ranges_that_agree_on_the_mirrors_plane_from_the_first_frame
     # read the tag's plane, the corners are no longer ambiguous and the pose is right from that frame on (the range
     # track followed the ranges through the flagged frames).
     rng = np.random.default_rng(7)
-    X_CT = pose([0.0, 0.0, 2.0], [15.0, 0.0, 0.0])
-    exact = project_points(K, X_CT, tag_corners_T(0.5))
-    _, rvecs, _, _ = cv2.solvePnPGeneric(tag_corners_T(0.5), exact.reshape(-1, 1, 2), K, None,
-                                         flags=cv2.SOLVEPNP_IPPE)
-    planes = [cv2.Rodrigues(rvecs[1])[0][:, 2], X_CT.rotation().matrix()[:, 2]]  # the mirror's, the tag's
-    mirror_ranges, tag_ranges = ((n @ X_CT.translation() - P_C_SENSORS @ n) / n[2] for n in planes)
+    X_CT, exact, n = tag_tilted_15_deg_and_its_mirror()
+    mirror_ranges = ranges_to_plane(n, X_CT.translation())
+    tag_ranges = ranges_to_plane(X_CT.rotation().matrix()[:, 2], X_CT.translation())
     state, valid, errors = CrhfState(), [], []
     for k in range(30):
         ranges = mirror_ranges if k < 5 else tag_ranges
