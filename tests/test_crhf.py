@@ -225,14 +225,20 @@ def test_a_tag_tilted_away_from_the_plane_the_ranges_see_is_estimated_from_its_c
     assert np.degrees(error) < 1.0
 
 
-def tag_tilted_15_deg_and_its_mirror():
-    """A 0.5 m tag 2 m ahead tilted 15 deg about x_C: (X_CT, its exact corners in px, the normal in C of the
-    corners' mirror pose, IPPE's other solution, tilted the other way)."""
-    X_CT = pose([0.0, 0.0, 2.0], [15.0, 0.0, 0.0])
+def corners_and_mirror(X_CT: RigidTransform):
+    """A 0.5 m tag at X_CT: (its exact corners in px, the normal in C of the corners' mirror pose, IPPE's other
+    solution)."""
     exact = project_points(K, X_CT, tag_corners_T(0.5))
     _, rvecs, _, _ = cv2.solvePnPGeneric(tag_corners_T(0.5), exact.reshape(-1, 1, 2), K, None,
                                          flags=cv2.SOLVEPNP_IPPE)
-    return X_CT, exact, cv2.Rodrigues(rvecs[1])[0][:, 2]
+    return exact, min((cv2.Rodrigues(r)[0][:, 2] for r in rvecs), key=lambda n: n @ X_CT.rotation().col(2))
+
+
+def tag_tilted_15_deg_and_its_mirror():
+    """A 0.5 m tag 2 m ahead tilted 15 deg about x_C: (X_CT, its exact corners in px, the normal in C of the
+    corners' mirror pose, tilted the other way)."""
+    X_CT = pose([0.0, 0.0, 2.0], [15.0, 0.0, 0.0])
+    return X_CT, *corners_and_mirror(X_CT)
 
 
 def ranges_to_plane(n: np.ndarray, point: np.ndarray) -> np.ndarray:
@@ -258,6 +264,29 @@ def test_ranges_tilted_the_mirrors_way_do_not_take_over_from_the_corners_the_pre
         errors.append(estimate.X_RT.rotation().inverse().multiply(X_CT.rotation()).ToAngleAxis().angle())
     # One frame's corners at 0.3 px give the normal to 0.2-1.7 deg here, before and after the ranges tilt.
     assert np.degrees(max(errors[20:])) < 3.0
+
+
+@pytest.mark.parametrize("seed", [1, 2, 5])
+def test_the_previous_frames_deck_breaks_the_tie_as_seen_after_the_cameras_own_turn(crhf, seed):
+    # A tag tilted 6 deg about x; the ranges read a level surface through its centre, then (from frame 12) the plane
+    # of the corners' mirror pose, 12 deg from the tag's: the corners are ambiguous, and the previous frame's deck
+    # decides. From frame 21 the camera rolls at -2 rad/s, 5.7 deg a frame, half the two planes' angle. Turned into
+    # this frame by the camera's rate (V_WC_C), the previous frame's deck stays the nearer to the tag's plane; as
+    # that frame saw it, it was nearer the mirror's in some frames, and the pose 12-14 deg off there (these seeds).
+    rng = np.random.default_rng(seed)
+    X_WT, w = pose([0.0, 0.0, 2.0], [6.0, 0.0, 0.0]), -2.0
+    state, errors = CrhfState(), []
+    for k in range(26):
+        X_WC = RigidTransform(RotationMatrix.MakeXRotation(w * max(0.05 * (k - 20), 0.0)), np.zeros(3))
+        X_CT = X_WC.inverse().multiply(X_WT)
+        exact, n = corners_and_mirror(X_CT)
+        ranges = ranges_to_plane(n, X_CT.translation()) if k >= 12 else np.full(4, X_CT.translation()[2])
+        V_WC_C = np.r_[w if k > 20 else 0.0, np.zeros(5)]
+        state, estimate = crhf.step(state, exact + 0.3 * rng.standard_normal(exact.shape),
+                                    ranges + 0.005 * rng.standard_normal(4), 0.05 * k, V_WC_C)
+        assert estimate.valid
+        errors.append(estimate.X_RT.rotation().inverse().multiply(X_CT.rotation()).ToAngleAxis().angle())
+    assert np.degrees(max(errors[21:])) < 3.0
 
 
 def test_corners_and_ranges_that_agree_on_the_mirrors_plane_from_the_first_frame_are_flagged_until_one_tells(crhf):

@@ -14,6 +14,7 @@ from systems.estimators.crhf_math import (
     corner_normal,
     corners_fit_a_tag,
     crhf_tag_pose,
+    direction_after_turn,
     fit_plane,
     focal_lengths_from_touch_points,
     fuse_gaussian,
@@ -102,6 +103,20 @@ def test_range_shift_is_the_level_decks_along_the_axis_and_first_order_on_a_tilt
 
     (e1, change), (e2, _) = error(0.05), error(0.025)
     assert e1 < 0.03 * change  # 0.37 mm of a 31 mm change at these rates
+    assert e2 == pytest.approx(e1 / 4.0, rel=0.1)
+
+
+def test_a_world_fixed_direction_after_the_cameras_turn_is_the_exact_rotations_to_first_order():
+    # The camera turns by the rotation vector w dt (in C): a direction fixed in the world is then R^T n in its frame.
+    n = X_CT.rotation().col(2)
+    w = np.array([0.4, -2.0, 0.7])  # rad/s
+
+    def error(dt):
+        exact = RotationMatrix(Rotation.from_rotvec(w * dt).as_matrix()).inverse().multiply(n)
+        return np.linalg.norm(direction_after_turn(n, w, dt) - exact), np.linalg.norm(exact - n)
+
+    (e1, turned), (e2, _) = error(0.05), error(0.025)
+    assert e1 < 0.1 * turned  # a 6.2 deg turn moves n by 5.3 deg; the first-order n is 0.29 deg off
     assert e2 == pytest.approx(e1 / 4.0, rel=0.1)
 
 

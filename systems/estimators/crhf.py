@@ -16,7 +16,8 @@ Two more additions of ours, each with a switch in `CrhfConfig`:
   does not explain fit no rigid tag and give no normal. Where the two normals disagree beyond noise,
   the corners' normal is taken, through the touch points' centroid, unless the corners' mirror pose (the other
   solution of a planar PnP) agrees with the ranges: then the one of the two normals nearer the previous valid
-  frame's deck normal is taken, and without one the frame is flagged invalid (`crhf_math.plane_beyond_gate`; a
+  frame's deck normal (turned into this frame by the camera's own rotation, where V_WC_C is connected) is taken,
+  and without one the frame is flagged invalid (`crhf_math.plane_beyond_gate`; a
   touch point farther than the range gate from that plane flags the frame, `CrhfConfig`'s checks). The corner noise
   is not a setting: it is the pooled variance of the PnP reprojection residuals over the frames so far (residual
   sum of squares over degrees of freedom; after the first ten frames only residuals it explains are
@@ -39,6 +40,7 @@ from systems.estimators.crhf_math import (
     CrhfEstimate,
     corners_fit_a_tag,
     crhf_tag_pose,
+    direction_after_turn,
     fit_plane,
     range_shift,
     touch_points,
@@ -137,7 +139,8 @@ class CrhfState:
     corners: the corner track (px); ranges: the range track (m); intrinsics: mean of the valid
     frames' [fx, fy, cx, cy] (px); corner_variance: pooled variance of one corner coordinate
     (px^2), the PnP residuals' sum of squares over their degrees of freedom (2 per frame); deck_normal: the
-    unit normal in C of the plane the previous frame's corners were lifted onto (None after an invalid frame)."""
+    unit normal in C of the plane the previous frame's corners were lifted onto, in C as that frame saw it (None
+    after an invalid frame)."""
 
     corners: Track = Track()
     ranges: Track = Track()
@@ -149,8 +152,8 @@ class CrhfState:
 class CrhfEstimator(LeafSystem):
     """Inputs: tag_detection (TagDetection), ranges (4, m, NaN when invalid) and optionally
     V_WC_C (6, the camera's own spatial velocity [w; v] in C, rad/s and m/s, from the drone's navigation: the
-    range track's prediction then follows the drone's own motion over the deck plane, Eq. 28's B u; unconnected:
-    a hovering drone). Output:
+    range track's prediction then follows the drone's own motion over the deck plane, Eq. 28's B u, and the
+    previous frame's deck normal is turned into this frame; unconnected: a hovering drone). Output:
     X_CT_estimate (PoseEstimate) for the frame at the context's time; invalid when the corner track
     is lost, a range is invalid or gated, the touch points are degenerate or fail `CrhfConfig`'s checks, a
     touch pixel is outside the calibration, or the corners and ranges give two planes that no previous valid frame
@@ -194,7 +197,8 @@ class CrhfEstimator(LeafSystem):
         """One frame: (next CrhfState, PoseEstimate) from the previous state, the detected corners
         (4x2 px or None), the ranges (4, m, NaN when invalid) and the camera's spatial velocity [w; v] in C
         (rad/s, m/s; None: unknown, as for a hovering drone), whose motion over the range track's plane shifts
-        the ranges' prediction (`crhf_math.range_shift`, Eq. 28's B u)."""
+        the ranges' prediction (`crhf_math.range_shift`, Eq. 28's B u) and whose turn over the frame carries the
+        previous frame's deck normal into this one (`crhf_math.direction_after_turn`)."""
         corner_track = step_track(state.corners, corners, self._corner_filter)
         if self._range_filter is None:
             range_track, range_covariance = Track(), self._range_variance * np.eye(4)
@@ -210,6 +214,8 @@ class CrhfEstimator(LeafSystem):
             valid = range_track.valid and np.all(np.isfinite(ranges))
             ranges = range_track.position if valid else None
             range_covariance = range_track.P[:4, :4] if valid else None
+        if state.deck_normal is not None and V_WC_C is not None:  # the previous frame's deck, seen from this frame
+            state = replace(state, deck_normal=direction_after_turn(state.deck_normal, V_WC_C[:3], self._period))
         result = self.estimate(corner_track, ranges, range_covariance, state)
         if result is not None and not self._ranges_see_the_tag(result):
             range_track, result = Track(), None

@@ -86,10 +86,16 @@ def range_shift(p_C_sensors: np.ndarray, plane: PlaneFit, V_WC_C: np.ndarray, dt
     (first order in dt) the plane is n' = n - (w dt) x n, d' = d - n . v dt, and a sensor at s_i ranges along
     z_C to r_i = (d - n . s_i) / n_z. Level plane and no rotation: -v_z dt for every sensor."""
     n, d = plane.normal, plane.offset
-    w, v = np.asarray(V_WC_C[:3], dtype=float) * dt, np.asarray(V_WC_C[3:], dtype=float) * dt
-    n_after = n - np.cross(w, n)
+    v = np.asarray(V_WC_C[3:], dtype=float) * dt
+    n_after = direction_after_turn(n, V_WC_C[:3], dt)
     s = np.asarray(p_C_sensors, dtype=float)
     return (d - n @ v - s @ n_after) / n_after[2] - (d - s @ n) / n[2]
+
+
+def direction_after_turn(direction_C: np.ndarray, w_WC_C: np.ndarray, dt: float) -> np.ndarray:
+    """A direction fixed in the world, given in C, expressed in the camera's frame after the camera turned at w_WC_C
+    (rad/s, in C) for dt seconds: d - (w dt) x d, first order in dt (its length 1 + O(dt^2) for a unit d)."""
+    return direction_C - np.cross(np.asarray(w_WC_C, dtype=float) * dt, direction_C)
 
 
 def tangent_basis(normal: np.ndarray) -> np.ndarray:
@@ -299,7 +305,8 @@ def plane_beyond_gate(
     when the frame cannot tell which of two planes is the deck's.
 
     Arguments as in `fuse_normals`; mirror: `mirror_corner_normal` of the same corners (None if IPPE gave no
-    second solution); previous_normal: the previous frame's deck normal in C (None: no previous frame). One of
+    second solution); previous_normal: the previous frame's deck normal in this frame's C (None: no previous
+    frame; `direction_after_turn` carries it through the camera's own turn). One of
     the two normals is not the tag's plane:
     - the corners fix one plane and the ranges do not see it (a cone reading past the deck's edge, a biased
       sensor): the corners' normal is taken, through the touch points' centroid as in the fusion;
@@ -460,8 +467,8 @@ def crhf_tag_pose(
     residual reported, and with corner_variance_px2 (variance of one corner coordinate, px^2) it
     is fused with the touch points' normal where the corners fit a rigid tag (`corners_fit_a_tag`, the variance
     pooled over corner_variance_dof degrees of freedom; `fuse_normals`; beyond its gate `plane_beyond_gate`, which
-    looks for the corners' mirror solution only then, and previous_normal, the previous frame's deck normal in C; a
-    frame whose two planes it cannot tell apart is flagged invalid, its plane the ranges').
+    looks for the corners' mirror solution only then, and previous_normal, the previous frame's deck normal in this
+    frame's C; a frame whose two planes it cannot tell apart is flagged invalid, its plane the ranges').
     Never raises on bad measurements: the estimate is then flagged invalid.
     """
     p_C_touch = touch_points(p_C_sensors, ranges)
