@@ -5,7 +5,8 @@ scene's geometry (`ray_cast.cast_rays`: what has a proximity role, less the geom
 sensors are mounted on). With `cone_deg` set it is a real sensor's cone (a VL53L1X's is 27 degrees)
 sampled by a 31x31 pixel grid:
 the reading is the mean path length over the cone's footprint, each pixel weighted by the power it
-returns (`cone_range`), so a tilted or partly covered footprint biases it as it does on hardware. The
+returns, calibrated to read a flat target square to its axis at its distance (`cone_range`), so a tilted
+or partly covered footprint biases it as it does on hardware. The
 sensors' frames S_i have the camera's orientation (+z down along the ray) and sit in the camera plane
 at the positions of Eq. (21)-(24):
     p_CS1 = [-a c, -a c, 0], p_CS2 = [-a c, a c, 0], p_CS3 = [a c, a c, 0], p_CS4 = [a c, -a c, 0]
@@ -152,8 +153,9 @@ def cone_range(depth: np.ndarray, fov_deg: float) -> float:
     edge: the mean path length over the pixels inside the cone, each weighted by the power it returns
     to a sensor that lights its cone uniformly, its solid angle (cos^3 of its angle off the axis, in
     image-plane units) over the squared path length (the surface's own reflectance and incidence are not
-    modelled). Pixels that see nothing (inf) or are too close to render (0) return nothing; NaN when
-    none returns."""
+    modelled), over the same mean on a flat target square to the axis (`flat_target_path_factor`): a
+    sensor's ranging is calibrated on such a target, which it reads to its datasheet's accuracy. Pixels
+    that see nothing (inf) or are too close to render (0) return nothing; NaN when none returns."""
     _, stretch, in_cone = view_geometry(depth.shape[0], fov_deg)
     z = depth.astype(float)
     returns = in_cone & np.isfinite(z) & (z > 0)
@@ -161,7 +163,16 @@ def cone_range(depth: np.ndarray, fov_deg: float) -> float:
         return float("nan")
     path = z[returns] * stretch[returns]
     weight = stretch[returns] ** -3 / path**2
-    return float(np.sum(weight * path) / np.sum(weight))
+    return float(np.sum(weight * path) / np.sum(weight)) / flat_target_path_factor(depth.shape[0], fov_deg)
+
+
+@cache
+def flat_target_path_factor(pixels: int, fov_deg: float) -> float:
+    """The power-weighted mean path over a flat target square to the cone's axis, per metre of its distance
+    (1.0138 for the VL53L1X's 27 deg, 1.0043 for a 15 deg ROI): over the cone's pixels a path h s returns
+    s^-3 / (h s)^2 of power (s, the pixel's `stretch`), so the mean is h sum(s^-4) / sum(s^-5)."""
+    _, stretch, in_cone = view_geometry(pixels, fov_deg)
+    return float(np.sum(stretch[in_cone] ** -4) / np.sum(stretch[in_cone] ** -5))
 
 
 def tof_camera_view(config: TofConfig) -> tuple[int, float, float]:
