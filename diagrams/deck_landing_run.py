@@ -26,7 +26,7 @@ from diagrams.simulate import Simulation, simulate
 from diagrams.stewart_run import pose_from_vector
 from systems.config import require_positive
 from systems.control.landing import Mode
-from systems.perception.seam import HEIGHT
+from systems.perception.seam import HEIGHT, VALID
 from systems.sensors.ground_truth import pose_vector
 
 TARGET_TILT_DEG = 3.0  # issue 13: the deck's tilt at touchdown
@@ -118,13 +118,15 @@ def fly(config: DeckLandingConfig, duration_s: float, **options) -> tuple[dict, 
 
 
 def plot_deck_landing(flight: DeckFlight, config: DeckLandingConfig, out_dir) -> None:
-    """deck_landing.png: the UAV's height above the deck (true and as steered), the deck's tilt (true and
-    as tracked) with the landing window's flags, and the horizontal offset, the supervisor's modes shaded."""
+    """deck_landing.png: the UAV's height above the deck (true, and as steered where the estimate was valid),
+    the deck's tilt (true and as tracked) with the landing window's flags, and the horizontal offset, the
+    supervisor's modes shaded."""
     log = flight.log
     t = log["t"]
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
     axes[0].plot(t, log["true_relative_state"][:, HEIGHT], "k-", lw=1.2, label="true")
-    axes[0].plot(t, log["relative_state"][:, HEIGHT], "--", color="tab:red", lw=1, label=config.perception.source)
+    steered = np.where(log["relative_state"][:, VALID] > 0.5, log["relative_state"][:, HEIGHT], np.nan)
+    axes[0].plot(t, steered, "--", color="tab:red", lw=1, label=f"{config.perception.source} (valid)")
     axes[0].axhline(config.landing.landing_height_m, color="0.5", ls=":", lw=1, label="LH")
     axes[0].set_ylabel("UAV above the deck (m)")
     axes[1].plot(t, tilt_deg(log["true_deck_motion"]), "k-", lw=1.2, label="true tilt")

@@ -4,6 +4,7 @@ scored against the simulation's truth; a covered lens is flagged, coasted and ne
 import numpy as np
 import pytest
 
+from diagrams import deck_landing_run
 from diagrams.deck_landing_run import fly, tilt_deg
 from diagrams.runner import load_scenario
 from systems.control.landing import Mode
@@ -39,6 +40,18 @@ def test_both_estimators_are_scored_against_the_true_tag_pose(crhf_landing):
         assert m["valid_fraction"] > 0.7  # the tag leaves the view in the last half metre
         assert max(m["mae_xyz_m"]) < 0.01 and max(m["mae_rpy_deg"]) < 1.0
     assert metrics["perception"]["rms_position_m"] < 0.02  # the deck tracker that steered
+
+
+def test_the_plot_draws_the_steering_height_only_where_it_was_valid(crhf_landing, tmp_path, monkeypatch):
+    config, _, flight = crhf_landing
+    figures = []
+    monkeypatch.setattr(deck_landing_run, "save_figure", lambda fig, path: figures.append(fig))
+    deck_landing_run.plot_deck_landing(flight, config, tmp_path)
+    steered = next(line for line in figures[0].axes[0].get_lines() if line.get_label() == "crhf (valid)")
+    valid = flight.log["relative_state"][:, VALID] > 0.5
+    assert not valid.all() and valid.any()  # the first frames have no estimate yet
+    assert np.isnan(steered.get_ydata()[~valid]).all()
+    assert np.isfinite(steered.get_ydata()[valid]).all()
 
 
 def test_a_covered_lens_is_coasted_then_flagged_and_never_descended_on():
