@@ -27,16 +27,20 @@ def _mode_lines(ax, log):
 
 def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray | None = None) -> None:
     """Seed 003 Fig. 8a/9 (trajectories_3d.png, trajectories_top.png), Fig. 14a/15a (altitude.png),
-    Fig. 8c/14b/15b (velocity.png) and Fig. 8b's error (tracking_error.png)."""
+    Fig. 8c/14b/15b (velocity.png) and Fig. 8b's error (tracking_error.png); the pad on the UGV, or on the
+    ground (`platform.carrier`)."""
     t, quad = log["t"], log["quadrotor_state"]
     p_uav = quad[:, P_WB]
     p_pad = p_uav + log["true_relative_state"][:, P_BP_W]
     landed = first(log["mode"] == Mode.LANDED)
-    title = f"{config.vehicle.path}, {config.vehicle.speed:g} m/s"
+    on_ground = config.platform.carrier == "ground"
+    carrier = "pad" if on_ground else "UGV"
+    pad = "pad centre" if on_ground else "UGV (pad centre)"
+    title = "the pad on the ground" if on_ground else f"{config.vehicle.path}, {config.vehicle.speed:g} m/s"
 
     fig = plt.figure(figsize=(8, 6.5))
     ax = fig.add_subplot(projection="3d")
-    ax.plot(*p_pad.T, "-", color="tab:orange", lw=1.5, label="UGV (pad centre)")
+    ax.plot(*p_pad.T, "-", color="tab:orange", lw=1.5, label=pad)
     ax.plot(*p_uav.T, "-", color="tab:blue", lw=1.2, label="UAV")
     ax.scatter(*p_uav[0], color="tab:blue", marker="o", s=20)
     if landed is not None:
@@ -44,7 +48,7 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
-    ax.set_title(f"UAV and UGV trajectories ({title})")
+    ax.set_title(f"UAV and {carrier} trajectories ({title})")
     ax.legend(loc="upper left")
     save_figure(fig, out_dir / "trajectories_3d.png")
 
@@ -54,7 +58,7 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray
         centre = p_pad[:, :2].mean(axis=0)
         near = np.all(np.abs(path_xy - centre) < span, axis=1)
         ax.plot(*path_xy[near].T, "-", color="0.8", lw=4, label="path")
-    ax.plot(*p_pad[:, :2].T, "-", color="tab:orange", lw=1.5, label="UGV (pad centre)")
+    ax.plot(*p_pad[:, :2].T, "-", color="tab:orange", lw=1.5, label=pad)
     ax.plot(*p_uav[:, :2].T, "--", color="tab:blue", lw=1.2, label="UAV")
     ax.plot(*p_uav[0, :2], "o", color="tab:blue", ms=5, label="UAV start")
     if landed is not None:
@@ -85,14 +89,14 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray
     fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
     v_uav, v_pad, command = quad[:, V_WB], log["true_relative_state"][:, V_WP], log["command"]
     for i, (ax, label) in enumerate(zip(axes, ("x", "y", "z"))):
-        ax.plot(t, v_pad[:, i], "-", color="tab:orange", lw=1.5, label="UGV (pad)")
+        ax.plot(t, v_pad[:, i], "-", color="tab:orange", lw=1.5, label=pad)
         ax.plot(t, v_uav[:, i], "-", color="tab:blue", lw=1, label="UAV")
         ax.plot(t, command[:, i], ":", color="k", lw=1, label="UAV desired")
         _mode_lines(ax, log)
         ax.set_ylabel(f"v{label} (m/s)")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="best", fontsize=8)
-    axes[0].set_title(f"UAV and UGV velocity in World ({title})")
+    axes[0].set_title(f"UAV and {carrier} velocity in World ({title})")
     axes[-1].set_xlabel("time (s)")
     save_figure(fig, out_dir / "velocity.png")
 
