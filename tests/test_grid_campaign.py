@@ -1,13 +1,14 @@
 """Landing campaigns over any fields of a gv scenario (`--case KEY=V1,V2`): the grid of cases, its
 checks (a field no scenario has, a value of the wrong type, a scenario that does not land), a small
-campaign in this process with its per-case landing figures, resumed, and the command line."""
+campaign in this process with its per-case landing figures, resumed, its touchdown plot, and the command line."""
 
 import json
+from types import SimpleNamespace
 
 import pytest
 
 from diagrams.cli import main
-from diagrams.montecarlo import run_campaign
+from diagrams.montecarlo import grid, run_campaign
 from diagrams.montecarlo.grid import grid_cases, grid_settings, parse_case_option
 from systems.config import ConfigError
 
@@ -54,6 +55,30 @@ def test_a_grid_campaign_lands_every_case_and_summarises_each(tmp_path):
     assert (tmp_path / "touchdowns.png").stat().st_size > 0
     again = run_campaign(definition, settings, tmp_path, workers=0, progress=False)  # resumed: nothing to do
     assert again["runs"]["computed_now"] == 0 and again["cases"] == summary["cases"]
+
+
+def a_landing(error_m: float | None, speed_mps: float | None, xy_m=None) -> SimpleNamespace:
+    """A run record's metrics as a landing campaign writes them; None: no touchdown."""
+    landed = error_m is not None
+    return SimpleNamespace(metrics={"landing": {
+        "success": landed, "touchdown_error_m": error_m, "touchdown_rel_speed_mps": speed_mps,
+        "touchdown_offset_pad_xy_m": xy_m, "failure_reason": None if landed else "timeout", "aborts": 0,
+        "meets_targets": landed and error_m < 0.10 and speed_mps < 0.5}})
+
+
+def test_the_touchdown_plot_zooms_on_clustered_points_and_counts_each_cases_landings(tmp_path, monkeypatch):
+    figures = []
+    monkeypatch.setattr(grid, "save_figure", lambda fig, path: figures.append(fig))
+    done = {"a": [a_landing(0.004, 0.3, [0.003, -0.0027]), a_landing(0.002, 0.6, [-0.002, 0.0])],
+            "b": [a_landing(0.001, 0.4, [0.001, 0.0]), a_landing(None, None)]}
+    grid.plot_grid(SimpleNamespace(scenario="gv-landing", overrides=[]), done, tmp_path)
+    pad, zoom, errors, speeds = figures[0].axes
+    assert pad.get_xlim()[1] > 0.5  # the whole 1 m pad
+    assert 3.0 < zoom.get_xlim()[1] < 12.0 and 3.0 < zoom.get_ylim()[1] < 12.0  # mm: the farthest coordinate 3 mm
+    ticks = [label.get_text() for label in errors.get_yticklabels()]
+    assert ticks == ["a\nlanded 2/2, within every target 1/2", "b\nlanded 1/2, within every target 1/2"]
+    assert [list(line.get_xdata()) for line in errors.get_lines()[:2]] == [[0.004, 0.002], [0.001]]
+    assert [list(line.get_xdata()) for line in speeds.get_lines()[:2]] == [[0.3, 0.6], [0.4]]
 
 
 def test_case_and_cases_do_not_mix_on_the_command_line(capfd, tmp_path):

@@ -17,6 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from diagrams.landing_campaign import landing_case_summary, run_task
+from diagrams.landing_metrics import TARGET_TOUCHDOWN_ERROR_M, TARGET_TOUCHDOWN_REL_SPEED_MPS
 from diagrams.montecarlo.definition import CampaignDefinition, campaign_settings
 from diagrams.montecarlo.records import RunRecord
 from diagrams.montecarlo.settings import GRID, CampaignSettings
@@ -48,25 +49,52 @@ def grid_cases(options: list[str]) -> tuple[str, ...]:
 
 
 def plot_grid(settings: CampaignSettings, done: dict[str, list[RunRecord]], out_dir) -> None:
-    """touchdowns.png: each case's touchdown points in the pad frame (m) inside the pad's outline,
-    and its success rate."""
-    fig, (points, rates) = plt.subplots(1, 2, figsize=(12, 4.5), layout="constrained")
-    for case, records in done.items():
-        xy = [r.metrics["landing"]["touchdown_offset_pad_xy_m"] for r in records
-              if r.metrics["landing"].get("touchdown_offset_pad_xy_m") is not None]
-        if xy:
-            points.scatter(*np.array(xy).T, s=14, label=case)
+    """touchdowns.png: (a) each case's touchdown points in the pad frame (m) inside the pad's outline; (b) the same
+    zoomed to the points (mm), where they cluster near the centre; (c) each run's touchdown error (m) and (d)
+    relative vertical speed (m/s) per case against issue 4's targets, each case named with its landings and
+    those within every target."""
+    fig, axes = plt.subplots(2, 2, figsize=(13, 9), layout="constrained")
+    (pad, zoom), (errors, speeds) = axes
+    points = {case: np.array([r.metrics["landing"]["touchdown_offset_pad_xy_m"] for r in records
+                              if r.metrics["landing"].get("touchdown_offset_pad_xy_m") is not None]).reshape(-1, 2)
+              for case, records in done.items()}
     half = load_scenario(settings.scenario, overrides=list(settings.overrides))[1].pad_size_m / 2
-    points.plot([-half, half, half, -half, -half], [-half, -half, half, half, -half], "k-", lw=1)
-    points.set_aspect("equal")
-    points.set_xlabel("x in the pad frame [m]")
-    points.set_ylabel("y in the pad frame [m]")
-    points.legend(fontsize=7)
-    points.grid(True, alpha=0.3)
+    reach = max([0.001, *(np.abs(xy).max() for xy in points.values() if xy.size)])  # m, the farthest point out
+    for ax, scale, extent in ((pad, 1.0, half), (zoom, 1e3, min(1.2 * reach, half))):
+        for case, xy in points.items():
+            ax.scatter(*(scale * xy).T, s=14, label=case)
+        box = scale * np.array([-half, half])
+        ax.plot(box[[0, 1, 1, 0, 0]], box[[0, 0, 1, 1, 0]], "k-", lw=1)
+        ax.set_xlim(-scale * extent * 1.05, scale * extent * 1.05)
+        ax.set_ylim(-scale * extent * 1.05, scale * extent * 1.05)
+        ax.set_aspect("equal")
+        ax.grid(True, alpha=0.3)
+    pad.set(xlabel="x in the pad frame [m]", ylabel="y in the pad frame [m]", title="(a) touchdowns on the pad")
+    zoom.set(xlabel="x in the pad frame [mm]", ylabel="y in the pad frame [mm]", title="(b) the same, zoomed")
+    pad.legend(fontsize=7)
     names = list(done)
-    rates.barh(names, [landing_case_summary(done[c])["success_rate"] or 0.0 for c in names])
-    rates.set_xlim(0, 1)
-    rates.set_xlabel("success rate")
+    labels = []
+    for case in names:
+        summary = landing_case_summary(done[case])
+        runs = len(done[case])
+        landed = round((summary["success_rate"] or 0.0) * runs)
+        labels.append(f"{case}\nlanded {landed}/{runs}, within every target {summary['meets_targets']}/{runs}")
+    for ax, key, target, unit, title in (
+            (errors, "touchdown_error_m", TARGET_TOUCHDOWN_ERROR_M, "m", "(c) touchdown error from the pad centre"),
+            (speeds, "touchdown_rel_speed_mps", TARGET_TOUCHDOWN_REL_SPEED_MPS, "m/s",
+             "(d) vertical speed relative to the pad at touchdown")):
+        # One row per case, one dot per run that touched down.
+        for row, case in enumerate(names):
+            values = [r.metrics["landing"][key] for r in done[case] if r.metrics["landing"][key] is not None]
+            ax.plot(values, np.full(len(values), row), "o", ms=5, alpha=0.7)
+        ax.axvline(target, color="tab:red", ls="--", lw=1, label=f"target {target:g} {unit}")
+        ax.set_yticks(range(len(names)), labels if ax is errors else [""] * len(names), fontsize=8)
+        ax.set_ylim(len(names) - 0.5, -0.5)  # the first case on top, as in (a)'s legend
+        ax.set(xlabel=f"[{unit}]", title=title)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, loc="lower right")
+    errors.set_xscale("log")
+    speeds.set_xlim(left=0.0)
     save_figure(fig, out_dir / "touchdowns.png")
 
 
