@@ -75,16 +75,29 @@ def scene_metrics(log: dict[str, np.ndarray]) -> dict:
 
 
 def plot_scene(log: dict[str, np.ndarray], config: StewartSceneConfig, out_dir) -> None:
+    """tof_ranges.png (each sensor's range, m, true and measured, and its error, mm), stewart_legs.png and
+    tag_corners.png."""
     t = log["t"]
-    fig, axes = plt.subplots(4, 1, figsize=(10, 8), sharex=True)
-    for i, ax in enumerate(axes):
-        ax.plot(t, log["true_ranges"][:, i], "k-", lw=1, label="true")
-        ax.plot(t, log["ranges"][:, i], ".", ms=2, label="measured")
-        ax.axhline(config.tof.max_range_m, color="r", ls=":", lw=1)
-        ax.set_ylabel(f"ToF {i + 1} (m)")
-        ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right")
-    axes[-1].set_xlabel("time (s)")
+    fig, axes = plt.subplots(4, 2, figsize=(13, 8), sharex=True)
+    true = log["true_ranges"][np.isfinite(log["true_ranges"])]  # inf before a sensor's first reading
+    near_max = true.size > 0 and true.max() > 0.75 * config.tof.max_range_m
+    for i, (ranges, errors) in enumerate(axes):
+        ranges.plot(t, log["true_ranges"][:, i], "k-", lw=1, label="true")
+        ranges.plot(t, log["ranges"][:, i], ".", ms=2, label="measured")
+        if near_max:
+            ranges.axhline(config.tof.max_range_m, color="r", ls=":", lw=1, label="max range")
+        ranges.set_ylabel(f"ToF {i + 1} (m)")
+        error = 1e3 * (log["ranges"][:, i] - log["true_ranges"][:, i])
+        errors.plot(t, error, ".", ms=2, color="tab:red")
+        errors.axhline(0.0, color="k", lw=0.8)
+        rms = np.sqrt(np.nanmean(error**2)) if np.isfinite(error).any() else np.nan
+        errors.set_ylabel(f"error (mm), rms {rms:.1f}")
+        for ax in (ranges, errors):
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="upper right")
+    axes[0, 1].set_title("measured - true (invalid readings left out)")
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
     save_figure(fig, out_dir / "tof_ranges.png")
 
     fig, ax = plt.subplots(figsize=(10, 4))

@@ -111,6 +111,21 @@ def test_tof_readings_are_valid_and_scatter_about_the_truth(dynamic_run):
     assert np.all(np.abs(log["true_ranges"] - 2.0) < 0.3)
 
 
+def test_the_tof_plot_shows_each_sensors_error_beside_its_range(dynamic_run, tmp_path, monkeypatch):
+    from diagrams import stewart_run
+
+    scene, _, log = dynamic_run
+    figures = []
+    monkeypatch.setattr(stewart_run, "save_figure", lambda fig, path: figures.append((path.name, fig)))
+    stewart_run.plot_scene(log, scene.config, tmp_path)
+    ranges, errors = np.array(dict(figures)["tof_ranges.png"].axes).reshape(4, 2).T
+    for i in range(4):
+        error_mm = 1e3 * (log["ranges"][:, i] - log["true_ranges"][:, i])
+        np.testing.assert_allclose(errors[i].get_lines()[0].get_ydata(), error_mm)
+        # At 2 m the 4 m maximum range is not drawn: it would squash the readings into a line.
+        assert [line.get_label() for line in ranges[i].get_lines()] == ["true", "measured"]
+
+
 def test_imu_reads_gravity_while_hovering(dynamic_run):
     scene, _, log = dynamic_run
     c = scene.config.imu
