@@ -49,12 +49,21 @@ def collect_log(handles, context, config: StewartSceneConfig) -> dict[str, np.nd
     return arrays
 
 
+def range_errors(log: dict[str, np.ndarray]) -> np.ndarray:
+    """(N, 4) each ToF reading less the true range [m], NaN where the reading is flagged invalid."""
+    return np.where(log["ranges_valid"] > 0.5, log["ranges"] - log["true_ranges"], np.nan)
+
+
+def rms_of_finite(values: np.ndarray) -> float | None:
+    """The root mean square of the finite values, None when there are none."""
+    return float(np.sqrt(np.nanmean(values**2))) if np.isfinite(values).any() else None
+
+
 def scene_metrics(log: dict[str, np.ndarray]) -> dict:
     """Perception, sensor and platform figures of a run (no estimators in the bare scene)."""
     detected = np.all(np.isfinite(log["tag_corners"]), axis=1)
     corner_error = np.linalg.norm((log["tag_corners"] - log["true_tag_corners"]).reshape(-1, 4, 2), axis=2)
     valid = log["ranges_valid"] > 0.5
-    range_error = np.where(valid, log["ranges"] - log["true_ranges"], np.nan)
     return {
         "perception": {
             "tag_detected_fraction": float(np.mean(detected)),
@@ -63,8 +72,7 @@ def scene_metrics(log: dict[str, np.ndarray]) -> dict:
         },
         "sensors": {
             "tof_valid_fraction": np.mean(valid, axis=0).tolist(),
-            "tof_error_m_rmse": [float(np.sqrt(np.nanmean(e**2))) if np.isfinite(e).any() else None
-                                 for e in range_error.T],
+            "tof_error_m_rmse": [rms_of_finite(e) for e in range_errors(log).T],
         },
         "platform": {
             "stroke_exceeded_fraction": float(np.mean(log["stroke_exceeded"])),
@@ -81,17 +89,17 @@ def plot_scene(log: dict[str, np.ndarray], config: StewartSceneConfig, out_dir) 
     fig, axes = plt.subplots(4, 2, figsize=(13, 8), sharex=True)
     true = log["true_ranges"][np.isfinite(log["true_ranges"])]  # inf before a sensor's first reading
     near_max = true.size > 0 and true.max() > 0.75 * config.tof.max_range_m
+    errors_mm = 1e3 * range_errors(log)
     for i, (ranges, errors) in enumerate(axes):
         ranges.plot(t, log["true_ranges"][:, i], "k-", lw=1, label="true")
         ranges.plot(t, log["ranges"][:, i], ".", ms=2, label="measured")
         if near_max:
             ranges.axhline(config.tof.max_range_m, color="r", ls=":", lw=1, label="max range")
         ranges.set_ylabel(f"ToF {i + 1} (m)")
-        error = 1e3 * (log["ranges"][:, i] - log["true_ranges"][:, i])
-        errors.plot(t, error, ".", ms=2, color="tab:red")
+        errors.plot(t, errors_mm[:, i], ".", ms=2, color="tab:red")
         errors.axhline(0.0, color="k", lw=0.8)
-        rms = np.sqrt(np.nanmean(error**2)) if np.isfinite(error).any() else np.nan
-        errors.set_ylabel(f"error (mm), rms {rms:.1f}")
+        rms = rms_of_finite(errors_mm[:, i])
+        errors.set_ylabel("error (mm)" if rms is None else f"error (mm), rms {rms:.1f}")
         for ax in (ranges, errors):
             ax.grid(alpha=0.3)
     axes[0, 0].legend(loc="upper right")

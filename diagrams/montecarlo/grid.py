@@ -75,10 +75,9 @@ def plot_grid(settings: CampaignSettings, done: dict[str, list[RunRecord]], out_
     names = list(done)
     labels = []
     for case in names:
-        summary = landing_case_summary(done[case])
-        runs = len(done[case])
-        landed = round((summary["success_rate"] or 0.0) * runs)
-        labels.append(f"{case}\nlanded {landed}/{runs}, within every target {summary['meets_targets']}/{runs}")
+        landings = [r.metrics["landing"] for r in done[case]]
+        landed, meets = sum(m["success"] for m in landings), sum(m["meets_targets"] for m in landings)
+        labels.append(f"{case}\nlanded {landed}/{len(landings)}, within every target {meets}/{len(landings)}")
     for ax, key, target, unit, title in (
             (errors, "touchdown_error_m", TARGET_TOUCHDOWN_ERROR_M, "m", "(c) touchdown error from the pad centre"),
             (speeds, "touchdown_rel_speed_mps", TARGET_TOUCHDOWN_REL_SPEED_MPS, "m/s",
