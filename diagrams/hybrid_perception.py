@@ -141,7 +141,8 @@ def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfi
     builder.Connect(pair.left_image, altimeter.GetInputPort("left_image"))
     builder.Connect(pair.right_image, altimeter.GetInputPort("right_image"))
     altitude = builder.AddNamedSystem("altitude_filter", AltitudeFilterSystem(config.altitude_kf,
-                                                                              config.stereo.period_s))
+                                                                              config.stereo.period_s,
+                                                                              altimeter.estimator.nearest_m))
     builder.Connect(altimeter.GetOutputPort("altitude"), altitude.GetInputPort("altitude"))
     builder.Connect(altimeter.GetOutputPort("altitude_valid"), altitude.GetInputPort("altitude_valid"))
     estimator = builder.AddNamedSystem("hybrid_pad", HybridPadEstimator(fe, z_pad, config.estimator,

@@ -93,7 +93,8 @@ def build_stereo_hover(config: StereoHoverConfig | None = None) -> tuple[Diagram
     altimeter = builder.AddSystem(StereoAltimeter(config.stereo, config.depth))
     builder.Connect(pair.left_image, altimeter.GetInputPort("left_image"))
     builder.Connect(pair.right_image, altimeter.GetInputPort("right_image"))
-    altitude_filter = builder.AddSystem(AltitudeFilterSystem(config.altitude_kf, config.stereo.period_s))
+    altitude_filter = builder.AddSystem(AltitudeFilterSystem(config.altitude_kf, config.stereo.period_s,
+                                                             altimeter.estimator.nearest_m))
     builder.Connect(altimeter.GetOutputPort("altitude"), altitude_filter.GetInputPort("altitude"))
     builder.Connect(altimeter.GetOutputPort("altitude_valid"), altitude_filter.GetInputPort("altitude_valid"))
     diagram = builder.Build()

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw
 
+from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly, summary_lines
 from diagrams.hybrid_metrics import climb_end_index
 from diagrams.runner import load_scenario
@@ -147,6 +148,13 @@ def test_estimator_system_builds():
     assert np.all(np.isnan(system.GetOutputPort("v_WP_observed").Eval(context)))
     assert system.GetOutputPort("v_valid").Eval(context)[0] == 0.0
     assert np.array_equal(system.GetOutputPort("v_WP").Eval(context), np.zeros(3))  # never NaN to the seam
+
+
+def test_the_altitude_filter_knows_the_altimeters_nearest_range():
+    _, scenario = load_scenario("ugv-hybrid")
+    diagram, _ = build_gv_landing(scenario)
+    altimeter, altitude = (diagram.GetSubsystemByName(name) for name in ("stereo_altimeter", "altitude_filter"))
+    assert altitude.nearest_m == altimeter.estimator.nearest_m == pytest.approx(350.0 * 0.12 / 64)
 
 
 def test_scenario_loads():

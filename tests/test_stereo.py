@@ -115,6 +115,7 @@ def test_defaults_are_the_paper_camera():
     assert (c.width, c.height, c.baseline_m, c.rate_hz) == (752, 480, 0.12, 60.0)
     assert c.focal_length_px == pytest.approx(F_PX)
     assert StereoDepthConfig().disparities_for(c) == 64  # 350 * 0.12 / 0.7 = 60 px, rounded up to 16s
+    assert StereoAltitudeEstimator(c).nearest_m == pytest.approx(F_PX * BASELINE / 64)  # 0.656 m
     assert central_window((480, 752), (c.cx, c.cy), 100, 100) == (slice(190, 290), slice(326, 426))
 
 
@@ -283,6 +284,52 @@ def test_kf_system_steps_at_the_camera_rate_and_coasts():
     assert math.isnan(system.GetOutputPort("altitude").Eval(context)[0])
 
 
+# ugv-hybrid's default run (seed 0) at 10 Hz from 20.0 s to 22.3 s, descending onto the UGV at 0.3 m/s: the
+# raw altitude, flagged valid in every frame, and the UAV's true height, 0.552 m above the camera's depth over
+# the roof (their mean difference over 20.0-20.9 s, std 3 mm). From 21.8 s the roof is nearer than the
+# stereo's 0.656 m nearest range and SGBM matches wrongly (1.16-1.62 m); 21.0 s is an outlier too.
+HYBRID_RAW = [1.183, 1.143, 1.113, 1.079, 1.052, 1.023, 0.990, 0.966, 0.934, 0.904, 1.105, 0.844, 0.886, 0.972,
+              0.757, 0.725, 0.695, 0.668, 1.160, 1.568, 1.471, 1.536, 1.589, 1.624]
+HYBRID_Z_WB = [1.731, 1.699, 1.666, 1.637, 1.606, 1.575, 1.545, 1.513, 1.484, 1.454, 1.424, 1.394, 1.363, 1.334,
+               1.304, 1.274, 1.244, 1.212, 1.184, 1.154, 1.124, 1.094, 1.062, 1.034]
+HYBRID_T, FIRST_WRONG, NEAREST = 0.1, 18, F_PX * BASELINE / 64
+
+
+def run_near(readings, nearest=NEAREST, t0=0.0, state=None):
+    states = [state or AltitudeKfState()]
+    for k, z in enumerate(readings):
+        states.append(altitude_kf_step(states[-1], z, True, t0 + k * HYBRID_T, KF, nearest))
+    return states[1:]
+
+
+def test_kf_does_not_follow_the_wrong_matches_under_the_nearest_range():
+    truth = np.array(HYBRID_Z_WB) - 0.552
+    states = run_near(HYBRID_RAW)
+    # without the nearest range (as before it) the filter follows them: 1.1 m off, valid, at 0.5 m
+    assert max(abs(s.x[0] - h) for s, h in zip(run_near(HYBRID_RAW, nearest=0.0), truth) if s.valid) > 1.0
+    # with it: the true readings down to 0.668 m are used, the wrong ones not, and the coast follows the descent
+    assert all(s.valid for s in states[:FIRST_WRONG + 5])
+    assert all(abs(s.x[0] - h) < 0.1 for s, h in zip(states, truth) if s.valid)
+    assert all(abs(s.x[0] - h) < 0.02 for s, h in zip(states[FIRST_WRONG - 3:], truth[FIRST_WRONG - 3:]) if s.valid)
+    assert all(s.coast_s > 0 for s in states[FIRST_WRONG:FIRST_WRONG + 5])
+    # then it lets go, and the wrong readings do not start it again; one at the range's near edge does
+    lost = states[FIRST_WRONG + 5]
+    assert not lost.valid and lost.lost_near
+    after = run_near([1.55, 1.6, 1.4, 0.7], t0=len(HYBRID_RAW) * HYBRID_T, state=lost)
+    assert [s.valid for s in after] == [False, False, False, True] and after[-1].x[0] == 0.7
+
+
+def test_kf_near_the_nearest_range_still_follows_a_climb_out_of_it():
+    """Hovering 0.25 m over the nearest range, then climbing at 1 m/s: the readings leaving the near band are
+    coasted through until the filter lets go (above the range, so not lost there), and the next starts it."""
+    hover = [NEAREST + 0.25] * 10
+    climb = [NEAREST + 0.25 + 0.1 * k for k in range(1, 20)]
+    states = run_near(hover + climb)
+    assert all(s.valid for s in states[:10])
+    assert not any(s.lost_near for s in states)
+    assert all(s.valid and abs(s.x[0] - z) < 0.1 for s, z in zip(states[-8:], climb[-8:]))
+
+
 # ---------------------------------------------------------------------------------------------
 # Bad configurations
 
@@ -328,6 +375,7 @@ def test_bad_depth_config_names_the_field(config, message):
     (AltitudeKfConfig(accel_std_mps2=0.0), "altitude_kf.accel_std_mps2 must be positive"),
     (AltitudeKfConfig(measurement_std_m=0.0, measurement_std_per_m2=0.0), "cannot both be zero"),
     (AltitudeKfConfig(max_coast_s=-1.0), "altitude_kf.max_coast_s must not be negative"),
+    (AltitudeKfConfig(near_band_m=0.0), "altitude_kf.near_band_m must be positive"),
 ])
 def test_bad_kf_config_names_the_field(config, message):
     with pytest.raises(ConfigError, match=message):

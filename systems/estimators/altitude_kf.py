@@ -16,6 +16,14 @@ Without the previous frame's measurement, only Z is used (H = [1, 0]).
 Invalid input: the filter predicts (coasts); it turns invalid when `max_coast_s` has passed since the
 last measurement it used, and the next valid measurement starts it afresh. Before its first
 measurement, and when invalid, its outputs are NaN with valid 0.
+
+The altimeter's nearest range (`nearest_m`, f T_x / numDisparities: 0.66 m for the MYNT pair), ours where
+the paper is silent: nearer, the true disparity lies beyond SGBM's search and what it matches is wrong, yet
+may pass its checks (over the UGV's roof it read 1.2-1.6 m at 0.6 m, flagged valid: ugv-hybrid, measured).
+So while the filter predicts a depth within `near_band_m` over the nearest range (or under it), only readings
+within that band are used, and the filter coasts through the others; once it has let go under the nearest
+range, it starts again only on a reading within the band, where a climb back into range is first read (the
+takeoff's first reading: 0.667 m).
 """
 
 import math
@@ -38,6 +46,7 @@ class AltitudeKfConfig:
     initial_speed_std_mps: float = 1.0  # the speed is unknown at the first measurement
     use_rate_measurement: bool = True  # Eq. 14's H = I: the measured change Delta Z is a measurement too
     max_coast_s: float = 0.5  # invalid after this long without a measurement
+    near_band_m: float = 0.3  # predicted within this over the nearest range: only readings within it are used
 
     def validate(self, prefix: str = "altitude_kf") -> None:
         require_positive(self.accel_std_mps2, f"{prefix}.accel_std_mps2")
@@ -47,6 +56,7 @@ class AltitudeKfConfig:
         require_non_negative(self.measurement_std_m, f"{prefix}.measurement_std_m")
         require_positive(self.initial_speed_std_mps, f"{prefix}.initial_speed_std_mps")
         require_non_negative(self.max_coast_s, f"{prefix}.max_coast_s")
+        require_positive(self.near_band_m, f"{prefix}.near_band_m")
 
     def measurement_std(self, altitude_m: float) -> float:
         return self.measurement_std_m + self.measurement_std_per_m2 * altitude_m**2
@@ -56,7 +66,8 @@ class AltitudeKfConfig:
 class AltitudeKfState:
     """x = [altitude d (m), its rate d_dot (m/s)], covariance P; `time` of the last step (None before
     the first); `last_measurement` the previous step's altitude measurement (None when that step had
-    none); `coast_s` time since the last measurement used; `valid`."""
+    none); `coast_s` time since the last measurement used; `valid`; `lost_near` whether it let go under
+    the altimeter's nearest range (and has not started again)."""
 
     x: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     P: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
@@ -64,6 +75,7 @@ class AltitudeKfState:
     last_measurement: float | None = None
     coast_s: float = math.inf
     valid: bool = False
+    lost_near: bool = False
 
 
 def transition(T: float) -> np.ndarray:
@@ -92,23 +104,29 @@ def measurement(z: float, previous: float | None, T: float,
 
 
 def altitude_kf_step(state: AltitudeKfState, z: float, z_valid: bool, t: float,
-                     config: AltitudeKfConfig) -> AltitudeKfState:
+                     config: AltitudeKfConfig, nearest_m: float = 0.0) -> AltitudeKfState:
     """The filter after the frame at time t (s) with raw altitude z (m) and its flag; `state` unchanged.
+    `nearest_m`: the altimeter's nearest range (m; 0: none).
 
-    A valid finite z updates the prediction (or starts the filter when it is not valid); otherwise the
-    filter coasts on its prediction and turns invalid once `config.max_coast_s` has passed."""
+    A valid finite z updates the prediction (or starts the filter when it is not valid); otherwise, and for
+    a z beyond the near band while the prediction lies in it, the filter coasts on its prediction and turns
+    invalid once `config.max_coast_s` has passed."""
     has_z = bool(z_valid) and math.isfinite(z)
     T = 0.0 if state.time is None else t - state.time
+    top = nearest_m + config.near_band_m
+    in_band = has_z and nearest_m <= z <= top
     if not state.valid:
-        if not has_z:
-            return AltitudeKfState(time=t)
+        if not has_z or (state.lost_near and not in_band):
+            return AltitudeKfState(time=t, lost_near=state.lost_near)
         P0 = np.diag([config.measurement_std(z) ** 2, config.initial_speed_std_mps**2])
         return AltitudeKfState(np.array([z, 0.0]), P0, t, z, 0.0, True)
     x, P = predict(state.x, state.P, T, config)
+    if nearest_m > 0 and x[0] < top and not in_band:
+        has_z = False
     if not has_z:
         coast = state.coast_s + T
         if coast > config.max_coast_s:
-            return AltitudeKfState(time=t)
+            return AltitudeKfState(time=t, lost_near=bool(nearest_m > 0 and x[0] < nearest_m))
         return AltitudeKfState(x, P, t, None, coast, True)
     zv, H, R = measurement(z, state.last_measurement, T, config)
     S = H @ P @ H.T + R
@@ -123,16 +141,19 @@ class AltitudeFilterSystem(LeafSystem):
     """The altitude filter stepped at the camera rate (period_s).
 
     Inputs `altitude` (1, m) and `altitude_valid` (1: > 0.5 is valid), read at the steps (the
-    StereoAltimeter's outputs, so the images render at the camera rate). Outputs `altitude` (1, m) and
+    StereoAltimeter's outputs, so the images render at the camera rate); `nearest_m` its nearest range
+    (m; `StereoAltitudeEstimator.nearest_m`, 0: none). Outputs `altitude` (1, m) and
     `vertical_speed` (1, m/s, the altitude's rate: negative descending), predicted from the last step
     to the context's time, and `valid` (1: 1.0 or 0.0); NaN altitude and speed when not valid. At a
     step time the outputs include that step (`SteppedValue`)."""
 
-    def __init__(self, config: AltitudeKfConfig | None = None, period_s: float = 1.0 / 60.0):
+    def __init__(self, config: AltitudeKfConfig | None = None, period_s: float = 1.0 / 60.0, nearest_m: float = 0.0):
         super().__init__()
         self.config = config or AltitudeKfConfig()
         self.config.validate()
         require_positive(period_s, "altitude filter period_s")
+        require_non_negative(nearest_m, "altitude filter nearest_m")
+        self.nearest_m = nearest_m
         self._altitude = self.DeclareVectorInputPort("altitude", 1)
         self._valid = self.DeclareVectorInputPort("altitude_valid", 1)
         self._stepped = SteppedValue(self, "altitude_kf", AltitudeKfState(), period_s, self._step, lambda s: s.time)
@@ -148,7 +169,8 @@ class AltitudeFilterSystem(LeafSystem):
 
     def _step(self, context, state: AltitudeKfState) -> AltitudeKfState:
         z = float(self._altitude.Eval(context)[0])
-        return altitude_kf_step(state, z, self._valid.Eval(context)[0] > 0.5, context.get_time(), self.config)
+        return altitude_kf_step(state, z, self._valid.Eval(context)[0] > 0.5, context.get_time(), self.config,
+                                self.nearest_m)
 
     def _predicted(self, context) -> np.ndarray:
         s = self.state(context)

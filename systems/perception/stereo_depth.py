@@ -158,6 +158,8 @@ class StereoAltitudeEstimator:
         camera.validate()
         self.config.validate(camera=camera)
         self.num_disparities = self.config.disparities_for(camera)
+        # the nearest depth (m) whose disparity the search reaches (Eq. 11 at numDisparities)
+        self.nearest_m = camera.focal_length_px * camera.baseline_m / self.num_disparities
         self.matcher = make_matcher(self.num_disparities, self.config)
         shape = (camera.height, camera.width)
         self.window = central_window(shape, (camera.cx, camera.cy), self.config.window_rows, self.config.window_cols)
