@@ -1,6 +1,6 @@
 """Seed 003's figures for a run steered by the hybrid array (`perception.source: hybrid`), from its logs at the
 fisheye's frames (diagrams/hybrid_perception.py): the pad's position and velocity against the truth, the
-stereo altitude against the camera's true height, the detector's precision / recall / F1 against the UGV's
+stereo altitude against the true depth at its window's centre, the detector's precision / recall / F1 against the UGV's
 true box (its 3-D bounding box projected with the fisheye's model, diagrams/ugv_detection_scenes.py's
 `projected_box`; a detection is right at IOU >= 0.5), and the tracker's identity switches.
 """
@@ -10,6 +10,7 @@ import itertools
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
+from diagrams.hybrid_perception import GROUND_LIFT_M
 from diagrams.ugv_detection_scenes import box_surface_points, projected_box, ugv_bounds_V
 from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
 from systems.perception.seam import P_BP_W, V_WP
@@ -47,6 +48,36 @@ def true_ugv_boxes(quadrotor_state: np.ndarray, vehicle_state: np.ndarray, confi
         X_CV = X_WB.multiply(fisheye.X_BC).inverse().multiply(X_WV)
         boxes.append(projected_box(X_CV.multiply(points_V.T).T, fisheye))
     return boxes
+
+
+def ray_box_entry(p: np.ndarray, d: np.ndarray, low: np.ndarray, high: np.ndarray) -> float:
+    """Where the ray p + s d (s >= 0) enters the axis-aligned box [low, high] (slab method): s, or inf if
+    it misses."""
+    parallel = d == 0  # parallel to a slab: inside it everywhere or nowhere
+    if np.any(parallel & ((p < low) | (p > high))):
+        return np.inf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s1, s2 = (low - p) / d, (high - p) / d
+    near, far = np.where(parallel, -np.inf, np.minimum(s1, s2)), np.where(parallel, np.inf, np.maximum(s1, s2))
+    enter, leave = near.max(), far.min()
+    return float(max(enter, 0.0)) if enter <= leave and leave >= 0 else np.inf
+
+
+def true_window_depth(quadrotor_state: np.ndarray, vehicle_state: np.ndarray, config) -> np.ndarray:
+    """Per frame the true depth (m) at the stereo window's centre: along the left eye's optical axis (the
+    window is centred on the principal point, Eq. 12) to the UGV's bounding box where the axis meets it, else
+    to the textured ground."""
+    X_BL = config.hybrid.stereo.X_BL
+    low, high = ugv_bounds_V(config.platform, config.vehicle.wheelbase_m)
+    depth = np.full(len(quadrotor_state), np.nan)
+    for k, (q, v) in enumerate(zip(quadrotor_state, vehicle_state)):
+        X_WL = RigidTransform(_quaternion(q[Q_WB]), q[P_WB]).multiply(X_BL)
+        p_WL, axis_W = X_WL.translation(), X_WL.rotation().col(2)
+        ground = (GROUND_LIFT_M - p_WL[2]) / axis_W[2] if axis_W[2] < 0 else np.inf
+        X_VW = RigidTransform(RollPitchYaw(0.0, 0.0, v[2]), [v[0], v[1], 0.0]).inverse()
+        ugv = ray_box_entry(X_VW.multiply(p_WL), X_VW.rotation().multiply(axis_W), low, high)
+        depth[k] = min(ground, ugv)
+    return depth
 
 
 def _quaternion(wxyz):
@@ -110,19 +141,18 @@ def hybrid_metrics(log: dict, config, end_s: float | None) -> dict:
     position = out["position_m"]
     if position["samples"]:
         out.update({"mae_xyz_m": position["mae_xyz"], "rmse_xyz_m": position["rmse_xyz"]})
-    # The camera's true height above the ground against the stereo altimeter (raw) and its filter.
-    p_WC = np.array([RigidTransform(_quaternion(q[Q_WB]), q[P_WB]).multiply(config.hybrid.fisheye.X_BC).translation()
-                     for q in quad]).reshape(-1, 3)
-    h_true = p_WC[:, 2] if len(p_WC) else np.zeros(0)
+    # The stereo altimeter (raw) and its filter against the true depth at the window's centre.
+    depth_true = true_window_depth(quad, vehicle, config)
     stereo = {}
     for name, value, ok in (("raw", "stereo_altitude", "stereo_valid"), ("filtered", "altitude", "altitude_valid")):
         good = log[ok][keep][:, 0] > 0.5
-        e = log[value][keep][good, 0] - h_true[good]
+        e = log[value][keep][good, 0] - depth_true[good]
         e = e[np.isfinite(e)]
         stereo[name] = {"valid_fraction": float(good.mean()) if len(good) else 0.0,
                         **({"mae_m": float(np.abs(e).mean()), "rmse_m": float(np.sqrt((e**2).mean())),
                             "bias_m": float(e.mean())} if len(e) else {})}
-    stereo["note"] = "against the camera's true height above the ground; over the UGV the window sees its roof"
+    stereo["note"] = ("against the true depth at the window's centre: along the left eye's axis to the UGV's "
+                      "bounding box, else to the ground")
     detector = {"type": config.hybrid.detector, **detection_scores(log["detections"][keep], boxes),
                 **identity_switches(log["lock"][keep])}
     return {"hybrid": out, "hybrid_stereo_altitude": stereo, "hybrid_detector": detector}
@@ -130,7 +160,7 @@ def hybrid_metrics(log: dict, config, end_s: float | None) -> dict:
 
 def plot_hybrid(log: dict, config, out_dir) -> None:
     """hybrid.png: the pad's x, y from the hybrid estimate against the truth, its error, the stereo altitude
-    against the camera's true height, and the tracker's lock."""
+    against the true depth at its window's centre, and the tracker's lock."""
     import matplotlib.pyplot as plt
 
     from diagrams.outputs import save_figure
@@ -144,7 +174,8 @@ def plot_hybrid(log: dict, config, out_dir) -> None:
         axes[0].plot(t, p_true[:, k], "-", color=colour, lw=1.2, label=f"true {axis}")
         axes[0].plot(t, p[:, k], ".", color=colour, ms=2, label=f"hybrid {axis}")
     axes[1].plot(t, np.linalg.norm(p[:, :2] - p_true[:, :2], axis=1), ".", ms=2, color="tab:red")
-    axes[2].plot(t, quad[:, P_WB][:, 2], "-", color="k", lw=1, label="body height (truth)")
+    axes[2].plot(t, true_window_depth(quad, log["vehicle_state"], config), "-", color="k", lw=1,
+                 label="depth at the window's centre (truth)")
     axes[2].plot(t, np.where(log["stereo_valid"][:, 0] > 0.5, log["stereo_altitude"][:, 0], np.nan), ".", ms=2,
                  label="stereo (raw)")
     axes[2].plot(t, np.where(log["altitude_valid"][:, 0] > 0.5, log["altitude"][:, 0], np.nan), "-", lw=1,
@@ -152,7 +183,7 @@ def plot_hybrid(log: dict, config, out_dir) -> None:
     axes[3].plot(t, log["lock"][:, 0], ".", ms=2, label="locked track id")
     axes[3].plot(t, hybrid[:, 4], "-", lw=0.8, label="measured")
     axes[3].plot(t, valid.astype(float), "--", lw=0.8, label="valid")
-    for ax, label in zip(axes, ("pad x, y in W (m)", "horizontal error (m)", "height (m)", "tracker")):
+    for ax, label in zip(axes, ("pad x, y in W (m)", "horizontal error (m)", "stereo depth (m)", "tracker")):
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:  # a run that never saw the UGV draws nothing in some panels

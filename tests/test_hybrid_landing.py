@@ -10,7 +10,8 @@ from pydrake.math import RigidTransform, RollPitchYaw
 
 from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly, summary_lines
-from diagrams.hybrid_metrics import climb_end_index
+from diagrams.hybrid_metrics import climb_end_index, true_window_depth
+from diagrams.hybrid_perception import GROUND_LIFT_M
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.estimators.velocity_observer import VelocityObserverConfig
@@ -24,7 +25,7 @@ from systems.perception.hybrid_pad import (
 )
 from systems.perception.seam import P_BP_W, VALID
 from systems.sensors.fisheye import FisheyeConfig, project_points
-from systems.vehicles.quadrotor import P_WB
+from systems.vehicles.quadrotor import P_WB, Q_WB
 
 FISHEYE = FisheyeConfig()
 Z_PAD = 0.5
@@ -283,3 +284,27 @@ def test_estimator_gates_an_outlier():
     last = states[-1]
     assert last.gated == 1 and last.estimate.valid and not last.measured
     assert np.allclose(last.estimate.X_RT.translation()[:2], [0.5, 0.0], atol=0.02)
+
+
+def _state_rows(p_WB, rpy=(0.0, 0.0, 0.0), vehicle=(0.0, 0.0, 0.0)):
+    """A one-frame quadrotor state (17) and vehicle state (4) for the metrics."""
+    quad = np.zeros((1, 17))
+    quad[0, P_WB] = p_WB
+    quad[0, Q_WB] = RollPitchYaw(*rpy).ToQuaternion().wxyz()
+    return quad, np.array([[*vehicle, 0.0]])
+
+
+@pytest.mark.parametrize("p_WB, rpy, over_ugv", [
+    ([0.45, 0.0, 3.0], (0.0, 0.0, 0.0), True),  # over the pad's centre (pad_offset_m)
+    ([0.45, 5.0, 3.0], (0.0, 0.0, 0.7), False),  # beside the UGV, yawed
+    ([0.45, -0.6, 3.0], (-0.25, 0.0, 0.0), False),  # by the UGV's side, rolled away: the ground
+    ([0.45, -0.6, 3.0], (0.25, 0.0, 0.0), True),  # rolled towards it: its top
+])
+def test_true_window_depth_is_the_left_eyes_axis_to_the_ugv_or_the_ground(p_WB, rpy, over_ugv):
+    _, scenario = load_scenario("ugv-hybrid")
+    quad, vehicle = _state_rows(p_WB, rpy)
+    depth = true_window_depth(quad, vehicle, scenario)[0]
+    X_WL = RigidTransform(RollPitchYaw(*rpy), p_WB).multiply(scenario.hybrid.stereo.X_BL)
+    top = scenario.platform.height_m + 0.001 if over_ugv else GROUND_LIFT_M  # the UGV's box top or the ground
+    axis_down = -X_WL.rotation().col(2)[2]
+    assert depth == pytest.approx((X_WL.translation()[2] - top) / axis_down, abs=1e-9)
