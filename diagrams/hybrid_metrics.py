@@ -66,7 +66,7 @@ def ray_box_entry(p: np.ndarray, d: np.ndarray, low: np.ndarray, high: np.ndarra
 def true_window_depth(quadrotor_state: np.ndarray, vehicle_state: np.ndarray, config) -> np.ndarray:
     """Per frame the true depth (m) at the stereo window's centre: along the left eye's optical axis (the
     window is centred on the principal point, Eq. 12) to the UGV's bounding box where the axis meets it, else
-    to the textured ground."""
+    to the textured ground; NaN where neither lies ahead."""
     X_BL = config.hybrid.stereo.X_BL
     low, high = ugv_bounds_V(config.platform, config.vehicle.wheelbase_m)
     depth = np.full(len(quadrotor_state), np.nan)
@@ -76,7 +76,8 @@ def true_window_depth(quadrotor_state: np.ndarray, vehicle_state: np.ndarray, co
         ground = (GROUND_LIFT_M - p_WL[2]) / axis_W[2] if axis_W[2] < 0 else np.inf
         X_VW = RigidTransform(RollPitchYaw(0.0, 0.0, v[2]), [v[0], v[1], 0.0]).inverse()
         ugv = ray_box_entry(X_VW.multiply(p_WL), X_VW.rotation().multiply(axis_W), low, high)
-        depth[k] = min(ground, ugv)
+        nearest = min(ground, ugv)
+        depth[k] = nearest if 0 <= nearest < np.inf else np.nan  # NaN: nothing ahead (the eye under the ground)
     return depth
 
 

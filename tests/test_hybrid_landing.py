@@ -308,3 +308,11 @@ def test_true_window_depth_is_the_left_eyes_axis_to_the_ugv_or_the_ground(p_WB, 
     top = scenario.platform.height_m + 0.001 if over_ugv else GROUND_LIFT_M  # the UGV's box top or the ground
     axis_down = -X_WL.rotation().col(2)[2]
     assert depth == pytest.approx((X_WL.translation()[2] - top) / axis_down, abs=1e-9)
+
+
+def test_true_window_depth_is_nan_with_nothing_ahead():
+    """On the ground at the start the eye hangs 5 cm under the body's origin, below the ground's plane."""
+    _, scenario = load_scenario("ugv-hybrid")
+    on_ground, _ = _state_rows([-1.5, -1.0, 0.0])
+    looking_up, _ = _state_rows([-1.5, -1.0, 3.0], rpy=(math.pi, 0.0, 0.0))
+    assert np.isnan(true_window_depth(np.vstack([on_ground, looking_up]), np.zeros((2, 4)), scenario)).all()
