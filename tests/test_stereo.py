@@ -312,11 +312,12 @@ def test_kf_does_not_follow_the_wrong_matches_under_the_nearest_range():
     assert all(abs(s.x[0] - h) < 0.1 for s, h in zip(states, truth) if s.valid)
     assert all(abs(s.x[0] - h) < 0.02 for s, h in zip(states[FIRST_WRONG - 3:], truth[FIRST_WRONG - 3:]) if s.valid)
     assert all(s.coast_s > 0 for s in states[FIRST_WRONG:FIRST_WRONG + 5])
-    # then it lets go, and the wrong readings do not start it again; one at the range's near edge does
+    # then it lets go, and neither the wrong readings nor one alone at the range's near edge (the run read
+    # 0.678 m at 0.09 m) start it again; two in a row there, as a climb back into range gives, do
     lost = states[FIRST_WRONG + 5]
     assert not lost.valid and lost.lost_near
-    after = run_near([1.55, 1.6, 1.4, 0.7], t0=len(HYBRID_RAW) * HYBRID_T, state=lost)
-    assert [s.valid for s in after] == [False, False, False, True] and after[-1].x[0] == 0.7
+    after = run_near([1.55, 1.6, 0.678, math.nan, 1.4, 0.7, 0.76], t0=len(HYBRID_RAW) * HYBRID_T, state=lost)
+    assert [s.valid for s in after] == [False] * 6 + [True] and after[-1].x[0] == 0.76
 
 
 def test_kf_near_the_nearest_range_still_follows_a_climb_out_of_it():

@@ -22,8 +22,8 @@ the paper is silent: nearer, the true disparity lies beyond SGBM's search and wh
 may pass its checks (over the UGV's roof it read 1.2-1.6 m at 0.6 m, flagged valid: ugv-hybrid, measured).
 So while the filter predicts a depth within `near_band_m` over the nearest range (or under it), only readings
 within that band are used, and the filter coasts through the others; once it has let go under the nearest
-range, it starts again only on a reading within the band, where a climb back into range is first read (the
-takeoff's first reading: 0.667 m).
+range, it starts again only on two readings in a row within the band, where a climb back into range is first
+read (the takeoff's first reading: 0.667 m); one alone can be a wrong match (0.678 m read at 0.09 m, measured).
 """
 
 import math
@@ -66,8 +66,9 @@ class AltitudeKfConfig:
 class AltitudeKfState:
     """x = [altitude d (m), its rate d_dot (m/s)], covariance P; `time` of the last step (None before
     the first); `last_measurement` the previous step's altitude measurement (None when that step had
-    none); `coast_s` time since the last measurement used; `valid`; `lost_near` whether it let go under
-    the altimeter's nearest range (and has not started again)."""
+    none; while lost near, the last step's reading in the band); `coast_s` time since the last measurement
+    used; `valid`; `lost_near` whether it let go under the altimeter's nearest range (and has not started
+    again)."""
 
     x: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     P: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
@@ -116,8 +117,10 @@ def altitude_kf_step(state: AltitudeKfState, z: float, z_valid: bool, t: float,
     top = nearest_m + config.near_band_m
     in_band = has_z and nearest_m <= z <= top
     if not state.valid:
-        if not has_z or (state.lost_near and not in_band):
-            return AltitudeKfState(time=t, lost_near=state.lost_near)
+        if state.lost_near and not (in_band and state.last_measurement is not None):
+            return AltitudeKfState(time=t, last_measurement=z if in_band else None, lost_near=True)
+        if not has_z:
+            return AltitudeKfState(time=t)
         P0 = np.diag([config.measurement_std(z) ** 2, config.initial_speed_std_mps**2])
         return AltitudeKfState(np.array([z, 0.0]), P0, t, z, 0.0, True)
     x, P = predict(state.x, state.P, T, config)
