@@ -320,6 +320,20 @@ def test_kf_does_not_follow_the_wrong_matches_under_the_nearest_range():
     assert [s.valid for s in after] == [False] * 6 + [True] and after[-1].x[0] == 0.76
 
 
+def test_kf_lost_under_the_nearest_range_starts_again_on_a_fast_climb():
+    """Lost under the range, then climbing back at 2.8 m/s (0.28 m a frame): the first reading lies in the near
+    band and the next one above it, within the band's width of the first: the filter starts again there.
+    A wrong match after an in-band reading (0.678 then 1.16 m, as the run read) does not start it."""
+    lost = run_near(HYBRID_RAW)[-1]
+    assert lost.lost_near
+    t0 = len(HYBRID_RAW) * HYBRID_T
+    climb = [NEAREST + 0.05 + 0.28 * k for k in range(6)]
+    states = run_near(climb, t0=t0, state=lost)
+    assert not states[0].valid and all(s.valid for s in states[1:])
+    assert all(abs(s.x[0] - z) < 0.3 for s, z in zip(states[1:], climb[1:]))
+    assert not any(s.valid for s in run_near([0.678, 1.16, 1.57, 1.47], t0=t0, state=lost))
+
+
 def test_kf_near_the_nearest_range_still_follows_a_climb_out_of_it():
     """Hovering 0.25 m over the nearest range, then climbing at 1 m/s: the readings leaving the near band are
     coasted through until the filter lets go (above the range, so not lost there), and the next starts it."""

@@ -22,8 +22,9 @@ the paper is silent: nearer, the true disparity lies beyond SGBM's search and wh
 may pass its checks (over the UGV's roof it read 1.2-1.6 m at 0.6 m, flagged valid: ugv-hybrid, measured).
 So while the filter predicts a depth within `near_band_m` over the nearest range (or under it), only readings
 within that band are used, and the filter coasts through the others; once it has let go under the nearest
-range, it starts again only on two readings in a row within the band, where a climb back into range is first
-read (the takeoff's first reading: 0.667 m); one alone can be a wrong match (0.678 m read at 0.09 m, measured).
+range, it starts again only on two readings in a row, the first within the band, where a climb back into range
+is first read (the takeoff's first reading: 0.667 m), and the next within `near_band_m` of it (a climb of up to
+near_band_m a frame: 3 m/s at 10 Hz); one alone can be a wrong match (0.678 m read at 0.09 m, measured).
 """
 
 import math
@@ -117,7 +118,8 @@ def altitude_kf_step(state: AltitudeKfState, z: float, z_valid: bool, t: float,
     top = nearest_m + config.near_band_m
     in_band = has_z and nearest_m <= z <= top
     if not state.valid:
-        if state.lost_near and not (in_band and state.last_measurement is not None):
+        pending = state.last_measurement  # while lost near: the last step's reading in the band
+        if state.lost_near and not (has_z and pending is not None and abs(z - pending) <= config.near_band_m):
             return AltitudeKfState(time=t, last_measurement=z if in_band else None, lost_near=True)
         if not has_z:
             return AltitudeKfState(time=t)
