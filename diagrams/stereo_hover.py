@@ -25,6 +25,13 @@ from systems.sensors.camera import add_renderer
 from systems.sensors.stereo import StereoConfig, StereoPair, add_stereo_pair
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry
 
+# Meshcat's copy of the ground texture (px a side): the cameras' 4096 put 11 MB of PNG into every browser's
+# scene and every meshcat.html; 1024 is 2 cm a texel on the 20 m ground.
+GROUND_SHOWN_PIXELS = 1024
+# ... drawn this much higher (m) than the cameras' one: a browser's depth buffer cannot tell 1 mm apart from
+# tens of metres away, so over a plain ground 1 mm below Meshcat showed the plain one over most of it.
+GROUND_SHOWN_LIFT_M = 0.01
+
 
 @dataclass
 class GroundConfig:
@@ -71,11 +78,16 @@ class StereoHoverHandles:
 
 
 def add_textured_ground(scene_graph: SceneGraph, config: GroundConfig, height_m: float = 0.0) -> None:
-    """The ground quad with its texture, seen by the cameras, in z = `height_m` (m; 0: the ground)."""
-    source = scene_graph.RegisterSource("textured_ground")
-    mesh = ground_texture_mesh(config.texture_seed, config.texture_pixels)
-    register_visual(scene_graph, source, scene_graph.world_frame_id(), RigidTransform([0.0, 0.0, height_m]),
-                    Mesh(str(mesh), config.size_m), "textured_ground", rgba=None)
+    """The ground quad with its texture in z = `height_m` (m; 0: the ground) for the cameras, and for
+    Meshcat a copy averaged down to GROUND_SHOWN_PIXELS a side, GROUND_SHOWN_LIFT_M higher."""
+    source, world = scene_graph.RegisterSource("textured_ground"), scene_graph.world_frame_id()
+    perceived = ground_texture_mesh(config.texture_seed, config.texture_pixels)
+    register_visual(scene_graph, source, world, RigidTransform([0.0, 0.0, height_m]),
+                    Mesh(str(perceived), config.size_m), "textured_ground", rgba=None, illustrated=False)
+    shown = (ground_texture_mesh(config.texture_seed, config.texture_pixels, shown_pixels=GROUND_SHOWN_PIXELS)
+             if config.texture_pixels > GROUND_SHOWN_PIXELS else perceived)
+    register_visual(scene_graph, source, world, RigidTransform([0.0, 0.0, height_m + GROUND_SHOWN_LIFT_M]),
+                    Mesh(str(shown), config.size_m), "textured_ground_shown", rgba=None, perceived=False)
 
 
 def build_stereo_hover(config: StereoHoverConfig | None = None) -> tuple[Diagram, StereoHoverHandles]:

@@ -26,20 +26,24 @@ def register_visual(
     rgba=(0.7, 0.7, 0.7, 1.0),
     diffuse_map: Path | None = None,
     collidable: bool = False,
+    illustrated: bool = True,
+    perceived: bool = True,
 ):
-    """Registers `shape` at pose X_FG in frame F, seen by Meshcat (illustration) and cameras
-    (perception), and by contact queries when `collidable`. `rgba` None keeps a mesh's own
-    materials. Returns its GeometryId."""
+    """Registers `shape` at pose X_FG in frame F, seen by Meshcat (illustration) unless not
+    `illustrated`, by cameras (perception) unless not `perceived`, and by contact queries when
+    `collidable`. `rgba` None keeps a mesh's own materials. Returns its GeometryId."""
     geometry_id = scene_graph.RegisterGeometry(source_id, frame_id, GeometryInstance(X_FG, shape, name))
     illustration, perception = IllustrationProperties(), PerceptionProperties()
     if rgba is not None:
         illustration.AddProperty("phong", "diffuse", Rgba(*rgba))
         perception.AddProperty("phong", "diffuse", Rgba(*rgba))
-    scene_graph.AssignRole(source_id, geometry_id, illustration)
+    if illustrated:
+        scene_graph.AssignRole(source_id, geometry_id, illustration)
     if diffuse_map is not None:
         perception.AddProperty("phong", "diffuse_map", str(diffuse_map))
     perception.AddProperty("label", "id", RenderLabel(int(geometry_id.get_value() % RenderLabel.kMaxUnreserved)))
-    scene_graph.AssignRole(source_id, geometry_id, perception)
+    if perceived:
+        scene_graph.AssignRole(source_id, geometry_id, perception)
     if collidable:
         scene_graph.AssignRole(source_id, geometry_id, ProximityProperties())
     return geometry_id

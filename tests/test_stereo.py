@@ -3,15 +3,18 @@ bounds, the depth functions and the altimeter on synthetic pairs, the altitude K
 on analytic cases, and bad configurations."""
 
 import math
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
+from pydrake.geometry import SceneGraph
 from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.sensors import ImageRgba8U
 
 from diagrams.stereo_hover import StereoHoverConfig, build_stereo_hover
-from models.ground_texture import ground_texture_image
+from models.ground_texture import ground_texture_image, ground_texture_mesh
 from systems.config import ConfigError
 from systems.estimators.altitude_kf import (
     AltitudeFilterSystem,
@@ -84,6 +87,38 @@ def test_rendered_altitude_is_invalid_without_a_match(hover, where):
     X_WB = RigidTransform([0.0, 0.0, 0.45]) if where == "too_close" else RigidTransform([60.0, 0.0, 3.0])
     altitude, valid = raw_altitude(hover, X_WB)
     assert valid == 0.0 and math.isnan(altitude)
+
+
+def test_meshcat_sees_the_ground_averaged_down_and_the_cameras_the_whole_texture(tmp_path):
+    """Meshcat's copy is the cameras' texture averaged over 4 x 4 texel blocks (a 256 px texture shown at
+    64): each of its texels the mean of its block, to the 8 bits' rounding."""
+    whole = cv2.imread(str(ground_texture_mesh(5, 256, 2, 4, tmp_path).with_suffix(".png")), cv2.IMREAD_GRAYSCALE)
+    shown = cv2.imread(str(ground_texture_mesh(5, 256, 2, 4, tmp_path, shown_pixels=64).with_suffix(".png")),
+                       cv2.IMREAD_GRAYSCALE)
+    np.testing.assert_array_equal(whole, ground_texture_image(5, 256, 2, 4))
+    assert shown.shape == (64, 64)
+    block_means = whole.reshape(64, 4, 64, 4).mean(axis=(1, 3))
+    assert np.abs(shown - block_means).max() <= 0.5
+    with pytest.raises(ValueError, match="shown_pixels"):
+        ground_texture_mesh(5, 256, 2, 4, tmp_path, shown_pixels=256)
+
+
+def test_the_ground_has_one_geometry_per_role():
+    """The whole texture only for the cameras (perception) in z = 0, the averaged copy only for Meshcat,
+    1 cm higher (a browser's depth buffer does not resolve less over the plain ground)."""
+    diagram, _ = build_stereo_hover(StereoHoverConfig())
+    scene_graph = next(s for s in diagram.GetSystems() if isinstance(s, SceneGraph))
+    inspector = scene_graph.model_inspector()
+    roles = {}
+    for geometry_id in inspector.GetAllGeometryIds():
+        name = inspector.GetName(geometry_id)
+        if name.startswith("textured_ground"):
+            roles[name] = (inspector.GetPerceptionProperties(geometry_id) is not None,
+                           inspector.GetIllustrationProperties(geometry_id) is not None,
+                           Path(inspector.GetShape(geometry_id).source().path()).name,
+                           inspector.GetPoseInFrame(geometry_id).translation()[2])
+    assert roles == {"textured_ground": (True, False, "ground_texture_s0_p4096_f2_o8.obj", 0.0),
+                     "textured_ground_shown": (False, True, "ground_texture_s0_p4096_f2_o8_shown1024.obj", 0.01)}
 
 
 def test_the_eyes_are_a_rectified_pair_one_baseline_apart():
