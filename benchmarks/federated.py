@@ -1,11 +1,11 @@
 """Issue 11's targets: seed 001's federated filter on the rendered camera, open loop and steering.
 
-    .venv/bin/python benchmarks/federated.py [--runs 10] [--workers 2] [--skip-hd] [--hd-runs 1] [--headings]
-        [--json FILE]
+    .venv/bin/python benchmarks/federated.py [--runs 10] [--first-seed 0] [--workers 2] [--skip-hd] [--hd-runs 1]
+        [--headings] [--json FILE]
 
 1. rqrlp-maneuvers (seed 0): the federated estimate's 3-D position and orientation RMSE over the
    whole flight. Targets (seed 001 Sec. 5.1): <= 0.0239 m and <= 0.0818 rad.
-2. open-landing, `--runs` seeds (the start 0-1 m off the pattern's centre, drawn from the seed, the
+2. open-landing, `--runs` seeds from `--first-seed` (the start 0-1 m off the pattern's centre, drawn from the seed, the
    heading the pattern's; `--headings`: a heading drawn from the seed too, see start_offset):
    targets (Sec. 5.2) a valid fused pose over >= 99 % of the descent, the fused height RMSE below
    every local filter's and below 0.037 m, every run on the pattern with error < 0.10 m and relative
@@ -87,13 +87,14 @@ def landing_row(seed: int, m: dict) -> dict:
             "wall_s": m["wall_time_s"], "sim_s": m["sim_time_s"]}
 
 
-def landing_campaign(name: str, runs: int, workers: int, overrides: tuple[str, ...], heading: bool = False) -> dict:
-    start = time.perf_counter()
+def landing_campaign(name: str, seeds: range, workers: int, overrides: tuple[str, ...], heading: bool = False) -> dict:
+    start, runs = time.perf_counter(), len(seeds)
     # spawn: a forked worker inherits the parent's render context (VTK, EGL) and hangs in it
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        rows = [landing_row(seed, m) for seed, m in zip(range(runs), pool.map(
-            landing, range(runs), [overrides] * runs, [heading] * runs))]
-    print(f"\n## {name}: {runs} seeds, {workers} workers, {time.perf_counter() - start:.0f} s wall\n")
+        rows = [landing_row(seed, m) for seed, m in zip(seeds, pool.map(
+            landing, seeds, [overrides] * runs, [heading] * runs))]
+    print(f"\n## {name}: seeds {seeds.start}-{seeds.stop - 1}, {workers} workers, "
+          f"{time.perf_counter() - start:.0f} s wall\n")
     print("| seed | heading (deg) | landed | touchdown error (m) | rel. vertical speed (m/s) | valid | "
           "fused height RMSE (m) | local filters' height RMSE (m) | fused position / orientation RMSE |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -230,15 +231,19 @@ def frame_costs(overrides: tuple[str, ...], repeats: int = 3) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0, help="open-landing's seeds from this one on (default 0)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--skip-hd", action="store_true")
     parser.add_argument("--hd-runs", type=int, default=1, help="open-landing seeds at 1080p (default 1)")
     parser.add_argument("--headings", action="store_true", help="open-landing with a heading drawn per seed")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
+    if args.runs < 1 or args.first_seed < 0 or args.hd_runs < 1 or args.workers < 1:
+        parser.error("--runs, --hd-runs and --workers must be at least 1, --first-seed at least 0")
+    seeds = range(args.first_seed, args.first_seed + args.runs)
     results = {"maneuvers": maneuvers_figures("rqrlp-maneuvers", ()),
-               "open_landing": landing_campaign("open-landing", args.runs, args.workers, (), args.headings),
-               "moving": landing_campaign("open-landing, moving (1 m/s, pad 1.6 m)", args.runs, args.workers,
+               "open_landing": landing_campaign("open-landing", seeds, args.workers, (), args.headings),
+               "moving": landing_campaign("open-landing, moving (1 m/s, pad 1.6 m)", seeds, args.workers,
                                           tuple(MOVING), args.headings),
                "cost": frame_costs(())}
     checks = results["maneuvers"]["checks"] + results["open_landing"]["checks"]
@@ -247,7 +252,8 @@ def main() -> int:
     if not args.skip_hd:
         results["hd_cost"] = frame_costs(tuple(HD), repeats=1)
         results["hd_maneuvers"] = maneuvers_figures("rqrlp-maneuvers at 1080p", tuple(HD))
-        results["hd_open_landing"] = landing_campaign("open-landing at 1080p", args.hd_runs,
+        hd_seeds = range(args.first_seed, args.first_seed + args.hd_runs)
+        results["hd_open_landing"] = landing_campaign("open-landing at 1080p", hd_seeds,
                                                       min(args.workers, args.hd_runs), tuple(HD), args.headings)
     print("\n## Targets\n")
     for name, ok, figure in checks:
