@@ -239,7 +239,9 @@ def main() -> int:
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     if args.runs < 1 or args.first_seed < 0 or args.hd_runs < 1 or args.workers < 1:
-        parser.error("--runs, --hd-runs and --workers must be at least 1, --first-seed at least 0")
+        print("federated.py: error: --runs, --hd-runs and --workers must be at least 1, --first-seed at least 0",
+              file=sys.stderr)
+        return 2
     seeds = range(args.first_seed, args.first_seed + args.runs)
     results = {"maneuvers": maneuvers_figures("rqrlp-maneuvers", ()),
                "open_landing": landing_campaign("open-landing", seeds, args.workers, (), args.headings),
