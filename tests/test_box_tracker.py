@@ -33,6 +33,7 @@ from systems.perception.box_tracker import (
     locked_truth_id,
     predict_track,
     step_tracker,
+    target_box,
 )
 from systems.perception.box_tracker_system import BoxTrackerSystem
 
@@ -355,6 +356,34 @@ def test_partial_view_is_not_measured_and_starts_no_track():
         assert [t.id for t in state.tracks] == [target_id]
     state = tracker.step([Detection(box(2.0))], None, 2.0)
     assert state.target.id == target_id and state.target.detection == 0 and state.target.misses == 0
+
+
+def test_a_smaller_object_over_a_larger_track_keeps_its_own_track():
+    """A red 40 px target seen over a grey 140 px vehicle (inside its box, under 0.6 of its size) from the
+    first frame: both confirmed, the target's whole box is its own track's view, not the vehicle's fragment,
+    so it is matched in every frame and the lock on it holds."""
+    image = np.zeros((512, 512, 4), np.uint8)
+    image[200:340, 200:340, :3], image[290:330, 290:330, :3] = (128, 128, 128), (220, 30, 30)
+    vehicle, target = np.array([200.0, 200.0, 140.0, 140.0]), np.array([290.0, 290.0, 40.0, 40.0])
+    tracker = BoxTracker(BoxTrackerConfig(cue_px=[310.0, 310.0]))
+    for k in range(25):
+        state = tracker.step([Detection(vehicle, 0.9), Detection(target, 0.9)], image, 0.1 * k)
+        if k >= 2:
+            assert [(t.confirmed, t.misses, t.detection) for t in state.tracks] == [(True, 0, 0), (True, 0, 1)]
+            assert state.lock.track_id == state.tracks[1].id
+    assert np.allclose(target_box(state)[0], target) and target_box(state)[1]
+
+
+def test_the_default_cue_is_the_image_centre_in_the_boxes_pixel_index_space():
+    """A 512 px image's centre is (256, 256) in the boxes' centre form (x + w / 2): a box centred 7 px down
+    and right of it (9.90 px away) is nearer than one 7.2 px up and left (10.18 px), and the lock takes it
+    (taking OpenCV's (255.5, 255.5) for the centre would take the other: 10.61 against 9.48 px)."""
+    image = np.zeros((512, 512, 4), np.uint8)
+    down_right, up_left = np.array([258.0, 258.0, 10.0, 10.0]), np.array([243.8, 243.8, 10.0, 10.0])
+    tracker = BoxTracker(BoxTrackerConfig())
+    for k in range(3):
+        state = tracker.step([Detection(up_left, 0.9), Detection(down_right, 0.9)], image, 0.1 * k)
+    assert np.allclose(target_box(state)[0], down_right)
 
 
 def test_lock_takes_only_a_confident_track():

@@ -32,7 +32,8 @@ Ours, where the paper is silent:
   `min_size_ratio` of it (the target half under a bridge, or cut by the image's edge: its centre is not the
   target's) is neither associated nor starts a track: the track coasts as if unseen (and dies after
   `max_misses`), nothing measures from the fragment, and the track's appearance stays the whole target's,
-  for the re-acquisition when it reappears.
+  for the re-acquisition when it reappears. A detection that another track's gate takes is that track's
+  whole view, not a fragment (a smaller vehicle seen over a larger one).
 - A track's appearance is a running mean of its matched detections' histograms (`appearance_update`
   the weight of the newest), so one frame of a box overlapping another object moves it little.
 - The target: the paper lands on "the" UGV; here the target is locked once, on the track nearest a cue
@@ -325,7 +326,7 @@ def _cue(config: BoxTrackerConfig, image: np.ndarray | None) -> np.ndarray | Non
     if config.cue_px:
         return np.asarray(config.cue_px, dtype=float)
     if image is not None:
-        return np.array([(image.shape[1] - 1) / 2, (image.shape[0] - 1) / 2])
+        return np.array([image.shape[1] / 2, image.shape[0] / 2])  # pixel-index space, as BoxTrack.centre
     return None
 
 
@@ -354,20 +355,24 @@ def _update_lock(lock: TargetLock, tracks: tuple[BoxTrack, ...], image: np.ndarr
     return TargetLock(locked.id, locked.box, locked.histogram.copy())
 
 
-def partial_views(tracks: Sequence[BoxTrack], boxes: np.ndarray, min_size_ratio: float) -> dict[int, int]:
+def partial_views(tracks: Sequence[BoxTrack], boxes: np.ndarray, config: BoxTrackerConfig) -> dict[int, int]:
     """{detection index: track index}: detections (q, 4) lying at least PARTIAL_INSIDE within a confirmed
-    track's predicted box and narrower or shorter than `min_size_ratio` of it (module docstring)."""
+    track's predicted box and narrower or shorter than `min_size_ratio` of it (module docstring), unless
+    another track's gate (`innovation_chi2`) takes it: then it is that track's whole view, a smaller object
+    seen over the larger one."""
     confirmed = [k for k, t in enumerate(tracks) if t.confirmed]
-    if not confirmed or not len(boxes) or min_size_ratio <= 0:
+    if not confirmed or not len(boxes) or config.min_size_ratio <= 0:
         return {}
     predicted = np.array([tracks[k].box for k in confirmed])
     inter, _, area = intersection_matrix(predicted, boxes)
     inside = np.divide(inter, area, out=np.zeros_like(inter), where=area > 0) >= PARTIAL_INSIDE
-    smaller = ((boxes[None, :, 2] < min_size_ratio * predicted[:, None, 2])
-               | (boxes[None, :, 3] < min_size_ratio * predicted[:, None, 3]))
+    smaller = ((boxes[None, :, 2] < config.min_size_ratio * predicted[:, None, 2])
+               | (boxes[None, :, 3] < config.min_size_ratio * predicted[:, None, 3]))
+    gated = np.array([innovation_chi2(t, boxes, config) <= config.gate_chi2 for t in tracks])  # (tracks, q)
     out = {}
     for i, j in zip(*np.nonzero(inside & smaller)):
-        out.setdefault(int(j), confirmed[i])
+        if not np.delete(gated[:, j], confirmed[i]).any():
+            out.setdefault(int(j), confirmed[i])
     return out
 
 
@@ -384,7 +389,7 @@ def step_tracker(state: TrackerState, detections: Sequence[Detection], image: np
     histograms = np.array([colour_histogram(image, b) for b in boxes]) if use_colour else None
 
     predicted = [predict_track(t, dt, config) for t in state.tracks]
-    partial = partial_views(predicted, boxes, config.min_size_ratio)
+    partial = partial_views(predicted, boxes, config)
     whole = [j for j in range(len(boxes)) if j not in partial]
     track_histograms = np.array([t.histogram for t in predicted]) if use_colour and predicted else None
     pairs = associate(predicted, boxes[whole], track_histograms, histograms[whole] if use_colour else None, config)
