@@ -94,6 +94,22 @@ def test_estimator_valid_coasts_then_invalid():
         assert not s.estimate.valid or np.all(np.isfinite(s.estimate.X_RT.translation()))
 
 
+def test_a_velocity_from_before_a_loss_is_not_coasted_on():
+    """In the landing zone (2 m up): the target seen moving at 1.5 m/s for 1 s, lost for 5 s (invalid), seen once
+    standing at x = 0.5 m, then unseen: that one frame is valid, and the frames after it are invalid, not coasted
+    at the 1.5 m/s seen before the loss (for up to max_coast_s, 2 s: 3 m off the standing target)."""
+    v = np.array([1.5, 0.0, 0.0])
+    seen = [(0.1 * k, True, True, np.array([0.0, 0.0, Z_PAD]) + v * 0.1 * k) for k in range(11)]
+    lost = [(0.1 * k, False, True, None) for k in range(11, 61)]
+    again = [(6.1, True, True, np.array([0.5, 0.0, Z_PAD]))] + [(0.1 * k, False, True, None) for k in range(62, 80)]
+    states = _run(seen + lost + again, HybridPadConfig(max_coast_s=2.0), height_m=2.0)
+    assert states[10].estimate.valid and not states[60].estimate.valid
+    found = states[61]
+    assert found.estimate.valid and found.measured
+    assert np.allclose(found.estimate.X_RT.translation()[:2], [0.5, 0.0], atol=0.05)
+    assert not any(s.estimate.valid for s in states[62:])
+
+
 @pytest.mark.parametrize("height_m, approach_coast_s, valid_after_s", [(7.5, 0.3, 0.3), (7.5, 2.0, 1.3), (2.0, 0.3, 2.0)])
 def test_coast_above_the_landing_zone_is_short(height_m, approach_coast_s, valid_after_s):
     """Above the landing zone the estimate coasts at most approach_max_coast_s (and only while the observer is

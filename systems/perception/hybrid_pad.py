@@ -203,8 +203,8 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
           and (landing or (observer.valid and time - last_measured <= config.approach_max_coast_s + 1e-9))):
         coast = time - last_measured
         p = predicted()
-    else:
-        coast = math.nan
+    else:  # invalid: the velocity seen before is no longer the target's, so no later coast may use it
+        coast, velocity = math.nan, None
     if p is None:
         estimate = PoseEstimate.invalid(time, "W", "P")
     else:
