@@ -129,6 +129,19 @@ def test_a_known_shift_removes_the_lag_of_the_drones_own_motion():
     assert worst_told < 0.01 < worst_blind
 
 
+def test_an_unknown_shift_adds_nothing():
+    """A shift with a NaN (the navigation's velocity unknown for a frame) is no shift: the step equals the one
+    without it, and the track stays finite and follows the next measurements."""
+    rng = np.random.default_rng(4)
+    track = run(Track(), range(20), rng)[-1]
+    z = truth(20) + PARAMS.measurement_std * rng.standard_normal((4, 2))
+    unknown = step_track(track, z, PARAMS, np.r_[np.nan, np.zeros(7)])
+    none = step_track(track, z, PARAMS)
+    np.testing.assert_array_equal(unknown.x, none.x)
+    np.testing.assert_array_equal(unknown.P, none.P)
+    assert np.all(np.isfinite(run(unknown, range(21, 30), rng)[-1].x))
+
+
 def test_innovation_distance_is_the_residual_over_its_covariance():
     params = TrackFilterParams(dt_s=0.05, measurement_std=0.01, acceleration_std=0.1, initial_velocity_std=0.2)
     track = step_track(Track(), [1.0, 2.0], params)

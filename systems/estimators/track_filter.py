@@ -112,7 +112,8 @@ def step_track(track: Track, measurement: np.ndarray | None, params: TrackFilter
     predicts only, and after more than `params.max_coast_steps` such frames in a row the track is
     dropped (an invalid, empty track) so the next measurement starts afresh.
     shift: Eq. 28's B u, a known change of the n coordinates over the step that is not the tracked
-    thing's own motion (the ranges' change from the drone's own motion), added to the prediction.
+    thing's own motion (the ranges' change from the drone's own motion), added to the prediction; one
+    with a non-finite entry is unknown and adds nothing.
     """
     z = None if measurement is None else np.asarray(measurement, dtype=float).reshape(-1)
     if z is not None and not np.all(np.isfinite(z)):
@@ -124,7 +125,7 @@ def step_track(track: Track, measurement: np.ndarray | None, params: TrackFilter
         return Track(np.r_[z, np.zeros(len(z))], np.diag(std**2), 0)
     F, Q, H, R = constant_velocity_model(params, len(track.x) // 2)
     x, P = kalman_predict(track.x, track.P, F, Q)
-    if shift is not None:  # x is the prediction's own array
+    if shift is not None and np.all(np.isfinite(shift)):  # x is the prediction's own array
         x[: len(x) // 2] += shift
     if z is not None:
         return Track(*kalman_update(x, P, z, H, R), 0)
