@@ -150,6 +150,17 @@ def test_weights_peak_at_the_current_frame_and_sum_to_one():
     assert w[2] / w[0] == pytest.approx(math.exp(-0.5))  # one sigma old: e^-1/2 of the peak
 
 
+def test_weights_of_samples_many_sigma_old_do_not_underflow():
+    """Ages of 40, 45 and 50 sigma (0.8-1.0 s at sigma 0.02 s): exp(-x^2 / 2) underflows to 0 for each, yet
+    the normalised weights keep Eq. 18-19's ratios to the youngest, e^-((45^2 - 40^2) / 2) and
+    e^-((50^2 - 40^2) / 2) (their logs compared), the youngest's weight 1 to rounding."""
+    assert math.exp(-0.5 * 40**2) == 0.0
+    w = gaussian_weights([0.8, 0.9, 1.0], 0.02)
+    assert np.all(np.isfinite(w)) and w.sum() == pytest.approx(1.0) and w[0] == pytest.approx(1.0)
+    assert math.log(w[1]) == pytest.approx(-(45**2 - 40**2) / 2)
+    assert math.log(w[2]) == pytest.approx(-(50**2 - 40**2) / 2)
+
+
 def test_constant_velocity_from_noisy_positions():
     """1.3 m/s (x 1.2, y -0.5) with 3 cm of position noise, 60 s at 10 Hz: unbiased, and the scatter is the
     weights' noise gain (1.54 per metre: 4.6 cm/s per axis), with Eq. 18-19's weighted mean."""

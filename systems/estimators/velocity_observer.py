@@ -187,8 +187,11 @@ def speed_and_heading(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def gaussian_weights(ages: np.ndarray, sigma: float) -> np.ndarray:
     """Eq. 18-19's w(x) = exp(-x^2 / 2 sigma^2) / (sigma sqrt(2 pi)) at x = each sample's age [s] (its
-    peak at the current frame, age 0), normalised to sum 1 (ours, module docstring)."""
-    w = np.exp(-0.5 * (np.asarray(ages, dtype=float) / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
+    peak at the current frame, age 0), normalised to sum 1 (ours, module docstring). Computed relative to
+    the youngest sample's, which the normalisation cancels, so that samples many sigma old do not underflow
+    to 0 / 0."""
+    x = np.asarray(ages, dtype=float) / sigma
+    w = np.exp(-0.5 * (x**2 - np.min(x**2)))
     return w / w.sum()
 
 
