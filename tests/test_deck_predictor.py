@@ -190,6 +190,8 @@ def test_bad_settings_are_one_line_config_errors():
         LandingWindowConfig(predictor=DeckPredictorConfig(min_history_s=40.0)).validate()
     with pytest.raises(ConfigError, match=r"window.predictor.history_s must be positive"):
         LandingWindowConfig(predictor=DeckPredictorConfig(history_s=-1.0)).validate()
+    with pytest.raises(ConfigError, match=r"window.predictor.horizon_s must be at least the grid's step, 0.1 s"):
+        LandingWindowConfig(predictor=DeckPredictorConfig(horizon_s=0.05)).validate()
 
 
 def test_the_window_on_the_prediction_commits_where_the_deck_will_be_level():

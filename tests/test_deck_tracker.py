@@ -92,6 +92,22 @@ def test_coasts_then_turns_invalid_without_measurements():
     assert not estimate.valid and motion[6] == 0.0 and not np.any(v_WP)
 
 
+@pytest.mark.parametrize("nan_in", ["translation", "rotation"])
+def test_a_frame_with_a_nan_is_coasted_and_does_not_count(nan_in):
+    """One good frame, then two with a NaN in the translation or the rotation: both tracks coast on them
+    alike, and they do not count towards confirm_frames (3), so the estimate is not yet valid."""
+    good = deck_pose(0.0)
+    bad = (RigidTransform(good.rotation(), [np.nan, 0.0, 0.69]) if nan_in == "translation"
+           else RigidTransform(RotationMatrix(np.full((3, 3), np.nan)), good.translation()))
+    track = step_deck_track(DeckTrack(), good, 0.0, CONFIG, PERIOD)
+    for k in (1, 2):
+        track = step_deck_track(track, bad, k * PERIOD, CONFIG, PERIOD)
+    assert track.frames_used == 1
+    assert track.position.coasted_steps == track.attitude.coasted_steps == 2
+    estimate, _, motion = deck_estimate(track, 2 * PERIOD, CONFIG)
+    assert not estimate.valid and np.all(np.isfinite(motion))
+
+
 def test_the_system_measures_the_deck_through_the_uav_pose():
     X_BC = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, -0.04])
     X_PT = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, 0.0005])

@@ -58,6 +58,8 @@ class DeckPredictorConfig:
         for name in ("history_s", "min_history_s", "lag_s", "refit_s", "horizon_s"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
         require(self.order >= 1, f"{prefix}.order must be at least 1, got {self.order}")
+        require(self.horizon_s >= PREDICTION_STEP_S,
+                f"{prefix}.horizon_s must be at least the grid's step, {PREDICTION_STEP_S:g} s, got {self.horizon_s:g}")
         require(self.min_history_s <= self.history_s,
                 f"{prefix}.min_history_s ({self.min_history_s:g}) must not exceed {prefix}.history_s "
                 f"({self.history_s:g})")

@@ -147,10 +147,10 @@ def _stepped(track: DeckTrack, position: np.ndarray | None, attitude: np.ndarray
 def step_deck_track(track: DeckTrack, X_WP_measured: RigidTransform | None, time: float,
                     config: DeckTrackerConfig, period_s: float) -> DeckTrack:
     """One camera frame arriving at `time`: the tracks advanced by period_s and updated with X_WP_measured
-    (None: coast), the deck at the frame's exposure. A frame outside the gate
+    (None, or one with a non-finite entry: coast), the deck at the frame's exposure. A frame outside the gate
     starts unconfirmed tracks afresh; confirmed ones do not use it, and it feeds their challenger instead."""
     params = replace(config.position, dt_s=period_s), replace(config.attitude, dt_s=period_s)
-    if X_WP_measured is None:
+    if X_WP_measured is None or not np.all(np.isfinite(X_WP_measured.GetAsMatrix34())):
         return _stepped(track, None, None, time, params)
     position, attitude, gated = _measurement(track, X_WP_measured, config, params)
     if not gated:
