@@ -98,6 +98,10 @@ class MarkerEstimationConfig:
         require(abs(self.camera.period_s - self.ekf.period_s) < 1e-9,
                 f"{prefix}.camera.rate_hz ({self.camera.rate_hz:g}) must be 1 / {prefix}.ekf.period_s "
                 f"({1 / self.ekf.period_s:g} Hz): the camera gives one frame per filter step")
+        require(not self.filters or self.latency_s <= self.ekf.history_s + 1e-9,
+                f"{prefix}.ekf.history_s ({self.ekf.history_s:g} s) must be at least the stream's latency, "
+                f"{prefix}.latency_periods x the filter step ({self.latency_s:g} s): every sample would arrive "
+                "too late")
 
     @property
     def X_BC(self) -> RigidTransform:

@@ -246,6 +246,9 @@ def test_bad_scenario_values():
         scenario(12, 0, "estimation.source=camera")
     with pytest.raises(ConfigError, match=r"estimation.camera.rate_hz \(20\) must be 1 / estimation.ekf.period_s"):
         scenario(12, 0, "estimation.camera.rate_hz=20")
+    with pytest.raises(ConfigError, match=r"estimation.ekf.history_s \(0.03 s\) must be at least the stream's "
+                                          r"latency, estimation.latency_periods x the filter step \(0.035 s\)"):
+        scenario(12, 0, "estimation.ekf.history_s=0.03")
     with pytest.raises(ConfigError, match="gv-marker-ekf needs a measurement stream"):
         scenario(12, 0, "estimation.source=none", "estimation.filters=[]")
 

@@ -58,6 +58,16 @@ def test_drops_and_outliers_at_their_rates_with_their_errors():
     assert np.sqrt(np.mean(angles[is_outlier] ** 2)) == pytest.approx(20.0, rel=0.08)  # |N(0, 20 deg)|
 
 
+@pytest.mark.parametrize("q_CM", [[np.nan, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 0.0]])
+def test_an_outlier_leaves_a_measurement_without_a_rotation_as_it_is(q_CM):
+    """Every measurement an outlier: the valid ones are moved, the one whose quaternion is NaN or zero (the
+    filters' screening rejects it) comes through unchanged instead of raising in SciPy."""
+    frame = [*FRAME, MarkerMeasurement(0.0, 3, [0.3, 0.0, 2.0], q_CM)]
+    out = apply_faults(frame, 0, T, FaultsConfig(outlier_probability=1.0), seed=1)
+    assert len(out) == 4 and out[3] is frame[3]
+    assert all(np.linalg.norm(m.p_CM - f.p_CM) > 0 for m, f in zip(out[:3], FRAME))
+
+
 @pytest.mark.parametrize("assignment, field", [
     ("faults.occlusions_s=[[2.0, 1.0]]", r"faults\.occlusions_s\[0\]"),
     ("faults.drop_probability=1.5", r"faults\.drop_probability"),

@@ -75,7 +75,10 @@ def occluded(k: int, period_s: float, config: FaultsConfig, seed: int) -> bool:
 
 
 def outlier(measurement: MarkerMeasurement, config: FaultsConfig, rng: np.random.Generator) -> MarkerMeasurement:
-    """The measurement moved and turned by the outlier errors (module docstring)."""
+    """The measurement moved and turned by the outlier errors (module docstring); one without a finite,
+    non-zero quaternion is left as it is, for the filters' screening to reject."""
+    if not math.isfinite(measurement.quaternion_norm) or measurement.quaternion_norm == 0:
+        return measurement
     axis = rng.normal(size=3)
     turn = Rotation.from_rotvec(axis / np.linalg.norm(axis) * math.radians(rng.normal(0.0, config.outlier_deg)))
     q_CM = (turn * Rotation.from_quat(measurement.q_CM)).as_quat()  # scalar-last, the paper's order
