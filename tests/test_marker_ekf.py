@@ -307,8 +307,13 @@ def test_measurements_rejected_for_many_steps_restart_the_filter(cls):
     marker_filter = converged(cls)
     moved = lambda t: straight(6.0)(t).multiply(RigidTransform([0.0, 4.0, 0.0]))  # the pad is elsewhere now
     steps = marker_filter.config.reset_after_rejected_steps
+    accepted = marker_filter.stats.accepted
     drive(marker_filter, moved, steps=steps, first=60)
-    assert marker_filter.stats.resets == 1 and marker_filter.stats.gated == 5 * steps
+    # The restart uses the last step's five markers: they count as accepted, the steps before as gated, and
+    # the estimate's newest measurement is that step's.
+    stats = marker_filter.stats
+    assert (stats.resets, stats.gated, stats.accepted) == (1, 5 * (steps - 1), accepted + 5)
+    assert marker_filter.estimate_vector()[0][EST_LAST_MEASUREMENT] == pytest.approx((60 + steps - 1) * TS)
     position = drive(marker_filter, moved, steps=60, first=60 + steps)[0]
     assert position[-1] < 0.15
 

@@ -399,8 +399,9 @@ class MarkerFilter:
             gated += len(group) - fused
         if groups:
             streak = streak + 1 if accepted == 0 else 0
-        if streak >= self.config.reset_after_rejected_steps:
+        if streak >= self.config.reset_after_rejected_steps:  # restarted from the newest group: used, not gated
             belief, streak, resets = self._start(*last), 0, 1
+            accepted, gated = accepted + len(last[1]), gated - len(last[1])
         if belief is not None:
             belief = self._predict_to(belief, time)
         stats = FilterStats(accepted, gated, 0, 0, resets) if accepted or gated or resets else _NO_COUNTS

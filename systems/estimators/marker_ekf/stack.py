@@ -68,6 +68,7 @@ def run_stack(marker_filter: MarkerFilter, t: np.ndarray, cameras: Camera, p_CM:
             for s in np.flatnonzero(streak >= f.config.reset_after_rejected_steps):
                 x[s], P[s] = _start(f, t[j], camera[j], p_CM[s, j], q_CM[s, j])
                 streak[s], resets[s] = 0, resets[s] + 1
+                accepted[s], gated[s], last[s] = accepted[s] + m, gated[s] - m, t[j]  # the restart used them
         x_k, P_k, prior = x, P, None
         for k in range(j + 1, j + latency + 1):  # to the step the measurements of t_j arrive in
             x_k, P_k = _predict(f, x_k, P_k, t[k] - t[k - 1])
