@@ -15,6 +15,7 @@ from systems.sensors.camera import (
     CameraConfig,
     NoisyCamera,
     add_pixel_noise,
+    distortion_maps,
     image_to_numpy,
     motion_blur_flow,
     motion_blur_kernel,
@@ -341,10 +342,27 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     ({"analog_gain": 0.5, "full_well_e": 6000.0}, "camera.analog_gain"),
     ({"distortion": [0.1, 0.0]}, "camera.distortion needs 5 numbers"),
     ({"distortion": [-0.9, 0.0, 0.0, 0.0, 0.0]}, "camera.distortion folds the image"),
+    # Turns back at r = 1.05 with r_d 0.70, under the corner's 0.80, which itself is never reached.
+    ({"distortion": [-0.3, 0.0, 0.0, 0.0, 0.0]}, "camera.distortion folds the image"),
 ])
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         CameraConfig(**changes).validate()
+
+
+@pytest.mark.parametrize("k1", [-0.2, 0.3])
+def test_a_lens_that_passes_maps_every_pixel_back_onto_itself(k1):
+    """Barrel (k1 -0.2: the corner pixels sample the pinhole image at r 0.93, where the map still grows)
+    and pincushion: each distorted pixel's place in the pinhole render, distorted again by OpenCV's own
+    projectPoints, is that pixel to 0.01 px, the corners included."""
+    config = CameraConfig(distortion=[k1, 0.0, 0.0, 0.0, 0.0])
+    config.validate()
+    map_x, map_y = distortion_maps(config)
+    rays = cv2.undistortPoints(np.stack([map_x.ravel(), map_y.ravel()], axis=1).reshape(-1, 1, 2).astype(np.float64),
+                               config.K, None)
+    back, _ = cv2.projectPoints(cv2.convertPointsToHomogeneous(rays), np.zeros(3), np.zeros(3), config.K, config.D)
+    u, v = np.meshgrid(np.arange(config.width), np.arange(config.height))
+    np.testing.assert_allclose(back.reshape(-1, 2), np.stack([u.ravel(), v.ravel()], axis=1), atol=0.01)
 
 
 def test_camera_velocity_adds_the_lever_arm_and_turns_into_the_camera_frame():

@@ -155,15 +155,23 @@ class CameraConfig:
 
 
 def distortion_folds(config: CameraConfig) -> float:
-    """0 when the radial distortion r (1 + k1 r^2 + k2 r^4 + k3 r^6) grows monotonically out to the
-    image's corners (normalised coordinates), else the fraction of the half-diagonal where it turns."""
+    """0 when the radial distortion r_d = r (1 + k1 r^2 + k2 r^4 + k3 r^6) grows monotonically until it
+    reaches the image's corners (normalised coordinates; the pinhole radius r a corner pixel samples lies
+    beyond the corner's own radius under barrel distortion), else the fraction of the half-diagonal where
+    the distorted image turns back (or, never reaching the corner within four times its radius, how far
+    it gets)."""
     k1, k2, _, _, k3 = config.distortion
     corner = max(np.hypot(u / config.fx, v / config.fy) for u in (config.cx, config.width - config.cx)
                  for v in (config.cy, config.height - config.cy))
-    r = np.linspace(0.0, corner, 400)
+    r = np.linspace(0.0, 4.0 * corner, 1600)
+    r_d = r * (1 + k1 * r**2 + k2 * r**4 + k3 * r**6)
     slope = 1 + 3 * k1 * r**2 + 5 * k2 * r**4 + 7 * k3 * r**6
-    bad = np.flatnonzero(slope <= 0)
-    return float(r[bad[0]] / corner) if bad.size else 0.0
+    reached = np.flatnonzero(r_d >= corner)
+    end = reached[0] if reached.size else len(r) - 1
+    bad = np.flatnonzero(slope[: end + 1] <= 0)
+    if bad.size:
+        return float(r_d[bad[0]] / corner)
+    return 0.0 if reached.size else float(r_d.max() / corner)
 
 
 def distortion_maps(config: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
