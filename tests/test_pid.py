@@ -98,3 +98,5 @@ def test_feed_forwards_between_samples(latest, acceleration):
     np.testing.assert_allclose(velocity.Eval(context), [0.5 + 0.8, 0.2] if latest else [0.4 + 0.8, 0.1])
     system.GetInputPort("target_valid").FixValue(context, [0.0])
     np.testing.assert_allclose(accel.Eval(context), [0.0, 0.0])  # no feed-forward of an unseen target
+    # ... and at once, before the next sample, no held PID term either: the target's velocity alone
+    np.testing.assert_allclose(velocity.Eval(context), [0.5, 0.2] if latest else [0.4, 0.1])

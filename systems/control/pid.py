@@ -154,7 +154,8 @@ class TrackingPid(LeafSystem):
     def _calc_velocity(self, context, output):
         sample = context.get_discrete_state(self._sample).get_value()
         target_velocity = self._velocity.Eval(context) if self._config.latest_feed_forward else sample[2:4]
-        output.SetFromVector(feed_forward(sample[0:2], target_velocity, self._config.max_speed_m_s))
+        v_ctrl = sample[0:2] if self._valid.Eval(context)[0] else np.zeros(2)  # unseen: the target's velocity alone
+        output.SetFromVector(feed_forward(v_ctrl, target_velocity, self._config.max_speed_m_s))
 
     def _calc_acceleration(self, context, output):
         if self._config.acceleration_feed_forward and self._valid.Eval(context)[0]:
