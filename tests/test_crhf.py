@@ -267,6 +267,30 @@ def test_ranges_tilted_the_mirrors_way_do_not_take_over_from_the_corners_the_pre
     assert np.degrees(max(errors[20:])) < 3.0
 
 
+@pytest.mark.parametrize("gap_frames, valid_after", [(1, True), (21, False)])
+def test_the_last_valid_frames_deck_breaks_the_tie_across_a_short_gap(crhf, gap_frames, valid_after):
+    # As above, the ranges then tilted the mirror's way (ambiguous corners, the previous frame's deck decides), until
+    # a sensor drops out (a NaN range) for one frame, or for 21 (1.05 s, over deck_normal_memory_s' 1 s). After one,
+    # the last valid frame's deck still decides and every later frame is valid and right; after 21 nothing does,
+    # and the ambiguous frames are flagged (they would have been, forgetting the deck at the first invalid frame).
+    rng = np.random.default_rng(5)
+    X_CT, exact, n = tag_tilted_15_deg_and_its_mirror()
+    mirror_ranges = ranges_to_plane(n, X_CT.translation())
+    state, valid, errors = CrhfState(), [], []
+    for k in range(60 + gap_frames):
+        ranges = (np.full(4, 2.0) if k < 20 else mirror_ranges) + 0.005 * rng.standard_normal(4)
+        if 40 <= k < 40 + gap_frames:
+            ranges[1] = np.nan
+        state, estimate = crhf.step(state, exact + 0.3 * rng.standard_normal(exact.shape), ranges, 0.05 * k)
+        valid.append(estimate.valid)
+        if estimate.valid:
+            errors.append(estimate.X_RT.rotation().inverse().multiply(X_CT.rotation()).ToAngleAxis().angle())
+    after = valid[40 + gap_frames:]
+    assert all(valid[:40]) and not any(valid[40:40 + gap_frames])
+    assert all(after) if valid_after else not any(after)
+    assert np.degrees(max(errors)) < 3.0
+
+
 @pytest.mark.parametrize("seed", [1, 2, 5])
 def test_the_previous_frames_deck_breaks_the_tie_as_seen_after_the_cameras_own_turn(crhf, seed):
     # A tag tilted 6 deg about x; the ranges read a level surface through its centre, then (from frame 12) the plane

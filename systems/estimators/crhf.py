@@ -15,9 +15,10 @@ Two more additions of ours, each with a switch in `CrhfConfig`:
   grows in the image; the plane keeps the ranges' offset. Corners whose PnP residual the corner noise
   does not explain fit no rigid tag and give no normal. Where the two normals disagree beyond noise,
   the corners' normal is taken, through the touch points' centroid, unless the corners' mirror pose (the other
-  solution of a planar PnP) agrees with the ranges: then the one of the two normals nearer the previous valid
-  frame's deck normal (turned into this frame by the camera's own rotation, where V_WC_C is connected) is taken,
-  and without one the frame is flagged invalid (`crhf_math.plane_beyond_gate`; a
+  solution of a planar PnP) agrees with the ranges: then the one of the two normals nearer the last valid
+  frame's deck normal (turned into this frame by the camera's own rotation, where V_WC_C is connected; kept across
+  invalid frames for `deck_normal_memory_s`) is taken, and without one the frame is flagged invalid
+  (`crhf_math.plane_beyond_gate`; a
   touch point farther than the range gate from that plane flags the frame, `CrhfConfig`'s checks). The corner noise
   is not a setting: it is the pooled variance of the PnP reprojection residuals over the frames so far (residual
   sum of squares over degrees of freedom; after the first ten frames only residuals it explains are
@@ -98,9 +99,15 @@ class CrhfConfig:
     range_gate_m: float = 0.1
     max_plane_residual_m: float = 0.02
     max_tag_residual: float = 0.15
+    # Ours: how long after the last valid frame its deck normal still breaks ambiguous corners' tie
+    # (`plane_beyond_gate`) across invalid frames (s). The two planes it tells apart are 10-30 deg apart, and deck
+    # and camera turn a few deg/s (stewart-dynamic's 8 deg at 0.05 Hz: 2.5 deg/s at most). Forgotten at the first
+    # invalid frame, as before, one dropped range among ambiguous frames left every later one flagged.
+    deck_normal_memory_s: float = 1.0
 
     def validate(self, prefix: str = "crhf") -> None:
         require_positive(self.range_gate_m, f"{prefix}.range_gate_m")
+        require(self.deck_normal_memory_s >= 0, f"{prefix}.deck_normal_memory_s must not be negative")
         require_positive(self.max_plane_residual_m, f"{prefix}.max_plane_residual_m")
         require_positive(self.max_tag_residual, f"{prefix}.max_tag_residual")
         require(self.touch_pixels in ("pchip", "hyperbola"),
@@ -139,14 +146,16 @@ class CrhfState:
     corners: the corner track (px); ranges: the range track (m); intrinsics: mean of the valid
     frames' [fx, fy, cx, cy] (px); corner_variance: pooled variance of one corner coordinate
     (px^2), the PnP residuals' sum of squares over their degrees of freedom (2 per frame); deck_normal: the
-    unit normal in C of the plane the previous frame's corners were lifted onto, in C as that frame saw it (None
-    after an invalid frame)."""
+    unit normal in C of the plane the last valid frame's corners were lifted onto, in C as that frame saw it (None
+    before the first and once `deck_normal_memory_s` has passed since it); deck_normal_age_s: the time since that
+    frame (s)."""
 
     corners: Track = Track()
     ranges: Track = Track()
     intrinsics: RunningMean = RunningMean()
     corner_variance: RunningMean = RunningMean()
     deck_normal: np.ndarray | None = None
+    deck_normal_age_s: float = 0.0
 
 
 class CrhfEstimator(LeafSystem):
@@ -177,6 +186,7 @@ class CrhfEstimator(LeafSystem):
         self._max_tag_residual_m = config.max_tag_residual * tag_size_m
         self._fuse = config.fuse_corner_normal
         self._average_intrinsics = config.average_intrinsics
+        self._normal_memory_s = config.deck_normal_memory_s
         self._p_C_sensors = np.asarray(p_C_sensors, dtype=float)
         self._p_T_corners = tag_corners_T(tag_size_m)
         self.DeclareAbstractInputPort("tag_detection", AbstractValue.Make(TagDetection()))
@@ -219,9 +229,11 @@ class CrhfEstimator(LeafSystem):
         result = self.estimate(corner_track, ranges, range_covariance, state)
         if result is not None and not self._ranges_see_the_tag(result):
             range_track, result = Track(), None
-        state = replace(state, corners=corner_track, ranges=range_track, deck_normal=None)
+        state = replace(state, corners=corner_track, ranges=range_track)
         if result is None or not result.valid:
-            return state, PoseEstimate.invalid(time, "C", "T")
+            age = state.deck_normal_age_s + self._period
+            kept = state.deck_normal if age <= self._normal_memory_s + 1e-9 else None
+            return replace(state, deck_normal=kept, deck_normal_age_s=age), PoseEstimate.invalid(time, "C", "T")
         return self._remember(state, result), PoseEstimate(time, result.X_CT, True, reference="C", target="T")
 
     def _range_shift(self, ranges: Track, V_WC_C: np.ndarray | None) -> np.ndarray | None:
@@ -275,7 +287,8 @@ class CrhfEstimator(LeafSystem):
         judged = variance.weight >= JUDGED_FROM_DOF
         if np.isfinite(residual) and (not judged or corners_fit_a_tag(residual, variance.mean, variance.weight)):
             variance = variance.add(residual / 2.0, 2.0)
-        return replace(state, intrinsics=intrinsics, corner_variance=variance, deck_normal=result.plane.normal)
+        return replace(state, intrinsics=intrinsics, corner_variance=variance, deck_normal=result.plane.normal,
+                       deck_normal_age_s=0.0)
 
     def _calc_frame(self, context, value):
         state = context.get_abstract_state(self._state).get_value()

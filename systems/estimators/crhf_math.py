@@ -305,7 +305,7 @@ def plane_beyond_gate(
     when the frame cannot tell which of two planes is the deck's.
 
     Arguments as in `fuse_normals`; mirror: `mirror_corner_normal` of the same corners (None if IPPE gave no
-    second solution); previous_normal: the previous frame's deck normal in this frame's C (None: no previous
+    second solution); previous_normal: the last valid frame's deck normal in this frame's C (None: no previous
     frame; `direction_after_turn` carries it through the camera's own turn). One of
     the two normals is not the tag's plane:
     - the corners fix one plane and the ranges do not see it (a cone reading past the deck's edge, a biased
@@ -314,8 +314,8 @@ def plane_beyond_gate(
       ranges within `NORMAL_GATE`. Then either the corners chose the wrong one of their two poses (a small tag
       seen square-on) or the ranges see a plane tilted the mirror's way (cones averaging the deck's surroundings),
       and the one nearer the previous frame's normal is taken, as deck and camera turn little in a frame. Without a
-      previous normal (the first frame, or the first after an invalid one) nothing tells them apart: None, and the
-      frame is flagged invalid rather than given a plane that may be 10-30 deg off.
+      previous normal (the first frame, or over `CrhfConfig.deck_normal_memory_s` after the last valid one) nothing
+      tells them apart: None, and the frame is flagged invalid rather than given a plane that may be 10-30 deg off.
     The range plane is also kept when the corners' normal points into the other half-space, or when there
     is no mirror to judge the corners by.
     """
