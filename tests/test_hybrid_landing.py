@@ -171,7 +171,7 @@ def test_the_altitude_filter_knows_the_altimeters_nearest_range():
     _, scenario = load_scenario("ugv-hybrid")
     diagram, _ = build_gv_landing(scenario)
     altimeter, altitude = (diagram.GetSubsystemByName(name) for name in ("stereo_altimeter", "altitude_filter"))
-    assert altitude.nearest_m == altimeter.estimator.nearest_m == pytest.approx(350.0 * 0.12 / 64)
+    assert altitude.nearest_m == altimeter.estimator.nearest_m == pytest.approx(350.0 * 0.12 / 63)  # disparities 0-63
 
 
 def test_scenario_loads():

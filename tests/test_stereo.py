@@ -150,7 +150,7 @@ def test_defaults_are_the_paper_camera():
     assert (c.width, c.height, c.baseline_m, c.rate_hz) == (752, 480, 0.12, 60.0)
     assert c.focal_length_px == pytest.approx(F_PX)
     assert StereoDepthConfig().disparities_for(c) == 64  # 350 * 0.12 / 0.7 = 60 px, rounded up to 16s
-    assert StereoAltitudeEstimator(c).nearest_m == pytest.approx(F_PX * BASELINE / 64)  # 0.656 m
+    assert StereoAltitudeEstimator(c).nearest_m == pytest.approx(F_PX * BASELINE / 63)  # 0.667 m: 0-63 px searched
     assert central_window((480, 752), (c.cx, c.cy), 100, 100) == (slice(190, 290), slice(326, 426))
 
 
@@ -190,6 +190,18 @@ def test_altitude_of_a_shifted_pair_is_f_b_over_d(d):
     # matching the whole frame gives the same window
     full = StereoAltitudeEstimator(StereoConfig(), crop=False).estimate(left, right)
     assert full.altitude_m == pytest.approx(result.altitude_m, rel=0.01)
+
+
+def test_the_search_reaches_its_nearest_range_and_no_nearer():
+    """SGBM with 64 disparities searches 0-63 px: a pair shifted 63 px (0.667 m, `nearest_m`) reads its depth;
+    where f b / min_altitude_m is exactly 64 px, 64 disparities do not reach it and the derived search is 80."""
+    estimator = StereoAltitudeEstimator(StereoConfig())
+    result = estimator.estimate(*shifted_pair(63, noise_std=2.0))
+    assert result.valid and result.altitude_m == pytest.approx(estimator.nearest_m, rel=0.01)
+    at_64 = StereoConfig(min_altitude_m=F_PX * BASELINE / 64)
+    assert StereoDepthConfig().disparities_for(at_64) == 80
+    with pytest.raises(ConfigError, match=r"does not reach the disparity at min_altitude_m \(64.0 px\)"):
+        StereoDepthConfig(num_disparities=64).validate(camera=at_64)
 
 
 def rgba(gray: np.ndarray) -> ImageRgba8U:

@@ -17,7 +17,7 @@ Invalid input: the filter predicts (coasts); it turns invalid when `max_coast_s`
 last measurement it used, and the next valid measurement starts it afresh. Before its first
 measurement, and when invalid, its outputs are NaN with valid 0.
 
-The altimeter's nearest range (`nearest_m`, f T_x / numDisparities: 0.66 m for the MYNT pair), ours where
+The altimeter's nearest range (`nearest_m`, f T_x / (numDisparities - 1): 0.667 m for the MYNT pair), ours where
 the paper is silent: nearer, the true disparity lies beyond SGBM's search and what it matches is wrong, yet
 may pass its checks (over the UGV's roof it read 1.2-1.6 m at 0.6 m, flagged valid: ugv-hybrid, measured).
 So while the filter predicts a depth within `near_band_m` over the nearest range (or under it), only readings

@@ -28,7 +28,8 @@ SGBM_SCALE = 16  # cv2.StereoSGBM returns fixed-point disparities, 4 fractional 
 @dataclass
 class StereoDepthConfig:
     """The matcher and the window. `num_disparities` 0 derives it from the camera: the smallest multiple
-    of 16 covering f * baseline / min_altitude_m (64 px for the MYNT EYE down to 0.7 m)."""
+    of 16 whose search, disparities 0 to num_disparities - 1, covers f * baseline / min_altitude_m (64 px for
+    the MYNT EYE down to 0.7 m)."""
 
     num_disparities: int = 0
     block_size: int = 5  # odd, 3..11 is OpenCV's usual range for SGBM
@@ -63,15 +64,15 @@ class StereoDepthConfig:
             require(self.window_rows <= camera.height and self.window_cols <= camera.width,
                     f"{prefix}: the {self.window_rows} x {self.window_cols} window is larger than the "
                     f"{camera.width} x {camera.height} image")
-            if self.num_disparities:
-                require(self.num_disparities >= camera.max_disparity_px,
+            if self.num_disparities:  # SGBM searches 0 .. num_disparities - 1
+                require(self.num_disparities - 1 >= camera.max_disparity_px,
                         f"{prefix}.num_disparities ({self.num_disparities}) does not reach the disparity at "
                         f"min_altitude_m ({camera.max_disparity_px:.1f} px)")
 
     def disparities_for(self, camera: StereoConfig) -> int:
-        """numDisparities: the configured one, or the smallest multiple of 16 covering the disparity at
-        the camera's minimum altitude."""
-        return self.num_disparities or 16 * math.ceil(camera.max_disparity_px / 16)
+        """numDisparities: the configured one, or the smallest multiple of 16 whose search (0 to
+        numDisparities - 1) covers the disparity at the camera's minimum altitude."""
+        return self.num_disparities or 16 * math.ceil((camera.max_disparity_px + 1) / 16)
 
 
 def make_matcher(num_disparities: int, config: StereoDepthConfig) -> cv2.StereoSGBM:
@@ -158,8 +159,8 @@ class StereoAltitudeEstimator:
         camera.validate()
         self.config.validate(camera=camera)
         self.num_disparities = self.config.disparities_for(camera)
-        # the nearest depth (m) whose disparity the search reaches (Eq. 11 at numDisparities)
-        self.nearest_m = camera.focal_length_px * camera.baseline_m / self.num_disparities
+        # the nearest depth (m) whose disparity the search reaches (Eq. 11 at its largest, numDisparities - 1)
+        self.nearest_m = camera.focal_length_px * camera.baseline_m / (self.num_disparities - 1)
         self.matcher = make_matcher(self.num_disparities, self.config)
         shape = (camera.height, camera.width)
         self.window = central_window(shape, (camera.cx, camera.cy), self.config.window_rows, self.config.window_cols)
