@@ -292,6 +292,58 @@ def test_first_poses_that_go_on_disagreeing_restart_the_filters_after_max_coast(
     assert abs(height[restart] - 4.04) < 0.005  # from the pose, which the centres then pull back
 
 
+def test_two_lone_disagreeing_poses_far_apart_are_each_left_out():
+    """A disagreeing pose at 1 s and the next pose, disagreeing too, at 3 s (none in between): each is a run of
+    its own, shorter than max_coast_s, so the second is left out as the first was, not taken whole because
+    the first was 2 s before."""
+    R, p = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix(), np.array([0.3, -0.2, 4.0])
+
+    def pose(t, X_CP):
+        lone = any(abs(t - when) < 1e-9 for when in (1.0, 3.0))
+        return NodeMeasurement(t, "adjustment", np.diag([1e-6] * 3 + [9e-6] * 3),
+                               X_PB=RigidTransform(R, p + [0.0, 0.0, 0.04])) if lone else None
+
+    frames = _hover(R, p, 3.1, 136.0, 640.0, pose)
+    after = [state for t, state in frames if t >= 3.0]
+    assert not any(state.heading_known for state in after)
+    assert max(abs(state.fused.p[2] - 4.0) for state in after) < 0.005
+    assert after[0].stats[1].gated == 2
+
+
+def test_a_non_finite_measurement_is_gated_and_never_starts_the_filters():
+    """The first frame's centre is NaN: gated, the filters not started; the next, finite, starts them."""
+    config, imu = FederatedConfig(), np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0]
+    covariance = approach_covariance(np.array([0.0, 0.0, 4.0]), 136.0, 640.0)
+    state = step(FederatedState(), 0.0, imu, {"approach": NodeMeasurement(0.0, "approach", covariance,
+                                                                          p_CP=np.array([np.nan, 0.0, 4.0]))},
+                 config, X_BC)
+    assert not state.started and state.stats[0].gated == 1
+    state = step(state, 0.02, imu, {"approach": NodeMeasurement(0.02, "approach", covariance,
+                                                                p_CP=np.array([0.0, 0.0, 4.0]))}, config, X_BC)
+    assert state.started and np.all(np.isfinite(state.fused.p)) and is_valid(state, config)
+
+
+@pytest.mark.parametrize("dt", [0.005, 0.1])
+def test_the_predictions_jacobian_is_its_finite_differences(dt):
+    """`predict`'s covariance step without process noise, from P = I, is F F^T: against F from the nominal
+    state's central differences over each error coordinate (attitude errors Exp(dtheta) R), the position's
+    attitude block (-dt^2 / 2 [R f_B]x) included."""
+    config = LocalFilterConfig(accel_noise_psd=0.0, gyro_noise_psd=0.0)
+    R0 = RollPitchYaw(0.2, -0.1, 0.7).ToRotationMatrix().matrix()
+    base = LocalState(np.array([1.0, -2.0, 3.0]), np.array([0.4, 0.1, -0.3]), R0, np.eye(9))
+    f_B, w_B = np.array([0.5, -0.3, 9.6]), np.array([0.1, 0.2, -0.3])
+    out = predict(base, f_B, w_B, dt, config, G)
+
+    def nominal(x):
+        state = LocalState(base.p + x[0:3], base.v + x[3:6], exp_so3(x[6:9]) @ R0, np.eye(9))
+        after = predict(state, f_B, w_B, dt, config, G)
+        return np.r_[after.p - out.p, after.v - out.v, log_so3(after.R @ out.R.T)]
+
+    h = 1e-6
+    F = np.column_stack([(nominal(h * e) - nominal(-h * e)) / (2 * h) for e in np.eye(9)])
+    np.testing.assert_allclose(out.P, F @ F.T, atol=1e-6)
+
+
 def test_the_pattern_seen_from_the_camera_brings_a_filter_to_the_true_pose():
     """update_pattern_in_camera's model and Jacobian: from 20 mm and 20 mrad off, updates with an exact
     view (its covariance tiny), each from the same prior covariance (a Gauss-Newton step), take the

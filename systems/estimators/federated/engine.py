@@ -83,6 +83,7 @@ class FederatedState:
     last_imu: np.ndarray = field(default_factory=lambda: np.zeros(6))
     heading_known: bool = False  # a node has measured a full pose (the approaching node's centre has no heading)
     first_pose_doubted_s: float | None = None  # since when the first full poses disagree with the estimate
+    last_pose_doubted_s: float | None = None  # the latest such pose: a run of them ends max_coast_s after it
 
     @property
     def started(self) -> bool:
@@ -177,17 +178,23 @@ def step(state: FederatedState, time: float, imu: np.ndarray, measurements: dict
     present = [(i, measurements.get(node)) for i, node in enumerate(NODES)]
     present = [(i, m) for i, m in present if m is not None]
     stats = list(state.stats)
+    for i, m in present:  # a non-finite measurement is gated, here as at an update: it never starts the filters
+        if not m.finite:
+            stats[i] = replace(stats[i], gated=stats[i].gated + 1)
+    present = [(i, m) for i, m in present if m.finite]
     pose = next(((i, m) for i, m in present if m.X_PB is not None), None)
     if not state.started and not present:
-        return state
+        return replace(state, stats=tuple(stats))
     lost = state.started and _lost(state, config)
     doubted = state.first_pose_doubted_s
+    if doubted is not None and time - state.last_pose_doubted_s > config.max_coast_s:
+        doubted = None  # the disagreeing poses stopped: a new one starts a new run
     if (pose is not None and state.started and not lost and not state.heading_known
             and not _agrees(filters, pose[1], X_BC, config)):
         if doubted is None or time - doubted < config.max_coast_s:
             # Left out, and the poses of this frame with it (the touchdown node's is anchored on the
             # adjustment node's); after max_coast_s of poses that disagree, the filters restart from one.
-            state = replace(state, first_pose_doubted_s=time if doubted is None else doubted)
+            state = replace(state, first_pose_doubted_s=time if doubted is None else doubted, last_pose_doubted_s=time)
             for i, m in present:
                 if m.X_PB is not None:
                     stats[i] = replace(stats[i], gated=stats[i].gated + 1)
@@ -196,7 +203,7 @@ def step(state: FederatedState, time: float, imu: np.ndarray, measurements: dict
     if present and (not state.started or lost or (not state.heading_known and pose is not None)):
         i, source = pose or present[0]
         filters = _restart(state, source, X_BC, f_B, config, lost)
-        state = replace(state, heading_known=pose is not None, first_pose_doubted_s=None)
+        state = replace(state, heading_known=pose is not None, first_pose_doubted_s=None, last_pose_doubted_s=None)
         stats[i] = NodeStats(stats[i].accepted + 1, stats[i].gated, time)
         present = [(j, m) for j, m in present if j != i]
     updated, kept = list(filters), []

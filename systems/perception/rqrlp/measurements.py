@@ -49,6 +49,14 @@ class NodeMeasurement:
     quality: float = 0.0
     view: PatternView | None = None
 
+    @property
+    def finite(self) -> bool:
+        """Whether every number it carries is finite (one that is not has measured nothing)."""
+        parts = [self.covariance, self.p_CP, None if self.X_PB is None else self.X_PB.GetAsMatrix34(),
+                 None if self.view is None else self.view.X_CP.GetAsMatrix34(),
+                 None if self.view is None else self.view.pixel_std]
+        return all(np.all(np.isfinite(p)) for p in parts if p is not None)
+
     def pose_covariance(self, X_BC: RigidTransform) -> np.ndarray:
         """X_PB's covariance: `covariance`, or derived from the view (only a restart needs it)."""
         return self.covariance if self.view is None else body_pose_covariance(self.view, X_BC)
