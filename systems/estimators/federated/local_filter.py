@@ -114,6 +114,7 @@ def predict(state: LocalState, f_B: np.ndarray, w_B: np.ndarray, dt: float, conf
     F = np.eye(9)
     F[0:3, 3:6] = dt * np.eye(3)
     F[3:6, 6:9] = -dt * skew(R @ f_B)  # d(a)/d(dtheta): Exp(dtheta) R f = R f + dtheta x R f
+    F[0:3, 6:9] = -dt**2 / 2 * skew(R @ f_B)  # the same through p's a dt^2 / 2
     q_a, q_w = config.accel_noise_psd * state.q_scale, config.gyro_noise_psd * state.q_scale
     Q = np.zeros((9, 9))
     Q[0:3, 0:3] = q_a * dt**3 / 3 * np.eye(3)
