@@ -4,16 +4,28 @@ and against OpenCV's own PnP on the same corners, the approaching node's rough p
 touchdown node's chain over a descent, and nothing found where there is nothing to find."""
 
 import zlib
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
-from systems.perception.rqrlp.homography import homography_from_pose, pose_from_homography
-from systems.perception.rqrlp.nodes import TouchdownTracker, adjustment, approach, corners_from_sides, layout_corners
+from systems.perception.rqrlp.homography import (
+    homography_from_pose,
+    pose_from_homography,
+)
+from systems.perception.rqrlp.measurements import approach_covariance
+from systems.perception.rqrlp.node_systems import approach_node
+from systems.perception.rqrlp.nodes import (
+    TouchdownTracker,
+    adjustment,
+    approach,
+    corners_from_sides,
+    layout_corners,
+)
 from systems.perception.rqrlp.pattern import RqrlpLayout, rqrlp_image
-from systems.sensors.camera import CameraConfig, distortion_maps
+from systems.sensors.camera import CalibrationErrorConfig, CameraConfig, distortion_maps
 
 LAYOUT = RqrlpLayout()
 TEXTURE = rqrlp_image(LAYOUT)
@@ -110,6 +122,30 @@ def test_approach_gives_a_rough_position_from_far(height_m):
     found = approach(view(X_CP), K, D, LAYOUT)
     assert found is not None
     assert np.linalg.norm(found.p_CP - X_CP.translation()) < 0.03 * height_m  # a few per cent of the range
+
+
+@pytest.mark.parametrize("shape", ["triangle", "hexagon"])
+def test_a_larger_dark_region_that_is_no_quadrilateral_does_not_hide_the_outline(shape):
+    """A dark triangle or hexagon larger than the pattern (10 m below), apart from it: not a quadrilateral, it is
+    passed over for the next largest region, the outline, as on the clean image."""
+    X_CP = X_CP_at(10.0, xy=(0.8, -0.5), tilt_deg=(5, -3))
+    grey = view(X_CP)
+    polygon = (np.array([[60, 380], [260, 380], [160, 200]]) if shape == "triangle"
+               else cv2.ellipse2Poly((150, 120), (90, 90), 0, 0, 360, 60))
+    cv2.fillPoly(grey, [polygon.astype(np.int32)], 30)
+    found, clean = approach(grey, K, D, LAYOUT), approach(view(X_CP), K, D, LAYOUT)
+    assert found is not None and np.linalg.norm(found.p_CP - clean.p_CP) < 0.01
+
+
+def test_the_approach_node_weighs_its_centre_by_the_estimators_focal_length():
+    """With a 5 % focal-length calibration error the node finds the outline with the estimators' intrinsics and
+    takes the centre's covariance with their focal length, 672 px, not the renderer's 640."""
+    camera = replace(CAMERA, calibration_error=CalibrationErrorConfig(fx_pct=5.0, fy_pct=5.0))
+    grey = view(X_CP_at(10.0, xy=(0.8, -0.5)))
+    found = approach(grey, camera.K_estimated, camera.D_estimated, LAYOUT)
+    measurement = approach_node(grey, 0.0, camera, LAYOUT)
+    np.testing.assert_allclose(measurement.covariance, approach_covariance(found.p_CP, found.side_px, 672.0),
+                               rtol=1e-12)
 
 
 @pytest.mark.parametrize("height_m", [2.0, 3.0, 4.0, 5.0])

@@ -43,8 +43,9 @@ def first(measurements: list) -> NodeMeasurement | None:
 
 def approach_node(grey: np.ndarray, time: float, camera: CameraConfig, layout: RqrlpLayout) -> NodeMeasurement | None:
     found = approach(grey, camera.K_estimated, camera.D_estimated, layout)
+    K = camera.K_estimated  # the estimators' intrinsics, as `approach` took them
     return None if found is None else approach_measurement(found.p_CP, found.side_px, time,
-                                                           float(np.sqrt(camera.fx * camera.fy)))
+                                                           float(np.sqrt(K[0, 0] * K[1, 1])))
 
 
 def adjustment_node(grey: np.ndarray, time: float, camera: CameraConfig,
@@ -115,7 +116,7 @@ class TouchdownNode(LeafSystem):
         grey = to_grey(image_to_numpy(self._image.Eval(context)))
         tracker, X_CP, _ = previous.tracker.track(grey)
         measurement = None if X_CP is None else touchdown_measurement(
-            X_CP, self._outline, previous.anchor_px, tracker.chained, t, c.X_BC, c.K)
+            X_CP, self._outline, previous.anchor_px, tracker.chained, t, c.X_BC, c.K_estimated)
         anchor, anchor_px = first(self._anchor.Eval(context)), previous.anchor_px
         if anchor is not None:
             X_CP_anchor = c.X_BC.inverse().multiply(anchor.X_PB.inverse())

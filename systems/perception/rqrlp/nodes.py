@@ -87,7 +87,9 @@ def approach(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout,
     outer = [c for c, h in zip(contours, hierarchy[0] if hierarchy is not None else []) if h[3] == -1]
     for contour in sorted(outer, key=lambda c: -cv2.contourArea(cv2.convexHull(c))):
         quad = _quad(contour)
-        if quad is None or cv2.contourArea(quad.astype(np.float32)) < min_side_px**2:
+        if quad is None:
+            continue  # not a quadrilateral: a smaller region may be the outline
+        if cv2.contourArea(quad.astype(np.float32)) < min_side_px**2:
             break
         (_, _), (w, h), _ = cv2.minAreaRect(quad.astype(np.float32))
         if max(w, h) <= MAX_ASPECT * min(w, h):
