@@ -142,20 +142,11 @@ def test_plane_fit_with_noise_is_close_and_reports_the_residual():
     assert plane.rms_residual == pytest.approx(sigma, rel=0.1)
 
 
-@pytest.mark.parametrize(
-    "points",
-    [
-        np.array([[0, 0, 1.0], [1, 1, 2.0], [2, 2, 3.0], [3, 3, 4.0]]),  # collinear
-        np.array([[0, 0, 1.0], [1, 1, 2.0], [2, 2, 3.0 + 1e-12], [3, 3, 4.0]]),  # nearly collinear
-        np.ones((4, 3)),  # coincident
-        np.array([[0, 0, 1.0], [1, 0, 1.0]]),  # too few
-        np.array([[0, 0, 1.0], [1, 0, 1.0], [0, 1, np.nan], [1, 1, 1.0]]),  # a missing range
-    ],
-)
-def test_plane_fit_flags_degenerate_points(points):
-    plane = fit_plane(points)
-    assert plane.degenerate
-    assert np.all(np.isnan(plane.normal)) and np.isnan(plane.offset)
+def test_coincident_corners_give_no_normal_instead_of_raising():
+    """Four corners on one pixel make OpenCV's SQPnP assert (OpenCV 5.1): no normal and no mirror pose."""
+    corners = np.tile([[256.0, 256.0]], (4, 1))
+    assert corner_normal(corners, (FX, FY), (CX, CY), tag_corners_T(0.5)) is None
+    assert mirror_corner_normal(corners, (FX, FY), (CX, CY), tag_corners_T(0.5), np.array([0.0, 0.0, -1.0])) is None
 
 
 def test_intrinsics_from_touch_points_recover_the_camera_on_a_tilted_deck():

@@ -153,13 +153,17 @@ def corner_normal(
     p_T_corners: (N, 3) the corners in T, metres. OpenCV's SQPnP gives rvec, tvec of X_CT;
     projectPoints gives the reprojection Jacobian J = d(uv)/d(rvec, tvec) (2N x 6), so with
     independent corner noise of variance s^2 per coordinate cov(rvec, tvec) = s^2 (J^T J)^-1;
-    Rodrigues' Jacobian carries the rvec block to the normal R_CT[:, 2]. None if PnP fails.
+    Rodrigues' Jacobian carries the rvec block to the normal R_CT[:, 2]. None if PnP fails (also on
+    degenerate corners, where SQPnP raises, or where J^T J is singular).
     """
     K, p_T, uv = _pnp_problem(uv_corners, focal_lengths, principal_point, p_T_corners)
-    ok, rvec, tvec = cv2.solvePnP(p_T, uv.reshape(-1, 1, 2), K, None, flags=cv2.SOLVEPNP_SQPNP)
-    if not ok or not np.all(np.isfinite(rvec)):
+    try:
+        ok, rvec, tvec = cv2.solvePnP(p_T, uv.reshape(-1, 1, 2), K, None, flags=cv2.SOLVEPNP_SQPNP)
+        if not ok or not np.all(np.isfinite(rvec)):
+            return None
+        return _corner_normal_at(rvec, tvec, K, p_T, uv)
+    except (cv2.error, np.linalg.LinAlgError):
         return None
-    return _corner_normal_at(rvec, tvec, K, p_T, uv)
 
 
 def mirror_corner_normal(
@@ -170,16 +174,19 @@ def mirror_corner_normal(
     Bartoli's planar PnP; the two minima of the reprojection error), the one whose normal is farther from
     `normal` (`corner_normal`'s), with its covariance and residual as in `corner_normal` (our addition).
 
-    Arguments as in `corner_normal`. None if IPPE does not give two finite solutions.
+    Arguments as in `corner_normal`. None if IPPE does not give two finite solutions (or raises).
     """
     K, p_T, uv = _pnp_problem(uv_corners, focal_lengths, principal_point, p_T_corners)
-    _, rvecs, tvecs, _ = cv2.solvePnPGeneric(p_T, uv.reshape(-1, 1, 2), K, None, flags=cv2.SOLVEPNP_IPPE)
-    solutions = [(r, t) for r, t in zip(rvecs, tvecs) if np.all(np.isfinite(r)) and np.all(np.isfinite(t))]
-    if len(solutions) < 2:
+    try:
+        _, rvecs, tvecs, _ = cv2.solvePnPGeneric(p_T, uv.reshape(-1, 1, 2), K, None, flags=cv2.SOLVEPNP_IPPE)
+        solutions = [(r, t) for r, t in zip(rvecs, tvecs) if np.all(np.isfinite(r)) and np.all(np.isfinite(t))]
+        if len(solutions) < 2:
+            return None
+        normals = [cv2.Rodrigues(r)[0][:, 2] for r, _ in solutions]
+        farther = int(np.argmin([n @ np.asarray(normal, dtype=float) for n in normals]))
+        return _corner_normal_at(*solutions[farther], K, p_T, uv)
+    except (cv2.error, np.linalg.LinAlgError):
         return None
-    normals = [cv2.Rodrigues(r)[0][:, 2] for r, _ in solutions]
-    farther = int(np.argmin([n @ np.asarray(normal, dtype=float) for n in normals]))
-    return _corner_normal_at(*solutions[farther], K, p_T, uv)
 
 
 def _pnp_problem(uv_corners, focal_lengths, principal_point, p_T_corners):
