@@ -368,9 +368,12 @@ def partial_views(tracks: Sequence[BoxTrack], boxes: np.ndarray, config: BoxTrac
     inside = np.divide(inter, area, out=np.zeros_like(inter), where=area > 0) >= PARTIAL_INSIDE
     smaller = ((boxes[None, :, 2] < config.min_size_ratio * predicted[:, None, 2])
                | (boxes[None, :, 3] < config.min_size_ratio * predicted[:, None, 3]))
+    candidates = list(zip(*np.nonzero(inside & smaller)))
+    if not candidates:  # the usual frame: no gate to evaluate (associate evaluates it for the whole views)
+        return {}
     gated = np.array([innovation_chi2(t, boxes, config) <= config.gate_chi2 for t in tracks])  # (tracks, q)
     out = {}
-    for i, j in zip(*np.nonzero(inside & smaller)):
+    for i, j in candidates:
         if not np.delete(gated[:, j], confirmed[i]).any():
             out.setdefault(int(j), confirmed[i])
     return out
