@@ -67,6 +67,7 @@ def add_flight_stack(builder: DiagramBuilder, config: FlightConfig, quad: Quadro
         vision_valid = seam.GetOutputPort("target_valid")
     else:
         builder.Connect(select.GetOutputPort("rendezvous_valid"), supervisor.GetInputPort("rendezvous_valid"))
+        builder.Connect(vision_valid, pid.GetInputPort("source"))  # a handover restarts the PID
     builder.Connect(vision_valid, supervisor.GetInputPort("target_valid"))
     builder.Connect(seam.GetOutputPort("target_acceleration"), pid.GetInputPort("target_acceleration"))
     builder.Connect(seam.GetOutputPort("height_above_target"), pid.GetInputPort("height"))

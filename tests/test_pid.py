@@ -100,3 +100,27 @@ def test_feed_forwards_between_samples(latest, acceleration):
     np.testing.assert_allclose(accel.Eval(context), [0.0, 0.0])  # no feed-forward of an unseen target
     # ... and at once, before the next sample, no held PID term either: the target's velocity alone
     np.testing.assert_allclose(velocity.Eval(context), [0.5, 0.2] if latest else [0.4, 0.1])
+
+
+def test_a_change_of_source_restarts_the_pid_without_a_derivative_kick():
+    # The vision seam hands over to the broadcast 2 m away (its GNSS error): the first sample on the
+    # broadcast is Kp e alone, not Kp e + Kd * 2 m; the next one on the same source has its derivative.
+    config = TrackingPidConfig()
+    system = TrackingPid(config)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    for name, value in (("target_velocity", [0.0, 0.0]), ("target_acceleration", [0.0, 0.0]),
+                        ("height", [6.0]), ("target_valid", [1.0]), ("target_offset", [0.2, 0.0]),
+                        ("source", [1.0])):
+        system.GetInputPort(name).FixValue(context, value)
+    period, gains = 1.0 / config.rate_hz, config.gains_above
+    output = system.GetOutputPort("velocity_command")
+    simulator.AdvanceTo(period + period / 2)  # two samples on the vision seam
+    np.testing.assert_allclose(output.Eval(context), [gains.kp * 0.2, 0.0])
+    system.GetInputPort("source").FixValue(context, [0.0])
+    system.GetInputPort("target_offset").FixValue(context, [2.2, 0.0])
+    simulator.AdvanceTo(2 * period + period / 2)
+    np.testing.assert_allclose(output.Eval(context), [gains.kp * 2.2, 0.0])
+    system.GetInputPort("target_offset").FixValue(context, [2.0, 0.0])
+    simulator.AdvanceTo(3 * period + period / 2)
+    np.testing.assert_allclose(output.Eval(context), [gains.kp * 2.0 + gains.kd * (2.0 - 2.2), 0.0])

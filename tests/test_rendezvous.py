@@ -7,6 +7,7 @@ import pytest
 from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 
+from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly
 from diagrams.runner import load_scenario
 from systems.control.landing import LandingConfig, LandingStateMachine, Mode, SupervisorInputs
@@ -75,6 +76,16 @@ def test_seam_select_prefers_vision_and_flags_which():
         np.testing.assert_array_equal(select.GetOutputPort("relative_state").Eval(context), expected)
         assert select.GetOutputPort("vision_valid").Eval(context)[0] == seen[VALID]
         assert select.GetOutputPort("rendezvous_valid").Eval(context)[0] == 1.0
+
+
+@pytest.mark.parametrize("source", ["none", "broadcast"])
+def test_the_pid_is_told_which_seam_steers_it(source):
+    # With a broadcast, the seam select's choice is the PID's source: a handover restarts it
+    # (systems/control/pid.py); without one there is a single source and the port stays free.
+    _, config = load_scenario("gv-landing", overrides=[f"rendezvous.source={source}"])
+    diagram, handles = build_gv_landing(config)
+    context = handles.pid.GetMyContextFromRoot(diagram.CreateDefaultContext())
+    assert handles.pid.GetInputPort("source").HasValue(context) == (source == "broadcast")
 
 
 def test_the_supervisor_tracks_the_rendezvous_target_unseen_and_never_descends_on_it():

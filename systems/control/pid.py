@@ -12,6 +12,9 @@ written in our z-up World; seed 003's NED frame (Eq. 20-22) needs no conversion 
 
 Our choices where the paper is silent: the first sample after a start or a lost target has no
 derivative term (e(-1) = e(0)), a lost target resets the sums, and the commanded speed is limited.
+A change of the offset's source (the vision seam and the vehicle's broadcast, which differ by the
+broadcast's GNSS error) restarts the PID as a lost target does: Kd would otherwise act on the jump
+between the two, a velocity kick of Kd times the sources' disagreement for one sample.
 
 Ours, beyond Eq. (24)-(27) (both can be switched off to get the paper's loop alone):
 - `latest_feed_forward`: Eq. (26)'s v_ugv is the latest target velocity whenever the command is
@@ -116,7 +119,8 @@ class TrackingPid(LeafSystem):
 
     Inputs: `target_offset` (2, target minus UAV position in World x-y [m]), `target_velocity`
     (2, World [m/s]), `target_acceleration` (2, World [m/s^2]), `height` (1, UAV above the target
-    [m]), `target_valid` (1, nonzero when the target is seen).
+    [m]), `target_valid` (1, nonzero when the target is seen), `source` (1, optional: a label of the
+    seam the offset comes from; a sample whose label differs from the last one's restarts the PID).
     Outputs: `velocity_command` (2, World x-y [m/s]): Eq. (27), v_ugv + v_ctrl, with v_ctrl held
     between samples and v_ugv the latest target velocity (`latest_feed_forward`) or the sampled one;
     while the target is not seen it is the target velocity alone and the PID restarts.
@@ -133,7 +137,9 @@ class TrackingPid(LeafSystem):
         self._acceleration = self.DeclareVectorInputPort("target_acceleration", 2)
         self._height = self.DeclareVectorInputPort("height", 1)
         self._valid = self.DeclareVectorInputPort("target_valid", 1)
+        self._source = self.DeclareVectorInputPort("source", 1)
         self._memory = self.DeclareDiscreteState(initial_memory())
+        self._last_source = self.DeclareDiscreteState(1)  # the label of the last sample's offset
         # [v_ctrl (2), v_ugv at the sample (2)]
         self._sample = self.DeclareDiscreteState(4)
         self.DeclarePeriodicDiscreteUpdateEvent(1.0 / config.rate_hz, 0.0, self._update)
@@ -143,6 +149,10 @@ class TrackingPid(LeafSystem):
     def _update(self, context, discrete_state):
         memory = context.get_discrete_state(self._memory).get_value()
         seen = bool(self._valid.Eval(context)[0])
+        source = self._source.Eval(context)[0] if self._source.HasValue(context) else 0.0
+        if source != context.get_discrete_state(self._last_source).get_value()[0]:
+            memory = initial_memory()  # another seam's offset: no derivative of the jump between them
+        discrete_state.set_value(self._last_source, [source])
         if seen:
             v_ctrl, memory = pid_step(memory, self._offset.Eval(context),
                                       self._height.Eval(context)[0], self._config)
