@@ -121,9 +121,12 @@ def node_metrics(log: FederatedLog, X_BC: RigidTransform, window: np.ndarray) ->
 
 def filter_metrics(log: FederatedLog, window: np.ndarray) -> dict:
     """The local filters (after their own updates, `local_<node>`) and the fused estimate
-    (`federated`): MAE/RMSE per axis, valid fraction, and the paper's figures."""
+    (`federated`): MAE/RMSE per axis, valid fraction, and the paper's figures. The local filters are
+    scored on the frames where the fused estimate is valid, as the overlaps are, so that each of their
+    figures compares with the fused one's (a coasting stretch counts against neither)."""
     fed = log.federated
     started = fed[:, FED_STARTED] > 0.5
+    valid = fed[:, FED_VALID] > 0.5
     out = {}
     for i, name in enumerate(NODES):
         p = fed[:, FED_LOCAL_P][:, 3 * i:3 * i + 3]
@@ -133,8 +136,8 @@ def filter_metrics(log: FederatedLog, window: np.ndarray) -> dict:
         if has.any():
             wxyz[has] = _wxyz(Rotation.from_rotvec(theta[has]))
         rows = _pose_rows(has, np.nan_to_num(p), wxyz)
-        out[f"local_{name}"] = {**estimator_metrics(log.X_PB, rows, window), **_paper_figures(log.X_PB, rows, window)}
-    valid = fed[:, FED_VALID] > 0.5
+        scored = window & valid
+        out[f"local_{name}"] = {**estimator_metrics(log.X_PB, rows, scored), **_paper_figures(log.X_PB, rows, scored)}
     rows = _pose_rows(valid, np.nan_to_num(fed[:, FED_P_PB]), np.where(started[:, None], fed[:, FED_Q_PB], 1.0))
     fused = {**estimator_metrics(log.X_PB, rows, window), **_paper_figures(log.X_PB, rows, window)}
     fused["valid_fraction"] = float(np.mean(valid[window])) if window.any() else 0.0

@@ -6,13 +6,15 @@ frames shaded in federated.png and its figures in what a run prints."""
 import matplotlib.pyplot as plt
 import numpy as np
 
-from diagrams.federated_metrics import FederatedLog, overlap_metrics
+from diagrams.federated_metrics import FederatedLog, filter_metrics, overlap_metrics
 from diagrams.federated_plots import plot_federated, shade_frames
 from diagrams.gv_landing_run import summary_lines
 from systems.estimators.federated.system import (
     FED_LOCAL_P,
     FED_LOCAL_TRACES,
     FED_P_PB,
+    FED_Q_PB,
+    FED_STARTED,
     FED_VALID,
     FEDERATED_VECTOR_SIZE,
 )
@@ -95,3 +97,15 @@ def test_a_run_prints_overlap_1s_figures_beside_the_papers():
     overlap["frames"], overlap["altitude_band_m"] = 0, None
     del overlap["rmse_height_m"]
     assert not any("Overlap" in line for line in summary_lines("open-landing", metrics))
+
+
+def test_the_local_filters_are_scored_on_the_fused_estimates_valid_frames():
+    # Frame 7's fused estimate is invalid: it counts against neither it nor the local filters.
+    log, heights = _log()
+    log.federated[:, FED_STARTED] = 1.0
+    log.federated[:, FED_Q_PB] = [1.0, 0.0, 0.0, 0.0]  # the attitudes exact (FED_LOCAL_THETA zero)
+    out = filter_metrics(log, np.ones(len(heights), bool))
+    for name in ("local_approach", "local_adjustment", "local_touchdown", "federated"):
+        assert out[name]["frames_scored"] == 9
+    np.testing.assert_allclose(out["local_adjustment"]["rmse_height_m"], 0.03)
+    np.testing.assert_allclose(out["federated"]["rmse_height_m"], 0.01)
