@@ -142,11 +142,11 @@ def flight_metrics(flight: Flight, config: GvLandingConfig, name: str = "gv-land
                          "final_horizontal_offset_m": float(np.linalg.norm(last[P_BP_W][:2]))}
     steering = flight.handles.perception.filter_name
     sampled = flight.sampled
+    source = perception_source(config.perception.source)
     out["perception"] = perception_metrics(
         log, config.perception.source, touchdown_s, None if steering is None else sampled.t,
-        None if steering is None else sampled.estimates[steering])
+        None if steering is None else sampled.estimates[steering], heading=source.estimates_heading)
     out.update(estimation_metrics(flight, config))
-    source = perception_source(config.perception.source)
     if source.metrics is not None and flight.source_log is not None:
         out.setdefault("estimators", {}).update(source.metrics(flight.source_log, config, touchdown_s))
     if "wind" in log:
@@ -199,9 +199,9 @@ def summary_lines(name: str, metrics: dict) -> list[str]:
     perception = metrics["perception"]
     if perception["source"] != "truth" and "rms_position_m" in perception:
         coast = perception.get("coast_before_touchdown_s")
+        heading = f"heading {perception['rms_heading_deg']:.2f} deg, " if "rms_heading_deg" in perception else ""
         lines.append(f"steered by {perception['source']}: RMS position {perception['rms_position_m']:.3f} m over the "
-                     f"flight, heading "
-                     f"{perception['rms_heading_deg']:.2f} deg, valid {perception['valid_fraction']:.0%}, longest "
+                     f"flight, {heading}valid {perception['valid_fraction']:.0%}, longest "
                      f"without a valid estimate {perception['longest_invalid_s']:.2f} s"
                      + (f", last measurement {coast:.2f} s before touchdown" if coast is not None else ""))
     after_climb = metrics.get("estimators", {}).get("hybrid", {}).get("position_m_after_climb", {})

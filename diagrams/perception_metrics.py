@@ -1,7 +1,7 @@
 """metrics.json's `perception` section: how well what steered the UAV knew where the pad was.
 
 Scored at the supervisor's samples against the truth: the pad position the seam implied (UAV
-position plus the seam's offset) and, where the source gives one, its estimated heading; over the
+position plus the seam's offset) and, where the source estimates one, its heading; over the
 samples where the seam was valid. Also how long the UAV flew without a valid estimate, and, for a
 marker filter, how long before touchdown it last fused a measurement (the blind end of the descent).
 """
@@ -35,29 +35,36 @@ def _yaw_rows(p: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 
 
 def perception_metrics(log: dict[str, np.ndarray], source: str, touchdown_s: float | None = None,
-                       filter_t: np.ndarray | None = None, filter_estimate: np.ndarray | None = None) -> dict:
+                       filter_t: np.ndarray | None = None, filter_estimate: np.ndarray | None = None,
+                       heading: bool = True) -> dict:
     """The section for a flight's `log` (diagrams/gv_landing_run.collect_log); `filter_t` and
-    `filter_estimate` are the steering marker filter's samples and estimate vectors, if one steered."""
+    `filter_estimate` are the steering marker filter's samples and estimate vectors, if one steered.
+    `heading`: whether the source estimates the pad's heading; if not (a position alone, as the hybrid
+    source's), only positions are scored: no heading, rotation or flip figures."""
     t, seam, truth = log["t"], log["relative_state"], log["true_relative_state"]
     valid = seam[:, VALID] > 0.5
     p_WB = log["quadrotor_state"][:, P_WB]
     true_yaw = carrier_heading(log)
-    if "steering_estimate" in log:  # [valid, x, y, z, qw, qx, qy, qz]; NaN where invalid
+    if heading and "steering_estimate" in log:  # [valid, x, y, z, qw, qx, qy, qz]; NaN where invalid
         q = log["steering_estimate"][:, 4:]
         yaw = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
-    else:  # the truth steers: its own heading
+    else:  # the truth steers, or no heading is estimated: the true heading, its figures left out below
         yaw = true_yaw
     estimate = np.column_stack([valid, _yaw_rows(p_WB + seam[:, P_BP_W], yaw)])
     out = {"source": source,
            **estimator_metrics(_yaw_rows(p_WB + truth[:, P_BP_W], true_yaw), estimate)}
+    if not heading:
+        for key in ("mae_rpy_deg", "rmse_rpy_deg", "flips"):
+            out.pop(key, None)
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
     out["longest_invalid_s"] = longest_run(~valid) * dt
     out["first_valid_s"] = float(t[valid][0]) if valid.any() else None
     if valid.any():
         error = (seam[:, P_BP_W] - truth[:, P_BP_W])[valid]
-        heading = np.angle(np.exp(1j * (yaw - true_yaw)))[valid]
+        heading_error = np.angle(np.exp(1j * (yaw - true_yaw)))[valid]
         out["rms_position_m"] = float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
-        out["rms_heading_deg"] = float(np.degrees(np.sqrt(np.mean(heading**2))))
+        if heading:
+            out["rms_heading_deg"] = float(np.degrees(np.sqrt(np.mean(heading_error**2))))
     if touchdown_s is not None and filter_estimate is not None:
         before = filter_t <= touchdown_s + 1e-9
         last = filter_estimate[before, EST_LAST_MEASUREMENT][-1] if before.any() else np.nan

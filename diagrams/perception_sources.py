@@ -75,6 +75,7 @@ class PerceptionSource:
     needs_camera: bool = False  # the rendered camera: estimation.source detector's, or its own
     camera: Callable | None = None  # config -> its own CameraConfig, which the scene adds (None: none of its own)
     records_video: bool = False  # --video records its own stream (PerceptionInputs.video_path)
+    estimates_heading: bool = True  # its estimate carries the pad's heading (false: a position alone)
     # Its own figures: (arrays of its `logs` by name with their times "t", config, touchdown time or None)
     # -> metrics.json's `estimators` entries; and its plots: (the same arrays, config, out_dir).
     metrics: Callable | None = None
@@ -151,7 +152,8 @@ SOURCES: dict[str, PerceptionSource] = {
     **{name: PerceptionSource(_marker_filter(name), needs_markers=True) for name in FILTERS},
     "federated": PerceptionSource(_federated, needs_camera=True, camera=lambda config: config.federated.camera,
                                   metrics=_federated_metrics, plot=_federated_plot),
-    "hybrid": PerceptionSource(_hybrid, metrics=hybrid_metrics, plot=plot_hybrid, records_video=True),
+    "hybrid": PerceptionSource(_hybrid, metrics=hybrid_metrics, plot=plot_hybrid, records_video=True,
+                               estimates_heading=False),
 }
 
 

@@ -1,0 +1,46 @@
+"""metrics.json's `perception` section (diagrams/perception_metrics.py) on constructed logs whose errors
+are known: a source that estimates a position alone (the hybrid one) is scored on positions only."""
+
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+
+from diagrams.perception_metrics import perception_metrics
+from systems.estimators.estimate import PoseEstimate, estimate_vector
+from systems.perception.seam import HEIGHT, P_BP_W, RELATIVE_STATE_SIZE, VALID
+from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
+
+N = 50
+
+
+def _log(estimated_yaw: float | None) -> dict:
+    """The pad moving along x under a hovering UAV, its vehicle heading 90 deg; the seam exact, the
+    steering estimate's rotation the identity (a position alone) or yaw `estimated_yaw`."""
+    t = np.arange(N) * 0.02
+    p_WB = np.tile([0.0, 0.0, 3.0], (N, 1))
+    p_WP = np.column_stack([np.linspace(0.0, 1.0, N), np.zeros(N), np.full(N, 0.5)])
+    quadrotor = np.zeros((N, STATE_SIZE))
+    quadrotor[:, P_WB], quadrotor[:, Q_WB] = p_WB, [1.0, 0.0, 0.0, 0.0]
+    vehicle = np.zeros((N, 4))
+    vehicle[:, 2] = np.radians(90.0)
+    truth = np.zeros((N, RELATIVE_STATE_SIZE))
+    truth[:, P_BP_W], truth[:, HEIGHT], truth[:, VALID] = p_WP - p_WB, 2.5, 1.0
+    R = RotationMatrix() if estimated_yaw is None else RotationMatrix(RollPitchYaw(0.0, 0.0, estimated_yaw))
+    steering = np.array([estimate_vector(PoseEstimate(ti, RigidTransform(R, p), True, None, "W", "P"))
+                         for ti, p in zip(t, p_WP)])
+    return {"t": t, "relative_state": truth.copy(), "true_relative_state": truth, "quadrotor_state": quadrotor,
+            "vehicle_state": vehicle, "steering_estimate": steering}
+
+
+def test_a_position_alone_has_no_heading_figures():
+    out = perception_metrics(_log(None), "hybrid", heading=False)
+    assert out["rms_position_m"] == 0.0 and out["frames_scored"] == N
+    assert not {"rms_heading_deg", "mae_rpy_deg", "rmse_rpy_deg", "flips"} & set(out)
+    np.testing.assert_allclose(out["mae_xyz_m"], 0.0)
+
+
+def test_an_estimated_heading_is_scored_against_the_vehicles():
+    out = perception_metrics(_log(np.radians(88.0)), "ct_ekf")
+    assert out["rms_heading_deg"] == pytest.approx(2.0)
+    np.testing.assert_allclose(out["mae_rpy_deg"], [0.0, 0.0, 2.0], atol=1e-9)
+    assert out["flips"] == 0
