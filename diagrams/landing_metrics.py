@@ -30,6 +30,13 @@ def first(mask) -> int | None:
     return int(index[0]) if index.size else None
 
 
+def entered(modes: np.ndarray, mode: Mode) -> int | None:
+    """The log index at which the supervisor first decided `mode`, or None. Its mode is discrete state, so
+    the logger (at its rate) shows at t_i the mode decided at t_(i-1): one sample before the first logged."""
+    i = first(modes == mode)
+    return None if i is None else max(i - 1, 0)
+
+
 def touchdown(log: dict[str, np.ndarray], touchdown_height_m: float, pad_size_m: float, heading: np.ndarray,
               status: str = "", motors_stop_at_landed: bool = True) -> tuple[int, str] | None:
     """(log index, "supervisor" or "contact") of the touchdown (module docstring), or None. `heading`: the
@@ -118,7 +125,7 @@ def pad_landing(log: dict[str, np.ndarray], status: str, heading: np.ndarray, pa
     out["meets_targets"] = bool(out["success"] and out["touchdown_error_m"] < TARGET_TOUCHDOWN_ERROR_M
                                 and out["touchdown_rel_speed_mps"] < TARGET_TOUCHDOWN_REL_SPEED_MPS)
     out["mode_entry_times_s"] = {mode.name.lower(): float(log["t"][i]) for mode in Mode
-                                 if (i := first(log["mode"] == mode)) is not None}
+                                 if (i := entered(log["mode"], mode)) is not None}
     if out["time_to_land_s"] is not None:
         out["mode_entry_times_s"]["landed"] = out["time_to_land_s"]
     out.update(descent_counts(log["t"], log["mode"]))
@@ -163,7 +170,7 @@ def tracking_metrics(log: dict[str, np.ndarray]) -> dict:
         out["settling_time_s"] = float(t[settled_at] - t[start]) if settled_at < end else None
     if land is not None:
         window = (t >= t[land] - SETTLED_WINDOW_S) & before
-        out["at_final_descent_xy_m"] = error[land].tolist()
+        out["at_final_descent_xy_m"] = error[entered(mode, Mode.LAND)].tolist()
         out["before_final_descent_max_abs_xy_m"] = np.abs(error[window]).max(axis=0).tolist()
         out["before_final_descent_window_s"] = SETTLED_WINDOW_S
     return out

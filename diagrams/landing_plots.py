@@ -5,7 +5,7 @@ supervisor's modes shaded."""
 import matplotlib.pyplot as plt
 import numpy as np
 
-from diagrams.landing_metrics import SETTLED_TOLERANCE_M, first
+from diagrams.landing_metrics import SETTLED_TOLERANCE_M, entered, first
 from diagrams.outputs import save_figure
 from diagrams.perception_metrics import carrier_heading
 from systems.control.landing import Mode
@@ -20,7 +20,7 @@ MODE_COLOURS = {Mode.TAKEOFF: "0.85", Mode.CLIMB: "tab:cyan", Mode.FOLLOW: "tab:
 def _mode_lines(ax, log):
     """Dotted lines at the FOLLOW/APPROACH/LAND/LANDED transitions."""
     for mode, colour in ((Mode.APPROACH, "tab:green"), (Mode.LAND, "tab:orange"), (Mode.LANDED, "tab:red")):
-        i = first(log["mode"] == mode)
+        i = entered(log["mode"], mode)
         if i is not None:
             ax.axvline(log["t"][i], color=colour, ls=":", lw=1)
 
