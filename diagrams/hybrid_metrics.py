@@ -103,7 +103,7 @@ def detection_scores(detections: np.ndarray, truth: list) -> dict:
             fn += 1
     precision = tp / (tp + fp) if tp + fp else None
     recall = tp / (tp + fn) if tp + fn else None
-    f1 = 2 * precision * recall / (precision + recall) if precision and recall else None
+    f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else None  # the harmonic mean of the two; 0 without a match
     return {"precision": precision, "recall": recall, "f1": f1, "true_positives": tp, "false_positives": fp,
             "false_negatives": fn, "iou_match": IOU_MATCH, "frames_with_ugv_in_view": int(sum(b is not None for b in truth))}
 
