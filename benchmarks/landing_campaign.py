@@ -18,7 +18,7 @@ rendered camera (ArUco + solvePnP; `--rendered-runs` per case), the same seeds.
 - navigation: still air on the consumer GNSS/INS grade (`navigation.source: gnss_ins`), 3, 6 and 12 m/s:
   reported beside the truth's (still).
 - occlusion: still air, random 0.5 s occlusion bursts (0.2 per second), 3, 6 and 12 m/s. Target: no crash,
-  every failed run an abort (a timeout after aborts), no touchdown off the pad.
+  every failed run an abort (target lost, or a timeout), no touchdown off the pad.
 - throughput: a --throughput-runs synthetic campaign on --workers (runs/s), and --scaling-runs on 1 and on
   2 workers (target >= 1.7x).
 Prints PASS/FAIL per target and Feng et al. (2018)'s 0.37 m at 12 m/s beside ours; never a timed assertion
@@ -50,6 +50,10 @@ GROUPS = {  # name: (speeds, overrides)
     "occlusion": ("3,6,12", STILL_AIR + OCCLUSION),
 }
 STREAMS = {"synthetic": "estimation.source=synthetic", "rendered": "estimation.source=detector"}
+# Issue 10's occlusion target: a failed run is an abort, not a touchdown off the pad: it lost the target and
+# climbed out, or it kept aborting until the time ran out. A crash, a divergence, a touchdown off the pad or a
+# run that raised is not.
+SAFE_FAILURES = ("target_lost", "timeout")
 FENG_2018_M = 0.37  # Feng et al. 2018 (Drones 2(4)): within 0.37 m of the platform's centre at 12 m/s
 
 
@@ -74,9 +78,10 @@ def print_table(title: str, summary: dict) -> None:
           "| aborts | failures |")
     print("|---|---|---|---|---|---|")
     for case, c in summary["cases"].items():
-        landed = round((c["success_rate"] or 0.0) * c["done"])
+        ended = c["done"] + c["failed"]  # a run that raised is a failure (landing_case_summary's run_failed)
+        landed = round((c["success_rate"] or 0.0) * ended)
         reasons = ", ".join(f"{k} {v}" for k, v in c["failure_reasons"].items()) or "-"
-        print(f"| {case} | {landed}/{c['done']} | {cell(c['touchdown_error_m'])} | "
+        print(f"| {case} | {landed}/{ended} | {cell(c['touchdown_error_m'])} | "
               f"{cell(c['touchdown_rel_speed_mps'])} | {c['aborts']} | {reasons} |")
 
 
@@ -107,7 +112,7 @@ def checks_for(group: str, stream: str, summary: dict) -> list[tuple[str, bool, 
                      f"{error and round(error['p95'], 4)}")]
     elif group == "occlusion":
         for case, c in summary["cases"].items():
-            bad = {k: v for k, v in c["failure_reasons"].items() if k != "target_lost"}
+            bad = {k: v for k, v in c["failure_reasons"].items() if k not in SAFE_FAILURES}
             out.append((f"{stream} occlusion {case}: no crash, no touchdown off the pad", not bad,
                         json.dumps(c["failure_reasons"])))
     return out

@@ -22,10 +22,11 @@ SOURCES = ("ct_ekf", "paper_ekf", "truth")
 
 def is_landing_scenario(scenario) -> bool:
     """A scenario whose diagram flies a landing (its run module has `fly(config, duration_s)`)."""
-    from diagrams.deck_landing_config import DeckLandingConfig
-    from diagrams.gv_landing_config import GvLandingConfig
+    import importlib
 
-    return isinstance(scenario, GvLandingConfig | DeckLandingConfig)
+    from diagrams.runner import DIAGRAM_MODULES
+
+    return hasattr(importlib.import_module(DIAGRAM_MODULES[scenario.diagram]), "fly")
 
 
 def run_task(task: RunTask) -> dict:
@@ -71,17 +72,22 @@ def aggregate(done: dict) -> dict:
     return {"landing": out}
 
 
-def landing_case_summary(records: list) -> dict:
+def landing_case_summary(records: list, failed: int = 0) -> dict:
     """One case's landing figures in a `--case` campaign (diagrams/montecarlo/grid.py), from its
-    finished runs (RunRecord): success rate, touchdown error and relative vertical speed (p50, p95,
+    finished runs (RunRecord) and the number of its runs that raised (`failed`, each a failure, reason
+    "run_failed"): success rate, touchdown error and relative vertical speed (p50, p95,
     max over the runs that touched down), failure reasons counted, aborts, how many met the targets, and on a
     deck its tilt at touchdown and the time waited for a landing window."""
     landings = [r.metrics["landing"] for r in records]
     touched = [m for m in landings if m["touchdown_error_m"] is not None]
-    return {"success_rate": sum(m["success"] for m in landings) / len(landings) if landings else None,
+    reasons = Counter(m["failure_reason"] for m in landings if m["failure_reason"])
+    if failed:
+        reasons["run_failed"] = failed
+    ended = len(landings) + failed
+    return {"success_rate": sum(m["success"] for m in landings) / ended if ended else None,
             "touchdown_error_m": _percentiles([m["touchdown_error_m"] for m in touched], "p50"),
             "touchdown_rel_speed_mps": _percentiles([m["touchdown_rel_speed_mps"] for m in touched], "p50"),
-            "failure_reasons": dict(Counter(m["failure_reason"] for m in landings if m["failure_reason"])),
+            "failure_reasons": dict(reasons),
             "aborts": sum(m["aborts"] for m in landings),
             "meets_targets": sum(m["meets_targets"] for m in landings),
             # On a moving deck: its tilt at touchdown and the waits for a landing window.

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import pytest
 
 from diagrams.cli import main
+from diagrams.landing_campaign import landing_case_summary
 from diagrams.montecarlo import grid, run_campaign
 from diagrams.montecarlo.grid import grid_cases, grid_settings, parse_case_option
 from systems.config import ConfigError
@@ -19,12 +20,14 @@ def test_the_grid_is_the_product_of_the_fields_values_in_order():
     assert grid_cases(["vehicle.speed=3,6,12", "wind.mean_m_s=0,5"]) == (
         "vehicle.speed=3,wind.mean_m_s=0", "vehicle.speed=3,wind.mean_m_s=5", "vehicle.speed=6,wind.mean_m_s=0",
         "vehicle.speed=6,wind.mean_m_s=5", "vehicle.speed=12,wind.mean_m_s=0", "vehicle.speed=12,wind.mean_m_s=5")
-    assert parse_case_option("seed = 1, 2") == ("seed", ["1", "2"])
+    assert parse_case_option("vehicle.speed = 1, 2") == ("vehicle.speed", ["1", "2"])
 
 
 @pytest.mark.parametrize("options, message", [
     (["vehicle.speed"], "--case expects KEY=VALUE"), (["vehicle.speed=3,,6"], "--case expects KEY=VALUE"),
     (["vehicle.speed=3,3"], "given twice"), (["vehicle.speed=3", "vehicle.speed=6"], "a field is given twice"),
+    (["vehicle.speed=3,3.0,3e0"], "given twice"),  # one value: one case flown three times on the same seeds
+    (["seed=1,2"], "the campaign seeds each run"),  # the run's seed would replace it: two cases, one scenario
 ])
 def test_malformed_case_options_are_config_errors(options, message):
     with pytest.raises(ConfigError, match=message):
@@ -36,6 +39,9 @@ def test_malformed_case_options_are_config_errors(options, message):
     ("gv-landing", ["vehicle.speed=3,fast"], [], r"vehicle\.speed must be a number"),
     ("gv-landing", ["vehicle.speed=3,6"], ["vehicle.speed=1"], r"--set vehicle\.speed: a --case sets it"),
     ("stewart-dynamic", ["seed=1,2"], [], "not a landing scenario"),
+    ("gv-marker-ekf", ["vehicle.speed=3,6"], [], "not a landing scenario"),  # a gv scenario that flies no landing
+    ("gv-landing", ["vehicle.speed=3,6"], ["seed=5"], "the campaign seeds each run"),
+    ("gv-landing", [f"vehicle.speed={'1' * 300}"], [], "too long to name a directory"),
 ])
 def test_bad_grids_name_the_field_before_anything_runs(scenario, options, overrides, message):
     with pytest.raises(ConfigError, match=message):
@@ -66,17 +72,27 @@ def a_landing(error_m: float | None, speed_mps: float | None, xy_m=None) -> Simp
         "meets_targets": landed and error_m < 0.10 and speed_mps < 0.5}})
 
 
+def test_a_run_that_raised_counts_against_the_success_rate():
+    summary = landing_case_summary([a_landing(0.01, 0.3), a_landing(0.02, 0.3), a_landing(None, None)], failed=1)
+    assert summary["success_rate"] == 0.5
+    assert summary["failure_reasons"] == {"timeout": 1, "run_failed": 1}
+    assert summary["touchdown_error_m"]["max"] == 0.02
+
+
 def test_the_touchdown_plot_zooms_on_clustered_points_and_counts_each_cases_landings(tmp_path, monkeypatch):
     figures = []
     monkeypatch.setattr(grid, "save_figure", lambda fig, path: figures.append(fig))
-    done = {"a": [a_landing(0.004, 0.3, [0.003, -0.0027]), a_landing(0.002, 0.6, [-0.002, 0.0])],
-            "b": [a_landing(0.001, 0.4, [0.001, 0.0]), a_landing(None, None)]}
-    grid.plot_grid(SimpleNamespace(scenario="gv-landing", overrides=[]), done, tmp_path)
+    a, b = "platform.pad_size_m=1.0", "platform.pad_size_m=1.6"  # a case may set the pad's size
+    done = {a: [a_landing(0.004, 0.3, [0.003, -0.0027]), a_landing(0.002, 0.6, [-0.002, 0.0])],
+            b: [a_landing(0.001, 0.4, [0.001, 0.0]), a_landing(None, None)]}
+    grid.plot_grid(SimpleNamespace(scenario="gv-landing", overrides=[], runs=3), done, tmp_path)  # one run raised
     pad, zoom, errors, speeds = figures[0].axes
-    assert pad.get_xlim()[1] > 0.5  # the whole 1 m pad
+    assert 0.8 < pad.get_xlim()[1] < 0.9  # the larger pad whole
+    outlines = sorted(max(line.get_xdata()) for line in pad.get_lines())
+    assert outlines == pytest.approx([0.5, 0.8])  # each size's outline [m]
     assert 3.0 < zoom.get_xlim()[1] < 12.0 and 3.0 < zoom.get_ylim()[1] < 12.0  # mm: the farthest coordinate 3 mm
     ticks = [label.get_text() for label in errors.get_yticklabels()]
-    assert ticks == ["a\nlanded 2/2, within every target 1/2", "b\nlanded 1/2, within every target 1/2"]
+    assert ticks == [f"{a}\nlanded 2/3, within every target 1/3", f"{b}\nlanded 1/3, within every target 1/3"]
     assert [list(line.get_xdata()) for line in errors.get_lines()[:2]] == [[0.004, 0.002], [0.001]]
     assert [list(line.get_xdata()) for line in speeds.get_lines()[:2]] == [[0.3, 0.6], [0.4]]
 

@@ -61,6 +61,15 @@ def interrupting_run(out: Path, task: RunTask):
     return toy_run(task)
 
 
+def recording_interrupting_run(started: list, task: RunTask):
+    """Notes each run it starts in `started` (in this process: workers=0); Ctrl-C in run 0 of case 6, the
+    first of the runs submitted together."""
+    started.append((task.case, task.index))
+    if (task.case, task.index) == ("6", 0):
+        raise KeyboardInterrupt
+    return toy_run(task)
+
+
 def wait_for_files(paths: list[Path], limit_s: float = 120.0) -> None:
     """Returns once every path exists. Raises after `limit_s` without them, so that a run that would
     wait forever fails instead of hanging the test session."""
@@ -160,6 +169,8 @@ def test_bad_settings_are_config_errors(kwargs, message):
 
 def test_cases_are_canonical():
     assert settings(cases=["6.0", "3e0"]).cases == ("6", "3")
+    assert parse_number_case("12.3456789") == "12.3456789" and parse_number_case("1234567") == "1234567"
+    assert parse_number_case("3.0000001") != parse_number_case("3.0000002")  # not rounded into one
 
 
 def test_case_key_loads_the_scenario_with_case_overrides_and_seed():
@@ -302,6 +313,14 @@ def test_interrupted_campaign_resumes_without_redoing_finished_runs(tmp_path, po
     after = record_versions(tmp_path)
     assert all(after[k] == v for k, v in before.items())  # finished runs were not written again
     assert summary["filters"] == pool_campaigns[1][0]["filters"]
+
+
+def test_ctrl_c_in_process_starts_no_other_run(tmp_path):
+    started = []
+    with pytest.raises(KeyboardInterrupt):
+        run_campaign(toy(run=functools.partial(recording_interrupting_run, started)), settings(), tmp_path,
+                     workers=0, progress=False)
+    assert started[-1] == ("6", 0)
 
 
 @pytest.mark.parametrize("change, named", [

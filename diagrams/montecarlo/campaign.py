@@ -211,7 +211,7 @@ def write_summary(definition: CampaignDefinition, settings: CampaignSettings, ou
         bad = [r for r in mine if r.status == "failed"]
         cases[case] = {"requested": settings.runs, "done": len(done[case]), "failed": len(bad)}
         if definition.case_summary is not None:
-            cases[case].update(definition.case_summary(done[case]))
+            cases[case].update(definition.case_summary(done[case], len(bad)))
         failures += [{"case": r.case, "index": r.index, "seed": r.seed, "reason": r.reason} for r in bad]
     requested = settings.runs * len(settings.cases)
     summary = {

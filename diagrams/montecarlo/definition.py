@@ -17,6 +17,7 @@ from diagrams.montecarlo.settings import CampaignSettings, RunTask
 from systems.config import ConfigError
 
 _CASE_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+=,-]*$")  # a case names a directory under runs/
+MAX_CASE_BYTES = 255  # a file name's longest on Linux and macOS
 
 
 def parse_number_case(text: str) -> str:
@@ -27,7 +28,7 @@ def parse_number_case(text: str) -> str:
         raise ConfigError(f"'{text}' is not a number") from None
     if not math.isfinite(value) or value <= 0:
         raise ConfigError(f"{text} must be a positive number")
-    return f"{value:g}"
+    return repr(value).removesuffix(".0")  # the shortest text that reads back as the value
 
 
 def _plain_case(text: str) -> str:
@@ -53,8 +54,8 @@ class CampaignDefinition:
     #   into the output directory from the done runs by case
     description: str = ""
     paired: bool = False  # run i of every case gets the same seed (CampaignSettings.paired)
-    case_summary: Callable[[list[RunRecord]], dict] | None = None  # a case's done runs -> figures added
-    #   to its entry in summary.json's "cases"
+    case_summary: Callable[[list[RunRecord], int], dict] | None = None  # a case's done runs and how many
+    #   of its runs failed (raised) -> figures added to its entry in summary.json's "cases"
     run_group: Callable[[list[RunTask]], list[dict | RunOutput]] | None = None  # up to `group_size` runs of
     #   one case at once, an output per run, each the one `run` gives for it (picklable, like `run`)
     group_size: int = 1  # runs per worker task when `run_group` is given; each still gets its own record
@@ -99,6 +100,9 @@ def campaign_settings(definition: CampaignDefinition, scenario: str, cases: Sequ
             raise ConfigError(f"{name} {e}") from None
         if known and case not in known:
             raise ConfigError(f"unknown {name} '{text}' for {scenario} (known: {', '.join(known)})")
+        if len(case.encode()) > MAX_CASE_BYTES:
+            raise ConfigError(f"{name} '{case[:40]}...' is too long to name a directory ({len(case.encode())} bytes, "
+                              f"at most {MAX_CASE_BYTES})")
         if not _CASE_PATTERN.match(case):
             raise ConfigError(f"{name} '{text}' cannot name a directory (letters, digits, '.', '_', '+', '-', '=', ',')")
         if case in parsed:
@@ -108,6 +112,8 @@ def campaign_settings(definition: CampaignDefinition, scenario: str, cases: Sequ
         key, sep, _ = assignment.partition("=")
         if not sep or not key:
             raise ConfigError(f"--set expects key=value, got '{assignment}'")
+        if key == "seed":
+            raise ConfigError("--set seed: the campaign seeds each run (--seed gives its base seed)")
         if definition.case_key is not None and key == definition.case_key:
             raise ConfigError(f"--set {key}: the campaign sets {key} from its {name}s")
     settings = CampaignSettings(scenario, tuple(parsed), runs, base_seed, tuple(overrides), definition.paired)

@@ -30,7 +30,7 @@ class _InlineExecutor(cf.Executor):
         future = cf.Future()
         try:
             future.set_result(fn(*args, **kwargs))
-        except BaseException as e:
+        except Exception as e:  # a KeyboardInterrupt stops the campaign here, before the next run
             future.set_exception(e)
         return future
 

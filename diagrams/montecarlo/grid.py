@@ -5,8 +5,9 @@ runs/ too), and every run flies the scenario with its case's assignments (a land
     landing-sim montecarlo marker-landing-wind --runs 20 --case vehicle.speed=3,6 --case wind.mean_m_s=0,5
 
 summary.json's "cases" then holds per case, besides its run counts, the landings' figures
-(diagrams/landing_campaign.landing_case_summary): success_rate, touchdown error and relative vertical speed (p50, p95,
-max, over the runs that touched down), failure reasons counted, and aborts.
+(diagrams/landing_campaign.landing_case_summary): success_rate (a run that raised is a failure, reason run_failed),
+touchdown error and relative vertical speed (p50, p95, max, over the runs that touched down), failure reasons counted,
+and aborts. A campaign seeds each of its runs: `seed` is neither a --case nor a --set.
 """
 
 from __future__ import annotations
@@ -23,7 +24,14 @@ from diagrams.montecarlo.records import RunRecord
 from diagrams.montecarlo.settings import GRID, CampaignSettings
 from diagrams.outputs import save_figure
 from diagrams.runner import load_scenario
+from diagrams.scenario import parse_yaml
 from systems.config import ConfigError
+
+
+def _value(text: str):
+    """A --case value as the scenario will read it: 3, 3.0 and 3e0 are one number."""
+    value = parse_yaml(text)
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else repr(value)
 
 
 def parse_case_option(option: str) -> tuple[str, list[str]]:
@@ -33,7 +41,9 @@ def parse_case_option(option: str) -> tuple[str, list[str]]:
     texts = [v.strip() for v in values.split(",")]
     if not sep or not key.strip() or not all(texts):
         raise ConfigError(f"--case expects KEY=VALUE[,VALUE...], got '{option}'")
-    if len(set(texts)) != len(texts):
+    if key.strip() == "seed":
+        raise ConfigError("--case seed: the campaign seeds each run (--seed gives its base seed)")
+    if len(set(map(_value, texts))) != len(texts):
         raise ConfigError(f"--case {key}: a value is given twice")
     return key.strip(), texts
 
@@ -58,13 +68,16 @@ def plot_grid(settings: CampaignSettings, done: dict[str, list[RunRecord]], out_
     points = {case: np.array([r.metrics["landing"]["touchdown_offset_pad_xy_m"] for r in records
                               if r.metrics["landing"].get("touchdown_offset_pad_xy_m") is not None]).reshape(-1, 2)
               for case, records in done.items()}
-    half = load_scenario(settings.scenario, overrides=list(settings.overrides))[1].pad_size_m / 2
+    halves = {load_scenario(settings.scenario, overrides=[*settings.overrides, *case.split(",")])[1].pad_size_m / 2
+              for case in done}  # a case may set the pad's size: each size's outline
+    half = max(halves)
     reach = max([0.001, *(np.abs(xy).max() for xy in points.values() if xy.size)])  # m, the farthest point out
     for ax, scale, extent in ((pad, 1.0, half), (zoom, 1e3, min(1.2 * reach, half))):
         for case, xy in points.items():
             ax.scatter(*(scale * xy).T, s=14, label=case)
-        box = scale * np.array([-half, half])
-        ax.plot(box[[0, 1, 1, 0, 0]], box[[0, 0, 1, 1, 0]], "k-", lw=1)
+        for size in halves:
+            box = scale * np.array([-size, size])
+            ax.plot(box[[0, 1, 1, 0, 0]], box[[0, 0, 1, 1, 0]], "k-", lw=1)
         ax.set_xlim(-scale * extent * 1.05, scale * extent * 1.05)
         ax.set_ylim(-scale * extent * 1.05, scale * extent * 1.05)
         ax.set_aspect("equal")
@@ -77,7 +90,8 @@ def plot_grid(settings: CampaignSettings, done: dict[str, list[RunRecord]], out_
     for case in names:
         landings = [r.metrics["landing"] for r in done[case]]
         landed, meets = sum(m["success"] for m in landings), sum(m["meets_targets"] for m in landings)
-        labels.append(f"{case}\nlanded {landed}/{len(landings)}, within every target {meets}/{len(landings)}")
+        # out of the runs asked for: a run that raised has no record here and is not a landing
+        labels.append(f"{case}\nlanded {landed}/{settings.runs}, within every target {meets}/{settings.runs}")
     for ax, key, target, unit, title in (
             (errors, "touchdown_error_m", TARGET_TOUCHDOWN_ERROR_M, "m", "(c) touchdown error from the pad centre"),
             (speeds, "touchdown_rel_speed_mps", TARGET_TOUCHDOWN_REL_SPEED_MPS, "m/s",
