@@ -1,6 +1,7 @@
 """Running a scenario: load it, build its diagram, simulate, and write what DESIGN.md says a run
 leaves behind (metrics.json, log.npz, plots, and on request a Meshcat recording and a video)."""
 
+import math
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,10 +67,12 @@ def load_scenario(name: str | None = None, config_path: str | Path | None = None
         raw["seed"] = seed
     diagrams = _diagrams()
     diagram = raw.get("diagram", "stewart_scene")
-    if diagram not in diagrams:
-        raise ConfigError(f"{path}: unknown diagram '{diagram}' (known: {', '.join(diagrams)})")
+    if not isinstance(diagram, str) or diagram not in diagrams:
+        raise ConfigError(f"{path}: unknown diagram {diagram!r} (known: {', '.join(diagrams)})")
     schema = diagrams[diagram].Scenario
     scenario = load_typed(normalise(raw, schema), schema, str(path))
+    if not math.isfinite(getattr(scenario, "duration_s", 0.0)):
+        raise ConfigError(f"duration_s must be finite, got {scenario.duration_s}")
     scenario.validate()
     return path.stem, scenario
 

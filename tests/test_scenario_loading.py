@@ -7,7 +7,9 @@ import pytest
 import yaml
 
 from diagrams.runner import load_scenario
-from diagrams.scenario import SCENARIO_DIR, normalise, read_scenario, scenario_names, scenario_path, set_override
+from diagrams.scenario import (
+    SCENARIO_DIR, normalise, parse_yaml, read_scenario, scenario_names, scenario_path, set_override,
+)
 from diagrams.stewart_run import Scenario
 from systems.config import ConfigError
 
@@ -157,6 +159,7 @@ def test_a_group_given_a_scalar_is_named_without_a_trailing_dot():
     ("hover.height_above_deck_m=0.05", "hover.height_above_deck_m"),
     ("imu.rate_hz=0", "imu.rate_hz"),
     ("duration_s=0", "duration_s"),
+    ("duration_s=.inf", "duration_s must be finite"),
 ])
 def test_values_out_of_range_name_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
@@ -175,6 +178,7 @@ def test_unknown_scenario_lists_the_known_ones():
     ("platform: [1, 2\n", "not valid YAML"),
     ("- 1\n- 2\n", "mapping"),
     ("diagram: no_such_diagram\n", "no_such_diagram"),
+    ("diagram: [1]\n", r"unknown diagram \[1\]"),
 ])
 def test_bad_files_are_config_errors(tmp_path, text, fragment):
     with pytest.raises(ConfigError, match=fragment):
@@ -200,6 +204,9 @@ def test_numbers_are_read_as_yaml_1_2_reads_them(tmp_path):
     # PyYAML (YAML 1.1) reads 1e9 as text; a user writing it means a number.
     _, scenario = load_scenario("stewart-dynamic", overrides=["camera.rate_hz=2.5e1", "tof.noise_std_m=1E-3"])
     assert scenario.camera.rate_hz == 25.0 and scenario.tof.noise_std_m == 0.001
+    _, scenario = load_scenario("stewart-dynamic", overrides=["camera.rate_hz=.25e2", "tof.noise_std_m=+.5E-3"])
+    assert scenario.camera.rate_hz == 25.0 and scenario.tof.noise_std_m == 0.0005
+    assert parse_yaml("-.5e-1") == -0.05
     _, scenario = load_scenario(config_path=write_yaml(tmp_path, "diagram: stewart_scene\nduration_s: 3e1\n"))
     assert scenario.duration_s == 30.0
     with pytest.raises(ConfigError, match="camera.rate_hz"):
