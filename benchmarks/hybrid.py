@@ -63,7 +63,7 @@ def main() -> None:
               f"{fmt(r['hybrid_rmse_horizontal_m'], '.3f'):>9}{r['hybrid_valid_fraction']:>7.2f}{r['wall_s']:>8.0f}"
               f"{after_climb:>34}"
               f"  {r['failure'] or ''}")
-    errors = [r["touchdown_error_m"] for r in runs if r["success"]]
+    errors = [r["touchdown_error_m"] for r in runs if r["touchdown_error_m"] is not None]  # off the pad too
     success = sum(r["success"] for r in runs) / len(runs)
     p95 = float(np.percentile(errors, 95)) if errors else None
     print(f"speed {args.speed} m/s: success {success:.0%} of {len(runs)}, touchdown error p95 "
