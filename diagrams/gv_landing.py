@@ -187,7 +187,8 @@ def _add_measurements(builder: DiagramBuilder, config: GvLandingConfig, scene_gr
         out.acquired = source.get_output_port()
     else:
         out.detector = builder.AddNamedSystem("marker_detector", MarkerDetectorSystem(
-            camera_config.K_estimated, config.platform.markers, camera_config.width, camera_config.height))
+            camera_config.K_estimated, config.platform.markers, camera_config.width, camera_config.height,
+            camera_config.D_estimated))
         builder.Connect(out.color_image, out.detector.get_input_port())
         out.acquired = out.detector.get_output_port()
     if config.faults.active:  # what the camera or the source delivers, with the faults in it

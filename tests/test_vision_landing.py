@@ -12,6 +12,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
+from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly
 from diagrams.perception_sources import SOURCES, PerceptionSource, add_estimate_to_seam
 from diagrams.runner import load_scenario
@@ -104,3 +105,25 @@ def test_the_example_flies_an_estimator_of_ones_own(capsys):
     assert metrics["perception"]["source"] == "averaged_markers" and metrics["landing"]["success"]
     assert "landed" in out and "averaged_markers steering: RMS position" in out
     assert "averaged_markers" not in SOURCES or SOURCES["averaged_markers"].needs_markers
+
+
+def test_the_marker_detector_is_given_the_estimators_lens_model():
+    # marker-landing's camera with barrel distortion: the detector told the lens measures as through a
+    # pinhole; told none (calibration_error.k1 cancelling it), it measures otherwise.
+    def measured(overrides):
+        _, scenario = load_scenario("marker-landing", overrides=[
+            "estimation.camera.pixel_noise_std=0.0", "start.height_m=4.5", *overrides])
+        scenario.start.xy_m = [float(scenario.platform.p_VP[0]) + 0.6, float(scenario.platform.p_VP[1]) + 0.4]
+        diagram, handles = build_gv_landing(scenario)
+        context = diagram.CreateDefaultContext()
+        handles.initialize(context)
+        detector = handles.measurements.detector
+        return {m.marker_id: m.p_CM for m in detector.get_output_port().Eval(detector.GetMyContextFromRoot(context))}
+
+    lens = "estimation.camera.distortion=[-0.2, 0.0, 0.0, 0.0, 0.0]"
+    pinhole, exact = measured([]), measured([lens])
+    unmodelled = measured([lens, "estimation.camera.calibration_error.k1=0.2"])
+    shared = set(pinhole) & set(exact) & set(unmodelled)
+    assert len(shared) >= 3
+    assert max(np.linalg.norm(exact[i] - pinhole[i]) for i in shared) < 0.03  # m, from 4.5 m
+    assert min(np.linalg.norm(unmodelled[i] - exact[i]) for i in shared) > 0.05
