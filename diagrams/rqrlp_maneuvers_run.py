@@ -51,10 +51,18 @@ def maneuvers_metrics(simulation: Simulation, log: dict, config: ManeuversConfig
             "estimators": federated_metrics(federated_log(log, config.platform), config.federated.camera.X_BC)}
 
 
+def simulate_maneuvers(diagram, handles, config: ManeuversConfig, duration_s: float, **options) -> Simulation:
+    """Simulates a built diagram (diagrams/simulate.py's options) with the scenario's integration: the
+    discretised quadrotor's own steps, or the Simulator's integrator as `integration` sets it."""
+    integration = config.integration
+    return simulate(diagram, duration_s, initialize=handles.initialize,
+                    simulator_config=None if integration.discrete else integration.simulator_config(), **options)
+
+
 def fly(config: ManeuversConfig, duration_s: float, **options) -> tuple[dict, dict]:
     """Builds and flies without files: (metrics, logs)."""
     diagram, handles = build_rqrlp_maneuvers(config)
-    simulation = simulate(diagram, duration_s, initialize=handles.initialize, **options)
+    simulation = simulate_maneuvers(diagram, handles, config, duration_s, **options)
     log = collect_logs(handles, simulation.context)
     return maneuvers_metrics(simulation, log, config, "rqrlp-maneuvers"), log
 
@@ -64,9 +72,9 @@ def run(scenario: Scenario, ctx) -> dict:
 
     video_path = ctx.out_dir / "camera.mp4" if ctx.options.video else None
     diagram, handles = build_rqrlp_maneuvers(scenario, ctx.meshcat, video_path)
-    simulation = simulate(diagram, scenario.run_length_s, initialize=handles.initialize,
-                          realtime=ctx.options.meshcat, progress=ctx.options.progress,
-                          visualizer=handles.meshcat_visualizer, record=ctx.options.record, video=handles.video)
+    simulation = simulate_maneuvers(diagram, handles, scenario, scenario.run_length_s, realtime=ctx.options.meshcat,
+                                    progress=ctx.options.progress, visualizer=handles.meshcat_visualizer,
+                                    record=ctx.options.record, video=handles.video)
     log = collect_logs(handles, simulation.context)
     metrics = maneuvers_metrics(simulation, log, scenario, ctx.name)
     write_npz(ctx.out_dir / "log.npz", **log)

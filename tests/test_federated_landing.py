@@ -123,3 +123,18 @@ def test_over_manoeuvres_the_federated_pose_beats_every_node(maneuvers):
         assert fused["rmse_position_m"] < estimators[node]["rmse_position_m"]
         assert fused["rmse_orientation_rad"] < estimators[node]["rmse_orientation_rad"]
     assert fused["rmse_orientation_rad"] <= 0.0818  # seed 001's figure
+
+
+def test_the_manoeuvres_integrate_as_the_scenario_says(monkeypatch):
+    import diagrams.simulate
+
+    simulators, simulator = [], diagrams.simulate.Simulator
+    monkeypatch.setattr(diagrams.simulate, "Simulator", lambda diagram: simulators.append(simulator(diagram))
+                        or simulators[-1])
+    _, config = load_scenario("rqrlp-maneuvers", overrides=[
+        "integration.discrete=false", "integration.scheme=runge_kutta2", "integration.max_step_s=0.001",
+        "integration.error_control=false"])
+    fly_maneuvers(config, 0.06)
+    integrator = simulators[-1].get_integrator()
+    assert type(integrator).__name__ == "RungeKutta2Integrator"
+    assert integrator.get_fixed_step_mode() and integrator.get_maximum_step_size() == 0.001
