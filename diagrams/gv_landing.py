@@ -58,12 +58,13 @@ from systems.perception.markers import MarkerMeasurementsToVector
 from systems.perception.rendezvous import VehicleBroadcast
 from systems.perception.rendezvous_search import RendezvousSearch
 from systems.perception.synthetic_markers import SyntheticMarkerSource
-from systems.perception.truth import PadPose, RelativeStateTruth
-from systems.sensors.camera import add_camera, add_renderer
+from systems.perception.truth import PadPose, PadVelocity, RelativeStateTruth
+from systems.sensors.camera import NoisyCamera, add_camera, add_renderer
+from systems.sensors.ground_truth import AxisFlow
 from systems.sensors.navigation import NavigationSystem
 from systems.vehicles.airframe import AirframeGeometry
 from systems.vehicles.ground_vehicle import GroundVehicle, GroundVehicleConfig
-from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry
+from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry, PlatformConfig
 from systems.vehicles.paths import make_path
 from systems.vehicles.quadrotor import P_WB, STATE_SIZE, Quadrotor, hover_state
 from systems.vehicles.traffic import Traffic, draw_distractors
@@ -162,14 +163,39 @@ def build_gv_landing(config: GvLandingConfig, meshcat: Meshcat | None = None,
     return diagram, handles
 
 
+def add_pad_axis_flow(builder: DiagramBuilder, X_BC: RigidTransform, body: tuple[OutputPort, OutputPort],
+                      vehicle: tuple[OutputPort, OutputPort], vehicle_config: GroundVehicleConfig,
+                      platform: PlatformConfig, noisy_camera: NoisyCamera) -> AxisFlow:
+    """Feeds the camera's motion blur: the pad's plane crossing the image (`AxisFlow`), from the body's
+    (X_WB, V_WB) ports and the vehicle's (state, speed) ports that carry the pad."""
+    flow = builder.AddNamedSystem("axis_flow", AxisFlow(X_BC))
+    pad_pose = builder.AddNamedSystem("blur_pad_pose", PadPose(platform))
+    pad_velocity = builder.AddNamedSystem("blur_pad_velocity", PadVelocity(vehicle_config, platform))
+    builder.Connect(vehicle[0], pad_pose.get_input_port())
+    builder.Connect(vehicle[0], pad_velocity.GetInputPort("vehicle_state"))
+    builder.Connect(vehicle[1], pad_velocity.GetInputPort("vehicle_speed"))
+    for name, port in (("X_WB", body[0]), ("V_WB", body[1]), ("X_WS", pad_pose.get_output_port()),
+                       ("V_WS", pad_velocity.get_output_port())):
+        builder.Connect(port, flow.GetInputPort(name))
+    builder.Connect(flow.get_output_port(), noisy_camera.GetInputPort("axis_flow"))
+    return flow
+
+
 def _add_measurements(builder: DiagramBuilder, config: GvLandingConfig, scene_graph: SceneGraph, body_frame_id,
-                      X_WB: OutputPort, vehicle_state: OutputPort, video_path) -> Measurements:
+                      body: tuple[OutputPort, OutputPort], vehicle: tuple[OutputPort, OutputPort],
+                      video_path) -> Measurements:
+    """The camera (with its motion blur fed when it has an exposure) and the marker stream. `body`: the
+    UAV's true (X_WB, V_WB) ports; `vehicle`: the vehicle's (state, speed) ports."""
     est = config.estimation
     out = Measurements()
+    X_WB, vehicle_state = body[0], vehicle[0]
     camera_config = config.camera()
     if camera_config is not None:
         add_renderer(scene_graph)
         out.camera, noisy_camera = add_camera(builder, scene_graph, body_frame_id, camera_config, config.seed)
+        if camera_config.exposure_s > 0:
+            add_pad_axis_flow(builder, camera_config.X_BC, body, vehicle, config.vehicle, config.platform,
+                              noisy_camera)
         out.color_image = noisy_camera.get_output_port()
         if video_path is not None:
             out.video = builder.AddNamedSystem("video", VideoRecorder(video_path, camera_config.period_s,
@@ -257,7 +283,8 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
             scene_graph, vehicle.path, draw_distractors(config.distractors, config.vehicle.speed, config.seed)))
         builder.Connect(traffic.get_output_port(), scene_graph.get_source_pose_port(traffic.source_id))
 
-    measurements = _add_measurements(builder, config, scene_graph, airframe.body_frame_id, X_WB, vehicle_state,
+    measurements = _add_measurements(builder, config, scene_graph, airframe.body_frame_id,
+                                     (X_WB, quad.GetOutputPort("V_WB")), (vehicle_state, speed.get_output_port()),
                                      video_path)
     filters = {}
     for name in config.filter_names:

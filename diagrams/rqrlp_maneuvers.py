@@ -23,13 +23,14 @@ from pydrake.systems.sensors import RgbdSensor
 from pydrake.trajectories import PiecewisePolynomial
 
 from diagrams.federated_perception import FederatedPerceptionConfig, FederatedPorts, add_federated_perception
-from diagrams.gv_landing import add_ground
+from diagrams.gv_landing import add_ground, add_pad_axis_flow
 from diagrams.gv_landing_config import IntegrationConfig, StartConfig, table1_airframe
 from diagrams.stewart_scene import add_viewers
 from systems.config import require
 from systems.control.flight_controller import BACKENDS, COMMAND_SIZE, FlightControllerConfig, make_flight_controller
 from systems.sensors.camera import add_camera, add_renderer
 from systems.vehicles.airframe import AirframeConfig, AirframeGeometry
+from systems.vehicles.ground_vehicle import GroundVehicleConfig
 from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry, PlatformConfig
 from systems.vehicles.quadrotor import P_WB, STATE_SIZE, Quadrotor, QuadrotorParams, hover_state
 from systems.viewers import MeshcatTrail, VideoRecorder
@@ -147,6 +148,10 @@ def build_rqrlp_maneuvers(config: ManeuversConfig, meshcat: Meshcat | None = Non
     camera_config = config.federated.camera
     add_renderer(scene_graph)
     camera, noisy_camera = add_camera(builder, scene_graph, airframe.body_frame_id, camera_config, config.seed)
+    if camera_config.exposure_s > 0:  # the pattern is still: its plane crosses the image as the UAV moves
+        still = builder.AddNamedSystem("pattern_speed", ConstantVectorSource(np.zeros(2))).get_output_port()
+        add_pad_axis_flow(builder, camera_config.X_BC, (X_WB, quad.GetOutputPort("V_WB")), (vehicle_state, still),
+                          GroundVehicleConfig(), config.platform, noisy_camera)
     perception = add_federated_perception(builder, config.federated, config.platform.rqrlp, config.seed,
                                           noisy_camera.get_output_port(), X_WB, quad.GetOutputPort("V_WB"),
                                           quad.GetOutputPort("A_WB"))

@@ -138,3 +138,17 @@ def test_the_manoeuvres_integrate_as_the_scenario_says(monkeypatch):
     integrator = simulators[-1].get_integrator()
     assert type(integrator).__name__ == "RungeKutta2Integrator"
     assert integrator.get_fixed_step_mode() and integrator.get_maximum_step_size() == 0.001
+
+
+def test_the_manoeuvres_camera_exposure_is_fed_the_patterns_flow():
+    from diagrams.rqrlp_maneuvers import build_rqrlp_maneuvers
+    from systems.sensors.camera import NoisyCamera
+
+    _, config = load_scenario("rqrlp-maneuvers", overrides=["federated.camera.exposure_s=0.01"])
+    diagram, handles = build_rqrlp_maneuvers(config)
+    (camera,) = [s for s in diagram.GetSystems() if isinstance(s, NoisyCamera)]
+    flow = diagram.GetSubsystemByName("axis_flow")
+    context = diagram.CreateDefaultContext()
+    handles.initialize(context)
+    assert camera.GetInputPort("axis_flow").HasValue(camera.GetMyContextFromRoot(context))
+    assert not flow.GetInputPort("V_WS").Eval(flow.GetMyContextFromRoot(context)).any()  # the pattern is still

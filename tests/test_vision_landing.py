@@ -127,3 +127,29 @@ def test_the_marker_detector_is_given_the_estimators_lens_model():
     assert len(shared) >= 3
     assert max(np.linalg.norm(exact[i] - pinhole[i]) for i in shared) < 0.03  # m, from 4.5 m
     assert min(np.linalg.norm(unmodelled[i] - exact[i]) for i in shared) > 0.05
+
+
+def test_the_cameras_exposure_smears_the_pad_moving_under_it():
+    # marker-landing at t = 0: the UAV still, the pad moving at the vehicle's speed under it. The blur's
+    # axis flow is the pad's speed over its depth, and the 20 ms frame differs from the instant one.
+    def frame(exposure_s):
+        _, scenario = load_scenario("marker-landing", overrides=[
+            f"estimation.camera.exposure_s={exposure_s}", "estimation.camera.pixel_noise_std=0.0",
+            "start.height_m=4.5"])
+        diagram, handles = build_gv_landing(scenario)
+        context = diagram.CreateDefaultContext()
+        handles.initialize(context)
+        port = handles.measurements.color_image  # the noisy camera's
+        image = port.Eval(port.get_system().GetMyContextFromRoot(context)).data.copy()
+        return diagram, context, handles, image
+
+    _, _, _, instant = frame(0.0)
+    diagram, context, handles, smeared = frame(0.02)
+    flow = diagram.GetSubsystemByName("axis_flow")
+    truth = handles.truth.get_output_port().Eval(handles.truth.GetMyContextFromRoot(context))
+    depth = -truth[P_BP_W][2] - 0.04  # the camera sits 0.04 m under the body, looking down
+    speed = np.linalg.norm(truth[V_WP])
+    assert speed > 1.0
+    rate = np.linalg.norm(flow.get_output_port().Eval(flow.GetMyContextFromRoot(context)))
+    assert rate == pytest.approx(speed / depth, rel=0.05)  # rad/s
+    assert np.abs(smeared.astype(int) - instant.astype(int)).max() > 20

@@ -24,6 +24,11 @@ from systems.vehicles.ground_vehicle_geometry import PlatformConfig
 STEERING = 3  # index of the steering angle in the vehicle's state [x, y, heading, steering]
 
 
+def turn_rate(steering: float, speed: float, vehicle: GroundVehicleConfig) -> float:
+    """The vehicle's yaw rate w = v tan(steering) / d [rad/s] at `speed` [m/s] and `steering` [rad]."""
+    return speed * math.tan(steering) / vehicle.wheelbase_m
+
+
 def pad_motion(vehicle_state, speed: float, speed_rate: float, steering_rate: float, vehicle: GroundVehicleConfig,
                platform: PlatformConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(p_WP [m], v_WP [m/s], a_WP [m/s^2]) of the pad centre in W for the vehicle's state [x, y,
@@ -32,7 +37,7 @@ def pad_motion(vehicle_state, speed: float, speed_rate: float, steering_rate: fl
     c, s = math.cos(heading), math.sin(heading)
     r = platform.pad_offset_m
     tan_steering = math.tan(steering)
-    yaw_rate = speed * tan_steering / vehicle.wheelbase_m
+    yaw_rate = turn_rate(steering, speed, vehicle)
     yaw_accel = (speed_rate * tan_steering + speed * steering_rate * (1.0 + tan_steering**2)) / vehicle.wheelbase_m
     along, across = speed_rate - r * yaw_rate**2, speed * yaw_rate + r * yaw_accel
     return (np.array([x + c * r, y + s * r, platform.height_m]),
@@ -94,6 +99,24 @@ class PadMotionTruth(LeafSystem):
         if not in_view(values[P_BP_B], *self._view):
             values[VALID] = 0.0
         output.SetFromVector(values)
+
+
+class PadVelocity(LeafSystem):
+    """Inputs `vehicle_state` (4) and `vehicle_speed` (2: speed [m/s], its rate); output `V_WP` (6): the pad
+    frame P's spatial velocity [w; v] in W (rad/s, m/s), turning with the vehicle at w = v tan(steering) / d."""
+
+    def __init__(self, vehicle: GroundVehicleConfig, platform: PlatformConfig):
+        super().__init__()
+        state = self.DeclareVectorInputPort("vehicle_state", 4)
+        speed = self.DeclareVectorInputPort("vehicle_speed", 2)
+
+        def calc(context, output):
+            x = state.Eval(context)
+            v = float(speed.Eval(context)[0])
+            v_WP = pad_motion(x, v, 0.0, 0.0, vehicle, platform)[1]
+            output.SetFromVector(np.r_[0.0, 0.0, turn_rate(float(x[STEERING]), v, vehicle), v_WP])
+
+        self.DeclareVectorOutputPort("V_WP", 6, calc)
 
 
 class PadPose(LeafSystem):
