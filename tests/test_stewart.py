@@ -309,6 +309,19 @@ def test_stroke_violation_names_when_and_which_leg():
     assert float(message.split()[2]) < 2.5
 
 
+@pytest.mark.parametrize("frequency_hz, amplitude_m, phase_deg, leg_m", [
+    (10.0, 0.25, 0.0, None),  # every 0.05 s sample on a zero crossing: the legs reach 0.44-0.89 m between them
+    (2.5, 0.1774, 22.5, 0.498),  # the shortest leg 2 mm under the stroke, at 0.275 s, between 0.25 and 0.30 s
+])
+def test_a_stroke_left_between_samples_is_found(frequency_hz, amplitude_m, phase_deg, leg_m):
+    config = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[amplitude_m], z_frequency_hz=[frequency_hz],
+                                   z_phase_deg=[phase_deg])
+    message = stroke_violation(config, 20.0)
+    assert message is not None
+    if leg_m is not None:
+        assert float(message.split()[-2]) == pytest.approx(leg_m, abs=1e-3)
+
+
 def leg_parts_in_scene(platform: StewartPlatform, scene_graph: SceneGraph):
     """The six legs' (cylinder, rod) as (X_WG, length) from SceneGraph, with the platform at its pose at t = 0."""
     builder = DiagramBuilder()
