@@ -1,4 +1,4 @@
-"""Wind: a mean wind, Dryden turbulence and 1-cosine gusts (MIL-F-8785C), as configuration and pure maths.
+"""Wind: a mean wind, Dryden turbulence (MIL-F-8785C) and 1-cosine gust pulses, as configuration and pure maths.
 
 Frames and units: World W is z up (x, y horizontal, the ground at z = 0); speeds in m/s, lengths in m,
 times in s, angles in deg. A direction is where the air moves TOWARD, measured from W +x toward +y
@@ -195,7 +195,8 @@ def mean_wind_W(config: WindConfig) -> np.ndarray:
 def gust_velocity_W(gusts: list[GustConfig], t: float) -> np.ndarray:
     """The sum of the gusts' velocities (3,) in W (m/s) at time t (s).
 
-    Each is MIL-F-8785C's discrete 1-cosine gust in time rather than distance:
+    Each is a 1-cosine pulse in time rather than distance, the shape of CS-25.341's discrete gust (MIL-F-8785C's
+    discrete gust ramps up the same way and then holds its peak; two of its ramps, up and down, make this pulse):
     v(t) = (V_m / 2) (1 - cos(2 pi (t - t0) / T)) for t0 <= t <= t0 + T, zero outside; it rises to V_m at
     mid-duration and falls back to zero."""
     total = np.zeros(3)
