@@ -182,7 +182,7 @@ def write_outputs(flight: Flight, metrics: dict, config: GvLandingConfig, out_di
             source.plot(flight.source_log, config, out_dir)
     write_npz(out_dir / "log.npz", **arrays)
     plot_flight(flight.log, config, out_dir, make_path(config.vehicle.path_config()).polyline(max_length_m=1e9))
-    plot_perception(flight.log, config.perception.source, out_dir)
+    plot_perception(flight.log, config.perception.source, out_dir, source.estimates_heading)
     if "wind" in flight.log:
         plot_wind(flight.log, out_dir)
 

@@ -125,9 +125,10 @@ def shade_modes(ax, log) -> None:
         ax.axvspan(t[start], t[end], color=MODE_COLOURS[Mode(int(mode[start]))], alpha=0.15, lw=0)
 
 
-def plot_perception(log: dict[str, np.ndarray], source: str, out_dir) -> None:
-    """perception.png: the pad's position (x, y, height above the UAV) and heading as the steering
-    estimate had them against the truth, its validity, with the supervisor's modes shaded."""
+def plot_perception(log: dict[str, np.ndarray], source: str, out_dir, heading: bool = True) -> None:
+    """perception.png: the pad's position (x, y, height above the UAV) and heading (`heading`: where the
+    source estimates one) as the steering estimate had them against the truth, its validity, with the
+    supervisor's modes shaded."""
     t, quad = log["t"], log["quadrotor_state"]
     valid = log["relative_state"][:, VALID] > 0.5
     estimate = quad[:, P_WB] + np.where(valid[:, None], log["relative_state"][:, P_BP_W], np.nan)
@@ -140,7 +141,7 @@ def plot_perception(log: dict[str, np.ndarray], source: str, out_dir) -> None:
     error = np.linalg.norm(estimate - truth, axis=1)
     axes[3].semilogy(t, np.maximum(error, 1e-4), "-", color="tab:red", lw=1)
     axes[3].set_ylabel("position error (m)")
-    if "steering_estimate" in log:
+    if heading and "steering_estimate" in log:  # not for a source whose estimate is a position alone
         q = log["steering_estimate"][:, 4:]
         yaw = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
         axes[4].plot(t, np.degrees(np.angle(np.exp(1j * (yaw - carrier_heading(log))))), "-",

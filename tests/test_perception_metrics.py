@@ -44,3 +44,19 @@ def test_an_estimated_heading_is_scored_against_the_vehicles():
     assert out["rms_heading_deg"] == pytest.approx(2.0)
     np.testing.assert_allclose(out["mae_rpy_deg"], [0.0, 0.0, 2.0], atol=1e-9)
     assert out["flips"] == 0
+
+
+@pytest.mark.parametrize("heading", [True, False])
+def test_the_heading_error_is_drawn_only_for_a_source_that_estimates_it(heading, tmp_path, monkeypatch):
+    from diagrams import landing_plots
+
+    figures = []
+    monkeypatch.setattr(landing_plots, "save_figure", lambda fig, path: figures.append(fig))
+    log = _log(None)
+    log["mode"] = np.zeros(N)
+    landing_plots.plot_perception(log, "hybrid", tmp_path, heading)
+    lines = figures[0].axes[4].get_lines()  # the heading error, and the marks of invalid samples
+    drawn = [line for line in lines if len(line.get_xdata()) == N]
+    assert len(drawn) == heading
+    if heading:  # the identity rotation against the vehicle's 90 deg
+        np.testing.assert_allclose(drawn[0].get_ydata(), -90.0)
