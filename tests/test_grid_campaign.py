@@ -40,8 +40,10 @@ def test_malformed_case_options_are_config_errors(options, message):
     ("gv-landing", ["vehicle.speed=3,6"], ["vehicle.speed=1"], r"--set vehicle\.speed: a --case sets it"),
     ("stewart-dynamic", ["seed=1,2"], [], "not a landing scenario"),
     ("gv-marker-ekf", ["vehicle.speed=3,6"], [], "not a landing scenario"),  # a gv scenario that flies no landing
+    ("rqrlp-maneuvers", ["seed=1,2"], [], "not a landing scenario"),  # it flies, and lands nowhere
     ("gv-landing", ["vehicle.speed=3,6"], ["seed=5"], "the campaign seeds each run"),
-    ("gv-landing", [f"vehicle.speed={'1' * 300}"], [], "too long to name a directory"),
+    ("gv-landing", [f"vehicle.speed={'1' * 310}"], [], "too long to name a directory"),  # beyond a float
+    ("gv-landing", ["vehicle.path=[a"], [], "cannot name a directory"),  # no YAML, and no file name
 ])
 def test_bad_grids_name_the_field_before_anything_runs(scenario, options, overrides, message):
     with pytest.raises(ConfigError, match=message):

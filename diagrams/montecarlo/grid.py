@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import itertools
 
+import yaml
+
 import matplotlib.pyplot as plt
 import numpy as np
 
@@ -29,9 +31,13 @@ from systems.config import ConfigError
 
 
 def _value(text: str):
-    """A --case value as the scenario will read it: 3, 3.0 and 3e0 are one number."""
-    value = parse_yaml(text)
-    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else repr(value)
+    """A --case value as the scenario will read it, to compare: 3, 3.0 and 3e0 are one number (equal, as
+    Python compares them); anything else, or text that is no YAML, as written."""
+    try:
+        value = parse_yaml(text)
+    except yaml.YAMLError:
+        return text
+    return value if isinstance(value, int | float) and not isinstance(value, bool) else repr(value)
 
 
 def parse_case_option(option: str) -> tuple[str, list[str]]:
