@@ -312,6 +312,7 @@ def test_stroke_violation_names_when_and_which_leg():
 @pytest.mark.parametrize("frequency_hz, amplitude_m, phase_deg, leg_m", [
     (10.0, 0.25, 0.0, None),  # every 0.05 s sample on a zero crossing: the legs reach 0.44-0.89 m between them
     (2.5, 0.1774, 22.5, 0.498),  # the shortest leg 2 mm under the stroke, at 0.275 s, between 0.25 and 0.30 s
+    (2.5, 0.17525, 22.5, 0.4998),  # 0.2 mm under it, between two of the finer samples: found by the refinement
 ])
 def test_a_stroke_left_between_samples_is_found(frequency_hz, amplitude_m, phase_deg, leg_m):
     config = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[amplitude_m], z_frequency_hz=[frequency_hz],
