@@ -3,6 +3,7 @@ leaves behind (metrics.json, log.npz, plots, and on request a Meshcat recording 
 
 import math
 import shutil
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -106,32 +107,30 @@ def finish_run(ctx: RunContext, metrics: dict) -> dict:
 OUTPUT_SUFFIXES = (".json", ".html", ".png", ".npz", ".mp4")  # the kinds of file a run writes
 
 
-def _previous_outputs(out_dir: Path) -> dict[Path, int]:
-    """{file: inode} of what an earlier run left in `out_dir` (one that holds a metrics.json): its files of
-    the kinds a run writes. Every output is written to a new file and renamed into place (diagrams/outputs.py),
-    so one this run writes again gets a new inode."""
-    if not (out_dir / "metrics.json").is_file():
-        return {}
+def _files(out_dir: Path) -> dict[Path, int]:
+    """{file: inode} of the files of the kinds a run writes in `out_dir`. Every output is written to a new
+    file and renamed into place (diagrams/outputs.py), so one a run writes again gets a new inode."""
     return {p: p.stat().st_ino for p in out_dir.iterdir() if p.is_file() and p.suffix in OUTPUT_SUFFIXES}
 
 
 def run(name: str, scenario, out_dir: str | Path, options: RunOptions) -> dict:
-    """Runs a loaded scenario, writing its outputs to `out_dir`; returns its metrics. An earlier run's
-    outputs there that this one does not write again (its video, say, when this one records none) are
-    removed once this run has finished, so the directory holds one run."""
+    """Runs a loaded scenario, writing its outputs to `out_dir`; returns its metrics. Files there of the
+    kinds a run writes that this one did not write (an earlier run's video, say, when this one records
+    none) are named in one line on stderr when it has finished; nothing is removed."""
     out_dir = Path(out_dir)
     check_writable(out_dir)
     created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
-    previous = _previous_outputs(out_dir)
+    before = _files(out_dir)
     try:
         meshcat = make_meshcat(options)
         if meshcat is not None and options.meshcat:
             print(f"Meshcat is serving the scene at {meshcat.web_url()}", flush=True)
         metrics = _diagrams()[scenario.diagram].run(scenario, RunContext(name, out_dir, options, meshcat))
-        for path, inode in previous.items():
-            if path.exists() and path.stat().st_ino == inode:
-                path.unlink()
+        kept = sorted(p.name for p, inode in _files(out_dir).items() if before.get(p) == inode)
+        if kept:
+            print(f"landing-sim: {out_dir} also holds files this run did not write (an earlier run's?): "
+                  f"{', '.join(kept)}", file=sys.stderr)
         return metrics
     except BaseException:
         if created and not any(out_dir.iterdir()):

@@ -204,13 +204,14 @@ def test_video_has_one_frame_per_camera_sample(short_run):
     assert np.std(frames[-1]) > 20  # the tag is in view, not a blank frame
 
 
-def test_a_run_into_an_earlier_runs_directory_leaves_only_its_own_outputs(tmp_path):
+def test_a_run_into_an_earlier_runs_directory_names_what_it_did_not_write(tmp_path, capfd):
     out = tmp_path / "run"
     assert main(["run", "stewart-hover", "--duration", "0.05", "--seed", "1", "--record", "--quiet",
                  "--out", str(out)]) == 0
-    assert (out / "meshcat.html").exists()
-    (out / "notes.txt").write_text("the user's own")
+    assert "did not write" not in capfd.readouterr().err
+    (out / "comparison.png").write_bytes(b"the user's own")
     assert main(["run", "stewart-hover", "--duration", "0.02", "--seed", "2", "--quiet", "--out", str(out)]) == 0
-    assert not (out / "meshcat.html").exists()  # the seed-1 run's recording, which this run did not make
+    lines = [line for line in capfd.readouterr().err.splitlines() if "did not write" in line]
+    assert len(lines) == 1 and lines[0].endswith(": comparison.png, meshcat.html")  # the seed-1 recording
     assert json.loads((out / "metrics.json").read_text())["seed"] == 2
-    assert (out / "notes.txt").read_text() == "the user's own"
+    assert (out / "meshcat.html").exists() and (out / "comparison.png").read_bytes() == b"the user's own"
