@@ -14,10 +14,9 @@ from __future__ import annotations
 
 import itertools
 
-import yaml
-
 import matplotlib.pyplot as plt
 import numpy as np
+import yaml
 
 from diagrams.landing_campaign import landing_case_summary, run_task
 from diagrams.landing_metrics import TARGET_TOUCHDOWN_ERROR_M, TARGET_TOUCHDOWN_REL_SPEED_MPS
