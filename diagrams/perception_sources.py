@@ -75,11 +75,11 @@ class PerceptionSource:
     needs_camera: bool = False  # the rendered camera: estimation.source detector's, or its own
     camera: Callable | None = None  # config -> its own CameraConfig, which the scene adds (None: none of its own)
     records_video: bool = False  # --video records its own stream (PerceptionInputs.video_path)
-    estimates_heading: bool = True  # its estimate carries the pad's heading (false: a position alone)
     # Its own figures: (arrays of its `logs` by name with their times "t", config, touchdown time or None)
     # -> metrics.json's `estimators` entries; and its plots: (the same arrays, config, out_dir).
     metrics: Callable | None = None
     plot: Callable | None = None
+    estimates_heading: bool = True  # its estimate carries the pad's heading (false: a position alone)
 
 
 def add_estimate_to_seam(builder: DiagramBuilder, inputs: PerceptionInputs, X_WP_estimate: OutputPort,
