@@ -155,6 +155,11 @@ class IntegrationConfig:
         return SimulatorConfig(integration_scheme=self.scheme, max_step_size=self.max_step_s,
                                use_error_control=self.error_control, accuracy=self.accuracy)
 
+    def diagram_integrator(self) -> SimulatorConfig | None:
+        """What the Simulator integrates the diagram with: None when the vehicles are discrete (they step
+        themselves; the Simulator only advances events), else `simulator_config`."""
+        return None if self.discrete else self.simulator_config()
+
 
 def table1_airframe() -> AirframeConfig:
     """Visual airframe matching seed 002 Table 1's arms (rotors at l1 = l2 = 0.25 m)."""

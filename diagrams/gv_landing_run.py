@@ -102,9 +102,8 @@ def sampled_run(handles: GvLandingHandles, context) -> SampledRun | None:
 def fly_diagram(diagram, handles: GvLandingHandles, duration_s: float, **options) -> Flight:
     """Simulates a built gv diagram (diagrams/simulate.py's options) until the monitor ends the run or
     `duration_s`."""
-    integration = handles.config.integration
     simulation = simulate(diagram, duration_s, initialize=handles.initialize, video=handles.video,
-                          simulator_config=None if integration.discrete else integration.simulator_config(),
+                          simulator_config=handles.config.integration.diagram_integrator(),
                           visualizer=handles.meshcat_visualizer, **options)
     context = simulation.context
     return Flight(simulation.status, simulation, collect_log(handles, context), sampled_run(handles, context),

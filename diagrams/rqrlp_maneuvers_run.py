@@ -54,9 +54,8 @@ def maneuvers_metrics(simulation: Simulation, log: dict, config: ManeuversConfig
 def simulate_maneuvers(diagram, handles, config: ManeuversConfig, duration_s: float, **options) -> Simulation:
     """Simulates a built diagram (diagrams/simulate.py's options) with the scenario's integration: the
     discretised quadrotor's own steps, or the Simulator's integrator as `integration` sets it."""
-    integration = config.integration
     return simulate(diagram, duration_s, initialize=handles.initialize,
-                    simulator_config=None if integration.discrete else integration.simulator_config(), **options)
+                    simulator_config=config.integration.diagram_integrator(), **options)
 
 
 def fly(config: ManeuversConfig, duration_s: float, **options) -> tuple[dict, dict]:
