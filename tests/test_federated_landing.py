@@ -5,6 +5,8 @@ against the simulation's truth. benchmarks/federated.py runs the full scenes (20
 import numpy as np
 import pytest
 
+from pydrake.math import RigidTransform
+
 from diagrams.federated_metrics import federated_log
 from diagrams.gv_landing_run import fly
 from diagrams.rqrlp_maneuvers_run import fly as fly_maneuvers
@@ -13,6 +15,7 @@ from systems.control.flight_controller import COMMAND_SIZE
 from systems.control.landing import Mode
 from systems.estimators.federated.system import FED_BETAS, FED_RELATIVE_STD
 from systems.perception.seam import VALID
+from systems.vehicles.quadrotor import P_WB, V_WB, hover_state
 
 SHORT = ["start.height_m=6.0", "landing.initial_height_m=6.0"]  # the last 6 m of open-landing's 20
 BLACKOUT_S = (2.0, 3.5)
@@ -151,4 +154,13 @@ def test_the_manoeuvres_camera_exposure_is_fed_the_patterns_flow():
     context = diagram.CreateDefaultContext()
     handles.initialize(context)
     assert camera.GetInputPort("axis_flow").HasValue(camera.GetMyContextFromRoot(context))
-    assert not flow.GetInputPort("V_WS").Eval(flow.GetMyContextFromRoot(context)).any()  # the pattern is still
+    flow_context = flow.GetMyContextFromRoot(context)
+    assert not flow.GetInputPort("V_WS").Eval(flow_context).any()  # the pattern is still
+    # The UAV flying level at 1 m/s over it, its camera looking straight down: the plane crosses the image
+    # at the speed over the camera's height above the pattern, rad/s.
+    x = hover_state(config.quadrotor, [0.0, 0.0, config.start.height_m])
+    x[V_WB] = [1.0, 0.0, 0.0]
+    handles.quadrotor.set_state(context, x)
+    height_C = ((RigidTransform(x[P_WB]) @ config.federated.camera.X_BC).translation()[2]
+                - flow.GetInputPort("X_WS").Eval(flow_context).translation()[2])
+    assert np.linalg.norm(flow.get_output_port().Eval(flow_context)) == pytest.approx(1.0 / height_C, rel=1e-9)
