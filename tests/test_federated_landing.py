@@ -4,7 +4,6 @@ against the simulation's truth. benchmarks/federated.py runs the full scenes (20
 
 import numpy as np
 import pytest
-
 from pydrake.math import RigidTransform
 
 from diagrams.federated_metrics import federated_log
