@@ -73,8 +73,10 @@ def _check_scalar(value, kind, dotted: str) -> None:
     accepted, description = _SCALAR_KINDS.get(kind, ((object,), ""))
     if not isinstance(value, accepted) or (kind is not bool and isinstance(value, bool)):
         raise ConfigError(f"{dotted} must be {description}, got {value!r}")
-    if kind is float and math.isnan(value):  # no setting means NaN, and every comparison with it is false
-        raise ConfigError(f"{dotted} must be a number, got .nan")
+    # No setting means NaN (every comparison with it is false) or infinity (every quantity here is a
+    # physical one, and a range check of x > 0 lets .inf through).
+    if kind is float and not math.isfinite(value):
+        raise ConfigError(f"{dotted} must be a finite number, got {'.nan' if math.isnan(value) else f'{value:+}'}")
     if kind is int and (dotted == "seed" or dotted.endswith((".seed", "_seed"))) and value < 0:
         raise ConfigError(f"{dotted} must not be negative (a seed, as numpy's generators take them), got {value}")
 

@@ -8,7 +8,13 @@ import yaml
 
 from diagrams.runner import load_scenario
 from diagrams.scenario import (
-    SCENARIO_DIR, normalise, parse_yaml, read_scenario, scenario_names, scenario_path, set_override,
+    SCENARIO_DIR,
+    normalise,
+    parse_yaml,
+    read_scenario,
+    scenario_names,
+    scenario_path,
+    set_override,
 )
 from diagrams.stewart_run import Scenario
 from systems.config import ConfigError
@@ -134,6 +140,8 @@ def test_type_errors_are_config_errors(assignment):
     ("platform.roll_amplitude_deg=[1, x]", "platform.roll_amplitude_deg"),
     ("tof.bias_m=.nan", "tof.bias_m"),  # accepted before: every reading NaN, silently invalid
     ("platform.roll_amplitude_deg=[1.0, .nan]", "platform.roll_amplitude_deg"),
+    ("camera.pixel_noise_std=.inf", "camera.pixel_noise_std"),  # accepted before: a range check is x >= 0
+    ("imu.rate_hz=.inf", "imu.rate_hz"),
 ])
 def test_a_type_error_names_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
@@ -159,7 +167,7 @@ def test_a_group_given_a_scalar_is_named_without_a_trailing_dot():
     ("hover.height_above_deck_m=0.05", "hover.height_above_deck_m"),
     ("imu.rate_hz=0", "imu.rate_hz"),
     ("duration_s=0", "duration_s"),
-    ("duration_s=.inf", "duration_s must be finite"),
+    ("duration_s=.inf", "duration_s must be a finite number"),
 ])
 def test_values_out_of_range_name_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):

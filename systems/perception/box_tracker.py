@@ -114,8 +114,9 @@ class BoxTrackerConfig:
         require(isinstance(self.max_misses, int) and self.max_misses >= 0,
                 f"{prefix}.max_misses must be a non-negative integer, got {self.max_misses}")
         require(0 <= self.min_size_ratio < 1, f"{prefix}.min_size_ratio must lie in [0, 1), got {self.min_size_ratio}")
-        require(self.lock_min_score <= 1, f"{prefix}.lock_min_score must lie in [0, 1] (a detector's score), got "
-                f"{self.lock_min_score}")
+        for name in ("min_score", "lock_min_score"):  # a score above 1 drops every detection
+            require(getattr(self, name) <= 1, f"{prefix}.{name} must lie in [0, 1] (a detector's score), got "
+                    f"{getattr(self, name)}")
         require(0 < self.appearance_update <= 1,
                 f"{prefix}.appearance_update must lie in (0, 1], got {self.appearance_update}")
         require(len(self.cue_px) in (0, 2), f"{prefix}.cue_px needs 2 numbers [u, v] or none, got {len(self.cue_px)}")
