@@ -143,9 +143,9 @@ def add_ground(scene_graph: SceneGraph, lo: np.ndarray, hi: np.ndarray) -> None:
 
 def add_ground_and_path(scene_graph: SceneGraph, vehicle: GroundVehicleConfig, meshcat: Meshcat | None) -> None:
     """A ground plane under the path; the path drawn in Meshcat."""
-    xy = make_path(vehicle.path_config()).polyline()
-    add_ground(scene_graph, xy.min(axis=0) - 25.0, xy.max(axis=0) + 25.0)
+    add_ground(scene_graph, *vehicle.ground_extent())
     if meshcat is not None:
+        xy = make_path(vehicle.path_config()).polyline()
         meshcat.SetLine("gv_landing/path", np.vstack([xy.T, np.full(len(xy), 0.02)]), 3.0, Rgba(1.0, 0.85, 0.1, 1.0))
         meshcat.SetProperty("/Grid", "visible", False)  # the ground plane is the floor
         # Looking at the start of the path from behind and above the UAV's start.

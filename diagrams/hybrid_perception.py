@@ -120,11 +120,12 @@ class HybridPorts:
 
 def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfig, scene_graph, body_frame_id,
                           z_pad: float, seed: int, X_WB, markers: MarkerLayout | None = None,
-                          video_path=None) -> HybridPorts:
+                          video_path=None, ground_xy: tuple | None = None) -> HybridPorts:
     """The array on `body_frame_id`, its perception, the estimate on X_WB (the UAV's navigation); with the
     pad's `markers` (and hybrid.stereo_pad.enabled) the left eye's pad fix for the last metres; with
-    `video_path` a video of the fisheye stream with the detections and the target's box drawn."""
-    add_textured_ground(scene_graph, config.ground, GROUND_LIFT_M)
+    `video_path` a video of the fisheye stream with the detections and the target's box drawn. The textured
+    ground covers `ground_xy` ((lower, upper) World x, y [m]; None: hybrid.ground's one square)."""
+    add_textured_ground(scene_graph, config.ground, GROUND_LIFT_M, ground_xy)
     if not scene_graph.HasRenderer(RENDERER_NAME):
         add_renderer(scene_graph)
     rig = add_fisheye_camera(builder, scene_graph, body_frame_id, config.fisheye)
@@ -145,7 +146,7 @@ def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfi
                                                                               altimeter.estimator.nearest_m))
     builder.Connect(altimeter.GetOutputPort("altitude"), altitude.GetInputPort("altitude"))
     builder.Connect(altimeter.GetOutputPort("altitude_valid"), altitude.GetInputPort("altitude_valid"))
-    estimator = builder.AddNamedSystem("hybrid_pad", HybridPadEstimator(fe, z_pad, config.estimator,
+    estimator = builder.AddNamedSystem("hybrid_pad", HybridPadEstimator(fe, config.stereo.X_BL, z_pad, config.estimator,
                                                                         config.velocity_observer))
     builder.Connect(tracker.GetOutputPort("target_box"), estimator.GetInputPort("target_box"))
     builder.Connect(tracker.GetOutputPort("target_valid"), estimator.GetInputPort("target_valid"))

@@ -137,7 +137,7 @@ def _hybrid(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
     hybrid = add_hybrid_perception(builder, config.hybrid, inputs.scene_graph, inputs.body_frame_id,
                                    float(config.platform.p_VP[2]), config.seed, inputs.X_WB,
                                    config.platform.markers if config.platform.pattern == "markers" else None,
-                                   inputs.video_path)
+                                   inputs.video_path, config.vehicle.ground_extent())
     ports = add_estimate_to_seam(builder, inputs, hybrid.estimator.GetOutputPort("X_WP_estimate"), hybrid.v_WP)
     ports.video = hybrid.video
     period = config.hybrid.fisheye.period_s

@@ -6,12 +6,13 @@ serves every height:
 
     diagram, handles = build_stereo_hover()
     context = diagram.CreateDefaultContext()
-    handles.fix_X_WB(context, RigidTransform([0, 0, 3.0]))
+    handles.fix_X_WB(diagram, context, RigidTransform([0, 0, 3.0]))
     handles.altimeter.GetOutputPort("altitude").Eval(handles.altimeter.GetMyContextFromRoot(context))
 """
 
 from dataclasses import dataclass, field
 
+import numpy as np
 from pydrake.geometry import Mesh, SceneGraph
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import Diagram, DiagramBuilder
@@ -35,7 +36,8 @@ GROUND_SHOWN_LIFT_M = 0.01
 
 @dataclass
 class GroundConfig:
-    """The textured ground: a square of `size_m` in z = 0 centred on the world origin."""
+    """The textured ground: a square of `size_m` in z = 0 centred on the world origin, repeated side by side
+    where a scene asks for more (`add_textured_ground`'s cover_xy)."""
 
     size_m: float = 20.0  # wider than the 17.2 x 11 m an image covers from 8 m
     texture_seed: int = 0
@@ -77,17 +79,31 @@ class StereoHoverHandles:
         diagram.get_input_port(self.X_WB_input_index).FixValue(context, X_WB)
 
 
-def add_textured_ground(scene_graph: SceneGraph, config: GroundConfig, height_m: float = 0.0) -> None:
-    """The ground quad with its texture in z = `height_m` (m; 0: the ground) for the cameras, and for
-    Meshcat a copy averaged down to GROUND_SHOWN_PIXELS a side, GROUND_SHOWN_LIFT_M higher."""
+def ground_tiles(size_m: float, lower_xy, upper_xy) -> list[np.ndarray]:
+    """The centres (x, y) [m] of the squares of side size_m, on a grid with one centred on the origin,
+    that cover the rectangle lower_xy..upper_xy (World x, y)."""
+    lower, upper = (np.floor((np.asarray(c, float) + size_m / 2) / size_m).astype(int) for c in (lower_xy, upper_xy))
+    return [size_m * np.array([i, j], float) for i in range(lower[0], upper[0] + 1)
+            for j in range(lower[1], upper[1] + 1)]
+
+
+def add_textured_ground(scene_graph: SceneGraph, config: GroundConfig, height_m: float = 0.0,
+                        cover_xy: tuple | None = None) -> None:
+    """The ground's textured square in z = `height_m` (m; 0: the ground) for the cameras, and for Meshcat a
+    copy averaged down to GROUND_SHOWN_PIXELS a side, GROUND_SHOWN_LIFT_M higher; centred on the origin, or
+    repeated side by side (`ground_tiles`) over `cover_xy` = (lower, upper) World x, y [m]. The renderer loads
+    the texture once, whatever the number of squares."""
     source, world = scene_graph.RegisterSource("textured_ground"), scene_graph.world_frame_id()
     perceived = ground_texture_mesh(config.texture_seed, config.texture_pixels)
-    register_visual(scene_graph, source, world, RigidTransform([0.0, 0.0, height_m]),
-                    Mesh(str(perceived), config.size_m), "textured_ground", rgba=None, illustrated=False)
     shown = (ground_texture_mesh(config.texture_seed, config.texture_pixels, shown_pixels=GROUND_SHOWN_PIXELS)
              if config.texture_pixels > GROUND_SHOWN_PIXELS else perceived)
-    register_visual(scene_graph, source, world, RigidTransform([0.0, 0.0, height_m + GROUND_SHOWN_LIFT_M]),
-                    Mesh(str(shown), config.size_m), "textured_ground_shown", rgba=None, perceived=False)
+    centres = ground_tiles(config.size_m, *cover_xy) if cover_xy is not None else [np.zeros(2)]
+    for k, (x, y) in enumerate(centres):
+        suffix = f"_{k}" if k else ""
+        register_visual(scene_graph, source, world, RigidTransform([x, y, height_m]),
+                        Mesh(str(perceived), config.size_m), f"textured_ground{suffix}", rgba=None, illustrated=False)
+        register_visual(scene_graph, source, world, RigidTransform([x, y, height_m + GROUND_SHOWN_LIFT_M]),
+                        Mesh(str(shown), config.size_m), f"textured_ground_shown{suffix}", rgba=None, perceived=False)
 
 
 def build_stereo_hover(config: StereoHoverConfig | None = None) -> tuple[Diagram, StereoHoverHandles]:

@@ -11,6 +11,9 @@ Per fisheye frame k (all in the project's frames, W z up; seed 003 writes NED, v
   vehicle); the ray meets that plane at s = (h - z_P) / (-r_W,z) (the paper's Eq. 15 scales pixels to
   metres with the altitude the same way, for a ray along the axis), and
   p_WP = [x_WC, y_WC, z_P] + s r_W, with the camera's x, y from the UAV's navigation.
+- The filter's altitude is the depth the stereo's left eye L sees along its optical axis (`camera_height`):
+  h = d (-z_L,W . z_W) + (z_WC - z_WL), the depth put vertical with the navigation's attitude and moved from
+  the eye to the fisheye (the paper's UAV flies level, where h = d; at 20 deg of tilt d reads 6 % long).
 
 Ours, where the paper is silent:
 - Over the UGV the stereo window sees the roof, not the ground: h reads up to z_P low. The ray is then
@@ -125,6 +128,17 @@ def ray_to_plane(p_WC: np.ndarray, ray_W: np.ndarray, height_above_plane: float,
     return np.array([p_WC[0] + s * ray_W[0], p_WC[1] + s * ray_W[1], z_plane])
 
 
+def camera_height(depth_m: float, X_WB: RigidTransform, X_BL: RigidTransform, X_BC: RigidTransform) -> float:
+    """The height [m] of the camera C (at X_BC on the body B) above the surface that the stereo's left eye L
+    (at X_BL) sees at `depth_m` along its optical axis (its z), the surface taken level; NaN when L does not
+    look down."""
+    X_WL = X_WB.multiply(X_BL)
+    down = -X_WL.rotation().matrix()[2, 2]
+    if not down > 0:
+        return math.nan
+    return depth_m * down + X_WB.multiply(X_BC).translation()[2] - X_WL.translation()[2]
+
+
 def pad_from_box(box: np.ndarray, camera_height_m: float, X_WB: RigidTransform, fisheye: FisheyeConfig,
                  z_pad: float, min_ray_down: float = 0.5) -> np.ndarray | None:
     """p_WP [m] from the tracked box (module docstring), or None (centre outside the field of view, ray
@@ -159,30 +173,31 @@ class HybridPadState:
     fixed: bool = False  # this frame measured by the stereo eye's pad fix (stereo_pad.py), not the box
 
 
-def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: bool, altitude: float,
+def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: bool, camera_height_m: float,
                 altitude_valid: bool, X_WB: RigidTransform, fisheye: FisheyeConfig, z_pad: float,
                 config: HybridPadConfig, observer_config: VelocityObserverConfig,
                 pad_fix: np.ndarray | None = None) -> HybridPadState:
-    """One frame (pure). pad_fix: the stereo eye's p_WP (stereo_pad.py) or None/NaN; in the landing zone it
-    measures instead of the box, ungated."""
+    """One frame (pure). camera_height_m: the fisheye's height above the ground from the stereo altitude
+    (`camera_height`), used where `altitude_valid`. pad_fix: the stereo eye's p_WP (stereo_pad.py) or
+    None/NaN; in the landing zone it measures instead of the box, ungated."""
     p_WC = X_WB.multiply(fisheye.X_BC).translation()
     z_WC = p_WC[2]
     anchor, h, source = state.anchor, math.nan, 0
-    if altitude_valid and math.isfinite(altitude) and altitude > 0:
-        h, source, anchor = altitude, 1, (altitude, z_WC, time)
+    if altitude_valid and math.isfinite(camera_height_m) and camera_height_m > 0:
+        h, source, anchor = camera_height_m, 1, (camera_height_m, z_WC, time)
     elif anchor is not None and time - anchor[2] <= config.altitude_coast_s + 1e-9:
         h, source = anchor[0] + (z_WC - anchor[1]), 2
     # Sticky while the estimate stays valid: close over the pad the stereo window reads spikes of 2-3 m
     # (measured, at 0.5 m over the pad), which must not end the landing's coast.
     landing = (bool(source) and h - z_pad <= config.landing_zone_m) or (state.landing and state.estimate.valid)
-    p, ray_scale, fixed = None, state.ray_scale, False
+    p, scale, fixed = None, 1.0, False
     if landing and pad_fix is not None and np.all(np.isfinite(pad_fix)):
-        p, ray_scale, fixed = np.array([pad_fix[0], pad_fix[1], z_pad]), 1.0, True
+        p, fixed = np.array([pad_fix[0], pad_fix[1], z_pad]), True
     elif box_valid and source and z_WC - z_pad >= config.box_min_height_m:
         p = pad_from_box(box, h, X_WB, fisheye, z_pad,
                          config.min_ray_down if landing else config.approach_min_ray_down)
         if p is not None:  # 1 / -r_W,z of this ray: the camera's slant distance to the point over its height above
-            ray_scale = math.hypot(h - z_pad, math.dist(p[:2], p_WC[:2])) / (h - z_pad)
+            scale = math.hypot(h - z_pad, math.dist(p[:2], p_WC[:2])) / (h - z_pad)
     last_measured, last_p, velocity, gated = state.last_measured_s, state.last_p_WP, state.velocity, state.gated
 
     def predicted() -> np.ndarray:
@@ -196,8 +211,9 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
     observer = step_observer(state.observer, time, observer_config, p_W=p, precise=fixed)
     if observer.valid:
         velocity = observer.estimate
+    ray_scale = state.ray_scale  # a measurement the gate rejected leaves the last measured ray's
     if p is not None:
-        last_measured, last_p, coast = time, p, 0.0
+        last_measured, last_p, coast, ray_scale = time, p, 0.0, scale
     elif (state.estimate.valid and last_measured is not None and velocity is not None
           and time - last_measured <= config.max_coast_s + 1e-9
           and (landing or (observer.valid and time - last_measured <= config.approach_max_coast_s + 1e-9))):
@@ -236,18 +252,19 @@ class HybridPadEstimator(LeafSystem):
     the UAV's own motion, and a coasting box drifts off the UGV as the UAV moves), optional `pad_fix` (3, m:
     the stereo eye's p_WP, NaN without one, systems/perception/stereo_pad.py; connected, it measures in the
     landing zone),
-    `altitude` (1, m: the camera above the ground, the stereo filter's), `altitude_valid` (1), `X_WB`
-    (RigidTransform: the UAV's navigation). Outputs: `X_WP_estimate` (PoseEstimate, frames "W"/"P"),
+    `altitude` (1, m: the stereo filter's depth along the left eye's axis, the eye at `X_BL` on the body;
+    `camera_height` makes it the fisheye's height), `altitude_valid` (1), `X_WB` (RigidTransform: the UAV's
+    navigation). Outputs: `X_WP_estimate` (PoseEstimate, frames "W"/"P"),
     `v_WP` (3, m/s, W: the seam's velocity: the observer's, else the velocity the estimate coasts with while
     valid, else zero), `v_WP_observed` (3, m/s, W: the observer's, NaN while it is not valid), `v_valid` (1:
     1.0 while the observer is valid) and `hybrid_vector` (HYBRID_VECTOR_SIZE). The observer (Eq. 15-19,
     `observer_config`, source world) is the one the estimate coasts with, run on this frame's measurement
     with the stereo eye's fixes flagged precise."""
 
-    def __init__(self, fisheye: FisheyeConfig, z_pad: float, config: HybridPadConfig | None = None,
-                 observer_config: VelocityObserverConfig | None = None):
+    def __init__(self, fisheye: FisheyeConfig, X_BL: RigidTransform, z_pad: float,
+                 config: HybridPadConfig | None = None, observer_config: VelocityObserverConfig | None = None):
         super().__init__()
-        self._fisheye, self._z_pad = fisheye, float(z_pad)
+        self._fisheye, self._X_BL, self._z_pad = fisheye, X_BL, float(z_pad)
         self._config = config or HybridPadConfig()
         self._config.validate()
         self._observer_config = observer_config or VelocityObserverConfig()
@@ -288,10 +305,11 @@ class HybridPadEstimator(LeafSystem):
         if self._lock.HasValue(context):  # only a box matched with this frame's detection measures
             seen = seen and self._lock.Eval(context)[1] > 0.5
         fix = self._pad_fix.Eval(context) if self._pad_fix.HasValue(context) else None
-        return hybrid_step(state, context.get_time(), self._box.Eval(context), seen,
-                           float(self._altitude.Eval(context)[0]), self._altitude_valid.Eval(context)[0] > 0.5,
-                           self._X_WB.Eval(context), self._fisheye, self._z_pad, self._config, self._observer_config,
-                           fix)
+        X_WB = self._X_WB.Eval(context)
+        h = camera_height(float(self._altitude.Eval(context)[0]), X_WB, self._X_BL, self._fisheye.X_BC)
+        return hybrid_step(state, context.get_time(), self._box.Eval(context), seen, h,
+                           self._altitude_valid.Eval(context)[0] > 0.5, X_WB, self._fisheye, self._z_pad, self._config,
+                           self._observer_config, fix)
 
 
 class DetectionsToTracker(LeafSystem):

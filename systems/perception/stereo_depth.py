@@ -68,6 +68,11 @@ class StereoDepthConfig:
                 require(self.num_disparities - 1 >= camera.max_disparity_px,
                         f"{prefix}.num_disparities ({self.num_disparities}) does not reach the disparity at "
                         f"min_altitude_m ({camera.max_disparity_px:.1f} px)")
+            first = central_window((camera.height, camera.width), (camera.cx, camera.cy), self.window_rows,
+                                   self.window_cols)[1].start
+            require(first >= self.disparities_for(camera),
+                    f"{prefix}.window_cols ({self.window_cols}) reaches column {first} of the image, inside the "
+                    f"first {self.disparities_for(camera)} that SGBM leaves unmatched (num_disparities)")
 
     def disparities_for(self, camera: StereoConfig) -> int:
         """numDisparities: the configured one, or the smallest multiple of 16 whose search (0 to

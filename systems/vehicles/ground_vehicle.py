@@ -74,6 +74,11 @@ class GroundVehicleConfig:
         return PathConfig(name=self.path, length_m=self.path_length_m, radius_m=self.path_radius_m,
                           lead_m=self.path_lead_m, side_m=self.path_side_m)
 
+    def ground_extent(self, margin_m: float = 25.0) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) World x, y [m] of the path, widened by margin_m: the ground to lay under it."""
+        xy = make_path(self.path_config()).polyline()
+        return xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
+
     def speed_profile(self) -> PiecewisePolynomial | None:
         """The scheduled speed [m/s] as a trajectory of time [s], or None for the constant `speed`."""
         if not self.speed_schedule_times_s:
