@@ -67,10 +67,15 @@ class DeckLandingConfig(FlightConfig):
         require(self.integration.discrete, "integration.discrete must be true in deck-landing")
         require(self.random_deck_time_s >= 0, "random_deck_time_s must not be negative")
         require(self.estimate_latency_frames >= 0, "estimate_latency_frames must not be negative")
+        self.window.predictor.validate_frames(self.camera.period_s, "window.predictor")
         top = self.deck_top_m
         require(self.landing.initial_height_m > top + self.landing.landing_height_m,
                 f"landing.initial_height_m ({self.landing.initial_height_m:g} m above the ground) must be above the "
                 f"deck's top ({top:.2f} m) plus landing.landing_height_m")
+        over_deck = max(abs(c) for c in self.start.xy_m) <= self.platform.deck_size_m / 2  # the deck's centre at O
+        require(not over_deck or self.start.height_m > top + self.landing.touchdown_height_m,
+                f"start.height_m ({self.start.height_m:g} m) at start.xy_m {list(self.start.xy_m)}, over the deck, "
+                f"must be above its top ({top:.2f} m) plus landing.touchdown_height_m: the UAV would start under it")
 
     def check_motion(self, duration_s: float) -> None:
         """The deck's motion within the legs' stroke over the run (ConfigError naming where it is not)."""

@@ -88,8 +88,8 @@ def deck_landing_metrics(flight: DeckFlight, config: DeckLandingConfig) -> dict:
     targets are met (`meets_targets`: on the deck within 0.10 m, under 0.5 m/s, tilt under 3 deg)."""
     log = flight.log
     out, k = pad_landing(log, flight.status, log["carrier_state"][:, GV_HEADING], config.platform.deck_size_m,
-                         config.landing.touchdown_height_m, config.quadrotor.gravity_m_s2,
-                         config.landing.motors_stop_at_landed)
+                         config.platform.deck_thickness_m, config.landing.touchdown_height_m,
+                         config.quadrotor.gravity_m_s2, config.landing.motors_stop_at_landed)
     if k is not None:
         out["deck_tilt_at_touchdown_deg"] = float(tilt_deg(log["true_deck_motion"][k]))
         out["deck_heave_rate_at_touchdown_m_s"] = float(log["true_deck_motion"][k, 5])

@@ -37,19 +37,22 @@ def entered(modes: np.ndarray, mode: Mode) -> int | None:
     return None if i is None else max(i - 1, 0)
 
 
-def touchdown(log: dict[str, np.ndarray], touchdown_height_m: float, pad_size_m: float, heading: np.ndarray,
-              status: str = "", motors_stop_at_landed: bool = True) -> tuple[int, str] | None:
+def touchdown(log: dict[str, np.ndarray], touchdown_height_m: float, pad_size_m: float, pad_thickness_m: float,
+              heading: np.ndarray, status: str = "", motors_stop_at_landed: bool = True) -> tuple[int, str] | None:
     """(log index, "supervisor" or "contact") of the touchdown (module docstring), or None. `heading`: the
-    pad frame's heading per sample [rad]. `status`: how the run ended. A run stopped by the monitor on the
-    supervisor's LANDED or on the gear's touch may miss that sample in the log (the run stops at the step
-    it is declared): its last sample is then what the supervisor saw, or the touch. `motors_stop_at_landed`
-    false (landing.touchdown_by contact): only the touch counts, the supervisor's LANDED descending on to it."""
+    pad frame's heading per sample [rad]. A contact is from above: the UAV under the pad's underside (more
+    than pad_thickness_m [m] below its top) is not on it. `status`: how the run ended. A run stopped by the
+    monitor on the supervisor's LANDED or on the gear's touch may miss that sample in the log (the run stops
+    at the step it is declared): its last sample is then what the supervisor saw, or the touch.
+    `motors_stop_at_landed` false (landing.touchdown_by contact): only the touch counts, the supervisor's
+    LANDED descending on to it."""
     landed = first(log["mode"] == Mode.LANDED) if motors_stop_at_landed else None
     if landed is None and motors_stop_at_landed and status.startswith(SUPERVISOR_LANDED):
         landed = len(log["mode"])
     relative = log["true_relative_state"]
     over_pad = np.all(np.abs(pad_offset(relative, heading)) <= pad_size_m / 2, axis=1)
-    contact = first((relative[:, HEIGHT] <= touchdown_height_m) & over_pad)
+    from_above = (relative[:, HEIGHT] <= touchdown_height_m) & (relative[:, HEIGHT] > -pad_thickness_m)
+    contact = first(from_above & over_pad)
     if contact is None and status.startswith(GEAR_TOUCHED):
         contact = len(relative) - 1
     candidates = [(max(landed - 1, 0), 0, "supervisor")] if landed is not None else []
@@ -68,8 +71,8 @@ def impact(gap_m: float, vertical_speed: float, gravity: float) -> tuple[float, 
 def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
     """A gv flight's "landing" section: `pad_landing`'s, with the vehicle's speed and turn radius at touchdown."""
     out, k = pad_landing(log, status, log["vehicle_state"][:, GV_HEADING], config.platform.pad_size_m,
-                         config.landing.touchdown_height_m, config.quadrotor.gravity_m_s2,
-                         config.landing.motors_stop_at_landed)
+                         config.platform.pad_thickness_m, config.landing.touchdown_height_m,
+                         config.quadrotor.gravity_m_s2, config.landing.motors_stop_at_landed)
     if k is not None:
         steering = log["vehicle_state"][k, GV_STEERING]
         out["vehicle_speed_at_touchdown_m_s"] = float(log["vehicle_speed"][k])
@@ -81,16 +84,17 @@ def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
 
 
 def pad_landing(log: dict[str, np.ndarray], status: str, heading: np.ndarray, pad_size_m: float,
-                touchdown_height_m: float, gravity_m_s2: float,
+                pad_thickness_m: float, touchdown_height_m: float, gravity_m_s2: float,
                 motors_stop_at_landed: bool = True) -> tuple[dict, int | None]:
-    """The "landing" section of a flight onto a pad of pad_size_m [m] headed `heading` [rad] per sample
-    (the log's `t`, `mode`, `true_relative_state` and `quadrotor_state`), and the log index of the touchdown
-    (None without one): success (touched down on the pad), touchdown error and relative speed at impact,
-    the failure reason, when each supervisor mode was first entered, and `descent_counts`."""
+    """The "landing" section of a flight onto a pad of pad_size_m [m], pad_thickness_m [m] thick, headed
+    `heading` [rad] per sample (the log's `t`, `mode`, `true_relative_state` and `quadrotor_state`), and the
+    log index of the touchdown (None without one): success (touched down on the pad), touchdown error and
+    relative speed at impact, the failure reason, when each supervisor mode was first entered, and
+    `descent_counts`."""
     kind = status.split(":", 1)[0]
     out = {"success": False, "touchdown_error_m": None, "touchdown_rel_speed_mps": None, "time_to_land_s": None,
            "failure_reason": None, "failure_detail": None}
-    found = touchdown(log, touchdown_height_m, pad_size_m, heading, status, motors_stop_at_landed)
+    found = touchdown(log, touchdown_height_m, pad_size_m, pad_thickness_m, heading, status, motors_stop_at_landed)
     k = None
     if found is not None:
         k, by = found

@@ -7,6 +7,7 @@ import pytest
 from diagrams import deck_landing_run
 from diagrams.deck_landing_run import fly, tilt_deg
 from diagrams.runner import load_scenario
+from systems.config import ConfigError
 from systems.control.landing import Mode
 from systems.perception.seam import VALID
 
@@ -105,3 +106,24 @@ def test_with_an_exposure_the_camera_is_smeared_by_the_uav_s_motion_over_the_dec
     expected = axis_flow(X_WC, V_WC, port(handles.platform, "X_WP"), port(handles.platform, "V_WP"))
     assert np.linalg.norm(expected) > 0.1  # rad/s
     np.testing.assert_allclose(flow, expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize("settings, named", [
+    # A challenger taking over unconfirmed made the steering estimate invalid, and a committed descent abort.
+    (["tracker.confirm_frames=5"], "tracker.takeover_frames"),
+    (["tracker.position.max_coast_steps=-3"], "tracker.position.max_coast_steps"),  # behaved as 0
+    (["tracker.attitude.dt_s=0.1"], "tracker.attitude.dt_s"),  # the camera's period replaced it, silently
+    (["crhf.range_filter.max_coast_steps=-2"], "crhf.range_filter.max_coast_steps"),
+    # On the ground under the deck: "the gear touched the pad" at t = 0, scored a success.
+    (["start.height_m=0.0"], "start.height_m"),
+    (["window.predictor.lag_s=0.05", "window.predictor.history_s=0.65", "window.predictor.min_history_s=0.65"],
+     "window.predictor.min_history_s"),  # never fitted at 20 Hz
+])
+def test_settings_that_cannot_work_are_config_errors(settings, named):
+    with pytest.raises(ConfigError, match=named.replace(".", r"\.")):
+        load_scenario("deck-landing", overrides=settings)
+
+
+def test_a_start_beside_the_deck_on_the_ground_is_accepted():
+    _, config = load_scenario("deck-landing", overrides=["start.height_m=0.0", "start.xy_m=[3.0, 0.0]"])
+    assert config.start.height_m == 0.0

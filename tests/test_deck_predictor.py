@@ -194,6 +194,25 @@ def test_bad_settings_are_one_line_config_errors():
         LandingWindowConfig(predictor=DeckPredictorConfig(horizon_s=0.05)).validate()
 
 
+@pytest.mark.parametrize("lag_s", [0.05, 0.1, 0.5])
+def test_the_shortest_history_validated_is_the_shortest_the_fit_takes(lag_s):
+    """validate_frames refuses a min_history_s one frame short of what fit_ar needs, and the one it accepts
+    is fitted (before: a 13-frame history at lag_s 0.05 passed the check in seconds and was never fitted)."""
+    history = np.column_stack([np.sin(0.3 * np.arange(400) + c) for c in range(3)])
+    for frames in range(2, 200):
+        config = DeckPredictorConfig(order=6, lag_s=lag_s, min_history_s=frames * PERIOD, history_s=frames * PERIOD)
+        try:
+            config.validate_frames(PERIOD)
+        except ConfigError:
+            assert fit_ar(history, config, PERIOD) is None
+            continue
+        assert fit_ar(history, config, PERIOD) is not None
+        break
+    with pytest.raises(ConfigError, match=r"window.predictor.min_history_s \(0.65 s\) holds 13 frames"):
+        DeckPredictorConfig(order=6, lag_s=0.05, min_history_s=0.65, history_s=0.65).validate_frames(
+            0.05, "window.predictor")
+
+
 def test_the_window_on_the_prediction_commits_where_the_deck_will_be_level():
     # stewart-dynamic's deck, 200 s tracked, touchdown always 2 s ahead: how often the window opens where the
     # true tilt over touchdown +- the margin then exceeds abort_tilt_deg (a wave-off). Measured: the AR's

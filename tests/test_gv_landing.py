@@ -202,6 +202,10 @@ def test_monitor_names_each_way_a_run_ends():
     beside = touching.copy()
     beside[P_BP_W] = [0.9, 0.0, -0.08]  # as low, but off the 1 m pad: no touchdown
     assert check(relative=beside) is None
+    under = touching.copy()  # over the pad's footprint, under the vehicle's body: not a touchdown, a crash
+    under[P_BP_W], under[HEIGHT] = [0.3, -0.2, 1.0], -1.0
+    assert check(quad=hover_state(config.quadrotor, [2.0, 0.3, 0.6]), relative=under).startswith(
+        "crash: hit the ground vehicle")
     contact = LandingMonitor(config.termination, config.platform, config.landing.touchdown_height_m,
                              ends_on_landed=False)  # landing.touchdown_by contact: LANDED descends on to the touch
     assert contact.check(1.0, quad, vehicle, relative, Mode.LANDED, 1.0) is None

@@ -42,5 +42,5 @@ def test_mode_entry_times_are_when_the_supervisor_decided_them():
     quadrotor = np.zeros((len(t), STATE_SIZE))
     quadrotor[:, 0] = 1.0
     landing, _ = pad_landing({"t": t, "mode": mode, "true_relative_state": relative, "quadrotor_state": quadrotor},
-                             COMPLETED, np.zeros(len(t)), 1.0, 0.1, 9.81)
+                             COMPLETED, np.zeros(len(t)), 1.0, 0.02, 0.1, 9.81)
     assert landing["mode_entry_times_s"] == {"takeoff": 0.0, "climb": climb_at}

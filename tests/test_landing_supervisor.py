@@ -255,6 +255,21 @@ def test_a_run_ended_on_the_gears_touch_is_a_touchdown_even_if_the_log_missed_it
     assert not out["success"]
 
 
+def test_under_the_pad_is_not_a_touchdown():
+    """The UAV under the pad's footprint, beneath its underside (the Stewart deck's 0.7 m over the ground): its
+    height above the pad is under touchdown_height_m, but it is not on the pad."""
+    n = 5
+    relative = np.zeros((n, 14))
+    relative[:, HEIGHT] = -0.7
+    log = {"t": 0.02 * np.arange(n), "mode": np.full(n, int(Mode.TAKEOFF)), "true_relative_state": relative,
+           "quadrotor_state": np.zeros((n, 17)), "vehicle_state": np.zeros((n, 4)), "vehicle_speed": np.zeros(n)}
+    config = load_scenario("gv-landing")[1]
+    out = landing_metrics(log, "timeout: no touchdown", config)
+    assert not out["success"] and out["touchdown_error_m"] is None and out["failure_reason"] == "timeout"
+    relative[:, HEIGHT] = 0.05  # on it
+    assert landing_metrics(log, "timeout: no touchdown", config)["success"]
+
+
 def test_touchdown_by_contact_descends_on_at_landing_speed_from_landed():
     config = LandingConfig(touchdown_by="contact")
     machine = LandingStateMachine(config)

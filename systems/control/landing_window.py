@@ -13,7 +13,7 @@ the predicted tilt stays within `max_tilt_deg` over tau +- `timing_margin_s` and
 `max_heave_rate_m_s`; a descent already committed holds while the prediction stays within the looser
 `abort_tilt_deg` and twice the heave rate (the hysteresis keeps one noisy frame from aborting it), and
 always within `no_return_s` of touchdown, where climbing out would take longer than landing (and where
-the tag leaves the camera's view, and the estimate passes from the tag to the ToF plane).
+the tag leaves the camera's view, and the deck tracker coasts on its constant-velocity prediction).
 
 With `prediction: autoregressive` the tilt and the heave rate come instead from the deck predictor's
 output (systems/estimators/deck_predictor.py: an autoregressive model of the tracked deck's recent history,

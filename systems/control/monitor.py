@@ -81,8 +81,8 @@ class LandingMonitor(LeafSystem):
         if mode == Mode.LANDED and self._ends_on_landed:
             return f"{SUPERVISOR_LANDED} by t = {t:.2f} s" if term.stop_on_landed else None
         offset = pad_offset(relative, vehicle[GV_HEADING])
-        if (term.stop_on_landed and relative[HEIGHT] <= self._touchdown
-                and np.all(np.abs(offset) <= platform.pad_size_m / 2)):
+        if (term.stop_on_landed and -platform.pad_thickness_m < relative[HEIGHT] <= self._touchdown
+                and np.all(np.abs(offset) <= platform.pad_size_m / 2)):  # from above: not under the pad
             return f"{GEAR_TOUCHED} at t = {t:.2f} s"
         px, py, pz, vx, vy, vz = (float(quad[i]) for i in (0, 1, 2, 7, 8, 9))
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)

@@ -113,9 +113,7 @@ class CrhfConfig:
         require(self.touch_pixels in ("pchip", "hyperbola"),
                 f"{prefix}.touch_pixels must be 'pchip' or 'hyperbola', got '{self.touch_pixels}'")
         for name in ("corner_filter", "range_filter"):
-            params = getattr(self, name)
-            for field_name in ("measurement_std", "acceleration_std", "initial_velocity_std"):
-                require_positive(getattr(params, field_name), f"{prefix}.{name}.{field_name}")
+            getattr(self, name).validate(f"{prefix}.{name}")
 
     def calibration_path(self) -> Path:
         path = Path(self.calibration_file)

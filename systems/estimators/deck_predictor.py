@@ -68,6 +68,15 @@ class DeckPredictorConfig:
                 f"{prefix}.min_history_s ({self.min_history_s:g} s) must be at least twice order x lag_s "
                 f"({lags:g} s): the fit needs as many rows beyond its lags")
 
+    def validate_frames(self, period_s: float, prefix: str = "predictor") -> None:
+        """At a camera period of period_s [s]: min_history_s holds more frames than `fit_ar`'s p lags and its
+        p + 1 unknowns (else the model is never fitted, and the prediction stays at constant rate)."""
+        lag, p = _frames(self.lag_s, period_s), self.order
+        need = p * lag + p + 2
+        require(_frames(self.min_history_s, period_s) >= need,
+                f"{prefix}.min_history_s ({self.min_history_s:g} s) holds {_frames(self.min_history_s, period_s)} "
+                f"frames at {period_s:g} s; the fit of order {p} at lag_s {self.lag_s:g} needs {need}")
+
 
 def horizon_grid(config: DeckPredictorConfig) -> np.ndarray:
     """The DeckPredictor output's horizons [s]: 0 to horizon_s every PREDICTION_STEP_S."""

@@ -61,11 +61,12 @@ class DeckTrackerConfig:
     def validate(self, prefix: str = "deck_tracker") -> None:
         require_positive(self.gate_chi2, f"{prefix}.gate_chi2")
         require(self.confirm_frames >= 1, f"{prefix}.confirm_frames must be at least 1")
-        require(self.takeover_frames >= 2, f"{prefix}.takeover_frames must be at least 2")
+        # A challenger takes over confirmed: one that had not been would make the estimate invalid.
+        require(self.takeover_frames >= max(self.confirm_frames, 2),
+                f"{prefix}.takeover_frames must be at least 2 and at least {prefix}.confirm_frames "
+                f"({self.confirm_frames}), got {self.takeover_frames}")
         for name in ("position", "attitude"):
-            params = getattr(self, name)
-            for field_name in ("measurement_std", "acceleration_std", "initial_velocity_std"):
-                require_positive(getattr(params, field_name), f"{prefix}.{name}.{field_name}")
+            getattr(self, name).validate(f"{prefix}.{name}")
 
 
 def tilt_rotation(n_xy: np.ndarray) -> RotationMatrix:

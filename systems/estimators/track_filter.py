@@ -15,6 +15,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from systems.config import require, require_positive
+
 
 @dataclass
 class TrackFilterParams:
@@ -26,6 +28,15 @@ class TrackFilterParams:
     acceleration_std: float = 200.0  # corners: deck swaying 5 cm at 0.5 Hz, 1.2 m below, fx ~ 460 px
     initial_velocity_std: float = 200.0  # the rate is unknown at the first measurement
     max_coast_steps: int = 3  # predict-only frames bridged before the track is dropped
+
+    def validate(self, prefix: str) -> None:
+        """A ConfigError naming the field. dt_s is not a setting here: the systems that run these filters
+        step them at their camera's period, which replaces it."""
+        for name in ("measurement_std", "acceleration_std", "initial_velocity_std"):
+            require_positive(getattr(self, name), f"{prefix}.{name}")
+        require(self.max_coast_steps >= 0, f"{prefix}.max_coast_steps must not be negative, got {self.max_coast_steps}")
+        require(self.dt_s == TrackFilterParams.dt_s,
+                f"{prefix}.dt_s is the camera's period (camera.rate_hz), not a setting: got {self.dt_s}")
 
 
 def constant_velocity_model(params: TrackFilterParams, n: int):
