@@ -2,14 +2,16 @@
 
     landing-sim montecarlo gv-marker-ekf --runs 100 --speeds 3 6 12 --workers 2 --out results/mc
 
-A run (`run_task`) is one seeded measurement stream through the filters. With the paper's synthetic
-source (the default) it takes the batch path (diagrams/marker_batch.py: the Diagram's numbers, the
-flight flown once per speed in each worker); with `--set estimation.source=detector` every run flies
-the Diagram with the camera, rendering and detecting each frame (a handful of runs, not hundreds:
-docs/results.md has the cost). The loaded scenario is cached per (case, overrides); only its seed
-changes from run to run. The campaign hands a worker GROUP runs of one case at a time (`run_group`):
-on the batch path their filters are stepped together (`batch_runs`), each run still its own record
-with the output `run_task` gives it (to 1e-9, tests/test_gv_marker_ekf.py).
+A run (`run_task`) is one seeded measurement stream through the filters. Where the batch path gives
+the Diagram's numbers (`batch_applies`: the paper's synthetic source and nothing seeded in the
+flight, the default) it takes it (diagrams/marker_batch.py: the flight flown once per speed in each
+worker); anything else flies the Diagram: with `--set estimation.source=detector` the camera,
+rendering and detecting each frame (a handful of runs, not hundreds: docs/results.md has the cost),
+and so faults, navigation errors, turbulence and the vehicle's broadcast. The loaded scenario is
+cached per (case, overrides); only its seed changes from run to run. The campaign hands a worker
+GROUP runs of one case at a time (`run_group`): on the batch path their filters are stepped together
+(`batch_runs`), each run still its own record with the output `run_task` gives it (to 1e-9,
+tests/test_gv_marker_ekf.py).
 
 Each run keeps its metrics (per filter: RMS position and heading error, per-marker RMS, counts)
 and, every DECIMATE-th step as float32, the true and estimated pad path, heading and marker errors.
@@ -53,9 +55,9 @@ def sampled(scenario):
     """The run at the filter steps: by the batch path where it applies, else through the Diagram."""
     from diagrams.gv_landing import build_gv_landing
     from diagrams.gv_landing_run import fly_diagram
-    from diagrams.marker_batch import batch_run
+    from diagrams.marker_batch import batch_applies, batch_run
 
-    if scenario.estimation.source == "synthetic" and scenario.perception.source == "truth":
+    if batch_applies(scenario):
         return batch_run(scenario, scenario.run_length_s)
     diagram, handles = build_gv_landing(scenario)
     return fly_diagram(diagram, handles, scenario.run_length_s).sampled
@@ -71,10 +73,10 @@ def run_task(task: RunTask) -> RunOutput:
 def run_group(tasks: list[RunTask]) -> list[RunOutput]:
     """Runs of one case (module docstring), the filters of all of them stepped together where the
     batch path applies (`batch_runs`), else one by one; each output the one `run_task` gives."""
-    from diagrams.marker_batch import batch_runs
+    from diagrams.marker_batch import batch_applies, batch_runs
 
     scenario = _scenario(tasks[0])
-    if not (scenario.estimation.source == "synthetic" and scenario.perception.source == "truth"):
+    if not batch_applies(scenario):
         return [run_task(task) for task in tasks]
     start = time.perf_counter()
     runs = batch_runs(scenario, [task.seed for task in tasks], scenario.run_length_s)

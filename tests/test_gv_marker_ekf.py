@@ -280,3 +280,21 @@ def test_a_group_of_runs_gives_each_runs_own_output():
                 assert figures[key] == value, key
             else:
                 np.testing.assert_allclose(figures[key], value, rtol=0, atol=1e-9, err_msg=key)
+
+
+@pytest.mark.parametrize("override", ["navigation.source=gnss_ins", "faults.drop_probability=0.5"])
+def test_a_campaign_run_the_batch_path_cannot_replay_is_the_diagrams(override):
+    # the filters read the navigation's X_WB, or the stream has faults: each run flies the Diagram
+    from diagrams.gv_marker_ekf_mc import CAMPAIGN, run_group
+
+    s = campaign_settings(CAMPAIGN, "gv-marker-ekf", cases=["12"], runs=2,
+                          overrides=["duration_s=2.5", "estimation.settle_s=1", override])
+    tasks = s.tasks(CAMPAIGN.case_key)
+    for task, output in zip(tasks, run_group(tasks), strict=True):
+        config = task.load_scenario()[1]
+        run = fly_diagram(*build_gv_landing(config), config.run_length_s).sampled
+        _, expected, _ = marker_metrics(run, config.platform, config.estimation.X_BC, config.estimation.settle_s)
+        figures, expected = _figures(output.metrics["estimators"]), _figures(expected)
+        assert set(figures) == set(expected) and output.metrics["seed"] == task.seed
+        for key, value in expected.items():
+            np.testing.assert_allclose(figures[key], value, rtol=0, atol=1e-9, err_msg=key)

@@ -6,7 +6,7 @@ import pytest
 
 from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly_diagram
-from diagrams.marker_batch import batch_run
+from diagrams.marker_batch import batch_applies, batch_run
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 
@@ -37,8 +37,35 @@ def test_the_batch_path_gives_the_diagrams_estimates(speed, seed, latency):
                            batch.measurements, equal_nan=True)
 
 
-def test_the_batch_path_only_replays_open_loop_synthetic_runs():
-    for override in ("perception.source=ct_ekf", "estimation.source=detector"):
-        _, s = load_scenario("gv-marker-ekf", overrides=[override])
-        with pytest.raises(ConfigError, match="the batch path replays an open-loop flight"):
-            batch_run(s, 1.0)
+DRAG = "quadrotor.rotor_drag_coefficient=8.06428e-5"  # RotorS's: the wind acts through it
+
+
+@pytest.mark.parametrize("overrides", [
+    ["perception.source=ct_ekf"], ["estimation.source=detector"], ["faults.drop_probability=0.5"],
+    ["navigation.source=gnss_ins"], ["wind.turbulence=light", DRAG], ["rendezvous.source=broadcast"],
+])
+def test_the_batch_path_only_replays_a_flight_no_seed_alters(overrides):
+    _, s = load_scenario("gv-marker-ekf", overrides=overrides)
+    assert not batch_applies(s)
+    with pytest.raises(ConfigError, match="the batch path replays one flight"):
+        batch_run(s, 1.0)
+
+
+def test_no_seed_alters_the_flight_the_batch_path_replays():
+    # A mean wind, a gust and other vehicles (drawn from the seed, never rendered here) are let
+    # through: the Diagram flies the same flight for two seeds, and the batch path, its flight flown
+    # for the first, gives the second's Diagram estimates.
+    overrides = ["vehicle.speed=6", "wind.mean_m_s=4", DRAG, "distractors.count=2",
+                 "wind.gusts=[{start_s: 0.5, duration_s: 1.0, magnitude_m_s: 3.0, direction_deg: 90}]"]
+    first, second = (load_scenario("gv-marker-ekf", overrides=overrides, seed=seed)[1] for seed in (1, 2))
+    assert batch_applies(first) and batch_applies(second)
+    flights = [fly_diagram(*build_gv_landing(s), 2.0).sampled for s in (first, second)]
+    np.testing.assert_array_equal(flights[0].quadrotor_state, flights[1].quadrotor_state)
+    np.testing.assert_array_equal(flights[0].vehicle_state, flights[1].vehicle_state)
+    calm = fly_diagram(*build_gv_landing(load_scenario("gv-marker-ekf", overrides=overrides[:1], seed=1)[1]), 2.0)
+    assert not np.allclose(calm.sampled.quadrotor_state, flights[0].quadrotor_state)  # the wind alters it
+    batch_run(first, 2.0)
+    batch = batch_run(second, 2.0)
+    np.testing.assert_allclose(batch.quadrotor_state, flights[1].quadrotor_state, rtol=0, atol=1e-9)
+    for name in batch.estimates:
+        np.testing.assert_allclose(batch.estimates[name], flights[1].estimates[name], rtol=0, atol=1e-9)
