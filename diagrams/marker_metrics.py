@@ -4,9 +4,9 @@
 batch path (diagrams/marker_batch.py) alike: the UAV's and the vehicle's true states, the stream as
 acquired, every filter's estimate vector (systems/estimators/marker_ekf/engine.py's EST_* layout)
 and marker positions. `marker_metrics` scores it: per filter the errors of the pad P's position (the
-paper's S_P, at marker 0), its heading (roll and pitch are zero for both filters and the truth) and
-each marker's centre, over the valid estimates after `estimation.settle_s`; and the stream's own
-accuracy per marker.
+paper's S_P, at marker 0), its attitude (the truth is level; roll and pitch only for a filter that
+estimates them, its `attitude_axes`), its heading and each marker's centre, over the valid estimates
+after `estimation.settle_s`; and the stream's own accuracy per marker.
 """
 
 from dataclasses import dataclass
@@ -15,7 +15,8 @@ import numpy as np
 from pydrake.math import RigidTransform
 
 from diagrams.metrics import estimator_metrics
-from systems.estimators.marker_ekf.engine import EST_P_WP, EST_VALID, EST_YAW
+from systems.estimators.marker_ekf import FILTERS
+from systems.estimators.marker_ekf.engine import EST_P_WP, EST_Q_WP, EST_VALID, EST_YAW
 from systems.geometry import wrap_angle
 from systems.perception.markers import MarkerLayout
 from systems.quaternion import quat_conjugate, quat_multiply, rotation_from_quaternion
@@ -23,6 +24,7 @@ from systems.vehicles.ground_vehicle_geometry import PlatformConfig
 from systems.vehicles.quadrotor import P_WB, Q_WB
 
 GV_HEADING = 2  # in the ground vehicle's state [x, y, heading, steering]
+ATTITUDE_AXES = ("roll", "pitch", "yaw")  # the order of estimator_metrics' *_rpy_deg
 
 
 @dataclass
@@ -128,14 +130,20 @@ def _level_poses(p: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 
 
 def filter_metrics(run: SampledRun, truth: PadTruth, name: str, errors: FilterErrors, settle_s: float) -> dict:
-    """One filter's figures: estimator_metrics' (docs/architecture.md) plus seed 002's: RMS error of
-    P's position (3-D and horizontal), heading and every marker, over its valid estimates from
-    settle_s on (a filter coasting without measurements flags its estimate invalid once the pad's
-    position std passes MarkerEkfConfig.max_valid_position_std_m); its counts and cost per step."""
+    """One filter's figures: estimator_metrics' (docs/architecture.md) of its pose estimate X_WP,
+    with `attitude_axes` naming the axes it estimates (the others' *_rpy_deg entries None), plus seed
+    002's: RMS error of P's position (3-D and horizontal), heading and every marker, over its valid
+    estimates from settle_s on (a filter coasting without measurements flags its estimate invalid once
+    the pad's position std passes MarkerEkfConfig.max_valid_position_std_m); its counts and cost per step."""
     window = run.t >= settle_s
     estimate = run.estimates[name]
-    estimate_rows = np.column_stack([errors.valid, _level_poses(estimate[:, EST_P_WP], estimate[:, EST_YAW])])
+    estimate_rows = np.column_stack([errors.valid, estimate[:, EST_P_WP], estimate[:, EST_Q_WP]])
     out = estimator_metrics(_level_poses(truth.p_WP, truth.yaw), estimate_rows, window)
+    axes = FILTERS[name].attitude_axes
+    for key in ("mae_rpy_deg", "rmse_rpy_deg"):
+        if key in out:
+            out[key] = [value if axis in axes else None for axis, value in zip(ATTITUDE_AXES, out[key])]
+    out["attitude_axes"] = list(axes)
     out.update({"per_frame_ms": 1e3 * run.compute_s[name] / max(len(run.t), 1), "measurements": run.stats[name]})
     scored = window & errors.valid & np.isfinite(errors.heading)
     if scored.any():

@@ -21,7 +21,7 @@ from diagrams.marker_metrics import SampledRun, marker_metrics, measurement_metr
 from diagrams.montecarlo import campaign_definition, campaign_settings, run_campaign
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
-from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT
+from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, ESTIMATE_VECTOR_SIZE
 from systems.vehicles.quadrotor import P_WB, quadrotor_state
 
 SHORT = ["duration_s=4"]
@@ -47,7 +47,7 @@ def test_run_command_writes_metrics(capfd, tmp_path):
     for png in ("path.png", "heading.png", "marker_errors.png", "perception.png"):
         assert (out / png).is_file()
     with np.load(out / "log.npz") as log:
-        assert log["ct_ekf_estimate"].shape == (len(log["t_sample"]), 13)
+        assert log["ct_ekf_estimate"].shape == (len(log["t_sample"]), ESTIMATE_VECTOR_SIZE)
         assert log["measurements"].shape == (len(log["t_sample"]), 5, 7)
 
 
@@ -90,6 +90,30 @@ def test_both_filters_get_the_identical_stream_one_period_late():
         last = together.estimates[name][:, EST_LAST_MEASUREMENT]
         assert np.isnan(last[0])
         np.testing.assert_allclose(last[1:], together.t[:-1], atol=1e-12)
+
+
+def test_metrics_score_each_filters_own_attitude_estimate(monkeypatch):
+    # The pad is level: a filter's roll and pitch errors are its estimate's own roll and pitch, that
+    # of its pose estimate X_WP at each step (recorded here as the run steps it). paper_ekf estimates
+    # all three axes, ct_ekf only the yaw: its roll and pitch are not scored.
+    from systems.estimators.marker_ekf import PaperMarkerEkf
+
+    poses = []
+    record = PaperMarkerEkf.record
+    monkeypatch.setattr(PaperMarkerEkf, "record", lambda f: poses.append(f.estimate().X_WP) or record(f))
+    s = scenario(6, 1)
+    run = batch_run(s, s.run_length_s)
+    _, metrics, _ = marker_metrics(run, s.platform, s.estimation.X_BC, s.estimation.settle_s)
+    scored = [X for t, X in zip(run.t, poses, strict=True) if X.valid and t >= s.estimation.settle_s]
+    roll_pitch = np.degrees([RollPitchYaw(X.X_RT.rotation()).vector()[:2] for X in scored])
+    paper = metrics["paper_ekf"]
+    assert paper["frames_scored"] == len(scored) and paper["attitude_axes"] == ["roll", "pitch", "yaw"]
+    np.testing.assert_allclose(paper["mae_rpy_deg"][:2], np.mean(np.abs(roll_pitch), axis=0), rtol=1e-6)
+    np.testing.assert_allclose(paper["rmse_rpy_deg"][:2], np.sqrt(np.mean(roll_pitch**2, axis=0)), rtol=1e-6)
+    assert min(paper["mae_rpy_deg"][:2]) > 0.01  # deg: the paper filter's tilt is noise, never exactly 0
+    ct = metrics["ct_ekf"]
+    assert ct["attitude_axes"] == ["yaw"] and ct["mae_rpy_deg"][:2] == ct["rmse_rpy_deg"][:2] == [None, None]
+    assert ct["mae_rpy_deg"][2] > 0
 
 
 def test_the_truths_marker_poses_in_the_camera_are_drakes():
@@ -263,6 +287,19 @@ def _figures(metrics: dict, prefix: str = "") -> dict:
     return out
 
 
+def _assert_same_figures(metrics: dict, expected: dict) -> None:
+    """Every figure of `expected` in `metrics` to 1e-9 (None, an axis a filter does not estimate, where
+    expected has it); names equal."""
+    figures, expected = _figures(metrics), _figures(expected)
+    assert set(figures) == set(expected)
+    for key, value in expected.items():
+        if isinstance(value, str) or key.endswith("attitude_axes"):
+            assert figures[key] == value, key
+        else:
+            np.testing.assert_allclose(np.array(figures[key], dtype=float), np.array(value, dtype=float), rtol=0,
+                                       atol=1e-9, err_msg=key)
+
+
 def test_a_group_of_runs_gives_each_runs_own_output():
     from diagrams.gv_marker_ekf_mc import CAMPAIGN, run_group, run_task
 
@@ -273,13 +310,8 @@ def test_a_group_of_runs_gives_each_runs_own_output():
         assert set(grouped.arrays) == set(alone.arrays)
         for key in alone.arrays:
             np.testing.assert_allclose(grouped.arrays[key], alone.arrays[key], rtol=1e-6, atol=1e-6)
-        figures, alone_figures = _figures(grouped.metrics), _figures(alone.metrics)
-        assert set(figures) == set(alone_figures) and grouped.metrics["seed"] == task.seed
-        for key, value in alone_figures.items():
-            if isinstance(value, str):
-                assert figures[key] == value, key
-            else:
-                np.testing.assert_allclose(figures[key], value, rtol=0, atol=1e-9, err_msg=key)
+        assert grouped.metrics["seed"] == task.seed
+        _assert_same_figures(grouped.metrics, alone.metrics)
 
 
 @pytest.mark.parametrize("override", ["navigation.source=gnss_ins", "faults.drop_probability=0.5"])
@@ -294,7 +326,5 @@ def test_a_campaign_run_the_batch_path_cannot_replay_is_the_diagrams(override):
         config = task.load_scenario()[1]
         run = fly_diagram(*build_gv_landing(config), config.run_length_s).sampled
         _, expected, _ = marker_metrics(run, config.platform, config.estimation.X_BC, config.estimation.settle_s)
-        figures, expected = _figures(output.metrics["estimators"]), _figures(expected)
-        assert set(figures) == set(expected) and output.metrics["seed"] == task.seed
-        for key, value in expected.items():
-            np.testing.assert_allclose(figures[key], value, rtol=0, atol=1e-9, err_msg=key)
+        assert output.metrics["seed"] == task.seed
+        _assert_same_figures(output.metrics["estimators"], expected)

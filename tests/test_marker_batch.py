@@ -7,8 +7,10 @@ import pytest
 from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly_diagram
 from diagrams.marker_batch import batch_applies, batch_run
+from diagrams.marker_metrics import marker_metrics
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
+from systems.estimators.marker_ekf.engine import EST_Q_WP
 
 
 @pytest.mark.parametrize("speed, seed, latency", [(6, 3, 1), (12, 11, 0), (3, 0, 2)])
@@ -32,6 +34,19 @@ def test_the_batch_path_gives_the_diagrams_estimates(speed, seed, latency):
         np.testing.assert_allclose(batch.estimates[name], in_diagram.estimates[name], rtol=0, atol=1e-9)
         np.testing.assert_allclose(batch.p_WM[name], in_diagram.p_WM[name], rtol=0, atol=1e-9)
         assert batch.stats[name] == in_diagram.stats[name] and batch.stats[name]["accepted"] > 0
+        assert np.all(np.isfinite(in_diagram.estimates[name][started, EST_Q_WP]))
+    # and so the same figures, the paper filter's roll and pitch included
+    est = s.estimation
+    metrics = [marker_metrics(run, s.platform, est.X_BC, est.settle_s)[1] for run in (batch, in_diagram)]
+    for name in batch.estimates:
+        figures, expected = ({k: v for k, v in m[name].items() if k != "per_frame_ms"} for m in metrics)
+        assert figures.keys() == expected.keys() and "mae_rpy_deg" in expected
+        for key, value in expected.items():
+            if key in ("measurements", "attitude_axes"):
+                assert figures[key] == value
+            else:  # None (an axis the filter does not estimate) as NaN, and NaN equals NaN
+                np.testing.assert_allclose(np.array(figures[key], dtype=float), np.array(value, dtype=float),
+                                           rtol=0, atol=1e-9, err_msg=key)
     # a different seed is a different stream
     assert not np.allclose(batch_run(s.__class__(**{**s.__dict__, "seed": seed + 1}), 4.0).measurements,
                            batch.measurements, equal_nan=True)

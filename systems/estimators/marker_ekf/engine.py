@@ -87,9 +87,9 @@ class FilterStats:
 _NO_COUNTS = FilterStats()
 
 # A filter's estimate as one vector (`MarkerFilter.estimate_vector`, logged every filter step).
-EST_VALID, EST_P_WP, EST_YAW, EST_V_WP, EST_A_WP, EST_POSITION_STD, EST_LAST_MEASUREMENT = (
-    0, slice(1, 4), 4, slice(5, 8), slice(8, 11), 11, 12)
-ESTIMATE_VECTOR_SIZE = 13
+EST_VALID, EST_P_WP, EST_YAW, EST_V_WP, EST_A_WP, EST_POSITION_STD, EST_LAST_MEASUREMENT, EST_Q_WP = (
+    0, slice(1, 4), 4, slice(5, 8), slice(8, 11), 11, 12, slice(13, 17))
+ESTIMATE_VECTOR_SIZE = 17
 
 
 @dataclass(frozen=True)
@@ -98,7 +98,8 @@ class MarkerFilterEstimate:
     X_WP: PoseEstimate of the pad frame P (at marker 0) in W, covariance over [roll, pitch, yaw, x, y, z];
     vector: [valid, p_WP (3, m), yaw_WP (rad, P's x axis from W's), v_WP (3, m/s), a_WP (3, m/s^2;
       zero in a model without acceleration), position std (m), acquisition time of the newest
-      measurement fused (s)] (the EST_* indices);
+      measurement fused (s), q_WP (4: unit quaternion [w, x, y, z] of R_WP, X_WP's rotation; level
+      in a model that estimates the yaw alone, `MarkerFilter.attitude_axes`)] (the EST_* indices);
     p_WM: (n, 3) the marker centres in W [m]."""
 
     X_WP: PoseEstimate
@@ -174,6 +175,7 @@ class MarkerFilter:
     name = ""
     n = 0
     rows = 0
+    attitude_axes: tuple[str, ...] = ()  # of the pad's roll, pitch and yaw, those the model estimates
 
     def __init__(self, layout: MarkerLayout, X_BC: RigidTransform, config: MarkerEkfConfig | None = None):
         layout.validate()
@@ -559,7 +561,8 @@ class MarkerFilter:
         last = np.where(np.isfinite(last_measurement_s), last_measurement_s, np.nan)
         valid = position_std <= self.config.max_valid_position_std_m
         columns = [np.asarray(c, dtype=float)[..., None] for c in (valid, yaw, position_std, last)]
-        vector = np.concatenate([columns[0], p_WP, columns[1], v_WP, a_WP, columns[2], columns[3]], axis=-1)
+        q_WP = q_PR[..., [3, 0, 1, 2]]  # q^{P/R} scalar last: Drake's [w, x, y, z] of R_WP (paper_to_drake)
+        vector = np.concatenate([columns[0], p_WP, columns[1], v_WP, a_WP, columns[2], columns[3], q_WP], axis=-1)
         return vector, p_WM, q_PR
 
     def _latest(self, t: float | None) -> _Belief:

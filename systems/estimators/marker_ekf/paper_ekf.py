@@ -28,6 +28,7 @@ class PaperMarkerEkf(MarkerFilter):
 
     name = "paper_ekf"
     rows = 7  # p_CM (3), q^{M/C} (4)
+    attitude_axes = ("roll", "pitch", "yaw")
 
     def __init__(self, layout: MarkerLayout, X_BC: RigidTransform, config: MarkerEkfConfig | None = None):
         self.n = 6 * len(layout.ids) + 7
