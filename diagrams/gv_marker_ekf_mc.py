@@ -17,7 +17,8 @@ Each run keeps its metrics (per filter: RMS position and heading error, per-mark
 and, every DECIMATE-th step as float32, the true and estimated pad path, heading and marker errors.
 
 summary.json's "filters": {filter: {speed: {"rms_position_m", "rms_heading_deg", ...}}}, where
-rms_* is the RMS over every run and every step after settle_s (the ensemble RMS error), and
+rms_* is the RMS over every run and every scored step after settle_s (the ensemble RMS error: each
+run's mean square weighted by its frames_scored), and
 "ensemble_mean_*" is the paper's epsilon: the error of the ensemble-mean estimate at each step,
 RMS over the steps. Plots (seed 002 Fig. 3-5, one row per speed): mc_path.png (reference, true and
 ensemble-mean estimated path), mc_heading.png (true and ensemble-mean heading, and its error),
@@ -145,12 +146,16 @@ def aggregate(done: dict) -> dict:
                 continue
             t, true_xy, true_yaw, xy, yaw, _ = _ensemble(records, name)
             window = (t >= settle) & np.all(np.isfinite(xy), axis=1)
+            steps = [m["frames_scored"] for m in ms]  # each run's mean square weighted by its scored steps
+
+            def pooled(key):
+                return np.sqrt(np.average(np.square([m[key] for m in ms]), axis=0, weights=steps))
+
             out.setdefault(name, {})[case] = {
-                "rms_position_m": float(np.sqrt(np.mean([m["rms_position_m"] ** 2 for m in ms]))),
-                "rms_heading_deg": float(np.sqrt(np.mean([m["rms_heading_deg"] ** 2 for m in ms]))),
-                "rms_position_xy_m": float(np.sqrt(np.mean([m["rms_position_xy_m"] ** 2 for m in ms]))),
-                "rms_marker_position_m": np.sqrt(np.mean([np.square(m["rms_marker_position_m"]) for m in ms],
-                                                         axis=0)).tolist(),
+                "rms_position_m": float(pooled("rms_position_m")),
+                "rms_heading_deg": float(pooled("rms_heading_deg")),
+                "rms_position_xy_m": float(pooled("rms_position_xy_m")),
+                "rms_marker_position_m": pooled("rms_marker_position_m").tolist(),
                 "ensemble_mean_position_xy_m": float(np.sqrt(np.mean(np.sum((xy - true_xy)[window] ** 2, axis=1)))),
                 "ensemble_mean_heading_deg": float(np.degrees(np.sqrt(np.mean(((yaw - true_yaw)[window]) ** 2)))),
                 "runs": len(ms),

@@ -328,3 +328,30 @@ def test_a_campaign_run_the_batch_path_cannot_replay_is_the_diagrams(override):
         _, expected, _ = marker_metrics(run, config.platform, config.estimation.X_BC, config.estimation.settle_s)
         assert output.metrics["seed"] == task.seed
         _assert_same_figures(output.metrics["estimators"], expected)
+
+
+def test_campaign_rms_is_over_every_scored_step_of_every_run():
+    from types import SimpleNamespace
+
+    from diagrams.gv_marker_ekf_mc import _output, aggregate, sampled
+
+    # two runs scoring very different numbers of steps: from 0.5 s and from 3.5 s of 4 s
+    records, steps = [], {}
+    for seed, settle in ((1, 0.5), (2, 3.5)):
+        s = scenario(12, seed, f"estimation.settle_s={settle}")
+        run = sampled(s)
+        output = _output(s, run, 0.0)
+        records.append(SimpleNamespace(metrics=output.metrics, arrays=lambda output=output: output.arrays))
+        for name, e in marker_metrics(run, s.platform, s.estimation.X_BC, settle)[2].items():
+            scored = e.valid & (run.t >= settle)
+            steps.setdefault(name, []).append((e.position[scored], e.heading[scored], e.markers[scored]))
+    summary = aggregate({"12": records})
+    for name, runs in steps.items():
+        position, heading, markers = (np.concatenate(part) for part in zip(*runs))
+        figures = summary[name]["12"]
+        assert figures["runs"] == 2 and len(runs[0][0]) > 5 * len(runs[1][0])
+        assert figures["rms_position_m"] == pytest.approx(np.sqrt(np.mean(np.sum(position**2, axis=1))), rel=1e-9)
+        assert figures["rms_position_xy_m"] == pytest.approx(np.sqrt(np.mean(np.sum(position[:, :2] ** 2, axis=1))),
+                                                             rel=1e-9)
+        assert figures["rms_heading_deg"] == pytest.approx(np.degrees(np.sqrt(np.mean(heading**2))), rel=1e-9)
+        np.testing.assert_allclose(figures["rms_marker_position_m"], np.sqrt(np.mean(markers**2, axis=0)), rtol=1e-9)
