@@ -87,7 +87,7 @@ def run_group(tasks: list[RunTask]) -> list[RunOutput]:
 
 def _output(scenario, run, wall_s: float) -> RunOutput:
     """A run's metrics and decimated arrays (module docstring) from its sampled run, which took wall_s [s]."""
-    from diagrams.marker_metrics import marker_metrics, pad_truth
+    from diagrams.marker_metrics import marker_metrics, pad_truth, valid_only
 
     start = time.perf_counter() - wall_s
     est = scenario.estimation
@@ -97,11 +97,10 @@ def _output(scenario, run, wall_s: float) -> RunOutput:
     arrays = {"t": run.t[keep].astype(np.float32), "true_xy": truth.p_WP[keep, :2].astype(np.float32),
               "true_yaw": truth.yaw[keep].astype(np.float32)}
     for name, estimate in run.estimates.items():
-        invalid = ~errors[name].valid[keep]  # NaN where the filter flags its estimate, as its metrics leave it out
+        valid = errors[name].valid[keep]  # NaN where the filter flags its estimate, as its metrics leave it out
         for key, values in (("xy", estimate[keep][:, EST_P_WP][:, :2]), ("yaw", estimate[keep][:, EST_YAW]),
                             ("marker_error", errors[name].markers[keep])):
-            arrays[f"{name}_{key}"] = np.where(invalid.reshape(-1, *[1] * (values.ndim - 1)), np.nan,
-                                               values).astype(np.float32)
+            arrays[f"{name}_{key}"] = valid_only(values, valid).astype(np.float32)
     metrics = {"speed_m_s": scenario.vehicle.speed, "seed": scenario.seed, "sim_time_s": float(run.t[-1]),
                "estimation_wall_time_s": time.perf_counter() - start, "settle_s": est.settle_s, "source": est.source,
                "measurements": measured, "estimators": metrics}

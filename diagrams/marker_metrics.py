@@ -116,6 +116,11 @@ class FilterErrors:
     valid: np.ndarray  # (N,) bool
 
 
+def valid_only(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """values (N, ...) with NaN in the rows where valid (N,) is False: what the metrics leave out."""
+    return np.where(valid.reshape(-1, *[1] * (values.ndim - 1)), values, np.nan)
+
+
 def filter_errors(run: SampledRun, truth: PadTruth, name: str, layout: MarkerLayout) -> FilterErrors:
     estimate = run.estimates[name]
     return FilterErrors(estimate[:, EST_P_WP] - truth.p_WP, wrap_angle(estimate[:, EST_YAW] - truth.yaw),

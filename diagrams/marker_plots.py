@@ -4,7 +4,7 @@ error, per marker filter, against the truth."""
 import matplotlib.pyplot as plt
 import numpy as np
 
-from diagrams.marker_metrics import FilterErrors, SampledRun, pad_truth
+from diagrams.marker_metrics import FilterErrors, SampledRun, pad_truth, valid_only
 from diagrams.outputs import save_figure
 from systems.estimators.marker_ekf.engine import EST_P_WP, EST_YAW
 from systems.geometry import wrap_angle
@@ -59,21 +59,23 @@ def plot_markers(axes, t, marker_errors: dict[str, np.ndarray], ids, title: str,
 
 
 def plot_run(config, run: SampledRun, errors: dict[str, FilterErrors], out_dir) -> None:
-    """path.png, heading.png and marker_errors.png of one run (config: the gv scenario)."""
+    """path.png, heading.png and marker_errors.png of one run (config: the gv scenario), each filter's
+    estimates where it flags them valid (`errors`' valid), as its metrics score them."""
     truth = pad_truth(run.quadrotor_state, run.vehicle_state, config.platform)
     title = f"{config.vehicle.speed:g} m/s"
     reference = make_path(config.vehicle.path_config()).polyline(max_length_m=1e9)
+    estimates = {n: valid_only(e, errors[n].valid) for n, e in run.estimates.items()}
     fig, ax = plt.subplots(figsize=(9, 6))
-    plot_path(ax, reference, truth.p_WP[:, :2], {n: e[:, EST_P_WP][:, :2] for n, e in run.estimates.items()},
+    plot_path(ax, reference, truth.p_WP[:, :2], {n: e[:, EST_P_WP][:, :2] for n, e in estimates.items()},
               f"Pad path ({title}, Fig. 3)")
     save_figure(fig, out_dir / "path.png")
     fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    plot_heading(axes, run.t, truth.yaw, {n: e[:, EST_YAW] for n, e in run.estimates.items()},
+    plot_heading(axes, run.t, truth.yaw, {n: e[:, EST_YAW] for n, e in estimates.items()},
                  f"Heading ({title}, Fig. 4)")
     axes[-1].set_xlabel("time (s)")
     save_figure(fig, out_dir / "heading.png")
     fig, axes = plt.subplots(len(errors), 1, figsize=(10, 3 * len(errors)), sharex=True, squeeze=False)
-    plot_markers(axes[:, 0], run.t, {n: e.markers for n, e in errors.items()}, config.platform.markers.ids,
-                 f"Marker position error ({title}, Fig. 5)")
+    plot_markers(axes[:, 0], run.t, {n: valid_only(e.markers, e.valid) for n, e in errors.items()},
+                 config.platform.markers.ids, f"Marker position error ({title}, Fig. 5)")
     axes[-1, 0].set_xlabel("time (s)")
     save_figure(fig, out_dir / "marker_errors.png")

@@ -355,3 +355,26 @@ def test_campaign_rms_is_over_every_scored_step_of_every_run():
                                                              rel=1e-9)
         assert figures["rms_heading_deg"] == pytest.approx(np.degrees(np.sqrt(np.mean(heading**2))), rel=1e-9)
         np.testing.assert_allclose(figures["rms_marker_position_m"], np.sqrt(np.mean(markers**2, axis=0)), rtol=1e-9)
+
+
+def test_run_plots_leave_out_the_estimates_the_filters_flag(monkeypatch, tmp_path):
+    import diagrams.marker_plots as marker_plots
+
+    # the camera covered from 1 to 3 s: the filters coast and flag their estimates once the pad's
+    # position std passes 0.3 m
+    s = scenario(6, 1, "faults.occlusions_s=[[1.0, 3.0]]", "estimation.ekf.max_valid_position_std_m=0.3")
+    run = fly_diagram(*build_gv_landing(s), s.run_length_s).sampled
+    _, _, errors = marker_metrics(run, s.platform, s.estimation.X_BC, s.estimation.settle_s)
+    figures = {}
+    monkeypatch.setattr(marker_plots, "save_figure", lambda fig, path: figures.__setitem__(path.name, fig))
+    marker_plots.plot_run(s, run, errors, tmp_path)
+    for i, (name, e) in enumerate(errors.items()):
+        flagged = ~e.valid & ~np.isnan(run.estimates[name][:, 1])  # started, and flagged
+        assert flagged.sum() > 10 and e.valid.sum() > 10
+        path = next(line for line in figures["path.png"].axes[0].lines
+                    if marker_plots.style(name)[1] in line.get_label())
+        drawn = {"path": np.asarray(path.get_ydata(), dtype=float),
+                 "heading": np.asarray(figures["heading.png"].axes[0].lines[1 + i].get_ydata(), dtype=float),
+                 "marker 0": np.asarray(figures["marker_errors.png"].axes[i].lines[0].get_ydata(), dtype=float)}
+        for what, y in drawn.items():
+            assert np.all(np.isnan(y[flagged])) and np.all(np.isfinite(y[e.valid])), (name, what)
