@@ -52,6 +52,10 @@ class Scenario(RunSettings, GvLandingConfig):
         require(self.platform.height_m < self.start.height_m and self.landing.initial_height_m < self.start.height_m,
                 f"platform.height_m and landing.initial_height_m must be below start.height_m "
                 f"({self.start.height_m} m)")
+        require(self.estimation.settle_s < self.run_length_s,
+                f"estimation.settle_s ({self.estimation.settle_s:g} s) must be below the run's length "
+                f"({self.run_length_s:g} s: duration_s, or 500 m of driving at vehicle.speed when it is 0): "
+                "nothing would be scored")
 
     @property
     def run_length_s(self) -> float:

@@ -190,7 +190,7 @@ def test_filters_track_the_pad_on_the_detector_stream(detector_run):
 
 def test_video_needs_the_camera(capfd, tmp_path):
     out = tmp_path / "video"
-    code = main(["run", "gv-marker-ekf", "--set", "duration_s=1", "--video", "--out", str(out), "--quiet"])
+    code = main(["run", "gv-marker-ekf", "--set", "duration_s=3", "--video", "--out", str(out), "--quiet"])
     _, err = capfd.readouterr()
     assert code == 2 and "estimation.source=detector" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
@@ -252,12 +252,13 @@ def test_detector_campaign_leaves_out_what_the_filters_flag(tmp_path):
     (["--speeds", "5"], "unknown speed '5'"),
     (["--runs", "0"], "--runs must be"),
     (["--speeds", "fast"], "not a number"),
+    (["--set", "duration_s=2", "--set", "estimation.settle_s=10"], r"estimation.settle_s (10 s) must be below"),
 ])
 def test_bad_campaign_settings_are_one_line(capfd, tmp_path, args, message):
     out = tmp_path / "bad"
     code = main(["montecarlo", "gv-marker-ekf", *args, "--out", str(out)])
     _, err = capfd.readouterr()
-    assert code != 0 and message in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
 
 
@@ -275,6 +276,11 @@ def test_bad_scenario_values():
         scenario(12, 0, "estimation.ekf.history_s=0.03")
     with pytest.raises(ConfigError, match="gv-marker-ekf needs a measurement stream"):
         scenario(12, 0, "estimation.source=none", "estimation.filters=[]")
+    # nothing would be scored: settle_s at or past the run's length (duration_s, or 500 m of driving)
+    for settle, duration in ((4, 4), (42, 0)):
+        with pytest.raises(ConfigError, match=rf"estimation.settle_s \({settle} s\) must be below the run's length"):
+            scenario(12, 0, f"estimation.settle_s={settle}", f"duration_s={duration}")
+    assert scenario(12, 0, "estimation.settle_s=3.9").estimation.settle_s == 3.9
 
 
 def _figures(metrics: dict, prefix: str = "") -> dict:
