@@ -56,6 +56,9 @@ def perception_metrics(log: dict[str, np.ndarray], source: str, touchdown_s: flo
     if not heading:
         for key in ("mae_rpy_deg", "rmse_rpy_deg", "flips"):
             out.pop(key, None)
+    for key in ("mae_rpy_deg", "rmse_rpy_deg"):  # the heading alone is scored: roll and pitch are not figures
+        if key in out:
+            out[key] = [None, None, out[key][2]]
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
     out["longest_invalid_s"] = longest_run(~valid) * dt
     out["first_valid_s"] = float(t[valid][0]) if valid.any() else None
