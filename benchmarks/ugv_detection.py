@@ -60,16 +60,26 @@ def score_frame(detections, truth: np.ndarray | None, distractors: np.ndarray, p
 
 
 def summary(counts: list[dict]) -> dict:
+    """The counts' totals and scores; a score whose denominator is zero (no detection, no UGV in view) is None,
+    as in diagrams/hybrid_metrics.detection_scores."""
     tp, fp, fn = (sum(c[k] for c in counts) for k in ("tp", "fp", "fn"))
-    precision = tp / (tp + fp) if tp + fp else 1.0
-    recall = tp / (tp + fn) if tp + fn else 1.0
-    f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
+    precision = tp / (tp + fp) if tp + fp else None
+    recall = tp / (tp + fn) if tp + fn else None
+    f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else None
     centre_px = [d for c in counts for d in c["centre_px"]]
     return {"frames": len(counts), "targets": tp + fn, "tp": tp, "fp": fp, "fn": fn,
             "fp_on_distractor": sum(c["fp_on_distractor"] for c in counts),
             "precision": precision, "recall": recall, "f1": f1,
             "centre_error_px": {"median": float(np.median(centre_px)) if centre_px else None,
                                 "p95": float(np.percentile(centre_px, 95)) if centre_px else None}}
+
+
+def percent(score: float | None, sign: str = "%") -> str:
+    return "n/a" if score is None else f"{100 * score:.2f}{sign}"
+
+
+def number(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.2f}"
 
 
 def frame_kinds(dataset: UgvDataset, config: UgvSceneConfig) -> dict[str, np.ndarray]:
@@ -136,16 +146,16 @@ def main() -> int:
     for name, r in results.items():
         ms = r["per_frame_ms"]
         print(f"  {name:20s} {r['frames']:6d} {r['targets']:7d} {r['tp']:4d} {r['fp']:4d} ({r['fp_on_distractor']:4d})    "
-              f"{r['fn']:4d}   {100 * r['precision']:7.2f}%  {100 * r['recall']:6.2f}%  {100 * r['f1']:6.2f}%   "
+              f"{r['fn']:4d}   {percent(r['precision']):>8s}  {percent(r['recall']):>7s}  {percent(r['f1']):>7s}   "
               f"{ms['median']:8.1f}, {ms['mean']:.1f} +- {ms['std']:.1f}       "
-              f"{r['centre_error_px']['median']:.2f}, {r['centre_error_px']['p95']:.2f}")
+              f"{number(r['centre_error_px']['median'])}, {number(r['centre_error_px']['p95'])}")
     print("\nby kind of frame (precision / recall / F1 %, targets, FP):")
     for kind, mask in kinds.items():
         line = f"  {kind:36s} {int(mask.sum()):4d} frames"
         for name, r in results.items():
             k = r["by_kind"][kind]
-            line += (f" | {name}: {100 * k['precision']:6.2f} / {100 * k['recall']:6.2f} / "
-                     f"{100 * k['f1']:6.2f}, {k['targets']:3d}, {k['fp']:2d}")
+            line += (f" | {name}: {percent(k['precision'], ''):>6s} / {percent(k['recall'], ''):>6s} / "
+                     f"{percent(k['f1'], ''):>6s}, {k['targets']:3d}, {k['fp']:2d}")
         print(line)
     if args.json:
         args.json.write_text(json.dumps({"frames": len(dataset), "table3": TABLE3, "table7_detection_ms":

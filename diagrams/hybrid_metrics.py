@@ -89,18 +89,15 @@ def _quaternion(wxyz):
 
 
 def detection_scores(detections: np.ndarray, truth: list) -> dict:
-    """Precision, recall and F1 of the logged detections (N, 15: [valid, x, y, w, h] x 3) against the true boxes."""
+    """Precision, recall and F1 of every detection against the true boxes, from the logged detections (N, 1 +
+    5 K: DetectionsToTracker's count, then the best K by score, [valid, x, y, w, h] each): per frame the
+    best-scoring box within IOU_MATCH of the true one is its true positive (seed 003 Table 3's rule,
+    `match_truth`), every other detection a false positive, counted or logged."""
     tp = fp = fn = 0
     for row, true_box in zip(detections, truth):
-        boxes = [row[5 * k + 1:5 * k + 5] for k in range(len(row) // 5) if row[5 * k] > 0.5]
-        matched = False
-        for box in boxes:
-            if true_box is not None and not matched and iou(box, true_box) >= IOU_MATCH:
-                tp, matched = tp + 1, True
-            else:
-                fp += 1
-        if true_box is not None and not matched:
-            fn += 1
+        boxes = [row[5 * k + 2:5 * k + 6] for k in range((len(row) - 1) // 5) if row[5 * k + 1] > 0.5]
+        hit = int(true_box is not None and any(iou(box, true_box) >= IOU_MATCH for box in boxes))
+        tp, fp, fn = tp + hit, fp + int(row[0]) - hit, fn + int(true_box is not None and not hit)
     precision = tp / (tp + fp) if tp + fp else None
     recall = tp / (tp + fn) if tp + fn else None
     f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else None  # the harmonic mean of the two; 0 without a match

@@ -1,15 +1,37 @@
-"""The UGV detector's scores (diagrams/hybrid_metrics.detection_scores) on constructed boxes."""
+"""The UGV detector's scores (diagrams/hybrid_metrics.detection_scores) on constructed boxes, logged as the loop
+logs them (DetectionsToTracker's detection_vector)."""
 
 import numpy as np
 import pytest
 
 from diagrams.hybrid_metrics import detection_scores
+from systems.perception.hybrid_pad import DetectionsToTracker
+
+TRUE_BOX = np.array([100.0, 100.0, 40.0, 30.0])  # [x, y, w, h] px
 
 
-@pytest.mark.parametrize("found, expected", [([400.0, 300.0, 40.0, 30.0], 0.0), ([100.0, 100.0, 40.0, 30.0], 1.0)])
+def logged(frames: list[list[tuple[list[float], float]]]) -> np.ndarray:
+    """The loop's log rows of each frame's (box, score) detections."""
+    system = DetectionsToTracker()
+    context = system.CreateDefaultContext()
+    rows = []
+    for detections in frames:
+        system.get_input_port().FixValue(context, [(np.array(box), score) for box, score in detections])
+        rows.append(system.GetOutputPort("detection_vector").Eval(context).copy())
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("found, expected", [([400.0, 300.0, 40.0, 30.0], 0.0), (TRUE_BOX.tolist(), 1.0)])
 def test_f1_is_zero_when_no_box_matches_and_one_when_every_box_does(found, expected):
-    truth = [np.array([100.0, 100.0, 40.0, 30.0])] * 20  # the UGV in view in every frame: [x, y, w, h] px
-    detections = np.zeros((20, 15))
-    detections[:, 0], detections[:, 1:5] = 1.0, found  # one box a frame
-    scores = detection_scores(detections, truth)
+    scores = detection_scores(logged([[(found, 0.9)]] * 20), [TRUE_BOX] * 20)
     assert scores["precision"] == scores["recall"] == scores["f1"] == expected
+
+
+def test_every_detection_counts_however_many_a_frame_has():
+    """Twelve detections in a frame, the UGV's the fourth by score; then a frame without the UGV in view and
+    two false alarms (before: the best three logged and scored, precision 1/3, and the UGV a miss)."""
+    false_alarms = [([20.0 * k, 400.0, 30.0, 30.0], 0.95 - 0.01 * k) for k in range(11)]
+    frames = [false_alarms[:3] + [(TRUE_BOX.tolist(), 0.925)] + false_alarms[3:], false_alarms[:2]]
+    scores = detection_scores(logged(frames), [TRUE_BOX, None])
+    assert (scores["true_positives"], scores["false_positives"], scores["false_negatives"]) == (1, 13, 0)
+    assert scores["precision"] == pytest.approx(1 / 14) and scores["recall"] == 1.0

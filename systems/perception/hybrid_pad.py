@@ -314,22 +314,25 @@ class HybridPadEstimator(LeafSystem):
 
 class DetectionsToTracker(LeafSystem):
     """The UGV detector's (box, score) pairs as the tracker's `Detection`s (input `detections`, output
-    `detections`), and the best three as a vector `detection_vector` (15: [valid, x, y, w, h] each) for logs."""
+    `detections`), and for logs a vector `detection_vector` (1 + 5 max_logged): the frame's number of
+    detections, then the best max_logged by score, [valid, x, y, w, h] each (the CNN gives at most 10)."""
 
-    def __init__(self, max_logged: int = 3):
+    def __init__(self, max_logged: int = 10):
         super().__init__()
         self._n = max_logged
         self._input = self.DeclareAbstractInputPort("detections", AbstractValue.Make([]))
         self.DeclareAbstractOutputPort("detections", lambda: AbstractValue.Make([]), self._calc)
-        self.DeclareVectorOutputPort("detection_vector", 5 * max_logged, self._calc_vector)
+        self.DeclareVectorOutputPort("detection_vector", 1 + 5 * max_logged, self._calc_vector)
 
     def _calc(self, context, output):
         output.set_value([Detection(np.asarray(box, float), float(score)) for box, score in self._input.Eval(context)])
 
     def _calc_vector(self, context, output):
-        v = np.zeros(5 * self._n)
-        for k, (box, _score) in enumerate(self._input.Eval(context)[:self._n]):
-            v[5 * k:5 * k + 5] = [1.0, *box]
+        detections = sorted(self._input.Eval(context), key=lambda d: -d[1])
+        v = np.zeros(1 + 5 * self._n)
+        v[0] = len(detections)
+        for k, (box, _score) in enumerate(detections[:self._n]):
+            v[1 + 5 * k:6 + 5 * k] = [1.0, *box]
         output.SetFromVector(v)
 
 
