@@ -4,6 +4,7 @@ image view helper, and the pixel-noise system on fixed images."""
 import cv2
 import numpy as np
 import pytest
+from pydrake.geometry import SceneGraph
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.sensors import ImageRgba8U
 from scipy.spatial.transform import Rotation
@@ -12,13 +13,16 @@ from systems.config import ConfigError
 from systems.perception.apriltag import AprilTagDetector, TagDetectorSystem
 from systems.platforms.stewart import TAG_ABOVE_DECK_M
 from systems.sensors.camera import (
+    CalibrationErrorConfig,
     CameraConfig,
     NoisyCamera,
     add_pixel_noise,
     distortion_maps,
     image_to_numpy,
+    make_camera,
     motion_blur_flow,
     motion_blur_kernel,
+    render_margin_px,
 )
 from systems.sensors.ground_truth import axis_flow
 
@@ -344,6 +348,12 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     ({"distortion": [-0.9, 0.0, 0.0, 0.0, 0.0]}, "camera.distortion folds the image"),
     # Turns back at r = 1.05 with r_d 0.70, under the corner's 0.80, which itself is never reached.
     ({"distortion": [-0.3, 0.0, 0.0, 0.0, 0.0]}, "camera.distortion folds the image"),
+    # Tangential terms that fold it (before: only k1, k2, k3 were checked; 24 % of the image folded back).
+    ({"distortion": [0.0, 0.0, 0.5, 0.0, 0.0]}, "camera.distortion folds the image"),
+    ({"distortion": [0.0, 0.0, 0.0, 0.4, 0.0]}, "camera.distortion folds the image"),
+    # The estimators' own lens model and principal point (before: accepted).
+    ({"calibration_error": CalibrationErrorConfig(k1=-0.6)}, "camera.calibration_error.k1 and k2"),
+    ({"calibration_error": CalibrationErrorConfig(cx_px=1000.0)}, "camera.calibration_error.cx_px"),
 ])
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
@@ -363,6 +373,46 @@ def test_a_lens_that_passes_maps_every_pixel_back_onto_itself(k1):
     back, _ = cv2.projectPoints(cv2.convertPointsToHomogeneous(rays), np.zeros(3), np.zeros(3), config.K, config.D)
     u, v = np.meshgrid(np.arange(config.width), np.arange(config.height))
     np.testing.assert_allclose(back.reshape(-1, 2), np.stack([u.ravel(), v.ravel()], axis=1), atol=0.01)
+
+
+def _checkerboard(x_n: np.ndarray, y_n: np.ndarray) -> np.ndarray:
+    """A scene known at every ray: squares 0.05 wide in normalised image coordinates (x/z, y/z)."""
+    return np.where((np.floor(x_n / 0.05) + np.floor(y_n / 0.05)) % 2 == 0, 230, 25).astype(np.uint8)
+
+
+@pytest.mark.parametrize("D", [[-0.00908, -0.03128, 0.00109, -0.00198, 0.0], [-0.2, 0.0, 0.0, 0.0, 0.0]])
+def test_a_barrel_lens_images_the_scene_out_to_its_rim(D):
+    """The pinhole render is render_margin_px wider on every side (make_camera), so the distorted image's rim,
+    which looks beyond a same-size render, is the scene's: each output pixel equals the scene at its ray
+    (exact undistortion) but where the bilinear sample straddles a square's edge. Before: the rim replicated
+    the render's edge (stewart-hardware's lens: 1.9 % of the image; k1 -0.2: 16 %, a third of it wrong)."""
+    config = CameraConfig(distortion=D)
+    config.validate()
+    m = render_margin_px(config)
+    info = make_camera(config, SceneGraph().world_frame_id(), RigidTransform()).default_color_render_camera().core(
+        ).intrinsics()
+    assert (info.width(), info.height()) == (config.width + 2 * m, config.height + 2 * m)
+    assert (info.center_x(), info.center_y()) == (config.cx + m + 0.5, config.cy + m + 0.5)  # Drake's half pixel
+    u, v = np.meshgrid(np.arange(info.width(), dtype=float), np.arange(info.height(), dtype=float))
+    rendered = ImageRgba8U(info.width(), info.height())
+    rendered.mutable_data[..., :3] = _checkerboard((u - config.cx - m) / config.fx, (v - config.cy - m) / config.fy)[
+        ..., None]
+    rendered.mutable_data[..., 3] = 255
+    camera = NoisyCamera(config, 0)
+    context = camera.CreateDefaultContext()
+    camera.GetInputPort("rendered_image").FixValue(context, rendered)
+    out = camera.get_output_port().Eval(context).data[..., 0].astype(int)
+    u, v = np.meshgrid(np.arange(config.width, dtype=float), np.arange(config.height, dtype=float))
+    rays = cv2.undistortPoints(np.stack([u.ravel(), v.ravel()], 1).reshape(-1, 1, 2), config.K, config.D, None,
+                               None, None, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)).reshape(-1, 2)
+    truth = _checkerboard(rays[:, 0], rays[:, 1]).reshape(out.shape).astype(int)
+    map_x, map_y = distortion_maps(config)
+    rim = (map_x < 0) | (map_x > config.width - 1) | (map_y < 0) | (map_y > config.height - 1)
+    assert rim.mean() > 0.01  # the rim is there to test
+    edge = np.ones(out.shape, bool)  # pixels whose bilinear sample does not straddle a square's edge
+    for du, dv in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        edge &= np.roll(truth, (dv, du), axis=(0, 1)) == truth
+    assert np.mean(np.abs(out - truth)[rim & edge] > 60) < 0.01
 
 
 def test_camera_velocity_adds_the_lever_arm_and_turns_into_the_camera_frame():

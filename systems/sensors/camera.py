@@ -7,6 +7,7 @@ half-integers, so `camera_info` shifts the principal point by half a pixel when 
 CameraInfo; rendered images then obey the OpenCV K exactly.
 """
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
@@ -55,6 +56,8 @@ class CalibrationErrorConfig:
             require(abs(getattr(self, name)) < 50, f"{prefix}.{name} must be within +-50 %")
         for name in ("k1", "k2"):
             require(abs(getattr(self, name)) < 1, f"{prefix}.{name} must be within +-1")
+        # (CameraConfig.validate keeps the principal point the estimators assume inside the image, and their
+        # lens model from folding it.)
 
 
 @dataclass
@@ -113,13 +116,23 @@ class CameraConfig:
         require(len(self.mount_xyz_m) == 3, f"{prefix}.mount_xyz_m needs 3 numbers")
         require(len(self.distortion) == 5, f"{prefix}.distortion needs 5 numbers [k1, k2, p1, p2, k3]")
         self.calibration_error.validate(f"{prefix}.calibration_error")
+        e = self.calibration_error
+        require(0 < self.cx + e.cx_px < self.width and 0 < self.cy + e.cy_px < self.height,
+                f"{prefix}.calibration_error.cx_px and cy_px must keep the estimators' principal point inside the "
+                f"image, got ({self.cx + e.cx_px:g}, {self.cy + e.cy_px:g})")
         for interval in self.blackouts_s:
             require(len(interval) == 2 and 0 <= interval[0] < interval[1],
                     f"{prefix}.blackouts_s needs [start, end] pairs with 0 <= start < end, got {interval}")
-        if any(self.distortion):
-            folds = distortion_folds(self)
-            require(not folds, f"{prefix}.distortion folds the image (its radial map turns back at {folds:.0%} "
+        for name, D in (("distortion", self.D), ("calibration_error.k1 and k2 (the estimators' lens model)",
+                                                   self.D_estimated)):
+            if not np.any(D):
+                continue
+            folds = distortion_folds(self, D)
+            require(not folds, f"{prefix}.{name} folds the image (its radial map turns back at {folds:.0%} "
                                f"of the half-diagonal)")
+            off = distortion_round_trip_px(self, D)
+            require(off <= MAX_ROUND_TRIP_PX, f"{prefix}.{name} folds the image: a pixel maps back {off:.2g} px "
+                                              f"from itself through the lens model (p1, p2 too large?)")
 
     @property
     def period_s(self) -> float:
@@ -154,13 +167,16 @@ class CameraConfig:
         return np.asarray(self.distortion, dtype=float)
 
 
-def distortion_folds(config: CameraConfig) -> float:
+MAX_ROUND_TRIP_PX = 0.05  # a lens model that maps a pixel back farther than this from itself folds the image
+
+
+def distortion_folds(config: CameraConfig, D=None) -> float:
     """0 when the radial distortion r_d = r (1 + k1 r^2 + k2 r^4 + k3 r^6) grows monotonically until it
     reaches the image's corners (normalised coordinates; the pinhole radius r a corner pixel samples lies
     beyond the corner's own radius under barrel distortion), else the fraction of the half-diagonal where
     the distorted image turns back (or, never reaching the corner within four times its radius, how far
-    it gets)."""
-    k1, k2, _, _, k3 = config.distortion
+    it gets). D: OpenCV's [k1, k2, p1, p2, k3] (default the lens's, config.distortion)."""
+    k1, k2, _, _, k3 = config.distortion if D is None else D
     corner = max(np.hypot(u / config.fx, v / config.fy) for u in (config.cx, config.width - config.cx)
                  for v in (config.cy, config.height - config.cy))
     r = np.linspace(0.0, 4.0 * corner, 1600)
@@ -176,13 +192,53 @@ def distortion_folds(config: CameraConfig) -> float:
 
 def distortion_maps(config: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
     """cv2.remap's maps for the distorted image: where each of its pixels (OpenCV's integer centres)
-    lies in the undistorted pinhole render with the same K."""
+    lies in the undistorted pinhole render with the same K (px; under barrel distortion the rim's lie
+    outside it: `render_margin_px`)."""
     u, v = np.meshgrid(np.arange(config.width, dtype=np.float32), np.arange(config.height, dtype=np.float32))
-    distorted = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
-    undistorted = cv2.undistortPoints(distorted, config.K, config.D, None, None, config.K, criteria)
-    maps = undistorted.reshape(config.height, config.width, 2)
+    maps = _undistorted(config, config.D, np.stack([u.ravel(), v.ravel()], axis=1)).reshape(
+        config.height, config.width, 2)
     return maps[..., 0].astype(np.float32), maps[..., 1].astype(np.float32)
+
+
+def _undistorted(config: CameraConfig, D: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(N, 2) the pinhole pixels (same K) that the distorted pixels (N, 2) look at, through the lens model D."""
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
+    points = np.asarray(pixels, np.float32).reshape(-1, 1, 2)
+    return cv2.undistortPoints(points, config.K, D, None, None, config.K, criteria).reshape(-1, 2)
+
+
+def _pixel_grid(config: CameraConfig, stride: int) -> np.ndarray:
+    """(N, 2) pixels every `stride` along each axis, the last row and column included."""
+    u = np.unique(np.r_[np.arange(0, config.width, stride), config.width - 1])
+    v = np.unique(np.r_[np.arange(0, config.height, stride), config.height - 1])
+    uu, vv = np.meshgrid(u, v)
+    return np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
+
+
+def distortion_round_trip_px(config: CameraConfig, D=None, stride: int = 8) -> float:
+    """The largest distance [px] between a pixel (every `stride`-th, the border's included) and its place in
+    the pinhole render (`distortion_maps`' sample) distorted again by OpenCV's projectPoints: about 0 for a
+    lens model D (default config.D) that does not fold the image, hundreds of px where it does."""
+    D = config.D if D is None else np.asarray(D, float)
+    pixels = _pixel_grid(config, stride)
+    rays = cv2.undistortPoints(_undistorted(config, D, pixels).reshape(-1, 1, 2).astype(np.float64), config.K, None)
+    back, _ = cv2.projectPoints(cv2.convertPointsToHomogeneous(rays), np.zeros(3), np.zeros(3), config.K, D)
+    off = np.linalg.norm(back.reshape(-1, 2) - pixels, axis=1)
+    return float(off.max()) if np.all(np.isfinite(off)) else math.inf
+
+
+def render_margin_px(config: CameraConfig) -> int:
+    """The pinhole render's extra pixels on every side [px] so that every pixel of the distorted image samples
+    the scene (under barrel distortion the rim looks beyond the same-K pinhole image): 0 without distortion.
+    From the border's pixels: a lens that does not fold maps the image's inside within them."""
+    if not any(config.distortion):
+        return 0
+    w, h = config.width, config.height
+    border = np.concatenate([[(u, v) for u in range(w) for v in (0, h - 1)],
+                             [(u, v) for v in range(h) for u in (0, w - 1)]])
+    x, y = _undistorted(config, config.D, border).T
+    beyond = max(-x.min(), x.max() - (w - 1), -y.min(), y.max() - (h - 1))
+    return math.ceil(max(float(beyond), 0.0)) + 1  # and the bilinear sample's neighbour
 
 
 def camera_info(width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> CameraInfo:
@@ -191,9 +247,12 @@ def camera_info(width: int, height: int, fx: float, fy: float, cx: float, cy: fl
 
 
 def make_camera(config: CameraConfig, parent_frame_id, X_PC: RigidTransform) -> RgbdSensor:
-    """An RgbdSensor at pose X_PC in the SceneGraph frame `parent_frame_id` (e.g. the body frame)."""
-    core = RenderCameraCore(RENDERER_NAME,
-                            camera_info(config.width, config.height, config.fx, config.fy, config.cx, config.cy),
+    """An RgbdSensor at pose X_PC in the SceneGraph frame `parent_frame_id` (e.g. the body frame): the pinhole
+    render with K, `render_margin_px` wider on every side (the principal point moved with it) when the lens
+    distorts."""
+    m = render_margin_px(config)
+    core = RenderCameraCore(RENDERER_NAME, camera_info(config.width + 2 * m, config.height + 2 * m, config.fx,
+                                                       config.fy, config.cx + m, config.cy + m),
                             ClippingRange(config.near_m, config.far_m), RigidTransform())
     return RgbdSensor(parent_frame_id, X_PC, ColorRenderCamera(core, False),
                       DepthRenderCamera(core, DepthRange(config.near_m * 1.01, config.far_m * 0.99)))
@@ -286,7 +345,8 @@ class NoisyCamera(LeafSystem):
     smear) and given seeded pixel noise
     (`noise_std_by_level`); black within `config.blackouts_s`.
 
-    Input `rendered_image` and output `color_image` are ImageRgba8U. The output is a pure function
+    Input `rendered_image` (the pinhole render, `render_margin_px` wider on every side) and output
+    `color_image` (width x height) are ImageRgba8U. The output is a pure function
     of the time's frame index, so it is computed (and the scene rendered) only when a consumer
     evaluates it; consumers evaluate it at the camera rate, in their periodic events.
     """
@@ -295,11 +355,13 @@ class NoisyCamera(LeafSystem):
         super().__init__()
         self._std = noise_std_by_level(config) if config.full_well_e > 0 else config.pixel_noise_std
         self._period, self._seed = config.period_s, seed
-        self._maps = distortion_maps(config) if any(config.distortion) else None
+        m = render_margin_px(config)
+        self._maps = tuple(map_ + m for map_ in distortion_maps(config)) if any(config.distortion) else None
         self._blackouts = [tuple(interval) for interval in config.blackouts_s]
         self._K, self._exposure = config.K, config.exposure_s
         blank = ImageRgba8U(config.width, config.height)
-        self._rendered = self.DeclareAbstractInputPort("rendered_image", AbstractValue.Make(blank))
+        self._rendered = self.DeclareAbstractInputPort(
+            "rendered_image", AbstractValue.Make(ImageRgba8U(config.width + 2 * m, config.height + 2 * m)))
         self._axis_flow = self.DeclareVectorInputPort("axis_flow", 2) if config.exposure_s > 0 else None
         self.DeclareAbstractOutputPort("color_image", lambda: AbstractValue.Make(blank), self._calc_image)
 
