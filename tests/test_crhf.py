@@ -15,7 +15,7 @@ from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import ConfigError
 from systems.estimators.crhf import CrhfConfig, CrhfEstimator, CrhfState, RunningMean
 from systems.estimators.crhf_math import residual_gate
-from systems.estimators.pad_calibration import CalibrationError
+from systems.estimators.pad_calibration import CalibrationError, PadCalibration
 from systems.estimators.track_filter import Track
 from systems.perception.apriltag import TagDetection, project_points, tag_corners_T
 from systems.sensors.camera import CameraConfig
@@ -142,6 +142,10 @@ def test_the_system_output_is_this_frames_estimate():
 def test_missing_calibration_and_bad_settings_are_clear_errors(tmp_path):
     with pytest.raises(CalibrationError, match="nope.npz"):
         CrhfEstimator(CrhfConfig(calibration_file=str(tmp_path / "nope.npz")), P_C_SENSORS, 0.5, 0.05)
+    three = tmp_path / "three_pads.npz"  # a calibration of three sensors (before: a matmul error at the first frame)
+    PadCalibration(PadCalibration.load(CrhfConfig().calibration_path()).sensors[:3]).save(three)
+    with pytest.raises(CalibrationError, match="has 3 sensors; CRHF has 4"):
+        CrhfEstimator(CrhfConfig(calibration_file=str(three)), P_C_SENSORS, 0.5, 0.05)
     with pytest.raises(ConfigError, match="crhf.touch_pixels"):
         load_scenario("stewart-dynamic", overrides=["crhf.touch_pixels=spline"])
     with pytest.raises(ConfigError, match="crhf.range_filter.measurement_std"):

@@ -323,6 +323,29 @@ def test_a_stroke_left_between_samples_is_found(frequency_hz, amplitude_m, phase
         assert float(message.split()[-2]) == pytest.approx(leg_m, abs=1e-3)
 
 
+def test_the_stroke_is_checked_over_the_run_and_no_further():
+    """z 0.3 m at 0.7 Hz takes a leg past 0.85 m at 0.1744 s: a 0.17 s run stays within the stroke (before:
+    sampled up to half a step past its end, and refused), a 0.2 s one does not."""
+    config = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[0.3], z_frequency_hz=[0.7])
+    assert stroke_violation(config, 0.17) is None
+    assert stroke_violation(config, 0.2) == "t = 0.18 s, leg 3 0.854 m"
+
+
+def test_a_stroke_left_in_the_first_sampling_interval_is_found():
+    """A 0.7 Hz heave whose legs peak at 0.3 of the first step (0.0357 s), 0.2 mm past 0.85 m, both samples
+    around it within the stroke (before: only interior samples were peaks, and this one was missed)."""
+    config = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[0.2083515300209276], z_frequency_hz=[0.7],
+                                   z_phase_deg=[87.3], leg_min_m=0.4)
+    assert stroke_violation(config, 1.0) == "t = 0.01 s, leg 3 0.850 m"
+
+
+def test_a_random_walk_deck_takes_its_bounds_alone():
+    """A random walk bounds each axis by its amplitudes' sum; it has no frequencies (before: refused, one
+    frequency asked per amplitude)."""
+    config = StewartPlatformConfig(motion="random_walk", z_amplitude_m=[0.02, 0.01], z_frequency_hz=[])
+    config.validate()
+
+
 def leg_parts_in_scene(platform: StewartPlatform, scene_graph: SceneGraph):
     """The six legs' (cylinder, rod) as (X_WG, length) from SceneGraph, with the platform at its pose at t = 0."""
     builder = DiagramBuilder()

@@ -55,6 +55,10 @@ def test_apply_range_limits():
     assert np.all(np.isnan(ranges[~ok]))
     # Validity is decided on the true range: noise that carries a reading over a limit keeps it valid.
     assert ranges[-1] == pytest.approx(4.009)
+    # ... but not under zero: a bias of -5 cm at 4.5 cm reads no distance (before: -0.005 m, valid).
+    ranges, valid = apply_range_limits(np.array([0.045, 0.06]), np.array([-0.05, -0.05]), 0.04, 4.0)
+    np.testing.assert_array_equal(valid, [0.0, 1.0])
+    assert np.isnan(ranges[0]) and ranges[1] == pytest.approx(0.01)
 
 
 def camera_image(config: TofConfig, depth_of) -> ImageDepth32F:

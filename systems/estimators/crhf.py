@@ -47,7 +47,7 @@ from systems.estimators.crhf_math import (
     touch_points,
 )
 from systems.estimators.estimate import PoseEstimate
-from systems.estimators.pad_calibration import PadCalibration
+from systems.estimators.pad_calibration import CalibrationError, PadCalibration
 from systems.estimators.track_filter import Track, TrackFilterParams, step_track
 from systems.perception.apriltag import TagDetection, tag_corners_T
 
@@ -176,6 +176,9 @@ class CrhfEstimator(LeafSystem):
         super().__init__()
         config.validate()
         self._calibration = PadCalibration.load(config.calibration_path())
+        if len(self._calibration.sensors) != len(p_C_sensors):
+            raise CalibrationError(f"pad calibration {config.calibration_path()} has "
+                                   f"{len(self._calibration.sensors)} sensors; CRHF has {len(p_C_sensors)}")
         self._touch_method = config.touch_pixels
         self._corner_filter = replace(config.corner_filter, dt_s=period_s)
         self._range_filter = replace(config.range_filter, dt_s=period_s) if config.filter_ranges else None

@@ -96,7 +96,7 @@ class StewartPlatformConfig:
                 f"{prefix}.tag_size_m = {self.tag_size_m} m does not fit on the deck: the tag with its white "
                 f"border is {tag_plate_scale(self.tag_size_m):.3f} m wide but {prefix}.deck_size_m is "
                 f"{self.deck_size_m} m")
-        for axis in AXES:
+        for axis in AXES if self.motion == "sinusoid" else ():  # a random walk takes only the bounds (amplitudes)
             unit = _axis_unit(axis)
             lengths = {len(getattr(self, f"{axis}_{part}")) for part in (f"amplitude_{unit}", "frequency_hz")}
             require(len(lengths) == 1, f"{prefix}.{axis}_amplitude_{unit} and {prefix}.{axis}_frequency_hz "
@@ -248,7 +248,7 @@ def stroke_violation(config: StewartPlatformConfig, duration_s: float, seed: int
     (SciPy's bounded scalar search), so a peak between two samples is not missed."""
     geometry, motion = StewartGeometry.from_config(config), StewartMotion(config, seed)
     step = stroke_step_s(config)
-    times = np.arange(0.0, duration_s + step / 2, step)
+    times = np.append(np.arange(0.0, duration_s, step), duration_s)  # the run's end, not past it
     legs = np.array([leg_lengths(motion.X_SP(float(t), geometry), geometry) for t in times])
     found = []  # (t, leg, length) outside the stroke
     for t, lengths in zip(times, legs):
@@ -259,11 +259,12 @@ def stroke_violation(config: StewartPlatformConfig, duration_s: float, seed: int
     margin = 0.01 * max(float(np.ptp(legs)), 1e-3)  # m: sampled extremes this near a limit are refined
     for i in range(6):
         for sign, limit in ((1.0, geometry.leg_max_m), (-1.0, geometry.leg_min_m)):
-            y = sign * legs[:, i]
-            peaks = np.flatnonzero((y[1:-1] >= y[:-2]) & (y[1:-1] >= y[2:])) + 1
-            for k in peaks[y[peaks] > sign * limit - margin]:
+            y = np.r_[-np.inf, sign * legs[:, i], -np.inf]  # a peak in the first or last interval too
+            peaks = np.flatnonzero((y[1:-1] >= y[:-2]) & (y[1:-1] >= y[2:]))
+            for k in peaks[y[peaks + 1] > sign * limit - margin]:
                 best = minimize_scalar(lambda t: -sign * leg_lengths(motion.X_SP(float(t), geometry), geometry)[i],
-                                       bounds=(times[k - 1], times[k + 1]), method="bounded", options={"xatol": 1e-6})
+                                       bounds=(times[max(k - 1, 0)], times[min(k + 1, len(times) - 1)]),
+                                       method="bounded", options={"xatol": 1e-6})
                 if -best.fun > sign * limit:
                     found.append((float(best.x), i, -sign * best.fun))
                     break

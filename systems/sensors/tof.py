@@ -123,8 +123,10 @@ def sensor_positions_C(arm_m: float, angle_deg: float = 45.0) -> np.ndarray:
 def apply_range_limits(true_ranges: np.ndarray, noise: np.ndarray, min_range: float, max_range: float):
     """Sensor readings from true ranges (m): (ranges with NaN where invalid, valid flags 0/1).
 
-    A reading is valid when the true range is finite and inside [min_range, max_range]."""
+    A reading is valid when the true range is finite and inside [min_range, max_range], and the reading (with
+    its noise and bias) is a distance: positive."""
     valid = np.isfinite(true_ranges) & (true_ranges >= min_range) & (true_ranges <= max_range)
+    valid &= np.where(valid, true_ranges + noise, np.nan) > 0
     ranges = np.where(valid, true_ranges + noise, np.nan)
     return ranges, valid.astype(float)
 
