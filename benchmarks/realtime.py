@@ -4,7 +4,8 @@
     .venv/bin/python benchmarks/realtime.py [--duration 60] [--scenario stewart-dynamic] [--set KEY=VALUE]...
                                             [--out FILE]
 
-The breakdown times each stage on its own at the camera's frame times: render (512x512 colour), the
+The breakdown times each stage on its own at the camera's frame times: render (512x512 colour; wider by the
+lens's reach where the scenario distorts, camera.render_margin_px: 528x528 in stewart-hardware), the
 camera's processing of it (lens, blur and pixel noise), ToF (the rays cast on the scene, or the cones'
 shared depth render, and the readings, times the readings per frame when they keep their own clock), tag
 detection, 4 frames after each simulated second, so the render and the simulation are timed under the same

@@ -67,7 +67,8 @@ class DeckLandingConfig(FlightConfig):
         require(self.integration.discrete, "integration.discrete must be true in deck-landing")
         require(self.random_deck_time_s >= 0, "random_deck_time_s must not be negative")
         require(self.estimate_latency_frames >= 0, "estimate_latency_frames must not be negative")
-        self.window.predictor.validate_frames(self.camera.period_s, "window.predictor")
+        if self.window.prediction == "autoregressive":
+            self.window.predictor.validate_frames(self.camera.period_s, "window.predictor")
         top = self.deck_top_m
         require(self.landing.initial_height_m > top + self.landing.landing_height_m,
                 f"landing.initial_height_m ({self.landing.initial_height_m:g} m above the ground) must be above the "

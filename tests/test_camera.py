@@ -352,7 +352,9 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     ({"distortion": [0.0, 0.0, 0.5, 0.0, 0.0]}, "camera.distortion folds the image"),
     ({"distortion": [0.0, 0.0, 0.0, 0.4, 0.0]}, "camera.distortion folds the image"),
     # The estimators' own lens model and principal point (before: accepted).
-    ({"calibration_error": CalibrationErrorConfig(k1=-0.6)}, "camera.calibration_error.k1 and k2"),
+    ({"calibration_error": CalibrationErrorConfig(k1=-0.6)}, "camera.calibration_error"),
+    # ... with their own focal lengths: k1 -0.1 at 40 % shorter ones folds at 91 % of the half-diagonal.
+    ({"calibration_error": CalibrationErrorConfig(k1=-0.1, fx_pct=-40.0, fy_pct=-40.0)}, "camera.calibration_error"),
     ({"calibration_error": CalibrationErrorConfig(cx_px=1000.0)}, "camera.calibration_error.cx_px"),
 ])
 def test_invalid_configuration_names_the_field(changes, field):

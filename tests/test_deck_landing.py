@@ -117,7 +117,7 @@ def test_with_an_exposure_the_camera_is_smeared_by_the_uav_s_motion_over_the_dec
     # On the ground under the deck: "the gear touched the pad" at t = 0, scored a success.
     (["start.height_m=0.0"], "start.height_m"),
     (["window.predictor.lag_s=0.05", "window.predictor.history_s=0.65", "window.predictor.min_history_s=0.65"],
-     "window.predictor.min_history_s"),  # never fitted at 20 Hz
+     "window.predictor.history_s"),  # never fitted at 20 Hz
 ])
 def test_settings_that_cannot_work_are_config_errors(settings, named):
     with pytest.raises(ConfigError, match=named.replace(".", r"\.")):

@@ -195,12 +195,15 @@ def test_bad_settings_are_one_line_config_errors():
 
 
 @pytest.mark.parametrize("lag_s", [0.05, 0.1, 0.5])
-def test_the_shortest_history_validated_is_the_shortest_the_fit_takes(lag_s):
-    """validate_frames refuses a min_history_s one frame short of what fit_ar needs, and the one it accepts
-    is fitted (before: a 13-frame history at lag_s 0.05 passed the check in seconds and was never fitted)."""
+@pytest.mark.parametrize("min_history_frames", [2, None])  # a short minimum, or the whole history
+def test_the_shortest_history_validated_is_the_shortest_the_fit_takes(lag_s, min_history_frames):
+    """validate_frames refuses a history_s one frame short of what fit_ar needs, and the one it accepts is
+    fitted, whatever min_history_s (before: a 13-frame history at lag_s 0.05 passed the check in seconds and
+    was never fitted)."""
     history = np.column_stack([np.sin(0.3 * np.arange(400) + c) for c in range(3)])
     for frames in range(2, 200):
-        config = DeckPredictorConfig(order=6, lag_s=lag_s, min_history_s=frames * PERIOD, history_s=frames * PERIOD)
+        config = DeckPredictorConfig(order=6, lag_s=lag_s, history_s=frames * PERIOD,
+                                     min_history_s=(min_history_frames or frames) * PERIOD)
         try:
             config.validate_frames(PERIOD)
         except ConfigError:
@@ -208,7 +211,7 @@ def test_the_shortest_history_validated_is_the_shortest_the_fit_takes(lag_s):
             continue
         assert fit_ar(history, config, PERIOD) is not None
         break
-    with pytest.raises(ConfigError, match=r"window.predictor.min_history_s \(0.65 s\) holds 13 frames"):
+    with pytest.raises(ConfigError, match=r"window.predictor.history_s \(0.65 s\) holds 13 frames"):
         DeckPredictorConfig(order=6, lag_s=0.05, min_history_s=0.65, history_s=0.65).validate_frames(
             0.05, "window.predictor")
 

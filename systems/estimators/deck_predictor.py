@@ -69,13 +69,14 @@ class DeckPredictorConfig:
                 f"({lags:g} s): the fit needs as many rows beyond its lags")
 
     def validate_frames(self, period_s: float, prefix: str = "predictor") -> None:
-        """At a camera period of period_s [s]: min_history_s holds more frames than `fit_ar`'s p lags and its
-        p + 1 unknowns (else the model is never fitted, and the prediction stays at constant rate)."""
+        """At a camera period of period_s [s]: the history kept (history_s) holds more frames than `fit_ar`'s
+        p lags and its p + 1 unknowns (else the model is never fitted, and the prediction stays at constant
+        rate)."""
         lag, p = _frames(self.lag_s, period_s), self.order
         need = p * lag + p + 2
-        require(_frames(self.min_history_s, period_s) >= need,
-                f"{prefix}.min_history_s ({self.min_history_s:g} s) holds {_frames(self.min_history_s, period_s)} "
-                f"frames at {period_s:g} s; the fit of order {p} at lag_s {self.lag_s:g} needs {need}")
+        require(_frames(self.history_s, period_s) >= need,
+                f"{prefix}.history_s ({self.history_s:g} s) holds {_frames(self.history_s, period_s)} frames at "
+                f"{period_s:g} s; the fit of order {p} at lag_s {self.lag_s:g} needs {need}")
 
 
 def horizon_grid(config: DeckPredictorConfig) -> np.ndarray:

@@ -8,7 +8,7 @@ CameraInfo; rendered images then obey the OpenCV K exactly.
 """
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -123,14 +123,16 @@ class CameraConfig:
         for interval in self.blackouts_s:
             require(len(interval) == 2 and 0 <= interval[0] < interval[1],
                     f"{prefix}.blackouts_s needs [start, end] pairs with 0 <= start < end, got {interval}")
-        for name, D in (("distortion", self.D), ("calibration_error.k1 and k2 (the estimators' lens model)",
-                                                   self.D_estimated)):
+        K_e = self.K_estimated  # the estimators' lens model is D_estimated with their own intrinsics
+        estimated = replace(self, fx=K_e[0, 0], fy=K_e[1, 1], cx=K_e[0, 2], cy=K_e[1, 2])
+        for name, camera, D in (("distortion", self, self.D),
+                                ("calibration_error (the estimators' lens model)", estimated, self.D_estimated)):
             if not np.any(D):
                 continue
-            folds = distortion_folds(self, D)
+            folds = distortion_folds(camera, D)
             require(not folds, f"{prefix}.{name} folds the image (its radial map turns back at {folds:.0%} "
                                f"of the half-diagonal)")
-            off = distortion_round_trip_px(self, D)
+            off = distortion_round_trip_px(camera, D)
             require(off <= MAX_ROUND_TRIP_PX, f"{prefix}.{name} folds the image: a pixel maps back {off:.2g} px "
                                               f"from itself through the lens model (p1, p2 too large?)")
 
