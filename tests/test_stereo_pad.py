@@ -98,11 +98,10 @@ def test_finder_system_searches_only_low_over_the_pad(max_height_m, found):
 
 @pytest.mark.parametrize("height_m, used", [(2.0, True), (7.5, False)])
 def test_estimator_uses_the_fix_in_the_landing_zone_only(height_m, used):
-    """No box at all: the fix alone measures 1.45 m over the pad (inside landing_zone_m, after the climb), not from
-    IH."""
+    """No box at all: the fix alone measures 1.45 m over the pad (inside landing_zone_m), not from IH."""
     fisheye, X_WB = FisheyeConfig(), RigidTransform([0.0, 0.0, height_m])
     h = X_WB.multiply(fisheye.X_BC).translation()[2]
-    state = HybridPadState(climbed=True)
+    state = HybridPadState()
     for k in range(3):
         fix = np.array([0.3 + 0.05 * k, -0.2, Z_PAD + 0.02])
         state = hybrid_step(state, 0.1 * k, np.full(4, np.nan), False, h, True, X_WB, fisheye, Z_PAD,

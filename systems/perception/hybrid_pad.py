@@ -20,8 +20,7 @@ Ours, where the paper is silent:
   near the axis, where the horizontal error h tan(theta) is small; off-axis the window sees the ground.
 - When the stereo altitude is invalid (under its 0.7 m range, the last metre of a landing), h is carried
   on from its last valid value by the navigation's change in height, for `altitude_coast_s`.
-- In the final landing (back within `landing_zone_m` over the pad's plane after the climb took the camera above
-  it; the take-off beside the UGV starts within it, and is not a landing) a measurement far from a valid
+- In the final landing (within `landing_zone_m` over the pad's plane) a measurement far from a valid
   estimate's prediction is an outlier and not used (`gate_m`), and without a measurement the estimate
   coasts at the last observed velocity (Eq. 15-19's observer run on the measured positions) for
   `max_coast_s`, then turns invalid; higher, it coasts only while that observer is valid, and at most
@@ -169,11 +168,7 @@ class HybridPadState:
     observer: ObserverState = field(default_factory=ObserverState)
     velocity: np.ndarray | None = None  # the observer's last valid velocity (W), for coasting
     gated: int = 0  # measurements rejected by the gate so far
-    landing: bool = False  # within landing_zone_m over the pad's plane after `climbed` (sticky while valid)
-    # The camera has been above landing_zone_m over the pad's plane: an entry into the zone after it is the final
-    # landing. Before it (the take-off) the climb's rules hold: an estimate that coasted max_coast_s through a
-    # take-off whose rays the landing's min_ray_down refused ran 2.9 m off, valid (ugv-hybrid, circle, 0.2 m/s).
-    climbed: bool = False
+    landing: bool = False  # within landing_zone_m over the pad's plane (sticky while valid)
     ray_scale: float = 1.0  # 1 / -r_W,z of the last measured ray: its reported std is position_std_m times it
     fixed: bool = False  # this frame measured by the stereo eye's pad fix (stereo_pad.py), not the box
 
@@ -194,9 +189,7 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
         h, source = anchor[0] + (z_WC - anchor[1]), 2
     # Sticky while the estimate stays valid: close over the pad the stereo window reads spikes of 2-3 m
     # (measured, at 0.5 m over the pad), which must not end the landing's coast.
-    climbed = state.climbed or bool(source and h - z_pad > config.landing_zone_m)
-    landing = ((bool(source) and climbed and h - z_pad <= config.landing_zone_m)
-               or (state.landing and state.estimate.valid))
+    landing = (bool(source) and h - z_pad <= config.landing_zone_m) or (state.landing and state.estimate.valid)
     p, scale, fixed = None, 1.0, False
     if landing and pad_fix is not None and np.all(np.isfinite(pad_fix)):
         p, fixed = np.array([pad_fix[0], pad_fix[1], z_pad]), True
@@ -237,7 +230,7 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
     return replace(state, time=time, estimate=estimate, measured=coast == 0.0, last_measured_s=last_measured,
                    last_p_WP=last_p, height_m=h, height_source=source, anchor=anchor, observer=observer,
                    velocity=velocity, gated=gated, landing=landing and estimate.valid, ray_scale=ray_scale,
-                   fixed=fixed, climbed=climbed)
+                   fixed=fixed)
 
 
 def hybrid_vector(state: HybridPadState) -> np.ndarray:
