@@ -84,7 +84,9 @@ def test_the_pid_is_told_which_seam_steers_it(source):
     # (systems/control/pid.py); without one there is a single source and the port stays free.
     _, config = load_scenario("gv-landing", overrides=[f"rendezvous.source={source}"])
     diagram, handles = build_gv_landing(config)
-    context = handles.pid.GetMyContextFromRoot(diagram.CreateDefaultContext())
+    root = diagram.CreateDefaultContext()
+    handles.initialize(root)  # HasValue evaluates the source: from a state, not the default context's zeros
+    context = handles.pid.GetMyContextFromRoot(root)
     assert handles.pid.GetInputPort("source").HasValue(context) == (source == "broadcast")
 
 
