@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
+from diagrams.marker_metrics import pooled_rms  # noqa: E402
 from diagrams.montecarlo import campaign_definition, campaign_settings, run_campaign, run_seed  # noqa: E402
 
 SOURCES = ("ct_ekf", "paper_ekf", "truth")
@@ -112,12 +113,8 @@ def open_loop(runs: int, workers: int, commit: str, tmp: Path) -> dict:
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         results = list(pool.map(diagram_run, *zip(*tasks)))
     wall = time.perf_counter() - start
-    def pooled(name, speed):  # over every scored step of every run, as the campaign's summary
-        ms = [r[name] for (s, _), r in zip(tasks, results) if s == speed]
-        return float(np.sqrt(np.average([m["rms_position_m"] ** 2 for m in ms],
-                                        weights=[m["frames_scored"] for m in ms])))
-
-    ours = {name: {speed: pooled(name, speed) for speed in SPEEDS} for name in FILTERS}
+    ours = {name: {speed: float(pooled_rms([r[name] for (s, _), r in zip(tasks, results) if s == speed],
+                                           "rms_position_m")) for speed in SPEEDS} for name in FILTERS}
     theirs = previous_figures(commit, runs, workers, tmp)
     print(f"\n## Open loop: gv-marker-ekf, {runs} seeds per speed, filters in the Diagram ({wall:.0f} s wall) "
           f"against the code of {commit}\n")

@@ -133,6 +133,8 @@ def _ensemble(records, name: str):
 
 def aggregate(done: dict) -> dict:
     """summary.json's "filters" (module docstring)."""
+    from diagrams.marker_metrics import pooled_rms
+
     out: dict = {}
     for case, records in done.items():
         if not records:
@@ -145,16 +147,11 @@ def aggregate(done: dict) -> dict:
                 continue
             t, true_xy, true_yaw, xy, yaw, _ = _ensemble(records, name)
             window = (t >= settle) & np.all(np.isfinite(xy), axis=1)
-            steps = [m["frames_scored"] for m in ms]  # each run's mean square weighted by its scored steps
-
-            def pooled(key):
-                return np.sqrt(np.average(np.square([m[key] for m in ms]), axis=0, weights=steps))
-
             out.setdefault(name, {})[case] = {
-                "rms_position_m": float(pooled("rms_position_m")),
-                "rms_heading_deg": float(pooled("rms_heading_deg")),
-                "rms_position_xy_m": float(pooled("rms_position_xy_m")),
-                "rms_marker_position_m": pooled("rms_marker_position_m").tolist(),
+                "rms_position_m": float(pooled_rms(ms, "rms_position_m")),
+                "rms_heading_deg": float(pooled_rms(ms, "rms_heading_deg")),
+                "rms_position_xy_m": float(pooled_rms(ms, "rms_position_xy_m")),
+                "rms_marker_position_m": pooled_rms(ms, "rms_marker_position_m").tolist(),
                 "ensemble_mean_position_xy_m": float(np.sqrt(np.mean(np.sum((xy - true_xy)[window] ** 2, axis=1)))),
                 "ensemble_mean_heading_deg": float(np.degrees(np.sqrt(np.mean(((yaw - true_yaw)[window]) ** 2)))),
                 "runs": len(ms),

@@ -116,6 +116,13 @@ class FilterErrors:
     valid: np.ndarray  # (N,) bool
 
 
+def pooled_rms(filter_metrics: list[dict], key: str) -> np.ndarray:
+    """The RMS `key` (a scalar or per-marker figure of `filter_metrics`) over every scored step of several
+    runs: each run's mean square weighted by its `frames_scored`."""
+    return np.sqrt(np.average(np.square([m[key] for m in filter_metrics]), axis=0,
+                              weights=[m["frames_scored"] for m in filter_metrics]))
+
+
 def valid_only(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """values (N, ...) with NaN in the rows where valid (N,) is False: what the metrics leave out."""
     return np.where(valid.reshape(-1, *[1] * (values.ndim - 1)), values, np.nan)
