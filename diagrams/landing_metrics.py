@@ -12,7 +12,7 @@ import numpy as np
 
 from diagrams.simulate import COMPLETED
 from systems.control.landing import Mode
-from systems.control.monitor import FAILURE_REASONS, GEAR_TOUCHED, SUPERVISOR_LANDED, pad_offset
+from systems.control.monitor import FAILURE_REASONS, GEAR_TOUCHED, SUPERVISOR_LANDED, gear_on_pad, pad_offset
 from systems.perception.seam import HEIGHT, P_BP_W, V_WP
 from systems.vehicles.quadrotor import V_WB
 
@@ -50,9 +50,7 @@ def touchdown(log: dict[str, np.ndarray], touchdown_height_m: float, pad_size_m:
     if landed is None and motors_stop_at_landed and status.startswith(SUPERVISOR_LANDED):
         landed = len(log["mode"])
     relative = log["true_relative_state"]
-    over_pad = np.all(np.abs(pad_offset(relative, heading)) <= pad_size_m / 2, axis=1)
-    from_above = (relative[:, HEIGHT] <= touchdown_height_m) & (relative[:, HEIGHT] > -pad_thickness_m)
-    contact = first(from_above & over_pad)
+    contact = first(gear_on_pad(relative, heading, touchdown_height_m, pad_size_m, pad_thickness_m))
     if contact is None and status.startswith(GEAR_TOUCHED):
         contact = len(relative) - 1
     candidates = [(max(landed - 1, 0), 0, "supervisor")] if landed is not None else []

@@ -44,6 +44,16 @@ class TerminationConfig:
         require(self.ground_tolerance_m >= 0, f"{prefix}.ground_tolerance_m must not be negative")
 
 
+def gear_on_pad(relative: np.ndarray, heading, touchdown_height_m: float, pad_size_m: float,
+                pad_thickness_m: float) -> np.ndarray:
+    """Whether the gear touches the pad (bool, (...)), from relative states (..., RELATIVE_STATE_SIZE) and the
+    pad's headings (...) [rad]: at most touchdown_height_m [m] above its top, from above (not under its
+    underside, pad_thickness_m below the top) and over its pad_size_m square."""
+    height = relative[..., HEIGHT]
+    over = np.all(np.abs(pad_offset(relative, heading)) <= pad_size_m / 2, axis=-1)
+    return (height <= touchdown_height_m) & (height > -pad_thickness_m) & over
+
+
 def pad_offset(relative: np.ndarray, heading) -> np.ndarray:
     """The UAV's horizontal offset from the pad centre in the pad frame P [m] (x along the vehicle),
     (..., 2), from relative states (..., RELATIVE_STATE_SIZE: pad minus UAV in W) and the vehicle's
@@ -80,9 +90,8 @@ class LandingMonitor(LeafSystem):
             return f"diverged: non-finite state at t = {t:.2f} s"
         if mode == Mode.LANDED and self._ends_on_landed:
             return f"{SUPERVISOR_LANDED} by t = {t:.2f} s" if term.stop_on_landed else None
-        offset = pad_offset(relative, vehicle[GV_HEADING])
-        if (term.stop_on_landed and -platform.pad_thickness_m < relative[HEIGHT] <= self._touchdown
-                and np.all(np.abs(offset) <= platform.pad_size_m / 2)):  # from above: not under the pad
+        if term.stop_on_landed and gear_on_pad(relative, vehicle[GV_HEADING], self._touchdown, platform.pad_size_m,
+                                               platform.pad_thickness_m):
             return f"{GEAR_TOUCHED} at t = {t:.2f} s"
         px, py, pz, vx, vy, vz = (float(quad[i]) for i in (0, 1, 2, 7, 8, 9))
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
