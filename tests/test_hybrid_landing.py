@@ -72,13 +72,14 @@ def test_pad_from_box_rejects_oblique_and_outside():
     assert pad_from_box(box_around(np.zeros(3) + [0, 0, Z_PAD], X_WB), 0.3, X_WB, FISHEYE, Z_PAD) is None  # below
 
 
-def _run(steps, config: HybridPadConfig | None = None, height_m: float = 7.5):
-    """hybrid_step over (time, seen, altitude valid, p_WP) frames at 10 Hz; the UAV at height_m over the origin."""
+def _run(steps, config: HybridPadConfig | None = None, height_m=7.5):
+    """hybrid_step over (time, seen, altitude valid, p_WP) frames at 10 Hz; the UAV over the origin at height_m
+    (m, or a function of the time), the stereo altitude true."""
     config = config or HybridPadConfig()
-    X_WB = RigidTransform([0.0, 0.0, height_m])
-    h = X_WB.multiply(FISHEYE.X_BC).translation()[2]
     state, out = HybridPadState(), []
     for t, seen, alt_ok, p in steps:
+        X_WB = RigidTransform([0.0, 0.0, height_m(t) if callable(height_m) else height_m])
+        h = X_WB.multiply(FISHEYE.X_BC).translation()[2]
         box = box_around(np.array(p), X_WB) if seen else np.full(4, np.nan)
         state = hybrid_step(state, t, box, seen, h if alt_ok else math.nan, alt_ok, X_WB, FISHEYE, Z_PAD, config,
                             VelocityObserverConfig())
@@ -116,6 +117,22 @@ def test_a_velocity_from_before_a_loss_is_not_coasted_on():
     assert found.estimate.valid and found.measured
     assert np.allclose(found.estimate.X_RT.translation()[:2], [0.5, 0.0], atol=0.05)
     assert not any(s.estimate.valid for s in states[62:])
+
+
+def test_the_landing_zone_ends_where_the_camera_climbs_out_of_it():
+    """Taking off: the UGV measured below the UAV 1.8 m up (in the landing zone) for 1 s at 0.5 m/s, then, with the
+    UAV at 6 m, seen 2.5 m off the coast's prediction (it turned): a measurement, as above the zone (before: the
+    zone's rules stayed while the estimate was valid, and its gate refused every ray up to IH for a 4 s coast, 2.9 m
+    off, in ugv-hybrid's circle at 0.2 m/s)."""
+    v = np.array([0.5, 0.0, 0.0])
+    seen = [(0.1 * k, True, True, np.array([0.0, 0.0, Z_PAD]) + v * 0.1 * k) for k in range(11)]
+    turned = np.array([-1.0, 1.5, Z_PAD])
+    climbed = [(0.1 * k, True, True, turned) for k in range(11, 14)]
+    states = _run(seen + climbed, height_m=lambda t: 1.8 if t < 1.05 else 6.0)
+    assert states[10].estimate.valid and states[10].measured
+    for state in states[11:]:
+        assert state.measured and state.gated == 0
+        assert np.allclose(state.estimate.X_RT.translation(), turned, atol=0.02)
 
 
 @pytest.mark.parametrize("height_m, approach_coast_s, valid_after_s", [(7.5, 0.3, 0.3), (7.5, 2.0, 1.3), (2.0, 0.3, 2.0)])
