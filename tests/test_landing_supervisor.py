@@ -5,7 +5,7 @@ import pytest
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import Simulator
 
-from diagrams.landing_metrics import descent_counts, landing_metrics
+from diagrams.landing_metrics import descent_counts, impact, landing_metrics
 from diagrams.runner import load_scenario
 from systems.control.landing import (
     LandingConfig,
@@ -155,7 +155,7 @@ def test_waits_at_lh_for_a_landing_window_and_waves_off_when_it_closes():
     np.testing.assert_allclose(horizontal, TRACKING)  # tracking the target meanwhile
     mode, _, vz = script.step(altitude=3.0, offset=(0.1, 0.0), height=lh + 0.05, window=(False, True))
     assert mode == Mode.WAIT and vz == pytest.approx(-0.05 * CONFIG.altitude_gain)  # holding LH, not committing
-    assert script.step(altitude=3.0, offset=(0.1, 0.0), height=lh, window=closed, seen=False)[0] == Mode.HOLD
+    assert script.step(altitude=3.0, offset=(0.1, 0.0), height=lh, window=closed, seen=False)[0] == Mode.ABORT
     assert script.step(altitude=3.0, offset=(0.1, 0.0), height=lh)[0] == Mode.FOLLOW
     assert script.step(altitude=3.0, offset=(0.1, 0.0), height=lh)[0] == Mode.APPROACH
     assert script.step(altitude=3.0, offset=(0.1, 0.0), height=lh - 0.02, window=closed)[0] == Mode.WAIT
@@ -166,6 +166,42 @@ def test_waits_at_lh_for_a_landing_window_and_waves_off_when_it_closes():
     assert mode == Mode.WAIT and vz > 0  # the deck turned lively: wave off, back up to LH
     assert script.step(altitude=2.6, offset=(0.1, 0.0), height=lh - 0.4, window=(True, True))[0] == Mode.LAND
     assert script.step(altitude=2.0, offset=(0.1, 0.0), height=0.05, window=closed)[0] == Mode.LANDED
+
+
+def test_lost_below_lh_climbs_out_whatever_the_mode():
+    """A retry found low after an abort (FOLLOW 0.8 m over the target) and a WAIT that loses the estimate climb
+    out at the climb speed (ABORT), as LAND does, rather than holding a low altitude blind (before: HOLD); a FOLLOW
+    lost above LH still holds."""
+    script = Script()
+    for altitude in (1.0, 7.5, 7.5):
+        script.step(altitude=altitude, offset=(0.2, 0.0))
+    assert script.step(altitude=6.0, offset=(0.1, 0.0))[0] == Mode.APPROACH
+    assert script.step(altitude=3.0, offset=(0.1, 0.0), height=1.0)[0] == Mode.LAND
+    assert script.step(altitude=2.9, height=0.9, seen=False)[0] == Mode.ABORT
+    assert script.step(altitude=2.8, offset=(0.7, 0.0), height=0.8)[0] == Mode.FOLLOW  # the retry, low
+    mode, _, vz = script.step(altitude=2.8, height=0.8, seen=False)
+    assert mode == Mode.ABORT and vz == CONFIG.climb_speed_m_s
+    assert script.step(altitude=4.0, offset=(0.7, 0.0), height=3.0)[0] == Mode.FOLLOW  # found again, higher
+    assert script.step(altitude=4.0, height=3.0, seen=False)[0] == Mode.HOLD
+
+    script = Script()
+    for altitude in (1.0, 7.5, 7.5):
+        script.step(altitude=altitude, offset=(0.2, 0.0))
+    assert script.step(altitude=6.0, offset=(0.1, 0.0))[0] == Mode.APPROACH
+    assert script.step(altitude=3.0, offset=(0.1, 0.0), height=1.4, window=(False, False))[0] == Mode.WAIT
+    mode, _, vz = script.step(altitude=3.0, height=1.4, seen=False)
+    assert mode == Mode.ABORT and vz == CONFIG.climb_speed_m_s
+
+
+@pytest.mark.parametrize("offset_m, mode", [(0.3, Mode.LAND), (1.2, Mode.FOLLOW), (5.0, Mode.FOLLOW)])
+def test_reaching_lh_off_centre_follows_rather_than_lands(offset_m, mode):
+    """APPROACH reaching LH with the target beyond off_centre_radius_m (1 m) follows it again; before, LAND came
+    first and, with no off-centre exit, landed beside a target 5 m away."""
+    script = Script()
+    for altitude in (1.0, 7.5, 7.5):
+        script.step(altitude=altitude, offset=(0.2, 0.0))
+    assert script.step(altitude=6.0, offset=(0.1, 0.0))[0] == Mode.APPROACH
+    assert script.step(altitude=3.0, offset=(offset_m, 0.0), height=CONFIG.landing_height_m - 0.05)[0] == mode
 
 
 def test_waits_and_wave_offs_are_counted():
@@ -211,6 +247,9 @@ def test_system_wraps_the_state_machine():
     simulator.AdvanceTo(0.07)
     assert mode.Eval(context)[0] == Mode.FOLLOW
     np.testing.assert_allclose(command.Eval(context), [*TRACKING, 0.0, 0.0, *TRACKING_ACCELERATION, 0.0])
+    system.GetInputPort("target_valid").FixValue(context, [0.0])
+    simulator.AdvanceTo(0.09)
+    assert mode.Eval(context)[0] == Mode.ABORT  # its memory kept the last valid height, 0 m: below LH
 
 
 def test_aborted_and_retried_final_descents_are_counted():
@@ -327,3 +366,13 @@ def test_final_descent_holds_its_height_while_the_target_is_beyond_the_acceptanc
     machine = LandingStateMachine(LandingConfig(touchdown_by=touchdown_by))
     machine.memory = machine.memory._replace(mode=Mode.LAND)
     assert step(0.0, (0.5, 0.5))[2] == -LandingConfig().landing_speed_m_s
+
+
+@pytest.mark.parametrize("gap_m, vertical_speed", [(0.2, 0.5), (0.05, 0.3), (0.1, -0.4), (0.0, -0.3)])
+def test_the_fall_after_the_motors_stop_is_ballistic(gap_m, vertical_speed):
+    """impact's time and speed solve gap + v t - g t^2 / 2 = 0 with speed g t - v, a UAV still rising (v > 0)
+    included (before: its upward speed was dropped, the fall 0.20 instead of 0.26 s at 0.2 m and 0.5 m/s)."""
+    g = 9.81
+    t, speed = impact(gap_m, vertical_speed, g)
+    assert gap_m + vertical_speed * t - g * t * t / 2 == pytest.approx(0.0, abs=1e-12)
+    assert speed == pytest.approx(g * t - vertical_speed) and t >= 0

@@ -29,11 +29,12 @@ Modes and what they command (velocities in World, z up; "hold" is a P loop on al
               not seen                                                    -> ABORT
               the window closes                                           -> WAIT
     WAIT      track, hold LH above the target; window open                -> LAND
-              not seen -> HOLD; target off centre -> FOLLOW
+              not seen -> ABORT; target off centre -> FOLLOW
     LANDED    keep the target's velocity; no vertical speed (the motors stop and the run ends), or, with
               touchdown_by contact, track and descend at landing speed as in LAND until the gear touches
               (not seen -> ABORT, as in LAND)
-    HOLD      not seen in FOLLOW/APPROACH: coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
+    HOLD      not seen in FOLLOW/APPROACH (ABORT instead where the last valid estimate was below LH):
+              coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
     SEARCH    no horizontal speed, climb back to IH (never descend); seen -> FOLLOW
     ABORT     coast, climb towards IH at climb speed; seen -> FOLLOW (a retry); lost_hold_s -> SEARCH
     (with a valid rendezvous target, CLIMB, HOLD, SEARCH and ABORT track it instead of coasting or standing)
@@ -142,6 +143,7 @@ class SupervisorMemory(NamedTuple):
     mode_since_s: float = 0.0
     altitude_hold_m: float = 0.0
     last_target_velocity_m_s: tuple = (0.0, 0.0)
+    last_height_m: float = math.inf  # height above the target at the last valid estimate (m)
 
 
 def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: LandingConfig) -> Mode:
@@ -151,16 +153,22 @@ def next_mode(memory: SupervisorMemory, inputs: SupervisorInputs, config: Landin
         return Mode.CLIMB
     if mode == Mode.CLIMB and abs(inputs.altitude_m - config.initial_height_m) <= config.altitude_tolerance_m:
         return Mode.FOLLOW if seen else Mode.SEARCH
-    if not seen and (mode == Mode.LAND or (mode == Mode.LANDED and not config.motors_stop_at_landed)):
-        return Mode.ABORT  # (a touchdown by contact still descends: it needs the estimate as LAND does)
-    if mode in (Mode.FOLLOW, Mode.APPROACH, Mode.WAIT) and not seen:
+    # Lost below LH climbs out (ABORT) rather than holding a low altitude blind: LAND, WAIT (LH over the target,
+    # or under it after a wave-off), and a FOLLOW or APPROACH whose last valid estimate was below LH (a retry
+    # found low); a touchdown by contact still descends in LANDED, so needs the estimate as LAND does.
+    low = mode in (Mode.LAND, Mode.WAIT) or (mode in (Mode.FOLLOW, Mode.APPROACH)
+                                             and memory.last_height_m < config.landing_height_m)
+    if not seen and (low or (mode == Mode.LANDED and not config.motors_stop_at_landed)):
+        return Mode.ABORT
+    if mode in (Mode.FOLLOW, Mode.APPROACH) and not seen:
         return Mode.HOLD
     if mode == Mode.FOLLOW and offset <= config.centred_radius_m:
         return Mode.APPROACH
-    if mode == Mode.APPROACH and inputs.height_above_target_m <= config.landing_height_m:
-        return Mode.LAND if inputs.window_open else Mode.WAIT
+    # Off centre before LH: a target that drifted off while approaching is followed again, not landed beside.
     if mode in (Mode.APPROACH, Mode.WAIT) and offset > config.off_centre_radius_m:
         return Mode.FOLLOW
+    if mode == Mode.APPROACH and inputs.height_above_target_m <= config.landing_height_m:
+        return Mode.LAND if inputs.window_open else Mode.WAIT
     if mode == Mode.WAIT and inputs.window_open:
         return Mode.LAND
     if mode == Mode.LAND and inputs.height_above_target_m <= config.touchdown_height_m:
@@ -238,7 +246,8 @@ def supervisor_step(memory: SupervisorMemory, inputs: SupervisorInputs, config: 
     """One step: (new memory, command [v_WB_desired (3), yaw, a_WB_feed_forward (3)])."""
     if inputs.target_valid:
         velocity = inputs.target_velocity_m_s
-        memory = memory._replace(last_target_velocity_m_s=(float(velocity[0]), float(velocity[1])))
+        memory = memory._replace(last_target_velocity_m_s=(float(velocity[0]), float(velocity[1])),
+                                 last_height_m=float(inputs.height_above_target_m))
     mode = next_mode(memory, inputs, config)
     if mode != memory.mode:
         hold = config.initial_height_m if memory.mode == Mode.CLIMB else inputs.altitude_m
@@ -290,8 +299,9 @@ class LandingSupervisor(LeafSystem):
          self._tracking_acceleration) = ports
         self._window = self.DeclareVectorInputPort("landing_window", 2)
         self._rendezvous = self.DeclareVectorInputPort("rendezvous_valid", 1)
-        # [mode_since_s, altitude_hold_m, last target velocity (2)]; the mode is its own group (an output).
-        self._memory = self.DeclareDiscreteState(4)
+        # [mode_since_s, altitude_hold_m, last target velocity (2), last valid height]; the mode is its own group
+        # (an output).
+        self._memory = self.DeclareDiscreteState(np.array([0.0, 0.0, 0.0, 0.0, math.inf]))
         self._mode = self.DeclareDiscreteState([float(Mode.TAKEOFF)])
         self._command = self.DeclareDiscreteState(np.array([0, 0, 0, np.radians(config.yaw_deg), 0, 0, 0]))
         self.DeclarePeriodicDiscreteUpdateEvent(1.0 / config.rate_hz, 0.0, self._update)
@@ -312,11 +322,11 @@ class LandingSupervisor(LeafSystem):
             self._tracking_acceleration.Eval(context), window_open, window_holds, rendezvous)
 
     def _update(self, context, discrete_state):
-        since, hold, vx, vy = context.get_discrete_state(self._memory).get_value().tolist()
+        since, hold, vx, vy, height = context.get_discrete_state(self._memory).get_value().tolist()
         mode = Mode(int(context.get_discrete_state(self._mode).get_value()[0]))
-        memory, command = supervisor_step(SupervisorMemory(mode, since, hold, (vx, vy)),
+        memory, command = supervisor_step(SupervisorMemory(mode, since, hold, (vx, vy), height),
                                           self._read_inputs(context), self._config)
         discrete_state.set_value(self._memory, [memory.mode_since_s, memory.altitude_hold_m,
-                                                *memory.last_target_velocity_m_s])
+                                                *memory.last_target_velocity_m_s, memory.last_height_m])
         discrete_state.set_value(self._mode, [float(memory.mode)])
         discrete_state.set_value(self._command, command)
