@@ -60,10 +60,11 @@ def touchdown(log: dict[str, np.ndarray], touchdown_height_m: float, pad_size_m:
 
 def impact(gap_m: float, vertical_speed: float, gravity: float) -> tuple[float, float]:
     """(time [s], downward speed [m/s]) of a fall of gap_m [m] starting at `vertical_speed` (the UAV's
-    relative to the pad, m/s, z up) with the motors stopped."""
-    down = max(-vertical_speed, 0.0)
-    speed = math.sqrt(down * down + 2.0 * gravity * max(gap_m, 0.0))
-    return (speed - down) / gravity, speed
+    relative to the pad, m/s, z up) with the motors stopped: a UAV still rising goes up and falls back first."""
+    if gap_m <= 0:
+        return 0.0, max(-vertical_speed, 0.0)
+    speed = math.sqrt(vertical_speed * vertical_speed + 2.0 * gravity * gap_m)
+    return (speed + vertical_speed) / gravity, speed
 
 
 def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
