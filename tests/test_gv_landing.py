@@ -2,6 +2,7 @@
 errors naming their field, the true relative state, the two flight controller backends flying alike,
 the discrete vehicles against the continuous ones, the monitor, Meshcat, and the CLI run."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -206,6 +207,13 @@ def test_monitor_names_each_way_a_run_ends():
     under[P_BP_W], under[HEIGHT] = [0.3, -0.2, 1.0], -1.0
     assert check(quad=hover_state(config.quadrotor, [2.0, 0.3, 0.6]), relative=under).startswith(
         "crash: hit the ground vehicle")
+    flying_on = LandingMonitor(dataclasses.replace(config.termination, stop_on_landed=False), config.platform,
+                               config.landing.touchdown_height_m)  # after touchdown: no estimate needed, no crash
+    assert flying_on.check(30.0, quad, vehicle, relative, Mode.LANDED, 1.0) is None
+    assert flying_on.check(1.0, hover_state(config.quadrotor, [20.0, 0.0, -0.5]), vehicle, relative, Mode.LANDED,
+                           1.0).startswith("crash: hit the ground")
+    assert flying_on.check(1.0, hover_state(config.quadrotor, [20.0, 0.0, 80.0]), vehicle, relative, Mode.LANDED,
+                           1.0).startswith("diverged: altitude")
     contact = LandingMonitor(config.termination, config.platform, config.landing.touchdown_height_m,
                              ends_on_landed=False)  # landing.touchdown_by contact: LANDED descends on to the touch
     assert contact.check(1.0, quad, vehicle, relative, Mode.LANDED, 1.0) is None

@@ -88,8 +88,9 @@ class LandingMonitor(LeafSystem):
         term, platform = self._termination, self._platform
         if not (np.isfinite(quad).all() and np.isfinite(vehicle).all()):
             return f"diverged: non-finite state at t = {t:.2f} s"
-        if mode == Mode.LANDED and self._ends_on_landed:
-            return f"{SUPERVISOR_LANDED} by t = {t:.2f} s" if term.stop_on_landed else None
+        landed = mode == Mode.LANDED and self._ends_on_landed
+        if landed and term.stop_on_landed:
+            return f"{SUPERVISOR_LANDED} by t = {t:.2f} s"
         if term.stop_on_landed and gear_on_pad(relative, vehicle[GV_HEADING], self._touchdown, platform.pad_size_m,
                                                platform.pad_thickness_m):
             return f"{GEAR_TOUCHED} at t = {t:.2f} s"
@@ -110,7 +111,7 @@ class LandingMonitor(LeafSystem):
         distance = math.hypot(relative[0], relative[1])
         if distance > term.max_distance_m:
             return f"diverged: {distance:.0f} m from the pad at t = {t:.2f} s"
-        if t - last_seen > term.lost_timeout_s:
+        if t - last_seen > term.lost_timeout_s and not landed:  # flying on after touchdown needs no estimate
             if not seen_ever:
                 return f"target_lost: no valid estimate of the pad in the first {t:.1f} s"
             return f"target_lost: no valid estimate for {t - last_seen:.1f} s at t = {t:.2f} s"
