@@ -33,6 +33,7 @@ from systems.perception.rqrlp.measurements import (
     PatternView,
     adjustment_measurement,
     approach_covariance,
+    body_pose_covariance,
 )
 from systems.perception.rqrlp.nodes import layout_corners
 from systems.perception.rqrlp.pattern import RqrlpLayout
@@ -279,6 +280,26 @@ def test_a_first_pose_far_from_what_the_centres_measured_is_left_out_and_the_nex
     assert not known[at(1.0)] and abs(height[at(1.0)] - 4.0) < 0.005  # left out: the centres' height
     assert known[at(1.02)] and abs(yaw[at(1.02)] - 2.0) < 1e-3  # the next, right, pose turned it
     assert np.abs(height[t >= 1.02] - 4.0).max() < 0.005
+
+
+def test_a_start_from_a_full_pose_keeps_its_whole_covariance():
+    """At 3.8 m the adjustment node's pose errs along the orbit about the pattern: its position and tilt errors
+    correlate (+1.00), and the filters started by it carry that covariance whole (before: its diagonal, which
+    understated the orbit's variance 1.8x and the worst direction's 4x)."""
+    K = np.array([[1280.0, 0.0, 948.9], [0.0, 1280.0, 543.2], [0.0, 0.0, 1.0]])
+    X_PB_true = RigidTransform(RollPitchYaw(0.0, 0.0, 0.7), [0.3, -0.2, 3.8])
+    X_CP = X_BC.inverse().multiply(X_PB_true.inverse())
+    covariance = body_pose_covariance(PatternView(X_CP, layout_corners(RqrlpLayout()), K, 0.3), X_BC)
+    assert abs(covariance[1, 3]) / np.sqrt(covariance[1, 1] * covariance[3, 3]) > 0.99  # theta_y with p_x
+    first = NodeMeasurement(0.0, "adjustment", covariance, X_PB=X_PB_true)
+    state = step(FederatedState(), 0.0, np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0], {"adjustment": first},
+                 FederatedConfig(), X_BC)
+    pose, position_first = [0, 1, 2, 6, 7, 8], [3, 4, 5, 0, 1, 2]  # the error state's [dp, dtheta]; the pose's
+    np.testing.assert_allclose(state.fused.P[np.ix_(pose, pose)], covariance[np.ix_(position_first, position_first)],
+                               rtol=1e-9, atol=1e-15)
+    for local in state.filters:  # each with N times it, so that their fusion has it
+        np.testing.assert_allclose(local.P[np.ix_(pose, pose)], len(NODES) * state.fused.P[np.ix_(pose, pose)],
+                                   rtol=1e-9, atol=1e-15)
 
 
 def test_first_poses_that_go_on_disagreeing_restart_the_filters_after_max_coast():

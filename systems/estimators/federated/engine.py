@@ -25,6 +25,7 @@ from systems.estimators.federated.local_filter import (
     LocalState,
     initial_state,
     initial_velocity_covariance,
+    position_first,
     predict,
     update_centre_in_camera,
     update_pattern_in_camera,
@@ -94,9 +95,11 @@ def _first_state(measurement: NodeMeasurement, X_BC: RigidTransform, f_B: np.nda
                  config: FederatedConfig) -> LocalState:
     """A filter started by a node's first measurement: a full pose as measured, the approaching
     node's centre with the tilt from the accelerometer and the heading unknown (initial_state)."""
-    if measurement.X_PB is not None:
-        variances = np.diag(measurement.pose_covariance(X_BC))
-        P = np.diag(np.r_[variances[3:6], np.diag(initial_velocity_covariance(config)), variances[0:3]])
+    if measurement.X_PB is not None:  # the pose's whole covariance: its position and tilt errors are one orbit
+        pose = [0, 1, 2, 6, 7, 8]  # about the pattern (correlated +1.00 at 2-5 m), which a diagonal understates 4x
+        P = np.zeros((9, 9))
+        P[np.ix_(pose, pose)] = position_first(measurement.pose_covariance(X_BC))
+        P[3:6, 3:6] = initial_velocity_covariance(config)
         return LocalState(measurement.X_PB.translation(), np.zeros(3), measurement.X_PB.rotation().matrix(), P)
     R_BC = X_BC.rotation().matrix()
     return initial_state(X_BC.multiply(measurement.p_CP), R_BC @ measurement.covariance @ R_BC.T, f_B, config)

@@ -147,7 +147,7 @@ def update_pose(state: LocalState, p_PB: np.ndarray, R_PB: np.ndarray, covarianc
     H = np.zeros((6, 9))
     H[0:3, 0:3] = np.eye(3)
     H[3:6, 6:9] = np.eye(3)
-    return _update(state, innovation, H, _position_first(covariance), config)
+    return _update(state, innovation, H, position_first(covariance), config)
 
 
 def update_pattern_in_camera(state: LocalState, p_CP: np.ndarray, R_CP: np.ndarray, covariance: np.ndarray,
@@ -163,7 +163,7 @@ def update_pattern_in_camera(state: LocalState, p_CP: np.ndarray, R_CP: np.ndarr
     H = np.zeros((6, 9))
     H[0:3] = H_centre
     H[3:6, 6:9] = -R_CP_predicted  # R_BC^T R^T Exp(-dtheta) = Exp(-R_CP dtheta) R_CP
-    return _update(state, innovation, H, _position_first(covariance), config)
+    return _update(state, innovation, H, position_first(covariance), config)
 
 
 def update_centre_in_camera(state: LocalState, p_CP: np.ndarray, covariance: np.ndarray, R_BC: np.ndarray,
@@ -184,7 +184,7 @@ def _centre_in_camera(state: LocalState, R_BC: np.ndarray, p_BC: np.ndarray) -> 
     return R_BC.T @ (R_BP @ (-state.p) - p_BC), H
 
 
-def _position_first(covariance: np.ndarray) -> np.ndarray:
+def position_first(covariance: np.ndarray) -> np.ndarray:
     """A pose's covariance over [dtheta, dp] reordered to the error state's [dp, dtheta]."""
     order = [3, 4, 5, 0, 1, 2]
     return np.asarray(covariance)[np.ix_(order, order)]
