@@ -11,6 +11,7 @@ from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 
 from systems.config import ConfigError
 from systems.estimators.federated.engine import NODES, X_PB, FederatedConfig, FederatedState, step
+from systems.estimators.federated.local_filter import log_so3
 from systems.estimators.federated.system import FED_STARTED, FED_VALID, FederatedFilterSystem
 from systems.perception.rqrlp.measurements import approach_measurement
 
@@ -72,3 +73,32 @@ def test_a_frame_is_in_the_output_at_its_own_time():
 def test_the_camera_period_must_be_whole_imu_periods():
     with pytest.raises(ConfigError, match="whole number of IMU periods"):
         FederatedFilterSystem(FederatedConfig(), X_BC, 0.005, 0.0125)
+
+
+def test_before_a_full_pose_X_PB_claims_no_heading_and_the_position_it_turns():
+    # The pattern turned 40 deg about its normal: the approaching node's centre cannot say so, and the
+    # filters start from a gauge heading; the estimate must claim none, in its yaw and in p_PB.
+    X_PB_true = RigidTransform(RollPitchYaw(0.0, 0.0, np.radians(40.0)), [0.5, -0.3, 4.9])
+    p_CP = X_BC.inverse().multiply(X_PB_true.inverse()).translation()
+    federated = FederatedFilterSystem(FederatedConfig(), X_BC, IMU_PERIOD, CAMERA_PERIOD)
+    context = federated.CreateDefaultContext()
+    federated.GetInputPort("imu").FixValue(context, IMU)
+    federated.GetInputPort("approach").FixValue(context, [approach_measurement(p_CP, 80.0, 0.0, 640.0)])
+    for node in ("adjustment", "touchdown"):
+        federated.GetInputPort(node).FixValue(context, [])
+    federated.GetInputPort("X_WB").FixValue(context, X_WB)
+    federated.GetInputPort("V_WB").FixValue(context, np.zeros(6))
+    estimate = federated.GetOutputPort("X_PB_estimate").Eval(context)
+    assert estimate.valid
+    yaw_std = np.sqrt(estimate.covariance[2, 2])
+    assert yaw_std >= np.radians(90.0)
+    yaw_error = log_so3(estimate.X_PB.rotation().matrix() @ X_PB_true.rotation().matrix().T)[2]
+    assert abs(yaw_error) > np.radians(30.0)  # the gauge is off the truth ...
+    error = estimate.X_PB.translation() - X_PB_true.translation()
+    error[2] = 0.0
+    assert np.linalg.norm(error) > 0.2  # ... and turns the horizontal position with it
+    position_covariance = estimate.covariance[3:6, 3:6]
+    assert np.sqrt(error @ position_covariance @ error) / np.linalg.norm(error) > np.linalg.norm(error)
+    p = estimate.X_PB.translation()
+    across = np.array([-p[1], p[0], 0.0]) / np.linalg.norm(p[:2])  # the direction a heading turns p_PB
+    assert np.sqrt(across @ position_covariance @ across) >= np.radians(90.0) * np.linalg.norm(p[:2])

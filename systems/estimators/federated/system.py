@@ -54,6 +54,15 @@ def federated_vector(state: FederatedState, valid: bool) -> np.ndarray:
     return out
 
 
+def with_heading_gauge(covariance: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """`covariance` (6x6 over [dtheta (rad); dp (m)], in a frame F whose z is P's) with the pattern's
+    heading unknown: a turn psi of P about its z at its origin moves a point at p (m, in F, from P's
+    origin) by e_z x p psi, so the covariance gains pi^2 g g^T with g = [e_z; e_z x p]."""
+    e_z = np.array([0.0, 0.0, 1.0])
+    g = np.concatenate([e_z, np.cross(e_z, p)])
+    return covariance + np.pi**2 * np.outer(g, g)
+
+
 class FederatedFilterSystem(LeafSystem):
     """The federated filter stepped at the IMU's rate, its nodes read at the camera's.
 
@@ -61,7 +70,8 @@ class FederatedFilterSystem(LeafSystem):
     (a list of 0 or 1 NodeMeasurement, systems/perception/rqrlp/node_systems.py) (`approach`, `adjustment`, `touchdown`), and the UAV's own navigation
     `X_WB` (RigidTransform) and `V_WB` (6, [w; v] in W) that put the pattern in the world.
     Outputs at t, with the step at t included (systems/stepped.py):
-    `X_PB_estimate` (PoseEstimate of B in P, covariance [dtheta; dp] in P), `X_WP_estimate`
+    `X_PB_estimate` (PoseEstimate of B in P, covariance [dtheta; dp] in P, with the heading's pi^2 and the
+    horizontal position it turns before the first full pose), `X_WP_estimate`
     (PoseEstimate of the pattern in W: X_WB X_PB^-1, its position covariance the relative
     position's, its heading's pi^2 before the first full pose, valid by engine.is_valid), `v_WP_estimate` (3, m/s in W: the pattern's velocity,
     v_WB minus the body's velocity relative to P) and `federated_vector` (FED_* layout).
@@ -102,6 +112,8 @@ class FederatedFilterSystem(LeafSystem):
             return PoseEstimate.invalid(context.get_time(), "P", "B")
         P = state.fused.P
         covariance = np.block([[P[6:9, 6:9], P[6:9, 0:3]], [P[0:3, 6:9], P[0:3, 0:3]]])
+        if not state.heading_known:  # P's heading is a gauge until a full pose (engine.py): it turns p_PB too
+            covariance = with_heading_gauge(covariance, state.fused.p)
         return PoseEstimate(context.get_time(), X_PB(state.fused), is_valid(state, self._config), covariance, "P", "B")
 
     def _X_WP(self, context) -> PoseEstimate:
@@ -116,8 +128,8 @@ class FederatedFilterSystem(LeafSystem):
         J[0:3, 6:9] = -R_WP  # R_WP = R_WB R_PB^T: an attitude error dtheta (in P) turns it by -R_WP dtheta in W
         J[3:6] = R_WB @ relative_jacobian(state.fused)
         covariance = J @ state.fused.P @ J.T
-        if not state.heading_known:
-            covariance[2, 2] += np.pi**2  # the pattern's heading is a gauge until a full pose (engine.py)
+        if not state.heading_known:  # the pattern's heading is a gauge until a full pose (engine.py)
+            covariance = with_heading_gauge(covariance, np.zeros(3))  # P turns about p_WP: it stays
         return PoseEstimate(context.get_time(), X_WP, is_valid(state, self._config), (covariance + covariance.T) / 2,
                             "W", "P")
 
