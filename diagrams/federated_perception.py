@@ -46,6 +46,9 @@ class FederatedPerceptionConfig:
         require(abs(ratio - round(ratio)) < 1e-6 and round(ratio) >= 1,
                 f"{prefix}.camera.rate_hz ({self.camera.rate_hz:g}) must divide {prefix}.imu.rate_hz "
                 f"({self.imu.rate_hz:g}): the filter reads a frame every few IMU samples")
+        require(self.filter.max_coast_s > self.camera.period_s,
+                f"{prefix}.filter.max_coast_s ({self.filter.max_coast_s:g} s) must exceed the camera's period "
+                f"({self.camera.period_s:g} s): at or below it every frame restarts the local filters")
         require(self.filter.gravity_m_s2 == self.imu.gravity_m_s2,
                 f"{prefix}.filter.gravity_m_s2 must be the IMU's ({self.imu.gravity_m_s2:g})")
 

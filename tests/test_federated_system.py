@@ -9,6 +9,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 
+from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.estimators.federated.engine import NODES, X_PB, FederatedConfig, FederatedState, step
 from systems.estimators.federated.local_filter import log_so3
@@ -102,3 +103,16 @@ def test_before_a_full_pose_X_PB_claims_no_heading_and_the_position_it_turns():
     p = estimate.X_PB.translation()
     across = np.array([-p[1], p[0], 0.0]) / np.linalg.norm(p[:2])  # the direction a heading turns p_PB
     assert np.sqrt(across @ position_covariance @ across) >= np.radians(90.0) * np.linalg.norm(p[:2])
+
+
+@pytest.mark.parametrize("max_coast_s", [0.02, 0.01])
+def test_max_coast_must_exceed_the_camera_period(max_coast_s):
+    # At or below the period every frame finds the filters lost and restarts them from one measurement.
+    with pytest.raises(ConfigError, match=rf"max_coast_s \({max_coast_s:g} s\) must exceed the camera's period "
+                                          r"\(0\.02 s\)"):
+        load_scenario("open-landing", overrides=[f"federated.filter.max_coast_s={max_coast_s}"])
+    with pytest.raises(ConfigError, match=rf"max_coast_s \({max_coast_s:g} s\) must exceed the camera's period "
+                                          r"\(0\.02 s\)"):
+        FederatedFilterSystem(FederatedConfig(max_coast_s=max_coast_s), X_BC, IMU_PERIOD, CAMERA_PERIOD)
+    FederatedFilterSystem(FederatedConfig(max_coast_s=0.03), X_BC, IMU_PERIOD, CAMERA_PERIOD)
+    load_scenario("open-landing", overrides=["federated.filter.max_coast_s=0.03"])

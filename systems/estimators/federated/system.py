@@ -84,6 +84,9 @@ class FederatedFilterSystem(LeafSystem):
         if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
             raise ConfigError(f"the camera's period ({camera_period_s:g} s) must be a whole number of IMU periods "
                               f"({imu_period_s:g} s)")
+        if config.max_coast_s <= camera_period_s:
+            raise ConfigError(f"max_coast_s ({config.max_coast_s:g} s) must exceed the camera's period "
+                              f"({camera_period_s:g} s): at or below it every frame restarts the local filters")
         self._config, self._X_BC, self._camera_period = config, X_BC, camera_period_s
         self._imu = self.DeclareVectorInputPort("imu", 6)
         self._nodes = {node: self.DeclareAbstractInputPort(node, AbstractValue.Make([])) for node in NODES}
