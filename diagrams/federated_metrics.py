@@ -94,6 +94,19 @@ def true_p_CP(log: FederatedLog, X_BC: RigidTransform) -> np.ndarray:
     return p_BP @ X_CB.rotation().matrix().T + X_CB.translation()
 
 
+def _fraction(frames: np.ndarray, window: np.ndarray) -> float:
+    """The share of `window`'s frames (bool, (N,)) in `frames` (bool, (N,)); 0 for an empty window."""
+    return float(np.mean(frames[window])) if window.any() else 0.0
+
+
+def _estimator_figures(truth: np.ndarray, rows: np.ndarray, scored: np.ndarray, window: np.ndarray) -> dict:
+    """estimator_metrics and the paper's figures of `rows` (_pose_rows) over the `scored` frames, with
+    `valid_fraction` over `window`'s (estimator_metrics' counts every logged frame, after touchdown too)."""
+    figures = {**estimator_metrics(truth, rows, scored), **_paper_figures(truth, rows, scored)}
+    figures["valid_fraction"] = _fraction(rows[:, 0] > 0.5, window)
+    return figures
+
+
 def node_metrics(log: FederatedLog, X_BC: RigidTransform, window: np.ndarray) -> dict:
     """Each node's own measurement: the pose nodes' X_PB as estimators; the approaching node's p_CP
     (MAE/RMSE per axis in C); each one's share of frames and its altitude band."""
@@ -102,7 +115,7 @@ def node_metrics(log: FederatedLog, X_BC: RigidTransform, window: np.ndarray) ->
     for name in NODES:
         rows = log.nodes[name]
         present = rows[:, 0] > 0.5
-        figures = {"present_fraction": float(np.mean(present[window])) if window.any() else 0.0,
+        figures = {"present_fraction": _fraction(present, window),
                    "altitude_band_m": _band(heights, present & window)}
         if name == "approach":
             p_CP = true_p_CP(log, X_BC)
@@ -113,17 +126,16 @@ def node_metrics(log: FederatedLog, X_BC: RigidTransform, window: np.ndarray) ->
                                 "rmse_position_m": float(np.sqrt(np.mean(np.sum(error**2, axis=1))))})
         else:
             pose = _pose_rows(present, np.nan_to_num(rows[:, 1:4]), np.where(present[:, None], rows[:, 4:8], 1.0))
-            figures.update(estimator_metrics(log.X_PB, pose, window))
-            figures.update(_paper_figures(log.X_PB, pose, window))
+            figures.update(_estimator_figures(log.X_PB, pose, window, window))
         out[name] = figures
     return out
 
 
 def filter_metrics(log: FederatedLog, window: np.ndarray) -> dict:
     """The local filters (after their own updates, `local_<node>`) and the fused estimate
-    (`federated`): MAE/RMSE per axis, valid fraction, and the paper's figures. The local filters are
-    scored on the frames where the fused estimate is valid, as the overlaps are, so that each of their
-    figures compares with the fused one's (a coasting stretch counts against neither)."""
+    (`federated`): MAE/RMSE per axis, valid fraction (over `window`), and the paper's figures. The local
+    filters are scored on the frames where the fused estimate is valid, as the overlaps are, so that each
+    of their figures compares with the fused one's (a coasting stretch counts against neither)."""
     fed = log.federated
     started = fed[:, FED_STARTED] > 0.5
     valid = fed[:, FED_VALID] > 0.5
@@ -136,12 +148,9 @@ def filter_metrics(log: FederatedLog, window: np.ndarray) -> dict:
         if has.any():
             wxyz[has] = _wxyz(Rotation.from_rotvec(theta[has]))
         rows = _pose_rows(has, np.nan_to_num(p), wxyz)
-        scored = window & valid
-        out[f"local_{name}"] = {**estimator_metrics(log.X_PB, rows, scored), **_paper_figures(log.X_PB, rows, scored)}
+        out[f"local_{name}"] = _estimator_figures(log.X_PB, rows, window & valid, window)
     rows = _pose_rows(valid, np.nan_to_num(fed[:, FED_P_PB]), np.where(started[:, None], fed[:, FED_Q_PB], 1.0))
-    fused = {**estimator_metrics(log.X_PB, rows, window), **_paper_figures(log.X_PB, rows, window)}
-    fused["valid_fraction"] = float(np.mean(valid[window])) if window.any() else 0.0
-    out["federated"] = fused
+    out["federated"] = _estimator_figures(log.X_PB, rows, window, window)
     return out
 
 

@@ -5,12 +5,14 @@ frames shaded in federated.png and its figures in what a run prints."""
 
 import matplotlib.pyplot as plt
 import numpy as np
+from pydrake.math import RigidTransform
 
-from diagrams.federated_metrics import FederatedLog, filter_metrics, overlap_metrics
+from diagrams.federated_metrics import FederatedLog, federated_metrics, filter_metrics, overlap_metrics
 from diagrams.federated_plots import plot_federated, shade_frames
 from diagrams.gv_landing_run import summary_lines
 from systems.estimators.federated.system import (
     FED_LOCAL_P,
+    FED_LOCAL_THETA,
     FED_LOCAL_TRACES,
     FED_P_PB,
     FED_Q_PB,
@@ -109,3 +111,25 @@ def test_the_local_filters_are_scored_on_the_fused_estimates_valid_frames():
         assert out[name]["frames_scored"] == 9
     np.testing.assert_allclose(out["local_adjustment"]["rmse_height_m"], 0.03)
     np.testing.assert_allclose(out["federated"]["rmse_height_m"], 0.01)
+
+
+def test_with_a_touchdown_every_valid_fraction_is_over_the_frames_up_to_it():
+    # Touchdown at frame 5: frames 0-5 are scored, 6-9 (after it) count for no figure.
+    n = 10
+    t = np.arange(n) * 0.02
+    X_PB = np.tile([0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0], (n, 1))
+    federated = np.full((n, FEDERATED_VECTOR_SIZE), np.nan)
+    federated[:, FED_STARTED] = np.arange(n) >= 2  # the local filters from frame 2: 4 of 6 frames, 8 of 10
+    federated[:, FED_VALID] = np.arange(n) >= 3  # the fused estimate from frame 3: 3 of 6, 7 of 10
+    federated[:, FED_P_PB], federated[:, FED_Q_PB] = [0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.0]
+    federated[2:, FED_LOCAL_P], federated[2:, FED_LOCAL_THETA] = np.tile([0.0, 0.0, 1.0], 3), 0.0
+    nodes = {name: np.zeros((n, NODE_VECTOR_SIZE)) for name in ("approach", "adjustment", "touchdown")}
+    # The adjustment node measures in 3 of the 6 frames (3 of 10), the touchdown node in 2 of 6 (6 of 10).
+    for name, frames in (("adjustment", slice(0, 3)), ("touchdown", slice(4, 10))):
+        nodes[name][frames, :8] = [1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0]  # present, the true X_PB
+    out = federated_metrics(FederatedLog(t, federated, nodes, X_PB), RigidTransform(), end_s=t[5])
+    assert out["adjustment"]["valid_fraction"] == out["adjustment"]["present_fraction"] == 0.5
+    np.testing.assert_allclose([out["touchdown"]["valid_fraction"], out["touchdown"]["present_fraction"]], 1 / 3)
+    for name in ("local_approach", "local_adjustment", "local_touchdown"):
+        np.testing.assert_allclose(out[name]["valid_fraction"], 4 / 6)
+    assert out["federated"]["valid_fraction"] == 0.5
