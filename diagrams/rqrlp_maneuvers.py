@@ -76,8 +76,11 @@ class ManeuversConfig:
         require(self.platform.pattern == "rqrlp", "platform.pattern must be rqrlp: the nodes look for seed 001's")
         require(self.controller_implementation in BACKENDS,
                 f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
-        require(self.manoeuvres and all(len(row) == 5 and row[0] > 0 for row in self.manoeuvres),
-                "manoeuvres needs rows [duration_s > 0, vx, vy, vz, yaw_rate_deg_s]")
+        require(len(self.manoeuvres) > 0, "manoeuvres needs rows [duration_s > 0, vx, vy, vz, yaw_rate_deg_s]")
+        for i, row in enumerate(self.manoeuvres):
+            require(len(row) == 5 and np.all(np.isfinite(row)) and row[0] > 0,
+                    f"manoeuvres[{i}] is {list(row)}: a row is 5 finite numbers [duration_s > 0, vx, vy, vz "
+                    f"(m/s, World), yaw_rate_deg_s]")
         require(self.start.height_m > self.platform.height_m, "start.height_m must be above the pattern")
 
     @property

@@ -8,8 +8,10 @@ from pydrake.math import RigidTransform
 
 from diagrams.federated_metrics import federated_log
 from diagrams.gv_landing_run import fly
+from diagrams.rqrlp_maneuvers import ManeuversConfig
 from diagrams.rqrlp_maneuvers_run import fly as fly_maneuvers
 from diagrams.runner import load_scenario
+from systems.config import ConfigError
 from systems.control.flight_controller import COMMAND_SIZE
 from systems.control.landing import Mode
 from systems.estimators.federated.system import FED_BETAS, FED_RELATIVE_STD
@@ -125,6 +127,16 @@ def test_over_manoeuvres_the_federated_pose_beats_every_node(maneuvers):
         assert fused["rmse_position_m"] < estimators[node]["rmse_position_m"]
         assert fused["rmse_orientation_rad"] < estimators[node]["rmse_orientation_rad"]
     assert fused["rmse_orientation_rad"] <= 0.0818  # seed 001's figure
+
+
+@pytest.mark.parametrize("row", [[2.0, np.nan, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, -np.inf, 0.0],
+                                 [2.0, 0.0, 0.0, 0.0, np.inf], [np.inf, 0.2, 0.0, 0.0, 0.0],
+                                 [0.0, 0.2, 0.0, 0.0, 0.0], [2.0, 0.2, 0.0, 0.0]])
+def test_a_manoeuvre_is_five_finite_numbers_its_duration_positive(row):
+    # A non-finite one had passed into the command trajectory (a NaN velocity, or an endless manoeuvre).
+    config = ManeuversConfig(manoeuvres=[[3.0, 0.0, 0.0, 0.0, 0.0], row])
+    with pytest.raises(ConfigError, match=r"manoeuvres\[1\] is .*: a row is 5 finite numbers"):
+        config.validate()
 
 
 def test_the_manoeuvres_integrate_as_the_scenario_says(monkeypatch):
