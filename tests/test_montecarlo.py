@@ -5,6 +5,7 @@ another campaign, an unreachable scheduler, and the `landing-sim montecarlo` com
 
 The run functions are module-level so that spawned worker processes can import them from here."""
 
+import concurrent.futures as cf
 import dataclasses
 import functools
 import json
@@ -85,6 +86,11 @@ def dying_run(task: RunTask):
     if task.case == "6" and task.index == 1:
         os._exit(3)
     return toy_run(task)
+
+
+def always_dying_run(task: RunTask):
+    """A run whose worker process dies whatever the task."""
+    os._exit(3)
 
 
 def drake_run(task: RunTask) -> dict:
@@ -297,6 +303,15 @@ def test_a_run_that_kills_its_worker_is_recorded_and_the_campaign_goes_on(tmp_pa
     assert (failure["case"], failure["index"]) == ("6", 1) and failure["reason"].startswith("WorkerDied")
 
 
+@pytest.mark.slow
+def test_runs_that_all_kill_their_worker_are_recorded_and_the_campaign_ends_with_a_summary(tmp_path):
+    summary = run_campaign(toy(run=always_dying_run), settings(cases=["6"]), tmp_path, workers=1, progress=False)
+    assert summary["runs"] == {"requested": RUNS, "done": 0, "failed": RUNS, "computed_now": RUNS}
+    assert [(f["index"], f["reason"].split(":")[0]) for f in summary["failures"]] == [
+        (i, "WorkerDied") for i in range(RUNS)]
+    assert (tmp_path / "summary.json").is_file()
+
+
 @pytest.mark.parametrize("workers", [2, 0])
 def test_interrupted_campaign_resumes_without_redoing_finished_runs(tmp_path, pool_campaigns, workers):
     s = settings()
@@ -476,3 +491,43 @@ def test_a_pool_found_dead_at_a_submission_is_replaced_and_every_run_is_done_onc
     assert sorted((task for task, _ in kept), key=lambda task: task.index) == tasks  # each once
     assert [outcome.status for _, outcome in kept] == ["done"] * RUNS
     assert pool.restarts == 1
+
+
+class _PoolOfDyingRuns:
+    """An in-process pool (two workers) whose every run in `dying` takes the pool down with the runs
+    submitted to it after that run; notes the runs each pool (between restarts) was given."""
+
+    workers = 2
+
+    def __init__(self, dying: set[int]):
+        self.executor = self
+        self.dying, self.pools, self.broken = dying, [[]], False
+
+    def submit(self, fn, run, run_group, group):
+        self.pools[-1] += [task.index for task in group]
+        self.broken = self.broken or any(task.index in self.dying for task in group)
+        if not self.broken:
+            return executors._InlineExecutor().submit(fn, run, run_group, group)
+        future = cf.Future()
+        future.set_exception(BrokenProcessPool("a process in the pool was terminated abruptly"))
+        return future
+
+    def restart(self) -> None:
+        self.pools.append([])
+        self.broken = False
+
+
+def test_runs_that_took_a_pool_down_run_alone_each_and_one_that_dies_alone_is_blamed():
+    pool = _PoolOfDyingRuns(dying=set(range(8)))  # more deaths in a row than MAX_POOL_DEATHS
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(8)]
+    kept = []
+    campaign._drive(pool, toy_run, [(task,) for task in tasks], lambda task, outcome: kept.append((task, outcome)))
+    assert pool.pools == [[0, 1, 2, 3], [0], [1], [2], [3], [4, 5, 6, 7], [4], [5], [6], [7], []]
+    assert [(task.index, outcome.error["type"]) for task, outcome in kept] == [(i, "WorkerDied") for i in range(8)]
+    # Run 0 finished before the pool died; suspect 2 finishes, and the last suspect, 3, still runs alone.
+    pool = _PoolOfDyingRuns(dying={1, 3})
+    kept.clear()
+    campaign._drive(pool, toy_run, [(task,) for task in tasks[:6]], lambda task, outcome: kept.append((task, outcome)))
+    assert pool.pools == [[0, 1, 2, 3], [1], [2, 3], [4, 5]]
+    assert sorted((task.index, outcome.status) for task, outcome in kept) == [
+        (0, "done"), (1, "failed"), (2, "done"), (3, "failed"), (4, "done"), (5, "done")]

@@ -22,7 +22,7 @@ from diagrams.montecarlo.settings import CampaignSettings, RunTask
 from diagrams.outputs import check_writable, write_json
 from systems.config import ConfigError
 
-MAX_POOL_DEATHS = 5  # in a row, with no run finishing between them: something else is wrong
+MAX_POOL_DEATHS = 5  # in a row, with no run finishing or blamed between them: something else is wrong
 
 
 def _check_out_dir(out_dir: Path, settings: CampaignSettings) -> None:
@@ -129,31 +129,38 @@ def _drive(pool, run: Callable, groups: Sequence[tuple[RunTask, ...]], keep: Cal
     queue = deque(groups)
     suspects: deque[tuple[RunTask, ...]] = deque()
     in_flight: dict[cf.Future, tuple[RunTask, ...]] = {}
+    isolating: set[cf.Future] = set()  # the suspect in flight, alone in its pool
     window = 2 * pool.workers
     deaths_without_progress = 0
 
     def refill() -> bool:
-        """Fills the window; False when the pool turned out dead at a submission (the group goes back)."""
-        while (queue or suspects) and len(in_flight) < (1 if suspects else window):
+        """Fills the window (one run while a suspect waits or runs); False when the pool turned out dead
+        at a submission (the group goes back)."""
+        while (queue or suspects) and len(in_flight) < (1 if suspects or isolating else window):
             source = suspects or queue
             group = source.popleft()
             try:
-                in_flight[pool.executor.submit(_execute_group, run, run_group, group)] = group
+                future = pool.executor.submit(_execute_group, run, run_group, group)
             except BrokenProcessPool:  # a worker died after its last result came in
                 source.appendleft(group)
                 return False
+            in_flight[future] = group
+            if source is suspects:
+                isolating.add(future)
         return True
 
     def pool_died(held: list[tuple[RunTask, ...]]) -> None:
         nonlocal deaths_without_progress
-        deaths_without_progress += 1
-        if deaths_without_progress > MAX_POOL_DEATHS:
-            raise RuntimeError(f"the worker processes died {deaths_without_progress} times in a row with no "
-                               f"run finishing; stopping (finished runs are kept)")
-        if len(held) == 1:
+        isolating.clear()
+        if len(held) == 1:  # alone in the pool: blamed and kept, which is progress
             keep(held[0][0], _failure("WorkerDied", "the worker process running this run died (a crash in "
                                                  "native code, or killed for lack of memory)"))
+            deaths_without_progress = 0
         else:
+            deaths_without_progress += 1
+            if deaths_without_progress > MAX_POOL_DEATHS:
+                raise RuntimeError(f"the worker processes died {deaths_without_progress} times in a row with no "
+                                   f"run finishing or blamed; stopping (finished runs are kept)")
             suspects.extend(held)
         pool.restart()
 
@@ -179,6 +186,7 @@ def _drive(pool, run: Callable, groups: Sequence[tuple[RunTask, ...]], keep: Cal
                 except Exception as e:  # the executor's own verdict on these runs (e.g. Dask's KilledWorker)
                     outcomes = [_failure(type(e).__name__, str(e))] * len(group)
                 del in_flight[future]
+                isolating.discard(future)
                 for task, outcome in zip(group, outcomes, strict=True):
                     keep(task, outcome)
                 deaths_without_progress = 0
