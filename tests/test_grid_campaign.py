@@ -50,6 +50,17 @@ def test_bad_grids_name_the_field_before_anything_runs(scenario, options, overri
         grid_settings(scenario, options, 1, 0, overrides)
 
 
+def test_a_setting_only_some_seeds_refuse_is_an_error_before_anything_runs(capfd, tmp_path):
+    # A 17 deg roll leaves the legs' stroke in the motion of some seeds only: runs 0 to 3 load, run 4 not.
+    overrides = ["platform.roll_amplitude_deg=[17.0]", "duration_s=60"]
+    with pytest.raises(ConfigError, match=r"run 4 \(seed 877150602\): platform: the motion leaves the legs' stroke"):
+        grid_settings("deck-landing", ["perception.source=truth"], 6, 1, overrides)
+    assert main(["montecarlo", "deck-landing", "--case", "perception.source=truth", "--runs", "6", "--seed", "1",
+                 "--set", overrides[0], "--set", overrides[1], "--out", str(tmp_path / "x")]) == 2
+    err = capfd.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "run 4" in err and not (tmp_path / "x").exists()
+
+
 def test_a_grid_campaign_lands_every_case_and_summarises_each(tmp_path):
     definition, settings = grid_settings("gv-landing", ["vehicle.speed=0.5,1.0"], 1, 0, ["vehicle.path=straight"])
     summary = run_campaign(definition, settings, tmp_path, workers=0, progress=False)

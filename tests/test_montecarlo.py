@@ -186,7 +186,7 @@ def test_case_key_loads_the_scenario_with_case_overrides_and_seed():
     name, scenario = task.load_scenario()
     assert name == "stewart-hover" and scenario.camera.pixel_noise_std == 1.0
     assert scenario.hover.height_above_deck_m == 3.0 and scenario.seed == task.seed
-    with pytest.raises(ConfigError, match="hover.heigth"):  # checked once per case, before any run
+    with pytest.raises(ConfigError, match="hover.heigth"):  # checked for every run, before any runs
         campaign_settings(definition, "stewart-hover", overrides=["hover.heigth=3"])
     with pytest.raises(ConfigError, match="sets camera.pixel_noise_std"):
         campaign_settings(definition, "stewart-hover", overrides=["camera.pixel_noise_std=3"])

@@ -81,7 +81,8 @@ def campaign_definition(name: str) -> CampaignDefinition:
 
 def campaign_settings(definition: CampaignDefinition, scenario: str, cases: Sequence[str] | None = None,
                       runs: int | None = None, base_seed: int = 0, overrides: Sequence[str] = ()) -> CampaignSettings:
-    """Checked settings: cases parsed and known, at least one run, a non-negative seed."""
+    """Checked settings: cases parsed and known, at least one run, a non-negative seed, and (with a
+    `case_key`) every run's scenario loading with its case and seed."""
     name = definition.case_name
     runs = definition.runs if runs is None else runs
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
@@ -118,6 +119,9 @@ def campaign_settings(definition: CampaignDefinition, scenario: str, cases: Sequ
             raise ConfigError(f"--set {key}: the campaign sets {key} from its {name}s")
     settings = CampaignSettings(scenario, tuple(parsed), runs, base_seed, tuple(overrides), definition.paired)
     if definition.case_key is not None:  # bad settings fail here, before anything is written
-        for task in settings.tasks(definition.case_key)[::runs]:  # one per case
-            task.load_scenario()
+        for task in settings.tasks(definition.case_key):  # every run: a check may depend on the seed
+            try:
+                task.load_scenario()
+            except ConfigError as e:
+                raise ConfigError(f"{name} {task.case}, run {task.index} (seed {task.seed}): {e}") from None
     return settings
