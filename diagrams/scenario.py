@@ -24,13 +24,28 @@ SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 
 
 class _Loader(yaml.SafeLoader):
-    """PyYAML's safe loader with YAML 1.2's numbers: `1e9` and `1E-3` are floats (YAML 1.1, which
-    PyYAML follows, reads a float without a dot as text and wants `1.0e+9`)."""
+    """PyYAML's safe loader with YAML 1.2's (core schema's) numbers in place of YAML 1.1's, which PyYAML
+    follows: `1e9` and `1E-3` are floats (1.1 reads a float without a dot as text), `045` is 45 (1.1:
+    octal, 37), and `1:30` (1.1: sexagesimal, 90), `0b11` and `1_000` are text."""
+
+    def construct_yaml_int(self, node) -> int:
+        """A YAML 1.2 core integer: decimal (leading zeros included), 0o octal or 0x hexadecimal."""
+        text = self.construct_scalar(node)
+        if text[:2] in ("0o", "0x"):
+            return int(text[2:], 8 if text[1] == "o" else 16)
+        return int(text, 10)
 
 
-_Loader.add_implicit_resolver("tag:yaml.org,2002:float",
-                              re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+_NUMBER_TAGS = ("tag:yaml.org,2002:int", "tag:yaml.org,2002:float")
+_Loader.yaml_implicit_resolvers = {first: [(tag, regexp) for tag, regexp in resolvers if tag not in _NUMBER_TAGS]
+                                   for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_Loader.add_implicit_resolver("tag:yaml.org,2002:int", re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$"),
+                              list("-+0123456789"))
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float",  # after the int resolver: `3` is an int
+                              re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+                                         r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"),
                               list("-+.0123456789"))
+_Loader.add_constructor("tag:yaml.org,2002:int", _Loader.construct_yaml_int)
 
 
 def parse_yaml(text: str):

@@ -221,6 +221,16 @@ def test_numbers_are_read_as_yaml_1_2_reads_them(tmp_path):
         load_scenario("stewart-dynamic", overrides=["camera.rate_hz=1e"])  # still text, and named
 
 
+def test_integers_are_read_as_yaml_1_2_reads_them():
+    # YAML 1.1 (PyYAML) reads 045 as octal 37 and 1:30 as sexagesimal 90.
+    _, scenario = load_scenario("stewart-dynamic", overrides=["seed=045", "camera.width=0x280"])
+    assert scenario.seed == 45 and scenario.camera.width == 640
+    assert [parse_yaml(text) for text in ("-007", "0o17", "1:30", "1:30.0", "0b11", "1_000")] == [
+        -7, 15, "1:30", "1:30.0", "0b11", "1_000"]
+    with pytest.raises(ConfigError, match=r"^camera\.rate_hz must be a number, got '1:30'$"):
+        load_scenario("stewart-dynamic", overrides=["camera.rate_hz=1:30"])
+
+
 def test_a_scenario_starts_from_its_base_and_replaces_what_it_sets(tmp_path):
     path = write_yaml(tmp_path, {"base": "stewart-dynamic", "duration_s": 5.0,
                                  "camera": {"full_well_e": 6000.0}, "platform": {"roll_amplitude_deg": [4.0]}})
