@@ -96,6 +96,17 @@ def _check_scalar(value, kind, dotted: str) -> None:
         raise ConfigError(f"{dotted} must not be negative (a seed, as numpy's generators take them), got {value}")
 
 
+def _check_item(item, kind, dotted: str) -> None:
+    """`_check_scalar` for an item of a list field, into nested lists (list[list[float]])."""
+    if typing.get_origin(kind) is not list:
+        _check_scalar(item, kind, dotted)
+        return
+    if not isinstance(item, list):
+        raise ConfigError(f"{dotted} must be a list of lists, got {item!r} in it")
+    for inner in item:
+        _check_item(inner, typing.get_args(kind)[0], dotted)
+
+
 def normalise(raw: dict, schema, path: str = "") -> dict:
     """Checks `raw` (plain YAML data) against a dataclass schema: an unknown key or a value of the
     wrong type is a ConfigError naming its dotted path; a scalar given for a list field becomes a
@@ -120,7 +131,7 @@ def normalise(raw: dict, schema, path: str = "") -> dict:
             if dataclasses.is_dataclass(item_kind):  # a list of groups: each checked as its own
                 value = [normalise(item, item_kind, f"{dotted}[{i}]") for i, item in enumerate(value)]
             for item in value:
-                _check_scalar(item, item_kind, dotted)
+                _check_item(item, item_kind, dotted)
         elif kind in _SCALAR_KINDS:
             _check_scalar(value, kind, dotted)
         out[key] = value

@@ -148,6 +148,15 @@ def test_a_type_error_names_the_field(assignment, field):
         load_scenario("stewart-dynamic", overrides=[assignment])
 
 
+@pytest.mark.parametrize("assignment, message", [
+    ("manoeuvres=[[0.3, .nan, 0, 0, 0]]", "manoeuvres must be a finite number, got .nan"),  # accepted before
+    ("manoeuvres=[[0.3, 1, 0, 0, 0], 2]", "manoeuvres must be a list of lists, got 2 in it"),
+])
+def test_items_of_a_list_of_lists_are_checked(assignment, message):
+    with pytest.raises(ConfigError, match=f"^{message}$"):
+        load_scenario("rqrlp-maneuvers", overrides=[assignment])
+
+
 def test_a_group_given_a_scalar_is_a_config_error():
     with pytest.raises(ConfigError, match="hover"):
         load_scenario("stewart-hover", overrides=["hover=3"])
