@@ -41,7 +41,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--meshcat", action="store_true", help="serve the live scene in Meshcat (real time)")
     run.add_argument("--meshcat-host", default="localhost",
                      help="interface Meshcat listens on (default: localhost; 0.0.0.0 for every interface)")
-    run.add_argument("--meshcat-port", type=int, help="Meshcat's port (default: the first free from 7000)")
+    run.add_argument("--meshcat-port", type=int, help="Meshcat's port, 1024 to 65535 or 0: any free one "
+                     "(default: the first free from 7000)")
     run.add_argument("--record", action="store_true", help="write meshcat.html, a self-contained recording")
     run.add_argument("--video", action="store_true", help="write camera.mp4, the camera stream")
     run.add_argument("--quiet", action="store_true", help="no progress bar")

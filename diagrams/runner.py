@@ -76,10 +76,19 @@ def load_scenario(name: str | None = None, config_path: str | Path | None = None
 
 
 def make_meshcat(options: RunOptions) -> Meshcat | None:
-    """A Meshcat server when the run shows or records the scene; bound to localhost by default."""
+    """A Meshcat server when the run shows or records the scene; bound to localhost by default. ConfigError
+    for a port Meshcat does not take (it wants 0, any free port, or 1024 to 65535) or cannot listen on."""
+    port = options.meshcat_port
+    if port is not None and port != 0 and not 1024 <= port <= 65535:
+        raise ConfigError(f"--meshcat-port must be 0 (any free port) or 1024 to 65535, got {port}")
     if not (options.meshcat or options.record):
         return None
-    return Meshcat(MeshcatParams(host=options.meshcat_host, port=options.meshcat_port))
+    try:
+        return Meshcat(MeshcatParams(host=options.meshcat_host, port=port))
+    except RuntimeError:  # Drake: "Meshcat failed to open a websocket port."
+        where = f"{options.meshcat_host}:{'7000 to 7999' if port is None else port}"
+        raise ConfigError(f"Meshcat cannot listen on {where} (the port in use, or the host not this machine's); "
+                          f"give another --meshcat-port or --meshcat-host") from None
 
 
 def simulate_scene(diagram, handles, scenario, ctx: RunContext):

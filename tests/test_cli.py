@@ -5,6 +5,7 @@ import contextlib
 import io
 import json
 import os
+import socket
 import subprocess
 from pathlib import Path
 
@@ -92,12 +93,16 @@ def bad_config(tmp_path):
     (["run", "deck-landing-hardware", "--set", "tof.time_offset_s=0.04"], "tof.time_offset_s"),
     (["run", "ugv-hybrid", "--set", "hybrid.model_path={missing_model}"], "missing.onnx"),
     (["run", "ugv-hybrid", "--set", "hybrid.model_path={corrupt_model}"], "corrupt.onnx"),
+    (["run", "stewart-hover", "--duration", "0.1", "--meshcat-port", "99999"], "--meshcat-port"),  # wrapped before
+    (["run", "stewart-hover", "--duration", "0.1", "--record", "--meshcat-port", "80"], "--meshcat-port"),
+    (["run", "stewart-hover", "--duration", "0.1", "--record", "--meshcat-port", "-1"], "--meshcat-port"),
 ], ids=["bad-name", "unknown-key", "negative-rate", "tag-too-big", "negative-duration", "type-error",
         "name-and-config", "unknown-option", "missing-config", "federated-on-markers", "two-cameras",
         "backward-blackout", "imu-rate", "empty-manoeuvre", "deck-beyond-stroke", "stewart-beyond-stroke",
         "negative-seed", "tof-on-the-axes", "negative-texture-seed", "negative-duration-deck", "negative-joint-height",
         "deck-source", "deck-ih", "deck-negative-latency", "tof-phase-beyond-period",
-        "missing-detector-model", "corrupt-detector-model"])
+        "missing-detector-model", "corrupt-detector-model", "meshcat-port-beyond-65535", "meshcat-port-below-1024",
+        "meshcat-port-negative"])
 def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path, bad_config, args, named):
     out = tmp_path / "out"
     corrupt = tmp_path / "corrupt.onnx"
@@ -110,6 +115,17 @@ def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path,
     assert named in stderr
     assert "Traceback" not in stderr and stdout == ""
     assert not out.exists()
+
+
+def test_a_meshcat_port_in_use_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path):
+    with socket.socket() as busy:
+        busy.bind(("localhost", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        code, stdout, stderr = run_main(capfd, "run", "stewart-hover", "--duration", "0.1", "--record",
+                                        "--meshcat-port", str(port), "--out", str(tmp_path / "out"), "--quiet")
+    assert code == 2 and stdout == "" and not (tmp_path / "out").exists()
+    assert stderr.count("\n") == 1 and f"Meshcat cannot listen on localhost:{port}" in stderr, stderr
 
 
 def test_unwritable_output_directory_under_sys(capfd):
