@@ -11,6 +11,7 @@ import functools
 import json
 import multiprocessing
 import os
+import re
 import time
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -269,6 +270,18 @@ def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path):
     with pytest.raises(ConfigError, match="bad Dask scheduler address 'nonsense://x'"):
         run_campaign(TOY, settings(), out, scheduler="nonsense://x", progress=False)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("address, problem", [
+    ("127.0.0.1", "missing port number"),  # a Client half-built on it: two tracebacks and a 20 s wait
+    ("tcp://127.0.0.1:99999", "port 99999 is not 1 to 65535"),  # reported as unreachable after 10 s
+    ("tcp://127.0.0.1:0", "port 0 is not 1 to 65535"),
+    ("tcp://127.0.0.1:http", "invalid literal"),
+])
+def test_a_scheduler_address_without_a_good_port_is_refused_at_once(capfd, tmp_path, address, problem):
+    with pytest.raises(ConfigError, match=f"^bad Dask scheduler address '{re.escape(address)}': .*{problem}"):
+        run_campaign(TOY, settings(), tmp_path / "out", scheduler=address, connect_timeout_s=1.0, progress=False)
+    assert capfd.readouterr().err == "" and not (tmp_path / "out").exists()
 
 
 # ---- failures, resume, protection --------------------------------------------------------------

@@ -87,13 +87,18 @@ class _DaskCluster:
         except ImportError:
             raise ConfigError("--scheduler needs dask.distributed: pip install 'dask[distributed]'") from None
         from distributed.comm import parse_address
+        from distributed.comm.addressing import parse_host_port
         from distributed.comm.registry import get_backend
 
-        try:  # a bad scheme is caught here: a Client built on one cannot even close cleanly
+        try:  # a bad scheme or port is caught here: a Client built on one cannot even close cleanly
             scheme, location = parse_address(address)
             get_backend(scheme)
             if not location:
                 raise ValueError("no host given")
+            if scheme != "inproc":  # in this process (a LocalCluster without processes): no port
+                _, port = parse_host_port(location)
+                if not 1 <= port <= 65535:
+                    raise ValueError(f"port {port} is not 1 to 65535")
         except ValueError as e:
             raise ConfigError(f"bad Dask scheduler address '{address}': {e} (e.g. tcp://host:8786)") from None
         try:
