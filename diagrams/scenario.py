@@ -190,10 +190,13 @@ def read_scenario(path: Path, _from: tuple = ()) -> dict:
 
 
 def read_yaml(path: Path) -> dict:
+    """A scenario file's YAML data (UTF-8 text); ConfigError for one that cannot be read or parsed."""
     try:
-        raw = parse_yaml(path.read_text())
+        raw = parse_yaml(path.read_text(encoding="utf-8"))
     except OSError as e:
         raise ConfigError(f"cannot read scenario file {path}: {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path} is not UTF-8 text (byte {e.start}: {e.object[e.start:e.start + 1]!r})") from None
     except yaml.YAMLError as e:
         raise ConfigError(f"{path} is not valid YAML: {str(e).splitlines()[0]}") from None
     return raw or {}

@@ -75,6 +75,7 @@ def bad_config(tmp_path):
     (["run", "stewart-hover", "--config", "{bad_config}"], "not both"),
     (["run", "stewart-hover", "--frobnicate"], "--frobnicate"),
     (["run", "--config", "{missing}"], "missing.yaml"),
+    (["run", "--config", "{latin1_config}"], "latin1.yaml is not UTF-8 text (byte 18: b'\\xe9')"),
     (["run", "open-landing", "--set", "platform.pattern=markers"], "platform.pattern"),
     (["run", "open-landing", "--set", "estimation.source=detector"], "estimation.source"),
     (["run", "open-landing", "--set", "federated.camera.blackouts_s=[[2.0, 1.0]]"], "blackouts_s"),
@@ -97,7 +98,7 @@ def bad_config(tmp_path):
     (["run", "stewart-hover", "--duration", "0.1", "--record", "--meshcat-port", "80"], "--meshcat-port"),
     (["run", "stewart-hover", "--duration", "0.1", "--record", "--meshcat-port", "-1"], "--meshcat-port"),
 ], ids=["bad-name", "unknown-key", "negative-rate", "tag-too-big", "negative-duration", "type-error",
-        "name-and-config", "unknown-option", "missing-config", "federated-on-markers", "two-cameras",
+        "name-and-config", "unknown-option", "missing-config", "latin1-config", "federated-on-markers", "two-cameras",
         "backward-blackout", "imu-rate", "empty-manoeuvre", "deck-beyond-stroke", "stewart-beyond-stroke",
         "negative-seed", "tof-on-the-axes", "negative-texture-seed", "negative-duration-deck", "negative-joint-height",
         "deck-source", "deck-ih", "deck-negative-latency", "tof-phase-beyond-period",
@@ -107,8 +108,10 @@ def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path,
     out = tmp_path / "out"
     corrupt = tmp_path / "corrupt.onnx"
     corrupt.write_bytes(b"\x08\x07not a network")
+    latin1 = tmp_path / "latin1.yaml"
+    latin1.write_bytes("description: a caf\u00e9 deck\n".encode("latin-1"))
     args = [a.format(bad_config=bad_config, missing=tmp_path / "missing.yaml", missing_model=tmp_path / "missing.onnx",
-                     corrupt_model=corrupt) for a in args]
+                     corrupt_model=corrupt, latin1_config=latin1) for a in args]
     code, stdout, stderr = run_main(capfd, *args, "--out", str(out), "--quiet")
     assert code == 2
     assert stderr.count("\n") == 1 and stderr.startswith("landing-sim: error: "), stderr
