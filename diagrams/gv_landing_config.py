@@ -36,6 +36,7 @@ from systems.sensors.navigation import NavigationConfig
 from systems.vehicles.airframe import AirframeConfig
 from systems.vehicles.ground_vehicle import GroundVehicleConfig
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
+from systems.vehicles.paths import make_path
 from systems.vehicles.quadrotor import QuadrotorParams
 from systems.vehicles.traffic import DistractorsConfig
 
@@ -222,9 +223,8 @@ class GvLandingConfig(FlightConfig):
         for name in ("vehicle", "platform", "perception", "estimation", "federated", "hybrid", "wind", "faults",
                      "navigation", "rendezvous", "distractors", "bridge"):
             getattr(self, name).validate(name)
-        require(not self.bridge.enabled or self.bridge.clearance_m > self.platform.height_m,
-                f"bridge.clearance_m ({self.bridge.clearance_m:g} m) must exceed the vehicle's height "
-                f"(platform.height_m, {self.platform.height_m:g} m): it drives under the bridge")
+        if self.bridge.enabled:
+            self._validate_bridge()
         require(self.navigation.source == "truth" or self.perception.source != "federated",
                 "perception.source federated drives its IMU from the UAV's pose: navigation.source must be truth")
         require(not self.faults.active or self.estimation.source != "none",
@@ -252,6 +252,20 @@ class GvLandingConfig(FlightConfig):
         require(stream == "none" or self.platform.pattern == "markers",
                 f"estimation.source {stream} measures the ArUco markers, and platform.pattern is "
                 f"{self.platform.pattern}")
+
+    def _validate_bridge(self) -> None:
+        """The vehicle fits under the bridge and between its piers, and an open path reaches it."""
+        bridge, platform = self.bridge, self.platform
+        require(bridge.clearance_m > platform.height_m,
+                f"bridge.clearance_m ({bridge.clearance_m:g} m) must exceed the vehicle's height "
+                f"(platform.height_m, {platform.height_m:g} m): it drives under the bridge")
+        require(bridge.gap_m > platform.body_width_m,
+                f"the bridge's piers leave {bridge.gap_m:g} m (bridge.width_m - 2 bridge.pier_m) for the vehicle, "
+                f"narrower than its body (platform.body_width_m, {platform.body_width_m:g} m)")
+        path = make_path(self.vehicle.path_config(), "vehicle.path")
+        require(path.closed or bridge.at_m <= path.length,
+                f"bridge.at_m ({bridge.at_m:g} m) is beyond the end of the vehicle's {self.vehicle.path} path "
+                f"({path.length:g} m)")
 
     def camera(self):
         """The scene's camera (CameraConfig), or None: estimation.source detector's, or the one the

@@ -1,6 +1,8 @@
 """The bridge over the path (systems/environment/bridge.py): where it stands, what it registers, and the
 scenario's errors."""
 
+import re
+
 import numpy as np
 import pytest
 from pydrake.geometry import Role, SceneGraph
@@ -33,7 +35,18 @@ def test_deck_and_piers_are_registered_for_the_cameras():
 
 
 @pytest.mark.parametrize("setting, message", [("bridge.clearance_m=0.4", "bridge.clearance_m"),
-                                              ("bridge.length_m=0", "bridge.length_m")])
+                                              ("bridge.length_m=0", "bridge.length_m"),
+                                              ("bridge.at_m=-50", "bridge.at_m must not be negative"),  # clipped
+                                              ("bridge.at_m=2001", "beyond the end of the vehicle's straight path"),
+                                              ("bridge.pier_m=3", "bridge.width_m (6 m) must exceed twice"),
+                                              ("bridge.width_m=1.7", "narrower than its body"),  # piers on the road
+                                              ])
 def test_bad_bridge_names_the_field(setting, message):
-    with pytest.raises(ConfigError, match=message.replace(".", r"\.")):
+    with pytest.raises(ConfigError, match=re.escape(message)):
         load_scenario("ugv-hybrid", overrides=["bridge.enabled=true", setting])
+
+
+def test_the_vehicle_fits_between_the_piers_and_a_closed_path_passes_any_arc_length():
+    _, scenario = load_scenario("ugv-hybrid", overrides=["bridge.enabled=true", "bridge.width_m=2.2",
+                                                         "vehicle.path=circle", "bridge.at_m=2001"])
+    assert scenario.bridge.gap_m == pytest.approx(1.4) and scenario.platform.body_width_m < 1.4

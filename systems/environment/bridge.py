@@ -14,7 +14,7 @@ import numpy as np
 from pydrake.geometry import Box, SceneGraph
 from pydrake.math import RigidTransform, RotationMatrix
 
-from systems.config import require_positive
+from systems.config import require, require_non_negative, require_positive
 from systems.geometry import register_visual
 from systems.vehicles.paths import Path
 
@@ -32,8 +32,19 @@ class BridgeConfig:
     pier_m: float = 0.4
 
     def validate(self, prefix: str = "bridge") -> None:
+        """Sizes positive, `at_m` on the path (not before its start), and room between the piers (the
+        vehicle's width and the path's end are the scenario's checks)."""
         for name in ("length_m", "width_m", "thickness_m", "clearance_m", "pier_m"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
+        require_non_negative(self.at_m, f"{prefix}.at_m")
+        require(self.width_m > 2 * self.pier_m,
+                f"{prefix}.width_m ({self.width_m:g} m) must exceed twice {prefix}.pier_m ({self.pier_m:g} m): "
+                f"the piers stand within the deck's width, one each side of the path")
+
+    @property
+    def gap_m(self) -> float:
+        """The width between the piers' inner faces, centred on the path [m]."""
+        return self.width_m - 2 * self.pier_m
 
 
 def bridge_pose(path: Path, config: BridgeConfig) -> RigidTransform:
