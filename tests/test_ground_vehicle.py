@@ -108,6 +108,15 @@ def test_sine_path_is_seed_002_eq_13():
     assert path.heading(0.0) == pytest.approx(np.arctan(2 * np.pi * (30 / 500 + 20 / 200)))
 
 
+@pytest.mark.parametrize("name", PATH_NAMES)
+def test_paths_start_at_the_origin_heading_as_documented(name):
+    """paths.py's docstring: along +x, but sine (Eq. 13's slope) and figure-eight (45 deg)."""
+    path = make_path(PathConfig(name=name))
+    np.testing.assert_allclose(path.position(0.0), [0.0, 0.0], atol=1e-12)
+    expected = {"sine": np.arctan(2 * np.pi * (30 / 500 + 20 / 200)), "figure-eight": np.pi / 4}.get(name, 0.0)
+    assert path.heading(0.0) == pytest.approx(expected, abs=1e-12)
+
+
 @pytest.mark.parametrize("name", ["circle", "rectangle", "figure-eight"])
 def test_closed_paths_close_smoothly(name):
     path = make_path(PathConfig(name=name))

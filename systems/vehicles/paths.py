@@ -1,10 +1,10 @@
 """Planar reference paths for the ground vehicle, selected by name, parameterised by arc length.
 
 `sine` is seed 002 Eq. (13); the others are the path shapes of seed 003 Fig. 9 (the paper gives
-no dimensions, so the sizes are configuration). Every path starts at the World origin; all but
-`sine` (which starts along Eq. 13's slope, 45 deg) start heading along +x. Open paths end after
-`length_m`; closed paths (circle, rectangle, figure-eight) repeat. Corners are circular arcs of
-`radius_m`, since a car cannot turn on the spot.
+no dimensions, so the sizes are configuration). Every path starts at the World origin heading along
++x, but `sine` (along Eq. 13's slope, 45.15 deg) and `figure-eight` (its straights cross the origin at
+45 deg). Open paths end after `length_m`; closed paths (circle, rectangle, figure-eight) repeat.
+Corners are circular arcs of `radius_m`, since a car cannot turn on the spot.
 """
 
 from dataclasses import dataclass
