@@ -89,7 +89,11 @@ def test_steering_lag_and_limit():
     ("wheelbase_m: 0.0", "vehicle.wheelbase_m must be positive"),
     ("max_steering_deg: 0.0", "vehicle.max_steering_deg must be in"),
     ("path: zigzag", "vehicle.path 'zigzag' is not a path"),
-    ("{path: circle, path_radius_m: 5.0}", "vehicle.path_radius_m = 5.0 is tighter"),
+    ("{path: circle, path_radius_m: 5.0}", r"vehicle.path 'circle' turns on a 5.0 m radius at its tightest, under "
+                                           r"the vehicle's minimum turning radius 9.6 m .*raise vehicle.path_radius_m"),
+    # Eq. (13)'s tightest bend, 41.4 m, needs 4.8 deg of steering
+    ("{path: sine, max_steering_deg: 3.0}", r"vehicle.path 'sine' turns on a 41.4 m radius at its tightest, under "
+                                            r"the vehicle's minimum turning radius 66.8 m .*raise vehicle.max_st"),
     ("{path: turn-90, path_length_m: 30.0}", r"vehicle.path_length_m = 30.0 is too short"),
     ("{speed_schedule_times_s: [0, 1], speed_schedule_m_s: [1]}", "must have the same length"),
 ])
@@ -97,6 +101,24 @@ def test_bad_config_is_rejected_by_name(yaml, message):
     config = yaml_load_typed(schema=GroundVehicleConfig, data=yaml)
     with pytest.raises(ValueError, match=message):
         GroundVehicle(config)
+
+
+@pytest.mark.parametrize("yaml", ["{path: straight, wheelbase_m: 6.0}", "{path: sine, max_steering_deg: 5.0}",
+                                  "{path: circle, path_radius_m: 9.7}"])
+def test_a_path_within_the_steering_limit_is_accepted(yaml):
+    """Each path's own tightest radius counts: a straight has none, Eq. (13)'s is 41.4 m (4.8 deg), a 9.7 m
+    circle's is above the 9.6 m the default 3.5 m wheelbase turns at 20 deg."""
+    GroundVehicle(yaml_load_typed(schema=GroundVehicleConfig, data=yaml))
+
+
+def test_max_curvature_is_the_tightest_bend():
+    assert make_path(PathConfig(name="straight")).max_curvature == 0.0
+    assert make_path(PathConfig(name="figure-eight", radius_m=12.0)).max_curvature == pytest.approx(1 / 12.0)
+    x = np.linspace(0.0, 2000.0, 200001)  # Eq. (13)'s curvature y'' / (1 + y'^2)^1.5, sampled finely
+    a, b = 2 * np.pi / 500, 2 * np.pi / 200
+    dy, ddy = 30 * a * np.cos(a * x) + 20 * b * np.cos(b * x), -30 * a**2 * np.sin(a * x) - 20 * b**2 * np.sin(b * x)
+    assert make_path(PathConfig(name="sine")).max_curvature == pytest.approx(
+        np.abs(ddy / (1 + dy**2) ** 1.5).max(), rel=1e-4)
 
 
 def test_sine_path_is_seed_002_eq_13():

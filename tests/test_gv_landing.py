@@ -79,7 +79,6 @@ def test_unstable_gains_end_as_a_failure_in_the_metrics():
     ("vehicle.wheelbase_m=0", "vehicle.wheelbase_m"),
     ("vehicle.max_steering_deg=0", "vehicle.max_steering_deg"),
     ("quadrotor.mass_kg=-1.2", "quadrotor.mass_kg"),
-    ("vehicle.path_radius_m=5", "vehicle.path_radius_m"),  # tighter than the vehicle can turn
     ("platform.pad_size_m=2.5", "platform.pad_size_m"),
     ("platform.pad_size_m=0.8", "platform.markers"),  # the corner markers hang off a smaller pad
     ("platform.markers.ids=[0, 1, 2, 3, 99]", "platform.markers.ids"),
@@ -88,6 +87,12 @@ def test_unstable_gains_end_as_a_failure_in_the_metrics():
 def test_impossible_configuration_is_a_config_error_naming_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         load_scenario("gv-landing", overrides=[assignment])
+
+
+def test_a_path_tighter_than_the_vehicle_turns_names_its_radius():
+    with pytest.raises(ConfigError, match=r"vehicle\.path_radius_m"):
+        load_scenario("gv-landing", overrides=["vehicle.path=circle", "vehicle.path_radius_m=5"])
+    load_scenario("gv-landing", overrides=["vehicle.path_radius_m=5"])  # the straight path has no arcs
 
 
 def test_a_path_too_short_for_its_manoeuvre_names_the_flattened_field():

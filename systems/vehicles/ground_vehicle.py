@@ -29,7 +29,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Multiplexer, SymbolicVectorSystem
 from pydrake.trajectories import PiecewisePolynomial
 
-from systems.config import require, require_positive
+from systems.config import ConfigError, require, require_positive
 from systems.geometry import wrap_angle
 from systems.vehicles.integration import discretise, set_vehicle_state
 from systems.vehicles.paths import Path, PathConfig, make_path
@@ -100,13 +100,16 @@ class GroundVehicleConfig:
                                            f"have the same length ({len(times)} and {len(speeds)})")
         require(all(b > a for a, b in zip(times, times[1:])), f"{prefix}.speed_schedule_times_s must increase")
         require(all(v >= 0 for v in speeds), f"{prefix}.speed_schedule_m_s must not be negative")
-        self.path_config().validate(f"{prefix}.path")
         self.follower.validate(f"{prefix}.follower")
-        if self.path != "sine":  # Eq. (13) has a fixed shape, at least 40 m in radius
-            require(self.path_radius_m >= self.min_turning_radius_m(),
-                    f"{prefix}.path_radius_m = {self.path_radius_m} is tighter than the vehicle "
-                    f"can turn ({self.min_turning_radius_m():.1f} m at "
-                    f"{prefix}.max_steering_deg = {self.max_steering_deg})")
+        curvature = make_path(self.path_config(), f"{prefix}.path").max_curvature
+        radius = self.min_turning_radius_m()
+        if curvature * radius > 1.0:  # the path's tightest radius, 1 / curvature, is under the vehicle's
+            arcs = "" if self.path == "sine" else f"{prefix}.path_radius_m or "  # Eq. (13) has a fixed shape
+            raise ConfigError(f"{prefix}.path '{self.path}' turns on a {1.0 / curvature:.1f} m radius at its "
+                              f"tightest, under the vehicle's minimum turning radius {radius:.1f} m "
+                              f"({prefix}.wheelbase_m {self.wheelbase_m:g} / tan({prefix}.max_steering_deg "
+                              f"{self.max_steering_deg:g})): raise {arcs}{prefix}.max_steering_deg, or shorten "
+                              f"{prefix}.wheelbase_m")
 
     @property
     def max_steering_rad(self) -> float:

@@ -70,6 +70,11 @@ class Path:
     def curvature(self, s) -> float:
         return float(np.interp(self._wrap(s), self.s, self._curvature))
 
+    @property
+    def max_curvature(self) -> float:
+        """The largest |curvature| [1/m] along the path: 1 / its tightest radius (0 for a straight)."""
+        return float(np.abs(self._curvature).max())
+
     def sample(self, s: float) -> tuple[float, float, float, float]:
         """(x, y, heading, curvature) at one arc length s [m]: position(), heading() and
         curvature() in one look-up, in plain floats (the path follower's per-update path)."""
