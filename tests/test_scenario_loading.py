@@ -183,6 +183,14 @@ def test_values_out_of_range_name_the_field(assignment, field):
         load_scenario("stewart-hover", overrides=[assignment])
 
 
+@pytest.mark.parametrize("name", ["gv-landing", "deck-landing", "rqrlp-maneuvers"])
+def test_an_integration_scheme_these_diagrams_cannot_run_is_refused(name):
+    """cenic integrates a MultibodyPlant, and none of them has one (it failed at the first step)."""
+    with pytest.raises(ConfigError, match=r"integration\.scheme 'cenic' is not one of .*runge_kutta5"):
+        load_scenario(name, overrides=["integration.scheme=cenic"])
+    load_scenario(name, overrides=["integration.scheme=radau3"])
+
+
 def test_unknown_scenario_lists_the_known_ones():
     with pytest.raises(ConfigError) as error:
         load_scenario("stewart-hoover")
