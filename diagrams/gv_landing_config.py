@@ -228,6 +228,8 @@ class GvLandingConfig(FlightConfig):
             getattr(self, name).validate(name)
         if self.bridge.enabled:
             self._validate_bridge()
+        if self.platform.carrier == "ground":
+            self._validate_vehicle_at_rest()
         require(self.navigation.source == "truth" or self.perception.source != "federated",
                 "perception.source federated drives its IMU from the UAV's pose: navigation.source must be truth")
         require(not self.faults.active or self.estimation.source != "none",
@@ -255,6 +257,17 @@ class GvLandingConfig(FlightConfig):
         require(stream == "none" or self.platform.pattern == "markers",
                 f"estimation.source {stream} measures the ArUco markers, and platform.pattern is "
                 f"{self.platform.pattern}")
+
+    def _validate_vehicle_at_rest(self) -> None:
+        """platform.carrier ground: the pad lies on the ground where the vehicle starts, so the vehicle stays there."""
+        vehicle = self.vehicle
+        if vehicle.speed_schedule_times_s:  # the schedule replaces vehicle.speed
+            moving = max(vehicle.speed_schedule_m_s) > 0
+            what = f"vehicle.speed_schedule_m_s reaches {max(vehicle.speed_schedule_m_s):g} m/s"
+        else:
+            moving, what = vehicle.speed > 0, f"vehicle.speed is {vehicle.speed:g} m/s"
+        require(not moving, f"platform.carrier ground lays the pad alone on the ground with the vehicle at rest, and "
+                            f"{what}: set platform.carrier vehicle to carry the pad, or stop the vehicle")
 
     def _validate_bridge(self) -> None:
         """The vehicle fits under the bridge and between its piers, and an open path reaches it."""

@@ -100,6 +100,21 @@ def test_a_path_too_short_for_its_manoeuvre_names_the_flattened_field():
         load_scenario("gv-landing", overrides=["vehicle.path=s-shape", "vehicle.path_length_m=50"])
 
 
+@pytest.mark.parametrize("overrides, named", [
+    (["vehicle.speed=1.0"], "vehicle.speed is 1 m/s"),
+    (["vehicle.speed_schedule_times_s=[0, 10]", "vehicle.speed_schedule_m_s=[0, 2]"],
+     "vehicle.speed_schedule_m_s reaches 2 m/s"),
+])
+def test_a_pad_on_the_ground_needs_the_vehicle_at_rest(overrides, named):
+    """platform.carrier ground draws no vehicle: a moving one had slid the pad over the ground."""
+    with pytest.raises(ConfigError, match=f"platform.carrier ground .*{named}: set platform.carrier vehicle"):
+        load_scenario("open-landing", overrides=overrides)
+    # open-landing's moving variant, and a schedule that keeps the vehicle still
+    load_scenario("open-landing", overrides=["platform.carrier=vehicle", "platform.height_m=1.6", *overrides])
+    load_scenario("open-landing", overrides=["vehicle.speed=1.0", "vehicle.speed_schedule_times_s=[0]",
+                                             "vehicle.speed_schedule_m_s=[0]"])
+
+
 def test_the_truth_gives_the_true_relative_state_and_the_split_names_its_parts():
     config = GvLandingConfig()
     truth = RelativeStateTruth(config.vehicle, config.platform, config.perception.field_of_view_deg,
