@@ -280,7 +280,7 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         register_bridge(scene_graph, vehicle.path, config.bridge)
     if config.distractors.count:
         traffic = builder.AddNamedSystem("traffic", Traffic(
-            scene_graph, vehicle.path, draw_distractors(config.distractors, config.vehicle.speed, config.seed)))
+            scene_graph, vehicle.path, config.vehicle, draw_distractors(config.distractors, config.seed)))
         builder.Connect(traffic.get_output_port(), scene_graph.get_source_pose_port(traffic.source_id))
 
     measurements = _add_measurements(builder, config, scene_graph, airframe.body_frame_id,

@@ -129,7 +129,7 @@ def flight_metrics(flight: Flight, config: GvLandingConfig, name: str = "gv-land
     log, sim = flight.log, flight.simulation
     out = {"scenario": name, "seed": config.seed, "sim_time_s": sim.sim_time_s, "wall_time_s": sim.wall_time_s,
            "realtime_factor": sim.realtime_factor,
-           "vehicle": {"path": config.vehicle.path, "speed_m_s": config.vehicle.speed}}
+           "vehicle": {"path": config.vehicle.path, **config.vehicle.speed_metrics()}}
     touchdown_s = None
     if landing:
         out["landing"] = landing_metrics(log, flight.status, config)

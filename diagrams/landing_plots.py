@@ -36,7 +36,7 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray
     on_ground = config.platform.carrier == "ground"
     carrier = "pad" if on_ground else "UGV"
     pad = "pad centre" if on_ground else "UGV (pad centre)"
-    title = "the pad on the ground" if on_ground else f"{config.vehicle.path}, {config.vehicle.speed:g} m/s"
+    title = "the pad on the ground" if on_ground else f"{config.vehicle.path}, {config.vehicle.speed_label()}"
 
     fig = plt.figure(figsize=(8, 6.5))
     ax = fig.add_subplot(projection="3d")

@@ -3,7 +3,7 @@ import pytest
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ConstantVectorSource, VectorLogSink
+from pydrake.systems.primitives import ConstantVectorSource, TrajectorySource, VectorLogSink
 
 from systems.vehicles.ground_vehicle import (
     GroundVehicle, GroundVehicleConfig, ground_pose, make_bicycle_dynamics,
@@ -201,6 +201,30 @@ def test_discretised_vehicle_drives_as_the_continuous_one():
     continuous, discrete = np.array(positions)
     assert np.linalg.norm(np.diff(continuous, axis=0), axis=1).sum() > 90.0  # along the lobes
     assert np.abs(discrete - continuous).max() < 6e-3
+
+
+@pytest.mark.parametrize("times, speeds", [([], []), ([5.0, 10.0], [1.0, 2.0]), ([3.0], [1.5])])
+def test_distance_driven_is_the_simulated_vehicles(times, speeds):
+    """distance_driven_m against the vehicle on a straight path driven by speed_profile's TrajectorySource (held
+    before the first point and after the last); the discrete vehicle holds each 5 ms speed sample, so lags a
+    little while the speed changes (half a period times the speed gained)."""
+    config = GroundVehicleConfig(speed=0.7, speed_schedule_times_s=times, speed_schedule_m_s=speeds)
+    builder = DiagramBuilder()
+    vehicle = builder.AddSystem(GroundVehicle(config, 0.005))
+    profile = config.speed_profile()
+    source = builder.AddSystem(ConstantVectorSource([config.speed]) if profile is None else
+                               TrajectorySource(profile, 0, True))
+    builder.Connect(source.get_output_port(), vehicle.GetInputPort("speed"))
+    simulator = Simulator(builder.Build())
+    root = simulator.get_mutable_context()
+    vehicle.set_state(root, vehicle.initial_state())
+    for t in (3.0, 7.5, 12.0):
+        simulator.AdvanceTo(t)
+        x = vehicle.GetOutputPort("state").Eval(vehicle.GetMyContextFromRoot(root))[0]
+        assert config.distance_driven_m(t) == pytest.approx(x, abs=3e-3)  # lag: 1 m/s gained x 2.5 ms
+    expected = {(): 0.7 * 12.0, (5.0, 10.0): 5.0 + 7.5 + 4.0, (3.0,): 1.5 * 12.0}[tuple(times)]
+    assert config.distance_driven_m(12.0) == pytest.approx(expected, rel=1e-12)
+    assert config.distance_driven_m(12.0, 0.5) == pytest.approx(expected / 2, rel=1e-12)
 
 
 def test_ground_pose():

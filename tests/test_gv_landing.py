@@ -174,6 +174,19 @@ def test_the_pads_acceleration_is_the_rate_of_its_velocity():
     assert np.percentile(difference, 95) < 2e-3 and np.median(difference) < 1e-4
 
 
+@pytest.mark.parametrize("overrides, reported", [
+    ([], {"speed_m_s": 0.5}),
+    (["vehicle.speed_schedule_times_s=[0, 10, 12]", "vehicle.speed_schedule_m_s=[0, 0, 2]"],
+     {"speed_schedule_times_s": [0.0, 10.0, 12.0], "speed_schedule_m_s": [0.0, 0.0, 2.0]}),
+])
+def test_metrics_report_the_speed_the_vehicle_drives(overrides, reported):
+    """A schedule replaces vehicle.speed: metrics.json had reported vehicle.speed (0.5 m/s) under it."""
+    _, scenario = load_scenario("gv-landing", overrides=overrides)
+    metrics, _ = fly(scenario, 0.2)
+    assert metrics["vehicle"] == {"path": "straight", **reported}
+    json.dumps(metrics)
+
+
 def _positions(overrides, duration_s):
     _, scenario = load_scenario("gv-landing", overrides=overrides)
     diagram, handles = build_gv_landing(scenario)

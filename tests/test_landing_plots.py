@@ -20,10 +20,15 @@ def a_short_log(n: int = 5) -> dict:
             "relative_state": relative, "mode": mode, "command": np.zeros((n, 7))}
 
 
-@pytest.mark.parametrize("scenario, carrier, says", [("gv-landing", "UGV", "straight, 0.5 m/s"),
-                                                     ("open-landing", "pad", "the pad on the ground")])
-def test_the_titles_and_legends_name_the_pads_carrier(scenario, carrier, says, tmp_path, monkeypatch):
-    _, config = load_scenario(scenario)
+SCHEDULE = ["vehicle.speed_schedule_times_s=[0, 10, 12]", "vehicle.speed_schedule_m_s=[0, 0, 2]"]
+
+
+@pytest.mark.parametrize("scenario, overrides, carrier, says", [
+    ("gv-landing", [], "UGV", "straight, 0.5 m/s"),
+    ("gv-landing", SCHEDULE, "UGV", "straight, 0-2 m/s scheduled"),  # not vehicle.speed's 0.5 m/s
+    ("open-landing", [], "pad", "the pad on the ground")])
+def test_the_titles_and_legends_name_the_pads_carrier(scenario, overrides, carrier, says, tmp_path, monkeypatch):
+    _, config = load_scenario(scenario, overrides=overrides)
     figures = []
     monkeypatch.setattr(landing_plots, "save_figure", lambda fig, path: figures.append(fig))
     landing_plots.plot_flight(a_short_log(), config, tmp_path)

@@ -6,6 +6,7 @@ import pytest
 from pydrake.geometry import SceneGraph
 from pydrake.systems.framework import DiagramBuilder
 
+from diagrams.gv_landing import build_gv_landing
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.vehicles.ground_vehicle import GroundVehicleConfig
@@ -16,24 +17,25 @@ CONFIG = DistractorsConfig(count=6, same_colour=2)
 
 
 def test_draws_are_seeded_and_within_the_settings():
-    a, b, c = (draw_distractors(CONFIG, 0.5, seed) for seed in (0, 0, 1))
+    a, b, c = (draw_distractors(CONFIG, seed) for seed in (0, 0, 1))
     assert a == b and a != c
     assert [d.colour for d in a[:2]] == ["ugv", "ugv"] and all(d.colour != "ugv" for d in a[2:])
     assert all(d.rgb == DISTRACTOR_COLOURS[d.colour] for d in a)
     for d in a:
         assert CONFIG.lane_min_m <= abs(d.lane_m) <= CONFIG.lane_max_m
-        assert 0.5 * 0.6 <= d.speed_m_s <= 0.5 * 1.4 and 0 <= d.s0_m <= CONFIG.ahead_max_m
+        assert 0.6 <= d.speed_factor <= 1.4 and 0 <= d.s0_m <= CONFIG.ahead_max_m
     # One stream per distractor: a seventh leaves the first six as they were.
-    assert draw_distractors(DistractorsConfig(count=7, same_colour=2), 0.5, 0)[:6] == a
+    assert draw_distractors(DistractorsConfig(count=7, same_colour=2), 0)[:6] == a
 
 
 @pytest.mark.parametrize("path_name", ["straight", "circle"])
 def test_pose_keeps_its_lane_along_the_path(path_name):
-    path = make_path(GroundVehicleConfig(path=path_name).path_config())
-    for d in draw_distractors(CONFIG, 0.5, 3):
+    vehicle = GroundVehicleConfig(path=path_name)
+    path = make_path(vehicle.path_config())
+    for d in draw_distractors(CONFIG, 3):
         for t in (0.0, 7.0, 30.0):
-            X_WD = distractor_pose(path, d, t)
-            s = d.s0_m + d.speed_m_s * t
+            X_WD = distractor_pose(path, vehicle, d, t)
+            s = d.s0_m + d.speed_factor * 0.5 * t
             offset = X_WD.translation()[:2] - path.position(s)
             heading = path.heading(s)
             assert np.linalg.norm(offset) == pytest.approx(abs(d.lane_m), abs=1e-9)
@@ -46,9 +48,10 @@ def test_pose_keeps_its_lane_along_the_path(path_name):
 def test_scene_graph_poses_them_from_the_time():
     builder = DiagramBuilder()
     scene_graph = builder.AddSystem(SceneGraph())
-    path = make_path(GroundVehicleConfig().path_config())
-    distractors = draw_distractors(CONFIG, 0.5, 0)
-    traffic = builder.AddSystem(Traffic(scene_graph, path, distractors))
+    vehicle = GroundVehicleConfig()
+    path = make_path(vehicle.path_config())
+    distractors = draw_distractors(CONFIG, 0)
+    traffic = builder.AddSystem(Traffic(scene_graph, path, vehicle, distractors))
     builder.Connect(traffic.get_output_port(), scene_graph.get_source_pose_port(traffic.source_id))
     diagram = builder.Build()
     context = diagram.CreateDefaultContext()
@@ -57,7 +60,30 @@ def test_scene_graph_poses_them_from_the_time():
     inspector = query.inspector()
     for i, d in enumerate(distractors):
         frame = next(f for f in inspector.GetAllFrameIds() if inspector.GetName(f).endswith(f"distractor_{i}"))
-        assert query.GetPoseInWorld(frame).IsNearlyEqualTo(distractor_pose(path, d, 12.0), 1e-12)
+        assert query.GetPoseInWorld(frame).IsNearlyEqualTo(distractor_pose(path, vehicle, d, 12.0), 1e-12)
+
+
+def test_under_a_speed_schedule_they_keep_their_factor_of_the_ugvs_speed():
+    """Each distractor drives its factor times the UGV's distance; they had moved at vehicle.speed (0.5 m/s)
+    times it while the schedule drove the UGV at 2 m/s."""
+    _, config = load_scenario("gv-landing", overrides=[
+        "distractors.count=3", "vehicle.speed_schedule_times_s=[0, 2, 4]", "vehicle.speed_schedule_m_s=[1, 3, 2]"])
+    diagram, handles = build_gv_landing(config)
+    context = diagram.CreateDefaultContext()
+    handles.initialize(context)
+    traffic, path = diagram.GetSubsystemByName("traffic"), handles.vehicle.path
+
+    def arc_lengths(time_s):  # each distractor's place along the (straight) path
+        context.SetTime(time_s)
+        poses = traffic.get_output_port().Eval(traffic.GetMyContextFromRoot(context))
+        return np.array([path.nearest(poses.value(frame).translation()[:2]) for frame in traffic._frames])
+
+    ugv = 2.0 * 2 + 2.5 * 2 + 2.0 * 2  # m: 1 -> 3 m/s over 0-2 s, 3 -> 2 m/s over 2-4 s, held at 2 m/s to 6 s
+    ratios = (arc_lengths(6.0) - arc_lengths(0.0)) / ugv
+    assert np.all((0.6 <= ratios) & (ratios <= 1.4))  # distractors.speed_factor_range
+    assert config.vehicle.distance_driven_m(6.0) == pytest.approx(ugv)
+    np.testing.assert_allclose(ratios, [d.speed_factor for d in draw_distractors(config.distractors, config.seed)],
+                               atol=1e-9)
 
 
 @pytest.mark.parametrize("setting, field", [("distractors.count=17", "distractors.count"),

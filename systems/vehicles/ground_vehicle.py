@@ -89,6 +89,30 @@ class GroundVehicleConfig:
             times, speeds = np.r_[times, times + 1.0], np.r_[speeds, speeds]
         return PiecewisePolynomial.FirstOrderHold(times, speeds.reshape(1, -1))
 
+    def distance_driven_m(self, time_s: float, scale: float = 1.0) -> float:
+        """Arc length [m] driven from t = 0 to `time_s` [s] at `scale` times the vehicle's speed (a distractor's
+        factor, systems/vehicles/traffic.py): speed * scale * time_s (in that order: the distractors' poses as
+        they were), or scale times the schedule's integral, linear between its points and held before the first
+        and after the last, as speed_profile's TrajectorySource gives it."""
+        if not self.speed_schedule_times_s:
+            return self.speed * scale * time_s
+        times = np.asarray(self.speed_schedule_times_s, dtype=float)
+        grid = np.r_[0.0, times[(times > 0.0) & (times < time_s)], time_s]
+        return scale * float(np.trapezoid(np.interp(grid, times, self.speed_schedule_m_s), grid))
+
+    def speed_label(self) -> str:
+        """The speed as a plot's title says it: "0.5 m/s", or the schedule's range, "0-2 m/s scheduled"."""
+        if not self.speed_schedule_m_s:
+            return f"{self.speed:g} m/s"
+        return f"{min(self.speed_schedule_m_s):g}-{max(self.speed_schedule_m_s):g} m/s scheduled"
+
+    def speed_metrics(self) -> dict:
+        """metrics.json's speed of the vehicle: `speed_m_s`, or the schedule that replaces it."""
+        if not self.speed_schedule_times_s:
+            return {"speed_m_s": self.speed}
+        return {"speed_schedule_times_s": list(self.speed_schedule_times_s),
+                "speed_schedule_m_s": list(self.speed_schedule_m_s)}
+
     def validate(self, prefix: str = "vehicle") -> None:
         require(self.speed >= 0, f"{prefix}.speed must not be negative, got {self.speed}")
         require_positive(self.wheelbase_m, f"{prefix}.wheelbase_m")

@@ -2,9 +2,10 @@
 tracker must keep the UGV among vehicles that look like it). Ours: their shapes, colours and motion.
 
 Each distractor is a box on wheels' height (the detector's training distractors, diagrams/ugv_detection_scenes.py)
-that drives the UGV's own path in a lane beside it: at time t it is at arc length s0 + v t of the path, offset
-`lane` metres to the path's left (negative: right), facing along it. s0 (ahead of the UGV's start), v (the UGV's
-speed times a factor) and the lane are drawn per distractor from the scenario's seed; the first `same_colour`
+that drives the UGV's own path in a lane beside it: at time t it is at arc length s0 + f D(t) of the path, D(t)
+the UGV's distance driven (its speed times t, or its speed schedule's integral), offset `lane` metres to the path's
+left (negative: right), facing along it. s0 (ahead of the UGV's start), the speed factor f and the lane are drawn
+per distractor from the scenario's seed; the first `same_colour`
 wear the UGV's body colour, the rest the other colours in turn. Poses come from the time alone (no state, no
 event): SceneGraph reads them when a camera renders. Frames: W z up; D at the box's footprint centre, x along
 its length.
@@ -21,6 +22,7 @@ from pydrake.systems.framework import LeafSystem
 from systems.config import require, require_non_negative, require_positive
 from systems.geometry import register_visual
 from systems.noise import sample_rng
+from systems.vehicles.ground_vehicle import GroundVehicleConfig
 from systems.vehicles.ground_vehicle_geometry import BODY_RGB
 from systems.vehicles.paths import Path
 
@@ -46,7 +48,7 @@ class DistractorsConfig:
     lane_min_m: float = 2.5  # |lateral offset| from the UGV's path, drawn uniform in [min, max], either side
     lane_max_m: float = 8.0
     ahead_max_m: float = 15.0  # s0 uniform in [0, ahead_max_m] of the path
-    speed_factor_range: list[float] = field(default_factory=lambda: [0.6, 1.4])  # of the UGV's speed
+    speed_factor_range: list[float] = field(default_factory=lambda: [0.6, 1.4])  # of the UGV's speed (schedule)
     # Box sizes [m] (length, width, height), drawn per distractor: the detector's training distractors' range.
     size_low_m: list[float] = field(default_factory=lambda: list(DISTRACTOR_SIZE_LOW_M))
     size_high_m: list[float] = field(default_factory=lambda: list(DISTRACTOR_SIZE_HIGH_M))
@@ -70,17 +72,17 @@ class DistractorsConfig:
 @dataclass(frozen=True)
 class Distractor:
     """One distractor's draw: colour name and RGB, size [m] (length, width, height), start arc length s0 [m],
-    speed [m/s] and lane [m, + left of the path]."""
+    speed factor (its speed over the UGV's, at every moment) and lane [m, + left of the path]."""
 
     colour: str
     rgb: tuple
     size_m: tuple
     s0_m: float
-    speed_m_s: float
+    speed_factor: float
     lane_m: float
 
 
-def draw_distractors(config: DistractorsConfig, ugv_speed_m_s: float, seed: int) -> list[Distractor]:
+def draw_distractors(config: DistractorsConfig, seed: int) -> list[Distractor]:
     """The seeded draws (module docstring): one stream per distractor, so adding one keeps the others."""
     others = [name for name in DISTRACTOR_COLOURS if name != "ugv"]
     out = []
@@ -90,13 +92,14 @@ def draw_distractors(config: DistractorsConfig, ugv_speed_m_s: float, seed: int)
         size = tuple(float(v) for v in rng.uniform(config.size_low_m, config.size_high_m))
         lane = float(rng.uniform(config.lane_min_m, config.lane_max_m) * rng.choice([-1.0, 1.0]))
         out.append(Distractor(colour, DISTRACTOR_COLOURS[colour], size, float(rng.uniform(0.0, config.ahead_max_m)),
-                              float(ugv_speed_m_s * rng.uniform(*config.speed_factor_range)), lane))
+                              float(rng.uniform(*config.speed_factor_range)), lane))
     return out
 
 
-def distractor_pose(path: Path, d: Distractor, time: float) -> RigidTransform:
-    """X_WD at `time` [s]: on the path at s0 + v t, `lane` to its left, facing along it."""
-    s = d.s0_m + d.speed_m_s * time
+def distractor_pose(path: Path, vehicle: GroundVehicleConfig, d: Distractor, time: float) -> RigidTransform:
+    """X_WD at `time` [s]: on the path at s0 + the speed factor times the UGV's (`vehicle`'s) distance driven,
+    `lane` to its left, facing along it."""
+    s = d.s0_m + vehicle.distance_driven_m(time, d.speed_factor)
     heading = path.heading(s)
     left = np.array([-np.sin(heading), np.cos(heading)])
     return RigidTransform(RotationMatrix.MakeZRotation(heading), [*(path.position(s) + d.lane_m * left), 0.0])
@@ -115,12 +118,14 @@ def register_box(scene_graph: SceneGraph, source_id, name: str, size_m, rgb) -> 
 
 class Traffic(LeafSystem):
     """Registers the distractors' boxes with SceneGraph (source `traffic`) and poses them from the context's
-    time: output `geometry_pose` (FramePoseVector), for scene_graph.get_source_pose_port(source_id)."""
+    time and the UGV's (`vehicle`'s) speed or schedule: output `geometry_pose` (FramePoseVector), for
+    scene_graph.get_source_pose_port(source_id)."""
 
-    def __init__(self, scene_graph: SceneGraph, path: Path, distractors: list[Distractor]):
+    def __init__(self, scene_graph: SceneGraph, path: Path, vehicle: GroundVehicleConfig,
+                 distractors: list[Distractor]):
         super().__init__()
         self.source_id = scene_graph.RegisterSource("traffic")
-        self._path, self._distractors = path, distractors
+        self._path, self._vehicle, self._distractors = path, vehicle, distractors
         self._frames = [register_box(scene_graph, self.source_id, f"distractor_{i}", d.size_m, d.rgb)
                         for i, d in enumerate(distractors)]
         self.DeclareAbstractOutputPort("geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc)
@@ -129,4 +134,4 @@ class Traffic(LeafSystem):
         poses = output.get_mutable_value()
         poses.clear()
         for frame, d in zip(self._frames, self._distractors):
-            poses.set_value(frame, distractor_pose(self._path, d, context.get_time()))
+            poses.set_value(frame, distractor_pose(self._path, self._vehicle, d, context.get_time()))
