@@ -2,10 +2,13 @@
 errors as ConfigError."""
 
 import dataclasses
+import re
+from pathlib import Path
 
 import pytest
 import yaml
 
+from diagrams.gv_landing_config import GvLandingConfig
 from diagrams.runner import load_scenario
 from diagrams.scenario import (
     SCENARIO_DIR,
@@ -189,6 +192,19 @@ def test_an_integration_scheme_these_diagrams_cannot_run_is_refused(name):
     with pytest.raises(ConfigError, match=r"integration\.scheme 'cenic' is not one of .*runge_kutta5"):
         load_scenario(name, overrides=["integration.scheme=cenic"])
     load_scenario(name, overrides=["integration.scheme=radau3"])
+
+
+def test_every_gv_section_has_a_row_in_the_docs_table():
+    """docs/scenarios.md's gv field table (the one with the `vehicle` row) names every section of GvLandingConfig;
+    `distractors`, `bridge` and `hybrid` had none."""
+    doc = (Path(__file__).parent.parent / "docs" / "scenarios.md").read_text()
+    row = doc.index("| `vehicle` |")
+    table = doc[doc.rindex("\n\n", 0, row):doc.index("\n\n", row)]
+    rows = set(re.findall(r"^\| `([a-z_]+)` \|", table, re.M))
+    sections = {f.name for f in dataclasses.fields(GvLandingConfig)
+                if f.default_factory is not dataclasses.MISSING and dataclasses.is_dataclass(f.default_factory())}
+    assert {"vehicle", "distractors", "bridge", "hybrid"} <= sections
+    assert sections - rows == set()
 
 
 def test_unknown_scenario_lists_the_known_ones():
