@@ -141,23 +141,29 @@ def add_ground(scene_graph: SceneGraph, lo: np.ndarray, hi: np.ndarray) -> None:
                     RigidTransform([*(lo + hi) / 2, -0.05]), Box(*(hi - lo), 0.1), "ground", (0.8, 0.82, 0.76, 1.0))
 
 
-def add_ground_and_path(scene_graph: SceneGraph, vehicle: GroundVehicleConfig, meshcat: Meshcat | None) -> None:
-    """A ground plane under the path; the path drawn in Meshcat."""
-    add_ground(scene_graph, *vehicle.ground_extent())
+def add_ground_and_path(scene_graph: SceneGraph, vehicle: GroundVehicleConfig, meshcat: Meshcat | None,
+                        duration_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A ground plane under the path, as far as the vehicle drives in `duration_s` [s]
+    (GroundVehicleConfig.ground_extent); the path drawn in Meshcat as far. Returns the ground's (lower, upper)
+    World x, y [m]."""
+    ground_xy = vehicle.ground_extent(duration_s)
+    add_ground(scene_graph, *ground_xy)
     if meshcat is not None:
-        xy = make_path(vehicle.path_config()).polyline()
+        xy = make_path(vehicle.path_config()).polyline(vehicle.ground_length_m(duration_s))
         meshcat.SetLine("gv_landing/path", np.vstack([xy.T, np.full(len(xy), 0.02)]), 3.0, Rgba(1.0, 0.85, 0.1, 1.0))
         meshcat.SetProperty("/Grid", "visible", False)  # the ground plane is the floor
         # Looking at the start of the path from behind and above the UAV's start.
         meshcat.SetCameraPose(np.array([-14.0, -18.0, 12.0]), np.array([6.0, 2.0, 2.0]))
+    return ground_xy
 
 
 def build_gv_landing(config: GvLandingConfig, meshcat: Meshcat | None = None,
-                     video_path=None) -> tuple[Diagram, GvLandingHandles]:
+                     video_path=None, duration_s: float = 0.0) -> tuple[Diagram, GvLandingHandles]:
     """Builds the diagram; returns it with the handles of its systems. Simulate it with
-    `initialize=handles.initialize` (diagrams/simulate.py). `video_path`: record the camera."""
+    `initialize=handles.initialize` (diagrams/simulate.py). `video_path`: record the camera. `duration_s`: the
+    run's length [s], which the ground covers (add_ground_and_path; 0: the first 400 m of an open path)."""
     builder = DiagramBuilder()
-    handles = add_gv_landing(builder, config, meshcat, video_path)
+    handles = add_gv_landing(builder, config, meshcat, video_path, duration_s)
     diagram = builder.Build()
     diagram.set_name("gv_landing")
     return diagram, handles
@@ -228,8 +234,8 @@ def _add_measurements(builder: DiagramBuilder, config: GvLandingConfig, scene_gr
 
 
 def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Meshcat | None = None,
-                   video_path=None) -> GvLandingHandles:
-    """Adds the gv systems to `builder`; returns their handles."""
+                   video_path=None, duration_s: float = 0.0) -> GvLandingHandles:
+    """Adds the gv systems to `builder`; returns their handles (`duration_s`: build_gv_landing's)."""
     config.validate()
     if video_path is not None and not config.has_video:
         raise ConfigError("a video records the camera, and this scene has none (estimation.source detector, "
@@ -268,7 +274,7 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
 
     # Scene geometry: drawn by Meshcat, rendered by the camera (free when neither is there).
     scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
-    add_ground_and_path(scene_graph, config.vehicle, meshcat)
+    ground_xy = add_ground_and_path(scene_graph, config.vehicle, meshcat, duration_s)
     airframe = builder.AddNamedSystem("airframe", AirframeGeometry(config.uav, scene_graph))
     builder.Connect(X_WB, airframe.get_input_port())
     builder.Connect(airframe.GetOutputPort("geometry_pose"), scene_graph.get_source_pose_port(airframe.source_id))
@@ -298,7 +304,7 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
         builder, PerceptionInputs(config, nav_X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"), quad_state,
                                   vehicle_state, truth.get_output_port(), measurements.delayed,
                                   measurements.color_image, filters, scene_graph, airframe.body_frame_id,
-                                  video_path if measurements.video is None else None))
+                                  video_path if measurements.video is None else None, ground_xy))
     rendezvous = None
     if config.rendezvous.source == "broadcast":  # the vehicle's navigation by radio: a coarse target
         broadcast = builder.AddNamedSystem("vehicle_broadcast", VehicleBroadcast(config.rendezvous, config.seed))

@@ -156,7 +156,7 @@ def flight_metrics(flight: Flight, config: GvLandingConfig, name: str = "gv-land
 
 def fly(config: GvLandingConfig, duration_s: float, **options) -> tuple[dict, Flight]:
     """Builds, simulates and measures one flight without Meshcat or files: (metrics, flight)."""
-    diagram, handles = build_gv_landing(config)
+    diagram, handles = build_gv_landing(config, duration_s=duration_s)
     flight = fly_diagram(diagram, handles, duration_s, **options)
     return flight_metrics(flight, config), flight
 
@@ -236,7 +236,7 @@ def run_flight(scenario: GvLandingConfig, ctx, duration_s: float, landing: bool 
         raise ConfigError(f"--video records the camera, and {ctx.name} has none "
                           f"(--set estimation.source=detector renders it)")
     video_path = ctx.out_dir / "camera.mp4" if ctx.options.video else None
-    diagram, handles = build_gv_landing(scenario, ctx.meshcat, video_path)
+    diagram, handles = build_gv_landing(scenario, ctx.meshcat, video_path, duration_s)
     flight = fly_diagram(diagram, handles, duration_s, realtime=ctx.options.meshcat, progress=ctx.options.progress,
                          record=ctx.options.record)
     metrics = flight_metrics(flight, scenario, ctx.name, landing)

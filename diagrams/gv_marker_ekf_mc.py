@@ -60,7 +60,7 @@ def sampled(scenario):
 
     if batch_applies(scenario):
         return batch_run(scenario, scenario.run_length_s)
-    diagram, handles = build_gv_landing(scenario)
+    diagram, handles = build_gv_landing(scenario, duration_s=scenario.run_length_s)
     return fly_diagram(diagram, handles, scenario.run_length_s).sampled
 
 

@@ -52,6 +52,7 @@ class PerceptionInputs:
     scene_graph: SceneGraph | None = None
     body_frame_id: object = None
     video_path: Path | None = None  # --video: where a source that records its own stream writes it
+    ground_xy: tuple | None = None  # the plain ground's (lower, upper) World x, y [m]; None: the origin's alone
 
 
 @dataclass
@@ -137,7 +138,7 @@ def _hybrid(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
     hybrid = add_hybrid_perception(builder, config.hybrid, inputs.scene_graph, inputs.body_frame_id,
                                    float(config.platform.p_VP[2]), config.seed, inputs.X_WB,
                                    config.platform.markers if config.platform.pattern == "markers" else None,
-                                   inputs.video_path, config.vehicle.ground_extent())
+                                   inputs.video_path, inputs.ground_xy)
     ports = add_estimate_to_seam(builder, inputs, hybrid.estimator.GetOutputPort("X_WP_estimate"), hybrid.v_WP)
     ports.video = hybrid.video
     period = config.hybrid.fisheye.period_s

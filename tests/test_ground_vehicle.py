@@ -227,6 +227,20 @@ def test_distance_driven_is_the_simulated_vehicles(times, speeds):
     assert config.distance_driven_m(12.0, 0.5) == pytest.approx(expected / 2, rel=1e-12)
 
 
+def test_the_ground_covers_what_the_vehicle_drives_in_the_run():
+    """gv-marker-ekf drives 500 m of the sine path (to x 441 m); the ground had covered its first 400 m (x 380 m)."""
+    config = GroundVehicleConfig(path="sine", speed=6.0)
+    path = make_path(config.path_config())
+    lower, upper = config.ground_extent(duration_s=500.0 / 6.0)
+    end = path.position(500.0)
+    assert np.all(lower + 25.0 <= end) and np.all(end <= upper - 24.0)
+    # Within 400 m the ground is as it was: 120 s at 0.5 m/s, or no run length given.
+    for short in (GroundVehicleConfig(), GroundVehicleConfig(path="sine", speed=3.0)):
+        np.testing.assert_array_equal(short.ground_extent(duration_s=120.0), short.ground_extent())
+        xy = make_path(short.path_config()).polyline(400.0)
+        np.testing.assert_array_equal(short.ground_extent()[1], xy.max(axis=0) + 25.0)
+
+
 def test_ground_pose():
     X_WV = ground_pose([3.0, -4.0, np.pi / 2, 0.1])
     np.testing.assert_allclose(X_WV.translation(), [3.0, -4.0, 0.0])

@@ -187,6 +187,18 @@ def test_metrics_report_the_speed_the_vehicle_drives(overrides, reported):
     json.dumps(metrics)
 
 
+def test_the_run_lays_the_ground_under_all_it_drives():
+    """A run's build covers its length: gv-marker-ekf's 500 m of the sine path, not the first 400 m only."""
+    _, scenario = load_scenario("gv-marker-ekf")
+    diagram, handles = build_gv_landing(scenario, duration_s=scenario.run_length_s)
+    scene_graph = diagram.GetSubsystemByName("scene_graph")
+    inspector = scene_graph.model_inspector()
+    ground = next(g for g in inspector.GetAllGeometryIds() if inspector.GetName(g).endswith("ground"))
+    centre, size = inspector.GetPoseInFrame(ground).translation(), inspector.GetShape(ground).size()
+    end = handles.vehicle.path.position(500.0)  # x 441 m
+    assert np.all(np.abs(end - centre[:2]) <= size[:2] / 2 - 20.0)
+
+
 def _positions(overrides, duration_s):
     _, scenario = load_scenario("gv-landing", overrides=overrides)
     diagram, handles = build_gv_landing(scenario)

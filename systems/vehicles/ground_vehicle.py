@@ -35,6 +35,9 @@ from systems.vehicles.integration import discretise, set_vehicle_state
 from systems.vehicles.paths import Path, PathConfig, make_path
 
 STATE_SIZE = 4  # [x, y, alpha, theta]
+# The ground under an open path covers at least its first 400 m (Path.polyline's default; every scene before the
+# run's length counted), more where the vehicle drives further in the run.
+GROUND_MIN_LENGTH_M = 400.0
 
 
 @dataclass
@@ -74,9 +77,15 @@ class GroundVehicleConfig:
         return PathConfig(name=self.path, length_m=self.path_length_m, radius_m=self.path_radius_m,
                           lead_m=self.path_lead_m, side_m=self.path_side_m)
 
-    def ground_extent(self, margin_m: float = 25.0) -> tuple[np.ndarray, np.ndarray]:
-        """(lower, upper) World x, y [m] of the path, widened by margin_m: the ground to lay under it."""
-        xy = make_path(self.path_config()).polyline()
+    def ground_length_m(self, duration_s: float = 0.0) -> float:
+        """How much of an open path [m] the ground covers: GROUND_MIN_LENGTH_M, or what the vehicle drives in a
+        run of `duration_s` [s] where that is more."""
+        return max(GROUND_MIN_LENGTH_M, self.distance_driven_m(duration_s))
+
+    def ground_extent(self, duration_s: float = 0.0, margin_m: float = 25.0) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) World x, y [m] of the path, widened by margin_m: the ground to lay under it. All of a
+        closed path; of an open one, ground_length_m(duration_s)."""
+        xy = make_path(self.path_config()).polyline(self.ground_length_m(duration_s))
         return xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
 
     def speed_profile(self) -> PiecewisePolynomial | None:
