@@ -29,9 +29,9 @@ Ours, where the paper is silent:
   below LH blind, as its target floods the fisheye; the supervisor here stops a landing on an invalid
   estimate. The seam's v_WP (`v_WP` output) is that observer's, else (past its window) the coasting
   estimate's velocity, else zero: never NaN.
-- In the landing zone a fix of the pad from the stereo pair's left eye (its markers, stereo_pad.py), where
-  there is one, measures instead of the box, ungated: the box's centre marks the pad poorly at close range,
-  and below `box_min_height_m` the box does not measure at all.
+- A fix of the pad from the stereo pair's left eye (its markers, stereo_pad.py, searched up to its
+  `max_height_m`, 3 m over the pad's plane), where there is one, measures instead of the box, ungated: the box's
+  centre marks the pad poorly at close range, and below `box_min_height_m` the box does not measure at all.
 - Rays more oblique than `min_ray_down` do not measure in the final landing, nor more oblique than
   `approach_min_ray_down` above it; a measurement's reported std grows with the ray's obliquity.
 - Invalid is PoseEstimate's valid False; `v_WP_observed` is NaN while the observer is not valid.
@@ -179,7 +179,7 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
                 pad_fix: np.ndarray | None = None) -> HybridPadState:
     """One frame (pure). camera_height_m: the fisheye's height above the ground from the stereo altitude
     (`camera_height`), used where `altitude_valid`. pad_fix: the stereo eye's p_WP (stereo_pad.py) or
-    None/NaN; in the landing zone it measures instead of the box, ungated."""
+    None/NaN; where given, it measures instead of the box, ungated."""
     p_WC = X_WB.multiply(fisheye.X_BC).translation()
     z_WC = p_WC[2]
     anchor, h, source = state.anchor, math.nan, 0
@@ -192,7 +192,7 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
     # take-off up to IH (ugv-hybrid, circle, 0.2 m/s, seed 1: the gate refused every ray for 4 s, 2.9 m off).
     landing = z_WC - z_pad <= config.landing_zone_m
     p, scale, fixed = None, 1.0, False
-    if landing and pad_fix is not None and np.all(np.isfinite(pad_fix)):
+    if pad_fix is not None and np.all(np.isfinite(pad_fix)):
         p, fixed = np.array([pad_fix[0], pad_fix[1], z_pad]), True
     elif box_valid and source and z_WC - z_pad >= config.box_min_height_m:
         p = pad_from_box(box, h, X_WB, fisheye, z_pad,
@@ -250,8 +250,8 @@ class HybridPadEstimator(LeafSystem):
     optional `target_lock` (2: LockedTrackVector's [id, matched]; connected, a frame measures only when the
     locked track was matched with a detection in it: the tracker's image-space prediction knows nothing of
     the UAV's own motion, and a coasting box drifts off the UGV as the UAV moves), optional `pad_fix` (3, m:
-    the stereo eye's p_WP, NaN without one, systems/perception/stereo_pad.py; connected, it measures in the
-    landing zone),
+    the stereo eye's p_WP, NaN without one, systems/perception/stereo_pad.py; connected, it measures where it
+    has one),
     `altitude` (1, m: the stereo filter's depth along the left eye's axis, the eye at `X_BL` on the body;
     `camera_height` makes it the fisheye's height), `altitude_valid` (1), `X_WB` (RigidTransform: the UAV's
     navigation). Outputs: `X_WP_estimate` (PoseEstimate, frames "W"/"P"),

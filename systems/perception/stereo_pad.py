@@ -33,7 +33,7 @@ class StereoPadConfig:
     enabled: bool = True  # the builder adds the finder only when enabled (diagrams/hybrid_perception.py)
     height_tolerance_m: float = 0.15  # a fix further from the pad's plane is a wrong detection, not used
     # Searched only with the eye at most this high over the pad's plane (the UAV's navigation): the estimator
-    # uses the fix in its 2 m landing zone, and ArUco over the whole 752 x 480 eye costs milliseconds a frame.
+    # uses every fix it gets (hybrid_pad.py), and ArUco over the whole 752 x 480 eye costs milliseconds a frame.
     max_height_m: float = 3.0
     # ArUco's adaptive threshold window (px, odd): one pass where OpenCV's default makes three (3, 13, 23 px;
     # 0 here). On rendered views from 3 m down to 0.26 m it finds the same markers, the fix within 1 mm of
