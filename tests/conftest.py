@@ -28,6 +28,14 @@ def pytest_collection_modifyitems(items):
             item.add_marker(pytest.mark.slow)
 
 
+@pytest.fixture(autouse=True)
+def _close_figures():
+    """Closes the matplotlib figures a test leaves open (those that capture save_figure keep theirs)."""
+    yield
+    if "matplotlib.pyplot" in sys.modules:
+        sys.modules["matplotlib.pyplot"].close("all")
+
+
 def landing_sim_command() -> list[str]:
     """The installed `landing-sim` command, or the module when the console script is missing."""
     script = Path(sys.executable).with_name("landing-sim")
