@@ -62,7 +62,7 @@ def plot_run(config, run: SampledRun, errors: dict[str, FilterErrors], out_dir) 
     """path.png, heading.png and marker_errors.png of one run (config: the gv scenario), each filter's
     estimates where it flags them valid (`errors`' valid), as its metrics score them."""
     truth = pad_truth(run.quadrotor_state, run.vehicle_state, config.platform)
-    title = f"{config.vehicle.speed:g} m/s"
+    title = config.vehicle.speed_label()
     reference = make_path(config.vehicle.path_config()).polyline(max_length_m=1e9)
     estimates = {n: valid_only(e, errors[n].valid) for n, e in run.estimates.items()}
     fig, ax = plt.subplots(figsize=(9, 6))

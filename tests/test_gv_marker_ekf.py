@@ -5,6 +5,7 @@ accuracy, the detector source measures the markers the camera renders in the sce
 track the pad on it, Meshcat records the flight and the estimates, the campaign gives identical
 summaries with 1 and 2 workers, and bad settings are one-line errors."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -384,3 +385,10 @@ def test_run_plots_leave_out_the_estimates_the_filters_flag(monkeypatch, tmp_pat
                  "marker 0": np.asarray(figures["marker_errors.png"].axes[i].lines[0].get_ydata(), dtype=float)}
         for what, y in drawn.items():
             assert np.all(np.isnan(y[flagged])) and np.all(np.isfinite(y[e.valid])), (name, what)
+    # The titles give the speed the vehicle drove: under a schedule its range (before: vehicle.speed, 6 m/s).
+    scheduled = dataclasses.replace(s, vehicle=dataclasses.replace(s.vehicle, speed_schedule_times_s=[0.0, 5.0],
+                                                                   speed_schedule_m_s=[0.0, 12.0]))
+    marker_plots.plot_run(scheduled, run, errors, tmp_path)
+    for name in ("path.png", "heading.png", "marker_errors.png"):
+        title = figures[name].axes[0].get_title()
+        assert "0-12 m/s scheduled" in title and "6 m/s" not in title, (name, title)
