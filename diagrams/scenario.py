@@ -31,9 +31,13 @@ class _Loader(yaml.SafeLoader):
     def construct_yaml_int(self, node) -> int:
         """A YAML 1.2 core integer: decimal (leading zeros included), 0o octal or 0x hexadecimal."""
         text = self.construct_scalar(node)
-        if text[:2] in ("0o", "0x"):
-            return int(text[2:], 8 if text[1] == "o" else 16)
-        return int(text, 10)
+        try:
+            if text[:2] in ("0o", "0x"):
+                return int(text[2:], 8 if text[1] == "o" else 16)
+            return int(text, 10)
+        except ValueError:  # text tagged !!int by hand, which the resolver would have left as text
+            raise yaml.constructor.ConstructorError(None, None, f"{text!r} is not a YAML 1.2 integer",
+                                                    node.start_mark) from None
 
 
 _NUMBER_TAGS = ("tag:yaml.org,2002:int", "tag:yaml.org,2002:float")

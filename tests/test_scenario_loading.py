@@ -262,6 +262,8 @@ def test_integers_are_read_as_yaml_1_2_reads_them():
         -7, 15, "1:30", "1:30.0", "0b11", "1_000"]
     with pytest.raises(ConfigError, match=r"^camera\.rate_hz must be a number, got '1:30'$"):
         load_scenario("stewart-dynamic", overrides=["camera.rate_hz=1:30"])
+    with pytest.raises(ConfigError, match=r"^--set seed: cannot parse the value '!!int 0b11'$"):  # tagged by hand
+        load_scenario("stewart-dynamic", overrides=["seed=!!int 0b11"])
 
 
 def test_a_scenario_starts_from_its_base_and_replaces_what_it_sets(tmp_path):
