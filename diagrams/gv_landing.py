@@ -142,14 +142,15 @@ def add_ground(scene_graph: SceneGraph, lo: np.ndarray, hi: np.ndarray) -> None:
 
 
 def add_ground_and_path(scene_graph: SceneGraph, vehicle: GroundVehicleConfig, meshcat: Meshcat | None,
-                        duration_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """A ground plane under the path, as far as the vehicle drives in `duration_s` [s]
-    (GroundVehicleConfig.ground_extent); the path drawn in Meshcat as far. Returns the ground's (lower, upper)
-    World x, y [m]."""
-    ground_xy = vehicle.ground_extent(duration_s)
+                        duration_s: float = 0.0,
+                        lead: tuple[float, float] = (1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """A ground plane under the path, as far as the vehicle (and what drives ahead of it, `lead`) gets in
+    `duration_s` [s] (GroundVehicleConfig.ground_extent); the path drawn in Meshcat as far. Returns the ground's
+    (lower, upper) World x, y [m]."""
+    ground_xy = vehicle.ground_extent(duration_s, lead=lead)
     add_ground(scene_graph, *ground_xy)
     if meshcat is not None:
-        xy = make_path(vehicle.path_config()).polyline(vehicle.ground_length_m(duration_s))
+        xy = make_path(vehicle.path_config()).polyline(vehicle.ground_length_m(duration_s, lead))
         meshcat.SetLine("gv_landing/path", np.vstack([xy.T, np.full(len(xy), 0.02)]), 3.0, Rgba(1.0, 0.85, 0.1, 1.0))
         meshcat.SetProperty("/Grid", "visible", False)  # the ground plane is the floor
         # Looking at the start of the path from behind and above the UAV's start.
@@ -274,7 +275,7 @@ def add_gv_landing(builder: DiagramBuilder, config: GvLandingConfig, meshcat: Me
 
     # Scene geometry: drawn by Meshcat, rendered by the camera (free when neither is there).
     scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
-    ground_xy = add_ground_and_path(scene_graph, config.vehicle, meshcat, duration_s)
+    ground_xy = add_ground_and_path(scene_graph, config.vehicle, meshcat, duration_s, config.distractors.lead())
     airframe = builder.AddNamedSystem("airframe", AirframeGeometry(config.uav, scene_graph))
     builder.Connect(X_WB, airframe.get_input_port())
     builder.Connect(airframe.GetOutputPort("geometry_pose"), scene_graph.get_source_pose_port(airframe.source_id))

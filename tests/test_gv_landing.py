@@ -199,6 +199,19 @@ def test_the_run_lays_the_ground_under_all_it_drives():
     assert np.all(np.abs(end - centre[:2]) <= size[:2] / 2 - 20.0)
 
 
+def test_the_ground_reaches_as_far_as_the_distractors_drive():
+    """Distractors drive up to 15 m ahead of the UGV at up to 1.4 times its speed: the ground covers the furthest
+    (ugv-hybrid, straight, 1.5 m/s, 300 s: the UGV at x 450 m, a distractor up to 645 m; before, 475 m)."""
+    _, scenario = load_scenario("ugv-hybrid", overrides=["vehicle.path=straight", "vehicle.speed=1.5",
+                                                         "distractors.count=4"])
+    diagram, handles = build_gv_landing(scenario, duration_s=300.0)
+    inspector = diagram.GetSubsystemByName("scene_graph").model_inspector()
+    ground = next(g for g in inspector.GetAllGeometryIds() if inspector.GetName(g).endswith("ground"))
+    centre, size = inspector.GetPoseInFrame(ground).translation(), inspector.GetShape(ground).size()
+    furthest = 15.0 + 1.4 * 1.5 * 300.0
+    assert centre[0] + size[0] / 2 >= furthest + 20.0
+
+
 def _positions(overrides, duration_s):
     _, scenario = load_scenario("gv-landing", overrides=overrides)
     diagram, handles = build_gv_landing(scenario)

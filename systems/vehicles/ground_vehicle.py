@@ -77,15 +77,18 @@ class GroundVehicleConfig:
         return PathConfig(name=self.path, length_m=self.path_length_m, radius_m=self.path_radius_m,
                           lead_m=self.path_lead_m, side_m=self.path_side_m)
 
-    def ground_length_m(self, duration_s: float = 0.0) -> float:
-        """How much of an open path [m] the ground covers: GROUND_MIN_LENGTH_M, or what the vehicle drives in a
-        run of `duration_s` [s] where that is more."""
-        return max(GROUND_MIN_LENGTH_M, self.distance_driven_m(duration_s))
+    def ground_length_m(self, duration_s: float = 0.0, lead: tuple[float, float] = (1.0, 0.0)) -> float:
+        """How much of an open path [m] the ground covers: GROUND_MIN_LENGTH_M, or where that is more, as far as
+        anything on the path gets in a run of `duration_s` [s]: `lead` (factor, ahead_m) times the vehicle's
+        distance driven plus ahead_m (the distractors', DistractorsConfig.lead)."""
+        factor, ahead_m = lead
+        return max(GROUND_MIN_LENGTH_M, factor * self.distance_driven_m(duration_s) + ahead_m)
 
-    def ground_extent(self, duration_s: float = 0.0, margin_m: float = 25.0) -> tuple[np.ndarray, np.ndarray]:
+    def ground_extent(self, duration_s: float = 0.0, margin_m: float = 25.0,
+                      lead: tuple[float, float] = (1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
         """(lower, upper) World x, y [m] of the path, widened by margin_m: the ground to lay under it. All of a
-        closed path; of an open one, ground_length_m(duration_s)."""
-        xy = make_path(self.path_config()).polyline(self.ground_length_m(duration_s))
+        closed path; of an open one, ground_length_m(duration_s, lead)."""
+        xy = make_path(self.path_config()).polyline(self.ground_length_m(duration_s, lead))
         return xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
 
     def speed_profile(self) -> PiecewisePolynomial | None:

@@ -53,6 +53,11 @@ class DistractorsConfig:
     size_low_m: list[float] = field(default_factory=lambda: list(DISTRACTOR_SIZE_LOW_M))
     size_high_m: list[float] = field(default_factory=lambda: list(DISTRACTOR_SIZE_HIGH_M))
 
+    def lead(self) -> tuple[float, float]:
+        """(factor, ahead_m): the furthest a distractor gets along the path is ahead_m plus factor times the UGV's
+        distance driven (GroundVehicleConfig.ground_length_m); (1, 0) without distractors."""
+        return (max(1.0, self.speed_factor_range[1]), self.ahead_max_m) if self.count else (1.0, 0.0)
+
     def validate(self, prefix: str = "distractors") -> None:
         require(isinstance(self.count, int) and 0 <= self.count <= MAX_DISTRACTORS,
                 f"{prefix}.count must be an integer in [0, {MAX_DISTRACTORS}], got {self.count}")
