@@ -69,7 +69,8 @@ class HybridPadConfig:
     # of a valid estimate is an outlier (a part of the UGV, or the ground, boxed at close range), not used.
     gate_m: float = 0.5
     gate_growth_m_s: float = 0.3
-    # The long coast and the gate apply only this close over the pad's plane (the final landing: LH is 1.5 m):
+    # The long coast and the gate apply only this close over the pad's plane (the camera's height by the UAV's
+    # navigation; the final landing: LH is 1.5 m):
     # higher, an unmeasured frame coasts only while the observer's velocity is valid, and nothing is gated,
     # since the early, oblique measurements of the climb give velocities of 1-2 m/s off (measured: a 4 s
     # coast on them sent the UAV 5 m away, and the gate then refused the UGV's true position).
