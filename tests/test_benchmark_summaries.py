@@ -2,6 +2,7 @@
 Each feeds a benchmark's own function figures it could have been given and checks what it counts,
 prints and passes."""
 
+import benchmarks.federated as federated
 import benchmarks.vision_landing as vision_landing
 
 
@@ -29,3 +30,64 @@ def test_vision_landing_counts_a_run_that_raised_as_not_landed(monkeypatch, tmp_
     out = capsys.readouterr().out
     assert "| ct_ekf | 9/10 (1 raised) | 9/10 |" in out and "| truth | 10/10 | 10/10 |" in out
     assert result["figures"]["ct_ekf"]["runs"] == 10 and result["figures"]["ct_ekf"]["failed"] == 1
+
+
+class _InlinePool:
+    """ProcessPoolExecutor's stand-in: maps in this process."""
+
+    def __init__(self, *args, **kwargs):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *args):
+        return False
+
+    def map(self, fn, *iterables):
+        return map(fn, *iterables)
+
+
+def _federated_landing(found: bool) -> dict:
+    """open-landing's metrics for one run: `found` the pattern and landed, or never a valid fused estimate."""
+    height = {"rmse_height_m": 0.02, "rmse_position_m": 0.03, "rmse_orientation_rad": 0.01} if found else {}
+    local = {"rmse_height_m": 0.05} if found else {}
+    overlap = ({"frames": 5, "altitude_band_m": [1.0, 2.0],
+                "rmse_height_m": {"federated": 0.02, **{n: 0.05 for n in federated.LOCALS}}} if found
+               else {"frames": 0, "altitude_band_m": None})
+    est = {n: dict(local) for n in federated.LOCALS}
+    est.update({n: {"altitude_band_m": [1.0, 2.0] if found else None} for n in ("approach", "adjustment", "touchdown")})
+    est["federated"] = {"valid_fraction": 1.0 if found else 0.0, **height, "overlaps": {"overlap_1": overlap}}
+    landing = {"success": found, "touchdown_error_m": 0.01 if found else None,
+               "touchdown_rel_speed_mps": 0.2 if found else None}
+    return {"landing": landing, "estimators": est, "heading_deg": 0.0, "wall_time_s": 1.0, "sim_time_s": 60.0}
+
+
+def test_federated_a_run_never_valid_is_a_dash_and_fails_its_checks(monkeypatch, capsys):
+    monkeypatch.setattr(federated, "ProcessPoolExecutor", _InlinePool)
+    monkeypatch.setattr(federated, "landing", lambda seed, overrides, heading=False: _federated_landing(seed != 1))
+    result = federated.landing_campaign("open-landing", range(0, 3), 1, ())
+    out = capsys.readouterr().out
+    assert "| 1 | 0.0 | False | - | - | 0.0% | - | - / - / - | - m / - rad |" in out
+    assert "| 0 | 0.0 | True | 0.0100 | 0.200 | 100.0% | 0.0200 | 0.0500 / 0.0500 / 0.0500 |" in out
+    assert "median 0.0200, max 0.0200 m, 1 of 3 without one" in out
+    checks = {label: (ok, figure) for label, ok, figure in result["checks"]}
+    assert checks["open-landing: fused height RMSE below every local filter's, every run"] == (False, "2/3")
+    assert checks["open-landing: fused height RMSE < 0.037 m, every run"] == (False, "max 0.0200, 1 of 3 without one")
+    assert checks["open-landing: every run on the pattern, error < 0.10 m, speed < 0.5 m/s"] == (False, "2/3")
+    assert checks["open-landing, Overlap 1: fused height RMSE below every local filter's, every run"] == (False, "2/3")
+    assert not checks["open-landing: valid fused pose >= 99 % of the descent, every run"][0]
+    # The same three runs, all found: every check passes.
+    monkeypatch.setattr(federated, "landing", lambda seed, overrides, heading=False: _federated_landing(True))
+    assert all(ok for _, ok, _ in federated.landing_campaign("open-landing", range(0, 3), 1, ())["checks"])
+
+
+def test_federated_maneuvers_without_a_valid_estimate_fail(monkeypatch, capsys):
+    never = {"valid_fraction": 0.0, "flips": 0, "frames_scored": 0}
+    estimators = {key: dict(never) for key in ("adjustment", "touchdown", *federated.LOCALS, "federated")}
+    monkeypatch.setattr(federated, "maneuvers",
+                        lambda overrides: {"estimators": estimators, "sim_time_s": 60.0, "wall_time_s": 10.0})
+    result = federated.maneuvers_figures("rqrlp-maneuvers", ())
+    assert "| federated | - | - | - | 0.0% |" in capsys.readouterr().out
+    assert [(ok, figure) for _, ok, figure in result["checks"]] == [(False, "-"), (False, "-")]
+
