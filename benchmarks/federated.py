@@ -20,7 +20,8 @@
 4. The camera of Table 1 at 1080p (f 1280 px) against the default 960 x 540 (f 640 px): the render's
    cost and the figures of 1 and 2 (one seed of open-landing, `--hd-runs` for more: reported);
    `--skip-hd` leaves it out.
-Prints PASS/FAIL per target; never a timed assertion in a test.
+Prints PASS/FAIL per target and exits 1 on any FAIL (the reported figures aside); never a timed assertion in a
+test.
 """
 
 import argparse
@@ -283,7 +284,7 @@ def main() -> int:
             print(f"- reported: {label}: {'yes' if ok else 'no'} ({figure})")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1, default=str))
-    return 0
+    return 0 if all(ok for _, ok, _ in checks) else 1
 
 
 if __name__ == "__main__":

@@ -2,6 +2,10 @@
 Each feeds a benchmark's own function figures it could have been given and checks what it counts,
 prints and passes."""
 
+import sys
+
+import pytest
+
 import benchmarks.federated as federated
 import benchmarks.vision_landing as vision_landing
 
@@ -91,3 +95,13 @@ def test_federated_maneuvers_without_a_valid_estimate_fail(monkeypatch, capsys):
     assert "| federated | - | - | - | 0.0% |" in capsys.readouterr().out
     assert [(ok, figure) for _, ok, figure in result["checks"]] == [(False, "-"), (False, "-")]
 
+
+@pytest.mark.parametrize("fusion_ms, code", [(0.5, 0), (2.0, 1)])
+def test_federated_exits_1_on_a_failed_target(monkeypatch, capsys, fusion_ms, code):
+    passed = {"checks": [("a target", True, "figure")]}
+    monkeypatch.setattr(federated, "maneuvers_figures", lambda name, overrides: passed)
+    monkeypatch.setattr(federated, "landing_campaign", lambda *args, **kwargs: passed)
+    monkeypatch.setattr(federated, "frame_costs", lambda *args, **kwargs: {"fusion": fusion_ms})
+    monkeypatch.setattr(sys, "argv", ["federated.py", "--skip-hd", "--runs", "1"])
+    assert federated.main() == code
+    assert ("FAIL: fusion < 1 ms per step" in capsys.readouterr().out) == bool(code)
