@@ -103,11 +103,14 @@ def print_table(rows: list[dict]) -> None:
         at = [r for r in rows if r["speed_m_s"] == speed]
         ok = sum(r["success"] for r in at)
         meets = sum(r["meets_targets"] for r in at)
-        errors = [r["touchdown_error_m"] for r in at if r["success"]]
+        # Over every run that touched down, on the pad or off it (a touchdown off the pad is the worst error).
+        errors = [r["touchdown_error_m"] for r in at if r["touchdown_error_m"] is not None]
+        off_pad = sum(not r["success"] for r in at if r["touchdown_error_m"] is not None)
         tracking = [r["settled_max_abs_xy_m"] for r in at if r["settled_max_abs_xy_m"] is not None]
         print(f"{speed:4g} m/s: landed on the pad {ok}/{len(at)}, within issue 4's targets (< "
               f"{TARGET_TOUCHDOWN_ERROR_M} m, < {TARGET_TOUCHDOWN_REL_SPEED_MPS} m/s) {meets}/{len(at)}"
-              + (f", worst touchdown error {max(errors):.4f} m" if errors else "")
+              + (f", worst touchdown error {max(errors):.4f} m over {len(errors)} touchdowns "
+                 f"({off_pad} off the pad)" if errors else "")
               + (f", worst tracking error before LH {max(tracking):.4f} m" if tracking else ""))
     target = [r for r in rows if r["speed_m_s"] in TARGET_SPEEDS]
     if target:

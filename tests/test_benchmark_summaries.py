@@ -7,6 +7,7 @@ import sys
 import pytest
 
 import benchmarks.federated as federated
+import benchmarks.landing_sweep as landing_sweep
 import benchmarks.vision_landing as vision_landing
 
 
@@ -105,3 +106,20 @@ def test_federated_exits_1_on_a_failed_target(monkeypatch, capsys, fusion_ms, co
     monkeypatch.setattr(sys, "argv", ["federated.py", "--skip-hd", "--runs", "1"])
     assert federated.main() == code
     assert ("FAIL: fusion < 1 ms per step" in capsys.readouterr().out) == bool(code)
+
+
+def _sweep_row(path: str, error: float | None, on_pad: bool) -> dict:
+    return {"path": path, "speed_m_s": 1.5, "success": on_pad, "meets_targets": on_pad and error < 0.1,
+            "touchdown_error_m": error, "touchdown_rel_speed_mps": None if error is None else 0.3,
+            "time_to_land_s": None if error is None else 30.0,
+            "failure": None if on_pad else ("missed_pad" if error is not None else "timeout"),
+            "failure_detail": None, "settled_max_abs_xy_m": 0.005, "turn_radius_m": None}
+
+
+def test_landing_sweep_worst_touchdown_error_counts_a_touchdown_off_the_pad(capsys):
+    rows = ([_sweep_row(f"p{i}", 0.0015, True) for i in range(6)]
+            + [_sweep_row("circle", 0.74, False), _sweep_row("straight", None, False)])
+    landing_sweep.print_table(rows)
+    out = capsys.readouterr().out
+    assert ("1.5 m/s: landed on the pad 6/8, within issue 4's targets (< 0.1 m, < 0.5 m/s) 6/8, worst touchdown "
+            "error 0.7400 m over 7 touchdowns (1 off the pad)") in out
