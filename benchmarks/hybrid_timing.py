@@ -311,7 +311,9 @@ def summarise(times: dict[str, list[float]], record: Recording) -> dict:
     flights = [f.flight for f in record.frames]
     by_flight = {}
     for name, values in times.items():
-        labels = flights if len(values) == len(flights) else [c[3] for c in record.calls.get(name, [])]
+        # A recorded step by the flight of each of its calls (its count may equal the frames' by chance),
+        # a per-frame module by its frame's.
+        labels = [c[3] for c in record.calls[name]] if name in record.calls else flights
         if len(labels) == len(values) and values:
             by_flight[name] = {flight: float(np.median([v for v, fl in zip(values, labels) if fl == flight]))
                                for flight in dict.fromkeys(labels)}
