@@ -7,6 +7,7 @@ import sys
 import pytest
 
 import benchmarks.federated as federated
+import benchmarks.landing_campaign as landing_campaign
 import benchmarks.landing_sweep as landing_sweep
 import benchmarks.vision_landing as vision_landing
 
@@ -123,3 +124,16 @@ def test_landing_sweep_worst_touchdown_error_counts_a_touchdown_off_the_pad(caps
     out = capsys.readouterr().out
     assert ("1.5 m/s: landed on the pad 6/8, within issue 4's targets (< 0.1 m, < 0.5 m/s) 6/8, worst touchdown "
             "error 0.7400 m over 7 touchdowns (1 off the pad)") in out
+
+
+def test_landing_campaign_scaling_rates_are_the_campaigns_own(monkeypatch, tmp_path, capsys):
+    # 20 runs: 40 s of campaign on 1 worker, 20 s on 2 (the summary and plots afterwards not in them).
+    def campaign(group, stream, runs, workers, out, speeds=None, extra=()):
+        wall = 40.0 / workers
+        return {"wall_time_s": wall, "runs_per_s": runs / wall, "runs": {"computed_now": runs}}
+
+    monkeypatch.setattr(landing_campaign, "campaign", campaign)
+    result, checks = landing_campaign.throughput(0, 20, 2, tmp_path)
+    assert result["scaling"]["runs_per_s_1"] == 0.5 and result["scaling"]["runs_per_s_2"] == 1.0
+    assert result["scaling"]["ratio"] == 2.0 and checks == [("scaling from 1 to 2 workers >= 1.7x", True, "2.00")]
+    assert "1 worker 0.500 runs/s, 2 workers 1.000 runs/s, 2.00x" in capsys.readouterr().out
