@@ -24,12 +24,14 @@ CHUNK_S = 0.5  # simulated time between progress-bar updates (and Ctrl-C checks)
 
 @dataclass
 class Simulation:
-    """What `simulate` returns: why it stopped, the simulated and wall times [s], the final context."""
+    """What `simulate` returns: why it stopped, the simulated and wall times [s], the final context, and
+    the calling thread's CPU time over the same span as the wall time [s] (time.thread_time)."""
 
     status: str
     sim_time_s: float
     wall_time_s: float
     context: object
+    thread_cpu_time_s: float
 
     @property
     def realtime_factor(self) -> float | None:
@@ -55,7 +57,7 @@ def simulate(diagram, duration_s: float, *, initialize: Callable | None = None,
         visualizer.StartRecording()
     status = COMPLETED
     gc.freeze()
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.thread_time()
     try:
         simulator.Initialize()
         with tqdm(total=duration_s, unit="sim s", disable=not progress, leave=False,
@@ -73,11 +75,11 @@ def simulate(diagram, duration_s: float, *, initialize: Callable | None = None,
             video.discard()
         raise
     finally:
-        wall = time.perf_counter() - start
+        wall, cpu = time.perf_counter() - start, time.thread_time() - cpu_start
         gc.unfreeze()
     if recording:
         visualizer.StopRecording()
         visualizer.PublishRecording()
     if video is not None:
         video.finish()
-    return Simulation(status, context.get_time(), wall, context)
+    return Simulation(status, context.get_time(), wall, context, cpu)

@@ -1,8 +1,10 @@
-"""The benchmarks' counting and summarising on synthetic inputs: no flight, no render, nothing timed.
-Each feeds a benchmark's own function figures it could have been given and checks what it counts,
-prints and passes."""
+"""The benchmarks' counting and summarising on synthetic inputs (no landing flown, no render; one Integrator
+simulated for diagrams/simulate.py's clocks): each feeds a benchmark's own function figures it could have been
+given and checks what it counts, prints and passes. No assertion on how long anything takes."""
 
 import sys
+import time
+from types import SimpleNamespace
 
 import pytest
 
@@ -137,3 +139,35 @@ def test_landing_campaign_scaling_rates_are_the_campaigns_own(monkeypatch, tmp_p
     assert result["scaling"]["runs_per_s_1"] == 0.5 and result["scaling"]["runs_per_s_2"] == 1.0
     assert result["scaling"]["ratio"] == 2.0 and checks == [("scaling from 1 to 2 workers >= 1.7x", True, "2.00")]
     assert "1 worker 0.500 runs/s, 2 workers 1.000 runs/s, 2.00x" in capsys.readouterr().out
+
+
+def test_simulate_gives_the_thread_cpu_time_of_its_own_span():
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource, Integrator
+
+    from diagrams.simulate import COMPLETED, simulate
+
+    builder = DiagramBuilder()
+    source, integrator = builder.AddSystem(ConstantVectorSource([1.0])), builder.AddSystem(Integrator(1))
+    builder.Connect(source.get_output_port(), integrator.get_input_port())
+    diagram = builder.Build()
+    before = time.thread_time()
+    run = simulate(diagram, 2.0)
+    around = time.thread_time() - before
+    assert run.status == COMPLETED and run.sim_time_s == pytest.approx(2.0)
+    assert 0.0 < run.thread_cpu_time_s <= around  # within the call: its bracket, on this thread's clock
+
+
+def test_landing_sweep_cpu_time_is_the_simulations_not_the_log_collection(monkeypatch):
+    # fly_diagram spends CPU after simulate() (collecting the logs): the figure beside the wall time is
+    # simulate()'s own, the same span.
+    def fly_diagram(diagram, handles, duration_s):
+        sum(i * i for i in range(200_000))  # the logs, after the simulation's clocks stopped
+        simulation = SimpleNamespace(wall_time_s=2.0, thread_cpu_time_s=1.5, sim_time_s=duration_s)
+        return SimpleNamespace(simulation=simulation, status="completed")
+
+    monkeypatch.setattr(landing_sweep, "load", lambda overrides=(): None)
+    monkeypatch.setattr(landing_sweep, "build_gv_landing", lambda scenario: (None, None))
+    monkeypatch.setattr(landing_sweep, "fly_diagram", fly_diagram)
+    timing = landing_sweep.realtime(60.0, repeats=2)
+    assert timing["thread_cpu_time_s"] == 1.5 and timing["wall_time_s"] == 2.0 and timing["realtime_factor"] == 30.0
