@@ -11,6 +11,7 @@ import pytest
 import benchmarks.federated as federated
 import benchmarks.landing_campaign as landing_campaign
 import benchmarks.landing_sweep as landing_sweep
+import benchmarks.marker_ekf_mc as marker_ekf_mc
 import benchmarks.vision_landing as vision_landing
 
 
@@ -171,3 +172,54 @@ def test_landing_sweep_cpu_time_is_the_simulations_not_the_log_collection(monkey
     monkeypatch.setattr(landing_sweep, "fly_diagram", fly_diagram)
     timing = landing_sweep.realtime(60.0, repeats=2)
     assert timing["thread_cpu_time_s"] == 1.5 and timing["wall_time_s"] == 2.0 and timing["realtime_factor"] == 30.0
+
+
+def _marker_summary(ct_runs_at_6: int, none_at_12: bool) -> dict:
+    """gv-marker-ekf's summary, 10 runs asked per speed; `ct_runs_at_6` of them finished at 6 m/s (the rest
+    raised: in no filter's figures), and with `none_at_12` every run at 12 m/s raised."""
+    def figures(position, heading, runs):
+        return {"rms_position_m": position, "rms_heading_deg": heading, "ensemble_mean_position_xy_m": position,
+                "ensemble_mean_heading_deg": heading, "per_frame_ms": 0.1, "runs": runs, "measured_fraction": [1.0]}
+
+    filters = {"paper_ekf": {"3": figures(0.10, 1.0, 10), "6": figures(0.20, 2.0, ct_runs_at_6),
+                             "12": figures(0.30, 3.0, 10)},
+               "ct_ekf": {"3": figures(0.05, 0.5, 10), "6": figures(0.06, 0.6, ct_runs_at_6),
+                          "12": figures(0.07, 0.7, 10)}}
+    cases = {speed: {"requested": 10, "done": 10, "failed": 0} for speed in marker_ekf_mc.SPEEDS}
+    cases["6"] = {"requested": 10, "done": ct_runs_at_6, "failed": 10 - ct_runs_at_6}
+    if none_at_12:
+        for name in filters:
+            del filters[name]["12"]
+        cases["12"] = {"requested": 10, "done": 0, "failed": 10}
+    done = sum(c["done"] for c in cases.values())
+    return {"filters": filters, "cases": cases,
+            "runs": {"requested": 30, "done": done, "failed": 30 - done, "computed_now": 30}}
+
+
+def _marker_main(monkeypatch, summary: dict) -> int:
+    monkeypatch.setattr(marker_ekf_mc, "campaign", lambda *args, **kwargs: (summary, 10.0))
+    monkeypatch.setattr(sys, "argv", ["marker_ekf_mc.py", "--runs", "10", "--scaling-runs", "0",
+                                      "--detector-runs", "0"])
+    return marker_ekf_mc.main()
+
+
+def test_marker_ekf_mc_counts_each_filters_runs(monkeypatch, capsys):
+    assert _marker_main(monkeypatch, _marker_summary(10, False)) == 0
+    capsys.readouterr()
+    # 7 runs at 6 m/s raised: the figures over the 3 left still rank the filters, but not over every run.
+    assert _marker_main(monkeypatch, _marker_summary(3, False)) == 1
+    out = capsys.readouterr().out
+    assert "ct_ekf          6    3/10       0.0600" in out
+    assert ("FAIL  every run at every speed gives both filters' figures: paper_ekf 10/3/10, ct_ekf 10/3/10 of "
+            "10/10/10 at 3/6/12 m/s") in out
+    assert "PASS  ct_ekf position below paper_ekf at every speed" in out
+
+
+def test_marker_ekf_mc_a_speed_without_figures_fails_its_checks(monkeypatch, capsys):
+    assert _marker_main(monkeypatch, _marker_summary(10, True)) == 1
+    out = capsys.readouterr().out
+    assert "ct_ekf         12    0/10            -" in out
+    assert "FAIL  paper_ekf position error grows with speed: 0.1000 < 0.2000 < -" in out
+    assert "FAIL  ct_ekf position at 12 m/s <= 1.5 x at 3 m/s: - vs 0.0500" in out
+    assert ("FAIL  ct_ekf position below paper_ekf at every speed: 3: 0.0500 vs 0.1000, 6: 0.0600 vs 0.2000, "
+            "12: - vs -") in out
