@@ -32,6 +32,13 @@ from systems.perception.stereo_depth import (
 from systems.sensors.camera import image_to_numpy
 
 TABLE_HEIGHTS = (0.7, 1.0, 2.0, 3.0, 5.0, 8.0)
+BANDS = (("0.7-3 m", 0.2), ("3-8 m", 1.0))  # Figure 16's bands and their bounds [m]
+
+
+def sweep_heights(step: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The sweep's heights, 0.7-8 m in `step` [m] steps, and each band's mask of them."""
+    heights = np.round(np.arange(0.7, 8.0 + 1e-9, step), 6)
+    return heights, {"0.7-3 m": heights <= 3.0, "3-8 m": heights > 3.0}
 
 
 def bound(height: float) -> float:
@@ -110,6 +117,11 @@ def main() -> int:
     parser.add_argument("--step", type=float, default=0.1, help="sweep step (m); 0 skips the sweep")
     parser.add_argument("--json", type=Path, help="write the figures here")
     args = parser.parse_args()
+    if args.step > 0:
+        empty = [name for name, band in sweep_heights(args.step)[1].items() if not band.any()]
+        if empty:  # a band without a height has no error to bound: the step must put one in each
+            parser.error(f"--step {args.step:g} m leaves no height of the sweep in {', '.join(empty)} "
+                         "(at most 7.3 m: 0.7 m and one more up to 8 m)")
 
     t0 = time.perf_counter()
     bench = Bench(args.noise)
@@ -146,13 +158,13 @@ def main() -> int:
 
     sweep = {}
     if args.step > 0:
-        heights = np.round(np.arange(0.7, 8.0 + 1e-9, args.step), 6)
+        heights, bands = sweep_heights(args.step)
         results = [bench.altitude(h) for h in heights]
         errors = np.array([a - h if v else np.inf for h, (a, v, _) in zip(heights, results)])
-        for name, band in (("0.7-3 m", heights <= 3.0), ("3-8 m", heights > 3.0)):
+        for name, limit in BANDS:
+            band = bands[name]
             worst = float(np.abs(errors[band]).max())
             rms = float(np.sqrt(np.mean(errors[band] ** 2)))
-            limit = 0.2 if name == "0.7-3 m" else 1.0
             ok &= worst < limit
             sweep[name] = {"max_abs_error_m": worst, "rms_error_m": rms, "heights": int(band.sum())}
             print(f"  sweep {name} ({band.sum()} heights, step {args.step} m): max |error| {worst:.3f} m, "

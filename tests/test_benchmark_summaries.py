@@ -12,6 +12,7 @@ import benchmarks.federated as federated
 import benchmarks.landing_campaign as landing_campaign
 import benchmarks.landing_sweep as landing_sweep
 import benchmarks.marker_ekf_mc as marker_ekf_mc
+import benchmarks.stereo as stereo
 import benchmarks.vision_landing as vision_landing
 
 
@@ -223,3 +224,34 @@ def test_marker_ekf_mc_a_speed_without_figures_fails_its_checks(monkeypatch, cap
     assert "FAIL  ct_ekf position at 12 m/s <= 1.5 x at 3 m/s: - vs 0.0500" in out
     assert ("FAIL  ct_ekf position below paper_ekf at every speed: 3: 0.0500 vs 0.1000, 6: 0.0600 vs 0.2000, "
             "12: - vs -") in out
+
+
+class _StereoBench:
+    """stereo.py's Bench without the renders: every altitude 0.01 m over the truth."""
+
+    def __init__(self, noise: float):
+        self.config = SimpleNamespace(stereo=SimpleNamespace(width=752, height=480, focal_length_px=350.0,
+                                                             baseline_m=0.12))
+        self.estimator = SimpleNamespace(num_disparities=64, crop=(slice(0, 100), slice(0, 100)),
+                                         config=SimpleNamespace(block_size=5, window_rows=100, window_cols=100))
+
+    def altitude(self, height: float):
+        return height + 0.01, True, 1.0
+
+
+@pytest.mark.parametrize("step, code, line", [
+    ("0.1", 0, "sweep 3-8 m (50 heights, step 0.1 m): max |error| 0.010 m"),
+    ("7.3", 0, "sweep 3-8 m (1 heights, step 7.3 m): max |error| 0.010 m"),
+    ("8", 2, "--step 8 m leaves no height of the sweep in 3-8 m")])
+def test_stereo_sweep_a_step_leaving_a_band_empty_is_an_error(monkeypatch, capsys, step, code, line):
+    monkeypatch.setattr(stereo, "Bench", _StereoBench)
+    monkeypatch.setattr(stereo, "costs", lambda bench, frames: dict.fromkeys(
+        ("render_left", "render_right", "noise_left", "noise_right", "sgbm_window_crop", "rest", "sgbm_full_frame"),
+        1.0))
+    monkeypatch.setattr(sys, "argv", ["stereo.py", "--step", step])
+    try:
+        result = stereo.main()
+    except SystemExit as e:  # argparse's error: usage and one line, exit 2
+        result = e.code
+    captured = capsys.readouterr()
+    assert result == code and line in (captured.err if code else captured.out)
