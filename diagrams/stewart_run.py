@@ -34,11 +34,14 @@ def pose_from_vector(v: np.ndarray) -> RigidTransform:
 
 
 def collect_log(handles, context, config: StewartSceneConfig) -> dict[str, np.ndarray]:
-    """The run's logs as arrays, one row per camera frame (IMU: per IMU sample)."""
+    """The run's logs as arrays, one row per camera frame (IMU: per IMU sample, `t_imu` the time it was taken)."""
     log = {name: logger.FindLog(context) for name, logger in handles.loggers.items()}
     arrays = {name: entry.data().T.copy() for name, entry in log.items()}
     arrays["t"] = log["X_CP"].sample_times().copy()
-    arrays["t_imu"] = log["imu"].sample_times().copy()
+    # The IMU's logger reads its held output every IMU period, before that instant's sample is taken: the row
+    # logged at t_k is the sample of t_(k-1), the first the Imu's initial placeholder. Each sample at its own time.
+    arrays["imu"] = arrays["imu"][1:]
+    arrays["t_imu"] = log["imu"].sample_times()[:-1].copy()
     X_CT = [pose_from_vector(v).multiply(handles.platform.X_PT) for v in arrays["X_CP"]]
     arrays["X_CT"] = np.array([pose_vector(X) for X in X_CT])
     arrays["true_tag_corners"] = np.array(

@@ -56,9 +56,9 @@ def test_logs_have_one_row_per_camera_frame(dynamic_run):
     for name in camera_rate_logs + ["true_tag_corners"]:
         assert log[name].shape[0] == 41, name
     assert log["X_CP"].shape[1] == 7 and log["tag_corners"].shape[1] == 8 and log["leg_lengths"].shape[1] == 6
-    # The IMU logs at its own 200 Hz.
-    np.testing.assert_allclose(log["t_imu"], np.arange(401) * 0.005, atol=1e-9)
-    assert log["imu"].shape == (401, 6)
+    # The IMU logs at its own 200 Hz: each sample taken in the 2 s, the one due at 2 s not yet.
+    np.testing.assert_allclose(log["t_imu"], np.arange(400) * 0.005, atol=1e-9)
+    assert log["imu"].shape == (400, 6)
 
 
 def test_the_tag_is_detected_in_every_frame_near_its_true_corners(dynamic_run):
@@ -131,14 +131,15 @@ def test_imu_reads_gravity_while_hovering(dynamic_run):
     scene, _, log = dynamic_run
     c = scene.config.imu
     f_std, w_std = c.accel_sample_std_m_s2, c.gyro_sample_std_rad_s
-    # The first row is the initial state before any sample; the rest are samples.
-    error = log["imu"][1:] - [0.0, 0.0, 9.80665, 0.0, 0.0, 0.0]
+    # Every row is a sample (before: the first was the Imu's initial placeholder, [0, 0, g, 0, 0, 0] without noise).
+    error = log["imu"] - [0.0, 0.0, 9.80665, 0.0, 0.0, 0.0]
     assert np.all(np.abs(error[:, :3]) < 6 * f_std) and np.all(np.abs(error[:, 3:]) < 6 * w_std)
-    # A sample taken at t is seen after t: the row logged at t_imu[k] is the sample of t_imu[k - 1].
+    assert np.all(error[:, 3:] != 0.0)
+    # The row stamped t_imu[k] is the sample taken at t_imu[k] (before: the sample of t_imu[k - 1]).
     context = scene.context()
     imu_context = scene.handles.imu.GetMyContextFromRoot(context)
-    for k in (1, 2, 200, 400):
-        context.SetTime(log["t_imu"][k - 1])
+    for k in (0, 1, 200, 399):
+        context.SetTime(log["t_imu"][k])
         sample = scene.handles.imu.EvalUniquePeriodicDiscreteUpdate(imu_context).get_vector().CopyToVector()
         np.testing.assert_array_equal(log["imu"][k], sample)
 
