@@ -140,6 +140,9 @@ def test_same_seed_same_readings_other_seed_other_readings():
 @pytest.mark.parametrize("changes, field", [
     ({"rate_hz": 0.0}, "imu.rate_hz"),
     ({"accel_range_m_s2": -1.0}, "imu.accel_range_m_s2"),
+    # At or below the g a resting accelerometer reads, every reading clips (before: accepted).
+    ({"accel_range_m_s2": 1.0}, "imu.accel_range_m_s2 must exceed imu.gravity_m_s2"),
+    ({"accel_range_m_s2": 9.81}, "imu.accel_range_m_s2 must exceed imu.gravity_m_s2"),
     ({"gyro_noise_density_deg_s_rthz": -0.1}, "imu.gyro_noise_density_deg_s_rthz"),
 ])
 def test_invalid_configuration_names_the_field(changes, field):

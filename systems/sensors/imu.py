@@ -34,6 +34,9 @@ class ImuConfig:
     def validate(self, prefix: str = "imu") -> None:
         for name in ("rate_hz", "gyro_range_deg_s", "accel_range_m_s2", "gravity_m_s2"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
+        require(self.accel_range_m_s2 > self.gravity_m_s2,
+                f"{prefix}.accel_range_m_s2 must exceed {prefix}.gravity_m_s2 ({self.gravity_m_s2:g} m/s^2) or the "
+                f"accelerometer clips what it reads at rest or in hover, got {self.accel_range_m_s2:g}")
         for name in ("gyro_noise_density_deg_s_rthz", "accel_noise_density_ug_rthz", "gyro_bias_std_deg_h",
                      "accel_bias_std_ug"):
             require(getattr(self, name) >= 0, f"{prefix}.{name} must not be negative")
