@@ -9,7 +9,7 @@ from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
 from systems.perception.aruco import subpix_detector, to_grey
-from systems.sensors.camera import image_to_numpy
+from systems.sensors.camera import image_to_numpy, undistort_pixels
 
 
 def tag_corners_T(tag_size_m: float) -> np.ndarray:
@@ -82,8 +82,7 @@ class TagDetectorSystem(LeafSystem):
     def _calc_detection(self, context, output):
         corners = self._detector.detect(image_to_numpy(self.get_input_port().Eval(context)))
         if corners is not None and self._lens is not None:
-            K, D = self._lens
-            corners = cv2.undistortPoints(corners.reshape(4, 1, 2), K, D, None, None, K).reshape(4, 2)
+            corners = undistort_pixels(corners, *self._lens)
         output.set_value(TagDetection(context.get_time(), corners))
 
     @staticmethod

@@ -197,7 +197,7 @@ def distortion_maps(config: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
     lies in the undistorted pinhole render with the same K (px; under barrel distortion the rim's lie
     outside it: `render_margin_px`)."""
     u, v = np.meshgrid(np.arange(config.width, dtype=np.float32), np.arange(config.height, dtype=np.float32))
-    maps = _undistorted(config, config.D, np.stack([u.ravel(), v.ravel()], axis=1)).reshape(
+    maps = undistort_pixels(np.stack([u.ravel(), v.ravel()], axis=1), config.K, config.D).reshape(
         config.height, config.width, 2)
     return maps[..., 0].astype(np.float32), maps[..., 1].astype(np.float32)
 
@@ -208,10 +208,13 @@ def distortion_maps(config: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-9)
 
 
-def _undistorted(config: CameraConfig, D: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-    """(N, 2) the pinhole pixels (same K) that the distorted pixels (N, 2) look at, through the lens model D."""
-    points = np.asarray(pixels, np.float32).reshape(-1, 1, 2)
-    return cv2.undistortPoints(points, config.K, D, None, None, config.K, _UNDISTORT_CRITERIA).reshape(-1, 2)
+def undistort_pixels(pixels: np.ndarray, K: np.ndarray, D: np.ndarray | None) -> np.ndarray:
+    """(N, 2) the pinhole camera K's pixels that the distorted image's pixels (N, 2; OpenCV's integer centres)
+    look at, through the lens model D (OpenCV's [k1, k2, p1, p2, k3]; None or zeros: the pixels as given)."""
+    points = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+    if D is None or not np.any(D):
+        return points.reshape(-1, 2)
+    return cv2.undistortPoints(points, K, D, None, None, K, _UNDISTORT_CRITERIA).reshape(-1, 2)
 
 
 def _pixel_grid(config: CameraConfig, stride: int) -> np.ndarray:
@@ -229,7 +232,7 @@ def distortion_round_trip_px(config: CameraConfig, D=None, stride: int = 8) -> t
     of px where the model folds the image."""
     D = config.D if D is None else np.asarray(D, float)
     pixels = _pixel_grid(config, stride)
-    rays = cv2.undistortPoints(_undistorted(config, D, pixels).reshape(-1, 1, 2).astype(np.float64), config.K, None)
+    rays = cv2.undistortPoints(undistort_pixels(pixels, config.K, D).reshape(-1, 1, 2), config.K, None)
     back, _ = cv2.projectPoints(cv2.convertPointsToHomogeneous(rays), np.zeros(3), np.zeros(3), config.K, D)
     off = np.linalg.norm(back.reshape(-1, 2) - pixels, axis=1)
     off = np.where(np.isfinite(off), off, math.inf)
@@ -246,7 +249,7 @@ def render_margin_px(config: CameraConfig) -> int:
     w, h = config.width, config.height
     border = np.concatenate([[(u, v) for u in range(w) for v in (0, h - 1)],
                              [(u, v) for v in range(h) for u in (0, w - 1)]])
-    x, y = _undistorted(config, config.D, border).T
+    x, y = undistort_pixels(border, config.K, config.D).T
     beyond = max(-x.min(), x.max() - (w - 1), -y.min(), y.max() - (h - 1))
     return math.ceil(max(float(beyond), 0.0)) + 1  # and the bilinear sample's neighbour
 

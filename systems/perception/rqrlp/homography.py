@@ -27,15 +27,6 @@ def homography_from_pose(X_CP: RigidTransform, K: np.ndarray) -> np.ndarray:
     return H / H[2, 2]
 
 
-def undistort_pixels(pixels: np.ndarray, K: np.ndarray, D: np.ndarray | None) -> np.ndarray:
-    """(N, 2) pixels of the distorted image as the undistorted pinhole camera K sees them."""
-    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
-    if D is None or not np.any(D):
-        return pixels.reshape(-1, 2)
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
-    return cv2.undistortPoints(pixels, K, D, None, None, K, criteria).reshape(-1, 2)
-
-
 def plane_pose(points_P: np.ndarray, pixels: np.ndarray, K: np.ndarray,
                ransac_px: float = 2.0) -> tuple[RigidTransform, np.ndarray] | None:
     """X_CP from (N >= 4) points (X, Y) of the plane [m] and their undistorted pixels: the homography

@@ -24,9 +24,9 @@ from systems.perception.rqrlp.homography import (
     homography_from_pose,
     plane_pose,
     pose_from_homography,
-    undistort_pixels,
 )
 from systems.perception.rqrlp.pattern import MARKERS, MODULES, RqrlpLayout
+from systems.sensors.camera import undistort_pixels
 
 AREA_RATIO_TOLERANCE = 0.35  # nested squares' areas against 49 : 25 : 9, relative
 MAX_ASPECT = 1.6  # the outline's longer side against its shorter (a square seen up to ~50 deg off its normal)
