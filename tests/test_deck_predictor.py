@@ -239,3 +239,32 @@ def test_the_window_on_the_prediction_commits_where_the_deck_will_be_level():
     assert counts["ar"][0] >= counts["constant"][0] // 2  # it still opens
     assert counts["constant"][1] >= 4
     assert counts["ar"][1] <= counts["constant"][1] // 4
+
+
+@pytest.mark.parametrize("scale", [1.0, 2.0])
+def test_the_predicted_heave_rate_follows_the_truth_and_leaves_the_window_open(scale):
+    """The system's dz/dt over touchdown +- the margin (1, 2 and 3 s ahead) against the truth's on the tracked
+    deck from 40 s on, and the window on the heave rate alone (tilt limits opened wide, the default
+    max_heave_rate_m_s of 0.1 m/s; the true rate is within 0.016 m/s per stewart-dynamic amplitude).
+    Measured (120 s, seed 0): 0.0025 m/s RMS, at worst 0.013, the window never shut; before, a one-frame
+    difference of the forecast: 0.037-0.038 m/s RMS, at worst 0.25-0.28, the window shut 10-14 % of the time."""
+    motions, truth = tracked(scale, 120.0)
+    window = LandingWindowConfig(max_tilt_deg=89.0, abort_tilt_deg=89.0)
+    times = PERIOD * np.arange(len(truth))
+    true_rate = np.gradient(truth[:, 2], PERIOD)  # the noiseless heave's, within 1e-5 m/s at 20 Hz
+    state, errors, shut = PredictorState(), [], 0
+    for k in range(len(motions) - 80):
+        state = step_predictor(state, motions[k], k * PERIOD, CONFIG, PERIOD)
+        if k * PERIOD < 40.0:
+            continue
+        prediction = predictor_output(state, k * PERIOD, CONFIG, PERIOD)
+        assert prediction[1] == 1.0
+        for tau in (1.0, 2.0, 3.0):
+            horizons = np.linspace(tau - window.timing_margin_s, tau + window.timing_margin_s, 5)
+            errors.extend(sample_prediction(prediction, horizons)[:, 3] - np.interp(k * PERIOD + horizons, times,
+                                                                                   true_rate))
+            shut += not window_flags(motions[k], tau, window, prediction)[0]
+    assert np.abs(true_rate).max() < 0.016 * scale
+    assert np.sqrt(np.mean(np.square(errors))) < 0.01
+    assert np.abs(errors).max() < 0.05
+    assert shut == 0

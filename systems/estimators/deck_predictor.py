@@ -12,10 +12,16 @@ and lags a frame apart are too alike to fit through the tracker's noise), m the 
 coefficients are fitted by linear least squares (numpy.linalg.lstsq) over the last `history_s`, taking
 every frame as a target (the L-decimated series at each of its L phases), refitted every `refit_s`, and
 the model is iterated forward: a horizon h <= L is one step from history, a longer one steps on its own
-predictions. Each channel has its own model. The heave rate is the predicted heave's central difference
-over the frames. (Tried on tests/test_deck_predictor.py's tracked deck and not kept: a 1 s moving average
-of the history before the fit, ridge-regularised or forward-backward fits, 45-60 s windows, 4 or 8 lags,
-0.75-2 s lag spacing: none better by more than a few hundredths of a degree, most worse.)
+predictions. Each channel has its own model. The heave rate at frame i (i = 0 the history's last) is the
+difference across the lag,
+    dz/dt[i] = (z[i + L] - z[i - L]) / (2 L T)  [m/s], T the frame period,
+two frames of the same phase of the decimated series (z[i - L] the history's where i <= L). Neighbouring
+frames are forecast each from its own older frames and carry unrelated noise: their one-frame difference was
+ten times the constant rate's error on tests/test_deck_predictor.py's tracked deck (0.05-0.06 m/s RMS, at
+worst 0.2, against the landing window's 0.1 m/s). (Tried on tests/test_deck_predictor.py's tracked deck and
+not kept: a 1 s moving average of the history before the fit, ridge-regularised or forward-backward fits,
+45-60 s windows, 4 or 8 lags, 0.75-2 s lag spacing: none better by more than a few hundredths of a degree,
+most worse.)
 
 With less than `min_history_s` of valid frames (20 s by default, about one period of stewart-dynamic's
 motion; the fit needs its p L of lags and as many rows beyond them), a failed fit, or a forecast that is
@@ -160,28 +166,32 @@ def _plausible(forecast: np.ndarray, history: np.ndarray) -> bool:
 
 def forecast_trajectory(history: np.ndarray, config: DeckPredictorConfig, period_s: float, frames: int,
                         model: ArModel | None = None) -> np.ndarray | None:
-    """(frames + 2, PREDICTED): [n_x, n_y, z, dz/dt] at the frames -1, 0, 1, .., frames from the history's last
+    """(frames + 1, PREDICTED): [n_x, n_y, z, dz/dt] at the frames 0, 1, .., frames from the history's last
     ((N, CHANNELS) [n_x, n_y, z] at the frames, oldest first), the AR model's (`model`, or None: fitted here)
-    past the history; dz/dt by central differences (one-sided at the ends). None where there is no model
-    or its forecast is not plausible (module docstring): the constant rate's case."""
+    past the history; dz/dt across the lag L (module docstring: from the history's last L frames and L
+    frames forecast beyond `frames`). None where there is no model or its forecast is not plausible (module
+    docstring): the constant rate's case."""
     history = np.asarray(history, dtype=float)[-_frames(config.history_s, period_s):]
     if model is None:
         model = fit_ar(history, config, period_s)
     if model is None:
         return None
-    start = (model.coefficients.shape[1] - 1) * _frames(config.lag_s, period_s)
-    if len(history) < max(start, 2) or not np.all(np.isfinite(history[-max(start, 2):])):
+    lag = _frames(config.lag_s, period_s)
+    need = max((model.coefficients.shape[1] - 1) * lag, lag + 1)
+    if len(history) < need or not np.all(np.isfinite(history[-need:])):
         return None
-    trajectory = np.vstack([history[-2:], forecast_ar(history, model, config, period_s, frames)])
-    if not _plausible(trajectory[2:], history):
+    forecast = forecast_ar(history, model, config, period_s, frames + lag)
+    if not _plausible(forecast, history):
         return None
-    return np.column_stack([trajectory, np.gradient(trajectory[:, 2], period_s)])
+    trajectory = np.vstack([history[-lag - 1:], forecast])  # frames -L .. frames + L
+    z = trajectory[:, 2]
+    return np.column_stack([trajectory[lag:lag + frames + 1], (z[2 * lag:] - z[:-2 * lag]) / (2 * lag * period_s)])
 
 
 def sample_trajectory(trajectory: np.ndarray, horizons_s: np.ndarray, period_s: float) -> np.ndarray:
     """(len(horizons), PREDICTED): a forecast_trajectory at `horizons_s` [s] after its frame 0, linear
     between frames."""
-    times = period_s * np.arange(-1, len(trajectory) - 1)
+    times = period_s * np.arange(len(trajectory))
     return np.column_stack([np.interp(horizons_s, times, trajectory[:, c]) for c in range(PREDICTED)])
 
 
@@ -193,7 +203,7 @@ def predict_deck(history: np.ndarray, deck_motion: np.ndarray, horizons_s: np.nd
     [n_x, n_y, z] at the frames, oldest first, the last one deck_motion's. `model`: the AR model to use
     (None: fitted here). autoregressive is False where the prediction fell back to the constant rate."""
     horizons = np.asarray(horizons_s, dtype=float)
-    frames = math.ceil(float(horizons.max(initial=0.0)) / period_s) + 2  # central differences to the last
+    frames = math.ceil(float(horizons.max(initial=0.0)) / period_s)
     trajectory = forecast_trajectory(history, config, period_s, frames, model)
     if trajectory is None:
         return constant_rate_prediction(deck_motion, horizons), False
@@ -231,8 +241,8 @@ class PredictorState:
 
 
 def _trajectory_frames(config: DeckPredictorConfig, period_s: float) -> int:
-    """The frames a state's trajectory reaches: the grid read up to a frame late, and one for the rates."""
-    return math.ceil(config.horizon_s / period_s) + 3
+    """The frames a state's trajectory reaches: the grid's last horizon, read up to a frame late."""
+    return math.ceil(horizon_grid(config)[-1] / period_s) + 1
 
 
 def step_predictor(state: PredictorState, deck_motion: np.ndarray, time: float, config: DeckPredictorConfig,
@@ -247,7 +257,7 @@ def step_predictor(state: PredictorState, deck_motion: np.ndarray, time: float, 
     sample = deck_motion[[0, 1, 4]]
     coasted = deck_motion[7] > 0 and state.trajectory is not None
     if coasted:
-        sample = state.trajectory[2, :CHANNELS]  # one frame ahead of the last
+        sample = state.trajectory[1, :CHANNELS]  # one frame ahead of the last
         deck_motion[[0, 1, 4]] = sample
     history = np.vstack([state.history, sample])[-_frames(config.history_s, period_s):]
     model, since = state.model, state.frames_since_fit + 1
