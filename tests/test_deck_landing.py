@@ -28,10 +28,12 @@ def test_lands_on_the_deck_on_crhfs_estimate_within_the_targets(crhf_landing):
     assert landing["touchdown_error_m"] < 0.10 and landing["touchdown_rel_speed_mps"] < 0.5
     assert landing["deck_tilt_at_touchdown_deg"] < 3.0 and landing["meets_targets"]
     assert Mode.WAIT in flight.log["mode"]  # it waited at LH for the window
-    # The tilt at touchdown is the truth's, not the estimate's.
+    # The tilt at touchdown is the truth's, not the estimate's: the tracked tilt there is a few hundredths of a
+    # degree off the truth's (0.05 deg with seed 0), and the comparison must tell them apart.
     k = np.flatnonzero(flight.log["t"] <= landing["time_to_land_s"])[-1]
-    assert landing["deck_tilt_at_touchdown_deg"] == pytest.approx(float(tilt_deg(flight.log["true_deck_motion"][k])),
-                                                                  abs=0.2)
+    tilt, tolerance = landing["deck_tilt_at_touchdown_deg"], 1e-9
+    assert tilt == pytest.approx(float(tilt_deg(flight.log["true_deck_motion"][k])), abs=tolerance)
+    assert abs(float(tilt_deg(flight.log["deck_motion"][k])) - tilt) > 1e3 * tolerance
 
 
 def test_both_estimators_are_scored_against_the_true_tag_pose(crhf_landing):
