@@ -227,16 +227,29 @@ def test_marker_ekf_mc_a_speed_without_figures_fails_its_checks(monkeypatch, cap
 
 
 class _StereoBench:
-    """stereo.py's Bench without the renders: every altitude 0.01 m over the truth."""
+    """stereo.py's Bench without the renders: every altitude 0.01 m over the truth, invalid (NaN) from
+    `invalid_from` m up."""
+
+    invalid_from = float("inf")
 
     def __init__(self, noise: float):
         self.config = SimpleNamespace(stereo=SimpleNamespace(width=752, height=480, focal_length_px=350.0,
-                                                             baseline_m=0.12))
+                                                             baseline_m=0.12, max_altitude_m=8.0))
         self.estimator = SimpleNamespace(num_disparities=64, crop=(slice(0, 100), slice(0, 100)),
                                          config=SimpleNamespace(block_size=5, window_rows=100, window_cols=100))
 
     def altitude(self, height: float):
+        if height >= self.invalid_from - 1e-9:
+            return float("nan"), False, 1.0
         return height + 0.01, True, 1.0
+
+
+def _stereo_main(monkeypatch, *argv):
+    monkeypatch.setattr(stereo, "costs", lambda bench, frames: dict.fromkeys(
+        ("render_left", "render_right", "noise_left", "noise_right", "sgbm_window_crop", "rest", "sgbm_full_frame"),
+        1.0))
+    monkeypatch.setattr(sys, "argv", ["stereo.py", *argv])
+    return stereo.main()
 
 
 @pytest.mark.parametrize("step, code, line", [
@@ -245,13 +258,25 @@ class _StereoBench:
     ("8", 2, "--step 8 m leaves no height of the sweep in 3-8 m")])
 def test_stereo_sweep_a_step_leaving_a_band_empty_is_an_error(monkeypatch, capsys, step, code, line):
     monkeypatch.setattr(stereo, "Bench", _StereoBench)
-    monkeypatch.setattr(stereo, "costs", lambda bench, frames: dict.fromkeys(
-        ("render_left", "render_right", "noise_left", "noise_right", "sgbm_window_crop", "rest", "sgbm_full_frame"),
-        1.0))
-    monkeypatch.setattr(sys, "argv", ["stereo.py", "--step", step])
     try:
-        result = stereo.main()
+        result = _stereo_main(monkeypatch, "--step", step)
     except SystemExit as e:  # argparse's error: usage and one line, exit 2
         result = e.code
     captured = capsys.readouterr()
     assert result == code and line in (captured.err if code else captured.out)
+
+
+@pytest.mark.parametrize("invalid_from, code, lines", [
+    # 7.8-8 m within Figure 16's 1 m of the 8 m range's end: a reading there may lie beyond it
+    (7.8, 0, ["8.00           5.25          nan      +nan       1.00   < 1.0 out of range (> 8 m)",
+              "sweep 3-8 m (47 heights, step 0.1 m): max |error| 0.010 m, rms 0.010 m  (< 1.0: PASS); read "
+              "beyond 8 m (invalid) at 7.8, 7.9, 8 m"]),
+    # 6.9 m is not: a reading within 1 m of it is in range, its invalid one a failure
+    (6.9, 1, ["sweep 3-8 m (40 heights, step 0.1 m): max |error| inf m", "read beyond 8 m (invalid) at 7.1, 7.2",
+              "Figure 16 bounds: FAIL"])])
+def test_stereo_counts_heights_read_beyond_the_range_apart(monkeypatch, capsys, invalid_from, code, lines):
+    monkeypatch.setattr(stereo, "Bench", type("Bench", (_StereoBench,), {"invalid_from": invalid_from}))
+    assert _stereo_main(monkeypatch, "--step", "0.1") == code
+    out = capsys.readouterr().out
+    for line in lines:
+        assert line in out

@@ -64,7 +64,8 @@ def camera_height(X_WB: RigidTransform) -> float:
 
 # Heights of the left eye (m); none of them an integer disparity (42 / Z px), where a rendered pair is
 # an exact pixel shift and every matcher is exact. Figure 16: error < 0.2 m in 0.7-3 m, < 1 m in 3-8 m.
-HEIGHTS = [0.75, 1.3, 2.45, 2.95, 4.4, 5.45, 6.7, 7.9]
+# Up to 7.7 m: from about 7.8 m SGBM's bias towards 5 px (8.4 m) reads beyond the 8 m range, invalid.
+HEIGHTS = [0.75, 1.3, 2.45, 2.95, 4.4, 5.45, 6.7, 7.7]
 
 
 @pytest.mark.slow
@@ -81,10 +82,12 @@ def test_rendered_altitude_is_within_figure_16_bounds(hover, height):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("where", ["too_close", "off_the_ground"])
+@pytest.mark.parametrize("where", ["too_close", "too_far", "off_the_ground"])
 def test_rendered_altitude_is_invalid_without_a_match(hover, where):
-    # the eyes 0.5 m up: 84 px of disparity, beyond the 64 searched; 60 m off the 20 m ground: the sky's flat colour.
-    X_WB = RigidTransform([0.0, 0.0, 0.45]) if where == "too_close" else RigidTransform([60.0, 0.0, 3.0])
+    # the eyes 0.5 m up: 84 px of disparity, beyond the 64 searched; 10 m up: SGBM matches (10.35 m) but
+    # beyond the 8 m range; 60 m off the 20 m ground: the sky's flat colour.
+    X_WB = {"too_close": RigidTransform([0.0, 0.0, 0.45]), "too_far": RigidTransform([0.0, 0.0, 10.05]),
+            "off_the_ground": RigidTransform([60.0, 0.0, 3.0])}[where]
     altitude, valid = raw_altitude(hover, X_WB)
     assert valid == 0.0 and math.isnan(altitude)
 
@@ -190,6 +193,25 @@ def test_altitude_of_a_shifted_pair_is_f_b_over_d(d):
     # matching the whole frame gives the same window
     full = StereoAltitudeEstimator(StereoConfig(), crop=False).estimate(left, right)
     assert full.altitude_m == pytest.approx(result.altitude_m, rel=0.01)
+
+
+@pytest.mark.parametrize("max_altitude_m", [8.0, 3.0])
+def test_an_altitude_beyond_max_altitude_m_is_invalid(max_altitude_m):
+    """Seed 003's range ends at max_altitude_m: a pair shifted 4 px (10.5 m) matches exactly but reads
+    NaN and invalid; 6 px (7 m) only when the range ends at 3 m; 21 px (2 m) is within both."""
+    camera = StereoConfig(max_altitude_m=max_altitude_m)
+    estimator = StereoAltitudeEstimator(camera)
+    for d in (4, 6, 21):
+        result = estimator.estimate(*shifted_pair(d))
+        within = F_PX * BASELINE / d <= max_altitude_m
+        assert result.valid == within, f"{d} px"
+        assert result.valid_fraction > 0.95  # matched: invalid for its range alone
+        if within:
+            assert result.altitude_m == pytest.approx(F_PX * BASELINE / d, rel=1e-3)
+        else:
+            assert math.isnan(result.altitude_m)
+    depth = np.full((10, 10), max_altitude_m + 0.01)
+    assert window_altitude(depth, 0.5)[1] and not window_altitude(depth, 0.5, "mean", max_altitude_m)[1]
 
 
 def test_the_search_reaches_its_nearest_range_and_no_nearer():

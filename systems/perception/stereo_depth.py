@@ -133,15 +133,19 @@ def window_crop(shape: tuple[int, int], window: tuple[slice, slice], num_dispari
             slice(max(cols.start - margin - num_disparities, 0), min(cols.stop + margin, width)))
 
 
-def window_altitude(depth: np.ndarray, min_valid_fraction: float, estimator: str = "mean") -> tuple[float, bool, float]:
-    """Seed 003 Eq. 12: the mean depth over the window's valid pixels (`estimator` "median": their
+def window_altitude(depth: np.ndarray, min_valid_fraction: float, estimator: str = "mean",
+                    max_altitude_m: float = math.inf) -> tuple[float, bool, float]:
+    """Seed 003 Eq. 12: the mean depth (m) over the window's valid pixels (`estimator` "median": their
     median). Returns (altitude m, valid, fraction of valid pixels); the altitude is NaN and valid False
-    when fewer than `min_valid_fraction` of the window's pixels have a depth."""
+    when fewer than `min_valid_fraction` of the window's pixels have a depth, or when it exceeds
+    `max_altitude_m` (beyond the camera's range)."""
     finite = depth[np.isfinite(depth)]
     fraction = finite.size / depth.size if depth.size else 0.0
     if fraction < min_valid_fraction or finite.size == 0:
         return math.nan, False, fraction
     value = float(np.median(finite)) if estimator == "median" else float(finite.mean())
+    if value > max_altitude_m:
+        return math.nan, False, fraction
     return value, True, fraction
 
 
@@ -186,7 +190,8 @@ class StereoAltitudeEstimator:
 
     def altitude(self, window_disparity: np.ndarray) -> StereoAltitude:
         depth = depth_from_disparity(window_disparity, self.camera.focal_length_px, self.camera.baseline_m)
-        value, valid, fraction = window_altitude(depth, self.config.min_valid_fraction, self.config.estimator)
+        value, valid, fraction = window_altitude(depth, self.config.min_valid_fraction, self.config.estimator,
+                                                 self.camera.max_altitude_m)
         return StereoAltitude(value, valid, fraction, window_disparity)
 
     def estimate(self, left: np.ndarray, right: np.ndarray) -> StereoAltitude:
@@ -198,8 +203,9 @@ class StereoAltimeter(LeafSystem):
 
     Inputs `left_image`, `right_image` (ImageRgba8U). Outputs `altitude` (1, m: the raw window depth,
     NaN when invalid) and `altitude_valid` (1: 1.0 or 0.0; 0.0 when fewer than min_valid_fraction of
-    the window's pixels match). Both outputs come from one cache entry computed (and the images
-    rendered) only when evaluated: consumers read it at the camera rate, as NoisyCamera's output.
+    the window's pixels match or the altitude is beyond the camera's `max_altitude_m`). Both outputs
+    come from one cache entry computed (and the images rendered) only when evaluated: consumers read it
+    at the camera rate, as NoisyCamera's output.
     """
 
     def __init__(self, camera: StereoConfig, config: StereoDepthConfig | None = None):

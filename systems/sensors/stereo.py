@@ -52,7 +52,9 @@ class StereoConfig:
     # The left eye L in the body frame B: with the default the pair's centre is under the body origin,
     # 5 cm down, the baseline along the body's forward axis.
     mount_xyz_m: list[float] = field(default_factory=lambda: [-0.06, 0.0, -0.05])
-    min_altitude_m: float = 0.7  # seed 003 section 2.1: effective range 0.7-8 m
+    # seed 003 section 2.1: effective range 0.7-8 m. The nearest sets the disparity search
+    # (StereoDepthConfig.num_disparities); a window altitude beyond the farthest is invalid.
+    min_altitude_m: float = 0.7
     max_altitude_m: float = 8.0
 
     def validate(self, prefix: str = "stereo") -> None:
