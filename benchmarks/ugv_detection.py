@@ -36,7 +36,7 @@ from diagrams.ugv_detection_scenes import (
     sample_scene,
 )
 from systems.config import ConfigError
-from systems.perception.hybrid_pad import box_centre_pixel
+from systems.perception.box_tracker import box_centre_pixel
 from systems.perception.ugv_box_refiner import ColourRefinedDetector
 from systems.perception.ugv_cnn_detector import DEFAULT_MODEL_PATH, CnnDetector
 from systems.perception.ugv_detector import ColourPadDetector, iou_many, match_truth

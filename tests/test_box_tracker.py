@@ -21,6 +21,7 @@ from systems.perception.box_tracker import (
     Detection,
     TrackerState,
     _filter_params,
+    box_centre_pixel,
     centre_form,
     colour_cost_matrix,
     colour_histogram,
@@ -64,6 +65,11 @@ def test_centre_and_corner_forms():
     box = np.array([10.0, 20.0, 6.0, 4.0])
     np.testing.assert_allclose(centre_form(box), [13.0, 22.0, 6.0, 4.0])
     np.testing.assert_allclose(corner_form(centre_form(box)), box)
+
+
+def test_box_centre_is_opencv_pixel():
+    """A box covering pixels 10-13 and 20-25 (index space) is centred between pixels 11 and 12, 22 and 23."""
+    assert np.allclose(box_centre_pixel([10.0, 20.0, 4.0, 6.0]), [11.5, 22.5])
 
 
 def patch(colours, size=(20, 30)) -> np.ndarray:

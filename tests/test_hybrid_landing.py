@@ -22,7 +22,6 @@ from systems.perception.hybrid_pad import (
     HybridPadConfig,
     HybridPadEstimator,
     HybridPadState,
-    box_centre_pixel,
     camera_height,
     hybrid_step,
     pad_from_box,
@@ -44,10 +43,6 @@ def box_around(p_W: np.ndarray, X_WB: RigidTransform, half_px: float = 20.0) -> 
     X_WC = X_WB.multiply(FISHEYE.X_BC)
     uv = project_points(X_WC.inverse().multiply(p_W).reshape(1, 3), FISHEYE)[0]
     return np.array([uv[0] + 0.5 - half_px, uv[1] + 0.5 - half_px, 2 * half_px, 2 * half_px])
-
-
-def test_box_centre_is_opencv_pixel():
-    assert np.allclose(box_centre_pixel([10.0, 20.0, 4.0, 6.0]), [11.5, 22.5])
 
 
 @pytest.mark.parametrize("rpy_deg, p_WP", [((0, 0, 0), (1.0, -2.0, Z_PAD)), ((8, -5, 40), (3.0, 1.5, Z_PAD)),

@@ -148,6 +148,13 @@ def corner_form(boxes: np.ndarray) -> np.ndarray:
     return np.concatenate([boxes[..., :2] - boxes[..., 2:] / 2, boxes[..., 2:]], axis=-1)
 
 
+def box_centre_pixel(box: np.ndarray) -> np.ndarray:
+    """The centre of a box [x, y, w, h] (pixel-index space) in OpenCV's pixel coordinates (centres at
+    integers): x + w/2 - 0.5, y + h/2 - 0.5 (px)."""
+    x, y, w, h = np.asarray(box, float)
+    return np.array([x + w / 2 - 0.5, y + h / 2 - 0.5])
+
+
 def intersection_matrix(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(p, q) intersection areas of p boxes a with q boxes b, [x, y, w, h] px, and the areas of a (p, 1) and
     of b (1, q) [px^2]."""

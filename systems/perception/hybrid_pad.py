@@ -48,7 +48,7 @@ from pydrake.systems.framework import LeafSystem
 from systems.config import require, require_non_negative, require_positive
 from systems.estimators.estimate import PoseEstimate
 from systems.estimators.velocity_observer import ObserverState, VelocityObserverConfig, step_observer
-from systems.perception.box_tracker import Detection
+from systems.perception.box_tracker import Detection, box_centre_pixel
 from systems.sensors.fisheye import FisheyeConfig, in_field_of_view, pixel_rays
 from systems.stepped import SteppedValue
 
@@ -111,12 +111,6 @@ class HybridPadConfig:
         for name in ("min_ray_down", "approach_min_ray_down"):
             value = getattr(self, name)
             require(0 < value <= 1, f"{prefix}.{name} must lie in (0, 1], got {value}")
-
-
-def box_centre_pixel(box: np.ndarray) -> np.ndarray:
-    """The centre of a box [x, y, w, h] (pixel-index space) in OpenCV's pixel coordinates (centres at integers)."""
-    x, y, w, h = np.asarray(box, float)
-    return np.array([x + w / 2 - 0.5, y + h / 2 - 0.5])
 
 
 def ray_to_plane(p_WC: np.ndarray, ray_W: np.ndarray, height_above_plane: float, z_plane: float,

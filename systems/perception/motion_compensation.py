@@ -5,7 +5,8 @@ Features are matched between the previous and the current grey frame, the UGV's 
 excluded from both so the vehicle's own motion does not enter the ground's model; a RANSAC homography H
 (previous -> current pixels) fits the matches; the previous UGV location is mapped through H (Eq. 7,
 normalised by Eq. 8-9) and the displacement is the current location minus the mapped one (Eq. 10 is
-its length). Pixels are OpenCV's (centres at integers), in the rectified pinhole view.
+its length). Pixels are OpenCV's (centres at integers), in the rectified pinhole view; a box [x, y, w, h]
+is the project's (pixel-index space, box_tracker.py), its centre in those pixels `box_centre_pixel`.
 
 Features: ORB (FAST corners, rBRIEF descriptors, brute-force Hamming matching with Lowe's ratio test) by
 default, where the paper used SIFT-GPU; `detector: sift` gives the paper's choice. ORB's keypoints sit on
@@ -32,6 +33,7 @@ from pydrake.systems.sensors import ImageRgba8U
 
 from systems.config import require
 from systems.perception.aruco import to_grey
+from systems.perception.box_tracker import box_centre_pixel
 from systems.sensors.camera import image_to_numpy
 from systems.stepped import SteppedValue
 
@@ -144,11 +146,6 @@ def make_matcher(config: MotionCompensationConfig) -> cv2.DescriptorMatcher:
 def has_box(box) -> bool:
     """A box [x, y, w, h] (px) is given: finite, with positive width and height."""
     return box is not None and bool(np.all(np.isfinite(box))) and box[2] > 0 and box[3] > 0
-
-
-def box_centre(box) -> np.ndarray:
-    """The centre (px) of a box [x, y, w, h]: (x, y) its top-left corner, OpenCV's Rect."""
-    return np.array([box[0] + box[2] / 2, box[1] + box[3] / 2], dtype=float)
 
 
 def feature_mask(shape: tuple[int, ...], box=None, margin_px: float = 0.0) -> np.ndarray | None:
@@ -321,7 +318,8 @@ def compensate_frames(previous: Frame, current: Frame, config: MotionCompensatio
     ground = ground_homography(src, dst, current.grey.shape, config, previous.grey, current.grey)
     displacement = np.full(2, np.nan)
     if ground.valid and has_box(previous.box) and has_box(current.box):
-        displacement = compensated_displacement(ground.H, box_centre(previous.box), box_centre(current.box))
+        displacement = compensated_displacement(ground.H, box_centre_pixel(previous.box),
+                                                box_centre_pixel(current.box))
     return MotionCompensation(ground, displacement)
 
 
