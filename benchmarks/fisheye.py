@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from diagrams.fisheye_markers import MARKER_DIRECTIONS_DEG, MarkerScene, marker_points_C, projection_errors
+from systems.config import ConfigError
 from systems.sensors.fisheye import BLACK, FisheyeConfig, fisheye_layout, rectify, rectify_maps
 
 
@@ -50,14 +51,19 @@ class PerFace:
             cv2.remap(image, *maps, cv2.INTER_LINEAR, dst=out[region], borderMode=cv2.BORDER_TRANSPARENT)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--side-axis-deg", type=float, default=FisheyeConfig.side_axis_deg,
                         help="the side faces' tilt (90: a cube map's faces, cropped)")
-    args = parser.parse_args()
-
+    args = parser.parse_args(argv)
+    if args.frames < 1:
+        parser.error(f"--frames must be at least 1, got {args.frames}")
     config = FisheyeConfig(side_axis_deg=args.side_axis_deg)
+    try:
+        config.validate()
+    except ConfigError as e:
+        parser.exit(2, f"{e}\n")
     start = time.perf_counter()
     layout = fisheye_layout(config)
     _ = layout.atlas_maps  # computed once, cached

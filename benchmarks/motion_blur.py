@@ -20,6 +20,7 @@ from diagrams.deck_landing_config import DeckLandingConfig
 from diagrams.deck_landing_run import fly
 from diagrams.runner import load_scenario
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
+from systems.config import ConfigError
 from systems.platforms.stewart import StewartPlatform
 from systems.sensors.camera import motion_blur_flow
 from systems.sensors.ground_truth import axis_flow, camera_motion
@@ -63,7 +64,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--duration", type=float, help="simulated seconds (default: the scenario's)")
     parser.add_argument("--seed", type=int, help="the scenario's seed (default: its own)")
     args = parser.parse_args(argv)
-    name, config = load_scenario(args.scenario, duration_s=args.duration, seed=args.seed)
+    try:
+        name, config = load_scenario(args.scenario, duration_s=args.duration, seed=args.seed)
+    except ConfigError as e:
+        parser.exit(2, f"{e}\n")
     if not isinstance(config, StewartSceneConfig | DeckLandingConfig):
         parser.exit(2, f"{name}: not a Stewart or deck-landing scenario\n")
     if config.camera.exposure_s <= 0:

@@ -109,7 +109,7 @@ def run(detector_name: str, cases, repeats: int) -> dict:
             "corner_error_unrefined_px": {"median": float(np.median(raw_errors)), "max": float(np.max(raw_errors))}}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=12)
     parser.add_argument("--repeats", type=int, default=3)
@@ -117,7 +117,10 @@ def main() -> None:
     parser.add_argument("--max-yaw-deg", type=float, default=5.0, help="the UAV's largest turn between frames")
     parser.add_argument("--threads", type=int, default=1, help="OpenCV's threads (cv2.setNumThreads)")
     parser.add_argument("--json", type=Path)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    for name in ("pairs", "repeats"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
     cv2.setNumThreads(args.threads)
     cases = pairs(args.pairs, args.seed, args.max_yaw_deg)
     results = {name: run(name, cases, args.repeats) for name in ("orb", "sift")}

@@ -112,13 +112,17 @@ def costs(bench: Bench, frames: int) -> dict:
     return {name: float(np.median(values)) for name, values in timings.items()}
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--noise", type=float, default=2.0, help="pixel noise std per eye, 8-bit levels")
     parser.add_argument("--frames", type=int, default=10, help="frames timed at 3 m")
     parser.add_argument("--step", type=float, default=0.1, help="sweep step (m); 0 skips the sweep")
     parser.add_argument("--json", type=Path, help="write the figures here")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    if args.frames < 1:
+        parser.error(f"--frames must be at least 1, got {args.frames}")
+    if args.noise < 0:
+        parser.error(f"--noise must not be negative, got {args.noise:g}")
     if args.step > 0:
         empty = [name for name, band in sweep_heights(args.step)[1].items() if not band.any()]
         if empty:  # a band without a height has no error to bound: the step must put one in each

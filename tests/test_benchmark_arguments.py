@@ -1,0 +1,38 @@
+"""The seed-003 benchmarks' bad arguments: exit 2 with one line naming the argument, before any work (nothing
+on stdout). A count below 1 or a negative noise is argparse's error (its usage, then the line); a scenario
+or camera the project's checks refuse is that check's line alone."""
+
+import pytest
+
+import benchmarks.fisheye as fisheye
+import benchmarks.motion_blur as motion_blur
+import benchmarks.motion_compensation as motion_compensation
+import benchmarks.stereo as stereo
+
+
+@pytest.mark.parametrize("main, argv, line", [
+    (motion_compensation.main, ["--pairs", "0"], "error: --pairs must be at least 1, got 0"),
+    (motion_compensation.main, ["--pairs", "1", "--repeats", "0"], "error: --repeats must be at least 1, got 0"),
+    (stereo.main, ["--frames", "0", "--step", "0"], "error: --frames must be at least 1, got 0"),
+    (stereo.main, ["--noise", "-1", "--step", "0", "--frames", "1"], "error: --noise must not be negative, got -1"),
+    (fisheye.main, ["--frames", "0"], "error: --frames must be at least 1, got 0"),
+])
+def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, argv, line):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    captured = capsys.readouterr()
+    assert exit_info.value.code == 2 and captured.out == ""
+    assert captured.err.startswith("usage:") and captured.err.splitlines()[-1].endswith(line)
+
+
+@pytest.mark.parametrize("main, argv, line", [
+    (motion_blur.main, ["--scenario", "nope"], "unknown scenario 'nope' (known: "),
+    (motion_blur.main, ["--duration", "0"], "duration_s must be positive, got 0.0"),
+    (fisheye.main, ["--side-axis-deg", "200"], "fisheye.side_axis_deg must lie in [30, 90] deg, got 200.0"),
+])
+def test_a_scenario_or_camera_the_checks_refuse_is_their_line(capsys, main, argv, line):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    captured = capsys.readouterr()
+    assert exit_info.value.code == 2 and captured.out == ""
+    assert len(captured.err.splitlines()) == 1 and captured.err.startswith(line)
