@@ -254,6 +254,8 @@ def test_detector_campaign_leaves_out_what_the_filters_flag(tmp_path):
     (["--runs", "0"], "--runs must be"),
     (["--speeds", "fast"], "not a number"),
     (["--set", "duration_s=2", "--set", "estimation.settle_s=10"], r"estimation.settle_s (10 s) must be below"),
+    (["--runs", "1", "--speeds", "12", "--set", "duration_s=1", "--set", "estimation.settle_s=0",
+      "--set", "estimation.ekf.max_quaternion_norm_error=1"], "ekf.max_quaternion_norm_error must be in (0, 1)"),
 ])
 def test_bad_campaign_settings_are_one_line(capfd, tmp_path, args, message):
     out = tmp_path / "bad"

@@ -12,11 +12,15 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
+from systems.config import ConfigError
 from systems.estimators.marker_ekf import FILTERS, ConstantTurnEkf, MarkerEkfConfig, MarkerFilterSystem, PaperMarkerEkf
-from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, EST_P_WP, EST_V_WP, EST_YAW
+from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, EST_P_WP, EST_V_WP, EST_VALID, EST_YAW
 from systems.perception.latency import MeasurementLatency
 from systems.perception.markers import MarkerLayout, MarkerMeasurement
-from systems.perception.synthetic_markers import SyntheticMarkerSource, synthetic_marker_measurements
+from systems.perception.synthetic_markers import (
+    SyntheticMarkerSource,
+    synthetic_marker_measurements,
+)
 from systems.quaternion import drake_to_paper, xi
 from systems.sensors.camera import CameraConfig
 from tests.conftest import pose
@@ -282,6 +286,42 @@ def test_nan_and_non_unit_measurements_are_rejected_and_counted(cls):
     assert_same_belief(a, b)
     assert a.stats.invalid == 6 and b.stats.invalid == 0
     assert a.stats.accepted == b.stats.accepted
+
+
+@pytest.mark.parametrize("error", [1.0, 2.0])
+def test_a_quaternion_norm_tolerance_of_one_or_more_is_refused(error):
+    """At 1 a zero quaternion, | |q| - 1 | = 1, would pass the screening."""
+    with pytest.raises(ConfigError, match=r"estimation\.ekf\.max_quaternion_norm_error must be in \(0, 1\)"):
+        MarkerEkfConfig(max_quaternion_norm_error=error).validate("estimation.ekf")
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_a_quaternion_without_a_direction_is_rejected_at_any_tolerance(cls):
+    """Norm 5e-7: within a tolerance just below 1 of unit length, but no attitude; counted invalid, the filter
+    not started on it."""
+    marker_filter = make(cls, max_quaternion_norm_error=1 - 1e-7)
+    truth = straight(6.0)
+    frame = measure(truth, 0.0, np.random.default_rng(5))
+    tiny = [MarkerMeasurement(0.0, m.marker_id, m.p_CM, 5e-7 * m.q_CM) for m in frame]
+    marker_filter.step(0.0, uav_over(truth(0.0), 0.0), tiny)
+    assert marker_filter.stats.invalid == 5 and marker_filter.stats.accepted == 0 and not marker_filter.started
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+@pytest.mark.parametrize("cls", BOTH)
+def test_an_estimate_with_a_figure_not_finite_is_invalid(cls):
+    """A state whose attitude is lost (a zero quaternion, or a NaN yaw): its position std is small, and the
+    estimate is still invalid, for every step of a stack alike."""
+    marker_filter = make(cls)
+    x = state_from_truth(cls, pose([12, -4, 1.6], [0, 0, 35]))
+    broken = x.copy()
+    if cls is PaperMarkerEkf:
+        broken[marker_filter._q] = 0.0
+    else:
+        broken[ConstantTurnEkf.PSI] = np.nan
+    vectors, _, _ = marker_filter.estimate_vectors(np.stack([x, broken]), np.array([0.01, 0.01]), np.array([1.0, 1.0]))
+    assert vectors[:, EST_VALID].tolist() == [1.0, 0.0]
+    assert not np.isfinite(vectors[1]).all()
 
 
 @pytest.mark.parametrize("cls", BOTH)

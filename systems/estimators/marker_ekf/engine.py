@@ -9,8 +9,9 @@ package docstring):
   the chi-square quantile `gate_probability` for the row count; rejected ones are counted, and
   after `reset_after_rejected_steps` steps in a row whose measurements were all rejected, the
   filter restarts from the newest ones (a lost track must not gate out the truth for ever);
-- screening: NaN, a quaternion whose norm is off 1 by more than `max_quaternion_norm_error`, an
-  unknown marker id, or a time in the future: rejected and counted, never fused;
+- screening: NaN, a quaternion of norm at most MIN_QUATERNION_NORM or off 1 by more than
+  `max_quaternion_norm_error`, an unknown marker id, or a time in the future: rejected and
+  counted, never fused;
 - late measurements: seed 002 budgets 25 ms to acquire a frame and 10 ms to process it, so a
   measurement of time t_m can arrive a step or more later. The filter keeps `history_s` of steps
   (time, UAV pose, the measurements of (previous step, step], posterior); a late measurement joins
@@ -37,6 +38,7 @@ from systems.perception.markers import MarkerLayout, MarkerMeasurement
 from systems.quaternion import dcm, drake_to_paper, inverse, odot_matrix, paper_to_drake
 
 TIME_TOLERANCE_S = 1e-9
+MIN_QUATERNION_NORM = 1e-6  # a measured quaternion this short has no direction: rejected
 _TIME = attrgetter("time")
 
 
@@ -55,15 +57,17 @@ class MarkerEkfConfig:
     gate_probability: float = 0.9999  # chi-square gate per marker measurement
     reset_after_rejected_steps: int = 10  # steps in a row with every measurement gated out
     history_s: float = 0.5  # how late a measurement may arrive and still be fused
-    max_quaternion_norm_error: float = 0.05  # | |q| - 1 | above this: the measurement is rejected
+    max_quaternion_norm_error: float = 0.05  # | |q| - 1 | above this: the measurement is rejected (in (0, 1))
     max_valid_position_std_m: float = 1.0  # the estimate is valid while the pad's position std is below this
 
     def validate(self, prefix: str = "filter") -> None:
         for name in ("period_s", "position_std_m", "attitude_std_deg", "acceleration_psd",
                      "vertical_acceleration_psd", "angular_acceleration_psd", "initial_velocity_std_mps",
-                     "initial_angular_velocity_std_radps", "max_quaternion_norm_error",
-                     "max_valid_position_std_m"):
+                     "initial_angular_velocity_std_radps", "max_valid_position_std_m"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
+        require(0 < self.max_quaternion_norm_error < 1,
+                f"{prefix}.max_quaternion_norm_error must be in (0, 1) (at 1 a zero quaternion would pass), "
+                f"got {self.max_quaternion_norm_error}")
         require(0 < self.gate_probability < 1, f"{prefix}.gate_probability must be in (0, 1)")
         require(self.reset_after_rejected_steps >= 1, f"{prefix}.reset_after_rejected_steps must be at least 1")
         require(self.history_s >= 0, f"{prefix}.history_s must not be negative")
@@ -75,7 +79,7 @@ class FilterStats:
 
     accepted: int = 0  # fused (or used to start the filter)
     gated: int = 0  # rejected by the chi-square gate
-    invalid: int = 0  # NaN, non-unit quaternion, unknown marker id, or time in the future
+    invalid: int = 0  # NaN, non-unit or zero quaternion, unknown marker id, or time in the future
     too_late: int = 0  # older than the history
     resets: int = 0  # restarts after reset_after_rejected_steps fully gated steps
 
@@ -352,12 +356,13 @@ class MarkerFilter:
         return usable, len(measurements) - len(usable)
 
     def _usable(self, m: MarkerMeasurement, t: float) -> bool:
-        """A known marker, taken by time t, finite, with a unit quaternion (to tolerance)."""
+        """A known marker, taken by time t, finite, with a unit quaternion (to tolerance; never a zero one)."""
         try:
             if type(m) is not MarkerMeasurement:
                 m = MarkerMeasurement(m.time, m.marker_id, m.p_CM, m.q_CM)
-            return (m.marker_id in self._slot and m.time <= t + TIME_TOLERANCE_S
-                    and abs(m.quaternion_norm - 1.0) <= self.config.max_quaternion_norm_error)
+            norm = m.quaternion_norm
+            return (m.marker_id in self._slot and m.time <= t + TIME_TOLERANCE_S and norm > MIN_QUATERNION_NORM
+                    and abs(norm - 1.0) <= self.config.max_quaternion_norm_error)
         except (AttributeError, TypeError, ValueError):  # not a measurement, or nested arrays
             return False
 
@@ -551,7 +556,8 @@ class MarkerFilter:
         """(estimate vectors (..., ESTIMATE_VECTOR_SIZE) in the EST_* layout, p_WM (..., n, 3) [m],
         unit q^{P/R} (..., 4)) of states x (..., n) with the pad position's variance (...) [m^2] and
         the newest fused measurement's time (...) [s] (-inf: none yet): one step, or a stack of
-        steps (`record`) at once."""
+        steps (`record`) at once. Valid while the pad's position std is at most max_valid_position_std_m
+        and every figure reported (the vector's, but the measurement time, and p_WM) is finite."""
         p_WP, q_PR, p_WM = self.platform(x)
         q_PR = q_PR / np.linalg.norm(q_PR, axis=-1, keepdims=True)
         position_std = np.sqrt(position_variance)
@@ -559,10 +565,13 @@ class MarkerFilter:
         yaw = np.arctan2(2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qy * qy + qz * qz))
         v_WP, a_WP = self.platform_rates(x)
         last = np.where(np.isfinite(last_measurement_s), last_measurement_s, np.nan)
-        valid = position_std <= self.config.max_valid_position_std_m
-        columns = [np.asarray(c, dtype=float)[..., None] for c in (valid, yaw, position_std, last)]
+        yaw, position_std, last = (np.asarray(c, dtype=float)[..., None] for c in (yaw, position_std, last))
         q_WP = q_PR[..., [3, 0, 1, 2]]  # q^{P/R} scalar last: Drake's [w, x, y, z] of R_WP (paper_to_drake)
-        vector = np.concatenate([columns[0], p_WP, columns[1], v_WP, a_WP, columns[2], columns[3], q_WP], axis=-1)
+        valid = np.zeros_like(position_std)  # set below, from the rest
+        vector = np.concatenate([valid, p_WP, yaw, v_WP, a_WP, position_std, last, q_WP], axis=-1)
+        reported = np.delete(vector, [EST_VALID, EST_LAST_MEASUREMENT], axis=-1)  # the time: NaN before any
+        vector[..., EST_VALID] = ((vector[..., EST_POSITION_STD] <= self.config.max_valid_position_std_m)
+                                  & np.isfinite(reported).all(axis=-1) & np.isfinite(p_WM).all(axis=(-2, -1)))
         return vector, p_WM, q_PR
 
     def _latest(self, t: float | None) -> _Belief:
