@@ -11,6 +11,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
+from scipy.stats import chi2
 
 from systems.config import ConfigError
 from systems.estimators.marker_ekf import FILTERS, ConstantTurnEkf, MarkerEkfConfig, MarkerFilterSystem, PaperMarkerEkf
@@ -340,6 +341,25 @@ def test_the_chi_square_gate_rejects_a_gross_outlier(cls, outlier):
     b.step(t, uav_over(truth(t), t), measurements[:2] + measurements[3:])
     assert_same_belief(a, b, atol=1e-12)
     assert a.stats.gated == 1 and b.stats.gated == 0
+
+
+def test_the_paper_filters_gate_has_the_six_degrees_of_freedom_of_a_pose():
+    """Its measurement has 7 rows, but the unit quaternion's 4 components carry 3 degrees of freedom."""
+    assert make(PaperMarkerEkf, gate_probability=0.99)._gate == pytest.approx(chi2.ppf(0.99, 6), rel=1e-12)
+    assert make(ConstantTurnEkf, gate_probability=0.99)._gate == pytest.approx(chi2.ppf(0.99, 6), rel=1e-12)
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_the_gate_rejects_correct_measurements_at_its_probabilitys_rate(cls):
+    """gate_probability 0.9 on the measurements of the model (after a 60-step settle): 10 % of 3000 gated,
+    to 4 binomial standard deviations (0.022). A gate of the paper filter's 7 rows rejects 5 %."""
+    marker_filter = make(cls, gate_probability=0.9)
+    drive(marker_filter, straight(6.0), steps=60, seed=0)
+    before = marker_filter.stats
+    drive(marker_filter, straight(6.0), steps=600, seed=10, first=60)
+    gated, accepted = marker_filter.stats.gated - before.gated, marker_filter.stats.accepted - before.accepted
+    assert gated + accepted == 3000 and marker_filter.stats.resets == 0
+    assert gated / 3000 == pytest.approx(0.1, abs=4 * np.sqrt(0.1 * 0.9 / 3000))
 
 
 @pytest.mark.parametrize("cls", BOTH)

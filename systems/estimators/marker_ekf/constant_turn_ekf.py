@@ -64,6 +64,7 @@ class ConstantTurnEkf(MarkerFilter):
     name = "ct_ekf"
     n = 8
     rows = 6  # p_CM (3), attitude rotation vector (3)
+    gate_dof = rows
     attitude_axes = ("yaw",)  # the pad level by assumption
     PSI, OMEGA = 6, 7
 

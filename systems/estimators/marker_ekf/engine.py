@@ -6,7 +6,8 @@ package docstring):
 - update: the EKF of Sec. 3 with the Joseph-form covariance as the paper writes it, on the stacked
   rows of the markers seen in the step (any subset), the state renormalised by the model after it;
 - a chi-square gate per marker measurement: its innovation's normalised squared length against
-  the chi-square quantile `gate_probability` for the row count; rejected ones are counted, and
+  the chi-square quantile `gate_probability` for the measurement's degrees of freedom
+  (`gate_dof`: 6 for a pose, though the paper's has 7 rows); rejected ones are counted, and
   after `reset_after_rejected_steps` steps in a row whose measurements were all rejected, the
   filter restarts from the newest ones (a lost track must not gate out the truth for ever);
 - screening: NaN, a quaternion of norm at most MIN_QUATERNION_NORM or off 1 by more than
@@ -169,7 +170,8 @@ def cv_noise(psd: float, dt: float) -> np.ndarray:
 
 class MarkerFilter:
     """A marker filter's common machinery (module docstring). Subclasses give the model:
-    `n` states, `rows` rows per marker measurement, and the methods marked model hooks.
+    `n` states, `rows` rows per marker measurement, `gate_dof` degrees of freedom of its innovation
+    (its chi-square gate's), and the methods marked model hooks.
 
     Use: `step(t, X_WB, measurements)` once per period (t increasing), then `estimate(t)`.
     Copying a filter is cheap (copy.deepcopy shares its immutable history), so a Drake abstract
@@ -179,6 +181,7 @@ class MarkerFilter:
     name = ""
     n = 0
     rows = 0
+    gate_dof = 0
     attitude_axes: tuple[str, ...] = ()  # of the pad's roll, pitch and yaw, those the model estimates
 
     def __init__(self, layout: MarkerLayout, X_BC: RigidTransform, config: MarkerEkfConfig | None = None):
@@ -197,7 +200,7 @@ class MarkerFilter:
         self._R_marker = self.marker_noise(self.config.position_std_m, sigma_q)  # diagonal
         require(np.count_nonzero(self._R_marker - np.diag(np.diag(self._R_marker))) == 0,
                 f"{self.name}: the marker noise R must be diagonal")
-        self._gate = chi2.ppf(self.config.gate_probability, self.rows)
+        self._gate = chi2.ppf(self.config.gate_probability, self.gate_dof)
         self._R_stacked: dict[int, tuple] = {}  # shared by copies: a cache of constants
         self._constants_by_dt: dict[float, object] = {}  # shared by copies, like _R_stacked
         # Predictions already made, by (id of the prior belief, time): a late measurement re-runs

@@ -28,6 +28,7 @@ class PaperMarkerEkf(MarkerFilter):
 
     name = "paper_ekf"
     rows = 7  # p_CM (3), q^{M/C} (4)
+    gate_dof = 6  # p_CM (3), and the unit quaternion's 3: its 4 components' innovation has 3 degrees of freedom
     attitude_axes = ("roll", "pitch", "yaw")
 
     def __init__(self, layout: MarkerLayout, X_BC: RigidTransform, config: MarkerEkfConfig | None = None):
