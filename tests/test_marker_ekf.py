@@ -343,6 +343,23 @@ def test_the_chi_square_gate_rejects_a_gross_outlier(cls, outlier):
     assert a.stats.gated == 1 and b.stats.gated == 0
 
 
+@pytest.mark.parametrize("cls", BOTH)
+def test_the_newest_measurement_fused_is_not_a_later_gated_one(cls):
+    """One step brings a frame taken half a step before it (fused) and one at the step, every marker 5 m off
+    (gated): the estimate's newest fused measurement is the first frame's."""
+    marker_filter = converged(cls)
+    truth, t = straight(6.0), 60 * TS
+    rng = np.random.default_rng(5)
+    good = measure(truth, t - TS / 2, rng)
+    bad = [MarkerMeasurement(t, m.marker_id, m.p_CM + 5.0, m.q_CM) for m in measure(truth, t, rng)]
+    before = marker_filter.stats
+    marker_filter.step(t, uav_over(truth(t), t), good + bad)
+    after = marker_filter.stats
+    assert (after.accepted - before.accepted, after.gated - before.gated) == (5, 5)
+    assert marker_filter.estimate_vector()[0][EST_LAST_MEASUREMENT] == pytest.approx(t - TS / 2, abs=1e-12)
+    assert marker_filter.estimate().vector[EST_LAST_MEASUREMENT] == pytest.approx(t - TS / 2, abs=1e-12)
+
+
 def test_the_paper_filters_gate_has_the_six_degrees_of_freedom_of_a_pose():
     """Its measurement has 7 rows, but the unit quaternion's 4 components carry 3 degrees of freedom."""
     assert make(PaperMarkerEkf, gate_probability=0.99)._gate == pytest.approx(chi2.ppf(0.99, 6), rel=1e-12)

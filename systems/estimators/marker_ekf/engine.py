@@ -151,6 +151,7 @@ class _Step(NamedTuple):
     belief: _Belief | None  # posterior at `time`; None before the filter has started
     stats: FilterStats  # accepted, gated and resets of this step
     gated_streak: int  # steps in a row, up to this one, whose measurements were all gated out
+    last_fused: float  # acquisition time of the newest measurement fused up to this step [s]; -inf: none
 
 
 def _solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -211,7 +212,6 @@ class MarkerFilter:
         self._history: tuple[_Step, ...] = ()
         self._settled = FilterStats()  # counts no re-run can change: dropped steps', intake rejections
         self._has_evicted = False
-        self._last_measurement_s = -math.inf  # acquisition time of the newest measurement in a fusing step
         self.compute_s = 0.0  # wall time spent in step() [s], for reports (no result depends on it)
 
     def __deepcopy__(self, memo):
@@ -339,9 +339,6 @@ class MarkerFilter:
                                    old.measurements + tuple(late.get(j, ()))))
         camera = self.camera_at(X_WB) if camera is None else camera
         steps.append(self._run(steps[-1] if steps else None, t, camera, tuple(current)))
-        for s in steps[first:]:  # the steps run now, old ones re-run included
-            if s.stats.accepted:
-                self._last_measurement_s = max(self._last_measurement_s, max(m.time for m in s.measurements))
         settled = self._settled
         if invalid or too_late:
             settled = settled + FilterStats(invalid=invalid, too_late=too_late)
@@ -389,6 +386,7 @@ class MarkerFilter:
         of one time fused at that time, then a prediction to `time`."""
         belief = previous.belief if previous else None
         streak = previous.gated_streak if previous else 0
+        last_fused = previous.last_fused if previous else -math.inf
         accepted = gated = resets = 0
         groups = {}
         for m in sorted(measurements, key=_TIME):
@@ -401,21 +399,23 @@ class MarkerFilter:
                 cam = self._interpolate(previous.camera, camera, (tm - previous.time) / (time - previous.time))
             last = (tm, group, cam)
             if belief is None:
-                belief = self._start(tm, group, cam)
+                belief, last_fused = self._start(tm, group, cam), tm
                 accepted += len(group)
                 continue
             belief, fused = self._update(self._predict_to(belief, tm), group, cam)
             accepted += fused
             gated += len(group) - fused
+            if fused:
+                last_fused = tm
         if groups:
             streak = streak + 1 if accepted == 0 else 0
         if streak >= self.config.reset_after_rejected_steps:  # restarted from the newest group: used, not gated
-            belief, streak, resets = self._start(*last), 0, 1
+            belief, streak, resets, last_fused = self._start(*last), 0, 1, last[0]
             accepted, gated = accepted + len(last[1]), gated - len(last[1])
         if belief is not None:
             belief = self._predict_to(belief, time)
         stats = FilterStats(accepted, gated, 0, 0, resets) if accepted or gated or resets else _NO_COUNTS
-        return _Step(time, camera, tuple(measurements), belief, stats, streak)
+        return _Step(time, camera, tuple(measurements), belief, stats, streak, last_fused)
 
     def _start(self, time: float, group, camera: Camera) -> _Belief:
         slots, p_CM, q_MC = self._arrays(group)
@@ -528,7 +528,7 @@ class MarkerFilter:
                                         np.full((len(self.p_PM), 3), np.nan))
         belief = self._latest(t)
         vector, p_WM, q_PR = self.estimate_vectors(belief.x, self._position_variance(belief.P),
-                                                   self._last_measurement_s)
+                                                   self._history[-1].last_fused)
         X_WP = RigidTransform(RotationMatrix(paper_to_drake(q_PR)), vector[EST_P_WP])
         covariance = self.platform_covariance(belief.x, belief.P)
         estimate = PoseEstimate(belief.time, X_WP, bool(vector[EST_VALID]), covariance, "W", "P")
@@ -542,7 +542,7 @@ class MarkerFilter:
             return vector, np.full((len(self.p_PM), 3), np.nan)
         belief = self._latest(t)
         vector, p_WM, _ = self.estimate_vectors(belief.x, self._position_variance(belief.P),
-                                                self._last_measurement_s)
+                                                self._history[-1].last_fused)
         return vector, p_WM
 
     def record(self) -> tuple[np.ndarray, float, float] | None:
@@ -552,7 +552,7 @@ class MarkerFilter:
         if not self.started:
             return None
         belief = self._history[-1].belief
-        return belief.x, self._position_variance(belief.P), self._last_measurement_s
+        return belief.x, self._position_variance(belief.P), self._history[-1].last_fused
 
     def estimate_vectors(self, x: np.ndarray, position_variance, last_measurement_s
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
