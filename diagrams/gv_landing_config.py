@@ -234,6 +234,7 @@ class GvLandingConfig(FlightConfig):
                 "perception.source federated drives its IMU from the UAV's pose: navigation.source must be truth")
         require(not self.faults.active or self.estimation.source != "none",
                 "faults act on the marker stream, and estimation.source is none: set it to synthetic or detector")
+        self.faults.check_period(self.estimation.ekf.period_s)
         require(self.wind.is_calm or self.quadrotor.rotor_drag_coefficient > 0,
                 "wind acts on the quadrotor through its rotor drag, and quadrotor.rotor_drag_coefficient is 0 "
                 "(seed 002's model): set it (RotorS's is 8.06428e-5)")

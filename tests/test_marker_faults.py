@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from diagrams.cli import main
 from diagrams.gv_landing_run import fly
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
-from systems.perception.marker_faults import FaultsConfig, apply_faults, occluded
+from systems.perception.marker_faults import FaultsConfig, MarkerFaults, apply_faults, occluded
 from systems.perception.markers import MarkerMeasurement
 
 pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
@@ -73,10 +74,28 @@ def test_an_outlier_leaves_a_measurement_without_a_rotation_as_it_is(q_CM):
     ("faults.drop_probability=1.5", r"faults\.drop_probability"),
     ("faults.occlusion_duration_s=0", r"faults\.occlusion_duration_s"),
     ("faults.occlusions_s=[[0.0, 500.0]]", "longer than the run"),
+    ("faults.occlusion_rate_hz=30", r"faults\.occlusion_rate_hz \(30\) times the stream's period \(0\.035 s\) must be "
+                                    "at most 1"),
 ])
 def test_bad_fault_settings_name_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field):
         load_scenario("marker-landing", overrides=["estimation.source=synthetic", assignment])
+
+
+def test_a_burst_rate_above_one_per_sample_is_one_line_and_exit_2(capfd, tmp_path):
+    """30 Hz of bursts on a 35 ms stream: a start probability of 1.05 per sample, refused before anything runs."""
+    out = tmp_path / "run"
+    code = main(["run", "marker-landing", "--set", "estimation.source=synthetic", "--set", "duration_s=1",
+                 "--set", "faults.occlusion_rate_hz=30", "--out", str(out), "--quiet"])
+    _, err = capfd.readouterr()
+    assert code == 2 and "faults.occlusion_rate_hz (30)" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_the_faults_system_refuses_a_burst_rate_above_one_per_sample():
+    FaultsConfig(occlusion_rate_hz=20.0).check_period(0.05)  # exactly 1: every sample starts a burst
+    with pytest.raises(ConfigError, match=r"faults\.occlusion_rate_hz \(100\) times the stream's period"):
+        MarkerFaults(FaultsConfig(occlusion_rate_hz=100.0), T)
 
 
 def test_faults_need_a_stream():

@@ -5,8 +5,8 @@ of the sample index k (t_k = k T, T the stream's period), so runs repeat bit for
 
 - Occlusion: every sample inside a fixed [start, end] interval, or within `occlusion_duration_s`
   after a random burst's start; each sample starts a burst with probability rate T (a Bernoulli
-  approximation of a Poisson process of `occlusion_rate_hz`), so a sample is covered with
-  probability 1 - (1 - rate T)^n, n = ceil(duration / T).
+  approximation of a Poisson process of `occlusion_rate_hz`; rate T at most 1, `check_period`), so
+  a sample is covered with probability 1 - (1 - rate T)^n, n = ceil(duration / T).
 - Drops: a frame's measurements all lost with `drop_probability`.
 - Outliers: each remaining measurement, with `outlier_probability`, moved by a normal error of
   `outlier_position_m` per axis (m, in the camera frame) and turned by a normal angle of
@@ -49,6 +49,12 @@ class FaultsConfig:
             require_positive(getattr(self, name), f"{prefix}.{name}")
         for name in ("drop_probability", "outlier_probability"):
             require(0 <= getattr(self, name) <= 1, f"{prefix}.{name} must be within [0, 1], got {getattr(self, name)}")
+
+    def check_period(self, period_s: float, prefix: str = "faults") -> None:
+        """That a burst's start probability per sample of the stream's period `period_s` [s] is at most 1."""
+        require(self.occlusion_rate_hz * period_s <= 1,
+                f"{prefix}.occlusion_rate_hz ({self.occlusion_rate_hz:g}) times the stream's period ({period_s:g} s) "
+                f"must be at most 1: it is a burst's start probability per sample")
 
     def check_within(self, duration_s: float, prefix: str = "faults") -> None:
         """That no occlusion is longer than a run of `duration_s` [s]."""
@@ -103,6 +109,7 @@ class MarkerFaults(LeafSystem):
     def __init__(self, config: FaultsConfig, period_s: float, seed: int = 0):
         super().__init__()
         config.validate()
+        config.check_period(period_s)
         self._config, self._period, self._seed = config, period_s, seed
         self._input = self.DeclareAbstractInputPort("measurements", AbstractValue.Make([]))
         self.DeclareAbstractOutputPort("measurements", lambda: AbstractValue.Make([]), self._calc)
