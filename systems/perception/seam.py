@@ -9,8 +9,12 @@ A perception source is any system with that output; `SeamSplit` cuts it into the
 systems/perception/truth.py; every estimator reaches the seam through `EstimateToSeam`.
 
 Validity is the estimator's own: its `PoseEstimate.valid`, its covariance (position standard
-deviation within `SeamConfig.max_position_std_m`) and its age (`max_age_s`); never the truth. An
-invalid seam still carries the estimate's finite numbers (zeros where it has none), never NaN.
+deviation within `SeamConfig.max_position_std_m`) and its age (context time minus the estimate's
+time, within `max_age_s`); never the truth. A predicting filter (the marker EKFs, the federated
+filter) stamps its estimate with the time it is predicted to, so the age guards a held or late
+estimate, not how long a filter has coasted: a coasting marker filter turns invalid by its position
+covariance (MarkerEkfConfig.max_valid_position_std_m). An invalid seam still carries the
+estimate's finite numbers (zeros where it has none), never NaN.
 """
 
 import math
