@@ -83,7 +83,7 @@ class HybridPerceptionConfig:
         self.stereo.validate(f"{prefix}.stereo")
         self.depth.validate(f"{prefix}.depth", self.stereo)
         self.altitude_kf.validate(f"{prefix}.altitude_kf")
-        self.tracker.validate(f"{prefix}.tracker")
+        self.tracker.validate(f"{prefix}.tracker", self.fisheye.width, self.fisheye.height)
         self.velocity_observer.validate(f"{prefix}.velocity_observer")
         self.estimator.validate(f"{prefix}.estimator")
         self.stereo_pad.validate(f"{prefix}.stereo_pad")

@@ -466,6 +466,18 @@ def test_bad_configs_name_the_field():
         BoxTrackerConfig(min_score=-0.1).validate("tracker")
 
 
+def test_a_cue_outside_the_image_or_nan_is_refused():
+    """A cue far from every track never locks the target: NaN always, outside the image where its size is known
+    (the LeafSystem's, the scenario's fisheye)."""
+    with pytest.raises(ConfigError, match=r"box_tracker\.cue_px must be finite"):
+        BoxTrackerConfig(cue_px=[np.nan, 100.0]).validate()
+    for cue in ([512.0, 100.0], [100.0, 512.0], [-0.5, 100.0], [1e9, 1e9]):
+        with pytest.raises(ConfigError, match=r"box_tracker\.cue_px .* must lie in the 512 x 512 px image"):
+            BoxTrackerSystem(BoxTrackerConfig(cue_px=cue), 512, 512)
+    BoxTrackerSystem(BoxTrackerConfig(cue_px=[0.0, 511.9]), 512, 512)  # the image's edges are in it
+    BoxTrackerConfig(cue_px=[1e9, 1e9]).validate()  # the script tracker knows no image size
+
+
 # ----------------------------------------------------------------------------------------------
 # The LeafSystem
 

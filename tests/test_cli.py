@@ -86,6 +86,7 @@ def bad_config(tmp_path):
     (["run", "stewart-dynamic", "--seed", "-1"], "seed"),
     (["run", "stewart-dynamic", "--set", "tof.angle_deg=0.0"], "tof.angle_deg"),
     (["run", "ugv-hybrid", "--set", "hybrid.ground.texture_seed=-1"], "hybrid.ground.texture_seed"),
+    (["run", "ugv-hybrid", "--set", "hybrid.tracker.cue_px=[1e9,1e9]"], "hybrid.tracker.cue_px"),
     (["run", "deck-landing", "--duration", "-1"], "duration_s"),
     (["run", "stewart-dynamic", "--set", "platform.base_joint_height_m=-1.0"], "platform.base_joint_height_m"),
     (["run", "deck-landing", "--set", "perception.source=ct_ekf"], "perception.source"),
@@ -100,7 +101,8 @@ def bad_config(tmp_path):
 ], ids=["bad-name", "unknown-key", "negative-rate", "tag-too-big", "negative-duration", "type-error",
         "name-and-config", "unknown-option", "missing-config", "latin1-config", "federated-on-markers", "two-cameras",
         "backward-blackout", "imu-rate", "empty-manoeuvre", "deck-beyond-stroke", "stewart-beyond-stroke",
-        "negative-seed", "tof-on-the-axes", "negative-texture-seed", "negative-duration-deck", "negative-joint-height",
+        "negative-seed", "tof-on-the-axes", "negative-texture-seed", "cue-outside-the-fisheye",
+        "negative-duration-deck", "negative-joint-height",
         "deck-source", "deck-ih", "deck-negative-latency", "tof-phase-beyond-period",
         "missing-detector-model", "corrupt-detector-model", "meshcat-port-beyond-65535", "meshcat-port-below-1024",
         "meshcat-port-negative"])

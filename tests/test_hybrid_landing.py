@@ -259,6 +259,8 @@ def test_scenario_loads():
                                             ("hybrid.fisheye.fov_deg=200", "hybrid.fisheye.fov_deg"),
                                             ("hybrid.fisheye.width=640", "hybrid.fisheye.width"),
                                             ("hybrid.refinement.method=yolo", "hybrid.refinement.method"),
+                                            ("hybrid.tracker.cue_px=[1e9, 1e9]", "hybrid.tracker.cue_px"),
+                                            ("hybrid.tracker.cue_px=[100, 512]", "hybrid.tracker.cue_px"),
                                             ("hybrid.no_such_key=1", "hybrid.no_such_key")])
 def test_bad_setting_names_the_field(setting, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):

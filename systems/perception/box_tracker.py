@@ -96,11 +96,13 @@ class BoxTrackerConfig:
     appearance_update: float = 0.3  # weight of the newest matched histogram in a track's appearance
     min_size_ratio: float = 0.6  # a confirmed track's detection narrower or shorter than this is a partial view
     lock_min_score: float = 0.0  # the lock takes (or re-takes) only a track with a detection scoring this high
-    cue_px: list[float] = field(default_factory=list)  # [u, v] near the target at the start; empty: image centre
+    cue_px: list[float] = field(default_factory=list)  # [u, v] px in the image, near the target at first; empty: centre
     cue_radius_px: float = 120.0  # the locked track must start this close to the cue (a quarter of the fisheye's width)
     reacquire_radius_px: float = 150.0  # a lost target is re-locked on a track this close to its last box
 
-    def validate(self, prefix: str = "box_tracker") -> None:
+    def validate(self, prefix: str = "box_tracker", width: int | None = None, height: int | None = None) -> None:
+        """ConfigError naming the field for a setting the tracker cannot run with; with the image's `width` x
+        `height` [px] (where known), a cue outside it too."""
         for name in ("rate_hz", "measurement_std_px", "acceleration_std_px_s2", "initial_velocity_std_px_s",
                      "gate_chi2", "max_cost", "max_colour_cost", "cue_radius_px", "reacquire_radius_px"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
@@ -120,6 +122,12 @@ class BoxTrackerConfig:
         require(0 < self.appearance_update <= 1,
                 f"{prefix}.appearance_update must lie in (0, 1], got {self.appearance_update}")
         require(len(self.cue_px) in (0, 2), f"{prefix}.cue_px needs 2 numbers [u, v] or none, got {len(self.cue_px)}")
+        if self.cue_px:  # a cue nowhere near the image (or NaN) never finds a track: the target is never locked
+            require(all(math.isfinite(c) for c in self.cue_px), f"{prefix}.cue_px must be finite, got {self.cue_px}")
+            if width is not None and height is not None:
+                require(0 <= self.cue_px[0] < width and 0 <= self.cue_px[1] < height,
+                        f"{prefix}.cue_px {self.cue_px} must lie in the {width} x {height} px image "
+                        f"(0 <= u < {width}, 0 <= v < {height})")
 
     @property
     def period_s(self) -> float:

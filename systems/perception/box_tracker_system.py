@@ -27,7 +27,7 @@ class BoxTrackerSystem(LeafSystem):
     def __init__(self, config: BoxTrackerConfig | None = None, width: int = 512, height: int = 512):
         super().__init__()
         self._config = config or BoxTrackerConfig()
-        self._config.validate()
+        self._config.validate(width=width, height=height)
         self._detections = self.DeclareAbstractInputPort("detections", AbstractValue.Make([]))
         self._image = self.DeclareAbstractInputPort("color_image", AbstractValue.Make(ImageRgba8U(width, height)))
         self._stepped = SteppedValue(self, "tracker", TrackerState(), self._config.period_s, self._step,
