@@ -261,6 +261,10 @@ def test_scenario_loads():
                                             ("hybrid.refinement.method=yolo", "hybrid.refinement.method"),
                                             ("hybrid.tracker.cue_px=[1e9, 1e9]", "hybrid.tracker.cue_px"),
                                             ("hybrid.tracker.cue_px=[100, 512]", "hybrid.tracker.cue_px"),
+                                            ("hybrid.classical.max_strip_angle_deg=-5",
+                                             "hybrid.classical.max_strip_angle_deg"),
+                                            ("hybrid.classical.min_part_px=-1", "hybrid.classical.min_part_px"),
+                                            ("hybrid.classical.min_box_px=-3", "hybrid.classical.min_box_px"),
                                             ("hybrid.no_such_key=1", "hybrid.no_such_key")])
 def test_bad_setting_names_the_field(setting, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):

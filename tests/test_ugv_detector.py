@@ -5,6 +5,7 @@ learned detector's own parts: tests/test_ugv_cnn_detector.py."""
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -25,8 +26,10 @@ from diagrams.ugv_detection_scenes import (
     sample_scene,
     ugv_box,
 )
+from systems.config import ConfigError
 from systems.perception.ugv_cnn_detector import CnnDetector
 from systems.perception.ugv_detector import (
+    ColourPadConfig,
     ColourPadDetector,
     UgvDetectorSystem,
     iou,
@@ -120,6 +123,19 @@ def test_match_truth_takes_the_best_scoring_overlap_only():
     _, scores, matched = match_truth(detections, truth)
     assert list(matched) == [False, True, False] and list(scores) == [0.6, 0.9, 0.95]
     assert not match_truth(detections, None)[2].any()
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("max_strip_angle_deg", -5.0, "must lie in (0, 90]"), ("max_strip_angle_deg", 0.0, "must lie in (0, 90]"),
+    ("max_strip_angle_deg", 91.0, "must lie in (0, 90]"), ("min_part_px", -1, "must be an integer of at least 1"),
+    ("min_part_px", 0, "must be an integer of at least 1"), ("min_part_px", 2.5, "must be an integer of at least 1"),
+    ("min_box_px", -3, "must be an integer of at least 1"), ("min_shaped_part_px", -1.0, "must not be negative")])
+def test_bad_classical_settings_name_the_field(field, value, message):
+    """Settings that silently lose the UGV (no strip pair passes a negative angle) or mean nothing (a negative
+    pixel count) are refused."""
+    with pytest.raises(ConfigError, match=rf"hybrid\.classical\.{field} {re.escape(message)}"):
+        ColourPadConfig(**{field: value}).validate("hybrid.classical")
+    ColourPadConfig(max_strip_angle_deg=90.0, min_part_px=1, min_box_px=1, min_shaped_part_px=0.0).validate()
 
 
 # ---------------------------------------------------------------- rendered held-out frames

@@ -31,7 +31,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
-from systems.config import require
+from systems.config import require, require_non_negative
 
 Detection = tuple[np.ndarray, float]  # (box [x, y, w, h] px, score in [0, 1])
 
@@ -151,6 +151,13 @@ class ColourPadConfig:
                 f"{prefix}.max_length_ratio and min_strip_elongation must be at least 1")
         require(len(self.strip_distance_range) == 2 and 0 <= self.strip_distance_range[0] <= self.strip_distance_range[1],
                 f"{prefix}.strip_distance_range must be [low, high] with 0 <= low <= high")
+        # At 0 deg or under no pair of shaped strips passes: the UGV seen from above is lost.
+        require(0 < self.max_strip_angle_deg <= 90,
+                f"{prefix}.max_strip_angle_deg must lie in (0, 90], got {self.max_strip_angle_deg}")
+        for name in ("min_part_px", "min_box_px"):
+            require(isinstance(getattr(self, name), int) and getattr(self, name) >= 1,
+                    f"{prefix}.{name} must be an integer of at least 1, got {getattr(self, name)}")
+        require_non_negative(self.min_shaped_part_px, f"{prefix}.min_shaped_part_px")
 
 
 @dataclass
