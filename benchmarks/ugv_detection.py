@@ -36,10 +36,10 @@ from diagrams.ugv_detection_scenes import (
     sample_scene,
 )
 from systems.config import ConfigError
-from systems.perception.box_tracker import box_centre_pixel
+from systems.perception.box_tracker import box_centre_pixel, iou_matrix
 from systems.perception.ugv_box_refiner import ColourRefinedDetector
 from systems.perception.ugv_cnn_detector import DEFAULT_MODEL_PATH, CnnDetector
-from systems.perception.ugv_detector import ColourPadDetector, iou_many, match_truth
+from systems.perception.ugv_detector import ColourPadDetector, match_truth
 
 TABLE3 = {"precision": 0.9962, "recall": 0.9959, "f1": 0.9960}  # seed 003 Table 3, "Total"
 TABLE7_DETECTION_MS = (51.24, 55.69)  # seed 003 Table 7: mean, standard deviation
@@ -52,7 +52,7 @@ def score_frame(detections, truth: np.ndarray | None, distractors: np.ndarray, p
     boxes, _, matched = match_truth(detections, truth)
     on_distractor = 0
     for box in boxes[~matched]:
-        if len(distractors) and np.any(iou_many(box, distractors) >= 0.3):
+        if len(distractors) and np.any(iou_matrix(box, distractors) >= 0.3):
             on_distractor += 1
     centre_px = [float(np.hypot(*(box_centre_pixel(box) - pad_px))) for box in boxes[matched] if pad_px is not None]
     return {"tp": int(matched.sum()), "fp": int((~matched).sum()), "fn": int(truth is not None and not matched.any()),

@@ -5,16 +5,14 @@ true box (its 3-D bounding box projected with the fisheye's model, diagrams/ugv_
 `projected_box`; a detection is right at IOU >= 0.5), and the tracker's identity switches.
 """
 
-import itertools
-
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from diagrams.hybrid_perception import GROUND_LIFT_M
 from diagrams.ugv_detection_scenes import box_surface_points, projected_box, ugv_bounds_V
+from systems.perception.box_tracker import count_identity_switches, iou
 from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
 from systems.perception.seam import P_BP_W, V_WP
-from systems.perception.ugv_detector import iou
 from systems.vehicles.quadrotor import P_WB, Q_WB
 
 IOU_MATCH = 0.5
@@ -106,10 +104,12 @@ def detection_scores(detections: np.ndarray, truth: list) -> dict:
 
 
 def identity_switches(lock: np.ndarray) -> dict:
-    """Changes of the locked track's id between frames with a lock (one UGV: every change is a switch)."""
-    ids = [int(i) for i in lock[:, 0] if i >= 0]
-    switches = sum(1 for a, b in itertools.pairwise(ids) if a != b)
-    return {"identity_switches": switches, "frames_locked": len(ids), "tracks_locked": len(set(ids))}
+    """Changes of the locked track's id between frames with a lock (LockedTrackVector's log (N, 2), id -1
+    without one; one UGV: every change is a switch), box_tracker's `count_identity_switches`."""
+    ids = [int(i) if i >= 0 else None for i in lock[:, 0]]
+    locked = [i for i in ids if i is not None]
+    switches = count_identity_switches(ids, [None] * len(ids)).total
+    return {"identity_switches": switches, "frames_locked": len(locked), "tracks_locked": len(set(locked))}
 
 
 def hybrid_metrics(log: dict, config, end_s: float | None) -> dict:

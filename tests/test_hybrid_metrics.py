@@ -1,10 +1,10 @@
 """The UGV detector's scores (diagrams/hybrid_metrics.detection_scores) on constructed boxes, logged as the loop
-logs them (DetectionsToTracker's detection_vector)."""
+logs them (DetectionsToTracker's detection_vector); the tracker's identity switches from the lock's log."""
 
 import numpy as np
 import pytest
 
-from diagrams.hybrid_metrics import detection_scores
+from diagrams.hybrid_metrics import detection_scores, identity_switches
 from systems.perception.hybrid_pad import DetectionsToTracker
 
 TRUE_BOX = np.array([100.0, 100.0, 40.0, 30.0])  # [x, y, w, h] px
@@ -35,3 +35,11 @@ def test_every_detection_counts_however_many_a_frame_has():
     scores = detection_scores(logged(frames), [TRUE_BOX, None])
     assert (scores["true_positives"], scores["false_positives"], scores["false_negatives"]) == (1, 13, 0)
     assert scores["precision"] == pytest.approx(1 / 14) and scores["recall"] == 1.0
+
+
+def test_identity_switches_count_changes_of_the_locked_id_across_frames_without_a_lock():
+    """LockedTrackVector's log: id -1 without a lock. 3 -> 7 and 7 -> 3 are switches, a gap under one id is not."""
+    ids = [-1, 3, 3, -1, 3, 7, 7, -1, -1, 3]
+    lock = np.column_stack([ids, np.zeros(len(ids))]).astype(float)
+    assert identity_switches(lock) == {"identity_switches": 2, "frames_locked": 6, "tracks_locked": 2}
+    assert identity_switches(lock[:3]) == {"identity_switches": 0, "frames_locked": 2, "tracks_locked": 1}

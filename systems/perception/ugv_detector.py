@@ -18,7 +18,8 @@ above, the pad on the roof splits the body into two strips), and a group accepte
 convex hull holds the white of the pad (a plain box of the UGV's own colour has none). Its box is the
 group's enclosing box.
 
-Here too: the box geometry both share (IOU, greedy NMS), and `UgvDetectorSystem`, either as a LeafSystem.
+Here too: greedy NMS and the scoring against a true box (on box_tracker's IOU), and `UgvDetectorSystem`,
+either as a LeafSystem.
 """
 
 import math
@@ -32,6 +33,7 @@ from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
 from systems.config import require, require_non_negative
+from systems.perception.box_tracker import iou_matrix
 
 Detection = tuple[np.ndarray, float]  # (box [x, y, w, h] px, score in [0, 1])
 
@@ -42,41 +44,10 @@ class UgvDetector(Protocol):
     def detect(self, rgb: np.ndarray) -> list[Detection]: ...
 
 
-def iou(a, b) -> float:
-    """Intersection over union of two boxes [x, y, w, h] (seed 003 Eq. 2)."""
-    ax, ay, aw, ah = a
-    bx, by, bw, bh = b
-    w = min(ax + aw, bx + bw) - max(ax, bx)
-    h = min(ay + ah, by + bh) - max(ay, by)
-    if w <= 0 or h <= 0:
-        return 0.0
-    inter = w * h
-    return float(inter / (aw * ah + bw * bh - inter))
-
-
-def iou_many(box, boxes: np.ndarray) -> np.ndarray:
-    """IOU of one box with each of `boxes` (N, 4)."""
-    boxes = np.asarray(boxes, float).reshape(-1, 4)
-    w = np.minimum(box[0] + box[2], boxes[:, 0] + boxes[:, 2]) - np.maximum(box[0], boxes[:, 0])
-    h = np.minimum(box[1] + box[3], boxes[:, 1] + boxes[:, 3]) - np.maximum(box[1], boxes[:, 1])
-    inter = np.clip(w, 0, None) * np.clip(h, 0, None)
-    return inter / (box[2] * box[3] + boxes[:, 2] * boxes[:, 3] - inter)
-
-
-def overlap_of_smaller(box, boxes: np.ndarray) -> np.ndarray:
-    """The intersection of one box with each of `boxes` (N, 4) over the smaller of the two's area."""
-    boxes = np.asarray(boxes, float).reshape(-1, 4)
-    w = np.minimum(box[0] + box[2], boxes[:, 0] + boxes[:, 2]) - np.maximum(box[0], boxes[:, 0])
-    h = np.minimum(box[1] + box[3], boxes[:, 1] + boxes[:, 3]) - np.maximum(box[1], boxes[:, 1])
-    inter = np.clip(w, 0, None) * np.clip(h, 0, None)
-    return inter / np.minimum(box[2] * box[3], boxes[:, 2] * boxes[:, 3])
-
-
 def non_maximum_suppression(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float,
-                            max_keep: int | None = None, containment: float = 1.0) -> np.ndarray:
-    """Indices of the boxes kept by greedy NMS, highest score first: a box goes when its IOU with a kept
-    one exceeds `iou_threshold`, or when more than `containment` of the smaller one lies in the other (a
-    part of an object found at a smaller scale)."""
+                            max_keep: int | None = None) -> np.ndarray:
+    """Indices of the boxes [x, y, w, h] px kept by greedy NMS, highest score first: a box goes when its IOU
+    (box_tracker's, Eq. 2) with a kept one exceeds `iou_threshold`."""
     order = np.argsort(-np.asarray(scores))
     keep = []
     boxes = np.asarray(boxes, float).reshape(-1, 4)
@@ -84,8 +55,7 @@ def non_maximum_suppression(boxes: np.ndarray, scores: np.ndarray, iou_threshold
         i = order[0]
         keep.append(i)
         rest = order[1:]
-        order = rest[(iou_many(boxes[i], boxes[rest]) <= iou_threshold)
-                     & (overlap_of_smaller(boxes[i], boxes[rest]) <= containment)]
+        order = rest[iou_matrix(boxes[i], boxes[rest])[0] <= iou_threshold]
     return np.asarray(keep, int)
 
 
@@ -96,7 +66,7 @@ def match_truth(detections: list[Detection], truth: np.ndarray | None) -> tuple[
     scores = np.array([score for _, score in detections], float)
     matched = np.zeros(len(boxes), bool)
     if truth is not None and len(boxes):
-        hits = np.flatnonzero(iou_many(truth, boxes) >= 0.5)
+        hits = np.flatnonzero(iou_matrix(truth, boxes)[0] >= 0.5)
         if hits.size:
             matched[hits[np.argmax(scores[hits])]] = True
     return boxes, scores, matched
