@@ -89,7 +89,7 @@ def hardware_verdicts(ours: dict) -> list[str]:
 def crhf_compute_ms(config: StewartSceneConfig, log: dict) -> float:
     """Median ms per frame of CRHF's own work (filters, normal fusion and pose) on logged inputs."""
     crhf = CrhfEstimator(config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg),
-                         config.platform.tag_size_m, config.camera.period_s)
+                         config.platform.tag_size_m, config.camera.period_s, config.camera)
     state, times = CrhfState(), []
     for t, corners, ranges in zip(log["t"], log["tag_corners"], log["ranges"]):
         start = time.perf_counter()

@@ -9,8 +9,8 @@ Table 1), their convex-hull centroids found (Eq. 12-16) and paired with the four
 
     landing-sim run crhf-calibration --out results/cal
 
-leaves pad_calibration.npz (the calibration, as `PadCalibration.save` writes it), metrics.json,
-log.npz and plots like Fig. 14-15 in the output directory.
+leaves pad_calibration.npz (the calibration and the camera and ToF layout flown, as `PadCalibration.save`
+writes them), metrics.json, log.npz and plots like Fig. 14-15 in the output directory.
 
 Heights are those of the camera (and the ToF sensors, which sit in the camera plane, Eq. 21-24)
 above the pads' top surface: a height is the true range each sensor reads.
@@ -29,7 +29,7 @@ from diagrams.outputs import save_figure, write_npz
 from diagrams.scenario import RunSettings
 from diagrams.stewart_scene import add_uav_sensors, add_viewers
 from systems.config import require, require_positive
-from systems.estimators.pad_calibration import MIN_SAMPLES, PAD_COLOURS, PAD_RGB, PadCalibration
+from systems.estimators.pad_calibration import MIN_SAMPLES, PAD_COLOURS, PAD_RGB, CalibrationFlight, PadCalibration
 from systems.geometry import register_visual
 from systems.perception.apriltag import project_points
 from systems.perception.color_pads import PadCentroidsSystem
@@ -331,7 +331,8 @@ def run(scenario: Scenario, ctx) -> dict:
     diagram, handles = build_calibration_scene(scenario, ctx.meshcat, video_path)
     metrics, context = simulate_scene(diagram, handles, scenario, ctx)
     log = collect_log(handles, context, scenario)
-    calibration = PadCalibration.from_frames(log["ranges"], log["pad_pixels"].reshape(-1, 4, 2), PAD_COLOURS)
+    calibration = PadCalibration.from_frames(log["ranges"], log["pad_pixels"].reshape(-1, 4, 2), PAD_COLOURS,
+                                             CalibrationFlight.of(scenario.camera, handles.p_C_sensors))
     valid = np.isfinite(log["ranges"])
     metrics.update({
         "frames": int(len(log["t"])),

@@ -97,7 +97,7 @@ def _add_estimators(builder: DiagramBuilder, config: DeckLandingConfig, color_im
     atda = builder.AddNamedSystem("atda", AtdaEstimator(config.camera.K_estimated, config.platform.tag_size_m))
     crhf = builder.AddNamedSystem("crhf", CrhfEstimator(
         config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,
-        config.camera.period_s))
+        config.camera.period_s, config.camera))
     builder.Connect(ranges, crhf.GetInputPort("ranges"))
     builder.Connect(V_WC_C, crhf.GetInputPort("V_WC_C"))
     for estimator in (atda, crhf):

@@ -216,7 +216,7 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
         else:
             estimator = builder.AddSystem(CrhfEstimator(
                 config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,
-                config.camera.period_s))
+                config.camera.period_s, config.camera))
             builder.Connect(ranges, estimator.GetInputPort("ranges"))
         estimators[name] = estimator
         builder.Connect(detection, estimator.GetInputPort("tag_detection"))

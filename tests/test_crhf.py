@@ -1,5 +1,6 @@
 """The CRHF estimator as a system: on rendered scenes against ground truth, and its failure modes."""
 
+import re
 from dataclasses import replace
 
 import cv2
@@ -10,6 +11,7 @@ from pydrake.systems.analysis import Simulator
 
 from diagrams.metrics import pose_errors
 from diagrams.runner import RunOptions, load_scenario, run
+from diagrams.scenario import scenario_names
 from diagrams.stewart_run import collect_log
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import ConfigError
@@ -22,13 +24,14 @@ from systems.sensors.camera import CameraConfig
 from systems.sensors.tof import sensor_positions_C
 from tests.conftest import constant_offset_platform, pose
 
-K = CameraConfig().K
+CAMERA = CameraConfig()
+K = CAMERA.K
 P_C_SENSORS = sensor_positions_C(0.135)
 
 
 @pytest.fixture(scope="module")
 def crhf():
-    return CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05)
+    return CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05, CAMERA)
 
 
 def level_frame(height=2.0):
@@ -128,7 +131,7 @@ def test_an_invalid_range_or_one_outside_the_calibration_is_flagged_not_nan(crhf
 
 
 def test_the_system_output_is_this_frames_estimate():
-    system = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05)
+    system = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05, CAMERA)
     context = system.CreateDefaultContext()
     corners, ranges = level_frame(1.5)
     system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.0, corners))
@@ -141,17 +144,52 @@ def test_the_system_output_is_this_frames_estimate():
 
 def test_missing_calibration_and_bad_settings_are_clear_errors(tmp_path):
     with pytest.raises(CalibrationError, match="nope.npz"):
-        CrhfEstimator(CrhfConfig(calibration_file=str(tmp_path / "nope.npz")), P_C_SENSORS, 0.5, 0.05)
+        CrhfEstimator(CrhfConfig(calibration_file=str(tmp_path / "nope.npz")), P_C_SENSORS, 0.5, 0.05, CAMERA)
     three = tmp_path / "three_pads.npz"  # a calibration of three sensors (before: a matmul error at the first frame)
     PadCalibration(PadCalibration.load(CrhfConfig().calibration_path()).sensors[:3]).save(three)
     with pytest.raises(CalibrationError, match="has 3 sensors; CRHF has 4"):
-        CrhfEstimator(CrhfConfig(calibration_file=str(three)), P_C_SENSORS, 0.5, 0.05)
+        CrhfEstimator(CrhfConfig(calibration_file=str(three)), P_C_SENSORS, 0.5, 0.05, CAMERA)
     with pytest.raises(ConfigError, match="crhf.touch_pixels"):
         load_scenario("stewart-dynamic", overrides=["crhf.touch_pixels=spline"])
     with pytest.raises(ConfigError, match="crhf.range_filter.measurement_std"):
         load_scenario("stewart-dynamic", overrides=["crhf.range_filter.measurement_std=0"])
     with pytest.raises(ConfigError, match="crhf.max_tag_residual"):
         load_scenario("deck-landing", overrides=["crhf.max_tag_residual=-0.1"])
+
+
+@pytest.mark.parametrize("camera, p_C_sensors, named", [
+    (replace(CAMERA, fx=550.0, fy=550.0), P_C_SENSORS, "camera [fx, fy, cx, cy, width, height] [458.5, 457.855"),
+    (replace(CAMERA, width=640), P_C_SENSORS, "the scene's [458.5, 457.855, 258.7735, 252.308, 640.0, 512.0] px"),
+    (CAMERA, sensor_positions_C(0.2), "ToF sensors at (x, y) [[-0.095459, -0.095459]"),
+    (CAMERA, sensor_positions_C(0.135, 40.0), "the scene's [[-0.103416, -0.086776]"),
+], ids=["focal-lengths", "width", "arm", "angle"])
+def test_a_calibration_flown_with_another_camera_or_tof_layout_is_refused(camera, p_C_sensors, named):
+    with pytest.raises(CalibrationError, match=re.escape(named)) as error:
+        CrhfEstimator(CrhfConfig(), p_C_sensors, 0.5, 0.05, camera)
+    assert "crhf_pad_calibration.npz was flown with" in str(error.value) and "\n" not in str(error.value)
+
+
+def test_the_committed_calibration_records_its_flight_and_a_file_without_one_is_refused(tmp_path):
+    _, scenario = load_scenario("crhf-calibration")
+    flight = PadCalibration.load(CrhfConfig().calibration_path()).flight
+    np.testing.assert_array_equal(flight.camera, [scenario.camera.fx, scenario.camera.fy, scenario.camera.cx,
+                                                  scenario.camera.cy, scenario.camera.width, scenario.camera.height])
+    np.testing.assert_array_equal(flight.p_C_sensors,
+                                  sensor_positions_C(scenario.tof.arm_m, scenario.tof.angle_deg))
+    unrecorded = tmp_path / "unrecorded.npz"
+    PadCalibration(PadCalibration.load(CrhfConfig().calibration_path()).sensors).save(unrecorded)
+    with pytest.raises(CalibrationError, match="does not record the camera and ToF layout .* re-run `landing-sim run "
+                                               "crhf-calibration`"):
+        CrhfEstimator(CrhfConfig(calibration_file=str(unrecorded)), P_C_SENSORS, 0.5, 0.05, CAMERA)
+
+
+def test_every_shipped_scenario_with_crhf_loads_the_committed_calibration():
+    scenarios = [load_scenario(name)[1] for name in scenario_names()]
+    with_crhf = [s for s in scenarios if hasattr(s, "crhf")]
+    assert {s.diagram for s in with_crhf} == {"stewart_scene", "deck_landing"} and len(with_crhf) == 5
+    for scenario in with_crhf:  # the stewart-* and deck-landing* scenarios, as their diagrams build CRHF
+        CrhfEstimator(scenario.crhf, sensor_positions_C(scenario.tof.arm_m, scenario.tof.angle_deg),
+                      scenario.platform.tag_size_m, scenario.camera.period_s, scenario.camera)
 
 
 def test_running_mean_weights_its_samples():
@@ -201,8 +239,9 @@ def test_residuals_of_corners_that_fit_no_tag_are_not_pooled_once_the_noise_is_k
 
 
 def test_fusion_and_averaging_switched_off_give_the_papers_pipeline_on_filtered_ranges():
-    paper = CrhfEstimator(CrhfConfig(fuse_corner_normal=False, average_intrinsics=False), P_C_SENSORS, 0.5, 0.05)
-    ours = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05)
+    paper = CrhfEstimator(CrhfConfig(fuse_corner_normal=False, average_intrinsics=False), P_C_SENSORS, 0.5, 0.05,
+                          CAMERA)
+    ours = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05, CAMERA)
     paper_state, ours_state = CrhfState(), CrhfState()
     for k, (corners, ranges) in enumerate(noisy_level_frames(20)):
         paper_state, paper_estimate = paper.step(paper_state, corners, ranges, 0.05 * k)

@@ -137,7 +137,10 @@ def test_command_line_writes_the_calibration_and_metrics(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert {"scenario", "seed", "sim_time_s", "wall_time_s", "realtime_factor", "calibration"} <= set(metrics)
     assert metrics["scenario"] == "crhf-calibration" and metrics["sim_time_s"] == 1.0
-    assert len(PadCalibration.load(out / "pad_calibration.npz").sensors) == 4
+    written = PadCalibration.load(out / "pad_calibration.npz")
+    assert len(written.sensors) == 4
+    np.testing.assert_array_equal(written.flight.camera, [458.5, 457.855, 258.7735, 252.308, 512, 512])
+    np.testing.assert_array_equal(written.flight.p_C_sensors, sensor_positions_C(0.135))
 
     bad = subprocess.run([*landing_sim_command(), "run", "crhf-calibration", "--set", "end_height_m=9",
                          "--out", str(tmp_path / "x")],

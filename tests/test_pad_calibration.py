@@ -1,6 +1,7 @@
 """Tests of the colour-pad camera-ToF calibration (seed 000, Sec. 2.3)."""
 
 import re
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -13,6 +14,7 @@ from systems.estimators.pad_calibration import (
     PAD_RGB,
     YCBCR_RANGES,
     CalibrationError,
+    CalibrationFlight,
     PadCalibration,
     SensorCalibration,
     blob_centroid,
@@ -227,6 +229,26 @@ def test_save_load_round_trip(tmp_path):
     np.testing.assert_array_equal(loaded.touch_pixels(ranges), cal.touch_pixels(ranges))
 
 
+def test_the_flight_is_saved_and_loaded_and_compared_within_one_part_in_a_million(tmp_path):
+    camera = SimpleNamespace(fx=FX, fy=FY, cx=CX, cy=CY, width=512, height=512)
+    flight = CalibrationFlight.of(camera, P_C_SENSORS)
+    path = tmp_path / "pads.npz"
+    PadCalibration(calibration().sensors, flight).save(path)
+    loaded = PadCalibration.load(path).flight
+    np.testing.assert_array_equal(loaded.camera, [FX, FY, CX, CY, 512, 512])
+    np.testing.assert_array_equal(loaded.p_C_sensors, P_C_SENSORS)
+    assert flight.mismatch(loaded) is None
+    assert flight.mismatch(CalibrationFlight.of(camera, sensor_positions_C(0.135 * (1 + 1e-7)))) is None
+    assert flight.mismatch(CalibrationFlight.of(camera, sensor_positions_C(0.135 * (1 + 1e-5)))).startswith(
+        "ToF sensors at (x, y) [[-0.095459, -0.095459]")
+    other_camera = SimpleNamespace(**{**vars(camera), "cy": CY + 0.01})
+    assert flight.mismatch(CalibrationFlight.of(other_camera, P_C_SENSORS)) == (
+        f"camera [fx, fy, cx, cy, width, height] {[FX, FY, CX, CY, 512.0, 512.0]} px, the scene's "
+        f"{[FX, FY, CX, CY + 0.01, 512.0, 512.0]} px")
+    calibration().save(path)
+    assert PadCalibration.load(path).flight is None
+
+
 def test_load_errors_name_the_file_and_the_problem(tmp_path):
     missing = tmp_path / "none.npz"
     with pytest.raises(CalibrationError, match=re.escape(f"{missing} does not exist")):
@@ -254,3 +276,9 @@ def test_load_errors_name_the_file_and_the_problem(tmp_path):
     message = f"{short}: green pad: usable samples at 2 distinct ranges"
     with pytest.raises(CalibrationError, match=re.escape(message)):
         PadCalibration.load(short)
+
+    half_flight = tmp_path / "half_flight.npz"  # a flight's camera without its sensors
+    np.savez(half_flight, **arrays, flight_camera=np.array([FX, FY, CX, CY, 512.0, 512.0]))
+    message = f"{half_flight}: the flight needs flight_camera (6,) and flight_p_C_sensors (4, 3)"
+    with pytest.raises(CalibrationError, match=re.escape(message)):
+        PadCalibration.load(half_flight)

@@ -47,7 +47,7 @@ from systems.estimators.crhf_math import (
     touch_points,
 )
 from systems.estimators.estimate import PoseEstimate
-from systems.estimators.pad_calibration import CalibrationError, PadCalibration
+from systems.estimators.pad_calibration import CalibrationError, CalibrationFlight, PadCalibration
 from systems.estimators.track_filter import Track, TrackFilterParams, step_track
 from systems.perception.apriltag import TagDetection, tag_corners_T
 
@@ -63,8 +63,9 @@ JUDGED_FROM_DOF = 20.0
 
 @dataclass
 class CrhfConfig:
-    """calibration_file: the pad calibration (relative paths are tried from the working directory,
-    then from the project root). touch_pixels: "pchip" (the paper's choice) or "hyperbola".
+    """calibration_file: the pad calibration, flown with the scene's camera and ToF layout (relative paths are
+    tried from the working directory, then from the project root). touch_pixels: "pchip" (the paper's choice)
+    or "hyperbola".
     corner_filter (px) and range_filter (m): the two Kalman filters; their dt_s is the camera
     period. filter_ranges: False feeds each frame's raw ranges to the plane fit, as the paper does.
     fuse_corner_normal and average_intrinsics: our additions (module docstring); False for the
@@ -172,13 +173,25 @@ class CrhfEstimator(LeafSystem):
     share. So the estimate logged at a frame
     is that frame's (no one-frame lag); evaluate it only at frame times."""
 
-    def __init__(self, config: CrhfConfig, p_C_sensors: np.ndarray, tag_size_m: float, period_s: float):
+    def __init__(self, config: CrhfConfig, p_C_sensors: np.ndarray, tag_size_m: float, period_s: float, camera):
+        """p_C_sensors: (4, 3) the ToF sensors' origins in C, m; camera: the scene's camera configuration
+        (`CameraConfig`), whose renderer's intrinsics and image size, with p_C_sensors, must be those the pad
+        calibration was flown with (`CalibrationFlight`), else a CalibrationError."""
         super().__init__()
         config.validate()
-        self._calibration = PadCalibration.load(config.calibration_path())
+        path = config.calibration_path()
+        self._calibration = PadCalibration.load(path)
         if len(self._calibration.sensors) != len(p_C_sensors):
-            raise CalibrationError(f"pad calibration {config.calibration_path()} has "
+            raise CalibrationError(f"pad calibration {path} has "
                                    f"{len(self._calibration.sensors)} sensors; CRHF has {len(p_C_sensors)}")
+        flown = self._calibration.flight
+        if flown is None:
+            raise CalibrationError(f"pad calibration {path} does not record the camera and ToF layout it was flown "
+                                   "with: re-run `landing-sim run crhf-calibration` with this scene's camera and tof")
+        if mismatch := flown.mismatch(CalibrationFlight.of(camera, p_C_sensors)):
+            raise CalibrationError(f"pad calibration {path} was flown with {mismatch}: fly "
+                                   "`landing-sim run crhf-calibration` with this scene's camera and tof and set "
+                                   "crhf.calibration_file to its pad_calibration.npz")
         self._touch_method = config.touch_pixels
         self._corner_filter = replace(config.corner_filter, dt_s=period_s)
         self._range_filter = replace(config.range_filter, dt_s=period_s) if config.filter_ranges else None

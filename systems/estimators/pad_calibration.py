@@ -57,7 +57,45 @@ MIN_SAMPLES = 3  # distinct ranges per sensor: more than the two parameters of E
 
 
 class CalibrationError(ConfigError):
-    """A pad calibration that is missing, unreadable or has too few samples."""
+    """A pad calibration that is missing, unreadable, has too few samples or was flown with another camera
+    or ToF layout than the scene's."""
+
+
+FLIGHT_RTOL = 1e-6  # relative tolerance within which a scene's camera and ToF layout are the calibration flight's
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationFlight:
+    """The camera and ToF layout a pad calibration was flown with, which its pixels hold for no other.
+
+    camera: (6,) the renderer's (true) [fx, fy, cx, cy] in px (OpenCV convention) and the image's
+    [width, height] in px; p_C_sensors: (S, 3) the ToF sensors' origins in C, m."""
+
+    camera: np.ndarray
+    p_C_sensors: np.ndarray
+
+    @classmethod
+    def of(cls, camera, p_C_sensors: np.ndarray) -> "CalibrationFlight":
+        """From a camera configuration (fx, fy, cx, cy, width, height attributes, as `CameraConfig`'s) and the
+        sensors' positions in C (S, 3; m)."""
+        return cls(np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height], dtype=float),
+                   np.asarray(p_C_sensors, dtype=float).reshape(-1, 3))
+
+    def mismatch(self, scene: "CalibrationFlight") -> str | None:
+        """None when `scene` has this flight's camera and ToF layout (within FLIGHT_RTOL of each array's largest
+        entry), else what differs, naming both."""
+
+        def close(a: np.ndarray, b: np.ndarray) -> bool:
+            return a.shape == b.shape and np.allclose(a, b, rtol=0.0, atol=FLIGHT_RTOL * np.abs(a).max())
+
+        differences = []
+        if not close(self.camera, scene.camera):
+            differences.append(f"camera [fx, fy, cx, cy, width, height] {self.camera.tolist()} px, the scene's "
+                               f"{scene.camera.tolist()} px")
+        if not close(self.p_C_sensors, scene.p_C_sensors):
+            differences.append(f"ToF sensors at (x, y) {np.round(self.p_C_sensors[:, :2], 6).tolist()} m in C, "
+                               f"the scene's {np.round(scene.p_C_sensors[:, :2], 6).tolist()} m")
+        return "; ".join(differences) or None
 
 
 def rgb_to_ycbcr(image: np.ndarray) -> np.ndarray:
@@ -184,20 +222,23 @@ class SensorCalibration:
 
 @dataclass(eq=False)
 class PadCalibration:
-    """Per-sensor range-to-pixel calibrations, in sensor order 1..4 of Eq. 21-24."""
+    """Per-sensor range-to-pixel calibrations, in sensor order 1..4 of Eq. 21-24, and the camera and ToF
+    layout they were flown with (None when unrecorded: a file written before flights were recorded)."""
 
     sensors: tuple[SensorCalibration, ...]
+    flight: CalibrationFlight | None = None
 
     @classmethod
     def from_frames(
-        cls, ranges: np.ndarray, pixels: np.ndarray, colours: tuple[str, ...] = PAD_COLOURS
+        cls, ranges: np.ndarray, pixels: np.ndarray, colours: tuple[str, ...] = PAD_COLOURS,
+        flight: CalibrationFlight | None = None,
     ) -> "PadCalibration":
         """From per-frame samples: ranges (F, S) metres and pad centroids (F, S, 2) pixels, NaN
-        where a sensor or pad gave nothing; S = len(colours)."""
+        where a sensor or pad gave nothing; S = len(colours); flight: the camera and ToF layout flown."""
         ranges = np.asarray(ranges, dtype=float)
         pixels = np.asarray(pixels, dtype=float)
         return cls(
-            tuple(SensorCalibration(c, ranges[:, i], pixels[:, i]) for i, c in enumerate(colours))
+            tuple(SensorCalibration(c, ranges[:, i], pixels[:, i]) for i, c in enumerate(colours)), flight
         )
 
     def touch_pixels(self, ranges: np.ndarray, method: str = "pchip") -> np.ndarray:
@@ -228,12 +269,16 @@ class PadCalibration:
         )
 
     def save(self, path: str | os.PathLike) -> None:
-        """Write the samples (the fits are rebuilt on load) to an .npz file, atomically."""
+        """Write the samples (the fits are rebuilt on load) and the flight, when known (arrays `flight_camera`
+        and `flight_p_C_sensors`), to an .npz file, atomically."""
         path = Path(path)
         arrays = {"colours": np.array([s.colour for s in self.sensors])}
         for i, s in enumerate(self.sensors):
             arrays[f"ranges_{i}"] = s.ranges
             arrays[f"pixels_{i}"] = s.pixels
+        if self.flight is not None:
+            arrays["flight_camera"] = self.flight.camera
+            arrays["flight_p_C_sensors"] = self.flight.p_C_sensors
         temporary = path.with_name(path.name + ".tmp")
         with open(temporary, "wb") as f:
             np.savez(f, **arrays)
@@ -241,7 +286,8 @@ class PadCalibration:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "PadCalibration":
-        """Read a file written by `save`; a CalibrationError names the file and the problem."""
+        """Read a file written by `save` (flight None when the file records none); a CalibrationError names the
+        file and the problem."""
         path = Path(path)
         if not path.is_file():
             raise CalibrationError(f"pad calibration file {path} does not exist")
@@ -260,12 +306,20 @@ class PadCalibration:
         missing = [key for key in wanted if key not in arrays]
         if missing:
             raise CalibrationError(f"pad calibration file {path} lacks the arrays {missing}")
+        flight = None
+        if "flight_camera" in arrays or "flight_p_C_sensors" in arrays:
+            camera, p_C_sensors = arrays.get("flight_camera"), arrays.get("flight_p_C_sensors")
+            if camera is None or p_C_sensors is None or camera.shape != (6,) or p_C_sensors.shape != (len(colours), 3):
+                raise CalibrationError(f"pad calibration file {path}: the flight needs flight_camera (6,) and "
+                                       f"flight_p_C_sensors ({len(colours)}, 3)")
+            flight = CalibrationFlight(camera.astype(float), p_C_sensors.astype(float))
         try:
             return cls(
                 tuple(
                     SensorCalibration(c, arrays[f"ranges_{i}"], arrays[f"pixels_{i}"])
                     for i, c in enumerate(colours)
-                )
+                ),
+                flight,
             )
         except ValueError as error:  # CalibrationError, or arrays of the wrong shape
             raise CalibrationError(f"pad calibration file {path}: {error}") from None
