@@ -167,6 +167,17 @@ def test_focal_length_needs_sensors_off_the_axes():
         focal_lengths_from_touch_points(p_t, np.zeros((4, 2)), [CX, CY])
 
 
+def test_a_sensor_on_a_camera_axis_gives_an_invalid_pose_not_an_error():
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    p_s[0, 0] = 0.0  # sensor 1 on the camera's y axis
+    X_CT_true = RigidTransform([0.0, 0.0, 2.0])
+    p_T = tag_corners_T(TAG_SIZE)
+    ranges = np.full(4, 2.0)
+    estimate = crhf_tag_pose(p_s, ranges, project(touch_points(p_s, ranges)),
+                             project(np.array([X_CT_true.multiply(p) for p in p_T])), p_T)
+    assert not estimate.valid and np.isnan(estimate.focal_lengths).all()
+
+
 def test_ray_plane_intersection_recovers_tag_corners_exactly():
     p_C_corners = np.array([X_CT.multiply(p) for p in tag_corners_T(TAG_SIZE)])
     n, d = deck_plane(X_CT)

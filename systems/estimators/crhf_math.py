@@ -476,7 +476,7 @@ def crhf_tag_pose(
     pooled over corner_variance_dof degrees of freedom; `fuse_normals`; beyond its gate `plane_beyond_gate`, which
     looks for the corners' mirror solution only then, and previous_normal, the previous frame's deck normal in this
     frame's C; a frame whose two planes it cannot tell apart is flagged invalid, its plane the ranges').
-    Never raises on bad measurements: the estimate is then flagged invalid.
+    Never raises on bad measurements or a sensor on a camera axis: the estimate is then flagged invalid.
     """
     p_C_touch = touch_points(p_C_sensors, ranges)
     plane = fit_plane(p_C_touch)
@@ -485,7 +485,11 @@ def crhf_tag_pose(
     if plane.degenerate or not finite:
         return CrhfEstimate(RigidTransform(), False, plane, plane.rms_residual, nan2, nan2, np.full((4, 3), np.nan))
     principal_point = principal_point_from_touch_points(p_C_touch, uv_touch)
-    focal_lengths = focal_lengths_from_touch_points(p_C_touch, uv_touch, principal_point)
+    try:
+        focal_lengths = focal_lengths_from_touch_points(p_C_touch, uv_touch, principal_point)
+    except ValueError:  # a sensor on a camera axis: no focal length (`TofConfig.validate` refuses such a layout)
+        return CrhfEstimate(RigidTransform(), False, plane, plane.rms_residual, nan2, principal_point,
+                            np.full((4, 3), np.nan))
     f, c = (focal_lengths, principal_point) if intrinsics is None else intrinsics
     valid = bool(np.all(focal_lengths > 0) and np.all(np.asarray(f) > 0))
     residual, touch_residual = np.nan, plane.rms_residual

@@ -54,6 +54,7 @@ _K_CONE_PIXELS = 128
 _MAX_ITERATIONS, _Q_TOLERANCE = 8, 1e-10
 _JUMP = 1e-3  # an edge in K's inverse depth between neighbouring pixels (relative; 5 cm at 2 m)
 TRIGGERS = ("camera", "own_clock")
+MIN_AXIS_OFFSET_M = 1e-3  # a sensor's least x and y offset in C: CRHF's focal lengths divide by them (Eq. 40-45)
 
 
 @dataclass
@@ -98,6 +99,11 @@ class TofConfig:
         require(0 <= self.cone_deg <= 90, f"{prefix}.cone_deg must lie within 0-90 deg, got {self.cone_deg}")
         require(0 < self.angle_deg < 90, f"{prefix}.angle_deg must lie strictly within 0-90 deg (on the camera's "
                                          f"axes the sensors leave Eq. 40-45's focal lengths undefined), got {self.angle_deg}")
+        offsets_m = np.abs(sensor_positions_C(self.arm_m, self.angle_deg)[0, :2])
+        for axis, offset_m in zip("xy", offsets_m):
+            require(offset_m >= MIN_AXIS_OFFSET_M,
+                    f"{prefix}.arm_m and {prefix}.angle_deg give the sensors |{axis}| = {offset_m * 1e3:.3g} mm in C, "
+                    f"under the {MIN_AXIS_OFFSET_M * 1e3:g} mm CRHF needs (Eq. 40-45 divide by each sensor's x and y)")
 
     @property
     def view(self) -> tuple[int, float]:
