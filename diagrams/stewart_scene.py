@@ -67,6 +67,8 @@ class StewartSceneConfig:
         require(self.estimate_latency_frames >= 0, "estimate_latency_frames must not be negative")
         for name in self.estimators:
             require(name in ESTIMATORS, f"estimators: unknown estimator '{name}' (known: {', '.join(ESTIMATORS)})")
+        twice = sorted({name for name in self.estimators if self.estimators.count(name) > 1})
+        require(not twice, f"estimators: each may be listed once, got {', '.join(twice)} more than once")
 
 
 ESTIMATORS = ("atda", "crhf")

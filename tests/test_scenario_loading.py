@@ -180,6 +180,7 @@ def test_a_group_given_a_scalar_is_named_without_a_trailing_dot():
     ("imu.rate_hz=0", "imu.rate_hz"),
     ("duration_s=0", "duration_s"),
     ("duration_s=.inf", "duration_s must be a finite number"),
+    ("estimators=[crhf, atda, crhf]", "estimators: each may be listed once, got crhf more than once"),
 ])
 def test_values_out_of_range_name_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
