@@ -94,7 +94,8 @@ def _add_estimators(builder: DiagramBuilder, config: DeckLandingConfig, color_im
         detection = delayed(builder, detection, period, frames, TagDetection())
         ranges = delayed(builder, ranges, period, frames, np.full(4, np.nan))
         V_WC_C = delayed(builder, V_WC_C, period, frames, np.zeros(6))
-    atda = builder.AddNamedSystem("atda", AtdaEstimator(config.camera.K_estimated, config.platform.tag_size_m))
+    atda = builder.AddNamedSystem("atda", AtdaEstimator(config.camera.K_estimated, config.platform.tag_size_m,
+                                                        config.camera.period_s))
     crhf = builder.AddNamedSystem("crhf", CrhfEstimator(
         config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,
         config.camera.period_s, config.camera))

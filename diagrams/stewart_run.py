@@ -141,8 +141,9 @@ def run(scenario: Scenario, ctx) -> dict:
     log = collect_log(handles, context, scenario)
     metrics.update(scene_metrics(log))
     if scenario.estimators:
-        metrics["estimators"] = {name: estimator_metrics(log["X_CT"], log[f"estimate_{name}"])
-                                 for name in scenario.estimators}
+        metrics["estimators"] = {name: {**estimator_metrics(log["X_CT"], log[f"estimate_{name}"]),
+                                        "per_frame_ms": system.per_frame_ms(system.GetMyContextFromRoot(context))}
+                                 for name, system in handles.estimators.items()}
     write_npz(ctx.out_dir / "log.npz", **log)
     plot_scene(log, scenario, ctx.out_dir)
     plot_pose_estimates(log["t"], log["X_CT"], {name: log[f"estimate_{name}"] for name in scenario.estimators},

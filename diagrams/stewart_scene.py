@@ -90,7 +90,7 @@ class StewartSceneHandles:
     truth: RelativePose
     loggers: dict[str, VectorLogSink]
     X_BC: RigidTransform
-    estimators: dict[str, object]  # name -> system with an X_CT_estimate (PoseEstimate) output
+    estimators: dict[str, object]  # name -> system with an X_CT_estimate (PoseEstimate) output and per_frame_ms
     meshcat_visualizer: MeshcatVisualizer | None = None
     video: VideoRecorder | None = None
 
@@ -214,7 +214,8 @@ def add_stewart_scene(builder: DiagramBuilder, config: StewartSceneConfig, meshc
     estimators = {}
     for name in config.estimators:
         if name == "atda":
-            estimator = builder.AddSystem(AtdaEstimator(config.camera.K_estimated, config.platform.tag_size_m))
+            estimator = builder.AddSystem(AtdaEstimator(config.camera.K_estimated, config.platform.tag_size_m,
+                                                        config.camera.period_s))
         else:
             estimator = builder.AddSystem(CrhfEstimator(
                 config.crhf, sensor_positions_C(config.tof.arm_m, config.tof.angle_deg), config.platform.tag_size_m,

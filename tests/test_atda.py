@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from pydrake.math import RigidTransform
+from pydrake.systems.analysis import Simulator
 
 from systems.estimators.atda import AtdaEstimator, atda_pose
 from systems.perception.apriltag import TagDetection, project_points, tag_corners_T
@@ -28,7 +29,7 @@ def test_a_level_tag_under_the_camera_has_identity_rotation():
 
 
 def test_the_system_flags_a_missing_detection_invalid():
-    system = AtdaEstimator(K, TAG)
+    system = AtdaEstimator(K, TAG, 0.05)
     context = system.CreateDefaultContext()
     system.get_input_port().FixValue(context, TagDetection(0.0, None))
     estimate = system.get_output_port().Eval(context)
@@ -38,6 +39,18 @@ def test_the_system_flags_a_missing_detection_invalid():
     estimate = system.get_output_port().Eval(context)
     assert estimate.valid
     assert np.allclose(estimate.X_RT.translation(), X_CT.translation(), atol=1e-6)
+
+
+def test_the_system_times_each_frames_pose():
+    system = AtdaEstimator(K, TAG, 0.05)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    system.get_input_port().FixValue(context, TagDetection(0.0, project_points(K, pose([0, 0, 2.0], [0, 0, 0]),
+                                                                               tag_corners_T(TAG))))
+    assert system.per_frame_ms(context) is None
+    simulator.AdvanceTo(0.12)  # the frames at 0, 0.05 and 0.1 s
+    assert context.get_abstract_state(0).get_value().weight == 3
+    assert system.per_frame_ms(context) > 0
 
 
 def test_opencv_ippe_square_fails_head_on_before_5_1_which_is_why_atda_uses_sqpnp():

@@ -79,6 +79,7 @@ def test_a_smoke_run_of_the_dynamic_deck_has_crhf_z_error_below_atda(tmp_path):
     metrics = run(name, scenario, tmp_path, RunOptions(progress=False))
     crhf, atda = metrics["estimators"]["crhf"], metrics["estimators"]["atda"]
     assert crhf["valid_fraction"] == 1.0
+    assert crhf["per_frame_ms"] > 0 and atda["per_frame_ms"] > 0  # each one's own work per camera frame
     assert crhf["mae_xyz_m"][2] < atda["mae_xyz_m"][2]
     for plot in ("pose_translation.png", "pose_angles.png", "pose_trajectory.png", "errors_crhf.png"):
         assert (tmp_path / plot).stat().st_size > 10_000
@@ -140,6 +141,19 @@ def test_the_system_output_is_this_frames_estimate():
     assert estimate.valid and abs(estimate.X_RT.translation()[2] - 1.5) < 2e-3
     system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.0, None))
     assert not system.get_output_port().Eval(context).valid
+
+
+def test_the_system_times_each_frames_step():
+    system = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05, CAMERA)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    corners, ranges = level_frame(1.5)
+    system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.0, corners))
+    system.GetInputPort("ranges").FixValue(context, ranges)
+    assert system.per_frame_ms(context) is None
+    simulator.AdvanceTo(0.12)  # the frames at 0, 0.05 and 0.1 s
+    assert context.get_abstract_state(0).get_value().compute_ms.weight == 3
+    assert system.per_frame_ms(context) > 0
 
 
 def test_missing_calibration_and_bad_settings_are_clear_errors(tmp_path):

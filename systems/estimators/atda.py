@@ -11,13 +11,15 @@ square admits two poses of nearly equal reprojection error under noise; taking t
 makes single-tag poses "flip", and the benchmark counts such frames.
 """
 
+import time
+
 import cv2
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import LeafSystem, ValueProducer
 
-from systems.estimators.estimate import PoseEstimate
+from systems.estimators.estimate import PoseEstimate, RunningMean
 from systems.perception.apriltag import TagDetection, tag_corners_T
 
 # T (camera-facing: y down, z into the tag) from OpenCV's marker frame S (y up, z out of the tag).
@@ -36,17 +38,36 @@ def atda_pose(corners_px: np.ndarray, K: np.ndarray, tag_size_m: float) -> Rigid
 
 
 class AtdaEstimator(LeafSystem):
-    """Input `tag_detection` (TagDetection); output `X_CT_estimate` (PoseEstimate), invalid when
-    the tag is not detected. Stateless: evaluate it at the camera rate."""
+    """Input `tag_detection` (TagDetection); output `X_CT_estimate` (PoseEstimate) from the detection at the
+    context's time, invalid when the tag is not detected; evaluate it at the camera rate. The estimate depends on
+    no state: the only state, advanced by a periodic update at `period_s` (the camera's), is the wall time of each
+    frame's pose so far (`per_frame_ms`, for reports)."""
 
-    def __init__(self, K: np.ndarray, tag_size_m: float):
+    def __init__(self, K: np.ndarray, tag_size_m: float, period_s: float):
         super().__init__()
         self._K, self._tag_size = np.asarray(K, dtype=float), tag_size_m
         self.DeclareAbstractInputPort("tag_detection", AbstractValue.Make(TagDetection()))
-        self.DeclareAbstractOutputPort("X_CT_estimate", lambda: AbstractValue.Make(PoseEstimate()), self._calc)
+        self._compute_ms = self.DeclareAbstractState(AbstractValue.Make(RunningMean()))
+        self._frame = self.DeclareCacheEntry(
+            "frame", ValueProducer(allocate=lambda: AbstractValue.Make((PoseEstimate(), 0.0)), calc=self._calc_frame),
+            {self.time_ticket(), self.get_input_port().ticket()})
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, 0.0, self._update)
+        self.DeclareAbstractOutputPort("X_CT_estimate", lambda: AbstractValue.Make(PoseEstimate()),
+                                       lambda c, o: o.set_value(self._frame.Eval(c)[0]), {self._frame.ticket()})
 
-    def _calc(self, context, output):
+    def _calc_frame(self, context, value):
+        """(the frame's PoseEstimate, the wall time of its pose in ms)."""
         detection = self.get_input_port().Eval(context)
+        start = time.perf_counter()
         X_CT = atda_pose(detection.corners, self._K, self._tag_size) if detection.detected else None
-        output.set_value(PoseEstimate(context.get_time(), X_CT, True, reference="C", target="T") if X_CT is not None
-                         else PoseEstimate.invalid(context.get_time(), "C", "T"))
+        elapsed_ms = 1e3 * (time.perf_counter() - start)
+        value.set_value((PoseEstimate(context.get_time(), X_CT, True, reference="C", target="T") if X_CT is not None
+                         else PoseEstimate.invalid(context.get_time(), "C", "T"), elapsed_ms))
+
+    def _update(self, context, state):
+        compute_ms = context.get_abstract_state(self._compute_ms).get_value()
+        state.get_mutable_abstract_state(self._compute_ms).set_value(compute_ms.add(self._frame.Eval(context)[1]))
+
+    def per_frame_ms(self, context) -> float | None:
+        """The mean wall time of a frame's pose so far (ms), None before the first; `context` is this system's."""
+        return context.get_abstract_state(self._compute_ms).get_value().mean

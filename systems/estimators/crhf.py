@@ -28,9 +28,9 @@ Two more additions of ours, each with a switch in `CrhfConfig`:
   the first), which averages out the calibration curve's wiggles that each frame's carry.
 """
 
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -46,7 +46,7 @@ from systems.estimators.crhf_math import (
     range_shift,
     touch_points,
 )
-from systems.estimators.estimate import PoseEstimate
+from systems.estimators.estimate import PoseEstimate, RunningMean
 from systems.estimators.pad_calibration import CalibrationError, CalibrationFlight, PadCalibration
 from systems.estimators.track_filter import Track, TrackFilterParams, step_track
 from systems.perception.apriltag import TagDetection, tag_corners_T
@@ -123,21 +123,6 @@ class CrhfConfig:
         return PACKAGE_ROOT / path
 
 
-class RunningMean(NamedTuple):
-    """A mean accumulated over frames: total of the weighted samples and the total weight."""
-
-    total: np.ndarray | float = 0.0
-    weight: float = 0.0
-
-    def add(self, sample, weight: float = 1.0) -> "RunningMean":
-        return RunningMean(self.total + weight * np.asarray(sample, dtype=float), self.weight + weight)
-
-    @property
-    def mean(self):
-        """The mean, or None before the first sample."""
-        return self.total / self.weight if self.weight > 0 else None
-
-
 @dataclass(frozen=True)
 class CrhfState:
     """What CRHF carries from frame to frame.
@@ -147,7 +132,8 @@ class CrhfState:
     (px^2), the PnP residuals' sum of squares over their degrees of freedom (2 per frame); deck_normal: the
     unit normal in C of the plane the last valid frame's corners were lifted onto, in C as that frame saw it (None
     before the first and once `deck_normal_memory_s` has passed since it); deck_normal_age_s: the time since that
-    frame (s)."""
+    frame (s); compute_ms: the wall time of each frame's `step` so far (ms; the system's, for reports: no result
+    depends on it)."""
 
     corners: Track = Track()
     ranges: Track = Track()
@@ -155,6 +141,7 @@ class CrhfState:
     corner_variance: RunningMean = RunningMean()
     deck_normal: np.ndarray | None = None
     deck_normal_age_s: float = 0.0
+    compute_ms: RunningMean = RunningMean()
 
 
 class CrhfEstimator(LeafSystem):
@@ -307,8 +294,15 @@ class CrhfEstimator(LeafSystem):
     def _calc_frame(self, context, value):
         state = context.get_abstract_state(self._state).get_value()
         V_WC_C = self._camera_velocity.Eval(context) if self._camera_velocity.HasValue(context) else None
-        value.set_value(self.step(state, self.get_input_port(0).Eval(context).corners,
-                                  self.get_input_port(1).Eval(context), context.get_time(), V_WC_C))
+        corners, ranges = self.get_input_port(0).Eval(context).corners, self.get_input_port(1).Eval(context)
+        start = time.perf_counter()  # CRHF's own work, its inputs evaluated
+        next_state, estimate = self.step(state, corners, ranges, context.get_time(), V_WC_C)
+        compute_ms = state.compute_ms.add(1e3 * (time.perf_counter() - start))
+        value.set_value((replace(next_state, compute_ms=compute_ms), estimate))
 
     def _update(self, context, state):
         state.get_mutable_abstract_state(self._state).set_value(self._frame.Eval(context)[0])
+
+    def per_frame_ms(self, context) -> float | None:
+        """The mean wall time of a frame's `step` so far (ms), None before the first; `context` is this system's."""
+        return context.get_abstract_state(self._state).get_value().compute_ms.mean

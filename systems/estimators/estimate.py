@@ -1,11 +1,27 @@
 """The estimate that every pose estimator emits, so metrics, plots and fusion treat them alike."""
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
+
+
+class RunningMean(NamedTuple):
+    """A mean accumulated over frames: total of the weighted samples and the total weight."""
+
+    total: np.ndarray | float = 0.0
+    weight: float = 0.0
+
+    def add(self, sample, weight: float = 1.0) -> "RunningMean":
+        return RunningMean(self.total + weight * np.asarray(sample, dtype=float), self.weight + weight)
+
+    @property
+    def mean(self):
+        """The mean, or None before the first sample."""
+        return self.total / self.weight if self.weight > 0 else None
 
 
 @dataclass(frozen=True)
