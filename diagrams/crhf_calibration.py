@@ -25,6 +25,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
+from diagrams.metrics import rms_of_finite
 from diagrams.outputs import save_figure, write_npz
 from diagrams.scenario import RunSettings
 from diagrams.stewart_scene import add_uav_sensors, add_viewers
@@ -220,12 +221,6 @@ def collect_log(handles: CalibrationSceneHandles, context, config: Scenario) -> 
     return arrays
 
 
-def _rmse(x) -> float | None:
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    return float(np.sqrt(np.mean(x**2))) if x.size else None
-
-
 def leave_one_out_residuals(ranges: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     """(N-2, 2) PCHIP interpolation residuals: each interior sample against the PCHIP through all
     the others (what the interpolant would be off by between samples)."""
@@ -259,18 +254,20 @@ def calibration_metrics(calibration: PadCalibration, log: dict[str, np.ndarray],
             "detected_fraction": float(np.mean(found)),
             "range_m": [float(sensor.ranges[0]), float(sensor.ranges[-1])],
             "hyperbola": {  # Eq. 18: pixel = a / range + c, a in px m, c in px
-                "u": {"a": sensor.fit_u.a, "c": sensor.fit_u.c, "fit_rmse_px": _rmse(fit[:, 0] - sensor.pixels[:, 0])},
-                "v": {"a": sensor.fit_v.a, "c": sensor.fit_v.c, "fit_rmse_px": _rmse(fit[:, 1] - sensor.pixels[:, 1])},
+                "u": {"a": sensor.fit_u.a, "c": sensor.fit_u.c,
+                      "fit_rmse_px": rms_of_finite(fit[:, 0] - sensor.pixels[:, 0])},
+                "v": {"a": sensor.fit_v.a, "c": sensor.fit_v.c,
+                      "fit_rmse_px": rms_of_finite(fit[:, 1] - sensor.pixels[:, 1])},
             },
             "implied_intrinsics": dict(zip(("fx", "fy", "cx", "cy"), row.tolist())),
             "implied_error_percent": {k: 100.0 * (v - true[k]) / true[k] for k, v in zip(true, row)},
             # Against the true projection over the calibrated ranges (per axis u, v, px):
-            "hyperbola_vs_truth_rmse_px": [_rmse(hyperbola[:, j] - truth[:, j]) for j in range(2)],
-            "pchip_vs_truth_rmse_px": [_rmse(sensor.interpolant(dense)[:, j] - truth[:, j]) for j in range(2)],
+            "hyperbola_vs_truth_rmse_px": [rms_of_finite(hyperbola[:, j] - truth[:, j]) for j in range(2)],
+            "pchip_vs_truth_rmse_px": [rms_of_finite(sensor.interpolant(dense)[:, j] - truth[:, j]) for j in range(2)],
             "pchip_vs_truth_max_px": [float(np.nanmax(np.abs(sensor.interpolant(dense)[:, j] - truth[:, j])))
                                       for j in range(2)],
             # PCHIP interpolation residual: each sample against the PCHIP through the others.
-            "pchip_leave_one_out_rmse_px": [_rmse(loo[:, j]) for j in range(2)],
+            "pchip_leave_one_out_rmse_px": [rms_of_finite(loo[:, j]) for j in range(2)],
         }
     mean = implied.mean(axis=0)
     return {
@@ -340,11 +337,12 @@ def run(scenario: Scenario, ctx) -> dict:
                      scenario.start_height_m + scenario.climb_speed_m_s * float(log["t"][-1])],
         "sensors": {
             "tof_valid_fraction": np.mean(valid, axis=0).tolist(),
-            "tof_error_m_rmse": [_rmse(e) for e in (log["ranges"] - log["true_ranges"]).T],
+            "tof_error_m_rmse": [rms_of_finite(e) for e in (log["ranges"] - log["true_ranges"]).T],
         },
         "perception": {
             "pad_centroid_error_px_rmse": [
-                _rmse(np.linalg.norm((log["pad_pixels"] - log["true_pad_pixels"]).reshape(-1, 4, 2)[:, i], axis=1))
+                rms_of_finite(np.linalg.norm((log["pad_pixels"] - log["true_pad_pixels"]).reshape(-1, 4, 2)[:, i],
+                                             axis=1))
                 for i in range(4)],
         },
         "calibration": calibration_metrics(calibration, log, scenario, handles.p_C_sensors),

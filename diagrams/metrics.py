@@ -37,6 +37,13 @@ def pose_errors(truth: np.ndarray, estimate: np.ndarray):
     return valid, difference[:, :3], rpy, np.rad2deg(angle)
 
 
+def rms_of_finite(values) -> float | None:
+    """The root mean square of the finite values (NaN and inf left out), in their unit; None when there are none."""
+    values = np.asarray(values, dtype=float)
+    finite = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean(finite**2))) if finite.size else None
+
+
 def axis_errors(xyz: np.ndarray, rpy_deg: np.ndarray) -> dict:
     """MAE and RMSE per axis of errors xyz (M, 3) in m and rpy_deg (M, 3) in deg: the estimator
     figures of docs/architecture.md."""

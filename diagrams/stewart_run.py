@@ -7,7 +7,7 @@ import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RigidTransform
 
-from diagrams.metrics import estimator_metrics
+from diagrams.metrics import estimator_metrics, rms_of_finite
 from diagrams.outputs import save_figure, write_npz
 from diagrams.pose_plots import plot_pose_estimates
 from diagrams.scenario import RunSettings
@@ -55,11 +55,6 @@ def collect_log(handles, context, config: StewartSceneConfig) -> dict[str, np.nd
 def range_errors(log: dict[str, np.ndarray]) -> np.ndarray:
     """(N, 4) each ToF reading less the true range [m], NaN where the reading is flagged invalid."""
     return np.where(log["ranges_valid"] > 0.5, log["ranges"] - log["true_ranges"], np.nan)
-
-
-def rms_of_finite(values: np.ndarray) -> float | None:
-    """The root mean square of the finite values, None when there are none."""
-    return float(np.sqrt(np.nanmean(values**2))) if np.isfinite(values).any() else None
 
 
 def scene_metrics(log: dict[str, np.ndarray]) -> dict:

@@ -3,7 +3,7 @@
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
-from diagrams.metrics import estimator_metrics, pose_errors, xyz_rpy
+from diagrams.metrics import estimator_metrics, pose_errors, rms_of_finite, xyz_rpy
 from systems.estimators.estimate import PoseEstimate, estimate_vector
 from systems.sensors.ground_truth import pose_vector
 
@@ -65,3 +65,8 @@ def test_roll_pitch_yaw_and_the_rotation_error_are_drakes():
     drake = [np.degrees(t.rotation().InvertAndCompose(e.rotation()).ToAngleAxis().angle())
              for t, e in zip(truth, estimate)]
     np.testing.assert_allclose(angle, drake, atol=1e-9)
+
+
+def test_rms_of_finite_leaves_out_nan_and_inf():
+    assert rms_of_finite(np.array([0.003, -0.004, np.inf, np.nan, -np.inf])) == np.sqrt((0.003**2 + 0.004**2) / 2)
+    assert rms_of_finite(np.array([np.nan, np.inf])) is None and rms_of_finite([]) is None
