@@ -4,10 +4,12 @@ the camera video, and what ends a run early.
     run = simulate(diagram, duration_s, initialize=handles.initialize, realtime=options.meshcat)
     run.status   # "completed", a termination event's message ("landed: ..."), or "diverged: ..."
 
-A system's event that returns EventStatus.ReachedTermination ends the run with its message; an
-integrator failure ends it as "diverged". An exception or Ctrl-C discards the partial video and
-passes on. The garbage collector's view of the objects from imports and the build is frozen for the
-run (gc.freeze): its passes would otherwise walk them all, a large share of a Python-heavy run.
+A system's event that returns EventStatus.ReachedTermination ends the run with its message; Drake's
+integrator failing (INTEGRATOR_FAILURES: error control below the minimum step, or no convergence at
+a near-zero step) ends it as "diverged". Any other exception (a wiring error, a system's own error)
+or Ctrl-C discards the partial video and passes on (the CLI reports an internal error; a campaign
+records a failed run). The garbage collector's view of the objects from imports and the build is
+frozen for the run (gc.freeze): its passes would otherwise walk them all, a large share of a Python-heavy run.
 """
 
 import gc
@@ -20,6 +22,9 @@ from tqdm import tqdm
 
 COMPLETED = "completed"
 CHUNK_S = 0.5  # simulated time between progress-bar updates (and Ctrl-C checks)
+# How Drake's messages begin when its integrator fails (systems/analysis/integrator_base.{h,cc}).
+INTEGRATOR_FAILURES = ("Error control wants to select step smaller than minimum allowed",
+                       "Integrator has been directed to a near zero-length step")
 
 
 @dataclass
@@ -36,6 +41,11 @@ class Simulation:
     @property
     def realtime_factor(self) -> float | None:
         return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else None
+
+
+def integrator_failed(error: BaseException) -> bool:
+    """Whether `error` is Drake's integrator failing (the dynamics going unstable), not a bug."""
+    return isinstance(error, RuntimeError) and str(error).startswith(INTEGRATOR_FAILURES)
 
 
 def simulate(diagram, duration_s: float, *, initialize: Callable | None = None,
@@ -68,12 +78,12 @@ def simulate(diagram, duration_s: float, *, initialize: Callable | None = None,
                 if result.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
                     status = result.message()
                     break
-    except RuntimeError as e:
+    except BaseException as e:
+        if not integrator_failed(e):
+            if video is not None:
+                video.discard()
+            raise
         status = f"diverged: the integrator failed at t = {context.get_time():.2f} s ({str(e).splitlines()[0]})"
-    except BaseException:
-        if video is not None:
-            video.discard()
-        raise
     finally:
         wall, cpu = time.perf_counter() - start, time.thread_time() - cpu_start
         gc.unfreeze()

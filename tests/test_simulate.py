@@ -1,0 +1,115 @@
+"""diagrams/simulate.py: what ends a run. Only Drake's integrator failing is a diverged flight; any other
+error (a wiring mistake, a system's own exception) passes on, for the CLI to report as an internal error
+and a campaign to record as a failed run."""
+
+import contextlib
+import io
+
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.systems.analysis import SimulatorConfig
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource
+
+from diagrams.cli import main
+from diagrams.perception_sources import SOURCES, PerceptionSource, add_estimate_to_seam
+from diagrams.simulate import COMPLETED, simulate
+from systems.estimators.estimate import PoseEstimate
+
+
+class Blowup(LeafSystem):
+    """x' = x^2 from x(0) = 1: x = 1 / (1 - t), infinite at t = 1 s."""
+
+    def __init__(self):
+        super().__init__()
+        self.DeclareContinuousState(1)
+
+    def DoCalcTimeDerivatives(self, context, derivatives):
+        x = context.get_continuous_state_vector().GetAtIndex(0)
+        derivatives.get_mutable_vector().SetAtIndex(0, x * x)
+
+
+class Reader(LeafSystem):
+    """Reads its required input `u` every 0.1 s; raises RuntimeError("broken") from t = 0.3 s when `broken`."""
+
+    def __init__(self, broken: bool = False):
+        super().__init__()
+        self._u = self.DeclareVectorInputPort("u", 1)
+        self._broken = broken
+        self.DeclarePeriodicPublishEvent(0.1, 0.0, self._read)
+
+    def _read(self, context):
+        if self._broken and context.get_time() > 0.25:
+            raise RuntimeError("broken")
+        self._u.Eval(context)
+
+
+class FakeVideo:
+    def __init__(self):
+        self.ended = None
+
+    def discard(self):
+        self.ended = "discarded"
+
+    def finish(self):
+        self.ended = "finished"
+
+
+def _diagram(system):
+    builder = DiagramBuilder()
+    builder.AddSystem(system)
+    return builder.Build()
+
+
+def test_the_integrator_failing_is_a_diverged_run():
+    diagram = _diagram(Blowup())
+    video = FakeVideo()
+    run = simulate(diagram, 2.0, initialize=lambda context: context.SetContinuousState([1.0]),
+                   simulator_config=SimulatorConfig(integration_scheme="runge_kutta3", use_error_control=True,
+                                                    accuracy=1e-6, max_step_size=0.01), video=video)
+    assert run.status.startswith("diverged: the integrator failed at t = 1.00 s (Error control wants")
+    assert run.sim_time_s == pytest.approx(1.0, abs=1e-3) and video.ended == "finished"
+
+
+def test_an_unconnected_input_raises_not_diverges():
+    video = FakeVideo()
+    with pytest.raises(RuntimeError, match="is not connected"):
+        simulate(_diagram(Reader()), 1.0, video=video)
+    assert video.ended == "discarded"
+
+
+def test_a_systems_own_runtime_error_raises_not_diverges():
+    builder = DiagramBuilder()
+    source, reader = builder.AddSystem(ConstantVectorSource([1.0])), builder.AddSystem(Reader(broken=True))
+    builder.Connect(source.get_output_port(), reader.get_input_port())
+    with pytest.raises(RuntimeError, match="broken"):
+        simulate(builder.Build(), 1.0)
+    assert simulate(_diagram(Blowup()), 0.5, initialize=lambda c: c.SetContinuousState([1.0])).status == COMPLETED
+
+
+class Unwired(LeafSystem):
+    """A pad estimator whose X_WB input its source forgets to connect."""
+
+    def __init__(self):
+        super().__init__()
+        self._X_WB = self.DeclareVectorInputPort("X_WB", 1)
+        self.DeclareAbstractOutputPort("X_WP_estimate", lambda: AbstractValue.Make(PoseEstimate()), self._calc)
+
+    def _calc(self, context, output):
+        self._X_WB.Eval(context)  # raises: not connected
+
+
+def _add_unwired(builder, inputs):
+    estimator = builder.AddNamedSystem("unwired", Unwired())
+    return add_estimate_to_seam(builder, inputs, estimator.GetOutputPort("X_WP_estimate"))
+
+
+def test_a_wiring_bug_in_a_users_source_is_an_internal_error_with_nothing_written(monkeypatch, tmp_path):
+    monkeypatch.setitem(SOURCES, "unwired", PerceptionSource(_add_unwired))
+    out = tmp_path / "run"
+    stderr = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(stderr):
+        code = main(["run", "marker-landing", "--duration", "0.2", "--quiet", "--out", str(out),
+                     "--set", "perception.source=unwired", "--set", "estimation.source=synthetic"])
+    assert code == 1 and "internal error: RuntimeError" in stderr.getvalue() and "not connected" in stderr.getvalue()
+    assert not (out / "metrics.json").exists()
