@@ -47,6 +47,9 @@ def test_the_seam_is_the_pad_relative_to_the_uav_in_world_and_body():
     (PoseEstimate(10.0, X_WP, False, covariance(0.3)), 10.0, False),  # the estimator says no
     (PoseEstimate(10.0, X_WP, True, covariance(1.5)), 10.0, False),  # too uncertain to steer on
     (PoseEstimate(10.0, X_WP, True, covariance(0.3)), 10.6, False),  # too old
+    (PoseEstimate(20.0, X_WP, True, covariance(0.3)), 10.0, False),  # stamped in the future
+    (PoseEstimate(10.0 + 1e-6, X_WP, True, covariance(0.3)), 10.0, False),
+    (PoseEstimate(10.0 + 1e-12, X_WP, True, covariance(0.3)), 10.0, True),  # the same time, to rounding
     (PoseEstimate(10.0, RigidTransform([np.nan, 0.0, 0.0]), True, None), 10.0, False),
     (PoseEstimate(10.0, X_WP, True, np.full((6, 6), np.nan)), 10.0, False),
 ])

@@ -36,6 +36,7 @@ HEIGHT = 9  # UAV above the pad's top surface [m]
 VALID = 10  # 1 when the estimate may be steered on, else 0
 A_WP = slice(11, 14)  # acceleration of the pad centre in W [m/s^2]
 RELATIVE_STATE_SIZE = 14
+FUTURE_TOLERANCE_S = 1e-9  # an estimate stamped later than the context's time by more is invalid
 
 
 @dataclass
@@ -52,8 +53,10 @@ class SeamConfig:
 
 def estimate_is_valid(estimate: PoseEstimate, time: float, config: SeamConfig) -> bool:
     """The estimate's own flag, a finite pose, its position std (when it has a covariance) within
-    config.max_position_std_m, and no older than config.max_age_s at `time` [s]."""
-    if not estimate.valid or not math.isfinite(estimate.time) or time - estimate.time > config.max_age_s:
+    config.max_position_std_m, and no older than config.max_age_s at `time` [s] nor stamped after it."""
+    if not estimate.valid or not math.isfinite(estimate.time):
+        return False
+    if time - estimate.time > config.max_age_s or estimate.time > time + FUTURE_TOLERANCE_S:
         return False
     if not np.all(np.isfinite(estimate.X_RT.GetAsMatrix34())):
         return False
