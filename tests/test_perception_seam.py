@@ -74,6 +74,15 @@ def test_the_adapter_system(rates):
     np.testing.assert_allclose(values, expected, atol=1e-12)
 
 
+@pytest.mark.parametrize("covariance", [np.eye(3) * 1e4, np.full(6, 1e4)])
+def test_an_estimates_covariance_is_6x6_or_none(covariance):
+    # A 3x3 would have passed the seam as a zero position std; a 6-vector raised IndexError mid-flight.
+    with pytest.raises(ConfigError, match=r"the X_WP estimate's covariance must be 6x6 .*got shape \(" +
+                       str(len(covariance))):
+        PoseEstimate(10.0, X_WP, True, covariance, "W", "P")
+    assert PoseEstimate(10.0, X_WP, True, None, "W", "P").covariance is None
+
+
 def test_estimates_name_their_frames_and_the_seam_takes_only_the_pad_in_the_world():
     estimate = PoseEstimate(1.0, X_WP, True, None, "C", "T")
     assert estimate.frames == "X_CT" and estimate.X_CT is estimate.X_RT

@@ -8,6 +8,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
+from systems.config import ConfigError
+
 
 class RunningMean(NamedTuple):
     """A mean accumulated over frames: total of the weighted samples and the total weight."""
@@ -33,7 +35,8 @@ class PoseEstimate:
     X_RT: the estimated pose; meaningful only when `valid` is True.
     valid: False when the estimator has no trustworthy estimate (none at all, or one it coasted too
       long to trust); X_RT is then identity or that untrusted estimate.
-    covariance: 6x6 covariance of [roll, pitch, yaw (rad); x, y, z (m)], or None if unknown.
+    covariance: 6x6 covariance of [roll, pitch, yaw (rad); x, y, z (m)], or None if unknown; any
+      other shape is a ConfigError naming the frames.
     reference, target: the frames' names ("R" and "T" when not named).
     """
 
@@ -43,6 +46,11 @@ class PoseEstimate:
     covariance: np.ndarray | None = None
     reference: str = "R"
     target: str = "T"
+
+    def __post_init__(self):
+        if self.covariance is not None and np.shape(self.covariance) != (6, 6):
+            raise ConfigError(f"the {self.frames} estimate's covariance must be 6x6 ([roll, pitch, yaw; x, y, z]), "
+                              f"got shape {np.shape(self.covariance)}")
 
     @property
     def frames(self) -> str:
