@@ -196,12 +196,34 @@ def test_the_latency_delays_one_value_or_a_vector_too():
     builder.Connect(source.get_output_port(), vector.get_input_port())
     simulator = Simulator(builder.Build())
     one_context, vector_context = (s.GetMyContextFromRoot(simulator.get_context()) for s in (one, vector))
-    # Between samples the output holds what the next sample's consumers read (as in the list test above).
+    # Between samples the output holds what was due at the sample before (as in the test below).
     simulator.AdvanceTo(0.035 * 0.5)
     assert one.get_output_port().Eval(one_context) == ("none yet",)
+    assert np.isnan(vector.get_output_port().Eval(vector_context)).all()  # acquired at t_0, due from t_1
+    simulator.AdvanceTo(0.035 * 1.5)
     np.testing.assert_array_equal(vector.get_output_port().Eval(vector_context), [4.0, 5.0])
     simulator.AdvanceTo(0.035 * 3.5)
-    assert one.get_output_port().Eval(one_context) == [2]  # acquired at t_2, read at t_4
+    assert one.get_output_port().Eval(one_context) == [1]  # acquired at t_1, due from t_3 until t_4
+
+
+@pytest.mark.parametrize("delay_steps", [1, 2])
+def test_the_latency_holds_between_samples_and_after_their_update(delay_steps):
+    # Read at any time t in [t_k, t_{k+1}), before or after the update at t_k: what was acquired at t_{k-d}.
+    builder = DiagramBuilder()
+    sensor = builder.AddSystem(SampleCounter(0.035))
+    latency = builder.AddSystem(MeasurementLatency(0.035, delay_steps))
+    builder.Connect(sensor.get_output_port(), latency.get_input_port())
+    simulator = Simulator(builder.Build())
+    context = latency.GetMyContextFromRoot(simulator.get_context())
+    for k in range(1, 7):
+        expected = [] if k < delay_steps else [k - delay_steps]
+        simulator.AdvanceTo(k * 0.035)
+        assert latency.get_output_port().Eval(context) == expected, (k, "before its update")
+        simulator.AdvancePendingEvents()
+        assert latency.get_output_port().Eval(context) == expected, (k, "after its update")
+        for fraction in (0.3, 0.9):
+            simulator.AdvanceTo((k + fraction) * 0.035)
+            assert latency.get_output_port().Eval(context) == expected, (k + fraction, "between samples")
 
 
 def test_a_latency_must_be_whole_samples():
