@@ -22,21 +22,19 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.geometry import Meshcat, MeshcatVisualizer, SceneGraph
-from pydrake.math import RigidTransform
 from pydrake.systems.framework import Diagram, DiagramBuilder, OutputPort
 from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, VectorLogSink
 
 from diagrams.deck_landing_config import DeckLandingConfig
 from diagrams.flight_stack import FlightStack, add_flight_stack
+from diagrams.perception_sources import PerceptionInputs, perception_source
 from diagrams.stewart_scene import add_axis_flow, add_uav_sensors, add_viewers, delayed
 from systems.control.landing_window import LandingWindow
 from systems.estimators.atda import AtdaEstimator
 from systems.estimators.crhf import CrhfEstimator
 from systems.estimators.deck_predictor import DeckPredictor
-from systems.estimators.deck_tracker import DeckTracker
 from systems.estimators.estimate import PoseEstimateToVector
 from systems.perception.apriltag import TagDetection, TagDetectorSystem
-from systems.perception.seam import EstimateToSeam
 from systems.perception.truth import PadMotionTruth
 from systems.platforms.stewart import StewartPlatform
 from systems.sensors.camera import add_renderer
@@ -63,7 +61,6 @@ class DeckLandingHandles:
     platform: StewartPlatform
     stack: FlightStack
     estimators: dict[str, object]  # "atda", "crhf" -> systems with an X_CT_estimate output
-    tracker: DeckTracker | None  # None when the truth steers
     tof: TofSensors
     scene_graph: SceneGraph
     loggers: dict[str, VectorLogSink]
@@ -135,21 +132,15 @@ def add_deck_landing(builder: DiagramBuilder, config: DeckLandingConfig, meshcat
     builder.Connect(X_WB, truth.GetInputPort("X_WB"))
     builder.Connect(platform.GetOutputPort("pad_motion"), truth.GetInputPort("pad_motion"))
 
-    tracker = None
-    relative_state, deck_motion = truth.get_output_port(), platform.GetOutputPort("deck_motion")
-    if config.perception.source != "truth":
-        period, frames = config.camera.period_s, config.estimate_latency_frames
-        tracker = builder.AddNamedSystem("deck_tracker", DeckTracker(config.tracker, config.X_BC,
-                                                                     platform.X_PT.inverse(), period, frames * period))
-        builder.Connect(estimators[config.perception.source].GetOutputPort("X_CT_estimate"),
-                        tracker.GetInputPort("X_CT_estimate"))
-        X_WB_exposure = delayed(builder, X_WB, period, frames, RigidTransform()) if frames else X_WB
-        builder.Connect(X_WB_exposure, tracker.GetInputPort("X_WB"))
-        adapter = builder.AddNamedSystem("estimate_to_seam", EstimateToSeam(config.perception))
-        builder.Connect(X_WB, adapter.GetInputPort("X_WB"))
-        builder.Connect(tracker.GetOutputPort("X_WP_estimate"), adapter.GetInputPort("X_WP_estimate"))
-        builder.Connect(tracker.GetOutputPort("v_WP_estimate"), adapter.GetInputPort("v_WP_estimate"))
-        relative_state, deck_motion = adapter.GetOutputPort("relative_state"), tracker.GetOutputPort("deck_motion")
+    # What steers: diagrams/perception_sources.py's (the truth, or ATDA's or CRHF's estimate through the deck tracker).
+    tag_estimates = {name: estimator.GetOutputPort("X_CT_estimate") for name, estimator in estimators.items()}
+    perception = perception_source(config.perception.source, scene="deck").add(builder, PerceptionInputs(
+        config, X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"), quad_state,
+        platform.GetOutputPort("carrier_state"), truth.get_output_port(), None, color_image, {}, scene_graph,
+        airframe.body_frame_id, tag_estimates=tag_estimates, X_TP=platform.X_PT.inverse()))
+    relative_state, deck_motion = perception.relative_state, perception.deck_motion
+    if deck_motion is None:
+        deck_motion = platform.GetOutputPort("deck_motion")
 
     stack = add_flight_stack(builder, config, quad, quad_state, relative_state, platform.GetOutputPort("carrier_state"),
                              truth.get_output_port(), config.carrier())
@@ -173,9 +164,9 @@ def add_deck_landing(builder: DiagramBuilder, config: DeckLandingConfig, meshcat
         quad_state, platform.GetOutputPort("carrier_state"), platform.GetOutputPort("deck_motion"), relative_state,
         truth.get_output_port(), stack.supervisor.GetOutputPort("mode"), stack.supervisor.GetOutputPort("command"),
         window.get_output_port(), deck_motion))}
-    if tracker is not None:
+    if perception.X_WP_estimate is not None:
         to_vector = builder.AddNamedSystem("steering_estimate_vector", PoseEstimateToVector())
-        builder.Connect(tracker.GetOutputPort("X_WP_estimate"), to_vector.get_input_port())
+        builder.Connect(perception.X_WP_estimate, to_vector.get_input_port())
         loggers["steering_estimate"] = LogVectorOutput(to_vector.get_output_port(), builder, period)
     camera_truth = builder.AddNamedSystem("camera_truth", RelativePose(config.X_BC))
     builder.Connect(X_WB, camera_truth.GetInputPort("X_WB"))
@@ -193,7 +184,7 @@ def add_deck_landing(builder: DiagramBuilder, config: DeckLandingConfig, meshcat
         trail = builder.AddNamedSystem("uav_trail", MeshcatTrail(meshcat, "deck_landing/uav_trail", STATE_SIZE, P_WB))
         builder.Connect(quad_state, trail.get_input_port())
         meshcat.SetCameraPose(np.array([-3.0, -4.0, 3.5]), np.array([0.0, 0.0, 1.0]))
-    return DeckLandingHandles(config, quad, platform, stack, estimators, tracker, tof, scene_graph, loggers,
+    return DeckLandingHandles(config, quad, platform, stack, estimators, tof, scene_graph, loggers,
                               frame_loggers, visualizer, video)
 
 

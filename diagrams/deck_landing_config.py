@@ -1,9 +1,9 @@
 """The configuration of deck-landing: seed 002's quadrotor and our flight controller over seed 000's
 Stewart deck, with seed 000's camera, ToF sensors and estimators; one dataclass per YAML section.
 
-Sections beyond the systems' own: `perception` (what steers: `source` one of DECK_SOURCES, and when
-its estimate is valid), `tracker` (the deck in W from the estimator's frames), `window` (when the
-final descent may start), `start`, `integration`, `termination`.
+Sections beyond the systems' own: `perception` (what steers: `source`, a perception source that runs
+in deck-landing, and when its estimate is valid), `tracker` (the deck in W from the estimator's
+frames), `window` (when the final descent may start), `start`, `integration`, `termination`.
 """
 
 from dataclasses import dataclass, field, replace
@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, replace
 from pydrake.math import RigidTransform
 
 from diagrams.gv_landing_config import FlightConfig
+from diagrams.perception_sources import perception_source
 from systems.config import require, require_positive
 from systems.control.landing_window import LandingWindowConfig
 from systems.estimators.crhf import CrhfConfig
@@ -22,22 +23,21 @@ from systems.sensors.camera import CameraConfig
 from systems.sensors.tof import TofConfig
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
 
-DECK_SOURCES = ("truth", "crhf", "atda")  # what may steer; both estimators run on the camera stream whatever steers
 ESTIMATORS = ("atda", "crhf")
 
 
 @dataclass
 class DeckPerceptionConfig(SeamConfig):
-    """What steers (`source`: the truth, or an estimator through the deck tracker) and (SeamConfig) when
-    its estimate is valid enough to steer on. The truth's view: the camera's cone."""
+    """What steers (`source`: a name in diagrams.perception_sources.SOURCES that runs in deck-landing: the truth,
+    crhf or atda through the deck tracker, or one registered) and (SeamConfig) when its estimate is valid enough
+    to steer on; both estimators run on the camera stream whatever steers. The truth's view: the camera's cone."""
 
     source: str = "crhf"
     field_of_view_deg: float = 58.0  # about the seed 000 camera's (512 px, fx 458.5 px)
     max_range_m: float = 4.0  # the ToF sensors' long-distance range
 
     def validate(self, prefix: str = "perception") -> None:
-        require(self.source in DECK_SOURCES,
-                f"{prefix}.source '{self.source}' is not one of: {', '.join(DECK_SOURCES)}")
+        perception_source(self.source, f"{prefix}.source", "deck")
         SeamConfig.validate(self, prefix)
         require(0 < self.field_of_view_deg <= 180, f"{prefix}.field_of_view_deg must be in (0, 180]")
         require_positive(self.max_range_m, f"{prefix}.max_range_m")

@@ -1,12 +1,13 @@
-"""The registry behind `perception.source`: the name of what steers the UAV -> the function that adds
-that perception source to a builder.
+"""The registry behind `perception.source`, in the gv scenarios and deck-landing alike: the name of what
+steers the UAV -> the function that adds that perception source to a builder.
 
 A source's function gets the builder and `PerceptionInputs` (what the scene offers it: the UAV's
 own pose and kinematics, the truth, the marker measurement stream, the marker filters already in
-the diagram and the camera's stream) and returns `SeamPorts`: the seam
-(systems/perception/seam.py), where it has one the pose estimate that metrics score, and its own
-logs. Nothing in the controller or the supervisor changes with the source. A source that brings
-its own camera (`PerceptionSource.camera`) gets the scene to render it.
+the diagram, the camera's stream, and on the deck its tag estimators) and returns `SeamPorts`: the
+seam (systems/perception/seam.py), where it has one the pose estimate that metrics score, and its
+own logs. Nothing in the controller or the supervisor changes with the source. A source that brings
+its own camera (`PerceptionSource.camera`) gets the scene to render it. `PerceptionSource.scenes`
+names the diagrams that offer what it needs (gv_landing.py's, deck_landing.py's).
 
     register_source("mine", PerceptionSource(add_mine, needs_markers=True))   # your own estimator
 
@@ -19,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pydrake.geometry import SceneGraph
+from pydrake.math import RigidTransform
 from pydrake.systems.framework import DiagramBuilder, OutputPort
 from pydrake.systems.primitives import LogVectorOutput
 
@@ -27,21 +29,25 @@ from diagrams.federated_perception import add_federated_perception
 from diagrams.federated_plots import plot_federated
 from diagrams.hybrid_metrics import hybrid_metrics, plot_hybrid
 from diagrams.hybrid_perception import add_hybrid_perception
+from diagrams.stewart_scene import delayed
 from systems.config import ConfigError
+from systems.estimators.deck_tracker import DeckTracker
 from systems.estimators.marker_ekf import FILTERS, MarkerFilterSystem
 from systems.perception.seam import EstimateToSeam
 from systems.viewers import VideoRecorder
 
+SCENES = {"gv": "the gv scenarios", "deck": "deck-landing"}  # the diagrams that add perception sources
+
 
 @dataclass
 class PerceptionInputs:
-    """What a gv scenario's diagram offers a perception source."""
+    """What a scenario's diagram offers a perception source (deck-landing: no marker stream nor filters)."""
 
-    config: object  # the scenario (diagrams.gv_landing_config.GvLandingConfig)
+    config: object  # the scenario (diagrams.gv_landing_config.GvLandingConfig, deck_landing_config.DeckLandingConfig)
     X_WB: OutputPort  # the UAV's own pose (RigidTransform): its navigation's (`navigation.source`)
     V_WB: OutputPort  # its true spatial velocity (6: [w; v] in W) and acceleration (A_WB), for an IMU
     A_WB: OutputPort
-    quadrotor_state: OutputPort  # the truth, for a source's own logs: the UAV's state (17) and the vehicle's (4)
+    quadrotor_state: OutputPort  # the truth, for a source's own logs: the UAV's state (17) and the carrier's (4)
     vehicle_state: OutputPort
     true_relative_state: OutputPort  # the truth's seam
     marker_measurements: OutputPort | None  # list of MarkerMeasurement, after the latency; None: no stream
@@ -53,6 +59,10 @@ class PerceptionInputs:
     body_frame_id: object = None
     video_path: Path | None = None  # --video: where a source that records its own stream writes it
     ground_xy: tuple | None = None  # the plain ground's (lower, upper) World x, y [m]; None: the origin's alone
+    # deck-landing: its tag estimators' X_CT_estimate outputs by name ("atda", "crhf": PoseEstimate of the tag T
+    # in the camera C, estimate_latency_frames late) and the deck frame P in the tag's frame T.
+    tag_estimates: dict[str, OutputPort] = field(default_factory=dict)
+    X_TP: RigidTransform | None = None
 
 
 @dataclass
@@ -65,6 +75,9 @@ class SeamPorts:
     filter_name: str | None = None  # the marker filter behind it, if any
     logs: dict = field(default_factory=dict)  # the source's own loggers (name -> VectorLogSink), for its metrics
     video: VideoRecorder | None = None  # its own stream's recorder (--video), where it records one
+    # deck-landing: the deck's motion as the source estimates it (systems/estimators/deck_tracker.py's layout), for
+    # the landing window; None: the truth's.
+    deck_motion: OutputPort | None = None
 
 
 @dataclass(frozen=True)
@@ -81,6 +94,8 @@ class PerceptionSource:
     metrics: Callable | None = None
     plot: Callable | None = None
     estimates_heading: bool = True  # its estimate carries the pad's heading (false: a position alone)
+    # The diagrams that offer what it needs (SCENES); deck-landing collects no `logs`, `metrics`, `plot` or video.
+    scenes: tuple[str, ...] = ("gv",)
 
 
 def add_estimate_to_seam(builder: DiagramBuilder, inputs: PerceptionInputs, X_WP_estimate: OutputPort,
@@ -106,6 +121,24 @@ def _marker_filter(name: str) -> Callable[[DiagramBuilder, PerceptionInputs], Se
                                      marker_filter.GetOutputPort("v_WP_estimate"),
                                      marker_filter.GetOutputPort("a_WP_estimate"))
         ports.filter_name = name
+        return ports
+    return add
+
+
+def _deck_estimator(name: str) -> Callable[[DiagramBuilder, PerceptionInputs], SeamPorts]:
+    """deck-landing: the tag estimator `name` (ATDA or CRHF, on the camera stream) through the deck tracker
+    (systems/estimators/deck_tracker.py: X_WP through the UAV's pose at the frame's exposure, predicted to now)."""
+    def add(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
+        config = inputs.config
+        period, frames = config.camera.period_s, config.estimate_latency_frames
+        tracker = builder.AddNamedSystem("deck_tracker", DeckTracker(config.tracker, config.X_BC, inputs.X_TP, period,
+                                                                     frames * period))
+        builder.Connect(inputs.tag_estimates[name], tracker.GetInputPort("X_CT_estimate"))
+        X_WB_exposure = delayed(builder, inputs.X_WB, period, frames, RigidTransform()) if frames else inputs.X_WB
+        builder.Connect(X_WB_exposure, tracker.GetInputPort("X_WB"))
+        ports = add_estimate_to_seam(builder, inputs, tracker.GetOutputPort("X_WP_estimate"),
+                                     tracker.GetOutputPort("v_WP_estimate"))
+        ports.deck_motion = tracker.GetOutputPort("deck_motion")
         return ports
     return add
 
@@ -149,12 +182,13 @@ def _hybrid(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
 
 
 SOURCES: dict[str, PerceptionSource] = {
-    "truth": PerceptionSource(_truth),
+    "truth": PerceptionSource(_truth, scenes=("gv", "deck")),
     **{name: PerceptionSource(_marker_filter(name), needs_markers=True) for name in FILTERS},
     "federated": PerceptionSource(_federated, needs_camera=True, camera=lambda config: config.federated.camera,
                                   metrics=_federated_metrics, plot=_federated_plot),
     "hybrid": PerceptionSource(_hybrid, metrics=hybrid_metrics, plot=plot_hybrid, records_video=True,
                                estimates_heading=False),
+    **{name: PerceptionSource(_deck_estimator(name), scenes=("deck",)) for name in ("crhf", "atda")},
 }
 
 
@@ -163,8 +197,11 @@ def register_source(name: str, source: PerceptionSource) -> None:
     SOURCES[name] = source
 
 
-def perception_source(name: str, prefix: str = "perception.source") -> PerceptionSource:
-    """The registered source; ConfigError naming the known ones otherwise."""
+def perception_source(name: str, prefix: str = "perception.source", scene: str = "gv") -> PerceptionSource:
+    """The registered source that `scene` (a key of SCENES) can add; ConfigError naming the ones it can otherwise."""
+    known = ", ".join(n for n, source in SOURCES.items() if scene in source.scenes)
     if name not in SOURCES:
-        raise ConfigError(f"{prefix} '{name}' is not a perception source (known: {', '.join(SOURCES)})")
+        raise ConfigError(f"{prefix} '{name}' is not a perception source (known: {known})")
+    if scene not in SOURCES[name].scenes:
+        raise ConfigError(f"{prefix} '{name}' does not run in {SCENES[scene]} (its sources: {known})")
     return SOURCES[name]

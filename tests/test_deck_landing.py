@@ -3,13 +3,15 @@ scored against the simulation's truth; a covered lens is flagged, coasted and ne
 
 import numpy as np
 import pytest
+from pydrake.systems.framework import LeafSystem
 
 from diagrams import deck_landing_run
 from diagrams.deck_landing_run import fly, tilt_deg
+from diagrams.perception_sources import SOURCES, PerceptionSource, SeamPorts
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.control.landing import Mode
-from systems.perception.seam import VALID
+from systems.perception.seam import HEIGHT, RELATIVE_STATE_SIZE, VALID
 
 COMMAND_VZ = 2  # in the supervisor's command [v (3), yaw, a (3)]
 
@@ -119,6 +121,8 @@ def test_with_an_exposure_the_camera_is_smeared_by_the_uav_s_motion_over_the_dec
     (["crhf.range_filter.max_coast_steps=-2"], "crhf.range_filter.max_coast_steps"),
     # On the ground under the deck: "the gear touched the pad" at t = 0, scored a success.
     (["start.height_m=0.0"], "start.height_m"),
+    # A marker filter needs gv's marker stream: one line naming deck-landing's sources, not a KeyError mid-build.
+    (["perception.source=ct_ekf"], "perception.source 'ct_ekf' does not run in deck-landing"),
     (["window.predictor.lag_s=0.05", "window.predictor.history_s=0.65", "window.predictor.min_history_s=0.65"],
      "window.predictor.history_s"),  # never fitted at 20 Hz
 ])
@@ -130,3 +134,32 @@ def test_settings_that_cannot_work_are_config_errors(settings, named):
 def test_a_start_beside_the_deck_on_the_ground_is_accepted():
     _, config = load_scenario("deck-landing", overrides=["start.height_m=0.0", "start.xy_m=[3.0, 0.0]"])
     assert config.start.height_m == 0.0
+
+
+class HigherSeam(LeafSystem):
+    """A user's perception source: the truth's seam with the height 1 m more."""
+
+    def __init__(self):
+        super().__init__()
+        self.DeclareVectorInputPort("truth", RELATIVE_STATE_SIZE)
+        self.DeclareVectorOutputPort("relative_state", RELATIVE_STATE_SIZE, self._calc)
+
+    def _calc(self, context, output):
+        seam = self.get_input_port().Eval(context).copy()
+        seam[HEIGHT] += 1.0
+        output.SetFromVector(seam)
+
+
+def _add_higher_seam(builder, inputs):
+    higher = builder.AddNamedSystem("higher_seam", HigherSeam())
+    builder.Connect(inputs.true_relative_state, higher.get_input_port())
+    return SeamPorts(higher.get_output_port())
+
+
+def test_a_source_registered_for_the_deck_steers_deck_landing(monkeypatch):
+    monkeypatch.setitem(SOURCES, "higher", PerceptionSource(_add_higher_seam, scenes=("deck",)))
+    _, config = load_scenario("deck-landing", overrides=["perception.source=higher"])
+    metrics, flight = fly(config, 0.5)
+    steered, truth = flight.log["relative_state"], flight.log["true_relative_state"]
+    np.testing.assert_allclose(steered[:, HEIGHT] - truth[:, HEIGHT], 1.0, atol=1e-12)
+    assert metrics["perception"]["source"] == "higher"

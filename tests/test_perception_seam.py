@@ -102,6 +102,11 @@ def test_the_registry_names_every_source_and_what_it_needs():
     assert not perception_source("truth").needs_markers and perception_source("ct_ekf").needs_markers
     with pytest.raises(ConfigError, match=r"perception.source 'kalman' is not a perception source \(known: truth"):
         perception_source("kalman")
+    # deck-landing's tag estimators are in the one registry, and run only there.
+    assert perception_source("crhf", scene="deck").scenes == ("deck",) and "atda" in SOURCES
+    with pytest.raises(ConfigError, match=r"perception.source 'crhf' does not run in the gv scenarios \(its sources: "
+                                          r"truth, paper_ekf, ct_ekf, federated, hybrid\)"):
+        perception_source("crhf")
 
 
 @pytest.mark.parametrize("overrides, message", [
