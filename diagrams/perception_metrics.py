@@ -16,11 +16,12 @@ from systems.vehicles.quadrotor import P_WB
 GV_HEADING = 2  # in the ground vehicle's state [x, y, heading, steering]
 
 
-def longest_run(mask: np.ndarray) -> int:
-    """The length of the longest run of True in a boolean array."""
+def longest_span_s(t: np.ndarray, mask: np.ndarray) -> float:
+    """The longest time [s] that `mask` (a boolean per sample time `t`) holds: a run of True lasts from its
+    first sample to the sample after it, or to t[-1], the log's end, when it runs to the end."""
     edges = np.diff(np.r_[0, mask.astype(np.int8), 0])
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    return int((ends - starts).max()) if starts.size else 0
+    return float((t[np.minimum(ends, len(t) - 1)] - t[starts]).max()) if starts.size else 0.0
 
 
 def carrier_heading(log: dict[str, np.ndarray]) -> np.ndarray:
@@ -59,8 +60,7 @@ def perception_metrics(log: dict[str, np.ndarray], source: str, touchdown_s: flo
     for key in ("mae_rpy_deg", "rmse_rpy_deg"):  # the heading alone is scored: roll and pitch are not figures
         if key in out:
             out[key] = [None, None, out[key][2]]
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    out["longest_invalid_s"] = longest_run(~valid) * dt
+    out["longest_invalid_s"] = longest_span_s(t, ~valid)
     out["first_valid_s"] = float(t[valid][0]) if valid.any() else None
     if valid.any():
         error = (seam[:, P_BP_W] - truth[:, P_BP_W])[valid]

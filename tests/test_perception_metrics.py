@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
-from diagrams.perception_metrics import perception_metrics
+from diagrams.perception_metrics import longest_span_s, perception_metrics
 from systems.estimators.estimate import PoseEstimate, estimate_vector
 from systems.perception.seam import HEIGHT, P_BP_W, RELATIVE_STATE_SIZE, VALID
 from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
@@ -63,3 +63,23 @@ def test_the_heading_error_is_drawn_only_for_a_source_that_estimates_it(heading,
     assert len(drawn) == heading
     if heading:  # the identity rotation against the vehicle's 90 deg
         np.testing.assert_allclose(drawn[0].get_ydata(), -90.0)
+
+
+@pytest.mark.parametrize("invalid, expected_s", [
+    (np.ones(N, bool), (N - 1) * 0.02),  # invalid throughout: the run's length, not one sample more
+    (np.arange(N) >= 40, 9 * 0.02),  # to the end: from its first sample to the last
+    ((np.arange(N) >= 10) & (np.arange(N) < 15), 5 * 0.02),  # inside: to the first valid sample after it
+    (np.zeros(N, bool), 0.0),
+])
+def test_the_longest_time_without_a_valid_estimate_is_within_the_run(invalid, expected_s):
+    log = _log(None)
+    log["relative_state"][invalid, VALID] = 0.0
+    out = perception_metrics(log, "ct_ekf")
+    assert out["longest_invalid_s"] == pytest.approx(expected_s, abs=1e-12)
+    assert out["longest_invalid_s"] <= log["t"][-1] - log["t"][0]
+
+
+def test_the_longest_span_follows_uneven_sample_times():
+    t = np.array([0.0, 0.1, 0.3, 0.35, 1.0])
+    assert longest_span_s(t, np.array([False, True, True, False, False])) == pytest.approx(0.25)
+    assert longest_span_s(t, np.array([True, False, False, True, True])) == pytest.approx(0.65)
