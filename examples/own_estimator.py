@@ -25,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a ch
 from diagrams.gv_landing_run import fly  # noqa: E402
 from diagrams.perception_sources import PerceptionSource, add_estimate_to_seam, register_source  # noqa: E402
 from diagrams.runner import load_scenario  # noqa: E402
+from systems.config import ConfigError  # noqa: E402
 from systems.estimators.estimate import PoseEstimate  # noqa: E402
 
 
@@ -100,12 +101,17 @@ def add_averaged_markers(builder, inputs):
 
 
 def main(argv=None) -> dict:
+    """Flies marker-landing on the example's estimator and returns its metrics; a bad --set is one line on
+    stderr and exit status 2."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args(argv)
     register_source("averaged_markers", PerceptionSource(add_averaged_markers, needs_markers=True))
-    _, scenario = load_scenario("marker-landing", overrides=["perception.source=averaged_markers", *args.overrides])
-    metrics, _ = fly(scenario, scenario.duration_s)
+    try:
+        _, scenario = load_scenario("marker-landing", overrides=["perception.source=averaged_markers", *args.overrides])
+        metrics, _ = fly(scenario, scenario.duration_s)
+    except ConfigError as e:
+        parser.exit(2, f"{parser.prog}: error: {e}\n")
     landing, perception = metrics["landing"], metrics["perception"]
     if landing["success"]:
         print(f"landed {landing['touchdown_error_m']:.3f} m from the pad centre at "

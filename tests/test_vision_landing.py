@@ -107,6 +107,14 @@ def test_the_example_flies_an_estimator_of_ones_own(capsys):
     assert "averaged_markers" not in SOURCES or SOURCES["averaged_markers"].needs_markers
 
 
+def test_the_example_gives_bad_settings_one_line_and_exit_2(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        runpy.run_path(str(EXAMPLE), run_name="example")["main"](["--set", "estimation.source=bogus"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and len(err.strip().splitlines()) == 1
+    assert "error: estimation.source 'bogus' is not one of" in err and "Traceback" not in err
+
+
 def test_the_marker_detector_is_given_the_estimators_lens_model():
     # marker-landing's camera with barrel distortion: the detector told the lens measures as through a
     # pinhole; told none (calibration_error.k1 cancelling it), it measures otherwise.
