@@ -163,7 +163,7 @@ def write_outputs(flight: DeckFlight, config: DeckLandingConfig, out_dir) -> Non
 
 
 def summary_lines(name: str, metrics: dict) -> list[str]:
-    """What a run prints: the landing and the estimators."""
+    """What a run prints: the landing and the estimators (one that never had a valid estimate says so)."""
     landing = metrics["landing"]
     if landing["success"]:
         lines = [(f"landed {landing['touchdown_error_m']:.3f} m from the tag centre at "
@@ -173,6 +173,9 @@ def summary_lines(name: str, metrics: dict) -> list[str]:
     else:
         lines = [f"no landing ({landing['failure_reason']}: {landing['failure_detail']})"]
     for estimator, m in metrics["estimators"].items():
+        if "mae_xyz_m" not in m:  # estimator_metrics scores valid frames only
+            lines.append(f"{estimator}: never valid (valid {m['valid_fraction']:.0%})")
+            continue
         lines.append(f"{estimator}: MAE xyz {np.round(m['mae_xyz_m'], 4).tolist()} m, rpy "
                      f"{np.round(m['mae_rpy_deg'], 2).tolist()} deg, valid {m['valid_fraction']:.0%}")
     return [f"{name}: {line}" for line in lines]

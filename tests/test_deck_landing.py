@@ -163,3 +163,20 @@ def test_a_source_registered_for_the_deck_steers_deck_landing(monkeypatch):
     steered, truth = flight.log["relative_state"], flight.log["true_relative_state"]
     np.testing.assert_allclose(steered[:, HEIGHT] - truth[:, HEIGHT], 1.0, atol=1e-12)
     assert metrics["perception"]["source"] == "higher"
+
+
+def test_a_run_in_which_no_estimator_sees_the_tag_writes_its_metrics(capfd, tmp_path):
+    import json
+
+    from diagrams.cli import main
+
+    # Started 4 m off the deck: neither ATDA nor CRHF has a valid frame, so neither has MAE figures.
+    out = tmp_path / "off"
+    code = main(["run", "deck-landing", "--duration", "0.3", "--set", "start.xy_m=[3.0,3.0]", "--out", str(out),
+                 "--quiet"])
+    stdout = capfd.readouterr().out
+    assert code == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    for name in ("atda", "crhf"):
+        assert metrics["estimators"][name]["valid_fraction"] == 0.0 and "mae_xyz_m" not in metrics["estimators"][name]
+        assert f"deck-landing: {name}: never valid (valid 0%)" in stdout
