@@ -16,7 +16,7 @@ import numpy as np
 
 from diagrams.deck_landing import DeckLandingHandles, build_deck_landing
 from diagrams.deck_landing_config import ESTIMATORS, DeckLandingConfig
-from diagrams.landing_metrics import pad_landing
+from diagrams.landing_metrics import pad_landing, touchdown
 from diagrams.landing_plots import plot_perception, shade_modes
 from diagrams.metrics import estimator_metrics
 from diagrams.outputs import save_figure, write_npz
@@ -25,7 +25,6 @@ from diagrams.scenario import RunSettings
 from diagrams.simulate import Simulation, simulate
 from diagrams.stewart_run import pose_from_vector
 from systems.config import require_positive
-from systems.control.landing import Mode
 from systems.perception.seam import HEIGHT, VALID
 from systems.sensors.ground_truth import pose_vector
 
@@ -83,13 +82,25 @@ def tilt_deg(deck_motion: np.ndarray) -> np.ndarray:
     return np.degrees(np.arcsin(np.minimum(np.hypot(deck_motion[..., 0], deck_motion[..., 1]), 1.0)))
 
 
+def _deck_pad(log: dict[str, np.ndarray], config: DeckLandingConfig) -> dict:
+    """landing_metrics.touchdown's pad arguments for a deck flight: the deck, headed as the carrier."""
+    return {"heading": log["carrier_state"][:, GV_HEADING], "pad_size_m": config.platform.deck_size_m,
+            "pad_thickness_m": config.platform.deck_thickness_m,
+            "touchdown_height_m": config.landing.touchdown_height_m,
+            "motors_stop_at_landed": config.landing.motors_stop_at_landed}
+
+
+def deck_touchdown(flight: DeckFlight, config: DeckLandingConfig) -> tuple[int, str] | None:
+    """(log index, "supervisor" or "contact") of the touchdown on the deck (landing_metrics.touchdown, as
+    `deck_landing_metrics` scores it), or None."""
+    return touchdown(flight.log, status=flight.status, **_deck_pad(flight.log, config))
+
+
 def deck_landing_metrics(flight: DeckFlight, config: DeckLandingConfig) -> dict:
     """The `landing` section on the deck, with its tilt and heave rate at touchdown and whether the issue's
     targets are met (`meets_targets`: on the deck within 0.10 m, under 0.5 m/s, tilt under 3 deg)."""
     log = flight.log
-    out, k = pad_landing(log, flight.status, log["carrier_state"][:, GV_HEADING], config.platform.deck_size_m,
-                         config.platform.deck_thickness_m, config.landing.touchdown_height_m,
-                         config.quadrotor.gravity_m_s2, config.landing.motors_stop_at_landed)
+    out, k = pad_landing(log, flight.status, gravity_m_s2=config.quadrotor.gravity_m_s2, **_deck_pad(log, config))
     if k is not None:
         out["deck_tilt_at_touchdown_deg"] = float(tilt_deg(log["true_deck_motion"][k]))
         out["deck_heave_rate_at_touchdown_m_s"] = float(log["true_deck_motion"][k, 5])
@@ -120,7 +131,8 @@ def fly(config: DeckLandingConfig, duration_s: float, **options) -> tuple[dict, 
 def plot_deck_landing(flight: DeckFlight, config: DeckLandingConfig, out_dir) -> None:
     """deck_landing.png: the UAV's height above the deck (true, and as steered where the estimate was valid),
     the deck's tilt (true and as tracked) with the landing window's flags, and the horizontal offset, the
-    supervisor's modes shaded."""
+    supervisor's modes shaded; the title gives the touchdown as the metrics score it (`deck_touchdown`: the
+    supervisor's LANDED or the gear's touch)."""
     log = flight.log
     t = log["t"]
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
@@ -146,9 +158,9 @@ def plot_deck_landing(flight: DeckFlight, config: DeckLandingConfig, out_dir) ->
         ax.grid(alpha=0.3)
         if ax is not axes[2]:
             ax.legend(loc="upper right", fontsize=8)
-    landed = np.flatnonzero(log["mode"] == Mode.LANDED)
+    found = deck_touchdown(flight, config)
     axes[0].set_title(f"deck-landing steered by {config.perception.source}"
-                      + (f", LANDED at {t[landed[0]]:.1f} s" if landed.size else ""))
+                      + (f", touchdown ({found[1]}) at {t[found[0]]:.1f} s" if found is not None else ""))
     save_figure(fig, out_dir / "deck_landing.png")
 
 

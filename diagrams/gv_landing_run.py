@@ -18,7 +18,7 @@ import numpy as np
 
 from diagrams.gv_landing import GvLandingHandles, build_gv_landing
 from diagrams.gv_landing_config import GvLandingConfig
-from diagrams.landing_metrics import landing_metrics, tracking_metrics
+from diagrams.landing_metrics import gv_touchdown, landing_metrics, tracking_metrics
 from diagrams.landing_plots import plot_flight, plot_perception
 from diagrams.marker_metrics import SampledRun, marker_metrics
 from diagrams.marker_plots import plot_run
@@ -180,7 +180,9 @@ def write_outputs(flight: Flight, metrics: dict, config: GvLandingConfig, out_di
         if source.plot is not None:
             source.plot(flight.source_log, config, out_dir)
     write_npz(out_dir / "log.npz", **arrays)
-    plot_flight(flight.log, config, out_dir, make_path(config.vehicle.path_config()).polyline(max_length_m=1e9))
+    found = gv_touchdown(flight.log, flight.status, config)
+    plot_flight(flight.log, config, out_dir, None if found is None else found[0],
+                make_path(config.vehicle.path_config()).polyline(max_length_m=1e9))
     plot_perception(flight.log, config.perception.source, out_dir, source.estimates_heading)
     if "wind" in flight.log:
         plot_wind(flight.log, out_dir)

@@ -67,11 +67,22 @@ def impact(gap_m: float, vertical_speed: float, gravity: float) -> tuple[float, 
     return (speed + vertical_speed) / gravity, speed
 
 
+def _gv_pad(log: dict[str, np.ndarray], config) -> dict:
+    """`touchdown`'s pad arguments for a gv flight: the pad on the ground vehicle, headed as the vehicle."""
+    return {"heading": log["vehicle_state"][:, GV_HEADING], "pad_size_m": config.platform.pad_size_m,
+            "pad_thickness_m": config.platform.pad_thickness_m,
+            "touchdown_height_m": config.landing.touchdown_height_m,
+            "motors_stop_at_landed": config.landing.motors_stop_at_landed}
+
+
+def gv_touchdown(log: dict[str, np.ndarray], status: str, config) -> tuple[int, str] | None:
+    """`touchdown` of a gv flight, as `landing_metrics` scores it."""
+    return touchdown(log, status=status, **_gv_pad(log, config))
+
+
 def landing_metrics(log: dict[str, np.ndarray], status: str, config) -> dict:
     """A gv flight's "landing" section: `pad_landing`'s, with the vehicle's speed and turn radius at touchdown."""
-    out, k = pad_landing(log, status, log["vehicle_state"][:, GV_HEADING], config.platform.pad_size_m,
-                         config.platform.pad_thickness_m, config.landing.touchdown_height_m,
-                         config.quadrotor.gravity_m_s2, config.landing.motors_stop_at_landed)
+    out, k = pad_landing(log, status, gravity_m_s2=config.quadrotor.gravity_m_s2, **_gv_pad(log, config))
     if k is not None:
         steering = log["vehicle_state"][k, GV_STEERING]
         out["vehicle_speed_at_touchdown_m_s"] = float(log["vehicle_speed"][k])

@@ -5,7 +5,7 @@ supervisor's modes shaded."""
 import matplotlib.pyplot as plt
 import numpy as np
 
-from diagrams.landing_metrics import SETTLED_TOLERANCE_M, entered, first
+from diagrams.landing_metrics import SETTLED_TOLERANCE_M, entered
 from diagrams.outputs import save_figure
 from diagrams.perception_metrics import carrier_heading
 from systems.control.landing import Mode
@@ -17,22 +17,25 @@ MODE_COLOURS = {Mode.TAKEOFF: "0.85", Mode.CLIMB: "tab:cyan", Mode.FOLLOW: "tab:
                 Mode.ABORT: "tab:brown", Mode.WAIT: "tab:olive"}
 
 
-def _mode_lines(ax, log):
-    """Dotted lines at the FOLLOW/APPROACH/LAND/LANDED transitions."""
-    for mode, colour in ((Mode.APPROACH, "tab:green"), (Mode.LAND, "tab:orange"), (Mode.LANDED, "tab:red")):
+def _mode_lines(ax, log, touchdown: int | None) -> None:
+    """Dotted lines at the APPROACH and LAND transitions and at the touchdown (its log index, or None)."""
+    for mode, colour in ((Mode.APPROACH, "tab:green"), (Mode.LAND, "tab:orange")):
         i = entered(log["mode"], mode)
         if i is not None:
             ax.axvline(log["t"][i], color=colour, ls=":", lw=1)
+    if touchdown is not None:
+        ax.axvline(log["t"][touchdown], color="tab:red", ls=":", lw=1)
 
 
-def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray | None = None) -> None:
+def plot_flight(log: dict[str, np.ndarray], config, out_dir, touchdown: int | None,
+                path_xy: np.ndarray | None = None) -> None:
     """Seed 003 Fig. 8a/9 (trajectories_3d.png, trajectories_top.png), Fig. 14a/15a (altitude.png),
     Fig. 8c/14b/15b (velocity.png) and Fig. 8b's error (tracking_error.png); the pad on the UGV, or on the
-    ground (`platform.carrier`)."""
+    ground (`platform.carrier`). `touchdown`: the log index of the touchdown as the metrics score it
+    (landing_metrics.gv_touchdown: the supervisor's LANDED or the gear's touch), or None."""
     t, quad = log["t"], log["quadrotor_state"]
     p_uav = quad[:, P_WB]
     p_pad = p_uav + log["true_relative_state"][:, P_BP_W]
-    landed = first(log["mode"] == Mode.LANDED)
     on_ground = config.platform.carrier == "ground"
     carrier = "pad" if on_ground else "UGV"
     pad = "pad centre" if on_ground else "UGV (pad centre)"
@@ -43,8 +46,8 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray
     ax.plot(*p_pad.T, "-", color="tab:orange", lw=1.5, label=pad)
     ax.plot(*p_uav.T, "-", color="tab:blue", lw=1.2, label="UAV")
     ax.scatter(*p_uav[0], color="tab:blue", marker="o", s=20)
-    if landed is not None:
-        ax.scatter(*p_uav[landed - 1], color="tab:red", marker="x", s=40, label="touchdown")
+    if touchdown is not None:
+        ax.scatter(*p_uav[touchdown], color="tab:red", marker="x", s=40, label="touchdown")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
@@ -61,8 +64,8 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray
     ax.plot(*p_pad[:, :2].T, "-", color="tab:orange", lw=1.5, label=pad)
     ax.plot(*p_uav[:, :2].T, "--", color="tab:blue", lw=1.2, label="UAV")
     ax.plot(*p_uav[0, :2], "o", color="tab:blue", ms=5, label="UAV start")
-    if landed is not None:
-        ax.plot(*p_uav[landed - 1, :2], "x", color="tab:red", ms=8, label="touchdown")
+    if touchdown is not None:
+        ax.plot(*p_uav[touchdown, :2], "x", color="tab:red", ms=8, label="touchdown")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -78,7 +81,7 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray
     ax.axhline(config.landing.initial_height_m, color="0.5", ls="--", lw=1, label="IH")
     ax.axhline(config.platform.height_m + config.landing.landing_height_m, color="0.3", ls="-.", lw=1,
                label="LH above the pad")
-    _mode_lines(ax, log)
+    _mode_lines(ax, log, touchdown)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("height (m)")
     ax.set_title(f"Altitude (dotted: approach, final landing, touchdown; {title})")
@@ -92,7 +95,7 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray
         ax.plot(t, v_pad[:, i], "-", color="tab:orange", lw=1.5, label=pad)
         ax.plot(t, v_uav[:, i], "-", color="tab:blue", lw=1, label="UAV")
         ax.plot(t, command[:, i], ":", color="k", lw=1, label="UAV desired")
-        _mode_lines(ax, log)
+        _mode_lines(ax, log, touchdown)
         ax.set_ylabel(f"v{label} (m/s)")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="best", fontsize=8)
@@ -107,7 +110,7 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, path_xy: np.ndarray
         ax.plot(t, error[:, i], "-", color="tab:blue", lw=1, label="pad - UAV")
         ax.plot(t[~seen], error[~seen, i], ".", color="tab:red", ms=2, label="no valid estimate")
         ax.axhspan(-SETTLED_TOLERANCE_M, SETTLED_TOLERANCE_M, color="tab:green", alpha=0.2, label="+-0.01 m")
-        _mode_lines(ax, log)
+        _mode_lines(ax, log, touchdown)
         ax.set_yscale("symlog", linthresh=SETTLED_TOLERANCE_M)  # metres and millimetres on one axis
         ax.set_ylabel(f"e{label} (m)")
         ax.grid(alpha=0.3)

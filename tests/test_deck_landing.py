@@ -180,3 +180,24 @@ def test_a_run_in_which_no_estimator_sees_the_tag_writes_its_metrics(capfd, tmp_
     for name in ("atda", "crhf"):
         assert metrics["estimators"][name]["valid_fraction"] == 0.0 and "mae_xyz_m" not in metrics["estimators"][name]
         assert f"deck-landing: {name}: never valid (valid 0%)" in stdout
+
+
+def test_the_plot_title_gives_a_touchdown_by_the_gears_contact(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from systems.perception.seam import RELATIVE_STATE_SIZE
+
+    # The gear touches the deck at sample 3 (touchdown_by contact: the supervisor's LANDED is never logged).
+    _, config = load_scenario("deck-landing")
+    n, t = 6, 0.1 * np.arange(6)
+    relative = np.zeros((n, RELATIVE_STATE_SIZE))
+    relative[:, HEIGHT] = [0.6, 0.4, 0.2, 0.05, 0.05, 0.05]
+    log = {"t": t, "mode": np.full(n, int(Mode.LAND)), "true_relative_state": relative, "relative_state": relative,
+           "quadrotor_state": np.zeros((n, 17)), "carrier_state": np.zeros((n, 4)),
+           "true_deck_motion": np.zeros((n, 6)), "deck_motion": np.zeros((n, 7)), "landing_window": np.ones((n, 1))}
+    flight = SimpleNamespace(log=log, status="landed: the gear touched the pad at t = 0.5 s")
+    figures = []
+    monkeypatch.setattr(deck_landing_run, "save_figure", lambda fig, path: figures.append(fig))
+    deck_landing_run.plot_deck_landing(flight, config, tmp_path)
+    assert figures[0].axes[0].get_title() == "deck-landing steered by crhf, touchdown (contact) at 0.3 s"
+    assert deck_landing_run.deck_touchdown(flight, config) == (3, "contact")  # what the metrics score
