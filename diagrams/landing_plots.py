@@ -128,36 +128,43 @@ def shade_modes(ax, log) -> None:
         ax.axvspan(t[start], t[end], color=MODE_COLOURS[Mode(int(mode[start]))], alpha=0.15, lw=0)
 
 
+ERROR_FLOOR_M = 1e-4  # perception.png's position error is drawn from here up (a log scale)
+
+
 def plot_perception(log: dict[str, np.ndarray], source: str, out_dir, heading: bool = True) -> None:
-    """perception.png: the pad's position (x, y, height above the UAV) and heading (`heading`: where the
-    source estimates one) as the steering estimate had them against the truth, its validity, with the
-    supervisor's modes shaded."""
+    """perception.png: the pad's position (x, y, height above the UAV) and, where the source estimates one
+    (`heading`) and an estimate steered (`steering_estimate`), its heading error as the steering estimate
+    had them against the truth; the samples without a valid estimate ticked on the last panel (at zero
+    heading error, or at the position error's floor), the supervisor's modes shaded."""
     t, quad = log["t"], log["quadrotor_state"]
     valid = log["relative_state"][:, VALID] > 0.5
     estimate = quad[:, P_WB] + np.where(valid[:, None], log["relative_state"][:, P_BP_W], np.nan)
     truth = quad[:, P_WB] + log["true_relative_state"][:, P_BP_W]
-    fig, axes = plt.subplots(5, 1, figsize=(10, 11), sharex=True)
+    heading = heading and "steering_estimate" in log  # not for a source whose estimate is a position alone
+    fig, axes = plt.subplots(5 if heading else 4, 1, figsize=(10, 11 if heading else 9), sharex=True)
     for i, (ax, label) in enumerate(zip(axes[:3], ("pad x (m)", "pad y (m)", "pad z (m)"))):
         ax.plot(t, truth[:, i], "-", color="k", lw=1.2, label="true")
         ax.plot(t, estimate[:, i], "--", color="tab:red", lw=1, label=f"{source} (valid)")
         ax.set_ylabel(label)
     error = np.linalg.norm(estimate - truth, axis=1)
-    axes[3].semilogy(t, np.maximum(error, 1e-4), "-", color="tab:red", lw=1)
+    axes[3].semilogy(t, np.maximum(error, ERROR_FLOOR_M), "-", color="tab:red", lw=1)
     axes[3].set_ylabel("position error (m)")
-    if heading and "steering_estimate" in log:  # not for a source whose estimate is a position alone
+    if heading:
         q = log["steering_estimate"][:, 4:]
         yaw = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
         axes[4].plot(t, np.degrees(np.angle(np.exp(1j * (yaw - carrier_heading(log))))), "-",
                      color="tab:red", lw=1)
-    axes[4].plot(t[~valid], np.zeros(np.count_nonzero(~valid)), "|", color="0.3", ms=6, label="no valid estimate")
-    axes[4].set_ylabel("heading error (deg)")
-    axes[4].set_xlabel("time (s)")
+        axes[4].set_ylabel("heading error (deg)")
+    last = axes[-1]
+    last.plot(t[~valid], np.full(np.count_nonzero(~valid), 0.0 if heading else ERROR_FLOOR_M), "|", color="0.3",
+              ms=6, label="no valid estimate")
+    last.set_xlabel("time (s)")
     for ax in axes:
         shade_modes(ax, log)
         ax.grid(alpha=0.3)
     handles = [plt.Rectangle((0, 0), 1, 1, color=c, alpha=0.3) for c in MODE_COLOURS.values()]
     axes[0].legend(loc="best", fontsize=8)
-    axes[4].legend(handles + axes[4].get_legend_handles_labels()[0],
-                   [m.name.lower() for m in MODE_COLOURS] + ["no valid estimate"], loc="best", fontsize=7, ncol=5)
+    last.legend(handles + last.get_legend_handles_labels()[0],
+                [m.name.lower() for m in MODE_COLOURS] + ["no valid estimate"], loc="best", fontsize=7, ncol=5)
     axes[0].set_title(f"What steered ({source}) against the truth; the supervisor's modes shaded")
     save_figure(fig, out_dir / "perception.png")

@@ -49,20 +49,29 @@ def test_an_estimated_heading_is_scored_against_the_vehicles():
     assert out["flips"] == 0
 
 
-@pytest.mark.parametrize("heading", [True, False])
-def test_the_heading_error_is_drawn_only_for_a_source_that_estimates_it(heading, tmp_path, monkeypatch):
+@pytest.mark.parametrize("heading, steering", [(True, True), (False, True), (True, False)])
+def test_the_heading_error_is_drawn_only_for_a_source_that_estimates_it(heading, steering, tmp_path, monkeypatch):
     from diagrams import landing_plots
 
     figures = []
     monkeypatch.setattr(landing_plots, "save_figure", lambda fig, path: figures.append(fig))
     log = _log(None)
     log["mode"] = np.zeros(N)
+    log["relative_state"][:5, VALID] = 0.0  # the first samples without a valid estimate
+    if not steering:  # the truth steered: no estimate, no heading
+        del log["steering_estimate"]
     landing_plots.plot_perception(log, "hybrid", tmp_path, heading)
-    lines = figures[0].axes[4].get_lines()  # the heading error, and the marks of invalid samples
-    drawn = [line for line in lines if len(line.get_xdata()) == N]
-    assert len(drawn) == heading
-    if heading:  # the identity rotation against the vehicle's 90 deg
-        np.testing.assert_allclose(drawn[0].get_ydata(), -90.0)
+    labels = [ax.get_ylabel() for ax in figures[0].axes if ax.get_ylabel()]
+    drawn = heading and steering
+    assert ("heading error (deg)" in labels) == drawn  # no panel holding only the invalid samples' ticks
+    assert labels[-1] == ("heading error (deg)" if drawn else "position error (m)")
+    last = figures[0].axes[len(labels) - 1]
+    ticks = next(line for line in last.get_lines() if line.get_label() == "no valid estimate")
+    np.testing.assert_array_equal(ticks.get_xdata(), log["t"][:5])
+    if drawn:  # the identity rotation against the vehicle's 90 deg
+        error = next(line for line in last.get_lines() if len(line.get_xdata()) == N)
+        np.testing.assert_allclose(error.get_ydata(), -90.0)
+
 
 
 @pytest.mark.parametrize("invalid, expected_s", [
