@@ -20,11 +20,12 @@ from diagrams.landing_metrics import pad_landing, touchdown
 from diagrams.landing_plots import plot_perception, shade_modes
 from diagrams.metrics import estimator_metrics
 from diagrams.outputs import save_figure, write_npz
-from diagrams.perception_metrics import GV_HEADING, perception_metrics
+from diagrams.perception_metrics import perception_metrics
 from diagrams.scenario import RunSettings
 from diagrams.simulate import Simulation, simulate
 from diagrams.stewart_run import pose_from_vector
 from systems.config import require_positive
+from systems.control.monitor import GV_HEADING
 from systems.perception.seam import HEIGHT, VALID
 from systems.sensors.ground_truth import pose_vector
 

@@ -14,7 +14,7 @@ from pydrake.math import RigidTransform
 from scipy.spatial.transform import Rotation
 
 from diagrams.marker_metrics import pad_truth
-from diagrams.metrics import estimator_metrics
+from diagrams.metrics import estimator_metrics, rotations
 from systems.estimators.federated.engine import NODES
 from systems.estimators.federated.system import (
     FED_LOCAL_P,
@@ -44,15 +44,11 @@ def _wxyz(rotation: Rotation) -> np.ndarray:
     return np.column_stack([xyzw[:, 3], xyzw[:, :3]])
 
 
-def _rotation(wxyz: np.ndarray) -> Rotation:
-    return Rotation.from_quat(np.column_stack([wxyz[:, 1:], wxyz[:, 0]]))
-
-
 def true_X_PB(quadrotor_state: np.ndarray, vehicle_state: np.ndarray, platform: PlatformConfig) -> np.ndarray:
     """(N, 7) the UAV body in the pad frame from sampled states (quadrotor (N, 17), vehicle (N, 4))."""
     truth = pad_truth(quadrotor_state, vehicle_state, platform)
     R_WP = Rotation.from_rotvec(np.outer(truth.yaw, [0.0, 0.0, 1.0]))
-    R_WB = _rotation(quadrotor_state[:, Q_WB])
+    R_WB = rotations(quadrotor_state[:, Q_WB])
     p_PB = R_WP.inv().apply(quadrotor_state[:, P_WB] - truth.p_WP)
     return np.column_stack([p_PB, _wxyz(R_WP.inv() * R_WB)])
 
@@ -76,7 +72,7 @@ def _paper_figures(truth: np.ndarray, rows: np.ndarray, window: np.ndarray) -> d
     if not scored.any():
         return {}
     error = rows[scored, 1:4] - truth[scored, :3]
-    angle = (_rotation(truth[scored, 3:]).inv() * _rotation(rows[scored, 4:])).magnitude()
+    angle = (rotations(truth[scored, 3:]).inv() * rotations(rows[scored, 4:])).magnitude()
     return {"rmse_position_m": float(np.sqrt(np.mean(np.sum(error**2, axis=1)))),
             "rmse_orientation_rad": float(np.sqrt(np.mean(angle**2))),
             "rmse_height_m": float(np.sqrt(np.mean(error[:, 2] ** 2)))}
@@ -90,7 +86,7 @@ def _band(heights: np.ndarray, present: np.ndarray) -> list[float] | None:
 def true_p_CP(log: FederatedLog, X_BC: RigidTransform) -> np.ndarray:
     """(N, 3) the pattern's centre in the camera C [m], what the approaching node measures."""
     X_CB = X_BC.inverse()
-    p_BP = _rotation(log.X_PB[:, 3:]).inv().apply(-log.X_PB[:, :3])
+    p_BP = rotations(log.X_PB[:, 3:]).inv().apply(-log.X_PB[:, :3])
     return p_BP @ X_CB.rotation().matrix().T + X_CB.translation()
 
 

@@ -12,7 +12,15 @@ import numpy as np
 
 from diagrams.simulate import COMPLETED
 from systems.control.landing import Mode
-from systems.control.monitor import FAILURE_REASONS, GEAR_TOUCHED, SUPERVISOR_LANDED, gear_on_pad, pad_offset
+from systems.control.monitor import (
+    FAILURE_REASONS,
+    GEAR_TOUCHED,
+    GV_HEADING,
+    GV_STEERING,
+    SUPERVISOR_LANDED,
+    gear_on_pad,
+    pad_offset,
+)
 from systems.perception.seam import HEIGHT, P_BP_W, V_WP
 from systems.vehicles.quadrotor import V_WB
 
@@ -21,7 +29,6 @@ TARGET_TOUCHDOWN_ERROR_M = 0.10
 TARGET_TOUCHDOWN_REL_SPEED_MPS = 0.5
 SETTLED_WINDOW_S = 2.0  # the tracking error "before the final descent" is taken over this window
 SETTLED_TOLERANCE_M = 0.01  # seed 003 Fig. 8: settles to about 0.01 m in x and y
-GV_HEADING, GV_STEERING = 2, 3  # in the ground vehicle's state [x, y, heading, steering]
 
 
 def first(mask) -> int | None:

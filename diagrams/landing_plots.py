@@ -6,6 +6,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from diagrams.landing_metrics import SETTLED_TOLERANCE_M, entered
+from diagrams.metrics import quaternion_yaw
 from diagrams.outputs import save_figure
 from diagrams.perception_metrics import carrier_heading
 from systems.control.landing import Mode
@@ -150,8 +151,7 @@ def plot_perception(log: dict[str, np.ndarray], source: str, out_dir, heading: b
     axes[3].semilogy(t, np.maximum(error, ERROR_FLOOR_M), "-", color="tab:red", lw=1)
     axes[3].set_ylabel("position error (m)")
     if heading:
-        q = log["steering_estimate"][:, 4:]
-        yaw = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+        yaw = quaternion_yaw(log["steering_estimate"][:, 4:])
         axes[4].plot(t, np.degrees(np.angle(np.exp(1j * (yaw - carrier_heading(log))))), "-",
                      color="tab:red", lw=1)
         axes[4].set_ylabel("heading error (deg)")

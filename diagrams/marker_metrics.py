@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.math import RigidTransform
 
-from diagrams.metrics import estimator_metrics
+from diagrams.metrics import estimator_metrics, level_poses
+from systems.control.monitor import GV_HEADING
 from systems.estimators.marker_ekf import FILTERS
 from systems.estimators.marker_ekf.engine import EST_P_WP, EST_Q_WP, EST_VALID, EST_YAW
 from systems.geometry import wrap_angle
@@ -23,7 +24,6 @@ from systems.quaternion import quat_conjugate, quat_multiply, rotation_from_quat
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
 from systems.vehicles.quadrotor import P_WB, Q_WB
 
-GV_HEADING = 2  # in the ground vehicle's state [x, y, heading, steering]
 ATTITUDE_AXES = ("roll", "pitch", "yaw")  # the order of estimator_metrics' *_rpy_deg
 
 
@@ -135,12 +135,6 @@ def filter_errors(run: SampledRun, truth: PadTruth, name: str, layout: MarkerLay
                         estimate[:, EST_VALID] > 0.5)
 
 
-def _level_poses(p: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """(N, 7) rows [x, y, z, qw, qx, qy, qz] of level poses at p (N, 3) yawed by yaw (N)."""
-    zero = np.zeros_like(yaw)
-    return np.column_stack([p, np.cos(yaw / 2), zero, zero, np.sin(yaw / 2)])
-
-
 def filter_metrics(run: SampledRun, truth: PadTruth, name: str, errors: FilterErrors, settle_s: float) -> dict:
     """One filter's figures: estimator_metrics' (docs/architecture.md) of its pose estimate X_WP,
     with `attitude_axes` naming the axes it estimates (the others' *_rpy_deg entries None), plus seed
@@ -150,7 +144,7 @@ def filter_metrics(run: SampledRun, truth: PadTruth, name: str, errors: FilterEr
     window = run.t >= settle_s
     estimate = run.estimates[name]
     estimate_rows = np.column_stack([errors.valid, estimate[:, EST_P_WP], estimate[:, EST_Q_WP]])
-    out = estimator_metrics(_level_poses(truth.p_WP, truth.yaw), estimate_rows, window)
+    out = estimator_metrics(level_poses(truth.p_WP, truth.yaw), estimate_rows, window)
     axes = FILTERS[name].attitude_axes
     for key in ("mae_rpy_deg", "rmse_rpy_deg"):
         if key in out:

@@ -6,9 +6,21 @@ from scipy.spatial.transform import Rotation
 FLIP_THRESHOLD_DEG = 10.0  # a frame whose rotation error exceeds this counts as a pose flip
 
 
-def _rotations(wxyz: np.ndarray) -> Rotation:
+def rotations(wxyz: np.ndarray) -> Rotation:
     """SciPy rotations of (M, 4) quaternions [w, x, y, z] of any nonzero norm."""
     return Rotation.from_quat(wxyz[:, [1, 2, 3, 0]])  # SciPy is scalar-last, and normalises
+
+
+def quaternion_yaw(wxyz: np.ndarray) -> np.ndarray:
+    """The yaw [rad] (about z, Drake's RollPitchYaw's) of (M, 4) unit quaternions [w, x, y, z]; NaN rows NaN."""
+    w, x, y, z = wxyz.T
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y**2 + z**2))
+
+
+def level_poses(p: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """(N, 7) rows [x, y, z, qw, qx, qy, qz] of level poses at p (N, 3) [m] yawed by yaw (N) [rad]."""
+    zero = np.zeros_like(yaw)
+    return np.column_stack([p, np.cos(yaw / 2), zero, zero, np.sin(yaw / 2)])
 
 
 def xyz_rpy(poses: np.ndarray) -> np.ndarray:
@@ -17,7 +29,7 @@ def xyz_rpy(poses: np.ndarray) -> np.ndarray:
     out = np.full((len(poses), 6), np.nan)
     finite = np.all(np.isfinite(poses), axis=1)
     if finite.any():
-        out[finite] = np.column_stack([poses[finite, :3], _rotations(poses[finite, 3:]).as_euler("xyz")])
+        out[finite] = np.column_stack([poses[finite, :3], rotations(poses[finite, 3:]).as_euler("xyz")])
     return out
 
 
@@ -32,7 +44,7 @@ def pose_errors(truth: np.ndarray, estimate: np.ndarray):
     valid = estimate[:, 0] > 0.5
     difference = xyz_rpy(estimate[valid, 1:]) - xyz_rpy(truth[valid])
     rpy = (np.rad2deg(difference[:, 3:]) + 180.0) % 360.0 - 180.0
-    angle = ((_rotations(truth[valid, 3:]).inv() * _rotations(estimate[valid, 4:])).magnitude()
+    angle = ((rotations(truth[valid, 3:]).inv() * rotations(estimate[valid, 4:])).magnitude()
              if valid.any() else np.zeros(0))
     return valid, difference[:, :3], rpy, np.rad2deg(angle)
 

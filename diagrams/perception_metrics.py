@@ -8,12 +8,11 @@ marker filter, how long before touchdown it last fused a measurement (the blind 
 
 import numpy as np
 
-from diagrams.metrics import estimator_metrics
+from diagrams.metrics import estimator_metrics, level_poses, quaternion_yaw
+from systems.control.monitor import GV_HEADING
 from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT
 from systems.perception.seam import P_BP_W, VALID
 from systems.vehicles.quadrotor import P_WB
-
-GV_HEADING = 2  # in the ground vehicle's state [x, y, heading, steering]
 
 
 def longest_span_s(t: np.ndarray, mask: np.ndarray) -> float:
@@ -30,11 +29,6 @@ def carrier_heading(log: dict[str, np.ndarray]) -> np.ndarray:
     return log["carrier_state" if "carrier_state" in log else "vehicle_state"][:, GV_HEADING]
 
 
-def _yaw_rows(p: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    zero = np.zeros_like(yaw)
-    return np.column_stack([p, np.cos(yaw / 2), zero, zero, np.sin(yaw / 2)])
-
-
 def perception_metrics(log: dict[str, np.ndarray], source: str, touchdown_s: float | None = None,
                        filter_t: np.ndarray | None = None, filter_estimate: np.ndarray | None = None,
                        heading: bool = True) -> dict:
@@ -47,13 +41,12 @@ def perception_metrics(log: dict[str, np.ndarray], source: str, touchdown_s: flo
     p_WB = log["quadrotor_state"][:, P_WB]
     true_yaw = carrier_heading(log)
     if heading and "steering_estimate" in log:  # [valid, x, y, z, qw, qx, qy, qz]; NaN where invalid
-        q = log["steering_estimate"][:, 4:]
-        yaw = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+        yaw = quaternion_yaw(log["steering_estimate"][:, 4:])
     else:  # the truth steers, or no heading is estimated: the true heading, its figures left out below
         yaw = true_yaw
-    estimate = np.column_stack([valid, _yaw_rows(p_WB + seam[:, P_BP_W], yaw)])
+    estimate = np.column_stack([valid, level_poses(p_WB + seam[:, P_BP_W], yaw)])
     out = {"source": source,
-           **estimator_metrics(_yaw_rows(p_WB + truth[:, P_BP_W], true_yaw), estimate)}
+           **estimator_metrics(level_poses(p_WB + truth[:, P_BP_W], true_yaw), estimate)}
     if not heading:
         for key in ("mae_rpy_deg", "rmse_rpy_deg", "flips"):
             out.pop(key, None)

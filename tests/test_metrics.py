@@ -3,7 +3,15 @@
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
-from diagrams.metrics import estimator_metrics, pose_errors, rms_of_finite, xyz_rpy
+from diagrams.metrics import (
+    estimator_metrics,
+    level_poses,
+    pose_errors,
+    quaternion_yaw,
+    rms_of_finite,
+    rotations,
+    xyz_rpy,
+)
 from systems.estimators.estimate import PoseEstimate, estimate_vector
 from systems.sensors.ground_truth import pose_vector
 
@@ -70,3 +78,18 @@ def test_roll_pitch_yaw_and_the_rotation_error_are_drakes():
 def test_rms_of_finite_leaves_out_nan_and_inf():
     assert rms_of_finite(np.array([0.003, -0.004, np.inf, np.nan, -np.inf])) == np.sqrt((0.003**2 + 0.004**2) / 2)
     assert rms_of_finite(np.array([np.nan, np.inf])) is None and rms_of_finite([]) is None
+
+
+def test_the_shared_pose_helpers_agree_with_drake():
+    """level_poses, quaternion_yaw and rotations (the one copy the perception, marker and federated metrics and
+    the perception plot use) against Drake's poses and roll-pitch-yaw."""
+    X = poses(6, roll_deg=5.0)
+    wxyz = np.array([pose_vector(x)[3:] for x in X])
+    drake_yaw = np.array([RollPitchYaw(x.rotation()).yaw_angle() for x in X])
+    np.testing.assert_allclose(quaternion_yaw(wxyz), drake_yaw, atol=1e-12)
+    assert np.isnan(quaternion_yaw(np.full((1, 4), np.nan))).all()  # an invalid row stays invalid
+    np.testing.assert_allclose(rotations(2.0 * wxyz).as_matrix(), [x.rotation().matrix() for x in X], atol=1e-12)
+    p = np.array([x.translation() for x in X])
+    level = level_poses(p, drake_yaw)
+    expected = [pose_vector(RigidTransform(RollPitchYaw(0.0, 0.0, yaw), xyz)) for yaw, xyz in zip(drake_yaw, p)]
+    np.testing.assert_allclose(level, expected, atol=1e-12)

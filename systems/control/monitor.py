@@ -23,7 +23,7 @@ from systems.vehicles.quadrotor import STATE_SIZE
 FAILURE_REASONS = ("crash", "diverged", "target_lost", "timeout", "missed_pad")
 SUPERVISOR_LANDED = "landed: the supervisor reported touchdown"  # how a run ends on the supervisor's LANDED
 GEAR_TOUCHED = "landed: the gear touched the pad"  # and on the gear touching the pad
-GV_X, GV_Y, GV_HEADING = range(3)  # in the ground vehicle's state [x, y, heading, steering]
+GV_X, GV_Y, GV_HEADING, GV_STEERING = range(4)  # in the ground vehicle's state [x, y, heading, steering]
 
 
 @dataclass
