@@ -24,7 +24,8 @@ TARGET_VELOCITY = np.array([0.6, -0.2])
 
 class Script:
     """Feeds a LandingStateMachine one step at a time, 20 ms apart, with defaults for the
-    inputs a step does not mention."""
+    inputs a step does not mention. An unseen step's target velocity is NaN (an invalid estimate's
+    numbers), so a command that used it, or a memory that kept it, shows."""
 
     def __init__(self):
         self.machine = LandingStateMachine(CONFIG)
@@ -34,7 +35,8 @@ class Script:
         inputs = SupervisorInputs(
             time_s=self.time, altitude_m=altitude,
             height_above_target_m=altitude if height is None else height, target_valid=seen,
-            target_offset_m=np.asarray(offset, dtype=float), target_velocity_m_s=TARGET_VELOCITY,
+            target_offset_m=np.asarray(offset, dtype=float),
+            target_velocity_m_s=TARGET_VELOCITY if seen else np.full(2, np.nan),
             tracking_velocity_m_s=TRACKING, tracking_acceleration_m_s2=TRACKING_ACCELERATION,
             window_open=window[0], window_holds=window[1])
         self.time += 0.02
@@ -86,7 +88,8 @@ def test_nominal_landing_sequence():
     # the target's last velocity (no acceleration feed-forward), never descend.
     mode, horizontal, vz = script.step(altitude=2.5, seen=False, height=0.8)
     assert mode == Mode.ABORT and vz == CONFIG.climb_speed_m_s
-    np.testing.assert_allclose(horizontal, TARGET_VELOCITY)
+    assert np.all(np.isfinite(horizontal))
+    np.testing.assert_allclose(horizontal, TARGET_VELOCITY)  # the last seen one, not the NaN fed now
     assert not script.acceleration.any()
     mode, _, vz = script.step(altitude=2.5, seen=False, height=0.05)  # a stale height is no touchdown
     assert mode == Mode.ABORT and vz == CONFIG.climb_speed_m_s
@@ -111,7 +114,8 @@ def test_target_lost_holds_then_climbs_to_search_then_resumes():
     lost_at = script.time
     mode, horizontal, vz = script.step(altitude=4.0, seen=False)
     assert mode == Mode.HOLD and vz == 0.0
-    np.testing.assert_allclose(horizontal, TARGET_VELOCITY)  # coasts after the target
+    assert np.all(np.isfinite(horizontal))
+    np.testing.assert_allclose(horizontal, TARGET_VELOCITY)  # coasts with the last seen velocity
     assert not script.acceleration.any()
     mode, _, vz = script.step(altitude=4.2, seen=False)
     assert mode == Mode.HOLD and vz == 0.0  # above the held 4.0 m, but no blind descent
@@ -182,7 +186,8 @@ def test_lost_below_lh_climbs_out_whatever_the_mode():
     mode, _, vz = script.step(altitude=2.8, height=0.8, seen=False)
     assert mode == Mode.ABORT and vz == CONFIG.climb_speed_m_s
     assert script.step(altitude=4.0, offset=(0.7, 0.0), height=3.0)[0] == Mode.FOLLOW  # found again, higher
-    assert script.step(altitude=4.0, height=3.0, seen=False)[0] == Mode.HOLD
+    # Lost with a low height on the invalid estimate: the last valid height (3 m, above LH) decides, so it holds.
+    assert script.step(altitude=4.0, height=0.5, seen=False)[0] == Mode.HOLD
 
     script = Script()
     for altitude in (1.0, 7.5, 7.5):
