@@ -171,6 +171,17 @@ def test_waits_at_lh_for_a_landing_window_and_waves_off_when_it_closes():
     assert script.step(altitude=2.6, offset=(0.1, 0.0), height=lh - 0.4, window=(True, True))[0] == Mode.LAND
     assert script.step(altitude=2.0, offset=(0.1, 0.0), height=0.05, window=closed)[0] == Mode.LANDED
 
+    # The target drifting off centre (1.2 m, beyond off_centre_radius_m) while it waits: FOLLOW it again, even as
+    # the window opens, rather than commit beside it.
+    script = Script()
+    for altitude in (1.0, 7.5, 7.5):
+        script.step(altitude=altitude, offset=(0.2, 0.0))
+    assert script.step(altitude=6.0, offset=(0.1, 0.0))[0] == Mode.APPROACH
+    assert script.step(altitude=3.0, offset=(0.1, 0.0), height=lh - 0.1, window=closed)[0] == Mode.WAIT
+    mode, horizontal, _ = script.step(altitude=3.0, offset=(1.2, 0.0), height=lh, window=(True, True))
+    assert mode == Mode.FOLLOW
+    np.testing.assert_allclose(horizontal, TRACKING)
+
 
 def test_lost_below_lh_climbs_out_whatever_the_mode():
     """A retry found low after an abort (FOLLOW 0.8 m over the target) and a WAIT that loses the estimate climb
