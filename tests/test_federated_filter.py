@@ -25,6 +25,7 @@ from systems.estimators.federated.local_filter import (
     initial_state,
     log_so3,
     predict,
+    update_centre_in_camera,
     update_pattern_in_camera,
     update_pose,
 )
@@ -94,6 +95,19 @@ def test_the_gate_rejects_a_ten_sigma_pose():
     far = update_pose(state, np.array([0.0, 0.0, 6.0]), np.eye(3), np.eye(6) * 1e-4, LocalFilterConfig())
     assert far.gated == 1 and far.accepted == 0
     np.testing.assert_array_equal(far.p, state.p)
+
+
+def test_a_local_filter_gates_a_non_finite_measurement():
+    """A NaN centre or pose into a started local filter: its NIS is NaN, which the gate rejects (gated + 1), the
+    state unchanged and finite rather than NaN from the update."""
+    config = LocalFilterConfig()
+    state = initial_state(np.array([0.0, 0.0, -5.0]), 0.01 * np.eye(3), np.array([0.0, 0.0, G]), config)
+    for after in (update_centre_in_camera(state, np.array([np.nan, 0.0, 5.0]), 0.01 * np.eye(3), np.eye(3),
+                                          np.zeros(3), config),
+                  update_pose(state, np.array([0.0, np.nan, -5.0]), np.eye(3), np.eye(6) * 1e-4, config)):
+        assert after.gated == state.gated + 1 and after.accepted == state.accepted
+        np.testing.assert_array_equal(after.p, state.p)
+        np.testing.assert_array_equal(after.P, state.P)
 
 
 def test_a_start_from_the_centre_alone_knows_the_relative_position_whatever_the_heading():
@@ -342,6 +356,22 @@ def test_a_non_finite_measurement_is_gated_and_never_starts_the_filters():
     state = step(state, 0.02, imu, {"approach": NodeMeasurement(0.02, "approach", covariance,
                                                                 p_CP=np.array([0.0, 0.0, 4.0]))}, config, X_BC)
     assert state.started and np.all(np.isfinite(state.fused.p)) and is_valid(state, config)
+
+
+def test_an_estimate_whose_relative_position_is_too_uncertain_is_invalid():
+    """is_valid: measured within max_coast_s and finite, but p_BP_B's std (sqrt of the trace) over
+    max_relative_std_m is not valid; just under it is."""
+    config, imu = FederatedConfig(), np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0]
+    covariance = approach_covariance(np.array([0.0, 0.0, 4.0]), 136.0, 640.0)
+    state = step(FederatedState(), 0.0, imu, {"approach": NodeMeasurement(0.0, "approach", covariance,
+                                                                          p_CP=np.array([0.0, 0.0, 4.0]))},
+                 config, X_BC)
+    assert is_valid(state, config) and relative_std_m(state.fused) < config.max_relative_std_m
+    for ratio, valid in ((0.99, True), (1.01, False)):  # P scaled: the std scales with its square root
+        scale = (ratio * config.max_relative_std_m / relative_std_m(state.fused)) ** 2
+        inflated = replace(state, fused=replace(state.fused, P=state.fused.P * scale))
+        assert relative_std_m(inflated.fused) == pytest.approx(ratio * config.max_relative_std_m)
+        assert is_valid(inflated, config) == valid
 
 
 @pytest.mark.parametrize("dt", [0.005, 0.1])
