@@ -2,16 +2,17 @@
 logger at its rate shows at t_i the mode it decided at t_(i-1) (diagrams/landing_metrics.entered)."""
 
 import numpy as np
+import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from diagrams.landing_metrics import pad_landing
+from diagrams.landing_metrics import SETTLED_TOLERANCE_M, SETTLED_WINDOW_S, pad_landing, tracking_metrics
 from diagrams.simulate import COMPLETED
 from systems.control.landing import LandingConfig, LandingSupervisor, Mode
-from systems.perception.seam import HEIGHT, RELATIVE_STATE_SIZE
-from systems.vehicles.quadrotor import STATE_SIZE
+from systems.perception.seam import HEIGHT, P_BP_W, RELATIVE_STATE_SIZE, V_WP
+from systems.vehicles.quadrotor import STATE_SIZE, V_WB
 
 
 def test_mode_entry_times_are_when_the_supervisor_decided_them():
@@ -44,3 +45,61 @@ def test_mode_entry_times_are_when_the_supervisor_decided_them():
     landing, _ = pad_landing({"t": t, "mode": mode, "true_relative_state": relative, "quadrotor_state": quadrotor},
                              COMPLETED, np.zeros(len(t)), 1.0, 0.02, 0.1, 9.81)
     assert landing["mode_entry_times_s"] == {"takeoff": 0.0, "climb": climb_at}
+
+
+def test_tracking_metrics_on_a_hand_built_log():
+    """Unevenly spaced samples; the errors (pad minus UAV, x y) chosen so that each metric has one right value."""
+    F, A, L = Mode.FOLLOW, Mode.APPROACH, Mode.LAND
+    t = np.array([0.0, 0.4, 1.0, 2.2, 3.1, 4.0, 4.5])
+    mode = np.array([F, F, A, A, A, L, L], dtype=int)
+    error = np.array([[0.30, -0.20],  # acquiring: outside the tolerance
+                      [0.004, 0.0],  # inside
+                      [0.02, 0.0],  # a gust: outside again, so it settles only after this one
+                      [0.005, -0.008],  # inside from here to LAND
+                      [-0.002, 0.004],
+                      [0.05, 0.0],  # in LAND: left out
+                      [0.1, 0.1]])
+    assert SETTLED_TOLERANCE_M == 0.01 and SETTLED_WINDOW_S == 2.0  # the values the figures below assume
+    relative = np.zeros((len(t), RELATIVE_STATE_SIZE))
+    relative[:, P_BP_W.start:P_BP_W.start + 2] = error
+    out = tracking_metrics({"t": t, "mode": mode, "true_relative_state": relative})
+    np.testing.assert_allclose(out["approach_rmse_xy_m"], [np.sqrt((0.02**2 + 0.005**2 + 0.002**2) / 3),
+                                                           np.sqrt((0.008**2 + 0.004**2) / 3)])
+    np.testing.assert_allclose(out["approach_max_abs_xy_m"], [0.02, 0.008])
+    assert out["settling_time_s"] == pytest.approx(2.2)  # inside from t = 2.2 s on (the last outside: 1.0 s)
+    np.testing.assert_allclose(out["at_final_descent_xy_m"], [-0.002, 0.004])  # decided at 3.1 s, logged at 4.0
+    # The window: the 2 s before LAND (t = 4.0 s) are the samples at 2.2 and 3.1 s; their largest |error|.
+    np.testing.assert_allclose(out["before_final_descent_max_abs_xy_m"], [0.005, 0.008])
+
+
+def test_pad_landing_on_a_hand_built_log():
+    """The supervisor's LANDED with the gear 16 mm over its touchdown height, descending at 0.2 m/s relative to
+    the pad and drifting at (0.3, -0.4) m/s: g = 10 m/s^2 gives an impact at 0.6 m/s after 0.04 s, 0.05 m from
+    the centre. Waits on unevenly spaced samples."""
+    F, A, W, L, D = Mode.FOLLOW, Mode.APPROACH, Mode.WAIT, Mode.LAND, Mode.LANDED
+    t = np.array([0.0, 0.3, 0.7, 1.2, 2.0, 2.1, 2.15])
+    mode = np.array([F, A, W, W, L, D, D], dtype=int)
+    n, k, g, touchdown_height = len(t), 4, 10.0, 0.1  # k: the sample before LANDED was logged
+    relative = np.zeros((n, RELATIVE_STATE_SIZE))
+    relative[:, HEIGHT] = 3.0
+    relative[k, HEIGHT] = touchdown_height + 0.016
+    relative[k, P_BP_W] = [0.042, 0.024, -relative[k, HEIGHT]]
+    relative[:, V_WP] = [1.0, 0.0, 0.0]  # the pad
+    quadrotor = np.zeros((n, STATE_SIZE))
+    quadrotor[:, V_WB] = [1.3, -0.4, -0.2]  # the UAV: (0.3, -0.4, -0.2) m/s relative to the pad
+    log = {"t": t, "mode": mode, "true_relative_state": relative, "quadrotor_state": quadrotor}
+    out, index = pad_landing(log, "landed: the supervisor reported touchdown by t = 2.10 s", np.zeros(n),
+                             pad_size_m=1.0, pad_thickness_m=0.02, touchdown_height_m=touchdown_height,
+                             gravity_m_s2=g)
+    assert index == k and out["touchdown_by"] == "supervisor" and out["success"]
+    # speed^2 = 0.2^2 + 2 g 0.016 = 0.36; fall = (0.6 - 0.2) / g = 0.04 s; drift 0.04 (0.3, -0.4) = (0.012, -0.016),
+    # so the pad minus UAV at impact is (0.042 - 0.012, 0.024 + 0.016) = (0.03, 0.04), 0.05 m off.
+    assert out["touchdown_rel_speed_mps"] == pytest.approx(0.6)
+    assert out["time_to_land_s"] == pytest.approx(2.04)
+    assert out["touchdown_gap_m"] == pytest.approx(0.016)
+    assert out["touchdown_error_m"] == pytest.approx(0.05)
+    np.testing.assert_allclose(out["touchdown_offset_pad_xy_m"], [-0.03, -0.04], atol=1e-12)  # UAV - pad, heading 0
+    assert out["touchdown_rel_speed_horizontal_mps"] == pytest.approx(0.5)
+    assert not out["meets_targets"]  # on the pad, 5 cm off, but at 0.6 m/s (the target: under 0.5)
+    # One wait, from 0.7 to 2.0 s (the samples at 0.7 and 1.2 s, each until the next).
+    assert out["waits"] == 1 and out["wait_s"] == pytest.approx(1.3)
