@@ -306,8 +306,8 @@ def test_linear_fit_needs_linear_min_samples():
 
 def test_speed_heading_mode_reads_noise_as_speed():
     """Eq. 18-19 as printed (speed and direction averaged apart) agree with the vector mean on a straight
-    run, but on a standing target with 3 cm of noise every instant speed is positive: it reads about
-    0.5 m/s where the vector mean reads a few cm/s."""
+    run and read a noisy westbound one (headings across +-180 deg) right, but on a standing target with 3 cm of
+    noise every instant speed is positive: it reads about 0.5 m/s where the vector mean reads a few cm/s."""
     t = np.arange(0.0, 30.0, T)
     straight = np.c_[0.8 * t, 0.3 * t, np.zeros_like(t)]
     vector, _ = observe_velocities(t, straight, VelocityObserverConfig(fit="mean"))
@@ -319,6 +319,13 @@ def test_speed_heading_mode_reads_noise_as_speed():
     printed, _ = observe_velocities(t, standing, VelocityObserverConfig(combine="speed_heading"))
     assert np.mean(np.linalg.norm(vector[20:], axis=1)) < 0.08
     assert np.mean(np.linalg.norm(printed[20:], axis=1)) > 0.35
+    # Due west (heading +-180 deg) with 1 cm of noise the headings straddle the +-pi cut: unwrapped next to the
+    # newest, they average to west (a plain mean of +-pi would point east).
+    west = noisy_track(np.c_[-0.8 * t, np.zeros((len(t), 2))], 0.01, seed=4)
+    printed, valid = observe_velocities(t, west, VelocityObserverConfig(combine="speed_heading"))
+    assert valid[20:].all()
+    np.testing.assert_allclose(printed[20:, :2].mean(axis=0), [-0.8, 0.0], atol=0.03)
+    assert np.abs(printed[20:, 0] + 0.8).max() < 0.1
 
 
 def test_validity_history_and_gaps():
