@@ -138,9 +138,22 @@ def test_the_window_fed_the_fallback_decides_as_at_constant_rate():
         assert prediction[0] == 1.0 and prediction[1] == 0.0
         tau = rng.uniform(0.0, 8.0)  # beyond the grid's 5 s too
         assert window_flags(motion, tau, window, prediction) == window_flags(motion, tau, window)
-    invalid = np.zeros(8)
-    assert not predictor_output(step_predictor(PredictorState(), invalid, 0.0, CONFIG, PERIOD), 0.0, CONFIG,
-                                PERIOD).any()
+
+
+def test_a_frame_flagged_invalid_clears_the_history_whatever_its_numbers():
+    """A frame flagged invalid (deck_motion[6] 0) with finite numbers in it (a stale pose): the history is
+    cleared, not extended with them, and the output is all zero; the next valid frame starts a new one."""
+    state = PredictorState()
+    for k in range(10):
+        state = step_predictor(state, np.array([0.01 * k, 0.0, 0.2, 0.0, 0.69, 0.0, 1.0, 0.0]), k * PERIOD, CONFIG,
+                               PERIOD)
+    assert len(state.history) == 10
+    invalid = np.array([5.0, 5.0, 0.0, 0.0, 3.0, 0.0, 0.0, 0.0])
+    state = step_predictor(state, invalid, 10 * PERIOD, CONFIG, PERIOD)
+    assert len(state.history) == 0 and state.model is None
+    assert not predictor_output(state, 10 * PERIOD, CONFIG, PERIOD).any()
+    state = step_predictor(state, np.array([0.1, 0.0, 0.2, 0.0, 0.69, 0.0, 1.0, 0.0]), 11 * PERIOD, CONFIG, PERIOD)
+    np.testing.assert_array_equal(state.history, [[0.1, 0.0, 0.69]])
 
 
 def test_the_system_gives_the_functions_numbers():
