@@ -310,10 +310,12 @@ def test_kf_coasts_on_invalid_input_then_turns_invalid():
     rate, n, lost = -0.5, 360, 240  # measured for 4 s, then nothing
     truth = 6.0 + rate * np.arange(n) * T
     valid = np.arange(n) < lost
-    states = run_kf(np.where(valid, truth, np.nan), 0.02, valid, seed=5)
+    # The invalid frames carry finite numbers (the last reading, stale): the flag alone says not to use them.
+    states = run_kf(np.where(valid, truth, truth[lost - 1]), 0.02, valid, seed=5)
     limit = int(KF.max_coast_s / T)  # 30 frames
     coasting = states[lost:lost + limit]
     assert all(s.valid for s in coasting)
+    np.testing.assert_allclose([s.coast_s for s in coasting], T * np.arange(1, limit + 1))
     # the prediction follows the descent: after 0.5 s without a frame it is still within 3 cm
     assert abs(coasting[-1].x[0] - truth[lost + limit - 1]) < 0.03
     assert coasting[-1].P[0, 0] > states[lost - 1].P[0, 0]  # and knows it is less sure
