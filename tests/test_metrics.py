@@ -31,6 +31,17 @@ def test_known_offsets_give_their_mae_and_rmse():
     assert m["valid_fraction"] == 1.0 and m["flips"] == 0
 
 
+def test_uneven_errors_tell_the_rmse_from_the_mae():
+    """Errors of 0.01 and 0.03 m in x (1 and 3 deg in yaw), opposite signs: MAE 0.02 m, RMSE sqrt(5e-4) m."""
+    truth = np.array([pose_vector(X) for X in poses(2)])
+    estimated = [poses(2, yaw_offset_deg=1.0, dx=-0.01)[0], poses(2, yaw_offset_deg=-3.0, dx=0.03)[1]]
+    m = estimator_metrics(truth, np.array([estimate_vector(PoseEstimate(0.0, X, True)) for X in estimated]))
+    np.testing.assert_allclose(m["mae_xyz_m"], [0.02, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(m["rmse_xyz_m"], [np.sqrt(5e-4), 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(m["mae_rpy_deg"], [0.0, 0.0, 2.0], atol=1e-9)
+    np.testing.assert_allclose(m["rmse_rpy_deg"], [0.0, 0.0, np.sqrt(5.0)], atol=1e-9)
+
+
 def test_invalid_frames_are_left_out_and_counted():
     truth = np.array([pose_vector(X) for X in poses(4)])
     estimates = [PoseEstimate(0.0, X, True) for X in poses(4, dx=0.02)]
