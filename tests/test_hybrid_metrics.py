@@ -35,6 +35,18 @@ def test_every_detection_counts_however_many_a_frame_has():
     scores = detection_scores(logged(frames), [TRUE_BOX, None])
     assert (scores["true_positives"], scores["false_positives"], scores["false_negatives"]) == (1, 13, 0)
     assert scores["precision"] == pytest.approx(1 / 14) and scores["recall"] == 1.0
+    assert scores["f1"] == pytest.approx(2 / 15)  # 2 P R / (P + R) = (2 / 14) / (15 / 14)
+
+
+def test_f1_is_the_harmonic_mean_of_precision_and_recall():
+    """Found with a false alarm beside it, missed (a box elsewhere instead), found: 2 true positives, 2 false, 1
+    miss; precision 1/2, recall 2/3, F1 2 (1/2)(2/3) / (1/2 + 2/3) = 4/7."""
+    elsewhere = [400.0, 300.0, 40.0, 30.0]
+    frames = [[(TRUE_BOX.tolist(), 0.9), (elsewhere, 0.5)], [(elsewhere, 0.8)], [(TRUE_BOX.tolist(), 0.9)]]
+    scores = detection_scores(logged(frames), [TRUE_BOX] * 3)
+    assert (scores["true_positives"], scores["false_positives"], scores["false_negatives"]) == (2, 2, 1)
+    assert scores["precision"] == pytest.approx(1 / 2) and scores["recall"] == pytest.approx(2 / 3)
+    assert scores["f1"] == pytest.approx(4 / 7)
 
 
 def test_identity_switches_count_changes_of_the_locked_id_across_frames_without_a_lock():
