@@ -89,11 +89,18 @@ def test_scene_draws_repeat_and_give_boxes_in_the_image():
     pool = distractor_pool(config)
     first, again = sample_scene(HELD_OUT_SEEDS[0], config, pool), sample_scene(HELD_OUT_SEEDS[0], config, pool)
     assert np.array_equal(first.X_WB.GetAsMatrix4(), again.X_WB.GetAsMatrix4())
+    present, distractors = 0, 0
     for seed in HELD_OUT_SEEDS[:50]:
         scene = sample_scene(seed, config, pool)
-        for box in [ugv_box(scene, config)] + distractor_boxes(scene, config, pool):
-            if box is not None:
-                assert box[0] >= 0 and box[1] >= 0 and box[0] + box[2] <= 512 and box[1] + box[3] <= 512
+        ugv = ugv_box(scene, config)
+        # The UGV centre is placed within max_off_axis_deg (inside the half field of view): in the image when drawn.
+        assert (ugv is None) == (scene.ugv_state is None)
+        present += ugv is not None
+        others = [box for box in distractor_boxes(scene, config, pool) if box is not None]
+        distractors += len(others)
+        for box in ([] if ugv is None else [ugv]) + others:
+            assert box[0] >= 0 and box[1] >= 0 and box[0] + box[2] <= 512 and box[1] + box[3] <= 512
+    assert present >= 40 and distractors > 0  # measured: the UGV in 47 of the 50 frames, 97 distractor boxes
 
 
 def test_motion_blur_kernel_is_a_normalised_line_of_the_given_length():
