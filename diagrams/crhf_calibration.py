@@ -9,8 +9,9 @@ Table 1), their convex-hull centroids found (Eq. 12-16) and paired with the four
 
     landing-sim run crhf-calibration --out results/cal
 
-leaves pad_calibration.npz (the calibration and the camera and ToF layout flown, as `PadCalibration.save`
-writes them), metrics.json, log.npz and plots like Fig. 14-15 in the output directory.
+leaves pad_calibration.npz (the calibration and the camera, its lens included, and ToF layout flown, as
+`PadCalibration.save` writes them; CRHF takes only a flight without a lens), metrics.json, log.npz and plots
+like Fig. 14-15 in the output directory.
 
 Heights are those of the camera (and the ToF sensors, which sit in the camera plane, Eq. 21-24)
 above the pads' top surface: a height is the true range each sensor reads.

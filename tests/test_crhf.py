@@ -17,7 +17,7 @@ from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import ConfigError
 from systems.estimators.crhf import CrhfConfig, CrhfEstimator, CrhfState, RunningMean
 from systems.estimators.crhf_math import residual_gate
-from systems.estimators.pad_calibration import CalibrationError, PadCalibration
+from systems.estimators.pad_calibration import CalibrationError, CalibrationFlight, PadCalibration
 from systems.estimators.track_filter import Track
 from systems.perception.apriltag import TagDetection, project_points, tag_corners_T
 from systems.sensors.camera import CameraConfig
@@ -188,6 +188,8 @@ def test_the_committed_calibration_records_its_flight_and_a_file_without_one_is_
     flight = PadCalibration.load(CrhfConfig().calibration_path()).flight
     np.testing.assert_array_equal(flight.camera, [scenario.camera.fx, scenario.camera.fy, scenario.camera.cx,
                                                   scenario.camera.cy, scenario.camera.width, scenario.camera.height])
+    np.testing.assert_array_equal(flight.distortion, scenario.camera.distortion)
+    assert not np.any(flight.distortion)
     np.testing.assert_array_equal(flight.p_C_sensors,
                                   sensor_positions_C(scenario.tof.arm_m, scenario.tof.angle_deg))
     unrecorded = tmp_path / "unrecorded.npz"
@@ -195,6 +197,22 @@ def test_the_committed_calibration_records_its_flight_and_a_file_without_one_is_
     with pytest.raises(CalibrationError, match="does not record the camera and ToF layout .* re-run `landing-sim run "
                                                "crhf-calibration`"):
         CrhfEstimator(CrhfConfig(calibration_file=str(unrecorded)), P_C_SENSORS, 0.5, 0.05, CAMERA)
+
+
+@pytest.mark.parametrize("name", ["stewart-hover", "stewart-hardware"])
+def test_a_calibration_flown_through_a_lens_is_refused_with_a_lens_in_the_scene_or_without(name, tmp_path):
+    """The corners CRHF takes are undistorted into the pinhole image and its pad pixels are used as flown, so a
+    flight through a lens (stewart-hardware's) is another camera's in a scene without one and in one with it."""
+    _, scenario = load_scenario(name)
+    flown = replace(CAMERA, distortion=[-0.00908, -0.03128, 0.00109, -0.00198, 0.0])
+    path = tmp_path / "lens.npz"
+    PadCalibration(PadCalibration.load(CrhfConfig().calibration_path()).sensors,
+                   CalibrationFlight.of(flown, P_C_SENSORS)).save(path)
+    with pytest.raises(CalibrationError, match=re.escape(
+            "was flown with a lens, distortion [k1, k2, p1, p2, k3] [-0.00908, -0.03128, 0.00109, -0.00198, 0.0], "
+            "where CRHF needs none")) as error:
+        CrhfEstimator(CrhfConfig(calibration_file=str(path)), P_C_SENSORS, 0.5, 0.05, scenario.camera)
+    assert "(its distortion zero)" in str(error.value) and "\n" not in str(error.value)
 
 
 def test_every_shipped_scenario_with_crhf_loads_the_committed_calibration():

@@ -140,6 +140,7 @@ def test_command_line_writes_the_calibration_and_metrics(tmp_path):
     written = PadCalibration.load(out / "pad_calibration.npz")
     assert len(written.sensors) == 4
     np.testing.assert_array_equal(written.flight.camera, [458.5, 457.855, 258.7735, 252.308, 512, 512])
+    np.testing.assert_array_equal(written.flight.distortion, np.zeros(5))
     np.testing.assert_array_equal(written.flight.p_C_sensors, sensor_positions_C(0.135))
 
     bad = subprocess.run([*landing_sim_command(), "run", "crhf-calibration", "--set", "end_height_m=9",

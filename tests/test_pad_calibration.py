@@ -230,12 +230,13 @@ def test_save_load_round_trip(tmp_path):
 
 
 def test_the_flight_is_saved_and_loaded_and_compared_within_one_part_in_a_million(tmp_path):
-    camera = SimpleNamespace(fx=FX, fy=FY, cx=CX, cy=CY, width=512, height=512)
+    camera = SimpleNamespace(fx=FX, fy=FY, cx=CX, cy=CY, width=512, height=512, distortion=[0.0] * 5)
     flight = CalibrationFlight.of(camera, P_C_SENSORS)
     path = tmp_path / "pads.npz"
     PadCalibration(calibration().sensors, flight).save(path)
     loaded = PadCalibration.load(path).flight
     np.testing.assert_array_equal(loaded.camera, [FX, FY, CX, CY, 512, 512])
+    np.testing.assert_array_equal(loaded.distortion, np.zeros(5))
     np.testing.assert_array_equal(loaded.p_C_sensors, P_C_SENSORS)
     assert flight.mismatch(loaded) is None
     assert flight.mismatch(CalibrationFlight.of(camera, sensor_positions_C(0.135 * (1 + 1e-7)))) is None
@@ -247,6 +248,23 @@ def test_the_flight_is_saved_and_loaded_and_compared_within_one_part_in_a_millio
         f"{[FX, FY, CX, CY + 0.01, 512.0, 512.0]} px")
     calibration().save(path)
     assert PadCalibration.load(path).flight is None
+
+
+def test_a_flight_through_a_lens_is_recorded_and_refused_whatever_the_scenes_lens(tmp_path):
+    """CRHF takes the pad pixels as they are and the tag's corners undistorted into the pinhole image, so only a
+    calibration flown without a lens has the corners' pixels, in a scene with a lens or without."""
+    lens = [-0.2, 0.05, 0.001, -0.002, 0.0]
+    camera = SimpleNamespace(fx=FX, fy=FY, cx=CX, cy=CY, width=512, height=512, distortion=lens)
+    path = tmp_path / "lens.npz"
+    PadCalibration(calibration().sensors, CalibrationFlight.of(camera, P_C_SENSORS)).save(path)
+    flight = PadCalibration.load(path).flight
+    np.testing.assert_array_equal(flight.distortion, lens)
+    named = f"a lens, distortion [k1, k2, p1, p2, k3] {lens}, where CRHF needs none"
+    for scene_lens in (lens, [0.0] * 5):
+        scene = CalibrationFlight.of(SimpleNamespace(**{**vars(camera), "distortion": scene_lens}), P_C_SENSORS)
+        assert flight.mismatch(scene).startswith(named)
+    lens_free = CalibrationFlight.of(SimpleNamespace(**{**vars(camera), "distortion": [0.0] * 5}), P_C_SENSORS)
+    assert lens_free.mismatch(CalibrationFlight.of(camera, P_C_SENSORS)) is None  # a lens-free flight fits a lens
 
 
 def test_load_errors_name_the_file_and_the_problem(tmp_path):
@@ -277,8 +295,13 @@ def test_load_errors_name_the_file_and_the_problem(tmp_path):
     with pytest.raises(CalibrationError, match=re.escape(message)):
         PadCalibration.load(short)
 
+    message = ("the flight needs flight_camera (6,), flight_distortion (5,) and flight_p_C_sensors (4, 3); "
+               "re-run `landing-sim run crhf-calibration` to write them")
     half_flight = tmp_path / "half_flight.npz"  # a flight's camera without its sensors
     np.savez(half_flight, **arrays, flight_camera=np.array([FX, FY, CX, CY, 512.0, 512.0]))
-    message = f"{half_flight}: the flight needs flight_camera (6,) and flight_p_C_sensors (4, 3)"
-    with pytest.raises(CalibrationError, match=re.escape(message)):
+    with pytest.raises(CalibrationError, match=re.escape(f"{half_flight}: {message}")):
         PadCalibration.load(half_flight)
+    no_lens = tmp_path / "no_lens.npz"  # written before the flight's lens was recorded
+    np.savez(no_lens, **arrays, flight_camera=np.array([FX, FY, CX, CY, 512.0, 512.0]), flight_p_C_sensors=P_C_SENSORS)
+    with pytest.raises(CalibrationError, match=re.escape(f"{no_lens}: {message}")):
+        PadCalibration.load(no_lens)

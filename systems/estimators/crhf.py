@@ -63,9 +63,9 @@ JUDGED_FROM_DOF = 20.0
 
 @dataclass
 class CrhfConfig:
-    """calibration_file: the pad calibration, flown with the scene's camera and ToF layout (relative paths are
-    tried from the working directory, then from the project root). touch_pixels: "pchip" (the paper's choice)
-    or "hyperbola".
+    """calibration_file: the pad calibration, flown with the scene's camera (without a lens) and ToF layout
+    (relative paths are tried from the working directory, then from the project root). touch_pixels: "pchip" (the
+    paper's choice) or "hyperbola".
     corner_filter (px) and range_filter (m): the two Kalman filters; their dt_s is the camera
     period. filter_ranges: False feeds each frame's raw ranges to the plane fit, as the paper does.
     fuse_corner_normal and average_intrinsics: our additions (module docstring); False for the
@@ -163,7 +163,8 @@ class CrhfEstimator(LeafSystem):
     def __init__(self, config: CrhfConfig, p_C_sensors: np.ndarray, tag_size_m: float, period_s: float, camera):
         """p_C_sensors: (4, 3) the ToF sensors' origins in C, m; camera: the scene's camera configuration
         (`CameraConfig`), whose renderer's intrinsics and image size, with p_C_sensors, must be those the pad
-        calibration was flown with (`CalibrationFlight`), else a CalibrationError."""
+        calibration was flown with, and that flight without a lens (`CalibrationFlight.mismatch`), else a
+        CalibrationError."""
         super().__init__()
         config.validate()
         path = config.calibration_path()
@@ -177,8 +178,8 @@ class CrhfEstimator(LeafSystem):
                                    "with: re-run `landing-sim run crhf-calibration` with this scene's camera and tof")
         if mismatch := flown.mismatch(CalibrationFlight.of(camera, p_C_sensors)):
             raise CalibrationError(f"pad calibration {path} was flown with {mismatch}: fly "
-                                   "`landing-sim run crhf-calibration` with this scene's camera and tof and set "
-                                   "crhf.calibration_file to its pad_calibration.npz")
+                                   "`landing-sim run crhf-calibration` with this scene's camera (its distortion zero) "
+                                   "and tof and set crhf.calibration_file to its pad_calibration.npz")
         self._touch_method = config.touch_pixels
         self._corner_filter = replace(config.corner_filter, dt_s=period_s)
         self._range_filter = replace(config.range_filter, dt_s=period_s) if config.filter_ranges else None

@@ -69,21 +69,29 @@ class CalibrationFlight:
     """The camera and ToF layout a pad calibration was flown with, which its pixels hold for no other.
 
     camera: (6,) the renderer's (true) [fx, fy, cx, cy] in px (OpenCV convention) and the image's
-    [width, height] in px; p_C_sensors: (S, 3) the ToF sensors' origins in C, m."""
+    [width, height] in px; distortion: (5,) the renderer's lens, OpenCV's [k1, k2, p1, p2, k3] (`camera.distortion`);
+    p_C_sensors: (S, 3) the ToF sensors' origins in C, m."""
 
     camera: np.ndarray
+    distortion: np.ndarray
     p_C_sensors: np.ndarray
 
     @classmethod
     def of(cls, camera, p_C_sensors: np.ndarray) -> "CalibrationFlight":
-        """From a camera configuration (fx, fy, cx, cy, width, height attributes, as `CameraConfig`'s) and the
-        sensors' positions in C (S, 3; m)."""
+        """From a camera configuration (fx, fy, cx, cy, width, height and distortion attributes, as `CameraConfig`'s)
+        and the sensors' positions in C (S, 3; m)."""
         return cls(np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height], dtype=float),
+                   np.asarray(camera.distortion, dtype=float).reshape(5),
                    np.asarray(p_C_sensors, dtype=float).reshape(-1, 3))
 
     def mismatch(self, scene: "CalibrationFlight") -> str | None:
         """None when `scene` has this flight's camera and ToF layout (within FLIGHT_RTOL of each array's largest
-        entry), else what differs, naming both."""
+        entry) and this flight had no lens, else what differs, naming both.
+
+        The lens is not compared with the scene's: the tag detector undistorts the corners CRHF takes with the
+        estimators' lens model into the pinhole image, and CRHF takes the calibration's pad pixels as they are,
+        so they must be pinhole pixels too, in every scene: a flight through a lens is refused whatever the scene's
+        (the scene's lens, imperfectly modelled, is its `calibration_error`, not the calibration's)."""
 
         def close(a: np.ndarray, b: np.ndarray) -> bool:
             return a.shape == b.shape and np.allclose(a, b, rtol=0.0, atol=FLIGHT_RTOL * np.abs(a).max())
@@ -92,6 +100,10 @@ class CalibrationFlight:
         if not close(self.camera, scene.camera):
             differences.append(f"camera [fx, fy, cx, cy, width, height] {self.camera.tolist()} px, the scene's "
                                f"{scene.camera.tolist()} px")
+        if np.any(self.distortion):
+            differences.append(f"a lens, distortion [k1, k2, p1, p2, k3] {self.distortion.tolist()}, where CRHF "
+                               "needs none (it takes the pad pixels as the pinhole image the tag's corners are "
+                               "undistorted to)")
         if not close(self.p_C_sensors, scene.p_C_sensors):
             differences.append(f"ToF sensors at (x, y) {np.round(self.p_C_sensors[:, :2], 6).tolist()} m in C, "
                                f"the scene's {np.round(scene.p_C_sensors[:, :2], 6).tolist()} m")
@@ -269,8 +281,8 @@ class PadCalibration:
         )
 
     def save(self, path: str | os.PathLike) -> None:
-        """Write the samples (the fits are rebuilt on load) and the flight, when known (arrays `flight_camera`
-        and `flight_p_C_sensors`), to an .npz file, atomically."""
+        """Write the samples (the fits are rebuilt on load) and the flight, when known (arrays `flight_camera`,
+        `flight_distortion` and `flight_p_C_sensors`), to an .npz file, atomically."""
         path = Path(path)
         arrays = {"colours": np.array([s.colour for s in self.sensors])}
         for i, s in enumerate(self.sensors):
@@ -278,6 +290,7 @@ class PadCalibration:
             arrays[f"pixels_{i}"] = s.pixels
         if self.flight is not None:
             arrays["flight_camera"] = self.flight.camera
+            arrays["flight_distortion"] = self.flight.distortion
             arrays["flight_p_C_sensors"] = self.flight.p_C_sensors
         temporary = path.with_name(path.name + ".tmp")
         with open(temporary, "wb") as f:
@@ -307,12 +320,13 @@ class PadCalibration:
         if missing:
             raise CalibrationError(f"pad calibration file {path} lacks the arrays {missing}")
         flight = None
-        if "flight_camera" in arrays or "flight_p_C_sensors" in arrays:
-            camera, p_C_sensors = arrays.get("flight_camera"), arrays.get("flight_p_C_sensors")
-            if camera is None or p_C_sensors is None or camera.shape != (6,) or p_C_sensors.shape != (len(colours), 3):
-                raise CalibrationError(f"pad calibration file {path}: the flight needs flight_camera (6,) and "
-                                       f"flight_p_C_sensors ({len(colours)}, 3)")
-            flight = CalibrationFlight(camera.astype(float), p_C_sensors.astype(float))
+        shapes = {"flight_camera": (6,), "flight_distortion": (5,), "flight_p_C_sensors": (len(colours), 3)}
+        if any(key in arrays for key in shapes):  # all three, or (a file from before flights were recorded) none
+            if any(key not in arrays or arrays[key].shape != shape for key, shape in shapes.items()):
+                raise CalibrationError(f"pad calibration file {path}: the flight needs flight_camera (6,), "
+                                       f"flight_distortion (5,) and flight_p_C_sensors ({len(colours)}, 3); "
+                                       "re-run `landing-sim run crhf-calibration` to write them")
+            flight = CalibrationFlight(*(arrays[key].astype(float) for key in shapes))
         try:
             return cls(
                 tuple(
