@@ -18,6 +18,7 @@ Prints PASS/FAIL against Figure 16; never a timed assertion in a test.
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -129,8 +130,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.frames < 1:
         parser.error(f"--frames must be at least 1, got {args.frames}")
-    if args.noise < 0:
-        parser.error(f"--noise must not be negative, got {args.noise:g}")
+    if not (math.isfinite(args.noise) and args.noise >= 0):
+        parser.error(f"--noise must be a finite number, not negative, got {args.noise:g}")
+    if not (math.isfinite(args.step) and args.step >= 0):
+        parser.error(f"--step must be a finite number, positive or 0 (no sweep), got {args.step:g}")
     if args.step > 0:
         empty = [name for name, band in sweep_heights(args.step)[1].items() if not band.any()]
         if empty:  # a band without a height has no error to bound: the step must put one in each

@@ -14,7 +14,16 @@ import benchmarks.stereo as stereo
     (motion_compensation.main, ["--pairs", "0"], "error: --pairs must be at least 1, got 0"),
     (motion_compensation.main, ["--pairs", "1", "--repeats", "0"], "error: --repeats must be at least 1, got 0"),
     (stereo.main, ["--frames", "0", "--step", "0"], "error: --frames must be at least 1, got 0"),
-    (stereo.main, ["--noise", "-1", "--step", "0", "--frames", "1"], "error: --noise must not be negative, got -1"),
+    (stereo.main, ["--noise", "-1", "--step", "0", "--frames", "1"],
+     "error: --noise must be a finite number, not negative, got -1"),
+    (stereo.main, ["--noise", "nan", "--step", "0", "--frames", "1"],
+     "error: --noise must be a finite number, not negative, got nan"),
+    (stereo.main, ["--noise", "inf", "--step", "0", "--frames", "1"],
+     "error: --noise must be a finite number, not negative, got inf"),
+    (stereo.main, ["--step", "-0.1", "--frames", "1"],
+     "error: --step must be a finite number, positive or 0 (no sweep), got -0.1"),
+    (stereo.main, ["--step", "nan", "--frames", "1"],
+     "error: --step must be a finite number, positive or 0 (no sweep), got nan"),
     (fisheye.main, ["--frames", "0"], "error: --frames must be at least 1, got 0"),
 ])
 def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, argv, line):
