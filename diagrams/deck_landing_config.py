@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 from pydrake.math import RigidTransform
 
 from diagrams.gv_landing_config import FlightConfig
-from diagrams.perception_sources import perception_source
+from diagrams.perception_sources import perception_source, require_offered
 from systems.config import require, require_positive
 from systems.control.landing_window import LandingWindowConfig
 from systems.estimators.crhf import CrhfConfig
@@ -38,6 +38,8 @@ class DeckPerceptionConfig(SeamConfig):
 
     def validate(self, prefix: str = "perception") -> None:
         perception_source(self.source, f"{prefix}.source", "deck")
+        require_offered(self.source, f"{prefix}.source", "deck-landing has no marker stream: choose a source that "
+                        "steers on its tag estimators or the truth", None)  # the camera: its rendered stream
         SeamConfig.validate(self, prefix)
         require(0 < self.field_of_view_deg <= 180, f"{prefix}.field_of_view_deg must be in (0, 180]")
         require_positive(self.max_range_m, f"{prefix}.max_range_m")

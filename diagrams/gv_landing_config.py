@@ -19,7 +19,7 @@ from pydrake.systems.analysis import GetIntegrationSchemes, SimulatorConfig
 
 from diagrams.federated_perception import FederatedPerceptionConfig
 from diagrams.hybrid_perception import HybridPerceptionConfig
-from diagrams.perception_sources import perception_source
+from diagrams.perception_sources import perception_source, require_offered
 from systems.config import require, require_positive
 from systems.control.flight_controller import BACKENDS, FlightControllerConfig
 from systems.control.landing import LandingConfig
@@ -239,16 +239,14 @@ class GvLandingConfig(FlightConfig):
                 "wind acts on the quadrotor through its rotor drag, and quadrotor.rotor_drag_coefficient is 0 "
                 "(seed 002's model): set it (RotorS's is 8.06428e-5)")
         source, stream = perception_source(self.perception.source), self.estimation.source
-        require(not source.needs_markers or stream != "none",
-                f"perception.source '{self.perception.source}' needs marker measurements, and estimation.source "
-                f"is none: set estimation.source to synthetic or detector")
-        if source.camera is None:
-            require(not source.needs_camera or stream == "detector",
-                    f"perception.source '{self.perception.source}' needs the camera, and estimation.source is "
-                    f"{stream}: set estimation.source to detector")
-        else:
-            require(stream != "detector", f"perception.source '{self.perception.source}' brings its own camera: "
-                                          f"estimation.source detector would add a second one")
+        require_offered(self.perception.source, "perception.source",
+                        "estimation.source is none: set estimation.source to synthetic or detector"
+                        if stream == "none" else None,
+                        f"estimation.source is {stream}: set estimation.source to detector"
+                        if source.camera is None and stream != "detector" else None)
+        require(source.camera is None or stream != "detector",
+                f"perception.source '{self.perception.source}' brings its own camera: estimation.source detector "
+                f"would add a second one")
         if self.perception.source == "federated":
             require(self.platform.pattern == "rqrlp",
                     "perception.source federated looks for seed 001's pattern: set platform.pattern to rqrlp")

@@ -205,3 +205,13 @@ def perception_source(name: str, prefix: str = "perception.source", scene: str =
     if scene not in SOURCES[name].scenes:
         raise ConfigError(f"{prefix} '{name}' does not run in {SCENES[scene]} (its sources: {known})")
     return SOURCES[name]
+
+
+def require_offered(name: str, prefix: str, markers_missing: str | None, camera_missing: str | None) -> None:
+    """ConfigError when the source `name` needs what its scene lacks: `markers_missing` (`camera_missing`) None where
+    the scene offers the marker stream (the camera's), else why it does not and what to set, a clause."""
+    source = SOURCES[name]
+    if source.needs_markers and markers_missing is not None:
+        raise ConfigError(f"{prefix} '{name}' needs marker measurements, and {markers_missing}")
+    if source.needs_camera and camera_missing is not None:
+        raise ConfigError(f"{prefix} '{name}' needs the camera, and {camera_missing}")

@@ -165,6 +165,25 @@ def test_a_source_registered_for_the_deck_steers_deck_landing(monkeypatch):
     assert metrics["perception"]["source"] == "higher"
 
 
+def test_a_source_that_needs_marker_measurements_is_refused_by_deck_landing_in_one_line(monkeypatch, capfd, tmp_path):
+    from diagrams.cli import main
+
+    # Registered for the gv scenes and the deck alike; deck-landing has no marker stream (before: a TypeError
+    # mid-build where the source connected it).
+    monkeypatch.setitem(SOURCES, "on_markers", PerceptionSource(_add_higher_seam, needs_markers=True,
+                                                                scenes=("gv", "deck")))
+    out = tmp_path / "run"
+    code = main(["run", "deck-landing", "--duration", "0.2", "--quiet", "--set", "perception.source=on_markers",
+                 "--out", str(out)])
+    err = capfd.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and not out.exists()
+    assert ("perception.source 'on_markers' needs marker measurements, and deck-landing has no marker stream: "
+            "choose a source that steers on its tag estimators or the truth") in err
+    # The camera it offers: its own rendered stream.
+    monkeypatch.setitem(SOURCES, "on_images", PerceptionSource(_add_higher_seam, needs_camera=True, scenes=("deck",)))
+    assert load_scenario("deck-landing", overrides=["perception.source=on_images"])[1].perception.source == "on_images"
+
+
 def test_a_run_in_which_no_estimator_sees_the_tag_writes_its_metrics(capfd, tmp_path):
     import json
 
