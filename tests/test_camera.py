@@ -383,7 +383,8 @@ def test_a_lens_that_passes_maps_every_pixel_back_onto_itself(D):
     np.testing.assert_allclose(back.reshape(-1, 2), np.stack([u.ravel(), v.ravel()], axis=1), atol=0.01)
 
 
-@pytest.mark.parametrize("D", [[-0.2, 0.0, 0.0, 0.0, 0.0], [-0.6, 0.2, 0.0, 0.0, 0.0], [-0.1, 0.05, 0.002, -0.001, 0.0]])
+@pytest.mark.parametrize("D", [[-0.2, 0.0, 0.0, 0.0, 0.0], [-0.6, 0.2, 0.0, 0.0, 0.0],
+                               [-0.1, 0.05, 0.002, -0.001, 0.0]])
 def test_undistorting_pixels_inverts_opencvs_projection_to_the_image_corners(D):
     """The one undistortion every estimator uses (the tag detector's corners, the RQRLP nodes' pixels): pinhole
     pixels distorted by cv2.projectPoints come back to 1e-6 px, out to the image's corners, also for the strong
