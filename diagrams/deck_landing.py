@@ -29,6 +29,7 @@ from diagrams.deck_landing_config import DeckLandingConfig
 from diagrams.flight_stack import FlightStack, add_flight_stack
 from diagrams.perception_sources import PerceptionInputs, perception_source
 from diagrams.stewart_scene import add_axis_flow, add_uav_sensors, add_viewers, delayed
+from systems.config import ConfigError
 from systems.control.landing_window import LandingWindow
 from systems.estimators.atda import AtdaEstimator
 from systems.estimators.crhf import CrhfEstimator
@@ -137,10 +138,12 @@ def add_deck_landing(builder: DiagramBuilder, config: DeckLandingConfig, meshcat
     perception = perception_source(config.perception.source, scene="deck").add(builder, PerceptionInputs(
         config, X_WB, quad.GetOutputPort("V_WB"), quad.GetOutputPort("A_WB"), quad_state,
         platform.GetOutputPort("carrier_state"), truth.get_output_port(), None, color_image, {}, scene_graph,
-        airframe.body_frame_id, tag_estimates=tag_estimates, X_TP=platform.X_PT.inverse()))
+        airframe.body_frame_id, tag_estimates=tag_estimates, X_TP=platform.X_PT.inverse(),
+        true_deck_motion=platform.GetOutputPort("deck_motion")))
     relative_state, deck_motion = perception.relative_state, perception.deck_motion
-    if deck_motion is None:
-        deck_motion = platform.GetOutputPort("deck_motion")
+    if deck_motion is None:  # the landing window must not read the truth for a source that is not the truth
+        raise ConfigError(f"perception.source '{config.perception.source}' gives no deck_motion (SeamPorts."
+                          "deck_motion), which deck-landing's landing window reads")
 
     stack = add_flight_stack(builder, config, quad, quad_state, relative_state, platform.GetOutputPort("carrier_state"),
                              truth.get_output_port(), config.carrier())

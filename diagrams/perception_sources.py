@@ -63,6 +63,7 @@ class PerceptionInputs:
     # in the camera C, estimate_latency_frames late) and the deck frame P in the tag's frame T.
     tag_estimates: dict[str, OutputPort] = field(default_factory=dict)
     X_TP: RigidTransform | None = None
+    true_deck_motion: OutputPort | None = None  # deck-landing: the deck's true motion (the truth source's)
 
 
 @dataclass
@@ -76,7 +77,7 @@ class SeamPorts:
     logs: dict = field(default_factory=dict)  # the source's own loggers (name -> VectorLogSink), for its metrics
     video: VideoRecorder | None = None  # its own stream's recorder (--video), where it records one
     # deck-landing: the deck's motion as the source estimates it (systems/estimators/deck_tracker.py's layout), for
-    # the landing window; None: the truth's.
+    # the landing window; a deck source must give it (the truth source gives the truth's).
     deck_motion: OutputPort | None = None
 
 
@@ -111,7 +112,7 @@ def add_estimate_to_seam(builder: DiagramBuilder, inputs: PerceptionInputs, X_WP
 
 
 def _truth(builder: DiagramBuilder, inputs: PerceptionInputs) -> SeamPorts:
-    return SeamPorts(inputs.true_relative_state)
+    return SeamPorts(inputs.true_relative_state, deck_motion=inputs.true_deck_motion)
 
 
 def _marker_filter(name: str) -> Callable[[DiagramBuilder, PerceptionInputs], SeamPorts]:

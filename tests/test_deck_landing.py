@@ -153,7 +153,11 @@ class HigherSeam(LeafSystem):
 def _add_higher_seam(builder, inputs):
     higher = builder.AddNamedSystem("higher_seam", HigherSeam())
     builder.Connect(inputs.true_relative_state, higher.get_input_port())
-    return SeamPorts(higher.get_output_port())
+    return SeamPorts(higher.get_output_port(), deck_motion=inputs.true_deck_motion)  # a test source: the truth's deck
+
+
+def _add_seam_without_deck_motion(builder, inputs):
+    return SeamPorts(_add_higher_seam(builder, inputs).relative_state)
 
 
 def test_a_source_registered_for_the_deck_steers_deck_landing(monkeypatch):
@@ -163,6 +167,19 @@ def test_a_source_registered_for_the_deck_steers_deck_landing(monkeypatch):
     steered, truth = flight.log["relative_state"], flight.log["true_relative_state"]
     np.testing.assert_allclose(steered[:, HEIGHT] - truth[:, HEIGHT], 1.0, atol=1e-12)
     assert metrics["perception"]["source"] == "higher"
+
+
+def test_a_deck_source_without_its_own_deck_motion_is_refused_not_given_the_truths(monkeypatch, capfd, tmp_path):
+    from diagrams.cli import main
+
+    # Before, the landing window read the platform's true deck motion for any source that gave none.
+    monkeypatch.setitem(SOURCES, "no_deck", PerceptionSource(_add_seam_without_deck_motion, scenes=("deck",)))
+    out = tmp_path / "run"
+    code = main(["run", "deck-landing", "--duration", "0.2", "--quiet", "--set", "perception.source=no_deck",
+                 "--out", str(out)])
+    err = capfd.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and not out.exists()
+    assert "perception.source 'no_deck' gives no deck_motion" in err
 
 
 def test_a_source_that_needs_marker_measurements_is_refused_by_deck_landing_in_one_line(monkeypatch, capfd, tmp_path):
