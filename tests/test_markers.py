@@ -168,14 +168,20 @@ class SampleCounter(LeafSystem):
                                        lambda c, o: o.set_value([round(c.get_time() / period_s)]))
 
 
-@pytest.mark.parametrize("delay_steps", [0, 1, 2])
-def test_the_latency_delivers_what_was_acquired_whole_samples_before(delay_steps):
+def _counted_latency(delay_steps: int):
+    """A MeasurementLatency of `delay_steps` on the sample counter at 35 ms: (it, its simulator, its context)."""
     builder = DiagramBuilder()
     sensor = builder.AddSystem(SampleCounter(0.035))
     latency = builder.AddSystem(MeasurementLatency(0.035, delay_steps))
     builder.Connect(sensor.get_output_port(), latency.get_input_port())
     simulator = Simulator(builder.Build())
     context = latency.GetMyContextFromRoot(simulator.get_context())
+    return latency, simulator, context
+
+
+@pytest.mark.parametrize("delay_steps", [0, 1, 2])
+def test_the_latency_delivers_what_was_acquired_whole_samples_before(delay_steps):
+    latency, simulator, context = _counted_latency(delay_steps)
     queue = ()
     for k in range(6):
         simulator.AdvanceTo(k * 0.035)  # before this time's update (but t = 0's, done by the first AdvanceTo)
@@ -209,12 +215,7 @@ def test_the_latency_delays_one_value_or_a_vector_too():
 @pytest.mark.parametrize("delay_steps", [1, 2])
 def test_the_latency_holds_between_samples_and_after_their_update(delay_steps):
     # Read at any time t in [t_k, t_{k+1}), before or after the update at t_k: what was acquired at t_{k-d}.
-    builder = DiagramBuilder()
-    sensor = builder.AddSystem(SampleCounter(0.035))
-    latency = builder.AddSystem(MeasurementLatency(0.035, delay_steps))
-    builder.Connect(sensor.get_output_port(), latency.get_input_port())
-    simulator = Simulator(builder.Build())
-    context = latency.GetMyContextFromRoot(simulator.get_context())
+    latency, simulator, context = _counted_latency(delay_steps)
     for k in range(1, 7):
         expected = [] if k < delay_steps else [k - delay_steps]
         simulator.AdvanceTo(k * 0.035)
