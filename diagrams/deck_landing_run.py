@@ -16,7 +16,7 @@ import numpy as np
 
 from diagrams.deck_landing import DeckLandingHandles, build_deck_landing
 from diagrams.deck_landing_config import ESTIMATORS, DeckLandingConfig
-from diagrams.landing_metrics import pad_landing, touchdown
+from diagrams.landing_metrics import pad_arguments, pad_landing, touchdown
 from diagrams.landing_plots import plot_perception, shade_modes
 from diagrams.metrics import estimator_metrics
 from diagrams.outputs import save_figure, write_npz
@@ -85,10 +85,8 @@ def tilt_deg(deck_motion: np.ndarray) -> np.ndarray:
 
 def _deck_pad(log: dict[str, np.ndarray], config: DeckLandingConfig) -> dict:
     """landing_metrics.touchdown's pad arguments for a deck flight: the deck, headed as the carrier."""
-    return {"heading": log["carrier_state"][:, GV_HEADING], "pad_size_m": config.platform.deck_size_m,
-            "pad_thickness_m": config.platform.deck_thickness_m,
-            "touchdown_height_m": config.landing.touchdown_height_m,
-            "motors_stop_at_landed": config.landing.motors_stop_at_landed}
+    return pad_arguments(log["carrier_state"][:, GV_HEADING], config.platform.deck_size_m,
+                         config.platform.deck_thickness_m, config.landing)
 
 
 def deck_touchdown(flight: DeckFlight, config: DeckLandingConfig) -> tuple[int, str] | None:

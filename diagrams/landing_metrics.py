@@ -74,12 +74,17 @@ def impact(gap_m: float, vertical_speed: float, gravity: float) -> tuple[float, 
     return (speed + vertical_speed) / gravity, speed
 
 
+def pad_arguments(heading: np.ndarray, size_m: float, thickness_m: float, landing) -> dict:
+    """`touchdown`'s (and `pad_landing`'s) pad arguments: the pad's heading per sample [rad], its size and
+    thickness [m], and the scenario's `landing` settings (touchdown height, motors stopped at LANDED)."""
+    return {"heading": heading, "pad_size_m": size_m, "pad_thickness_m": thickness_m,
+            "touchdown_height_m": landing.touchdown_height_m, "motors_stop_at_landed": landing.motors_stop_at_landed}
+
+
 def _gv_pad(log: dict[str, np.ndarray], config) -> dict:
-    """`touchdown`'s pad arguments for a gv flight: the pad on the ground vehicle, headed as the vehicle."""
-    return {"heading": log["vehicle_state"][:, GV_HEADING], "pad_size_m": config.platform.pad_size_m,
-            "pad_thickness_m": config.platform.pad_thickness_m,
-            "touchdown_height_m": config.landing.touchdown_height_m,
-            "motors_stop_at_landed": config.landing.motors_stop_at_landed}
+    """The pad on the ground vehicle, headed as the vehicle."""
+    return pad_arguments(log["vehicle_state"][:, GV_HEADING], config.platform.pad_size_m,
+                         config.platform.pad_thickness_m, config.landing)
 
 
 def gv_touchdown(log: dict[str, np.ndarray], status: str, config) -> tuple[int, str] | None:
