@@ -405,15 +405,31 @@ def test_kf_lost_under_the_nearest_range_starts_again_on_a_fast_climb():
     assert not any(s.valid for s in run_near([0.678, 1.16, 1.57, 1.47], t0=t0, state=lost))
 
 
-def test_kf_near_the_nearest_range_still_follows_a_climb_out_of_it():
+@pytest.mark.parametrize("dropped", [None, 2])
+def test_kf_near_the_nearest_range_still_follows_a_climb_out_of_it(dropped):
     """Hovering 0.25 m over the nearest range, then climbing at 1 m/s: the readings leaving the near band are
-    coasted through until the filter lets go (above the range, so not lost there), and the next starts it."""
+    coasted through until the filter lets go (in the band, but on a climb out of it, so not lost there), and the
+    next starts it; also with a frame of the climb without a reading."""
     hover = [NEAREST + 0.25] * 10
-    climb = [NEAREST + 0.25 + 0.1 * k for k in range(1, 20)]
+    climb = [math.nan if k == dropped else NEAREST + 0.25 + 0.1 * k for k in range(1, 20)]
     states = run_near(hover + climb)
     assert all(s.valid for s in states[:10])
     assert not any(s.lost_near for s in states)
     assert all(s.valid and abs(s.x[0] - z) < 0.1 for s, z in zip(states[-8:], climb[-8:]))
+
+
+def test_kf_let_go_in_the_near_band_does_not_start_again_on_a_wrong_match():
+    """Hovering 0.15 m over the nearest range, then the UGV's roof slides under (0.3 m true, nearer than the range)
+    and SGBM reads 1.4 m, flagged valid: the filter coasts through, lets go in the band, lost near, and the wrong
+    readings do not start it again (before: the first after the let-go did, 1.1 m off, valid); two readings in a
+    row in the band, as a climb back into range gives, do."""
+    hover = [NEAREST + 0.15] * 10
+    states = run_near(hover + [1.4] * 15)
+    assert all(s.valid for s in states[:10])
+    assert all(abs(s.x[0] - hover[0]) < 0.01 for s in states if s.valid)
+    assert not states[-1].valid and states[-1].lost_near
+    again = run_near([NEAREST + 0.05, NEAREST + 0.15], t0=len(states) * HYBRID_T, state=states[-1])
+    assert [s.valid for s in again] == [False, True]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -21,10 +21,17 @@ The altimeter's nearest range (`nearest_m`, f T_x / (numDisparities - 1): 0.667 
 the paper is silent: nearer, the true disparity lies beyond SGBM's search and what it matches is wrong, yet
 may pass its checks (over the UGV's roof it read 1.2-1.6 m at 0.6 m, flagged valid: ugv-hybrid, measured).
 So while the filter predicts a depth within `near_band_m` over the nearest range (or under it), only readings
-within that band are used, and the filter coasts through the others; once it has let go under the nearest
-range, it starts again only on two readings in a row, the first within the band, where a climb back into range
-is first read (the takeoff's first reading: 0.667 m), and the next within `near_band_m` of it (a climb of up to
-near_band_m a frame: 3 m/s at 10 Hz); one alone can be a wrong match (0.678 m read at 0.09 m, measured).
+within that band are used, and the filter coasts through the others; once it has let go there (its prediction
+under the band's top), it starts again only on two readings in a row, the first within the band, where a climb
+back into range is first read (the takeoff's first reading: 0.667 m), and the next within `near_band_m` of it (a
+climb of up to near_band_m a frame: 3 m/s at 10 Hz); one alone can be a wrong match (0.678 m read at 0.09 m,
+measured). A let-go in the band over the nearest range is one too: the UGV's roof sliding under a UAV 0.8 m up
+(0.3 m true) reads 1.2-1.6 m, which would otherwise start it again, valid. But not when the readings it coasted
+through climb out of the band: each over it and within `near_band_m` of the one before, the first of the
+prediction (hovering in the band, then climbing; a frame without a reading breaks no climb); then the next reading
+starts it, as anywhere over the band.
+A jump out of the band (the roof leaving the window at 0.8 m) is not told from a wrong match: it waits for the
+band's readings, as a let-go under the nearest range does.
 """
 
 import math
@@ -68,8 +75,9 @@ class AltitudeKfState:
     """x = [altitude d (m), its rate d_dot (m/s)], covariance P; `time` of the last step (None before
     the first); `last_measurement` the previous step's altitude measurement (None when that step had
     none; while lost near, the last step's reading in the band); `coast_s` time since the last measurement
-    used; `valid`; `lost_near` whether it let go under the altimeter's nearest range (and has not started
-    again)."""
+    used; `valid`; `lost_near` whether it let go in the near band or under it (and has not started again);
+    `climb_m` while it coasts in the near band, the last reading of a climb out of it (module docstring), else
+    None."""
 
     x: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     P: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
@@ -78,6 +86,7 @@ class AltitudeKfState:
     coast_s: float = math.inf
     valid: bool = False
     lost_near: bool = False
+    climb_m: float | None = None
 
 
 def transition(T: float) -> np.ndarray:
@@ -126,13 +135,19 @@ def altitude_kf_step(state: AltitudeKfState, z: float, z_valid: bool, t: float,
         P0 = np.diag([config.measurement_std(z) ** 2, config.initial_speed_std_mps**2])
         return AltitudeKfState(np.array([z, 0.0]), P0, t, z, 0.0, True)
     x, P = predict(state.x, state.P, T, config)
+    climb = None
     if nearest_m > 0 and x[0] < top and not in_band:
+        last = x[0] if state.climb_m is None else state.climb_m
+        if not has_z:  # a frame without a reading leaves a climb out of the band as it was
+            climb = state.climb_m
+        elif z > top and abs(z - last) <= config.near_band_m:  # ... and one within near_band_m of it goes on
+            climb = z
         has_z = False
     if not has_z:
         coast = state.coast_s + T
         if coast > config.max_coast_s:
-            return AltitudeKfState(time=t, lost_near=bool(nearest_m > 0 and x[0] < nearest_m))
-        return AltitudeKfState(x, P, t, None, coast, True)
+            return AltitudeKfState(time=t, lost_near=bool(nearest_m > 0 and x[0] < top and climb is None))
+        return AltitudeKfState(x, P, t, None, coast, True, climb_m=climb)
     zv, H, R = measurement(z, state.last_measurement, T, config)
     S = H @ P @ H.T + R
     K = np.linalg.solve(S, H @ P).T
