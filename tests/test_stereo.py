@@ -326,6 +326,21 @@ def test_kf_coasts_on_invalid_input_then_turns_invalid():
     assert restarted.valid and restarted.x[0] == 2.0 and restarted.x[1] == 0.0
 
 
+def test_kf_coasts_max_coast_s_whatever_the_time_of_its_last_measurement():
+    """At 10 Hz (frame times k * 0.1 s) and max_coast_s 0.5 s, the 5th frame without a measurement is still valid
+    and the 6th is not, whatever the time of the last measurement (before: the coast summed the frame intervals,
+    and the float sum let go at the 5th for 13 of these 400 times, e.g. a last measurement at 0.1 s)."""
+    for k0 in range(400):
+        state = AltitudeKfState()
+        for k in range(k0 - 2, k0 + 1):
+            state = altitude_kf_step(state, 5.0, True, k * 0.1, KF)
+        valid = []
+        for k in range(k0 + 1, k0 + 7):
+            state = altitude_kf_step(state, math.nan, False, k * 0.1, KF)
+            valid.append(state.valid)
+        assert valid == [True] * 5 + [False], f"last measurement at {k0 * 0.1:.1f} s"
+
+
 def test_kf_takes_nan_flagged_valid_as_invalid_and_starts_invalid():
     state = altitude_kf_step(AltitudeKfState(), math.nan, True, 0.0, KF)
     assert not state.valid

@@ -74,19 +74,23 @@ class AltitudeKfConfig:
 class AltitudeKfState:
     """x = [altitude d (m), its rate d_dot (m/s)], covariance P; `time` of the last step (None before
     the first); `last_measurement` the previous step's altitude measurement (None when that step had
-    none; while lost near, the last step's reading in the band); `coast_s` time since the last measurement
-    used; `valid`; `lost_near` whether it let go in the near band or under it (and has not started again);
-    `climb_m` while it coasts in the near band, the last reading of a climb out of it (module docstring), else
-    None."""
+    none; while lost near, the last step's reading in the band); `measured_s` the time of the last measurement
+    used (None when not valid; `coast_s` the time since it); `valid`; `lost_near` whether it let go in the near
+    band or under it (and has not started again); `climb_m` while it coasts in the near band, the last reading of
+    a climb out of it (module docstring), else None."""
 
     x: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     P: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
     time: float | None = None
     last_measurement: float | None = None
-    coast_s: float = math.inf
+    measured_s: float | None = None
     valid: bool = False
     lost_near: bool = False
     climb_m: float | None = None
+
+    @property
+    def coast_s(self) -> float:
+        return math.inf if self.measured_s is None else self.time - self.measured_s
 
 
 def transition(T: float) -> np.ndarray:
@@ -133,7 +137,7 @@ def altitude_kf_step(state: AltitudeKfState, z: float, z_valid: bool, t: float,
         if not has_z:
             return AltitudeKfState(time=t)
         P0 = np.diag([config.measurement_std(z) ** 2, config.initial_speed_std_mps**2])
-        return AltitudeKfState(np.array([z, 0.0]), P0, t, z, 0.0, True)
+        return AltitudeKfState(np.array([z, 0.0]), P0, t, z, t, True)
     x, P = predict(state.x, state.P, T, config)
     climb = None
     if nearest_m > 0 and x[0] < top and not in_band:
@@ -144,17 +148,16 @@ def altitude_kf_step(state: AltitudeKfState, z: float, z_valid: bool, t: float,
             climb = z
         has_z = False
     if not has_z:
-        coast = state.coast_s + T
-        if coast > config.max_coast_s:
+        if t - state.measured_s > config.max_coast_s + 1e-9:  # the time since, not a sum of frame intervals
             return AltitudeKfState(time=t, lost_near=bool(nearest_m > 0 and x[0] < top and climb is None))
-        return AltitudeKfState(x, P, t, None, coast, True, climb_m=climb)
+        return AltitudeKfState(x, P, t, None, state.measured_s, True, climb_m=climb)
     zv, H, R = measurement(z, state.last_measurement, T, config)
     S = H @ P @ H.T + R
     K = np.linalg.solve(S, H @ P).T
     x = x + K @ (zv - H @ x)
     I_KH = np.eye(2) - K @ H
     P = I_KH @ P @ I_KH.T + K @ R @ K.T  # Joseph form: stays symmetric positive definite
-    return AltitudeKfState(x, P, t, z, 0.0, True)
+    return AltitudeKfState(x, P, t, z, t, True)
 
 
 class AltitudeFilterSystem(LeafSystem):
