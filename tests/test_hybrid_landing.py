@@ -26,7 +26,7 @@ from systems.perception.hybrid_pad import (
     hybrid_step,
     pad_from_box,
 )
-from systems.perception.seam import P_BP_W, VALID
+from systems.perception.seam import P_BP_W, VALID, SeamConfig, estimate_is_valid
 from systems.perception.stereo_depth import StereoAltimeter
 from systems.sensors.camera import add_renderer
 from systems.sensors.fisheye import FisheyeConfig, project_points
@@ -118,6 +118,24 @@ def test_a_velocity_from_before_a_loss_is_not_coasted_on(height_m, lost_s):
     assert np.allclose(found.estimate.X_RT.translation()[:2], [0.5, 0.0], atol=0.05)
     assert not found.observer.valid and found.velocity is None  # the seam's v_WP: zero
     assert not any(s.estimate.valid for s in states[k_found + 1:])
+
+
+@pytest.mark.parametrize("growth_m_s, refused_from_s", [(0.1, None), (0.2, 3.1)])
+def test_the_seam_refuses_a_coast_by_its_std_only_past_its_growth(growth_m_s, refused_from_s):
+    """In the landing zone, a coast of max_coast_s (4 s) after a measured 0.1 m: with the default growth, 0.1 m/s,
+    the seam's max_position_std_m (1 m, sqrt(trace)) refuses none of it (0.71 m at 4 s); with 0.2 m/s, from 3.1 s
+    on (HybridPadConfig's comment)."""
+    v = np.array([0.3, 0.0, 0.0])
+    seen = [(0.1 * k, True, True, np.array([0.0, 0.0, Z_PAD]) + v * 0.1 * k) for k in range(11)]
+    blind = [(0.1 * k, False, True, None) for k in range(11, 60)]
+    states = _run(seen + blind, HybridPadConfig(coast_std_growth_m_s=growth_m_s), height_m=2.0)
+    coasting = [s for s in states[11:] if s.estimate.valid]
+    assert round(coasting[-1].time - 1.0, 6) == HybridPadConfig().max_coast_s
+    refused = [round(s.time - 1.0, 6) for s in coasting if not estimate_is_valid(s.estimate, s.time, SeamConfig())]
+    assert refused == ([] if refused_from_s is None else
+                       [round(0.1 * k, 6) for k in range(round(refused_from_s * 10), 41)])
+    if refused_from_s is None:
+        assert math.sqrt(np.trace(coasting[-1].estimate.covariance[3:, 3:])) == pytest.approx(0.71, abs=0.01)
 
 
 def test_the_landing_zone_ends_where_the_camera_climbs_out_of_it():

@@ -88,8 +88,10 @@ class HybridPadConfig:
     box_min_height_m: float = 1.0
     altitude_coast_s: float = 5.0  # h carried on by the navigation's height change for this long
     position_std_m: float = 0.1  # the reported std per axis of a measured estimate
-    # And its growth per second of coasting (the observed velocity's error, 0.05-0.1 m/s measured): the seam
-    # refuses sqrt(trace) over perception.max_position_std_m (1 m), which 0.2 m/s reached 2.4 s into a coast.
+    # And its growth per second of coasting (the observed velocity's error, 0.05-0.1 m/s measured). The seam refuses
+    # sqrt(trace) over perception.max_position_std_m (1 m), about 0.7 m per axis: from a measured 0.1 m, 0.1 m/s
+    # reaches that 6 s into a coast, so the seam refuses none within max_coast_s (0.71 m at its 4 s: the coast
+    # ends by max_coast_s); 0.2 m/s would reach it 3.1 s in.
     coast_std_growth_m_s: float = 0.1
     height_std_m: float = 0.05  # z: the pad's plane is known
     # In the landing zone only rays within 60 deg of the vertical measure (-r_W,z >= cos 60 deg): seen obliquely,
