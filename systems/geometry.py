@@ -1,4 +1,5 @@
-"""Small helpers for registering visible geometry with SceneGraph and for pose conversions."""
+"""Small helpers for registering visible geometry with SceneGraph, for pose conversions, and a ray's meeting with a
+horizontal plane."""
 
 from pathlib import Path
 
@@ -65,3 +66,16 @@ def wrap_angle(angle):
 def frame_between(p_A: np.ndarray, p_B: np.ndarray) -> RigidTransform:
     """The pose of a frame at point A whose +z axis points towards point B (both in the same frame)."""
     return RigidTransform(RotationMatrix.MakeFromOneVector(np.asarray(p_B) - np.asarray(p_A), 2), p_A)
+
+
+def ray_to_plane(p_WC: np.ndarray, ray_W: np.ndarray, height_above_plane: float, z_plane: float,
+                 min_ray_down: float = 0.5) -> np.ndarray | None:
+    """Where a ray from a camera `height_above_plane` [m] above the horizontal plane z = z_plane meets it (W, m),
+    the camera's x, y from p_WC: p_WC + s ray_W with s = height / -ray_W,z. ray_W (W) may have any length;
+    `min_ray_down` is the least -ray_W,z (for a unit ray the cosine of its angle from straight down). None when the
+    ray does not point down that much or the height is not positive."""
+    down = -float(ray_W[2])
+    if down < min_ray_down or not height_above_plane > 0:
+        return None
+    s = height_above_plane / down
+    return np.array([p_WC[0] + s * ray_W[0], p_WC[1] + s * ray_W[1], z_plane])

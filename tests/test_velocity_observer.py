@@ -11,6 +11,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
 from systems.config import ConfigError
+from systems.estimators import velocity_observer
 from systems.estimators.velocity_observer import (
     R_B_FRD,
     R_NW,
@@ -31,6 +32,7 @@ from systems.estimators.velocity_observer import (
     weighted_velocity,
     world_to_ned,
 )
+from systems.geometry import ray_to_plane
 from systems.noise import sample_rng
 
 K = np.array([[200.0, 0.0, 255.5], [0.0, 210.0, 250.0], [0.0, 0.0, 1.0]])  # fx != fy to tell the axes apart
@@ -89,6 +91,29 @@ def test_pixel_to_ground_tilted_camera_reprojects():
     upside_down = RigidTransform(RotationMatrix(), [0.0, 0.0, 5.0])  # optical axis up: no ground in view
     assert pixel_to_ground_W([255.5, 250.0], 5.0, K, upside_down) is None
     assert pixel_to_ground_W([255.5, 250.0], 0.0, K, X_WC) is None
+
+
+def test_pixel_to_ground_is_ray_to_plane_with_any_downward_ray(monkeypatch):
+    """pixel_to_ground_W cuts the pixel's ray with the plane by the hybrid estimate's one routine, ray_to_plane,
+    refusing only rays that do not point down (the hybrid estimate refuses oblique ones too): the same points as
+    before for rays that do (p_C + height / -r_z r), and a 80 deg ray, which the hybrid estimate's default refuses."""
+    X_WC = RigidTransform(RollPitchYaw(0.15, -0.2, 1.0), [3.0, -1.0, 6.0]).multiply(X_BC)
+    p_WC = X_WC.translation()
+    for uv in ([100.0, 60.0], [255.5, 250.0], [400.0, 420.0]):
+        ray_W = X_WC.rotation().multiply(np.linalg.solve(K, [uv[0], uv[1], 1.0]))
+        before = p_WC + (5.5 / -ray_W[2]) * ray_W
+        p = pixel_to_ground_W(uv, 5.5, K, X_WC)
+        assert np.array_equal(p[:2], before[:2]) and p[2] == pytest.approx(before[2], abs=1e-12)
+    level = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, 5.0])  # looking straight down
+    u = 255.5 + 200.0 * math.tan(math.radians(80))
+    ray_W = level.rotation().multiply(np.linalg.solve(K, [u, 250.0, 1.0]))
+    assert ray_to_plane(level.translation(), ray_W / np.linalg.norm(ray_W), 4.5, 0.5) is None
+    np.testing.assert_allclose(pixel_to_ground_W([u, 250.0], 4.5, K, level),
+                               [4.5 * math.tan(math.radians(80)), 0.0, 0.5], atol=1e-9)
+    calls = []
+    monkeypatch.setattr(velocity_observer, "ray_to_plane", lambda *a, **kw: calls.append(kw) or ray_to_plane(*a, **kw))
+    pixel_to_ground_W([255.5, 250.0], 4.5, K, level)
+    assert len(calls) == 1
 
 
 def test_ned_boundary():

@@ -55,6 +55,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
 from systems.config import require, require_positive
+from systems.geometry import ray_to_plane
 from systems.stepped import SteppedValue
 
 SOURCES = ("world", "pixel", "displacement")
@@ -128,12 +129,10 @@ def pixel_to_ground_W(uv: np.ndarray, altitude: float, K: np.ndarray, X_WC: Rigi
     `altitude` [m] below the camera: the pixel's ray K^-1 [u, v, 1] rotated into W and scaled to reach the
     plane, plus the camera's position (Eq. 20, with its translation). For a camera looking straight down
     the offset from the point under the camera is Eq. 15's, [(u - cx) Z / fx, (v - cy) Z / fy] in C.
-    None when the ray does not go down to the plane."""
+    None when the ray does not go down to the plane (`ray_to_plane`, any ray pointing down)."""
     ray_C = np.linalg.solve(np.asarray(K, dtype=float), np.array([uv[0], uv[1], 1.0]))
-    ray_W = X_WC.rotation().multiply(ray_C)
-    if ray_W[2] >= -1e-9 or not altitude > 0:
-        return None
-    return X_WC.translation() + (altitude / -ray_W[2]) * ray_W
+    p_WC = X_WC.translation()
+    return ray_to_plane(p_WC, X_WC.rotation().multiply(ray_C), altitude, p_WC[2] - altitude, min_ray_down=1e-9)
 
 
 def paper_rotation_matrix(q: Sequence[float]) -> np.ndarray:

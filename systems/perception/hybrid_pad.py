@@ -49,6 +49,7 @@ from pydrake.systems.framework import LeafSystem
 from systems.config import require, require_non_negative, require_positive
 from systems.estimators.estimate import PoseEstimate
 from systems.estimators.velocity_observer import ObserverState, VelocityObserverConfig, step_observer
+from systems.geometry import ray_to_plane
 from systems.perception.box_tracker import Detection, box_centre_pixel
 from systems.sensors.fisheye import FisheyeConfig, in_field_of_view, pixel_rays
 from systems.stepped import SteppedValue
@@ -114,17 +115,6 @@ class HybridPadConfig:
         for name in ("min_ray_down", "approach_min_ray_down"):
             value = getattr(self, name)
             require(0 < value <= 1, f"{prefix}.{name} must lie in (0, 1], got {value}")
-
-
-def ray_to_plane(p_WC: np.ndarray, ray_W: np.ndarray, height_above_plane: float, z_plane: float,
-                 min_ray_down: float = 0.5) -> np.ndarray | None:
-    """Where a ray from a camera `height_above_plane` [m] above the horizontal plane z = z_plane meets it (W),
-    the camera's x, y from p_WC; None when the ray does not point down enough or the height is not positive."""
-    down = -float(ray_W[2])
-    if down < min_ray_down or not height_above_plane > 0:
-        return None
-    s = height_above_plane / down
-    return np.array([p_WC[0] + s * ray_W[0], p_WC[1] + s * ray_W[1], z_plane])
 
 
 def camera_height(depth_m: float, X_WB: RigidTransform, X_BL: RigidTransform, X_BC: RigidTransform) -> float:
