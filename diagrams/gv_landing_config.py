@@ -44,6 +44,16 @@ MEASUREMENT_SOURCES = ("none", "synthetic", "detector")
 # The schemes IntegrationConfig accepts: Drake's, but cenic, which integrates a MultibodyPlant (it finds
 # none in these diagrams, and the run fails at its first step).
 INTEGRATION_SCHEMES = tuple(name for name in GetIntegrationSchemes() if name != "cenic")
+# How long a fixed step h an explicit scheme takes stably on y' = -y / tau: h / tau below the bound of its stability
+# interval on the negative real axis, where its stability polynomial R(z) reaches |R| = 1. Explicit Euler,
+# semi-explicit Euler (explicit Euler on a SymbolicVectorSystem's state, all of it misc. state z) and RK2 (Heun):
+# R = 1 + z and 1 + z + z^2/2, -1 at z = -2. RK3 and Bogacki-Shampine (their 3rd-order solution, 3 stages):
+# R = 1 + z + z^2/2 + z^3/6 = -1 at z = -2.5127. RK5 (Dormand-Prince's 5th-order solution): R = the Taylor
+# polynomial to z^5/5! + z^6/600 = +1 at z = -3.3066. The implicit schemes are A-stable: no bound.
+EXPLICIT_STABILITY_LIMITS = {"explicit_euler": 2.0, "semi_explicit_euler": 2.0, "runge_kutta2": 2.0,
+                             "runge_kutta3": 2.5127, "bogacki_shampine3": 2.5127, "runge_kutta5": 3.3066}
+# The schemes with no error estimate: Drake steps them fixed whatever error_control says.
+FIXED_STEP_SCHEMES = ("explicit_euler", "semi_explicit_euler", "runge_kutta2")
 
 
 @dataclass
@@ -155,6 +165,14 @@ class IntegrationConfig:
         require_positive(self.max_step_s, f"{prefix}.max_step_s")
         require(0 < self.accuracy < 1, f"{prefix}.accuracy must be in (0, 1)")
 
+    @property
+    def stable_step_ratio(self) -> float:
+        """The largest step over time constant, h / tau, at which `scheme` integrates y' = -y / tau stably
+        (EXPLICIT_STABILITY_LIMITS): inf for an implicit scheme, or one under error control (it shortens its
+        steps to its accuracy)."""
+        fixed = not self.error_control or self.scheme in FIXED_STEP_SCHEMES
+        return EXPLICIT_STABILITY_LIMITS.get(self.scheme, np.inf) if fixed else np.inf
+
     def simulator_config(self) -> SimulatorConfig:
         return SimulatorConfig(integration_scheme=self.scheme, max_step_size=self.max_step_s,
                                use_error_control=self.error_control, accuracy=self.accuracy)
@@ -226,6 +244,7 @@ class GvLandingConfig(FlightConfig):
         for name in ("vehicle", "platform", "perception", "estimation", "federated", "hybrid", "wind", "faults",
                      "navigation", "rendezvous", "distractors", "bridge"):
             getattr(self, name).validate(name)
+        self._validate_steering_lag()
         if self.bridge.enabled:
             self._validate_bridge()
         if self.platform.carrier == "ground":
@@ -256,6 +275,19 @@ class GvLandingConfig(FlightConfig):
         require(stream == "none" or self.platform.pattern == "markers",
                 f"estimation.source {stream} measures the ArUco markers, and platform.pattern is "
                 f"{self.platform.pattern}")
+
+    def _validate_steering_lag(self) -> None:
+        """The vehicle's steering lag, theta' = (command - theta) / tau_s, linear in theta with its command held over
+        a step, is integrated stably only for steps h < stable_step_ratio tau_s; the steps end at every controller
+        period, the vehicles discrete or not, so h is max_step_s or that period where it is shorter."""
+        integration, tau = self.integration, self.vehicle.steering_time_constant_s
+        step = min(integration.max_step_s, self.period_s)
+        shortest = step / integration.stable_step_ratio
+        require(tau > shortest,
+                f"vehicle.steering_time_constant_s ({tau:g} s) must exceed {shortest:.3g} s: integration.scheme "
+                f"{integration.scheme}'s fixed {step:g} s steps (integration.max_step_s, at most the controller "
+                f"period) are unstable on a lag under step / {integration.stable_step_ratio:g}; lengthen the lag or "
+                f"shorten integration.max_step_s")
 
     def _validate_vehicle_at_rest(self) -> None:
         """platform.carrier ground: the pad lies on the ground where the vehicle starts, so the vehicle stays there."""

@@ -9,10 +9,17 @@ import numpy as np
 import pytest
 from pydrake.geometry import Meshcat
 from pydrake.math import RollPitchYaw, RotationMatrix
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
+from pydrake.systems.primitives import LinearSystem
 
 from diagrams.cli import main
 from diagrams.gv_landing import build_gv_landing
-from diagrams.gv_landing_config import GvLandingConfig
+from diagrams.gv_landing_config import (
+    EXPLICIT_STABILITY_LIMITS,
+    FIXED_STEP_SCHEMES,
+    INTEGRATION_SCHEMES,
+    GvLandingConfig,
+)
 from diagrams.gv_landing_run import fly, fly_diagram
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
@@ -93,6 +100,56 @@ def test_a_path_tighter_than_the_vehicle_turns_names_its_radius():
     with pytest.raises(ConfigError, match=r"vehicle\.path_radius_m"):
         load_scenario("gv-landing", overrides=["vehicle.path=circle", "vehicle.path_radius_m=5"])
     load_scenario("gv-landing", overrides=["vehicle.path_radius_m=5"])  # the straight path has no arcs
+
+
+@pytest.mark.parametrize("overrides, shortest", [
+    (["vehicle.steering_time_constant_s=0.001"], "0.00151"),  # RK5's fixed 5 ms steps: 5 ms / 3.3066
+    (["vehicle.steering_time_constant_s=0.001", "integration.discrete=false"], "0.00151"),  # the Simulator's steps
+    (["vehicle.steering_time_constant_s=0.002", "integration.scheme=explicit_euler"], "0.0025"),
+    # explicit Euler has no error estimate: its steps stay fixed
+    (["vehicle.steering_time_constant_s=0.002", "integration.scheme=explicit_euler", "integration.error_control=true"],
+     "0.0025"),
+    (["vehicle.steering_time_constant_s=0.002", "integration.max_step_s=0.02", "controller.rate_hz=50"], "0.00605"),
+])
+def test_a_steering_lag_too_short_for_the_fixed_steps_names_both_keys(overrides, shortest):
+    """A lag shorter than the fixed steps integrate stably had the vehicle's state go non-finite, and the run
+    blamed the UAV ("diverged")."""
+    with pytest.raises(ConfigError, match=rf"^vehicle\.steering_time_constant_s \(\S+ s\) must exceed {shortest} s: "
+                                          rf"integration\.scheme .*integration\.max_step_s"):
+        load_scenario("gv-landing", overrides=overrides)
+
+
+@pytest.mark.parametrize("overrides", [
+    ["vehicle.steering_time_constant_s=0.0016"],  # above RK5's 1.51 ms
+    ["vehicle.steering_time_constant_s=0.002", "integration.max_step_s=0.01"],  # the steps end at the 5 ms period
+    ["vehicle.steering_time_constant_s=0.001", "integration.error_control=true"],
+    ["vehicle.steering_time_constant_s=0.001", "integration.scheme=radau3"],  # A-stable
+])
+def test_a_steering_lag_the_steps_integrate_stably_is_accepted(overrides):
+    load_scenario("gv-landing", overrides=overrides)
+
+
+@pytest.mark.parametrize("scheme", INTEGRATION_SCHEMES)
+def test_the_stability_limits_are_drakes(scheme):
+    """y' = -y integrated with fixed steps h just under the scheme's limit decays, just over it grows; the schemes
+    with no error estimate keep fixed steps under error control, the others do not."""
+    def magnitude_after_steps(step: float, error_control: bool = False) -> tuple[float, bool]:
+        system = LinearSystem([[-1.0]], [[0.0]], [[1.0]], [[0.0]])
+        simulator = Simulator(system)
+        ApplySimulatorConfig(SimulatorConfig(integration_scheme=scheme, max_step_size=step,
+                                             use_error_control=error_control), simulator)
+        context = simulator.get_mutable_context()
+        context.SetContinuousState([1.0])
+        system.get_input_port().FixValue(context, [0.0])
+        simulator.AdvanceTo(3000 * step)
+        return abs(context.get_continuous_state_vector()[0]), simulator.get_integrator().get_fixed_step_mode()
+
+    limit = EXPLICIT_STABILITY_LIMITS.get(scheme)
+    if limit is None:  # implicit: stable at any step
+        assert magnitude_after_steps(10.0)[0] < 1e-3
+    else:
+        assert magnitude_after_steps(0.999 * limit)[0] < 1.0 < magnitude_after_steps(1.001 * limit)[0]
+    assert magnitude_after_steps(0.01, error_control=True)[1] == (scheme in FIXED_STEP_SCHEMES)
 
 
 def test_a_path_too_short_for_its_manoeuvre_names_the_flattened_field():
