@@ -96,6 +96,12 @@ def test_steering_lag_and_limit():
                                             r"the vehicle's minimum turning radius 66.8 m .*raise vehicle.max_st"),
     ("{path: turn-90, path_length_m: 30.0}", r"vehicle.path_length_m = 30.0 is too short"),
     ("{speed_schedule_times_s: [0, 1], speed_schedule_m_s: [1]}", "must have the same length"),
+    # 12 m/s at 20 Hz drives 0.6 m per follower update: a 5 cm window lost the path at once
+    ("{path: sine, speed: 12.0, follower: {search_window_m: 0.05}}",
+     r"^vehicle.follower.search_window_m \(0.05 m\) must exceed the distance driven per follower update, "
+     r"vehicle.speed 12 m/s / vehicle.follower.rate_hz 20 Hz, plus the path's 0.1 m sample spacing: 0.7 m$"),
+    ("{speed_schedule_times_s: [0, 5], speed_schedule_m_s: [0, 10], follower: {search_window_m: 0.45, rate_hz: 25}}",
+     r"vehicle.speed_schedule_m_s's top 10 m/s / vehicle.follower.rate_hz 25 Hz, .*: 0.5 m$"),
 ])
 def test_bad_config_is_rejected_by_name(yaml, message):
     config = yaml_load_typed(schema=GroundVehicleConfig, data=yaml)
@@ -176,6 +182,16 @@ def test_follower_tracks_seed_002_sine_path(speed):
     assert errors.max() < 0.1
     assert_progress(progress, 600.0, path, config, speed)
     assert np.degrees(np.abs(states[3]).max()) < config.max_steering_deg
+
+
+def test_the_narrowest_search_window_accepted_keeps_up_with_the_vehicle():
+    """12 m/s on Eq. (13) at 20 Hz: 0.6 m per update plus the 0.1 m spacing; a 0.71 m window still follows."""
+    config = GroundVehicleConfig(path="sine", speed=12.0, path_length_m=300.0)
+    config.follower.search_window_m = 0.71
+    states, progress = follow(config, speed=12.0, distance=240.0, time_period=0.005)
+    path = make_path(config.path_config())
+    assert cross_track_errors(path, states).max() < 0.1
+    assert_progress(progress, 240.0, path, config, speed=12.0)
 
 
 def test_discretised_vehicle_drives_as_the_continuous_one():

@@ -137,7 +137,9 @@ class GroundVehicleConfig:
         require(all(b > a for a, b in zip(times, times[1:])), f"{prefix}.speed_schedule_times_s must increase")
         require(all(v >= 0 for v in speeds), f"{prefix}.speed_schedule_m_s must not be negative")
         self.follower.validate(f"{prefix}.follower")
-        curvature = make_path(self.path_config(), f"{prefix}.path").max_curvature
+        path = make_path(self.path_config(), f"{prefix}.path")
+        self._validate_search_window(path, prefix)
+        curvature = path.max_curvature
         radius = self.min_turning_radius_m()
         if curvature * radius > 1.0:  # the path's tightest radius, 1 / curvature, is under the vehicle's
             arcs = "" if self.path == "sine" else f"{prefix}.path_radius_m or "  # Eq. (13) has a fixed shape
@@ -146,6 +148,19 @@ class GroundVehicleConfig:
                               f"({prefix}.wheelbase_m {self.wheelbase_m:g} / tan({prefix}.max_steering_deg "
                               f"{self.max_steering_deg:g})): raise {arcs}{prefix}.max_steering_deg, or shorten "
                               f"{prefix}.wheelbase_m")
+
+    def _validate_search_window(self, path: Path, prefix: str) -> None:
+        """The follower's nearest-point search (Path.nearest) looks within search_window_m [m] of its last point: it
+        keeps up only if the window exceeds the distance driven per update, the top speed / rate_hz, plus the
+        path's sample spacing (the last point's rounding to a sample)."""
+        follower = self.follower
+        speed, named = ((max(self.speed_schedule_m_s), f"{prefix}.speed_schedule_m_s's top") if self.speed_schedule_m_s
+                        else (self.speed, f"{prefix}.speed"))
+        needed = speed / follower.rate_hz + path.spacing
+        require(follower.search_window_m > needed,
+                f"{prefix}.follower.search_window_m ({follower.search_window_m:g} m) must exceed the distance driven "
+                f"per follower update, {named} {speed:g} m/s / {prefix}.follower.rate_hz {follower.rate_hz:g} Hz, "
+                f"plus the path's {path.spacing:.3g} m sample spacing: {needed:.3g} m")
 
     @property
     def max_steering_rad(self) -> float:
