@@ -95,6 +95,9 @@ def test_steering_lag_and_limit():
     ("{path: sine, max_steering_deg: 3.0}", r"vehicle.path 'sine' turns on a 41.4 m radius at its tightest, under "
                                             r"the vehicle's minimum turning radius 66.8 m .*raise vehicle.max_st"),
     ("{path: turn-90, path_length_m: 30.0}", r"vehicle.path_length_m = 30.0 is too short"),
+    # Eq. (13) cut at 5 cm kept a single sample: ZeroDivisionError
+    ("{path: sine, path_length_m: 0.05}", r"^vehicle.path_length_m must be at least two sample spacings, 0.2 m, "
+                                          r"got 0.05$"),
     ("{speed_schedule_times_s: [0, 1], speed_schedule_m_s: [1]}", "must have the same length"),
     # 12 m/s at 20 Hz drives 0.6 m per follower update: a 5 cm window lost the path at once
     ("{path: sine, speed: 12.0, follower: {search_window_m: 0.05}}",
@@ -115,6 +118,13 @@ def test_a_path_within_the_steering_limit_is_accepted(yaml):
     """Each path's own tightest radius counts: a straight has none, Eq. (13)'s is 41.4 m (4.8 deg), a 9.7 m
     circle's is above the 9.6 m the default 3.5 m wheelbase turns at 20 deg."""
     GroundVehicle(yaml_load_typed(schema=GroundVehicleConfig, data=yaml))
+
+
+@pytest.mark.parametrize("name", ["sine", "straight"])
+def test_an_open_path_as_short_as_accepted_is_a_path(name):
+    path = make_path(PathConfig(name=name, length_m=0.2))
+    assert len(path.s) >= 2 and 0.0 < path.spacing <= 0.1
+    assert path.nearest(path.position(path.length)) == pytest.approx(path.length)
 
 
 def test_max_curvature_is_the_tightest_bend():

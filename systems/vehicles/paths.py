@@ -30,8 +30,12 @@ class PathConfig:
         """Names the fields as a scenario's flat keys: `{prefix}` for the name, `{prefix}_length_m`..."""
         require(self.name in PATH_NAMES,
                 f"{prefix} '{self.name}' is not a path (known: {', '.join(PATH_NAMES)})")
-        for name in ("length_m", "radius_m", "lead_m", "side_m"):
+        for name in ("radius_m", "lead_m", "side_m"):
             require_positive(getattr(self, name), f"{prefix}_{name}")
+        # Under two sample spacings the polyline (Path) can be a single sample, which has no spacing.
+        require(self.length_m >= 2 * SAMPLE_SPACING_M,
+                f"{prefix}_length_m must be at least two sample spacings, {2 * SAMPLE_SPACING_M:g} m, "
+                f"got {self.length_m}")
         if self.name in MANOEUVRE_TURNS:
             used = self.lead_m + sum(abs(angle) for angle in MANOEUVRE_TURNS[self.name]) * self.radius_m
             require(used < self.length_m,
