@@ -220,6 +220,9 @@ def test_random_walk_is_continuous():
     ({"motion": "sinusoid", "roll_amplitude_deg": [5.0]}, "platform.roll_amplitude_deg"),
     ({"motion": "sinusoid", "y_amplitude_m": [0.1], "y_frequency_hz": [-1.0]}, "platform.y_frequency_hz"),
     ({"tag_id": 587}, "platform.tag_id"),
+    # 1e-8 s knots: the stroke check sampled 3e9 times over 30 s (MemoryError)
+    ({"motion": "random_walk", "random_walk_knot_interval_s": 1e-8},
+     "platform.random_walk_knot_interval_s must be at least 0.001 s"),
 ])
 def test_invalid_configuration_raises_config_error_naming_the_field(changes, field):
     config = StewartPlatformConfig(**changes)
@@ -232,6 +235,15 @@ def test_invalid_configuration_raises_config_error_naming_the_field(changes, fie
 def test_tag_that_just_fits_is_accepted():
     StewartPlatformConfig(tag_size_m=0.8, deck_size_m=1.0).validate()  # 0.8 m with border is exactly 1.0 m
     StewartPlatformConfig(motion="random_walk").validate()
+
+
+def test_the_shortest_random_walk_knot_interval_accepted_is_checked_against_the_stroke():
+    config = StewartPlatformConfig(motion="random_walk", z_amplitude_m=[0.02], random_walk_knot_interval_s=1e-3)
+    config.validate()
+    assert stroke_violation(config, 0.5) is None
+    # half a metre of heave, decorrelated in 10 ms: within 0.5 s it goes further than the legs' 0.35 m stroke
+    config.z_amplitude_m, config.random_walk_time_constant_s = [0.5], 0.01
+    assert stroke_violation(config, 0.5) is not None
 
 
 def moving_platform(**motion):

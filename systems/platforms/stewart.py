@@ -82,9 +82,13 @@ class StewartPlatformConfig:
 
     def validate(self, prefix: str = "platform") -> None:
         for name in ("base_radius_m", "platform_radius_m", "base_joint_height_m", "nominal_height_m", "leg_min_m",
-                     "deck_size_m", "deck_thickness_m", "tag_size_m", "random_walk_time_constant_s",
-                     "random_walk_knot_interval_s"):
+                     "deck_size_m", "deck_thickness_m", "tag_size_m", "random_walk_time_constant_s"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
+        # The deck's rates are central differences over RATE_STEP_S: knots closer than that are not resolved
+        # (and the stroke check, sampling a tenth of an interval, would take billions of samples).
+        require(self.random_walk_knot_interval_s >= RATE_STEP_S,
+                f"{prefix}.random_walk_knot_interval_s must be at least {RATE_STEP_S:g} s (the step of the deck's "
+                f"rates), got {self.random_walk_knot_interval_s}")
         require(len(self.base_joint_angles_deg) == 6, f"{prefix}.base_joint_angles_deg needs 6 angles")
         require(len(self.platform_joint_angles_deg) == 6, f"{prefix}.platform_joint_angles_deg needs 6 angles")
         require(self.leg_max_m > self.leg_min_m, f"{prefix}.leg_max_m must exceed {prefix}.leg_min_m")
