@@ -309,6 +309,9 @@ def test_no_direct_feedthrough_and_no_algebraic_loop():
     ({"gusts": [GustConfig(), GustConfig(duration_s=0.0)]}, "wind.gusts[1].duration_s must be positive, got 0.0"),
     ({"gusts": [GustConfig(start_s=-1.0)]}, "wind.gusts[0].start_s must not be negative, got -1.0"),
     ({"gusts": [GustConfig(magnitude_m_s=-2.0)]}, "wind.gusts[0].magnitude_m_s must not be negative, got -2.0"),
+    # 180 deg up from the horizontal blew the gust against its direction_deg
+    ({"gusts": [GustConfig(), GustConfig(elevation_deg=180.0)]}, "wind.gusts[1].elevation_deg must be in [-90, 90]"),
+    ({"gusts": [GustConfig(elevation_deg=-90.5)]}, "wind.gusts[0].elevation_deg must be in [-90, 90]"),
 ])
 def test_validation_errors_name_the_field(changes, message):
     config = WindConfig(**changes)

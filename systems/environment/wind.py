@@ -62,6 +62,9 @@ class GustConfig:
         require_non_negative(self.start_s, f"{prefix}.start_s")
         require_positive(self.duration_s, f"{prefix}.duration_s")
         require_non_negative(self.magnitude_m_s, f"{prefix}.magnitude_m_s")
+        # Past +-90 deg the gust would move against direction_deg: that is direction_deg + 180.
+        require(-90 <= self.elevation_deg <= 90,
+                f"{prefix}.elevation_deg must be in [-90, 90] (turn direction_deg instead), got {self.elevation_deg}")
 
 
 @dataclass
