@@ -245,6 +245,9 @@ class GvLandingConfig(FlightConfig):
                      "navigation", "rendezvous", "distractors", "bridge"):
             getattr(self, name).validate(name)
         self._validate_steering_lag()
+        if self.distractors.count:
+            self.distractors.check_lanes(make_path(self.vehicle.path_config(), "vehicle.path"),
+                                         f"vehicle.path '{self.vehicle.path}'")
         if self.bridge.enabled:
             self._validate_bridge()
         if self.platform.carrier == "ground":

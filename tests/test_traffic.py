@@ -94,3 +94,23 @@ def test_under_a_speed_schedule_they_keep_their_factor_of_the_ugvs_speed():
 def test_bad_setting_names_the_field(setting, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         load_scenario("ugv-hybrid", overrides=[setting])
+
+
+def test_a_lane_wider_than_the_paths_tightest_radius_is_refused():
+    """On the 15 m circle a 20-30 m lane put distractors past its centre, driving backwards."""
+    lanes = ["distractors.count=4", "distractors.lane_min_m=20", "distractors.lane_max_m=30"]
+    with pytest.raises(ConfigError, match=r"^distractors\.lane_max_m \(30 m\) must be under the tightest radius of "
+                                          r"vehicle\.path 'circle', 15\.0 m: "):
+        load_scenario("ugv-hybrid", overrides=["vehicle.path=circle", *lanes])
+    load_scenario("ugv-hybrid", overrides=["vehicle.path=straight", *lanes])  # no curve
+    load_scenario("ugv-hybrid", overrides=["vehicle.path=sine", *lanes])  # Eq. (13)'s tightest radius: 41.4 m
+
+
+def test_lanes_under_the_tightest_radius_keep_the_distractors_driving_forward():
+    _, config = load_scenario("ugv-hybrid", overrides=["vehicle.path=circle", "distractors.count=8",
+                                                       "distractors.lane_min_m=10", "distractors.lane_max_m=14.5"])
+    path = make_path(config.vehicle.path_config())
+    for d in draw_distractors(config.distractors, config.seed):
+        a, b = (distractor_pose(path, config.vehicle, d, t) for t in (10.0, 10.1))
+        velocity = (b.translation() - a.translation())[:2]
+        assert a.rotation().col(0)[:2] @ velocity > 0.99 * np.linalg.norm(velocity)  # facing the way it drives

@@ -73,6 +73,17 @@ class DistractorsConfig:
                 and all(0 < a <= b for a, b in zip(self.size_low_m, self.size_high_m)),
                 f"{prefix}.size_low_m/size_high_m need 3 sizes each, 0 < low <= high")
 
+    def check_lanes(self, path: Path, path_named: str, prefix: str = "distractors") -> None:
+        """ConfigError unless every lane [m] is under the tightest radius of `path` (named `path_named`), 1 / its
+        largest curvature: a lane wider than a curve's radius puts a distractor past the curve's centre, where
+        it drives backwards."""
+        if not self.count or path.max_curvature == 0.0:
+            return
+        radius = 1.0 / path.max_curvature
+        require(self.lane_max_m < radius,
+                f"{prefix}.lane_max_m ({self.lane_max_m:g} m) must be under the tightest radius of {path_named}, "
+                f"{radius:.1f} m: a wider lane puts a distractor past the curve's centre, driving backwards")
+
 
 @dataclass(frozen=True)
 class Distractor:
