@@ -21,10 +21,9 @@ import numpy as np
 from pydrake.common.value import Value
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import LeafSystem
-from scipy.linalg import cholesky, expm, solve_continuous_lyapunov
 
 from systems.config import require, require_non_negative, require_positive
-from systems.noise import sample_index, sample_rng
+from systems.noise import sample_index, sample_rng, stationary_factor, van_loan_discretisation
 from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE, V_WB, pose_from_state
 
 SOURCES = ("truth", "gnss_ins")
@@ -64,17 +63,11 @@ def gauss_markov_step(error: np.ndarray, std: np.ndarray, time_constant_s: float
 def second_order_model(time_constant_s: float, period_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The unit-variance second-order Gauss-Markov process [e, e'] (module docstring) over one
     period: (Phi (2x2), G (2x2) with x_next = Phi x + G n, n ~ N(0, I), and the stationary covariance's
-    Cholesky factor), exact (Van Loan's method)."""
+    Cholesky factor), exact (systems.noise.van_loan_discretisation)."""
     tau = time_constant_s
     A = np.array([[0.0, 1.0], [-1.0 / tau**2, -2.0 / tau]])
     B = np.array([[0.0], [2.0 / math.sqrt(tau**3)]])  # makes var(e) = 1: q = 4 / tau^3
-    van_loan = np.zeros((4, 4))
-    van_loan[:2, :2], van_loan[:2, 2:], van_loan[2:, 2:] = -A * period_s, B @ B.T * period_s, A.T * period_s
-    exp = expm(van_loan)
-    phi = exp[2:, 2:].T
-    q = phi @ exp[:2, 2:]
-    stationary = solve_continuous_lyapunov(A, -B @ B.T)
-    return phi, cholesky((q + q.T) / 2, lower=True), cholesky(stationary, lower=True)
+    return (*van_loan_discretisation(A * period_s, B @ B.T * period_s), stationary_factor(A, B @ B.T))
 
 
 class SecondOrderGaussMarkov:
