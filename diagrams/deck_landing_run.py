@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import matplotlib.pyplot as plt
 import numpy as np
+from pydrake.systems.framework import Diagram
 
 from diagrams.deck_landing import DeckLandingHandles, build_deck_landing
 from diagrams.deck_landing_config import ESTIMATORS, DeckLandingConfig
@@ -120,9 +121,15 @@ def flight_metrics(flight: DeckFlight, config: DeckLandingConfig, name: str = "d
     return out
 
 
+def build(config: DeckLandingConfig, duration_s: float) -> tuple[Diagram, DeckLandingHandles]:
+    """The diagram `fly` flies, without Meshcat or a video, and its handles; the same for any `duration_s` [s]
+    (which gv_landing_run.build takes too, so that a landing campaign builds either scenario alike)."""
+    return build_deck_landing(config)
+
+
 def fly(config: DeckLandingConfig, duration_s: float, **options) -> tuple[dict, DeckFlight]:
     """Builds, simulates and measures one flight without Meshcat or files: (metrics, flight)."""
-    diagram, handles = build_deck_landing(config)
+    diagram, handles = build(config, duration_s)
     flight = fly_diagram(diagram, handles, duration_s, **options)
     return flight_metrics(flight, config), flight
 

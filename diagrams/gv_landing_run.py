@@ -15,6 +15,7 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from pydrake.systems.framework import Diagram
 
 from diagrams.gv_landing import GvLandingHandles, build_gv_landing
 from diagrams.gv_landing_config import GvLandingConfig
@@ -154,9 +155,14 @@ def flight_metrics(flight: Flight, config: GvLandingConfig, name: str = "gv-land
     return out
 
 
+def build(config: GvLandingConfig, duration_s: float) -> tuple[Diagram, GvLandingHandles]:
+    """The diagram `fly` flies for `duration_s` [s], without Meshcat or a video, and its handles."""
+    return build_gv_landing(config, duration_s=duration_s)
+
+
 def fly(config: GvLandingConfig, duration_s: float, **options) -> tuple[dict, Flight]:
     """Builds, simulates and measures one flight without Meshcat or files: (metrics, flight)."""
-    diagram, handles = build_gv_landing(config, duration_s=duration_s)
+    diagram, handles = build(config, duration_s)
     flight = fly_diagram(diagram, handles, duration_s, **options)
     return flight_metrics(flight, config), flight
 

@@ -29,14 +29,25 @@ def is_landing_scenario(scenario) -> bool:
     return scenario.diagram in LANDING_DIAGRAMS
 
 
-def run_task(task: RunTask) -> dict:
-    """One landing of the campaign, by the scenario's own diagram."""
+def _run_module(diagram: str):
+    """The run module of a landing diagram (LANDING_DIAGRAMS): its `build` and `fly`."""
     import importlib
 
     from diagrams.runner import DIAGRAM_MODULES
 
+    return importlib.import_module(DIAGRAM_MODULES[diagram])
+
+
+def build_task(task: RunTask) -> None:
+    """Builds the diagram `run_task` flies for `task`, without flying it (CampaignDefinition.build)."""
     _, scenario = task.load_scenario()
-    metrics, _ = importlib.import_module(DIAGRAM_MODULES[scenario.diagram]).fly(scenario, scenario.duration_s)
+    _run_module(scenario.diagram).build(scenario, scenario.duration_s)
+
+
+def run_task(task: RunTask) -> dict:
+    """One landing of the campaign, by the scenario's own diagram."""
+    _, scenario = task.load_scenario()
+    metrics, _ = _run_module(scenario.diagram).fly(scenario, scenario.duration_s)
     keep = ("sim_time_s", "wall_time_s", "realtime_factor", "landing", "perception", "measurements", "estimators")
     return {"seed": task.seed, **{key: metrics[key] for key in keep if key in metrics}}
 
@@ -98,5 +109,5 @@ def landing_case_summary(records: list, failed: int = 0) -> dict:
 
 CAMPAIGN = CampaignDefinition(
     run=run_task, cases=SOURCES, runs=10, case_name="source", case_key="perception.source", known_cases=(),
-    aggregate=aggregate, paired=True,
+    aggregate=aggregate, paired=True, build=build_task,
     description="closed-loop landings, one case per perception source, the same seeds for every source")

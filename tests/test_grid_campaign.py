@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import pytest
 
 from diagrams.cli import main
-from diagrams.landing_campaign import landing_case_summary
-from diagrams.montecarlo import grid, run_campaign
+from diagrams.landing_campaign import CAMPAIGN, landing_case_summary
+from diagrams.montecarlo import campaign_settings, grid, run_campaign
 from diagrams.montecarlo.grid import grid_cases, grid_settings, parse_case_option
 from systems.config import ConfigError
 
@@ -59,6 +59,21 @@ def test_a_setting_only_some_seeds_refuse_is_an_error_before_anything_runs(capfd
                  "--set", overrides[0], "--set", overrides[1], "--out", str(tmp_path / "x")]) == 2
     err = capfd.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "run 4" in err and not (tmp_path / "x").exists()
+
+
+def test_a_setting_only_the_build_refuses_is_an_error_before_anything_is_written(capfd, tmp_path):
+    # CRHF reads its pad calibration when the deck's diagram is built, not when the scenario loads.
+    missing = tmp_path / "missing.npz"
+    assert main(["montecarlo", "deck-landing", "--case", "perception.source=truth,atda", "--runs", "2", "--set",
+                 f"crhf.calibration_file={missing}", "--set", "duration_s=1", "--workers", "0",
+                 "--out", str(tmp_path / "x"), "--quiet"]) == 2
+    err = capfd.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "case perception.source=truth, run 0" in err, err
+    assert f"pad calibration file {missing} does not exist" in err and not (tmp_path / "x").exists()
+    # A source's campaign builds each source's diagram too: the hybrid source loads its detector's model there.
+    with pytest.raises(ConfigError, match=r"source hybrid, run 0 .*missing\.onnx does not exist"):
+        campaign_settings(CAMPAIGN, "marker-landing", ["truth", "hybrid"], 1, 0,
+                          [f"hybrid.model_path={tmp_path / 'missing.onnx'}"])
 
 
 def test_a_grid_campaign_lands_every_case_and_summarises_each(tmp_path):

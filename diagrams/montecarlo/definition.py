@@ -5,6 +5,7 @@ checked settings of a campaign (`campaign_settings`)."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 import math
 import re
@@ -59,6 +60,9 @@ class CampaignDefinition:
     run_group: Callable[[list[RunTask]], list[dict | RunOutput]] | None = None  # up to `group_size` runs of
     #   one case at once, an output per run, each the one `run` gives for it (picklable, like `run`)
     group_size: int = 1  # runs per worker task when `run_group` is given; each still gets its own record
+    build: Callable[[RunTask], object] | None = None  # with a `case_key`: builds a run's diagram as `run` does,
+    #   without flying it; `campaign_settings` builds each case's first run, so that what only building refuses
+    #   (a pad calibration flown with another camera, say) fails before anything is written
 
 
 # Scenario name -> its campaign: a CampaignDefinition or "module:attribute" (imported when used, so
@@ -82,7 +86,8 @@ def campaign_definition(name: str) -> CampaignDefinition:
 def campaign_settings(definition: CampaignDefinition, scenario: str, cases: Sequence[str] | None = None,
                       runs: int | None = None, base_seed: int = 0, overrides: Sequence[str] = ()) -> CampaignSettings:
     """Checked settings: cases parsed and known, at least one run, a non-negative seed, and (with a
-    `case_key`) every run's scenario loading with its case and seed."""
+    `case_key`) every run's scenario loading with its case and seed, and each case's first run building
+    (`CampaignDefinition.build`, when given)."""
     name = definition.case_name
     runs = definition.runs if runs is None else runs
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
@@ -119,9 +124,13 @@ def campaign_settings(definition: CampaignDefinition, scenario: str, cases: Sequ
             raise ConfigError(f"--set {key}: the campaign sets {key} from its {name}s")
     settings = CampaignSettings(scenario, tuple(parsed), runs, base_seed, tuple(overrides), definition.paired)
     if definition.case_key is not None:  # bad settings fail here, before anything is written
-        for task in settings.tasks(definition.case_key):  # every run: a check may depend on the seed
+        tasks = settings.tasks(definition.case_key)
+        checks = [(task, task.load_scenario) for task in tasks]  # every run: a check may depend on the seed
+        if definition.build is not None:  # one build per case: a build takes up to a second or two
+            checks += [(task, functools.partial(definition.build, task)) for task in tasks if task.index == 0]
+        for task, check in checks:
             try:
-                task.load_scenario()
+                check()
             except ConfigError as e:
                 raise ConfigError(f"{name} {task.case}, run {task.index} (seed {task.seed}): {e}") from None
     return settings

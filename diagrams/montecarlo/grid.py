@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import yaml
 
-from diagrams.landing_campaign import landing_case_summary, run_task
+from diagrams.landing_campaign import build_task, landing_case_summary, run_task
 from diagrams.landing_metrics import TARGET_TOUCHDOWN_ERROR_M, TARGET_TOUCHDOWN_REL_SPEED_MPS
 from diagrams.montecarlo.definition import CampaignDefinition, campaign_settings
 from diagrams.montecarlo.records import RunRecord
@@ -120,7 +120,8 @@ def grid_campaign(scenario: str) -> CampaignDefinition:
     """The landing campaign over `--case` grids of a landing scenario."""
     return CampaignDefinition(run=run_task, cases=(), runs=10, case_name="case", case_key=GRID, known_cases=(),
                               aggregate=lambda done: {}, case_summary=landing_case_summary, plot=plot_grid,
-                              paired=True, description=f"landings of {scenario} over a grid of field values")
+                              paired=True, build=build_task,
+                              description=f"landings of {scenario} over a grid of field values")
 
 
 def grid_settings(scenario: str, options: list[str], runs: int | None, base_seed: int,
