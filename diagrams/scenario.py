@@ -88,8 +88,12 @@ _SCALAR_KINDS = {float: ((int, float), "a number"), int: ((int,), "a whole numbe
 
 
 def _check_scalar(value, kind, dotted: str) -> None:
-    """A ConfigError naming the field when a YAML scalar has the wrong type for it."""
-    accepted, description = _SCALAR_KINDS.get(kind, ((object,), ""))
+    """A ConfigError naming the field when a YAML scalar has the wrong type for it, or when the field's type is
+    none a scenario sets (not in _SCALAR_KINDS: Drake's loader would refuse it with an assertion)."""
+    if kind not in _SCALAR_KINDS:
+        raise ConfigError(f"{dotted} cannot be set: its type, {getattr(kind, '__name__', kind)}, is none a scenario "
+                          "sets (a number, whole number, text, true or false, a list of them, or a group)")
+    accepted, description = _SCALAR_KINDS[kind]
     if not isinstance(value, accepted) or (kind is not bool and isinstance(value, bool)):
         raise ConfigError(f"{dotted} must be {description}, got {value!r}")
     # No setting means NaN (every comparison with it is false) or infinity (every quantity here is a
@@ -134,9 +138,10 @@ def normalise(raw: dict, schema, path: str = "") -> dict:
             item_kind = typing.get_args(kind)[0]
             if dataclasses.is_dataclass(item_kind):  # a list of groups: each checked as its own
                 value = [normalise(item, item_kind, f"{dotted}[{i}]") for i, item in enumerate(value)]
-            for item in value:
-                _check_item(item, item_kind, dotted)
-        elif kind in _SCALAR_KINDS:
+            else:
+                for item in value:
+                    _check_item(item, item_kind, dotted)
+        else:
             _check_scalar(value, kind, dotted)
         out[key] = value
     return out

@@ -9,9 +9,10 @@ import pytest
 import yaml
 
 from diagrams.gv_landing_config import GvLandingConfig
-from diagrams.runner import load_scenario
+from diagrams.runner import DIAGRAM_MODULES, _diagrams, load_scenario
 from diagrams.scenario import (
     SCENARIO_DIR,
+    load_typed,
     normalise,
     parse_yaml,
     read_scenario,
@@ -235,6 +236,32 @@ def test_missing_file_is_a_config_error(tmp_path):
 def test_an_empty_file_is_the_defaults(tmp_path):
     _, scenario = load_scenario(config_path=write_yaml(tmp_path, ""))
     assert scenario == Scenario()
+
+
+@pytest.mark.parametrize("diagram", sorted(DIAGRAM_MODULES))
+def test_every_field_of_every_scenario_can_be_set_to_its_default(diagram):
+    """Each field given its default value in a file, as a user copying it would: a type the loader does not check
+    (hybrid.classical.strip_distance_range was a bare tuple) would pass to Drake's loader and fail there."""
+    schema = _diagrams()[diagram].Scenario
+    raw = parse_yaml(yaml.safe_dump(dataclasses.asdict(schema())))
+    assert load_typed(normalise(raw, schema), schema, diagram) == schema()
+
+
+def test_a_field_of_a_type_no_scenario_sets_is_named():
+    @dataclasses.dataclass
+    class Odd:
+        pair: tuple = (0.0, 1.0)
+
+    with pytest.raises(ConfigError, match=r"^pair cannot be set: its type, tuple, is none a scenario sets"):
+        normalise({"pair": [0.0, 2.0]}, Odd)
+
+
+def test_the_hybrid_detectors_strip_distance_range_can_be_set():
+    key = "hybrid.classical.strip_distance_range"
+    assert load_scenario("ugv-hybrid", overrides=[f"{key}=[0.5, 2.0]"])[1].hybrid.classical.strip_distance_range == [
+        0.5, 2.0]
+    with pytest.raises(ConfigError, match=re.escape(f"{key} must be [low, high]")):
+        load_scenario("ugv-hybrid", overrides=[f"{key}=[1, 2, 3]"])
 
 
 def test_normalise_wraps_scalars_for_list_fields_only():

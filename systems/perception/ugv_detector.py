@@ -23,7 +23,7 @@ either as a LeafSystem.
 """
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import cv2
@@ -106,7 +106,8 @@ class ColourPadConfig:
     min_strip_elongation: float = 1.6  # long over short side of each part's minimum-area rectangle
     max_length_ratio: float = 2.5
     max_strip_angle_deg: float = 27.0  # between the two strips' long axes
-    strip_distance_range: tuple = (0.3, 3.0)  # the centres' distance over the strips' mean length
+    strip_distance_range: list[float] = field(default_factory=lambda: [0.3, 3.0])  # [low, high]: the centres'
+    #   distance over the strips' mean length
     max_along_cosine: float = 0.85  # the centres' offset must run across the strips, not along them
     min_shaped_part_px: float = 8.0  # shorter parts have no reliable shape: only their sizes and distance count
     min_box_px: int = 5
