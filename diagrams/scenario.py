@@ -13,6 +13,7 @@ import difflib
 import math
 import re
 import typing
+from collections.abc import Hashable
 from pathlib import Path
 
 import yaml
@@ -26,7 +27,25 @@ SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 class _Loader(yaml.SafeLoader):
     """PyYAML's safe loader with YAML 1.2's (core schema's) numbers in place of YAML 1.1's, which PyYAML
     follows: `1e9` and `1E-3` are floats (1.1 reads a float without a dot as text), `045` is 45 (1.1:
-    octal, 37), and `1:30` (1.1: sexagesimal, 90), `0b11` and `1_000` are text."""
+    octal, 37), and `1:30` (1.1: sexagesimal, 90), `0b11` and `1_000` are text. A key given twice in one
+    mapping is an error, as YAML says (PyYAML keeps the last)."""
+
+    def construct_mapping(self, node, deep=False) -> dict:
+        """The mapping; a ConstructorError naming a key it repeats and the lines of both."""
+        lines = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # `<<: *base`: keys given here override the merged ones
+                continue
+            key = self.construct_object(key_node, deep=deep)
+            if not isinstance(key, Hashable):  # PyYAML's construct_mapping refuses it
+                continue
+            line = key_node.start_mark.line + 1
+            if key in lines:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} is given twice in one mapping (lines {lines[key]} and {line})",
+                    key_node.start_mark)
+            lines[key] = line
+        return super().construct_mapping(node, deep)
 
     def construct_yaml_int(self, node) -> int:
         """A YAML 1.2 core integer: decimal (leading zeros included), 0o octal or 0x hexadecimal."""

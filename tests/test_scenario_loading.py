@@ -222,10 +222,17 @@ def test_unknown_scenario_lists_the_known_ones():
     ("- 1\n- 2\n", "mapping"),
     ("diagram: no_such_diagram\n", "no_such_diagram"),
     ("diagram: [1]\n", r"unknown diagram \[1\]"),
+    ("camera:\n  fx: 400.0\nduration_s: 1.0\ncamera:\n  pixel_noise_std: 0.0\n",
+     r"key 'camera' is given twice in one mapping \(lines 1 and 4\)"),  # PyYAML kept the second: fx lost
+    ("platform:\n  motion: static\n  motion: sinusoid\n", r"key 'motion' is given twice .* \(lines 2 and 3\)"),
 ])
 def test_bad_files_are_config_errors(tmp_path, text, fragment):
     with pytest.raises(ConfigError, match=fragment):
         load_scenario(config_path=write_yaml(tmp_path, text))
+
+
+def test_a_merge_key_is_no_repeated_key():
+    assert parse_yaml("a: &x {b: 1, c: 2}\nd:\n  <<: *x\n  b: 3\n") == {"a": {"b": 1, "c": 2}, "d": {"b": 3, "c": 2}}
 
 
 def test_missing_file_is_a_config_error(tmp_path):
