@@ -217,8 +217,9 @@ def read_scenario(path: Path, _from: tuple = ()) -> dict:
     return merged(read_scenario(base_path, (*_from, path.resolve())), raw)
 
 
-def read_yaml(path: Path) -> dict:
-    """A scenario file's YAML data (UTF-8 text); ConfigError for one that cannot be read or parsed."""
+def read_yaml(path: Path):
+    """A scenario file's YAML data (UTF-8 text), {} for an empty file; ConfigError for one that cannot be read
+    or parsed."""
     try:
         raw = parse_yaml(path.read_text(encoding="utf-8"))
     except OSError as e:
@@ -227,4 +228,4 @@ def read_yaml(path: Path) -> dict:
         raise ConfigError(f"{path} is not UTF-8 text (byte {e.start}: {e.object[e.start:e.start + 1]!r})") from None
     except yaml.YAMLError as e:
         raise ConfigError(f"{path} is not valid YAML: {str(e).splitlines()[0]}") from None
-    return raw or {}
+    return {} if raw is None else raw

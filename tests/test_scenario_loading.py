@@ -220,6 +220,7 @@ def test_unknown_scenario_lists_the_known_ones():
 @pytest.mark.parametrize("text, fragment", [
     ("platform: [1, 2\n", "not valid YAML"),
     ("- 1\n- 2\n", "mapping"),
+    ("[]\n", "mapping"), ("0\n", "mapping"), ("false\n", "mapping"), ("''\n", "mapping"),  # not an empty file
     ("diagram: no_such_diagram\n", "no_such_diagram"),
     ("diagram: [1]\n", r"unknown diagram \[1\]"),
     ("camera:\n  fx: 400.0\nduration_s: 1.0\ncamera:\n  pixel_noise_std: 0.0\n",
