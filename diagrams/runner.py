@@ -1,7 +1,6 @@
 """Running a scenario: load it, build its diagram, simulate, and write what DESIGN.md says a run
 leaves behind (metrics.json, log.npz, plots, and on request a Meshcat recording and a video)."""
 
-import shutil
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -125,7 +124,7 @@ def run(name: str, scenario, out_dir: str | Path, options: RunOptions) -> dict:
     none) are named in one line on stderr when it has finished; nothing is removed."""
     out_dir = Path(out_dir)
     check_writable(out_dir)
-    created = not out_dir.exists()
+    created = [p for p in (out_dir, *out_dir.parents) if not p.exists()]  # the folders mkdir makes, deepest first
     out_dir.mkdir(parents=True, exist_ok=True)
     before = _files(out_dir)
     try:
@@ -139,6 +138,9 @@ def run(name: str, scenario, out_dir: str | Path, options: RunOptions) -> dict:
                   f"{', '.join(kept)}", file=sys.stderr)
         return metrics
     except BaseException:
-        if created and not any(out_dir.iterdir()):
-            shutil.rmtree(out_dir, ignore_errors=True)
+        for folder in created:  # each left empty, deepest first: one holding a file stays, with those above it
+            try:
+                folder.rmdir()
+            except OSError:
+                break
         raise

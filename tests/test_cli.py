@@ -112,7 +112,7 @@ def bad_config(tmp_path):
         "missing-detector-model", "corrupt-detector-model", "meshcat-port-beyond-65535", "meshcat-port-below-1024",
         "meshcat-port-negative"])
 def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path, bad_config, args, named):
-    out = tmp_path / "out"
+    out = tmp_path / "new" / "out"  # two folders to make: a build's error removes both
     corrupt = tmp_path / "corrupt.onnx"
     corrupt.write_bytes(b"\x08\x07not a network")
     latin1 = tmp_path / "latin1.yaml"
@@ -124,7 +124,7 @@ def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path,
     assert stderr.count("\n") == 1 and stderr.startswith("landing-sim: error: "), stderr
     assert named in stderr
     assert "Traceback" not in stderr and stdout == ""
-    assert not out.exists()
+    assert not (tmp_path / "new").exists()
 
 
 def test_a_meshcat_port_in_use_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path):
