@@ -167,7 +167,8 @@ def normalise(raw: dict, schema, path: str = "") -> dict:
 
 
 def set_override(raw: dict, assignment: str) -> None:
-    """Applies one `--set a.b.c=value` to the raw data; the value is parsed as YAML."""
+    """Applies one `--set a.b.c=value` to the raw data; the value is parsed as YAML. A mapping given for a group
+    is laid over the group key by key, as a file's over its base's (`merged`); any other value replaces it."""
     key, sep, text = assignment.partition("=")
     if not sep or not key:
         raise ConfigError(f"--set expects key=value, got '{assignment}'")
@@ -181,7 +182,7 @@ def set_override(raw: dict, assignment: str) -> None:
         node = node.setdefault(part, {})
         if not isinstance(node, dict):
             raise ConfigError(f"--set {key}: '{part}' is not a group of settings")
-    node[parts[-1]] = value
+    node.update(merged(node, {parts[-1]: value}))
 
 
 def load_typed(raw: dict, schema, source: str):

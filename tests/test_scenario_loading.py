@@ -120,6 +120,17 @@ def test_set_override_edits_nested_raw_data():
     assert raw == {"camera": {"fx": 1.0, "fy": 2.5}, "tof": {"noise_std_m": 0.01}, "description": "a b c"}
 
 
+def test_set_lays_a_mapping_over_the_group_key_by_key_as_a_base_does():
+    raw = {"camera": {"fx": 1.0, "lens": {"k1": 0.1, "k2": 0.2}}, "seeds": [1, 2]}
+    set_override(raw, "camera={fy: 2.5, lens: {k2: 0.3}}")
+    set_override(raw, "seeds=[3]")  # any other value replaces the field's
+    assert raw == {"camera": {"fx": 1.0, "fy": 2.5, "lens": {"k1": 0.1, "k2": 0.3}}, "seeds": [3]}
+    _, scenario = load_scenario("stewart-hardware", overrides=["camera={pixel_noise_std: 1.5}"])
+    _, file = load_scenario("stewart-hardware")
+    assert file.camera.full_well_e > 0 and any(file.camera.distortion)  # the file's sensor noise and lens ...
+    assert scenario.camera == dataclasses.replace(file.camera, pixel_noise_std=1.5)  # ... kept
+
+
 @pytest.mark.parametrize("assignment", ["platform.roll_amplitude_deg", "=3", "camera.rate_hz=[1, 2"])
 def test_malformed_set_is_a_config_error(assignment):
     with pytest.raises(ConfigError):
