@@ -12,6 +12,7 @@ import dataclasses
 import difflib
 import math
 import re
+import sys
 import typing
 from collections.abc import Hashable
 from pathlib import Path
@@ -104,6 +105,7 @@ def _field_types(schema) -> dict[str, type]:
 
 _SCALAR_KINDS = {float: ((int, float), "a number"), int: ((int,), "a whole number"), str: ((str,), "text"),
                  bool: ((bool,), "true or false")}
+INT_RANGE = (-2**31, 2**31 - 1)  # a C++ int's, which the bindings (Drake's, OpenCV's) take a whole number as
 
 
 def _check_scalar(value, kind, dotted: str) -> None:
@@ -117,10 +119,16 @@ def _check_scalar(value, kind, dotted: str) -> None:
         raise ConfigError(f"{dotted} must be {description}, got {value!r}")
     # No setting means NaN (every comparison with it is false) or infinity (every quantity here is a
     # physical one, and a range check of x > 0 lets .inf through).
+    if kind is float and isinstance(value, int) and abs(value) > sys.float_info.max:
+        raise ConfigError(f"{dotted} must be a finite number, got a whole number of {len(str(abs(value)))} digits")
     if kind is float and not math.isfinite(value):
         raise ConfigError(f"{dotted} must be a finite number, got {'.nan' if math.isnan(value) else f'{value:+}'}")
-    if kind is int and (dotted == "seed" or dotted.endswith((".seed", "_seed"))) and value < 0:
+    seed = dotted == "seed" or dotted.endswith((".seed", "_seed"))
+    if kind is int and seed and value < 0:
         raise ConfigError(f"{dotted} must not be negative (a seed, as numpy's generators take them), got {value}")
+    if kind is int and not seed and not INT_RANGE[0] <= value <= INT_RANGE[1]:  # a seed goes to numpy, of any size
+        raise ConfigError(f"{dotted} must lie in {INT_RANGE[0]} to {INT_RANGE[1]} (a 32-bit int, as C++ takes it), "
+                          f"got {value}")
 
 
 def _check_item(item, kind, dotted: str) -> None:

@@ -192,11 +192,20 @@ def test_a_group_given_a_scalar_is_named_without_a_trailing_dot():
     ("imu.rate_hz=0", "imu.rate_hz"),
     ("duration_s=0", "duration_s"),
     ("duration_s=.inf", "duration_s must be a finite number"),
+    ("duration_s=1" + "0" * 400, "duration_s must be a finite number, got a whole number of 401 digits"),  # no float
+    ("camera.width=4294967297", "camera.width must lie in -2147483648 to 2147483647"),  # Drake's camera takes an int
+    ("platform.tag_id=-2147483649", "platform.tag_id must lie in -2147483648 to 2147483647"),
     ("estimators=[crhf, atda, crhf]", "estimators: each may be listed once, got crhf more than once"),
 ])
 def test_values_out_of_range_name_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         load_scenario("stewart-hover", overrides=[assignment])
+
+
+def test_whole_numbers_beyond_a_cpp_int_are_refused_in_lists_and_taken_for_seeds():
+    with pytest.raises(ConfigError, match=r"platform\.markers\.ids must lie in -2147483648 to 2147483647"):
+        load_scenario("gv-landing", overrides=["platform.markers.ids=[0, 1, 2, 3, 2147483648]"])
+    assert load_scenario("stewart-hover", seed=2**64)[1].seed == 2**64  # numpy's generators take any size
 
 
 @pytest.mark.parametrize("name", ["gv-landing", "deck-landing", "rqrlp-maneuvers"])
