@@ -3,6 +3,7 @@ directory and is renamed into place, so an interrupted run never leaves a half-w
 
 import io
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -62,8 +63,24 @@ def json_default(value):
     raise TypeError(f"cannot write {type(value).__name__} to JSON")
 
 
+def _finite_or_null(data):
+    """`data` with every NaN or infinite float (numpy's, in arrays too) as None: JSON has no such number."""
+    if isinstance(data, np.ndarray):
+        data = data.tolist()
+    if isinstance(data, float | np.floating):
+        return float(data) if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {key: _finite_or_null(value) for key, value in data.items()}
+    if isinstance(data, list | tuple):
+        return [_finite_or_null(value) for value in data]
+    return data
+
+
 def write_json(path: Path, data: dict) -> None:
-    _write_bytes(Path(path), (json.dumps(data, indent=2, default=json_default) + "\n").encode())
+    """`data` as strict JSON: a NaN or infinite number is written as null (Python's json would write NaN,
+    which JSON parsers refuse)."""
+    text = json.dumps(_finite_or_null(data), indent=2, default=json_default, allow_nan=False)
+    _write_bytes(Path(path), (text + "\n").encode())
 
 
 def write_npz(path: Path, **arrays) -> None:

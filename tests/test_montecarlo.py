@@ -45,6 +45,13 @@ def toy_run(task: RunTask) -> RunOutput:
     return RunOutput(metrics, {"error": error})
 
 
+def nan_run(task: RunTask) -> dict:
+    """Runs that miss values: run 1 a scalar (NaN) and a list's first element, every run the list's last."""
+    nan = float("nan")
+    return {"x": nan if task.index == 1 else float(task.index),
+            "v": [nan if task.index == 1 else float(task.index), 10.0 * task.index, nan]}
+
+
 def crashing_run(task: RunTask):
     if task.case == "6" and task.index == 2:
         raise ValueError("the filter diverged at t = 3.2 s")
@@ -282,6 +289,20 @@ def test_a_scheduler_address_without_a_good_port_is_refused_at_once(capfd, tmp_p
     with pytest.raises(ConfigError, match=f"^bad Dask scheduler address '{re.escape(address)}': .*{problem}"):
         run_campaign(TOY, settings(), tmp_path / "out", scheduler=address, connect_timeout_s=1.0, progress=False)
     assert capfd.readouterr().err == "" and not (tmp_path / "out").exists()
+
+
+def test_values_a_run_misses_are_left_out_of_their_element_and_summary_json_is_strict_json(tmp_path):
+    # The records keep a NaN as null; each list element's figures are over the runs that have it.
+    summary = run_campaign(toy(run=nan_run), settings(cases=["3"], runs=3), tmp_path, workers=0, progress=False)
+    strict = json.loads((tmp_path / "summary.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+    for stats in (summary["filters"]["metrics"]["3"], strict["filters"]["metrics"]["3"]):
+        assert stats["x"]["n"] == 2 and stats["x"]["mean"] == 1.0  # runs 0 and 2
+        assert stats["v"]["n"] == [2, 3, 0] and stats["v"]["mean"][:2] == [1.0, 10.0]
+        assert stats["v"]["max"][:2] == [2.0, 20.0] and stats["v"]["min"][:2] == [0.0, 0.0]
+    assert np.isnan(summary["filters"]["metrics"]["3"]["v"]["mean"][2])  # no run has it: NaN, null on disk
+    assert strict["filters"]["metrics"]["3"]["v"]["mean"][2] is None
+    record = json.loads((tmp_path / "runs" / "3" / "00001.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+    assert record["metrics"] == {"x": None, "v": [None, 10.0, None]}
 
 
 # ---- failures, resume, protection --------------------------------------------------------------
