@@ -55,15 +55,19 @@ DIAGRAM_MODULES = {
 
 def load_scenario(name: str | None = None, config_path: str | Path | None = None, overrides=(),
                   duration_s: float | None = None, seed: int | None = None):
-    """(scenario name, typed scenario) from a named scenario or a YAML file, with `--set` overrides."""
+    """(scenario name, typed scenario) from a named scenario or a YAML file, with `--set` overrides, and
+    `duration_s` [s] and `seed` (--duration, --seed) over both; ConfigError when a --set gives either another value."""
     path = Path(config_path) if config_path else scenario_path(name)
     raw = read_scenario(path)
     for assignment in overrides:
         set_override(raw, assignment)
-    if duration_s is not None:
-        raw["duration_s"] = duration_s
-    if seed is not None:
-        raw["seed"] = seed
+    set_keys = {assignment.partition("=")[0] for assignment in overrides}
+    for key, value, option in (("duration_s", duration_s, "--duration"), ("seed", seed, "--seed")):
+        if value is None:
+            continue
+        if key in set_keys and raw[key] != value:
+            raise ConfigError(f"{option} {value} and --set {key}={raw[key]} differ: give one")
+        raw[key] = value
     diagrams = _diagrams()
     diagram = raw.get("diagram", "stewart_scene")
     if not isinstance(diagram, str) or diagram not in diagrams:

@@ -103,13 +103,21 @@ def test_set_accepts_yaml_values_and_later_settings_win():
     _, scenario = load_scenario("stewart-hover", overrides=[
         "platform.motion=sinusoid", "platform.x_amplitude_m=[0.1, 0.02]", "platform.x_frequency_hz=[0.1, 0.5]",
         "camera.rate_hz=10", "camera.rate_hz=25", "hover.offset_xy_m=[0.2, -0.1]", "seed=9"],
-        duration_s=1.5, seed=11)
+        duration_s=1.5)
     assert scenario.platform.motion == "sinusoid"
     assert scenario.platform.x_amplitude_m == [0.1, 0.02]
     assert scenario.camera.rate_hz == 25.0 and isinstance(scenario.camera.rate_hz, float)
     assert scenario.hover.offset_xy_m == [0.2, -0.1]
-    assert scenario.duration_s == 1.5
-    assert scenario.seed == 11  # the seed argument (--seed) wins over --set seed=
+    assert scenario.duration_s == 1.5 and scenario.seed == 9
+
+
+def test_duration_and_seed_arguments_that_a_set_contradicts_are_a_config_error():
+    with pytest.raises(ConfigError, match=r"^--seed 11 and --set seed=9 differ: give one$"):
+        load_scenario("stewart-hover", overrides=["seed=9"], seed=11)
+    with pytest.raises(ConfigError, match=r"^--duration 0\.05 and --set duration_s=0\.1 differ: give one$"):
+        load_scenario("stewart-hover", overrides=["duration_s=0.1"], duration_s=0.05)
+    _, scenario = load_scenario("stewart-hover", overrides=["seed=9", "duration_s=1"], duration_s=1.0, seed=9)
+    assert scenario.seed == 9 and scenario.duration_s == 1.0  # the same value twice: no conflict
 
 
 def test_set_override_edits_nested_raw_data():
