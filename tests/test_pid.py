@@ -44,6 +44,53 @@ def test_target_velocity_is_fed_forward_and_speed_limited():
     np.testing.assert_allclose(limited / 15.0, np.array([20.0, 15.0]) / 25.0)
 
 
+def test_the_sum_does_not_wind_up_against_the_speed_limit():
+    # Conditional integration: 40 frames 10 m behind the target hold the command at the 2 m/s limit without
+    # adding to the sum (unclamped it reaches 400 m, and the command points forward for 397 frames after the
+    # error turns to -1 m); the first frame at -1 m reverses it: Kp e + Ki e = -0.5 - 0.2.
+    gains = PidGains(kp=0.5, ki=0.2, kd=0.0)
+    pid = HeightScheduledPid(TrackingPidConfig(gains_above=gains, gains_below=gains, max_speed_m_s=2.0))
+    for _ in range(40):
+        np.testing.assert_allclose(pid.step([10.0, 0.0], height=5.0), [2.0, 0.0])
+    np.testing.assert_allclose(pid.memory[0:2], [0.0, 0.0])
+    np.testing.assert_allclose(pid.step([-1.0, 0.0], height=5.0), [-0.7, 0.0])
+
+
+def test_a_saturated_command_still_integrates_the_error_against_it():
+    # The target's own 20 m/s saturates the command: x's error against it (-1 m) is integrated (it unwinds),
+    # y's along its y component (+1 m) is not; the target velocity is part of the limit's test.
+    gains = PidGains(kp=0.5, ki=0.2, kd=0.0)
+    pid = HeightScheduledPid(TrackingPidConfig(gains_above=gains, gains_below=gains, max_speed_m_s=15.0))
+    pid.step([-1.0, 1.0], height=5.0, target_velocity=[20.0, 5.0])
+    np.testing.assert_allclose(pid.memory[0:2], [-1.0, 0.0])
+    free = HeightScheduledPid(TrackingPidConfig(gains_above=gains, gains_below=gains, max_speed_m_s=15.0))
+    free.step([-1.0, 1.0], height=5.0, target_velocity=[2.0, 0.5])  # within the limit: both integrated
+    np.testing.assert_allclose(free.memory[0:2], [-1.0, 1.0])
+
+
+def test_system_samples_the_anti_windup_with_the_target_velocity():
+    # The system's sample sees the same saturation as the pure PID: the target's 14.5 m/s plus Kp e saturate.
+    gains = PidGains(kp=0.5, ki=0.2, kd=0.0)
+    config = TrackingPidConfig(gains_above=gains, gains_below=gains)
+    system = TrackingPid(config)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    for name, value in (("target_offset", [3.0, 0.0]), ("target_velocity", [14.5, 0.0]),
+                        ("target_acceleration", [0.0, 0.0]), ("height", [6.0]), ("target_valid", [1.0])):
+        system.GetInputPort(name).FixValue(context, value)
+    reference = HeightScheduledPid(config)
+    period = 1.0 / config.rate_hz
+    for k in range(5):
+        reference.step([3.0, 0.0], 6.0, target_velocity=[14.5, 0.0])
+    simulator.AdvanceTo(4 * period + period / 2)
+    np.testing.assert_allclose(reference.memory[0:2], [0.0, 0.0])
+    system.GetInputPort("target_offset").FixValue(context, [-1.0, 0.0])
+    system.GetInputPort("target_velocity").FixValue(context, [0.0, 0.0])
+    simulator.AdvanceTo(5 * period + period / 2)
+    np.testing.assert_allclose(system.GetOutputPort("velocity_command").Eval(context),
+                               reference.step([-1.0, 0.0], 6.0), atol=1e-12)
+
+
 def test_negative_gain_is_rejected_by_name():
     config = yaml_load_typed(schema=TrackingPidConfig, data="gains_below: {kd: -0.1}")
     with pytest.raises(ValueError, match="pid.gains_below.kd"):

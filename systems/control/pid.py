@@ -11,7 +11,9 @@ default rate is the paper's. Eq. (24)-(27) act on each horizontal axis alone, so
 written in our z-up World; seed 003's NED frame (Eq. 20-22) needs no conversion here.
 
 Our choices where the paper is silent: the first sample after a start or a lost target has no
-derivative term (e(-1) = e(0)), a lost target resets the sums, and the commanded speed is limited.
+derivative term (e(-1) = e(0)), a lost target resets the sums, the commanded speed is limited, and
+the sum does not wind up against that limit (conditional integration, `pid_step`). The sum is kept
+as it is when the Table 2 gain set switches at 4 m: the paper says nothing of it (its Ki is 0).
 A change of the offset's source (the vision seam and the vehicle's broadcast, which differ by the
 broadcast's GNSS error) restarts the PID as a lost target does: Kd would otherwise act on the jump
 between the two, a velocity kick of Kd times the sources' disagreement for one sample.
@@ -81,14 +83,24 @@ def initial_memory() -> np.ndarray:
     return np.zeros(MEMORY_SIZE)
 
 
-def pid_step(memory: np.ndarray, error, height: float, config: TrackingPidConfig):
+def pid_step(memory: np.ndarray, error, height: float, config: TrackingPidConfig, target_velocity=(0.0, 0.0)):
     """One sample of Eq. (24): `error` = target minus UAV horizontal position [m] (World x, y),
-    `height` above the target [m]. Returns (v_ctrl [m/s], new memory)."""
+    `height` above the target [m], `target_velocity` Eq. (26)'s v_ugv [m/s] (World x, y) at the sample.
+    Returns (v_ctrl [m/s], new memory).
+
+    Anti-windup by conditional integration (clamping; ours, Table 2's Ki is 0): an axis's error is left out
+    of its sum while Eq. (27)'s v_ugv + v_ctrl is beyond `max_speed_m_s` (so `feed_forward` limits it) and
+    that error has the sign of the command on that axis, i.e. while integrating it would only push further
+    into the limit; an error against the command is integrated, unwinding the sum."""
     error = np.asarray(error, dtype=float)
     previous = memory[PREVIOUS_ERROR] if memory[STARTED] else error
-    error_sum = memory[ERROR_SUM] + error
     gains = gains_for_height(height, config)
-    v_ctrl = gains.kp * error + gains.ki * error_sum + gains.kd * (error - previous)
+    proportional_derivative = gains.kp * error + gains.kd * (error - previous)
+    error_sum = memory[ERROR_SUM] + error
+    command = np.asarray(target_velocity, dtype=float) + proportional_derivative + gains.ki * error_sum
+    if math.hypot(command[0], command[1]) > config.max_speed_m_s:
+        error_sum = np.where(error * command > 0, memory[ERROR_SUM], error_sum)
+    v_ctrl = proportional_derivative + gains.ki * error_sum
     return v_ctrl, np.concatenate([error_sum, error, [1.0]])
 
 
@@ -110,7 +122,7 @@ class HeightScheduledPid:
 
     def step(self, error, height: float, target_velocity=(0.0, 0.0)) -> np.ndarray:
         """Horizontal UAV velocity command [m/s] in World."""
-        v_ctrl, self.memory = pid_step(self.memory, error, height, self.config)
+        v_ctrl, self.memory = pid_step(self.memory, error, height, self.config, target_velocity)
         return feed_forward(v_ctrl, target_velocity, self.config.max_speed_m_s)
 
 
@@ -153,13 +165,14 @@ class TrackingPid(LeafSystem):
         if source != context.get_discrete_state(self._last_source).get_value()[0]:
             memory = initial_memory()  # another seam's offset: no derivative of the jump between them
         discrete_state.set_value(self._last_source, [source])
+        target_velocity = self._velocity.Eval(context)
         if seen:
             v_ctrl, memory = pid_step(memory, self._offset.Eval(context),
-                                      self._height.Eval(context)[0], self._config)
+                                      self._height.Eval(context)[0], self._config, target_velocity)
         else:
             v_ctrl, memory = np.zeros(2), initial_memory()
         discrete_state.set_value(self._memory, memory)
-        discrete_state.set_value(self._sample, np.r_[v_ctrl, self._velocity.Eval(context)])
+        discrete_state.set_value(self._sample, np.r_[v_ctrl, target_velocity])
 
     def _calc_velocity(self, context, output):
         sample = context.get_discrete_state(self._sample).get_value()
