@@ -209,6 +209,23 @@ def test_lost_below_lh_climbs_out_whatever_the_mode():
     assert mode == Mode.ABORT and vz == CONFIG.climb_speed_m_s
 
 
+def test_abort_climbs_towards_ih_and_stops_there():
+    """ABORT climbs at the climb speed while far below IH, slows on the altitude hold's P loop near it (as SEARCH)
+    and does not climb past it, however long `lost_hold_s` keeps it in ABORT (before: +climb speed at any
+    altitude, up to the monitor's max_altitude_m)."""
+    config = dataclasses.replace(CONFIG, lost_hold_s=30.0)
+    machine = LandingStateMachine(config)
+    machine.memory = machine.memory._replace(mode=Mode.LAND, last_height_m=1.0)
+    for time_s, altitude, seen, expected in ((0.0, 2.6, True, -config.landing_speed_m_s),
+                                             (0.02, 2.6, False, config.climb_speed_m_s),
+                                             (5.0, 7.0, False, config.altitude_gain * 0.5),
+                                             (6.0, 7.5, False, 0.0), (7.0, 9.0, False, 0.0), (8.0, 20.0, False, 0.0)):
+        command = machine.step(SupervisorInputs(time_s=time_s, altitude_m=altitude, height_above_target_m=1.0,
+                                                target_valid=seen))
+        assert machine.mode == (Mode.LAND if seen else Mode.ABORT)
+        assert command[2] == pytest.approx(expected)
+
+
 @pytest.mark.parametrize("offset_m, mode", [(0.3, Mode.LAND), (1.2, Mode.FOLLOW), (5.0, Mode.FOLLOW)])
 def test_reaching_lh_off_centre_follows_rather_than_lands(offset_m, mode):
     """APPROACH reaching LH with the target beyond off_centre_radius_m (1 m) follows it again; before, LAND came

@@ -36,7 +36,8 @@ Modes and what they command (velocities in World, z up; "hold" is a P loop on al
     HOLD      not seen in FOLLOW/APPROACH (ABORT instead where the last valid estimate was below LH):
               coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
     SEARCH    no horizontal speed, climb back to IH (never descend); seen -> FOLLOW
-    ABORT     coast, climb towards IH at climb speed; seen -> FOLLOW (a retry); lost_hold_s -> SEARCH
+    ABORT     coast, climb towards IH at climb speed (slowing to stop there, as SEARCH); seen -> FOLLOW
+              (a retry); lost_hold_s -> SEARCH
     (with a valid rendezvous target, CLIMB, HOLD, SEARCH and ABORT track it instead of coasting or standing)
 
 One transition per step; the command is that of the mode after the transition.
@@ -194,6 +195,13 @@ def landing_rate(inputs: SupervisorInputs, config: LandingConfig) -> float:
     return -config.landing_speed_m_s
 
 
+def hold_rate(height_error_m: float, config: LandingConfig) -> float:
+    """The altitude hold's P loop: the vertical speed [m/s, World z up] for a height error (wanted minus
+    present, m): altitude_gain times it, at most descent speed down and climb speed up, so a climb towards a
+    height slows and stops there."""
+    return min(max(config.altitude_gain * height_error_m, -config.descent_speed_m_s), config.climb_speed_m_s)
+
+
 def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: LandingConfig) -> np.ndarray:
     """The FlightController command for memory.mode: [v_WB_desired (3, m/s), yaw (rad),
     a_WB_feed_forward (3, m/s^2)]. The acceleration feed-forward is the tracking PID's while it
@@ -207,8 +215,7 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
         tracking, acceleration = coast, _ZERO
 
     def towards(altitude):
-        rate = config.altitude_gain * (altitude - inputs.altitude_m)
-        return min(max(rate, -config.descent_speed_m_s), config.climb_speed_m_s)
+        return hold_rate(altitude - inputs.altitude_m, config)
 
     if mode == Mode.TAKEOFF:
         horizontal, acceleration, vertical = _ZERO, _ZERO, config.climb_speed_m_s
@@ -223,16 +230,15 @@ def mode_command(memory: SupervisorMemory, inputs: SupervisorInputs, config: Lan
     elif mode == Mode.LAND:
         horizontal, vertical = tracking, landing_rate(inputs, config)
     elif mode == Mode.WAIT:  # LH above the target, from above or (after an abort) from below
-        rate = config.altitude_gain * (config.landing_height_m - inputs.height_above_target_m)
-        horizontal, vertical = tracking, min(max(rate, -config.descent_speed_m_s), config.climb_speed_m_s)
+        horizontal, vertical = tracking, hold_rate(config.landing_height_m - inputs.height_above_target_m, config)
     elif mode == Mode.LANDED and not config.motors_stop_at_landed:  # on down to the gear's touch, as in LAND
         horizontal, vertical = tracking, landing_rate(inputs, config)
     elif mode == Mode.LANDED:
         horizontal, acceleration, vertical = coast, _ZERO, 0.0
     elif mode == Mode.HOLD:
         horizontal, vertical = tracking, towards(memory.altitude_hold_m)
-    elif mode == Mode.ABORT:
-        horizontal, vertical = tracking, config.climb_speed_m_s
+    elif mode == Mode.ABORT:  # up towards IH (never down: the estimate is not valid), waiting there
+        horizontal, vertical = tracking, towards(config.initial_height_m)
     else:  # SEARCH
         horizontal, acceleration = (tracking, acceleration) if rendezvous else (_ZERO, _ZERO)
         vertical = towards(config.initial_height_m)
