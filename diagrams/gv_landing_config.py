@@ -23,7 +23,7 @@ from diagrams.perception_sources import perception_source, require_offered
 from systems.config import require, require_positive
 from systems.control.flight_controller import BACKENDS, FlightControllerConfig
 from systems.control.landing import LandingConfig
-from systems.control.monitor import TerminationConfig
+from systems.control.monitor import TerminationConfig, inside_carrier
 from systems.control.pid import TrackingPidConfig
 from systems.environment.bridge import BridgeConfig
 from systems.environment.wind import WindConfig
@@ -34,9 +34,9 @@ from systems.perception.seam import SeamConfig
 from systems.sensors.camera import CameraConfig
 from systems.sensors.navigation import NavigationConfig
 from systems.vehicles.airframe import AirframeConfig
-from systems.vehicles.ground_vehicle import GroundVehicleConfig
+from systems.vehicles.ground_vehicle import GroundVehicleConfig, initial_state
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
-from systems.vehicles.paths import make_path
+from systems.vehicles.paths import Path, make_path
 from systems.vehicles.quadrotor import QuadrotorParams
 from systems.vehicles.traffic import DistractorsConfig
 
@@ -213,6 +213,14 @@ class FlightConfig:
                 f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
         require(self.controller.max_vertical_accel_m_s2 < self.quadrotor.gravity_m_s2,
                 "controller.max_vertical_accel_m_s2 must be below quadrotor.gravity_m_s2")
+        # The monitor ends a run above termination.max_altitude_m as diverged: at t = 0, or on the climb to IH.
+        max_altitude = self.termination.max_altitude_m
+        require(self.start.height_m <= max_altitude,
+                f"start.height_m ({self.start.height_m:g} m) is above termination.max_altitude_m ({max_altitude:g} m): "
+                "the run would end at t = 0")
+        require(self.landing.initial_height_m < max_altitude,
+                f"landing.initial_height_m (IH, {self.landing.initial_height_m:g} m above the ground) must be below "
+                f"termination.max_altitude_m ({max_altitude:g} m): the climb to IH would end the run")
         require(self.landing.motors_stop_at_landed or self.termination.stop_on_landed,
                 "landing.touchdown_by contact descends until the gear touches, and termination.stop_on_landed "
                 "is false: the run would fly on through the pad")
@@ -245,9 +253,10 @@ class GvLandingConfig(FlightConfig):
                      "navigation", "rendezvous", "distractors", "bridge"):
             getattr(self, name).validate(name)
         self._validate_steering_lag()
+        path = make_path(self.vehicle.path_config(), "vehicle.path")
         if self.distractors.count:
-            self.distractors.check_lanes(make_path(self.vehicle.path_config(), "vehicle.path"),
-                                         f"vehicle.path '{self.vehicle.path}'")
+            self.distractors.check_lanes(path, f"vehicle.path '{self.vehicle.path}'")
+        self._validate_start(path)
         if self.bridge.enabled:
             self._validate_bridge()
         if self.platform.carrier == "ground":
@@ -291,6 +300,19 @@ class GvLandingConfig(FlightConfig):
                 f"{integration.scheme}'s fixed {step:g} s steps (integration.max_step_s, at most the controller "
                 f"period) are unstable on a lag under step / {integration.stable_step_ratio:g}; lengthen the lag or "
                 f"shorten integration.max_step_s")
+
+    def _validate_start(self, path: Path) -> None:
+        """The UAV starts outside the vehicle's body and within termination.max_distance_m of the pad, where the
+        vehicle starts (the monitor's tests: else the run ends at t = 0)."""
+        vehicle = initial_state(path, self.vehicle)
+        start = self.start
+        require(not inside_carrier(self.platform, [*start.xy_m, start.height_m], vehicle),
+                f"start.xy_m {list(start.xy_m)} at start.height_m ({start.height_m:g} m) is inside the ground "
+                "vehicle's body (platform's body_length_m, body_width_m, rear_overhang_m, height_m) where it starts")
+        distance = float(np.hypot(*(self.platform.X_WP(vehicle).translation()[0:2] - np.asarray(start.xy_m))))
+        require(distance <= self.termination.max_distance_m,
+                f"start.xy_m {list(start.xy_m)} is {distance:.1f} m from the pad, beyond "
+                f"termination.max_distance_m ({self.termination.max_distance_m:g} m)")
 
     def _validate_vehicle_at_rest(self) -> None:
         """platform.carrier ground: the pad lies on the ground where the vehicle starts, so the vehicle stays there."""

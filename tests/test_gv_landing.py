@@ -96,6 +96,31 @@ def test_impossible_configuration_is_a_config_error_naming_the_field(assignment,
         load_scenario("gv-landing", overrides=[assignment])
 
 
+@pytest.mark.parametrize("overrides, named", [
+    (["start.xy_m=[0.5, 0.0]"], "start.xy_m [0.5, 0.0] at start.height_m (0 m) is inside the ground vehicle's body"),
+    (["start.xy_m=[1.75, 0.0]", "start.height_m=1.5"], "start.xy_m [1.75, 0.0] at start.height_m (1.5 m) is inside"),
+    (["start.height_m=70"], "start.height_m (70 m) is above termination.max_altitude_m (60 m)"),
+    (["start.xy_m=[300.0, 0.0]"], "start.xy_m [300.0, 0.0] is 298.2 m from the pad, beyond termination.max_distance_m"),
+    (["termination.max_altitude_m=7"], "landing.initial_height_m (IH, 7.5 m above the ground) must be below "
+                                       "termination.max_altitude_m (7 m)"),
+], ids=["in-the-body", "under-the-pad", "above-max-altitude", "beyond-max-distance", "ih-above-max-altitude"])
+def test_a_start_the_scene_contradicts_is_one_line_and_exit_2(capfd, tmp_path, overrides, named):
+    """Before: each ran, ending at t = 0 (or on the climb to IH) as a failure, exit 0 and its files written."""
+    out = tmp_path / "out"
+    code = main(["run", "gv-landing", *(a for o in overrides for a in ("--set", o)), "--duration", "3",
+                 "--out", str(out), "--quiet"])
+    _, err = capfd.readouterr()
+    assert code == 2 and named in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_a_start_beside_over_or_far_from_the_vehicle_within_the_limits_is_accepted():
+    for overrides in (["start.xy_m=[1.75, 0.0]", "start.height_m=1.7"],  # over the pad, above the body
+                      ["start.xy_m=[1.75, 1.0]"],  # beside the 1.8 m wide body, on the ground
+                      ["start.xy_m=[201.75, 0.0]", "start.height_m=60"]):  # at both limits
+        load_scenario("gv-landing", overrides=overrides)
+
+
 def test_a_path_tighter_than_the_vehicle_turns_names_its_radius():
     with pytest.raises(ConfigError, match=r"vehicle\.path_radius_m"):
         load_scenario("gv-landing", overrides=["vehicle.path=circle", "vehicle.path_radius_m=5"])

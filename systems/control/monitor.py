@@ -63,6 +63,17 @@ def pad_offset(relative: np.ndarray, heading) -> np.ndarray:
     return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
 
 
+def inside_carrier(platform: PlatformConfig, p_WB, vehicle) -> bool:
+    """Whether the UAV's centre p_WB (3, World, m) lies in the carrier's body for its state `vehicle` [x, y,
+    heading, steering] (m, rad): over its footprint in the vehicle frame V (x along it, from the rear overhang to
+    the front; y across) and below the pad's underside."""
+    c, s = math.cos(vehicle[GV_HEADING]), math.sin(vehicle[GV_HEADING])
+    dx, dy = p_WB[0] - vehicle[GV_X], p_WB[1] - vehicle[GV_Y]
+    along, across = c * dx + s * dy, -s * dx + c * dy  # UAV in the vehicle frame V
+    return bool(-platform.rear_overhang_m < along < platform.body_length_m - platform.rear_overhang_m
+                and abs(across) < platform.body_width_m / 2 and p_WB[2] < platform.height_m - platform.pad_thickness_m)
+
+
 class LandingMonitor(LeafSystem):
     """Inputs `quadrotor_state` (17), `vehicle_state` (4), `true_relative_state` (the seam's layout,
     from the truth), `target_valid` (1, the seam's flag: what steers) and `mode` (1)."""
@@ -98,11 +109,7 @@ class LandingMonitor(LeafSystem):
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         if pz < -term.ground_tolerance_m:
             return f"crash: hit the ground at t = {t:.2f} s, {speed:.1f} m/s"
-        c, s = math.cos(vehicle[GV_HEADING]), math.sin(vehicle[GV_HEADING])
-        dx, dy = px - vehicle[GV_X], py - vehicle[GV_Y]
-        along, across = c * dx + s * dy, -s * dx + c * dy  # UAV in the vehicle frame V
-        if (-platform.rear_overhang_m < along < platform.body_length_m - platform.rear_overhang_m
-                and abs(across) < platform.body_width_m / 2 and pz < platform.height_m - platform.pad_thickness_m):
+        if inside_carrier(platform, (px, py, pz), vehicle):
             return f"crash: hit the ground vehicle at t = {t:.2f} s"
         if speed > term.max_speed_m_s:
             return f"diverged: speed {speed:.1f} m/s at t = {t:.2f} s"
