@@ -213,6 +213,11 @@ class FlightConfig:
                 f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
         require(self.controller.max_vertical_accel_m_s2 < self.quadrotor.gravity_m_s2,
                 "controller.max_vertical_accel_m_s2 must be below quadrotor.gravity_m_s2")
+        # The loops nest (diagrams/flight_stack.py): the supervisor reads the PID's command at landing.rate_hz (also
+        # the log's rate), the flight controller the supervisor's at controller.rate_hz; a slower reader skips samples.
+        require(self.controller.rate_hz >= self.landing.rate_hz >= self.pid.rate_hz,
+                f"the loops must nest, controller.rate_hz >= landing.rate_hz >= pid.rate_hz: they are "
+                f"{self.controller.rate_hz:g}, {self.landing.rate_hz:g} and {self.pid.rate_hz:g} Hz")
         # The monitor ends a run above termination.max_altitude_m as diverged: at t = 0, or on the climb to IH.
         max_altitude = self.termination.max_altitude_m
         require(self.start.height_m <= max_altitude,

@@ -73,6 +73,9 @@ def test_attitude_gains_place_the_designed_poles():
 
 @pytest.mark.parametrize("field, value, message", [
     ("rate_hz", 0.0, "rate_hz must be positive"),
+    # Held longer than tau_a (25 ms) the rotor commands overshoot (10 Hz crashed the gv flight); 1e9 Hz hung a run.
+    ("rate_hz", 30.0, r"rate_hz \(30 Hz\) must be at least 1 / flight_controller.rotor_time_constant_s \(40 Hz\)"),
+    ("rate_hz", 1e9, r"rate_hz \(1e\+09 Hz\) must be at most 10000 Hz"),
     ("max_tilt_deg", 95.0, "max_tilt_deg"),
     ("attitude_frequency_rad_s", 40.0, "attitude_frequency_rad_s is too fast"),
 ])

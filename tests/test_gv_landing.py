@@ -90,6 +90,11 @@ def test_unstable_gains_end_as_a_failure_in_the_metrics():
     ("platform.pad_size_m=0.8", "platform.markers"),  # the corner markers hang off a smaller pad
     ("platform.markers.ids=[0, 1, 2, 3, 99]", "platform.markers.ids"),
     ("integration.scheme=runge_kutta9", "integration.scheme"),
+    # The loops nest: the supervisor reads the PID, the flight controller the supervisor (and logs at its rate).
+    ("pid.rate_hz=60", "controller.rate_hz >= landing.rate_hz >= pid.rate_hz: they are 200, 50 and 60 Hz"),
+    ("landing.rate_hz=250", "controller.rate_hz >= landing.rate_hz >= pid.rate_hz: they are 200, 250 and 4 Hz"),
+    ("controller.rate_hz=0.01", "controller.rate_hz"),  # froze both vehicles over the run
+    ("landing.rate_hz=0.01", "landing.rate_hz"),  # dated the metrics at t = 0
 ])
 def test_impossible_configuration_is_a_config_error_naming_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):

@@ -251,6 +251,7 @@ def test_waits_and_wave_offs_are_counted():
     ("climb_speed_m_s: 0.0", "landing.climb_speed_m_s must be positive"),
     ("off_centre_radius_m: 0.2", "landing.off_centre_radius_m must be at least"),
     ("land_acceptance_radius_m: -0.1", "landing.land_acceptance_radius_m must not be negative"),
+    ("rate_hz: 0.5", r"landing.rate_hz \(0.5 Hz\) must be at least landing.altitude_gain \(1 /s\)"),
 ])
 def test_bad_config_is_rejected_by_name(yaml, message):
     config = yaml_load_typed(schema=LandingConfig, data=yaml)

@@ -39,6 +39,10 @@ from systems.vehicles.quadrotor import (
     P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, QuadrotorParams, mixer_matrix, rotation_from_quaternion,
 )
 
+# The fastest flight controller accepted [Hz]: above any autopilot's inner loop (PX4's rate loop runs at its gyro's
+# rate, at most 8 kHz); each period is a simulation step (of both vehicles too), 50 times the default's at 10 kHz.
+MAX_RATE_HZ = 10_000.0
+
 # The `command` input: [v_WB_desired (3, m/s, in W), yaw_desired (rad), a_WB_feed_forward (3, m/s^2, in W)].
 COMMAND_SIZE = 7
 
@@ -73,6 +77,15 @@ class FlightControllerConfig:
                      "rotor_time_constant_s", "max_integral_accel_m_s2"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
         require_non_negative(self.velocity_integral_gain_xy, f"{prefix}.velocity_integral_gain_xy")
+        # The rotor stage asks each rotor to close its gap to w_des with the time constant tau_a; held over a period
+        # T the rotor (lag tau_m) closes (tau_m / tau_a)(1 - exp(-T / tau_m)) <= T / tau_a of it, so T <= tau_a never
+        # overshoots w_des. Longer periods do every period (seed 002's tau_m = 0.1 s: from 35 Hz; the gv flight
+        # crashed at 10 Hz). T is also the period the vehicles are integrated over, their inputs held.
+        require(self.rate_hz * self.rotor_time_constant_s >= 1.0,
+                f"{prefix}.rate_hz ({self.rate_hz:g} Hz) must be at least 1 / {prefix}.rotor_time_constant_s "
+                f"({1.0 / self.rotor_time_constant_s:g} Hz): held longer than tau_a the rotor commands overshoot")
+        require(self.rate_hz <= MAX_RATE_HZ,
+                f"{prefix}.rate_hz ({self.rate_hz:g} Hz) must be at most {MAX_RATE_HZ:g} Hz, beyond any autopilot's")
         require(0 < self.max_tilt_deg < 90, f"{prefix}.max_tilt_deg must be in (0, 90)")
         for name in ("attitude_frequency_rad_s", "yaw_frequency_rad_s"):
             require(2 * self.attitude_damping * getattr(self, name) < 1 / self.rotor_time_constant_s,

@@ -108,6 +108,11 @@ class LandingConfig:
                      "altitude_tolerance_m", "centred_radius_m", "off_centre_radius_m",
                      "lost_hold_s", "touchdown_height_m"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
+        # The altitude hold's P loop sampled at rate_hz closes altitude_gain / rate_hz of its error per sample (the
+        # velocity loop following at once): beyond 1 it overshoots every sample.
+        require(self.rate_hz >= self.altitude_gain,
+                f"{prefix}.rate_hz ({self.rate_hz:g} Hz) must be at least {prefix}.altitude_gain "
+                f"({self.altitude_gain:g} /s): the altitude hold would overshoot every sample")
         require(self.initial_height_m > self.landing_height_m,
                 f"{prefix}.initial_height_m (IH = {self.initial_height_m}) must be above "
                 f"{prefix}.landing_height_m (LH = {self.landing_height_m})")
