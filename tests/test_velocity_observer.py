@@ -381,6 +381,25 @@ def test_validity_history_and_gaps():
     assert not valid and np.all(np.isnan(estimate))
 
 
+@pytest.mark.parametrize("window_s, held", [(1.5, 16), (0.3, 4)])  # ages 0 to window_s a period apart
+def test_min_samples_beyond_what_the_window_holds_is_refused(window_s, held):
+    """Before: accepted, and the estimate was never valid (or never linear), silently."""
+    t = np.arange(0.0, 30.0, 0.1)
+    p = np.c_[t, np.zeros_like(t), np.zeros_like(t)]  # 1 m/s along x, seen every frame
+    full = VelocityObserverConfig(rate_hz=10.0, window_s=window_s, min_samples=held)
+    full.validate()
+    estimates, valid = observe_velocities(t, p, full)
+    assert valid.sum() == len(t) - held  # valid once the window holds `held` (0.3 s: despite 0.3 * 10 < 3 in floats)
+    np.testing.assert_allclose(estimates[valid], np.tile([1.0, 0.0, 0.0], (valid.sum(), 1)), atol=1e-9)
+    with pytest.raises(ConfigError, match=rf"velocity_observer\.min_samples \({held + 1}\) is more than the window "
+                                          rf"holds: {held} instant velocities"):
+        VelocityObserverConfig(rate_hz=10.0, window_s=window_s, min_samples=held + 1).validate()
+    with pytest.raises(ConfigError, match=rf"hybrid\.velocity_observer\.linear_min_samples \({held + 1}\)"):
+        VelocityObserverConfig(rate_hz=10.0, window_s=window_s, fit="linear",
+                               linear_min_samples=held + 1).validate("hybrid.velocity_observer")
+    VelocityObserverConfig(rate_hz=10.0, window_s=window_s, fit="mean", linear_min_samples=held + 1).validate()
+
+
 def test_bad_configs_name_the_field():
     for kwargs, name in (({"sigma_s": 0.0}, "velocity_observer.sigma_s"),
                          ({"window_s": -1.0}, "velocity_observer.window_s"),

@@ -99,10 +99,21 @@ class VelocityObserverConfig:
         require(self.window_s >= 1.0 / self.rate_hz,
                 f"{prefix}.window_s must hold at least one period (1 / rate_hz = {1.0 / self.rate_hz:g} s), "
                 f"got {self.window_s}")
+        for name in ("min_samples", "linear_min_samples") if self.fit == "linear" else ("min_samples",):
+            require(getattr(self, name) <= self.window_capacity,
+                    f"{prefix}.{name} ({getattr(self, name)}) is more than the window holds: {self.window_capacity} "
+                    f"instant velocities ({prefix}.window_s x rate_hz + 1); the estimate would never be "
+                    f"{'valid' if name == 'min_samples' else 'linear'}")
 
     @property
     def period_s(self) -> float:
         return 1.0 / self.rate_hz
+
+    @property
+    def window_capacity(self) -> int:
+        """The most instant velocities the window holds, one a period [s] from age 0 to window_s (with the window's
+        1e-9 s tolerance, as weighted_velocity and step_observer keep them)."""
+        return math.floor((self.window_s + 1e-9) * self.rate_hz) + 1
 
 
 # ----------------------------------------------------------------------------------------------
