@@ -207,12 +207,11 @@ class FlightConfig:
     uav: AirframeConfig = field(default_factory=table1_airframe)  # visual only
 
     def validate(self) -> None:
-        for name in ("quadrotor", "controller", "pid", "landing", "start", "termination", "integration", "uav"):
+        for name in ("quadrotor", "pid", "landing", "start", "termination", "integration", "uav"):
             getattr(self, name).validate(name)
+        self.controller.validate("controller", self.quadrotor)
         require(self.controller_implementation in BACKENDS,
                 f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")
-        require(self.controller.max_vertical_accel_m_s2 < self.quadrotor.gravity_m_s2,
-                "controller.max_vertical_accel_m_s2 must be below quadrotor.gravity_m_s2")
         # The loops nest (diagrams/flight_stack.py): the supervisor reads the PID's command at landing.rate_hz (also
         # the log's rate), the flight controller the supervisor's at controller.rate_hz; a slower reader skips samples.
         require(self.controller.rate_hz >= self.landing.rate_hz >= self.pid.rate_hz,

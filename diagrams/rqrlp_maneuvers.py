@@ -71,8 +71,9 @@ class ManeuversConfig:
     uav: AirframeConfig = field(default_factory=table1_airframe)  # visual only
 
     def validate(self) -> None:
-        for name in ("platform", "quadrotor", "controller", "federated", "start", "integration", "uav"):
+        for name in ("platform", "quadrotor", "federated", "start", "integration", "uav"):
             getattr(self, name).validate(name)
+        self.controller.validate("controller", self.quadrotor)
         require(self.platform.pattern == "rqrlp", "platform.pattern must be rqrlp: the nodes look for seed 001's")
         require(self.controller_implementation in BACKENDS,
                 f"controller_implementation '{self.controller_implementation}' is not one of {', '.join(BACKENDS)}")

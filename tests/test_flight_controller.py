@@ -77,6 +77,8 @@ def test_attitude_gains_place_the_designed_poles():
     ("rate_hz", 30.0, r"rate_hz \(30 Hz\) must be at least 1 / flight_controller.rotor_time_constant_s \(40 Hz\)"),
     ("rate_hz", 1e9, r"rate_hz \(1e\+09 Hz\) must be at most 10000 Hz"),
     ("max_tilt_deg", 95.0, "max_tilt_deg"),
+    ("max_vertical_accel_m_s2", 10.0,
+     r"^flight_controller.max_vertical_accel_m_s2 \(10 m/s\^2\) must be below quadrotor.gravity_m_s2 \(9.81 m/s\^2\)$"),
     ("attitude_frequency_rad_s", 40.0, "attitude_frequency_rad_s is too fast"),
 ])
 def test_bad_config_is_rejected_by_name(field, value, message):

@@ -180,6 +180,15 @@ def test_items_of_a_list_of_lists_are_checked(assignment, message):
         load_scenario("rqrlp-maneuvers", overrides=[assignment])
 
 
+@pytest.mark.parametrize("scenario", ["gv-landing", "deck-landing", "rqrlp-maneuvers"])
+def test_a_vertical_acceleration_limit_beyond_gravity_is_named_once_by_its_section(scenario):
+    """The flight controller's one check, with the scenario's key (before: gv and deck said it without the
+    numbers, rqrlp-maneuvers only when its diagram was built, as flight_controller.max_vertical_accel_m_s2)."""
+    with pytest.raises(ConfigError, match=r"^controller\.max_vertical_accel_m_s2 \(9\.9 m/s\^2\) must be below "
+                                          r"quadrotor\.gravity_m_s2 \(9\.81 m/s\^2\)$"):
+        load_scenario(scenario, overrides=["controller.max_vertical_accel_m_s2=9.9"])
+
+
 def test_a_group_given_a_scalar_is_a_config_error():
     with pytest.raises(ConfigError, match="hover"):
         load_scenario("stewart-hover", overrides=["hover=3"])

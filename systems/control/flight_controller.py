@@ -71,7 +71,9 @@ class FlightControllerConfig:
     velocity_integral_gain_xy: float = 0.0
     max_integral_accel_m_s2: float = 3.0
 
-    def validate(self, prefix: str = "flight_controller") -> None:
+    def validate(self, prefix: str = "flight_controller", quad: QuadrotorParams | None = None) -> None:
+        """Raises ConfigError naming the first field out of range; with `quad` (the `quadrotor` section) also
+        the vertical acceleration limit against its gravity."""
         for name in ("rate_hz", "velocity_gain_xy", "velocity_gain_z", "max_vertical_accel_m_s2",
                      "attitude_frequency_rad_s", "yaw_frequency_rad_s", "attitude_damping",
                      "rotor_time_constant_s", "max_integral_accel_m_s2"):
@@ -87,6 +89,10 @@ class FlightControllerConfig:
         require(self.rate_hz <= MAX_RATE_HZ,
                 f"{prefix}.rate_hz ({self.rate_hz:g} Hz) must be at most {MAX_RATE_HZ:g} Hz, beyond any autopilot's")
         require(0 < self.max_tilt_deg < 90, f"{prefix}.max_tilt_deg must be in (0, 90)")
+        if quad is not None:  # a full sink commands g - a_max of thrust
+            require(self.max_vertical_accel_m_s2 < quad.gravity_m_s2,
+                    f"{prefix}.max_vertical_accel_m_s2 ({self.max_vertical_accel_m_s2:g} m/s^2) must be below "
+                    f"quadrotor.gravity_m_s2 ({quad.gravity_m_s2:g} m/s^2)")
         for name in ("attitude_frequency_rad_s", "yaw_frequency_rad_s"):
             require(2 * self.attitude_damping * getattr(self, name) < 1 / self.rotor_time_constant_s,
                     f"{prefix}.{name} is too fast for {prefix}.rotor_time_constant_s "
@@ -123,9 +129,7 @@ class FlightLaw:
 
     def __init__(self, quad: QuadrotorParams, config: FlightControllerConfig):
         quad.validate()
-        config.validate()
-        require(config.max_vertical_accel_m_s2 < quad.gravity_m_s2,
-                "flight_controller.max_vertical_accel_m_s2 must be below gravity")
+        config.validate(quad=quad)
         self.quad, self.config = quad, config
         k_R, k_w = config.attitude_gains()
         J = quad.inertia_diagonal
