@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from systems.config import ConfigError
+from systems.perception.rqrlp.nodes import location_markers
 from systems.perception.rqrlp.pattern import MARKERS, RqrlpLayout, rqrlp_image
 
 LAYOUT = RqrlpLayout()
@@ -51,3 +52,28 @@ def test_nested_squares_have_the_qr_proportions():
 def test_a_layout_that_does_not_fit_is_a_config_error(changes):
     with pytest.raises(ConfigError, match="platform.rqrlp"):
         RqrlpLayout(**changes).validate()
+
+
+@pytest.mark.parametrize("changes, named", [
+    ({"border_m": 0.0002}, "border_m"),  # rounded to no border, and image[-0:] painted the whole pattern black
+    ({"margin_m": 0.0009}, "margin_m"),  # no white around the markers: the texture runs into them
+    ({"marker_m": 0.0063}, "marker_m"),  # 1.8 px modules: rounding closes the rings, no marker is found
+    ({"texture_cell_m": 0.0004}, "texture_cell_m"),
+    ({"texture_cell_m": 0.13}, "texture_cell_m"),  # no 4-cell block drawn
+])
+def test_a_layout_the_texture_cannot_draw_is_a_config_error(changes, named):
+    with pytest.raises(ConfigError, match=rf"platform\.rqrlp\.{named} \(.*\) is too"):
+        RqrlpLayout(**changes).validate()
+
+
+def test_the_smallest_layout_the_texture_draws_shows_its_markers_and_border():
+    """A pixel of border and of quiet zone, 2 px modules, 1 px cells: the markers are found in the texture,
+    the border is black and the inside is not."""
+    pixel = LAYOUT.size_m / LAYOUT.pixels
+    layout = RqrlpLayout(border_m=pixel, margin_m=2 * pixel, marker_m=14 * pixel, texture_cell_m=pixel)
+    layout.validate()
+    image = rqrlp_image(layout)
+    assert len(location_markers(image)) == 3
+    n = layout.pixels
+    assert not image[[0, n - 1], :].any() and not image[:, [0, n - 1]].any()
+    assert image[1:n - 1, 1:n - 1].min() == 0 and np.mean(image[1:n - 1, 1:n - 1] == 0) < 0.01

@@ -20,6 +20,8 @@ from systems.config import require
 
 MARKERS = ("top", "right", "bottom")
 MODULES = (7, 5, 3)  # the nested squares of a location marker, in modules: black, white, black
+TEXTURE_BLOCKS = (4, 2, 1)  # the texture's block sizes, in texture cells
+TEXTURE_FILL = 0.35  # each block size's blocks together, against the pattern's area
 
 
 @dataclass
@@ -35,11 +37,31 @@ class RqrlpLayout:
     pixels: int = 1700  # texture image side (0.5 mm per pixel)
 
     def validate(self, prefix: str = "platform.rqrlp") -> None:
+        """Sizes the texture can draw: the border and the quiet zone around a marker (half the margin) a
+        texture pixel at least, a marker's module two (at one, rounding closes its rings: no marker is
+        found in the texture), a texture cell one, and the texture's largest blocks small enough to be
+        drawn (`texture_blocks`)."""
         for name in ("size_m", "border_m", "marker_m", "margin_m", "texture_cell_m"):
             require(getattr(self, name) > 0, f"{prefix}.{name} must be positive")
         require(self.border_m + self.margin_m + 2 * self.marker_m < self.size_m - self.border_m - self.margin_m,
                 f"{prefix}: the location markers do not fit in a {self.size_m:g} m pattern")
         require(self.pixels >= 256, f"{prefix}.pixels must be at least 256")
+        pixel = f"a texture pixel is {self.size_m / self.pixels:g} m, size_m / pixels"
+        for name, part, metres, least in (("border_m", "it", self.border_m, 1),
+                                          ("margin_m", "half of it", self.margin_m / 2, 1),
+                                          ("marker_m", "a module, a seventh of it,", self.marker_m / MODULES[0], 2),
+                                          ("texture_cell_m", "it", self.texture_cell_m, 1)):
+            require(self.texture_px(metres) >= least,
+                    f"{prefix}.{name} ({getattr(self, name):g} m) is too small for the texture: {part} must span "
+                    f"{least} texture pixel{'s' if least > 1 else ''} at least ({pixel})")
+        side, count = texture_blocks(self)[0]
+        require(count >= 1, f"{prefix}.texture_cell_m ({self.texture_cell_m:g} m) is too large: the texture's "
+                            f"{TEXTURE_BLOCKS[0]}-cell blocks ({side} px a side) are too large for any to be drawn "
+                            f"in its {self.pixels} px")
+
+    def texture_px(self, metres: float) -> float:
+        """A length [m] in texture pixels (to a millionth, so that a whole number of pixels is one)."""
+        return round(metres * self.pixels / self.size_m, 6)
 
     @property
     def marker_centres_P(self) -> dict[str, np.ndarray]:
@@ -67,6 +89,14 @@ class RqrlpLayout:
         return np.array([[-h, h, 0.0], [-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0]])
 
 
+def texture_blocks(layout: RqrlpLayout) -> list[tuple[int, int]]:
+    """The texture's blocks, largest first: (side px, how many are drawn), TEXTURE_BLOCKS cells a side,
+    as many as would cover TEXTURE_FILL of the pattern's area (overlapping)."""
+    n = layout.pixels
+    sides = [max(1, round(layout.texture_px(layout.texture_cell_m * cells))) for cells in TEXTURE_BLOCKS]
+    return [(side, int((n / side) ** 2 * TEXTURE_FILL)) for side in sides]
+
+
 def rqrlp_image(layout: RqrlpLayout) -> np.ndarray:
     """The pattern as an upright grey image, `layout.pixels` square (image up = +y_P, right = +x_P)."""
     n = layout.pixels
@@ -75,14 +105,12 @@ def rqrlp_image(layout: RqrlpLayout) -> np.ndarray:
     # The texture: blocks of three sizes in four grey levels, none as dark as the markers' black,
     # so the markers' nested contours stay their own.
     image = np.full((n, n), 235, np.uint8)
-    for cells in (4, 2, 1):
-        side = max(1, round(layout.texture_cell_m * cells * scale))
-        count = int((n / side) ** 2 * 0.35)
+    for side, count in texture_blocks(layout):
         for (row, col), level in zip(rng.integers(0, n - side, (count, 2)), rng.choice([70, 120, 170, 215], count)):
             image[row:row + side, col:col + side] = level
     # The black border, and the white quiet zone inside it around each marker.
     border = round(layout.border_m * scale)
-    image[:border], image[-border:], image[:, :border], image[:, -border:] = 0, 0, 0, 0
+    image[:border], image[n - border:], image[:, :border], image[:, n - border:] = 0, 0, 0, 0
 
     def to_pixels(p):  # P (x, y) -> image (col, row)
         return round((p[0] + layout.size_m / 2) * scale), round((layout.size_m / 2 - p[1]) * scale)
