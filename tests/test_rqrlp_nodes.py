@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
+from systems.perception.rqrlp import nodes
 from systems.perception.rqrlp.homography import (
     homography_from_pose,
     pose_from_homography,
 )
 from systems.perception.rqrlp.measurements import approach_covariance
-from systems.perception.rqrlp.node_systems import approach_node
+from systems.perception.rqrlp.node_systems import adjustment_node, approach_node
 from systems.perception.rqrlp.nodes import (
     TouchdownTracker,
     adjustment,
@@ -108,6 +109,24 @@ def test_adjustment_corners_are_where_the_squares_are(height_m, yaw_deg):
     error = found.corners_px.reshape(-1, 4, 2) - true
     assert abs(np.mean(np.sum(error * outward, axis=2))) < 0.15  # cv2.cornerSubPix: 0.16-0.25 px inward here
     assert np.sqrt(np.mean(np.sum(error**2, axis=2))) < 0.35
+
+
+def test_the_adjustment_nodes_pixel_noise_is_per_coordinate(monkeypatch):
+    """Corners 0.5 px off in u and in v (std): the covariance's pixel noise, which it applies to each
+    coordinate, is 0.5 px, not the residuals' 2-D RMS (sqrt(2) times it less the fit's dof, 0.68 px, which
+    widened the pose's covariance as much)."""
+    X_CP = X_CP_at(2.5, tilt_deg=(3, -2))
+    grey = view(X_CP)
+    true = cv2.projectPoints(layout_corners(LAYOUT), cv2.Rodrigues(X_CP.rotation().matrix())[0], X_CP.translation(),
+                             K, D)[0].reshape(-1, 4, 2)
+    rng = np.random.default_rng(0)
+
+    def noisy(grey, quads, search_px):  # corners_from_sides: the true corners, 0.5 px noise
+        return true + rng.normal(0.0, 0.5, true.shape), np.ones(len(quads), bool)
+
+    monkeypatch.setattr(nodes, "corners_from_sides", noisy)
+    stds = [adjustment_node(grey, 0.0, CAMERA, LAYOUT).view.pixel_std for _ in range(40)]
+    assert np.mean(stds) == pytest.approx(0.5, rel=0.04)
 
 
 def test_adjustment_needs_the_markers_resolved():

@@ -90,8 +90,9 @@ def body_pose_covariance(view: PatternView, X_BC: RigidTransform) -> np.ndarray:
     return (covariance + covariance.T) / 2
 
 
-def fit_pixel_std(residuals_px: np.ndarray, parameters: int = 8) -> float:
-    """The pixel noise from a fit's residuals (N, 2): sqrt(sum r^2 / (2 N - parameters))."""
+def fit_pixel_std(residuals_px: np.ndarray, parameters: int) -> float:
+    """The pixel noise per coordinate [px] from the residuals (N, 2) of a fit of `parameters` unknowns (a
+    pose's 6): sqrt(sum r^2 / (2 N - parameters))."""
     residuals_px = np.asarray(residuals_px, dtype=float)
     return float(np.sqrt(np.sum(residuals_px**2) / max(residuals_px.size - parameters, 1)))
 
@@ -123,16 +124,16 @@ def approach_measurement(p_CP: np.ndarray, side_px: float, time: float, focal_px
                            quality=side_px)
 
 
-def adjustment_measurement(X_CP: RigidTransform, points_P: np.ndarray, rms_residual_px: float, time: float,
+def adjustment_measurement(X_CP: RigidTransform, points_P: np.ndarray, pixel_std: float, time: float,
                            X_BC: RigidTransform, K: np.ndarray) -> NodeMeasurement:
     """The adjustment node's pose (nodes.adjustment) with the covariance of its corners (points_P)
-    as independent measurements at its fit's residual (tests/test_federated_landing.py's short landing,
-    square-on: normalised squared pose errors of mean 5.8-8.8, 6 for a consistent covariance; the
-    height's RMS error 0.43, 1.37 and 2.83 mm at 0.8-1.5, 1.5-2.5 and 2.5-3.8 m against 0.37, 1.46 and
-    2.92 mm claimed)."""
-    view = PatternView(X_CP, points_P, K, max(rms_residual_px, MIN_PIXEL_STD))
-    return NodeMeasurement(time, "adjustment", None, X_PB=pose_of_body(X_CP, X_BC), quality=rms_residual_px,
-                           view=view)
+    as independent measurements at its fit's pixel noise per coordinate (`pixel_std`, px, from
+    `fit_pixel_std`; also the measurement's `quality`) (tests/test_federated_landing.py's short landing,
+    square-on, most fits at MIN_PIXEL_STD: normalised squared pose errors of mean 7.6-9.6 and median
+    4.4-5.6 by altitude band, 6 for a consistent covariance; the height's RMS error 0.31, 1.06 and 3.02 mm
+    at 0.8-1.5, 1.5-2.5 and 2.5-3.8 m against 0.30, 0.99 and 2.79 mm claimed)."""
+    view = PatternView(X_CP, points_P, K, max(pixel_std, MIN_PIXEL_STD))
+    return NodeMeasurement(time, "adjustment", None, X_PB=pose_of_body(X_CP, X_BC), quality=pixel_std, view=view)
 
 
 def touchdown_measurement(X_CP: RigidTransform, outline_P: np.ndarray, anchor_px: float, chained: int, time: float,

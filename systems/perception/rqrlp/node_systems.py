@@ -52,7 +52,7 @@ def adjustment_node(grey: np.ndarray, time: float, camera: CameraConfig,
                     layout: RqrlpLayout) -> NodeMeasurement | None:
     found = adjustment(grey, camera.K_estimated, camera.D_estimated, layout)
     return None if found is None else adjustment_measurement(found.X_CP, layout_corners(layout),
-                                                             found.rms_residual_px, time, camera.X_BC, camera.K_estimated)
+                                                             found.pixel_std, time, camera.X_BC, camera.K_estimated)
 
 
 class _ImageNode(LeafSystem):

@@ -25,6 +25,7 @@ from systems.perception.rqrlp.homography import (
     plane_pose,
     pose_from_homography,
 )
+from systems.perception.rqrlp.measurements import fit_pixel_std
 from systems.perception.rqrlp.pattern import MARKERS, MODULES, RqrlpLayout
 from systems.sensors.camera import undistort_pixels
 
@@ -143,7 +144,8 @@ def _light_inside_border(mask: np.ndarray, quad: np.ndarray, layout: RqrlpLayout
 class AdjustmentResult:
     X_CP: RigidTransform  # Eq. (2)'s pose refined to the least reprojection error
     corners_px: np.ndarray  # (36, 2) undistorted, in the order of `layout_corners`
-    rms_residual_px: float  # of the corners about the refined pose's projection
+    rms_residual_px: float  # of the corners about the refined pose's projection, sqrt(mean(du^2 + dv^2)) [px]
+    pixel_std: float  # the corners' noise per coordinate from those residuals (`fit_pixel_std`, the pose's 6 dof) [px]
     module_px: float  # a marker module's apparent size
     X_CP_homography: RigidTransform  # Eq. (2)'s own, from the homography
 
@@ -308,7 +310,9 @@ def adjustment(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_modu
     projected = np.c_[points[:, :2], np.ones(len(points))] @ H.T
     residual = pixels - projected[:, :2] / projected[:, 2:]
     rms = float(np.sqrt(np.mean(np.sum(residual[inliers] ** 2, axis=1))))
-    return None if rms > max_residual_px else AdjustmentResult(X_CP, pixels, rms, module, X_CP_homography)
+    if rms > max_residual_px:
+        return None
+    return AdjustmentResult(X_CP, pixels, rms, fit_pixel_std(residual[inliers], parameters=6), module, X_CP_homography)
 
 
 # ---- Touchdown --------------------------------------------------------------------------------
