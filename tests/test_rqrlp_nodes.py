@@ -129,6 +129,26 @@ def test_the_adjustment_nodes_pixel_noise_is_per_coordinate(monkeypatch):
     assert np.mean(stds) == pytest.approx(0.5, rel=0.04)
 
 
+def test_the_adjustment_nodes_covariance_is_of_the_corners_its_pose_was_fitted_to(monkeypatch):
+    """The Top marker's 12 corners refined onto the wrong edges (8 px off): RANSAC leaves them out of the pose,
+    and its covariance must leave them out too (it had claimed all 36: 0.47 mm of p_CP's x where 0.69 held)."""
+    X_CP = X_CP_at(2.5, tilt_deg=(3, -2))
+    grey = view(X_CP)
+    true = cv2.projectPoints(layout_corners(LAYOUT), cv2.Rodrigues(X_CP.rotation().matrix())[0], X_CP.translation(),
+                             K, D)[0].reshape(-1, 4, 2)
+    rng = np.random.default_rng(1)
+
+    def wrong_top(grey, quads, search_px):  # corners_from_sides: 0.3 px noise, the Top marker's 8 px off
+        corners = true + rng.normal(0.0, 0.3, true.shape)
+        corners[:3] += 8.0
+        return corners, np.ones(len(quads), bool)
+
+    monkeypatch.setattr(nodes, "corners_from_sides", wrong_top)
+    measurement = adjustment_node(grey, 0.0, CAMERA, LAYOUT)
+    np.testing.assert_array_equal(measurement.view.points_P, layout_corners(LAYOUT)[12:])
+    np.testing.assert_array_equal(adjustment(grey, K, D, LAYOUT).inliers, np.arange(36) >= 12)
+
+
 def test_adjustment_needs_the_markers_resolved():
     assert adjustment(view(X_CP_at(4.5)), K, D, LAYOUT) is None  # modules under 5 px
     assert adjustment(np.full((540, 960), 200, np.uint8), K, D, LAYOUT) is None

@@ -50,8 +50,9 @@ def approach_node(grey: np.ndarray, time: float, camera: CameraConfig, layout: R
 
 def adjustment_node(grey: np.ndarray, time: float, camera: CameraConfig,
                     layout: RqrlpLayout) -> NodeMeasurement | None:
+    """The adjustment node's pose, its covariance from the corners the pose was fitted to (its inliers)."""
     found = adjustment(grey, camera.K_estimated, camera.D_estimated, layout)
-    return None if found is None else adjustment_measurement(found.X_CP, layout_corners(layout),
+    return None if found is None else adjustment_measurement(found.X_CP, layout_corners(layout)[found.inliers],
                                                              found.pixel_std, time, camera.X_BC, camera.K_estimated)
 
 

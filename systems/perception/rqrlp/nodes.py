@@ -144,6 +144,7 @@ def _light_inside_border(mask: np.ndarray, quad: np.ndarray, layout: RqrlpLayout
 class AdjustmentResult:
     X_CP: RigidTransform  # Eq. (2)'s pose refined to the least reprojection error
     corners_px: np.ndarray  # (36, 2) undistorted, in the order of `layout_corners`
+    inliers: np.ndarray  # (36,) bool: the corners the pose was fitted to (the homography's RANSAC inliers)
     rms_residual_px: float  # of the corners about the refined pose's projection, sqrt(mean(du^2 + dv^2)) [px]
     pixel_std: float  # the corners' noise per coordinate from those residuals (`fit_pixel_std`, the pose's 6 dof) [px]
     module_px: float  # a marker module's apparent size
@@ -312,7 +313,8 @@ def adjustment(grey: np.ndarray, K: np.ndarray, D, layout: RqrlpLayout, min_modu
     rms = float(np.sqrt(np.mean(np.sum(residual[inliers] ** 2, axis=1))))
     if rms > max_residual_px:
         return None
-    return AdjustmentResult(X_CP, pixels, rms, fit_pixel_std(residual[inliers], parameters=6), module, X_CP_homography)
+    return AdjustmentResult(X_CP, pixels, inliers, rms, fit_pixel_std(residual[inliers], parameters=6), module,
+                            X_CP_homography)
 
 
 # ---- Touchdown --------------------------------------------------------------------------------
