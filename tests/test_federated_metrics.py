@@ -3,6 +3,8 @@ errors are known: the frames where both nodes measured and the fused estimate is
 RMSE of every local filter and of the fused estimate on exactly those frames; Overlap 1's
 frames shaded in federated.png and its figures in what a run prints."""
 
+from pathlib import Path
+
 import matplotlib.pyplot as plt
 import numpy as np
 from pydrake.math import RigidTransform
@@ -60,6 +62,17 @@ def test_overlaps_score_every_local_filter_and_the_fused_estimate_on_the_two_nod
     assert two["frames"] == 3  # 5, 6, 8: frame 7's fused estimate is invalid
     np.testing.assert_allclose(two["rmse_height_m"]["local_touchdown"], 0.04)
     np.testing.assert_allclose(two["rmse_height_m"]["local_approach"], 0.02)
+
+
+def test_docs_scenarios_names_every_height_an_overlap_scores():
+    """docs/scenarios.md's `federated.overlaps` passage names each key of an overlap's `rmse_height_m` (it had
+    said the two local filters and the fused estimate, where every local filter is scored)."""
+    log, heights = _log()
+    scored = overlap_metrics(log, np.ones(len(heights), bool))["overlap_1"]["rmse_height_m"]
+    doc = (Path(__file__).parent.parent / "docs" / "scenarios.md").read_text()
+    start = doc.index("`federated.overlaps` holds")
+    passage = doc[start:doc.index(";", doc.index("`rmse_height_m`", start))]
+    assert len(scored) == 4 and all(f"`{key}`" in passage for key in scored), passage
 
 
 def test_an_overlap_without_shared_frames_has_no_figures():
