@@ -14,6 +14,7 @@ from systems.estimators.federated.engine import (
     FederatedConfig,
     FederatedState,
     is_valid,
+    relative_jacobian,
     relative_std_m,
     step,
 )
@@ -21,6 +22,7 @@ from systems.estimators.federated.fusion import fuse, reset
 from systems.estimators.federated.local_filter import (
     LocalFilterConfig,
     LocalState,
+    centre_in_body,
     exp_so3,
     initial_state,
     log_so3,
@@ -393,6 +395,24 @@ def test_the_predictions_jacobian_is_its_finite_differences(dt):
     h = 1e-6
     F = np.column_stack([(nominal(h * e) - nominal(-h * e)) / (2 * h) for e in np.eye(9)])
     np.testing.assert_allclose(out.P, F @ F.T, atol=1e-6)
+
+
+def test_the_centre_seen_from_the_body_is_what_the_camera_and_the_landing_use():
+    """centre_in_body, p_BP_B = R^T (-p), and its Jacobian against central differences over the error state
+    (attitude errors Exp(dtheta) R): the one behind the approaching node's model in the camera and the
+    relative position's Jacobian (relative_jacobian), which had each written it out."""
+    R0 = RollPitchYaw(0.2, -0.1, 0.7).ToRotationMatrix().matrix()
+    base = LocalState(np.array([0.3, -0.5, 4.0]), np.zeros(3), R0, np.eye(9))
+    p_BP_B, H = centre_in_body(base)
+    np.testing.assert_allclose(p_BP_B, R0.T @ -base.p)
+
+    def centre(x):
+        return centre_in_body(LocalState(base.p + x[0:3], base.v + x[3:6], exp_so3(x[6:9]) @ R0, np.eye(9)))[0]
+
+    h = 1e-6
+    np.testing.assert_allclose(H, np.column_stack([(centre(h * e) - centre(-h * e)) / (2 * h) for e in np.eye(9)]),
+                               atol=1e-8)
+    np.testing.assert_array_equal(relative_jacobian(base), H)
 
 
 def test_the_pattern_seen_from_the_camera_brings_a_filter_to_the_true_pose():

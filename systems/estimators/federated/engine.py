@@ -23,6 +23,7 @@ from systems.estimators.federated.fusion import fuse, reset
 from systems.estimators.federated.local_filter import (
     LocalFilterConfig,
     LocalState,
+    centre_in_body,
     initial_state,
     initial_velocity_covariance,
     position_first,
@@ -32,7 +33,6 @@ from systems.estimators.federated.local_filter import (
     update_pose,
 )
 from systems.perception.rqrlp.measurements import NodeMeasurement
-from systems.quaternion import skew
 
 NODES = ("approach", "adjustment", "touchdown")  # seed 001 Fig. 3, from far to near
 
@@ -230,13 +230,9 @@ def last_accepted_s(state: FederatedState) -> float | None:
 
 
 def relative_jacobian(fused: LocalState) -> np.ndarray:
-    """(3x9) d(p_BP_B)/d(error state): p_BP_B = -R_PB^T p_PB, the pattern's centre seen from the
-    body, what the landing steers on (independent of the heading when only the centre was seen)."""
-    R_BP = fused.R.T
-    J = np.zeros((3, 9))
-    J[:, 0:3] = -R_BP
-    J[:, 6:9] = -R_BP @ skew(fused.p)
-    return J
+    """(3x9) d(p_BP_B)/d(error state) (`centre_in_body`'s): p_BP_B = -R_PB^T p_PB, the pattern's centre
+    seen from the body, what the landing steers on (independent of the heading when only the centre was seen)."""
+    return centre_in_body(fused)[1]
 
 
 def relative_std_m(fused: LocalState) -> float:

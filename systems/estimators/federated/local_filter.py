@@ -174,14 +174,21 @@ def update_centre_in_camera(state: LocalState, p_CP: np.ndarray, covariance: np.
     return _update(state, np.asarray(p_CP) - predicted, H, np.asarray(covariance), config)
 
 
-def _centre_in_camera(state: LocalState, R_BC: np.ndarray, p_BC: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The pattern's centre in the camera that the state predicts, R_BC^T (R_PB^T (-p_PB) - p_BC) (m),
+def centre_in_body(state: LocalState) -> tuple[np.ndarray, np.ndarray]:
+    """The pattern's centre seen from the body that the state predicts, p_BP_B = R_PB^T (-p_PB) (m, in B),
     and its Jacobian over the error state (3x9)."""
     R_BP = state.R.T
     H = np.zeros((3, 9))
-    H[:, 0:3] = -R_BC.T @ R_BP
-    H[:, 6:9] = -R_BC.T @ R_BP @ skew(state.p)  # R_PB^T = R^T Exp(-dtheta): d/d(dtheta) of -R^T (p - dtheta x p)
-    return R_BC.T @ (R_BP @ (-state.p) - p_BC), H
+    H[:, 0:3] = -R_BP
+    H[:, 6:9] = -R_BP @ skew(state.p)  # R_PB^T = R^T Exp(-dtheta): d/d(dtheta) of -R^T (p - dtheta x p)
+    return R_BP @ (-state.p), H
+
+
+def _centre_in_camera(state: LocalState, R_BC: np.ndarray, p_BC: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pattern's centre in the camera that the state predicts, R_BC^T (p_BP_B - p_BC) (m), and its
+    Jacobian over the error state (3x9)."""
+    p_BP_B, H = centre_in_body(state)
+    return R_BC.T @ (p_BP_B - p_BC), R_BC.T @ H
 
 
 def position_first(covariance: np.ndarray) -> np.ndarray:
