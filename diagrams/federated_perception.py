@@ -14,7 +14,7 @@ from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from systems.config import require
 from systems.estimators.federated.engine import NODES, FederatedConfig
-from systems.estimators.federated.system import FederatedFilterSystem
+from systems.estimators.federated.system import FederatedFilterSystem, require_camera_steps
 from systems.perception.rqrlp.node_systems import AdjustmentNode, ApproachNode, NodeMeasurementToVector, TouchdownNode
 from systems.perception.rqrlp.pattern import RqrlpLayout
 from systems.sensors.camera import CameraConfig
@@ -42,13 +42,7 @@ class FederatedPerceptionConfig:
         self.camera.validate(f"{prefix}.camera")
         self.imu.validate(f"{prefix}.imu")
         self.filter.validate(f"{prefix}.filter")
-        ratio = self.camera.period_s / self.imu.period_s
-        require(abs(ratio - round(ratio)) < 1e-6 and round(ratio) >= 1,
-                f"{prefix}.camera.rate_hz ({self.camera.rate_hz:g}) must divide {prefix}.imu.rate_hz "
-                f"({self.imu.rate_hz:g}): the filter reads a frame every few IMU samples")
-        require(self.filter.max_coast_s > self.camera.period_s,
-                f"{prefix}.filter.max_coast_s ({self.filter.max_coast_s:g} s) must exceed the camera's period "
-                f"({self.camera.period_s:g} s): at or below it every frame restarts the local filters")
+        require_camera_steps(self.filter, self.imu.period_s, self.camera.period_s, prefix)
         require(self.filter.gravity_m_s2 == self.imu.gravity_m_s2,
                 f"{prefix}.filter.gravity_m_s2 must be the IMU's ({self.imu.gravity_m_s2:g})")
 

@@ -72,8 +72,22 @@ def test_a_frame_is_in_the_output_at_its_own_time():
 
 
 def test_the_camera_period_must_be_whole_imu_periods():
-    with pytest.raises(ConfigError, match="whole number of IMU periods"):
+    with pytest.raises(ConfigError,
+                       match=r"federated\.camera\.rate_hz \(80\) must divide federated\.imu\.rate_hz \(200\)"):
         FederatedFilterSystem(FederatedConfig(), X_BC, 0.005, 0.0125)
+
+
+@pytest.mark.parametrize("override, periods", [("federated.imu.rate_hz=70.0", (1 / 70, CAMERA_PERIOD)),
+                                               ("federated.filter.max_coast_s=0.02", (IMU_PERIOD, CAMERA_PERIOD))])
+def test_the_scenario_and_the_system_refuse_the_camera_steps_in_the_same_words(override, periods):
+    """One check (require_camera_steps) for the scenario's rates and the system's periods: they had each their
+    own, in other words."""
+    with pytest.raises(ConfigError) as loaded:
+        load_scenario("open-landing", overrides=[override])
+    coast = FederatedConfig(max_coast_s=0.02) if "max_coast_s" in override else FederatedConfig()
+    with pytest.raises(ConfigError) as built:
+        FederatedFilterSystem(coast, X_BC, *periods)
+    assert str(built.value) == str(loaded.value)
 
 
 def test_before_a_full_pose_X_PB_claims_no_heading_and_the_position_it_turns():

@@ -5,7 +5,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
-from systems.config import ConfigError
+from systems.config import require
 from systems.estimators.estimate import PoseEstimate
 from systems.estimators.federated.engine import (
     NODES,
@@ -63,6 +63,20 @@ def with_heading_gauge(covariance: np.ndarray, p: np.ndarray) -> np.ndarray:
     return covariance + np.pi**2 * np.outer(g, g)
 
 
+def require_camera_steps(config: FederatedConfig, imu_period_s: float, camera_period_s: float,
+                         prefix: str = "federated") -> None:
+    """The filter steps with the IMU and reads a frame every few steps: the camera's period [s] a whole
+    number of IMU periods, and config.max_coast_s over it (at or below it every frame restarts the local
+    filters); else ConfigError naming `{prefix}.camera.rate_hz` or `{prefix}.filter.max_coast_s`."""
+    ratio = camera_period_s / imu_period_s
+    require(abs(ratio - round(ratio)) < 1e-6 and round(ratio) >= 1,
+            f"{prefix}.camera.rate_hz ({1 / camera_period_s:g}) must divide {prefix}.imu.rate_hz "
+            f"({1 / imu_period_s:g}): the filter reads a frame every few IMU samples")
+    require(config.max_coast_s > camera_period_s,
+            f"{prefix}.filter.max_coast_s ({config.max_coast_s:g} s) must exceed the camera's period "
+            f"({camera_period_s:g} s): at or below it every frame restarts the local filters")
+
+
 class FederatedFilterSystem(LeafSystem):
     """The federated filter stepped at the IMU's rate, its nodes read at the camera's.
 
@@ -80,13 +94,7 @@ class FederatedFilterSystem(LeafSystem):
     def __init__(self, config: FederatedConfig, X_BC: RigidTransform, imu_period_s: float, camera_period_s: float):
         super().__init__()
         config.validate()
-        ratio = camera_period_s / imu_period_s
-        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
-            raise ConfigError(f"the camera's period ({camera_period_s:g} s) must be a whole number of IMU periods "
-                              f"({imu_period_s:g} s)")
-        if config.max_coast_s <= camera_period_s:
-            raise ConfigError(f"max_coast_s ({config.max_coast_s:g} s) must exceed the camera's period "
-                              f"({camera_period_s:g} s): at or below it every frame restarts the local filters")
+        require_camera_steps(config, imu_period_s, camera_period_s)
         self._config, self._X_BC, self._camera_period = config, X_BC, camera_period_s
         self._imu = self.DeclareVectorInputPort("imu", 6)
         self._nodes = {node: self.DeclareAbstractInputPort(node, AbstractValue.Make([])) for node in NODES}
