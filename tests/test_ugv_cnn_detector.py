@@ -9,7 +9,8 @@ import pytest
 
 from diagrams.ugv_detection_scenes import UgvDataset
 from models.train_ugv_cnn import CROP_PX, STRIDE, best_threshold, sample, targets_for, turn_box
-from systems.config import ConfigError
+from systems.config import PROJECT_ROOT, ConfigError
+from systems.estimators.crhf import CrhfConfig
 from systems.perception.ugv_cnn_detector import DEFAULT_MODEL_PATH, CnnDetector, decode
 
 
@@ -107,6 +108,22 @@ def test_corrupt_model_file_is_one_config_error_line_naming_it(tmp_path, content
         CnnDetector(path)
     message = str(error.value)
     assert str(path) in message and "\n" not in message
+
+
+def test_relative_model_path_falls_back_to_the_project_root_as_the_crhf_calibration_does(tmp_path, monkeypatch):
+    """docs/scenarios.md gives both defaults as models/...: outside the checkout both resolve under its root."""
+    monkeypatch.chdir(tmp_path)
+    assert CnnDetector("models/ugv_detector.onnx").model_path == DEFAULT_MODEL_PATH
+    calibration = CrhfConfig(calibration_file="models/crhf_pad_calibration.npz").calibration_path()
+    assert calibration == PROJECT_ROOT / "models" / "crhf_pad_calibration.npz" and calibration.is_file()
+
+
+def test_relative_model_path_in_the_working_directory_comes_first(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "ugv_detector.onnx").write_bytes(b"not onnx")
+    with pytest.raises(ConfigError, match="model file models/ugv_detector.onnx is not a readable"):
+        CnnDetector("models/ugv_detector.onnx")
 
 
 def test_frame_of_another_size_is_a_config_error():

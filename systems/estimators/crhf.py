@@ -36,7 +36,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
-from systems.config import require, require_positive
+from systems.config import project_file, require, require_positive
 from systems.estimators.crhf_math import (
     CrhfEstimate,
     corners_fit_a_tag,
@@ -51,7 +51,6 @@ from systems.estimators.pad_calibration import CalibrationError, CalibrationFlig
 from systems.estimators.track_filter import Track, TrackFilterParams, step_track
 from systems.perception.apriltag import TagDetection, tag_corners_T
 
-PACKAGE_ROOT = Path(__file__).resolve().parent.parent.parent
 DEFAULT_CALIBRATION = "models/crhf_pad_calibration.npz"  # written by `landing-sim run crhf-calibration`
 
 
@@ -117,10 +116,7 @@ class CrhfConfig:
             getattr(self, name).validate(f"{prefix}.{name}")
 
     def calibration_path(self) -> Path:
-        path = Path(self.calibration_file)
-        if path.is_absolute() or path.exists():
-            return path
-        return PACKAGE_ROOT / path
+        return project_file(self.calibration_file)
 
 
 @dataclass(frozen=True)

@@ -18,20 +18,21 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from systems.config import ConfigError, require
+from systems.config import PROJECT_ROOT, ConfigError, project_file, require
 from systems.perception.ugv_detector import Detection, non_maximum_suppression, to_rgb
 
-DEFAULT_MODEL_PATH = Path(__file__).resolve().parents[2] / "models" / "ugv_detector.onnx"
+DEFAULT_MODEL_PATH = PROJECT_ROOT / "models" / "ugv_detector.onnx"
 OUTPUTS = 5  # heat, offset x, offset y, log w, log h (cells)
 
 
 class CnnDetector:
-    """The ONNX network through cv2.dnn (one instance per thread: a cv2.dnn.Net is not shared safely)."""
+    """The ONNX network through cv2.dnn (one instance per thread: a cv2.dnn.Net is not shared safely). A relative
+    `model_path` is tried from the working directory, then from the project root (`systems.config.project_file`)."""
 
     def __init__(self, model_path: Path | str = DEFAULT_MODEL_PATH, min_score: float = 0.5, max_detections: int = 10,
                  nms_iou: float = 0.3):
         require(0.0 < min_score < 1.0, f"the CNN detector's min_score must lie in (0, 1), got {min_score}")
-        self.model_path = Path(model_path)
+        self.model_path = project_file(model_path)
         self.min_score, self.max_detections, self.nms_iou = min_score, max_detections, nms_iou
         if not self.model_path.is_file():
             raise ConfigError(f"the UGV detector's model file {self.model_path} does not exist "
