@@ -45,14 +45,14 @@ FILTERS = ("paper_ekf", "ct_ekf")
 PREVIOUS = "d19490c"  # the last commit with the filters run over a recorded stream after the flight
 
 
-def with_failed_runs(summary: dict) -> dict:
-    """summary.json's landing figures per source, its `runs` every run asked for (`requested`), with
-    `failed` those that raised: the campaign's aggregate counts the finished runs alone, so a run that
-    raised would drop out of landed/runs instead of counting as one that did not land."""
+def landings_counted(summary: dict) -> dict:
+    """summary.json's "cases" per source (diagrams/landing_campaign.source_summary) with its landings counted:
+    `runs` those that ended (finished or raised), `landed` its success rate of them (a run that raised counts as
+    one that did not land)."""
     out = {}
-    for source, figures in summary["filters"]["landing"].items():
-        case = summary["cases"][source]
-        out[source] = {**figures, "runs": case["requested"], "finished": figures["runs"], "failed": case["failed"]}
+    for source, case in summary["cases"].items():
+        ended = case["done"] + case["failed"]
+        out[source] = {**case, "runs": ended, "landed": round((case["success_rate"] or 0.0) * ended)}
     return out
 
 
@@ -61,7 +61,7 @@ def closed_loop(runs: int, workers: int, out: Path) -> dict:
     settings = campaign_settings(definition, "marker-landing", SOURCES, runs)
     start = time.perf_counter()
     summary = run_campaign(definition, settings, out, workers=workers, progress=False)
-    figures = with_failed_runs(summary)
+    figures = landings_counted(summary)
     print(f"\n## Closed loop: marker-landing, {runs} seeds per source, {workers} workers, "
           f"{time.perf_counter() - start:.0f} s wall\n")
     print("| steering | landed | meets targets | touchdown error median / p95 / max (m) | rel. vertical speed max "
@@ -72,10 +72,10 @@ def closed_loop(runs: int, workers: int, out: Path) -> dict:
         error, speed, coast = f["touchdown_error_m"], f["touchdown_rel_speed_mps"], f["coast_before_touchdown_s"]
         raised = f" ({f['failed']} raised)" if f["failed"] else ""
         cells = [source, f"{f['landed']}/{f['runs']}{raised}", f"{f['meets_targets']}/{f['runs']}",
-                 f"{error['median']:.4f} / {error['p95']:.4f} / {error['max']:.4f}" if error else "-",
+                 f"{error['p50']:.4f} / {error['p95']:.4f} / {error['max']:.4f}" if error else "-",
                  f"{speed['max']:.3f}" if speed else "-",
                  f"{f['steering_rms_position_m']:.4f}" if f["steering_rms_position_m"] is not None else "-",
-                 f"{coast['median']:.2f}" if coast else "-"]
+                 f"{coast['p50']:.2f}" if coast else "-"]
         print("| " + " | ".join(cells) + " |")
     ct = figures["ct_ekf"]
     checks = [("ct_ekf: every run lands on the pad", ct["landed"] == ct["runs"],

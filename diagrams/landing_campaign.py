@@ -4,11 +4,11 @@ the same seeds for every source (the same pixel noise, the same stream), side by
     landing-sim montecarlo marker-landing --runs 10 --cases ct_ekf paper_ekf truth --workers 2
 
 A run flies the scenario (diagrams/gv_landing_run.fly) and keeps its `landing`, `perception`,
-`measurements` and `estimators` sections. summary.json's "filters" has per source: how many runs
-landed on the pad and met the touchdown targets, the touchdown error's median, 95th percentile and
-maximum (over the runs that touched down), the largest relative vertical speed, the steering
-estimate's RMS position error (RMS over the runs) and the time flown on the prediction before
-touchdown.
+`measurements` and `estimators` sections. summary.json's "cases" has per source, besides its run counts, the
+landing figures a `--case` campaign gives per case (`landing_case_summary`: success rate, a run that raised
+counting as a failure; touchdown error and relative vertical speed; failure reasons counted; aborts; how many met
+the targets) and the source's own (`source_summary`): the steering estimate's RMS position error, the time flown
+on the prediction before touchdown and the time to land.
 """
 
 from collections import Counter
@@ -52,43 +52,21 @@ def run_task(task: RunTask) -> dict:
     return {"seed": task.seed, **{key: metrics[key] for key in keep if key in metrics}}
 
 
-def _percentiles(values: list[float], median: str = "median") -> dict | None:
-    """{median, "p95", "max"} of the values (None for none); `median` names the first key."""
+def _percentiles(values: list[float]) -> dict | None:
+    """{"p50", "p95", "max"} of the values (None for none)."""
     if not values:
         return None
     v = np.asarray(values, dtype=float)
-    return {median: float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
-
-
-def aggregate(done: dict) -> dict:
-    """summary.json's "filters": per source (case) the landing figures (module docstring)."""
-    out = {}
-    for case, records in done.items():
-        landings = [r.metrics["landing"] for r in records]
-        touched = [m for m in landings if m["touchdown_error_m"] is not None]
-        steering = [r.metrics["perception"].get("rms_position_m") for r in records]
-        coasts = [r.metrics["perception"].get("coast_before_touchdown_s") for r in records]
-        out[case] = {
-            "runs": len(records),
-            "landed": sum(m["success"] for m in landings),
-            "meets_targets": sum(m["meets_targets"] for m in landings),
-            "failures": sorted({m["failure_reason"] for m in landings if m["failure_reason"]}),
-            "touchdown_error_m": _percentiles([m["touchdown_error_m"] for m in touched]),
-            "touchdown_rel_speed_mps": _percentiles([m["touchdown_rel_speed_mps"] for m in touched]),
-            "steering_rms_position_m": (float(np.sqrt(np.mean(np.square([s for s in steering if s is not None]))))
-                                        if any(s is not None for s in steering) else None),
-            "coast_before_touchdown_s": _percentiles([c for c in coasts if c is not None]),
-            "time_to_land_s": _percentiles([m["time_to_land_s"] for m in touched]),
-        }
-    return {"landing": out}
+    return {"p50": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
 
 
 def landing_case_summary(records: list, failed: int = 0) -> dict:
-    """One case's landing figures in a `--case` campaign (diagrams/montecarlo/grid.py), from its
-    finished runs (RunRecord) and the number of its runs that raised (`failed`, each a failure, reason
-    "run_failed"): success rate, touchdown error and relative vertical speed (p50, p95,
-    max over the runs that touched down), failure reasons counted, aborts, how many met the targets, and on a
-    deck its tilt at touchdown and the time waited for a landing window."""
+    """One case's landing figures in summary.json's "cases" (a `--case` campaign's, diagrams/montecarlo/grid.py,
+    and, with `source_summary`'s, the `--cases` campaign's per source), from its finished runs (RunRecord) and
+    the number of its runs that raised (`failed`, each a failure, reason "run_failed"): success rate, touchdown
+    error (m) and relative vertical speed (m/s; p50, p95, max over the runs that touched down), failure reasons
+    counted, aborts, how many met the targets, and on a deck its tilt at touchdown (deg) and the time waited for a
+    landing window (s)."""
     landings = [r.metrics["landing"] for r in records]
     touched = [m for m in landings if m["touchdown_error_m"] is not None]
     reasons = Counter(m["failure_reason"] for m in landings if m["failure_reason"])
@@ -96,18 +74,32 @@ def landing_case_summary(records: list, failed: int = 0) -> dict:
         reasons["run_failed"] = failed
     ended = len(landings) + failed
     return {"success_rate": sum(m["success"] for m in landings) / ended if ended else None,
-            "touchdown_error_m": _percentiles([m["touchdown_error_m"] for m in touched], "p50"),
-            "touchdown_rel_speed_mps": _percentiles([m["touchdown_rel_speed_mps"] for m in touched], "p50"),
+            "touchdown_error_m": _percentiles([m["touchdown_error_m"] for m in touched]),
+            "touchdown_rel_speed_mps": _percentiles([m["touchdown_rel_speed_mps"] for m in touched]),
             "failure_reasons": dict(reasons),
             "aborts": sum(m["aborts"] for m in landings),
             "meets_targets": sum(m["meets_targets"] for m in landings),
             # On a moving deck: its tilt at touchdown and the waits for a landing window.
-            **({"deck_tilt_at_touchdown_deg": _percentiles([m["deck_tilt_at_touchdown_deg"] for m in touched], "p50"),
-                "wait_s": _percentiles([m["wait_s"] for m in landings], "p50")}
+            **({"deck_tilt_at_touchdown_deg": _percentiles([m["deck_tilt_at_touchdown_deg"] for m in touched]),
+                "wait_s": _percentiles([m["wait_s"] for m in landings])}
                if any("deck_tilt_at_touchdown_deg" in m for m in touched) else {})}
+
+
+def source_summary(records: list, failed: int = 0) -> dict:
+    """One source's figures in the `--cases` campaign: `landing_case_summary`'s, then the steering estimate's RMS
+    position error (m, RMS over the runs that report one), the time flown on the prediction before touchdown and
+    the time to land (s; p50, p95, max over the runs that have them)."""
+    perception = [r.metrics["perception"] for r in records]
+    steering = [p["rms_position_m"] for p in perception if p.get("rms_position_m") is not None]
+    coasts = [p["coast_before_touchdown_s"] for p in perception if p.get("coast_before_touchdown_s") is not None]
+    touched = [r.metrics["landing"] for r in records if r.metrics["landing"]["touchdown_error_m"] is not None]
+    return {**landing_case_summary(records, failed),
+            "steering_rms_position_m": float(np.sqrt(np.mean(np.square(steering)))) if steering else None,
+            "coast_before_touchdown_s": _percentiles(coasts),
+            "time_to_land_s": _percentiles([m["time_to_land_s"] for m in touched])}
 
 
 CAMPAIGN = CampaignDefinition(
     run=run_task, cases=SOURCES, runs=10, case_name="source", case_key="perception.source", known_cases=(),
-    aggregate=aggregate, paired=True, build=build_task,
+    aggregate=lambda done: {}, case_summary=source_summary, paired=True, build=build_task,
     description="closed-loop landings, one case per perception source, the same seeds for every source")

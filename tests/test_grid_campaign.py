@@ -107,6 +107,24 @@ def test_a_run_that_raised_counts_against_the_success_rate():
     assert summary["touchdown_error_m"]["max"] == 0.02
 
 
+def test_a_sources_figures_are_a_cases_with_the_steering_figures_added():
+    """`--cases` (per source) and `--case` (per case) summarise landings in one summary, summary.json's "cases"."""
+    records = [a_landing(0.01, 0.3), a_landing(0.02, 0.3), a_landing(None, None)]
+    for record, steering_m, coast_s, land_s in zip(records, (0.03, 0.04, None), (0.5, None, None), (20.0, 30.0, None),
+                                                   strict=True):
+        record.metrics["perception"] = {"rms_position_m": steering_m, "coast_before_touchdown_s": coast_s}
+        record.metrics["landing"]["time_to_land_s"] = land_s
+    summary = CAMPAIGN.case_summary(records, 1)  # one run raised
+    case = landing_case_summary(records, 1)
+    assert {key: summary[key] for key in case} == case
+    assert summary["success_rate"] == 0.5 and summary["failure_reasons"] == {"timeout": 1, "run_failed": 1}
+    assert summary["touchdown_error_m"] == {"p50": 0.015, "p95": pytest.approx(0.0195), "max": 0.02}
+    assert summary["steering_rms_position_m"] == pytest.approx(0.5 ** 0.5 * 0.05)  # RMS of 0.03 and 0.04 m
+    assert summary["coast_before_touchdown_s"] == {"p50": 0.5, "p95": 0.5, "max": 0.5}
+    assert summary["time_to_land_s"]["p50"] == 25.0
+    assert CAMPAIGN.aggregate({"truth": records}) == {}  # nothing in "filters" beside it
+
+
 def test_the_touchdown_plot_zooms_on_clustered_points_and_counts_each_cases_landings(tmp_path, monkeypatch):
     figures = []
     monkeypatch.setattr(grid, "save_figure", lambda fig, path: figures.append(fig))
