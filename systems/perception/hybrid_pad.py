@@ -25,8 +25,7 @@ Ours, where the paper is silent:
   estimate's prediction is an outlier and not used (`gate_m`), and without a measurement the estimate
   coasts at the last observed velocity (Eq. 15-19's observer run on the measured positions) for
   `max_coast_s`, then turns invalid; higher, it coasts only while that observer is valid, and at most
-  `approach_max_coast_s`; invalid, it forgets that velocity and its observer starts afresh (a target found
-  again after a loss is not coasted at its velocity from before). The paper lands
+  `approach_max_coast_s`. The paper lands
   below LH blind, as its target floods the fisheye; the supervisor here stops a landing on an invalid
   estimate. The seam's v_WP (`v_WP` output) is that observer's, else (past its window) the coasting
   estimate's velocity, else zero: never NaN.
@@ -208,9 +207,8 @@ def hybrid_step(state: HybridPadState, time: float, box: np.ndarray, box_valid: 
           and (landing or (observer.valid and time - last_measured <= config.approach_max_coast_s + 1e-9))):
         coast = time - last_measured
         p = predicted()
-    else:  # invalid: the velocity seen before is no longer the target's, and the observer starts afresh, so that
-        # nothing from before the loss feeds a later coast, the approach's coast condition or the seam's v_WP
-        coast, velocity, observer = math.nan, None, ObserverState(time)
+    else:  # invalid: the velocity seen before is no longer the target's, so no later coast may use it
+        coast, velocity = math.nan, None
     if p is None:
         estimate = PoseEstimate.invalid(time, "W", "P")
     else:
