@@ -25,7 +25,9 @@ Ours, where the paper is silent:
   estimate's prediction is an outlier and not used (`gate_m`), and without a measurement the estimate
   coasts at the last observed velocity (Eq. 15-19's observer run on the measured positions) for
   `max_coast_s`, then turns invalid; higher, it coasts only while that observer is valid, and at most
-  `approach_max_coast_s`. The paper lands
+  `approach_max_coast_s`; invalid, it forgets that coast's velocity, while the observer keeps its window (a
+  target found again within `window_s` is coasted at what its sightings give across the loss: the climb's
+  sightings, frames apart, build the approach's velocity that way). The paper lands
   below LH blind, as its target floods the fisheye; the supervisor here stops a landing on an invalid
   estimate. The seam's v_WP (`v_WP` output) is that observer's, else (past its window) the coasting
   estimate's velocity, else zero: never NaN.
