@@ -258,8 +258,7 @@ class GvLandingConfig(FlightConfig):
             getattr(self, name).validate(name)
         self._validate_steering_lag()
         path = make_path(self.vehicle.path_config(), "vehicle.path")
-        if self.distractors.count:
-            self.distractors.check_lanes(path, f"vehicle.path '{self.vehicle.path}'")
+        self.distractors.check_lanes(path, f"vehicle.path '{self.vehicle.path}'")
         self._validate_start(path)
         if self.bridge.enabled:
             self._validate_bridge()

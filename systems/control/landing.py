@@ -35,7 +35,8 @@ Modes and what they command (velocities in World, z up; "hold" is a P loop on al
               (not seen -> ABORT, as in LAND)
     HOLD      not seen in FOLLOW/APPROACH (ABORT instead where the last valid estimate was below LH):
               coast, hold altitude; seen -> FOLLOW; lost_hold_s -> SEARCH
-    SEARCH    no horizontal speed, climb back to IH (never descend); seen -> FOLLOW
+    SEARCH    no horizontal speed, back to IH (entered from CLIMB within altitude_tolerance_m of IH, or from HOLD
+              or ABORT at or below it: a climb, or a descent of about that tolerance at most); seen -> FOLLOW
     ABORT     coast, climb towards IH at climb speed (slowing to stop there, as SEARCH); seen -> FOLLOW
               (a retry); lost_hold_s -> SEARCH
     (with a valid rendezvous target, CLIMB, HOLD, SEARCH and ABORT track it instead of coasting or standing)
