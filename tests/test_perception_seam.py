@@ -52,6 +52,9 @@ def test_the_seam_is_the_pad_relative_to_the_uav_in_world_and_body():
     (PoseEstimate(10.0 + 1e-12, X_WP, True, covariance(0.3)), 10.0, True),  # the same time, to rounding
     (PoseEstimate(10.0, RigidTransform([np.nan, 0.0, 0.0]), True, None), 10.0, False),
     (PoseEstimate(10.0, X_WP, True, np.full((6, 6), np.nan)), 10.0, False),
+    # A negative variance (a diverged filter's P) is no std: x and y 7 m, z -100 m^2 summed to a trace of 0.
+    (PoseEstimate(10.0, X_WP, True, np.diag([0.0, 0.0, 0.0, 50.0, 50.0, -100.0])), 10.0, False),
+    (PoseEstimate(10.0, X_WP, True, np.diag([0.0, 0.0, 0.0, 0.01, 0.01, -1e-15])), 10.0, True),  # round-off
 ])
 def test_validity_is_the_estimates_own(estimate, time, valid):
     assert estimate_is_valid(estimate, time, SeamConfig(max_position_std_m=1.0, max_age_s=0.5)) == valid

@@ -37,6 +37,7 @@ VALID = 10  # 1 when the estimate may be steered on, else 0
 A_WP = slice(11, 14)  # acceleration of the pad centre in W [m/s^2]
 RELATIVE_STATE_SIZE = 14
 FUTURE_TOLERANCE_S = 1e-9  # an estimate stamped later than the context's time by more is invalid
+NEGATIVE_VARIANCE_TOLERANCE_M2 = 1e-12  # round-off in a filter's covariance; a variance more negative is invalid
 
 
 @dataclass
@@ -53,7 +54,9 @@ class SeamConfig:
 
 def estimate_is_valid(estimate: PoseEstimate, time: float, config: SeamConfig) -> bool:
     """The estimate's own flag, a finite pose, its position std (when it has a covariance) within
-    config.max_position_std_m, and no older than config.max_age_s at `time` [s] nor stamped after it."""
+    config.max_position_std_m, and no older than config.max_age_s at `time` [s] nor stamped after it.
+    A position variance below -NEGATIVE_VARIANCE_TOLERANCE_M2 (a diverged filter's P) is not a std at all:
+    invalid, not the most certain estimate there is."""
     if not estimate.valid or not math.isfinite(estimate.time):
         return False
     if time - estimate.time > config.max_age_s or estimate.time > time + FUTURE_TOLERANCE_S:
@@ -61,9 +64,10 @@ def estimate_is_valid(estimate: PoseEstimate, time: float, config: SeamConfig) -
     if not np.all(np.isfinite(estimate.X_RT.GetAsMatrix34())):
         return False
     if estimate.covariance is not None:
-        position = np.asarray(estimate.covariance)[3:, 3:]
-        trace = float(np.trace(position))
-        if not math.isfinite(trace) or math.sqrt(max(trace, 0.0)) > config.max_position_std_m:
+        variances = np.diag(np.asarray(estimate.covariance)[3:, 3:])
+        if not np.all(np.isfinite(variances)) or np.any(variances < -NEGATIVE_VARIANCE_TOLERANCE_M2):
+            return False
+        if math.sqrt(max(float(variances.sum()), 0.0)) > config.max_position_std_m:
             return False
     return True
 
