@@ -55,6 +55,21 @@ def test_an_exact_broadcast_arrives_one_message_late_and_is_dead_reckoned():
     assert output.Eval(context)[VALID] == 0.0
 
 
+def test_the_shortest_max_age_accepted_keeps_a_steady_broadcast_valid_between_messages():
+    # A message arrives latency / rate old and is held a period more: the smallest max_age_s validate() accepts
+    # is that, and the broadcast stays valid from its first arrival on.
+    system, context = broadcast_system(position_std_m=0.0, latency_periods=1, max_age_s=(1 + 1) / 10.0)
+    system.GetInputPort("true_relative_state").FixValue(context, truth_at(0.0))
+    simulator = Simulator(system, context)
+    valid = []
+    for t in np.arange(0.105, 2.0, 0.01):
+        simulator.AdvanceTo(t)
+        valid.append(system.get_output_port().Eval(context)[VALID])
+    assert all(v == 1.0 for v in valid)
+    with pytest.raises(ValueError, match=r"rendezvous.max_age_s \(0.19 s\) must be at least"):
+        RendezvousConfig(source="broadcast", latency_periods=1, max_age_s=0.19).validate()
+
+
 def test_the_gnss_error_starts_from_its_stationary_spread():
     errors = []
     for seed in range(400):

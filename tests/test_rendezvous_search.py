@@ -67,8 +67,8 @@ def test_the_search_moves_the_target_only_after_vision_has_been_lost_for_its_del
     ({"search_spacing_m": -1.0}, "rendezvous.search_spacing_m must not be negative"),
     ({"search_spacing_m": 10.0}, "rendezvous.search_spacing_m must not exceed rendezvous.search_radius_m"),
     ({"search_speed_m_s": 0.0}, "rendezvous.search_speed_m_s must be positive"),
-    ({"latency_periods": 10}, r"rendezvous.max_age_s \(1 s\) must exceed the messages' age on arrival, "
-                              r"rendezvous.latency_periods / rate_hz \(1 s\)"),
+    ({"latency_periods": 10}, r"rendezvous.max_age_s \(1 s\) must be at least the oldest a held message gets, "
+                              r"\(rendezvous.latency_periods \+ 1\) / rate_hz \(1.1 s\)"),
 ])
 def test_bad_search_settings_are_named(setting, message):
     with pytest.raises(ValueError, match=message):

@@ -57,9 +57,12 @@ class RendezvousConfig:
         require(self.search_spacing_m <= self.search_radius_m,
                 f"{prefix}.search_spacing_m must not exceed {prefix}.search_radius_m")
         require(self.latency_periods >= 0, f"{prefix}.latency_periods must not be negative")
-        require(self.latency_periods / self.rate_hz < self.max_age_s,
-                f"{prefix}.max_age_s ({self.max_age_s:g} s) must exceed the messages' age on arrival, "
-                f"{prefix}.latency_periods / rate_hz ({self.latency_periods / self.rate_hz:g} s): none would be valid")
+        # A message arrives latency_periods / rate_hz old and is held until the next replaces it a period later.
+        held_s = (self.latency_periods + 1) / self.rate_hz
+        require(self.max_age_s >= held_s,
+                f"{prefix}.max_age_s ({self.max_age_s:g} s) must be at least the oldest a held message gets, "
+                f"({prefix}.latency_periods + 1) / rate_hz ({held_s:g} s): the broadcast would turn invalid every "
+                f"period")
 
 
 class VehicleBroadcast(LeafSystem):
