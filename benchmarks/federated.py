@@ -248,6 +248,8 @@ def frame_costs(overrides: tuple[str, ...], repeats: int = 3) -> dict:
 
 
 def main() -> int:
+    from diagrams.outputs import output_file
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=0, help="open-landing's seeds from this one on (default 0)")
@@ -255,7 +257,7 @@ def main() -> int:
     parser.add_argument("--skip-hd", action="store_true")
     parser.add_argument("--hd-runs", type=int, default=1, help="open-landing seeds at 1080p (default 1)")
     parser.add_argument("--headings", action="store_true", help="open-landing with a heading drawn per seed")
-    parser.add_argument("--json", type=Path)
+    parser.add_argument("--json", type=output_file)
     args = parser.parse_args()
     if args.runs < 1 or args.first_seed < 0 or args.hd_runs < 1 or args.workers < 1:
         print("federated.py: error: --runs, --hd-runs and --workers must be at least 1, --first-seed at least 0",

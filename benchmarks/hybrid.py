@@ -14,11 +14,11 @@ import argparse
 import json
 import time
 from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 import numpy as np
 
 from diagrams.gv_landing_run import fly
+from diagrams.outputs import output_file
 from diagrams.runner import load_scenario
 from systems.vehicles.paths import PATH_NAMES
 
@@ -46,7 +46,7 @@ def main() -> None:
     parser.add_argument("--paths", nargs="+", default=list(PATH_NAMES), choices=PATH_NAMES)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--duration", type=float, default=120.0)
-    parser.add_argument("--json", type=Path)
+    parser.add_argument("--json", type=output_file)
     parser.add_argument("--set", action="append", default=[], dest="overrides")
     args = parser.parse_args()
     tasks = [(p, args.speed, s, args.duration, tuple(args.overrides)) for p in args.paths for s in args.seeds]

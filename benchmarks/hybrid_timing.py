@@ -34,7 +34,6 @@ import time
 from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -45,6 +44,7 @@ import systems.control.pid as pid_module
 import systems.estimators.altitude_kf as altitude_kf_module
 import systems.perception.hybrid_pad as hybrid_module
 from diagrams.gv_landing import build_gv_landing
+from diagrams.outputs import output_file
 from diagrams.runner import load_scenario
 from systems.perception.aruco import to_grey
 from systems.perception.box_tracker import Detection, TrackerState, step_tracker, target_box
@@ -399,7 +399,7 @@ def main() -> None:
     parser.add_argument("--low-frames", type=int, default=None, help="of them from a flight starting at 3 m "
                                                                       "(default a quarter)")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--json", type=Path)
+    parser.add_argument("--json", type=output_file)
     args = parser.parse_args()
     low = args.frames // 4 if args.low_frames is None else args.low_frames
     result = run(args.frames, min(low, args.frames), args.repeats)

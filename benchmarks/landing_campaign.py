@@ -37,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from diagrams.montecarlo import run_campaign  # noqa: E402
 from diagrams.montecarlo.grid import grid_settings  # noqa: E402
+from diagrams.outputs import output_file  # noqa: E402
 from systems.config import ConfigError  # noqa: E402
 
 SCENARIO = "marker-landing-wind"
@@ -154,7 +155,7 @@ def main() -> int:
     parser.add_argument("--scaling-runs", type=int, default=20)
     parser.add_argument("--only", nargs="+", choices=sorted(GROUPS), default=sorted(GROUPS))
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "landing-campaign")
-    parser.add_argument("--json", type=Path, help="write the figures and checks here")
+    parser.add_argument("--json", type=output_file, help="write the figures and checks here")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scenario field in every group's runs (repeatable), e.g. "
                              "landing.land_acceptance_radius_m=0.15")

@@ -41,6 +41,7 @@ from diagrams.gv_landing_run import fly, fly_diagram  # noqa: E402
 from diagrams.landing_metrics import (  # noqa: E402
     SETTLED_TOLERANCE_M, SETTLED_WINDOW_S, TARGET_TOUCHDOWN_ERROR_M, TARGET_TOUCHDOWN_REL_SPEED_MPS,
 )
+from diagrams.outputs import output_file  # noqa: E402
 from diagrams.runner import load_scenario  # noqa: E402
 from systems.vehicles.paths import PATH_NAMES  # noqa: E402
 
@@ -213,7 +214,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="3 paths x 2 speeds, short timing")
     parser.add_argument("--jobs", type=int, default=os.cpu_count(), help="parallel runs (default: CPU count)")
-    parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
+    parser.add_argument("--json", type=output_file, metavar="FILE", help="also write the results as JSON")
     parser.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append", default=[],
                         help="a scenario override for every sweep run (repeatable)")
     args = parser.parse_args()

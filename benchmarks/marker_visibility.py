@@ -24,6 +24,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from diagrams.marker_visibility import VisibilityRig  # noqa: E402
+from diagrams.outputs import output_file  # noqa: E402
 from diagrams.runner import load_scenario  # noqa: E402
 
 HEIGHTS_M = (0.3, 0.4, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0, 7.5, 10.0)
@@ -66,7 +67,7 @@ def report(name: str, result: dict) -> dict:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", type=Path, help="write the figures here too")
+    parser.add_argument("--json", type=output_file, help="write the figures here too")
     args = parser.parse_args()
     out = {name: report(name, visibility(scenario)) for name, scenario in LAYOUTS.items()}
     if args.json:

@@ -22,12 +22,12 @@ Never a timed assertion in a test.
 import argparse
 import json
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from diagrams.outputs import output_file
 from models.ground_texture import ground_texture_image
 from systems.perception.motion_compensation import (
     MotionCompensationConfig,
@@ -116,11 +116,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-yaw-deg", type=float, default=5.0, help="the UAV's largest turn between frames")
     parser.add_argument("--threads", type=int, default=1, help="OpenCV's threads (cv2.setNumThreads)")
-    parser.add_argument("--json", type=Path)
+    parser.add_argument("--json", type=output_file)
     args = parser.parse_args(argv)
     for name in ("pairs", "repeats"):
         if getattr(args, name) < 1:
             parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
+    if not 0.0 <= args.max_yaw_deg <= 180.0:  # NaN fails too
+        parser.error(f"--max-yaw-deg must lie in [0, 180], got {args.max_yaw_deg:g}")
     cv2.setNumThreads(args.threads)
     cases = pairs(args.pairs, args.seed, args.max_yaw_deg)
     results = {name: run(name, cases, args.repeats) for name in ("orb", "sift")}

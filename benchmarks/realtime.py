@@ -18,12 +18,11 @@ stages), beside the printout. `--set` overrides a scenario field as `landing-sim
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
-from diagrams.outputs import write_json
+from diagrams.outputs import output_file, write_json
 from diagrams.runner import load_scenario
 from diagrams.stewart_scene import build_stewart_scene
 from systems.config import ConfigError
@@ -73,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenario", default="stewart-dynamic", help="a Stewart scene (default stewart-dynamic)")
     parser.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append", default=[],
                         help="override a scenario field (repeatable), e.g. estimators=[]")
-    parser.add_argument("--out", type=Path, help="also write the figures to this JSON file")
+    parser.add_argument("--out", type=output_file, help="also write the figures to this JSON file")
     args = parser.parse_args(argv)
 
     try:

@@ -21,11 +21,11 @@ import json
 import math
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from pydrake.math import RigidTransform
 
+from diagrams.outputs import output_file
 from diagrams.stereo_hover import StereoHoverConfig, build_stereo_hover
 from systems.estimators.altitude_kf import AltitudeKfConfig, AltitudeKfState, altitude_kf_step
 from systems.perception.stereo_depth import depth_from_disparity, disparity, to_gray, window_altitude
@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", type=float, default=2.0, help="pixel noise std per eye, 8-bit levels")
     parser.add_argument("--frames", type=int, default=10, help="frames timed at 3 m")
     parser.add_argument("--step", type=float, default=0.1, help="sweep step (m); 0 skips the sweep")
-    parser.add_argument("--json", type=Path, help="write the figures here")
+    parser.add_argument("--json", type=output_file, help="write the figures here")
     args = parser.parse_args(argv)
     if args.frames < 1:
         parser.error(f"--frames must be at least 1, got {args.frames}")

@@ -26,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from diagrams.outputs import output_file
 from diagrams.ugv_detection_scenes import (
     HELD_OUT_SEEDS,
     UgvDataset,
@@ -105,13 +106,15 @@ def run(detector, dataset: UgvDataset, pads: list) -> tuple[list[dict], np.ndarr
     return counts, np.asarray(times)
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=400, help="held-out frames")
     parser.add_argument("--model", type=Path, default=DEFAULT_MODEL_PATH)
     parser.add_argument("--cache-dir", type=Path, default=None)
-    parser.add_argument("--json", type=Path, help="write the figures here")
-    args = parser.parse_args()
+    parser.add_argument("--json", type=output_file, help="write the figures here")
+    args = parser.parse_args(argv)
+    if not 1 <= args.frames <= len(HELD_OUT_SEEDS):
+        parser.error(f"--frames must lie in 1..{len(HELD_OUT_SEEDS)} (the held-out seeds), got {args.frames}")
     cv2.setNumThreads(1)  # one core, as Table 7's comparison here counts it
     try:
         learned = CnnDetector(args.model)

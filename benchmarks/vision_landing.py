@@ -38,6 +38,7 @@ import numpy as np  # noqa: E402
 
 from diagrams.marker_metrics import pooled_rms  # noqa: E402
 from diagrams.montecarlo import campaign_definition, campaign_settings, run_campaign, run_seed  # noqa: E402
+from diagrams.outputs import output_file  # noqa: E402
 
 SOURCES = ("ct_ekf", "paper_ekf", "truth")
 SPEEDS = ("3", "6", "12")
@@ -201,7 +202,7 @@ def main() -> int:
     parser.add_argument("--open-loop-runs", type=int, default=20, help="open-loop seeds per speed (0: skip)")
     parser.add_argument("--previous", default=PREVIOUS, help="the commit whose open-loop figures to compare with")
     parser.add_argument("--costs", action=argparse.BooleanOptionalAction, default=True, help="time a frame's stages")
-    parser.add_argument("--json", type=Path, help="write the figures here")
+    parser.add_argument("--json", type=output_file, help="write the figures here")
     args = parser.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="vision_landing_"))
     results, checks = {}, []

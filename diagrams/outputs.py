@@ -1,6 +1,7 @@
 """What a run leaves behind, written atomically: every file goes to a temporary name in the output
 directory and is renamed into place, so an interrupted run never leaves a half-written file."""
 
+import argparse
 import io
 import json
 import math
@@ -34,6 +35,21 @@ def check_writable(out_dir: Path) -> None:
         os.rmdir(tempfile.mkdtemp(dir=ancestor, prefix=".landing-sim-probe-"))
     except OSError as e:
         raise ConfigError(f"cannot write to output directory {out_dir}: {e.strerror} ({ancestor})") from None
+
+
+def output_file(text: str) -> Path:
+    """argparse type of a benchmark's figures file (`--json FILE`): its folder must exist and be writable and
+    the path must not be a folder, so that a mistyped path is refused before the work, not after it."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a folder, not a file")
+    if not path.absolute().parent.is_dir():
+        raise argparse.ArgumentTypeError(f"no folder {path.absolute().parent} to write {path.name} in")
+    try:
+        check_writable(path.absolute().parent)
+    except ConfigError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return path
 
 
 def _umask() -> int:

@@ -1,4 +1,4 @@
-"""The seed-003 benchmarks' bad arguments: exit 2 with one line naming the argument, before any work (nothing
+"""The benchmarks' bad arguments: exit 2 with one line naming the argument, before any work (nothing
 on stdout). A count below 1 or a negative noise is argparse's error (its usage, then the line); a scenario
 or camera the project's checks refuse is that check's line alone."""
 
@@ -7,7 +7,9 @@ import pytest
 import benchmarks.fisheye as fisheye
 import benchmarks.motion_blur as motion_blur
 import benchmarks.motion_compensation as motion_compensation
+import benchmarks.realtime as realtime
 import benchmarks.stereo as stereo
+import benchmarks.ugv_detection as ugv_detection
 
 
 @pytest.mark.parametrize("main, argv, line", [
@@ -25,6 +27,22 @@ import benchmarks.stereo as stereo
     (stereo.main, ["--step", "nan", "--frames", "1"],
      "error: --step must be a finite number, positive or 0 (no sweep), got nan"),
     (fisheye.main, ["--frames", "0"], "error: --frames must be at least 1, got 0"),
+    (motion_compensation.main, ["--max-yaw-deg", "nan"], "error: --max-yaw-deg must lie in [0, 180], got nan"),
+    (motion_compensation.main, ["--max-yaw-deg", "-400"], "error: --max-yaw-deg must lie in [0, 180], got -400"),
+    (ugv_detection.main, ["--frames", "-5"], "error: --frames must lie in 1..100000 (the held-out seeds), got -5"),
+    (ugv_detection.main, ["--frames", "0"], "error: --frames must lie in 1..100000 (the held-out seeds), got 0"),
+    (ugv_detection.main, ["--frames", "200000"],
+     "error: --frames must lie in 1..100000 (the held-out seeds), got 200000"),
+    # The figures' file is checked before the work, not written into a missing folder after it.
+    (stereo.main, ["--json", "/no-such-folder/x.json", "--frames", "1"],
+     "error: argument --json: no folder /no-such-folder to write x.json in"),
+    (motion_compensation.main, ["--json", "/no-such-folder/x.json"],
+     "error: argument --json: no folder /no-such-folder to write x.json in"),
+    (ugv_detection.main, ["--json", "/no-such-folder/x.json"],
+     "error: argument --json: no folder /no-such-folder to write x.json in"),
+    (realtime.main, ["--out", "/no-such-folder/x.json"],
+     "error: argument --out: no folder /no-such-folder to write x.json in"),
+    (stereo.main, ["--json", "/"], "error: argument --json: / is a folder, not a file"),
 ])
 def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, argv, line):
     with pytest.raises(SystemExit) as exit_info:
