@@ -28,7 +28,8 @@ from pydrake.math import RigidTransform
 from diagrams.outputs import output_file
 from diagrams.stereo_hover import StereoHoverConfig, build_stereo_hover
 from systems.estimators.altitude_kf import AltitudeKfConfig, AltitudeKfState, altitude_kf_step
-from systems.perception.stereo_depth import depth_from_disparity, disparity, to_gray, window_altitude
+from systems.perception.aruco import to_grey
+from systems.perception.stereo_depth import depth_from_disparity, disparity, window_altitude
 from systems.sensors.camera import image_to_numpy
 
 TABLE_HEIGHTS = (0.7, 1.0, 2.0, 3.0, 5.0, 8.0)
@@ -103,7 +104,7 @@ def costs(bench: Bench, frames: int) -> dict:
         bench.place(3.0)
         left, right = bench.images(timings if k else None)  # the first frame loads the texture
         t0 = time.perf_counter()
-        gl, gr = to_gray(left), to_gray(right)
+        gl, gr = to_grey(left), to_grey(right)
         rows, cols = est.crop
         gl_crop, gr_crop = np.ascontiguousarray(gl[rows, cols]), np.ascontiguousarray(gr[rows, cols])
         t1 = time.perf_counter()

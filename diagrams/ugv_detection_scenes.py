@@ -43,6 +43,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from diagrams.stereo_hover import GroundConfig, add_textured_ground
 from systems.config import require
+from systems.geometry import ray_to_plane
 from systems.noise import sample_rng
 from systems.sensors.fisheye import FisheyeConfig, add_fisheye_camera, project_points
 from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry, PlatformConfig
@@ -233,10 +234,8 @@ class UgvScene:
 
 
 def _ray_to_height(p_WC: np.ndarray, ray_W: np.ndarray, z: float) -> np.ndarray | None:
-    """Where the ray from p_WC along ray_W meets the plane at height z, or None if it does not."""
-    if ray_W[2] >= -1e-6:
-        return None
-    return p_WC + ray_W * (z - p_WC[2]) / ray_W[2]
+    """Where the ray from p_WC along ray_W meets the plane at height z (W, m), or None if it does not."""
+    return ray_to_plane(p_WC, ray_W, p_WC[2] - z, z, min_ray_down=1e-6)
 
 
 def _direction_C(theta: float, phi: float) -> np.ndarray:

@@ -19,6 +19,7 @@ from pydrake.systems.framework import LeafSystem, ValueProducer
 from pydrake.systems.sensors import ImageRgba8U
 
 from systems.config import require
+from systems.perception.aruco import to_grey
 from systems.sensors.camera import image_to_numpy
 from systems.sensors.stereo import StereoConfig
 
@@ -89,13 +90,6 @@ def make_matcher(num_disparities: int, config: StereoDepthConfig) -> cv2.StereoS
                                  uniquenessRatio=config.uniqueness_ratio,
                                  speckleWindowSize=config.speckle_window_size, speckleRange=config.speckle_range,
                                  mode=cv2.STEREO_SGBM_MODE_SGBM)
-
-
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """An 8-bit grey image from grey, RGB or RGBA."""
-    if image.ndim == 2:
-        return image
-    return cv2.cvtColor(image, cv2.COLOR_RGBA2GRAY if image.shape[2] == 4 else cv2.COLOR_RGB2GRAY)
 
 
 def disparity(left_gray: np.ndarray, right_gray: np.ndarray, matcher: cv2.StereoSGBM) -> np.ndarray:
@@ -179,8 +173,8 @@ class StereoAltitudeEstimator:
     def disparity(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         """The disparity (px, NaN invalid) of the matched region `self.crop` of the left image."""
         rows, cols = self.crop
-        return disparity(to_gray(np.ascontiguousarray(left[rows, cols])),
-                         to_gray(np.ascontiguousarray(right[rows, cols])), self.matcher)
+        return disparity(to_grey(np.ascontiguousarray(left[rows, cols])),
+                         to_grey(np.ascontiguousarray(right[rows, cols])), self.matcher)
 
     def window_of(self, region_disparity: np.ndarray) -> np.ndarray:
         """The window's part of a disparity of the region `self.crop`."""
