@@ -29,6 +29,15 @@ def test_a_fixed_occlusion_covers_its_interval_and_nothing_else():
     assert apply_faults(FRAME, 10, T, config, seed=0) == FRAME  # untouched outside
 
 
+def test_an_occlusion_bound_on_a_sample_covers_that_sample():
+    # [1.0, 3.5] s on the 35 ms grid: 1.0 / 0.035 is not whole, 3.5 s is sample 100 (100 * 0.035 is 3.5000000000000004
+    # in floating point): samples 29 to 100, both ends included.
+    config = FaultsConfig(occlusions_s=[[1.0, 3.5]])
+    assert [k for k in range(200) if occluded(k, T, config, seed=0)] == list(range(29, 101))
+    config = FaultsConfig(occlusions_s=[[0.35, 0.7]])  # samples 10 and 20 exactly
+    assert [k for k in range(200) if occluded(k, T, config, seed=0)] == list(range(10, 21))
+
+
 def test_random_bursts_cover_the_share_their_rate_and_length_give_and_are_seeded():
     config = FaultsConfig(occlusion_rate_hz=0.2, occlusion_duration_s=0.5)
     covered = np.array([occluded(k, T, config, seed=3) for k in range(20000)])

@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from systems.config import require, require_non_negative, require_positive
 from systems.noise import sample_index, sample_rng
 from systems.perception.markers import MarkerMeasurement
+from systems.stepped import TIME_TOLERANCE_S
 
 
 @dataclass
@@ -70,8 +71,8 @@ class FaultsConfig:
 
 def occluded(k: int, period_s: float, config: FaultsConfig, seed: int) -> bool:
     """Whether sample k is covered (module docstring)."""
-    t = k * period_s
-    if any(start <= t <= end for start, end in config.occlusions_s):
+    t = k * period_s  # the interval is inclusive: a bound on a sample's time, k T to rounding, covers it
+    if any(start - TIME_TOLERANCE_S <= t <= end + TIME_TOLERANCE_S for start, end in config.occlusions_s):
         return True
     if not config.occlusion_rate_hz:
         return False
