@@ -56,6 +56,7 @@ class Scenario(RunSettings, GvLandingConfig):
                 f"estimation.settle_s ({self.estimation.settle_s:g} s) must be below the run's length "
                 f"({self.run_length_s:g} s: duration_s, or 500 m of driving at vehicle.speed when it is 0): "
                 "nothing would be scored")
+        self.faults.check_within(self.run_length_s)
 
     @property
     def run_length_s(self) -> float:

@@ -284,6 +284,10 @@ def test_bad_scenario_values():
         with pytest.raises(ConfigError, match=rf"estimation.settle_s \({settle} s\) must be below the run's length"):
             scenario(12, 0, f"estimation.settle_s={settle}", f"duration_s={duration}")
     assert scenario(12, 0, "estimation.settle_s=3.9").estimation.settle_s == 3.9
+    # the camera covered longer than the run (duration_s, or 500 m of driving): nothing would be measured
+    for duration, occlusion in ((4, 5), (0, 42)):
+        with pytest.raises(ConfigError, match=rf"faults: an occlusion of {occlusion} s is longer than the run"):
+            scenario(12, 0, f"duration_s={duration}", f"faults.occlusions_s=[[0.0, {occlusion}.0]]")
 
 
 def _figures(metrics: dict, prefix: str = "") -> dict:
