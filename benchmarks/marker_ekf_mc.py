@@ -106,15 +106,22 @@ def targets(summary: dict, wall: float) -> list[tuple[str, bool, str]]:
     ]
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=100, help="runs per speed (default 100: 300 runs)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--scaling-runs", type=int, default=6, help="runs per speed for the 1-vs-2-worker scaling (0: skip)")
     parser.add_argument("--detector-runs", type=int, default=2,
                         help="runs per speed with the detector source (0: skip)")
-    parser.add_argument("--out", type=Path, default=None, help="campaign directory (default: a temporary one)")
-    args = parser.parse_args()
+    parser.add_argument("--out", type=Path, default=None,
+                        help="campaign directory (default: a temporary one); a campaign already there is run afresh")
+    args = parser.parse_args(argv)
+    # The campaign is timed, so it starts afresh; but only a folder a campaign wrote is removed for it.
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        parser.error(f"--out {args.out} is a file, not a campaign's folder")
+    if args.out is not None and args.out.exists() and any(args.out.iterdir()) and not (
+            args.out / "campaign.json").is_file():
+        parser.error(f"--out {args.out} holds no campaign.json: not a campaign's folder, left as it is")
     tmp = Path(tempfile.mkdtemp(prefix="marker_ekf_mc_"))
     out = args.out or tmp / "campaign"
     if args.out is not None and out.exists():

@@ -5,6 +5,7 @@ or camera the project's checks refuse is that check's line alone."""
 import pytest
 
 import benchmarks.fisheye as fisheye
+import benchmarks.marker_ekf_mc as marker_ekf_mc
 import benchmarks.motion_blur as motion_blur
 import benchmarks.motion_compensation as motion_compensation
 import benchmarks.realtime as realtime
@@ -63,3 +64,15 @@ def test_a_scenario_or_camera_the_checks_refuse_is_their_line(capsys, main, argv
     captured = capsys.readouterr()
     assert exit_info.value.code == 2 and captured.out == ""
     assert len(captured.err.splitlines()) == 1 and captured.err.startswith(line)
+
+
+def test_a_folder_no_campaign_wrote_is_not_removed_for_one(capsys, tmp_path):
+    """marker_ekf_mc.py starts its timed campaign afresh in --out, but never by removing a user's folder."""
+    (tmp_path / "thesis.txt").write_text("mine")
+    with pytest.raises(SystemExit) as exit_info:
+        marker_ekf_mc.main(["--out", str(tmp_path)])
+    captured = capsys.readouterr()
+    assert exit_info.value.code == 2 and captured.out == ""
+    assert captured.err.splitlines()[-1].endswith(f"--out {tmp_path} holds no campaign.json: not a campaign's folder, "
+                                                  "left as it is")
+    assert (tmp_path / "thesis.txt").read_text() == "mine"
