@@ -81,6 +81,32 @@ def test_layout_must_fit_the_pad_with_its_margins():
         LAYOUT.validate(pad_size_m=0.99)
 
 
+CORNERS = [[0.3, 0.3, 0.0], [-0.3, 0.3, 0.0], [-0.3, -0.3, 0.0], [0.3, -0.3, 0.0]]
+
+
+@pytest.mark.parametrize("offsets, message", [
+    # marker 2 on marker 1: pad_texture paints 2 over 1, which is then never seen
+    ([[0.0, 0.0, 0.0], [0.3, 0.3, 0.0], [0.3, 0.3, 0.0], *CORNERS[2:]], "marker 1 with its one-cell white margin "
+                                                                         "covers part of marker 2"),
+    # a corner marker 0.01 m nearer the centre: its margin covers the centre marker's corner
+    ([[0.0, 0.0, 0.0], [0.29, 0.29, 0.0], *CORNERS[1:]], "marker 1 with its one-cell white margin covers part of "
+                                                         "marker 0"),
+    # raised: the texture draws it flat, where the filters would take it 0.25 m up
+    ([[0.0, 0.0, 0.0], [0.3, 0.3, 0.25], *CORNERS[1:]], "marker 1's offset z must be 0"),
+])
+def test_a_layout_the_flat_texture_cannot_draw_is_refused(offsets, message):
+    with pytest.raises(ConfigError, match=message):
+        MarkerLayout(offsets_m=offsets).validate()
+
+
+def test_margins_may_meet_a_black_square_and_each_other():
+    LAYOUT.validate()  # a corner marker's margin meets the centre marker at one corner point
+    # marker-landing-wind's nested nine: four 6 cm markers on the axes 0.2 m out, between the others' margins
+    MarkerLayout(ids=list(range(9)), offsets_m=[[0.0, 0.0, 0.0], *CORNERS, [0.2, 0.0, 0.0], [0.0, 0.2, 0.0],
+                                                [-0.2, 0.0, 0.0], [0.0, -0.2, 0.0]],
+                 sizes_m=[0.2, 0.3, 0.3, 0.3, 0.3, 0.06, 0.06, 0.06, 0.06]).validate()
+
+
 def test_pad_texture_places_each_marker_where_the_layout_says():
     texture = pad_texture(LAYOUT, PAD_M)
     corners, ids, _ = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)).detectMarkers(

@@ -19,6 +19,7 @@ one cell (a sixth of its edge) clear of other markers and inside the pad; a corn
 meets the centre marker at one corner point.
 """
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -61,6 +62,17 @@ class MarkerLayout:
                 f"{prefix}.sizes_m needs one positive size per id")
         require(np.allclose(self.offsets_m[0], 0.0),
                 f"{prefix}.offsets_m[0] must be [0, 0, 0]: marker 0 is the pad frame")
+        for marker_id, p in zip(self.ids, self.p_PM):
+            require(p[2] == 0.0, f"{prefix}: marker {marker_id}'s offset z must be 0, the pad's texture is flat "
+                                 f"(got {p[2]:g} m)")
+        # A marker's one-cell white margin may meet another's black square but not cover it (pad_texture paints
+        # the later marker over the earlier one): margins may overlap each other, being both white.
+        margins = np.asarray(self.sizes_m, dtype=float) / 2 * (1 + 2 / MARKER_CELLS)
+        for i, j in itertools.permutations(range(n), 2):
+            apart = np.abs(self.p_PM[i, :2] - self.p_PM[j, :2])
+            require(np.any(apart >= margins[i] + self.sizes_m[j] / 2 - 1e-9),
+                    f"{prefix}: marker {self.ids[i]} with its one-cell white margin covers part of marker "
+                    f"{self.ids[j]}")
         if pad_size_m is not None:
             for marker_id, p, size in zip(self.ids, self.p_PM, self.sizes_m):
                 reach = np.abs(p[:2]) + size / 2 * (1 + 2 / MARKER_CELLS)
