@@ -11,8 +11,8 @@ hovering at (0, 0, 10) m (seed 002's r_0) and its supervisor, with IH 2.0 m (0.4
 and `landing.centred_radius_m` 1e-6, tracks the pad while it descends to IH and then holds there
 (APPROACH never comes). Every T_s = 35 ms the measurement source (`estimation.source`: the paper's
 synthetic one, or the rendered camera's detections) gives the filters the identical list of
-measurements, one period late. `duration_s: 0` (the default) means 500 m of driving, one period of
-Eq. (13)'s long wave.
+measurements, one period late. `duration_s: 0` (the default) means 500 m of driving along the path: Eq. (13)'s x reaches
+about 441 m (its long wave's period, 500 m of x, is 560 m of path).
 
 metrics.json has no landing section; `flight` says how the hold went, and `measurements` and
 `estimators` score the stream and the filters (diagrams/marker_metrics.py).
@@ -25,7 +25,7 @@ from diagrams.gv_landing_run import run_flight
 from diagrams.scenario import RunSettings
 from systems.config import require, require_positive
 
-LONG_WAVE_M = 500.0  # seed 002 Eq. (13): the long wave's period in x
+LONG_WAVE_M = 500.0  # seed 002 Eq. (13): the long wave's period in x [m]; a run drives this far along the path
 
 
 def _paper_estimation() -> MarkerEstimationConfig:
