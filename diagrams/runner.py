@@ -125,7 +125,9 @@ def _files(out_dir: Path) -> dict[Path, int]:
 def run(name: str, scenario, out_dir: str | Path, options: RunOptions) -> dict:
     """Runs a loaded scenario, writing its outputs to `out_dir`; returns its metrics. Files there of the
     kinds a run writes that this one did not write (an earlier run's video, say, when this one records
-    none) are named in one line on stderr when it has finished; nothing is removed."""
+    none) are named in one line on stderr when it has finished; nothing is removed. A run that fails
+    removes what it wrote (a file of those kinds new or replaced since it started, a hidden partial one
+    too) and the folders it made, leaving the files that were there before it."""
     out_dir = Path(out_dir)
     check_writable(out_dir)
     created = [p for p in (out_dir, *out_dir.parents) if not p.exists()]  # the folders mkdir makes, deepest first
@@ -142,6 +144,9 @@ def run(name: str, scenario, out_dir: str | Path, options: RunOptions) -> dict:
                   f"{', '.join(kept)}", file=sys.stderr)
         return metrics
     except BaseException:
+        for path, inode in _files(out_dir).items():
+            if before.get(path) != inode:
+                path.unlink(missing_ok=True)
         for folder in created:  # each left empty, deepest first: one holding a file stays, with those above it
             try:
                 folder.rmdir()

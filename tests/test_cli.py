@@ -130,6 +130,24 @@ def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path,
     assert not (tmp_path / "new").exists()
 
 
+@pytest.mark.parametrize("args, named", [
+    # refused while the diagram is built, after the video's recorder was added
+    (["run", "ugv-hybrid", "--duration", "1", "--set", "estimation.source=detector", "--set",
+      "hybrid.model_path={missing_model}"], "missing.onnx"),
+    # refused after the simulation, whose video was already whole: too short a calibration flight
+    (["run", "crhf-calibration", "--duration", "0.3", "--set", "tof.bias_m=-3"], "usable samples"),
+], ids=["refused-while-built", "refused-after-simulating"])
+def test_a_refused_run_with_video_leaves_the_folder_as_it_was(capfd, tmp_path, args, named):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "metrics.json").write_text("an earlier run's")
+    args = [a.format(missing_model=tmp_path / "missing.onnx") for a in args]
+    code, stdout, stderr = run_main(capfd, *args, "--video", "--out", str(out), "--quiet")
+    assert code == 2 and stderr.count("\n") == 1 and named in stderr, stderr
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]  # no video, no hidden partial one
+    assert (out / "metrics.json").read_text() == "an earlier run's"
+
+
 def test_a_meshcat_port_in_use_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path):
     with socket.socket() as busy:
         busy.bind(("localhost", 0))
