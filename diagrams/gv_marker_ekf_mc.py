@@ -191,7 +191,7 @@ def plot(settings, done: dict, out_dir: Path) -> None:
         e = ensembles[c]
         first = e[names[0]]
         plot_path(ax, reference, first[1], {n: e[n][3] for n in names},
-                  f"{c} m/s: ensemble mean of {len(done[c])} runs (Fig. 3)")
+                  f"{c} m/s: ensemble mean of {len(done[c])} runs (Fig. 3)", scenario.vehicle.path)
     save_figure(fig, out_dir / "mc_path.png")
     fig, axes = plt.subplots(2 * len(cases), 1, figsize=(10, 4.5 * len(cases)), squeeze=False)
     for i, c in enumerate(cases):

@@ -17,10 +17,12 @@ def style(name: str) -> tuple[str, str]:
     return FILTER_STYLE.get(name, ("tab:purple", name))
 
 
-def plot_path(ax, reference_xy, true_xy, estimates: dict[str, np.ndarray], title: str) -> None:
-    """Fig. 3: reference path, true pad path, estimated pad path per filter."""
+def plot_path(ax, reference_xy, true_xy, estimates: dict[str, np.ndarray], title: str, path_name: str) -> None:
+    """Fig. 3: reference path (`vehicle.path`'s name; "sine" is seed 002's Eq. 13), true pad path, estimated
+    pad path per filter."""
     near = reference_xy[:, 0] <= np.nanmax(true_xy[:, 0]) + 10.0
-    ax.plot(*reference_xy[near].T, "-", color="0.75", lw=4, label="reference (Eq. 13)")
+    reference = "Eq. 13" if path_name == "sine" else path_name
+    ax.plot(*reference_xy[near].T, "-", color="0.75", lw=4, label=f"reference ({reference})")
     ax.plot(*true_xy.T, "-", color="k", lw=1.2, label="true (pad P)")
     for name, xy in estimates.items():
         colour, label = style(name)
@@ -67,7 +69,7 @@ def plot_run(config, run: SampledRun, errors: dict[str, FilterErrors], out_dir) 
     estimates = {n: valid_only(e, errors[n].valid) for n, e in run.estimates.items()}
     fig, ax = plt.subplots(figsize=(9, 6))
     plot_path(ax, reference, truth.p_WP[:, :2], {n: e[:, EST_P_WP][:, :2] for n, e in estimates.items()},
-              f"Pad path ({title}, Fig. 3)")
+              f"Pad path ({title}, Fig. 3)", config.vehicle.path)
     save_figure(fig, out_dir / "path.png")
     fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     plot_heading(axes, run.t, truth.yaw, {n: e[:, EST_YAW] for n, e in estimates.items()},

@@ -370,6 +370,19 @@ def test_campaign_rms_is_over_every_scored_step_of_every_run():
         np.testing.assert_allclose(figures["rms_marker_position_m"], np.sqrt(np.mean(markers**2, axis=0)), rtol=1e-9)
 
 
+@pytest.mark.parametrize("path, label", [("sine", "reference (Eq. 13)"), ("circle", "reference (circle)")])
+def test_the_path_plot_names_the_vehicles_reference_path(path, label):
+    import matplotlib.pyplot as plt
+
+    import diagrams.marker_plots as marker_plots
+
+    xy = np.c_[np.arange(5.0), np.zeros(5)]
+    fig, ax = plt.subplots()
+    marker_plots.plot_path(ax, xy, xy, {}, "title", path)
+    assert ax.get_legend().get_texts()[0].get_text() == label
+    plt.close(fig)
+
+
 def test_run_plots_leave_out_the_estimates_the_filters_flag(monkeypatch, tmp_path):
     import diagrams.marker_plots as marker_plots
 
