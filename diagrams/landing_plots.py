@@ -133,9 +133,9 @@ ERROR_FLOOR_M = 1e-4  # perception.png's position error is drawn from here up (a
 
 
 def plot_perception(log: dict[str, np.ndarray], source: str, out_dir, heading: bool = True) -> None:
-    """perception.png: the pad's position (x, y, height above the UAV) and, where the source estimates one
-    (`heading`) and an estimate steered (`steering_estimate`), its heading error as the steering estimate
-    had them against the truth; the samples without a valid estimate ticked on the last panel (at zero
+    """perception.png: the pad's position in W (x, y, z, m), the seam's estimate and the truth, and, where the
+    source estimates one (`heading`) and an estimate steered (`steering_estimate`), its heading error as the
+    steering estimate had them against the truth; the samples without a valid estimate ticked on the last panel (at zero
     heading error, or at the position error's floor), the supervisor's modes shaded."""
     t, quad = log["t"], log["quadrotor_state"]
     valid = log["relative_state"][:, VALID] > 0.5
