@@ -223,6 +223,9 @@ def test_random_walk_is_continuous():
     # 1e-8 s knots: the stroke check sampled 3e9 times over 30 s (MemoryError)
     ({"motion": "random_walk", "random_walk_knot_interval_s": 1e-8},
      "platform.random_walk_knot_interval_s must be at least 0.001 s"),
+    # deck joints 2 m out under a 1 m deck; the joints at 75 and 165 deg reach its edge (0.5 m) at 0.518 m
+    ({"platform_radius_m": 2.0}, r"platform.platform_radius_m \(2 m\) puts deck joints off the 1 m deck"),
+    ({"platform_radius_m": 0.52}, r"platform.platform_radius_m \(0.52 m\) puts deck joints off the 1 m deck"),
 ])
 def test_invalid_configuration_raises_config_error_naming_the_field(changes, field):
     config = StewartPlatformConfig(**changes)
@@ -235,6 +238,7 @@ def test_invalid_configuration_raises_config_error_naming_the_field(changes, fie
 def test_tag_that_just_fits_is_accepted():
     StewartPlatformConfig(tag_size_m=0.8, deck_size_m=1.0).validate()  # 0.8 m with border is exactly 1.0 m
     StewartPlatformConfig(motion="random_walk").validate()
+    StewartPlatformConfig(platform_radius_m=0.515).validate()  # the joints at 75 and 165 deg 0.497 m out: under it
 
 
 def test_the_shortest_random_walk_knot_interval_accepted_is_checked_against_the_stroke():

@@ -94,6 +94,11 @@ class StewartPlatformConfig:
         require(self.leg_max_m > self.leg_min_m, f"{prefix}.leg_max_m must exceed {prefix}.leg_min_m")
         require(self.motion in MOTION_MODES, f"{prefix}.motion must be one of {', '.join(MOTION_MODES)}, "
                 f"got '{self.motion}'")
+        joints = self.platform_radius_m * np.abs([np.cos(np.radians(self.platform_joint_angles_deg)),
+                                                  np.sin(np.radians(self.platform_joint_angles_deg))])
+        require(np.all(joints <= self.deck_size_m / 2 + 1e-9),
+                f"{prefix}.platform_radius_m ({self.platform_radius_m:g} m) puts deck joints off the "
+                f"{self.deck_size_m:g} m deck (at {prefix}.platform_joint_angles_deg)")
         require(self.time_offset_s >= 0, f"{prefix}.time_offset_s must not be negative")
         require(0 <= self.tag_id < 587, f"{prefix}.tag_id must be in [0, 586] for tag36h11")
         require(tag_plate_scale(self.tag_size_m) <= self.deck_size_m,
