@@ -27,6 +27,7 @@ from diagrams.simulate import Simulation, simulate
 from diagrams.stewart_run import pose_from_vector
 from systems.config import require_positive
 from systems.control.monitor import GV_HEADING
+from systems.estimators.deck_tracker import tilt_deg
 from systems.perception.seam import HEIGHT, VALID
 from systems.sensors.ground_truth import pose_vector
 
@@ -79,11 +80,6 @@ def fly_diagram(diagram, handles: DeckLandingHandles, duration_s: float, **optio
     return DeckFlight(simulation.status, simulation, log, frames, handles)
 
 
-def tilt_deg(deck_motion: np.ndarray) -> np.ndarray:
-    """The deck's tilt [deg] from deck_motion rows (systems/estimators/deck_tracker.py's layout)."""
-    return np.degrees(np.arcsin(np.minimum(np.hypot(deck_motion[..., 0], deck_motion[..., 1]), 1.0)))
-
-
 def _deck_pad(log: dict[str, np.ndarray], config: DeckLandingConfig) -> dict:
     """landing_metrics.touchdown's pad arguments for a deck flight: the deck, headed as the carrier."""
     return pad_arguments(log["carrier_state"][:, GV_HEADING], config.platform.deck_size_m,
@@ -102,7 +98,7 @@ def deck_landing_metrics(flight: DeckFlight, config: DeckLandingConfig) -> dict:
     log = flight.log
     out, k = pad_landing(log, flight.status, gravity_m_s2=config.quadrotor.gravity_m_s2, **_deck_pad(log, config))
     if k is not None:
-        out["deck_tilt_at_touchdown_deg"] = float(tilt_deg(log["true_deck_motion"][k]))
+        out["deck_tilt_at_touchdown_deg"] = float(tilt_deg(log["true_deck_motion"][k, :2]))
         out["deck_heave_rate_at_touchdown_m_s"] = float(log["true_deck_motion"][k, 5])
         out["meets_targets"] = bool(out["meets_targets"] and out["deck_tilt_at_touchdown_deg"] < TARGET_TILT_DEG)
     return out
@@ -147,8 +143,8 @@ def plot_deck_landing(flight: DeckFlight, config: DeckLandingConfig, out_dir) ->
     axes[0].plot(t, steered, "--", color="tab:red", lw=1, label=f"{config.perception.source} (valid)")
     axes[0].axhline(config.landing.landing_height_m, color="0.5", ls=":", lw=1, label="LH")
     axes[0].set_ylabel("UAV above the deck (m)")
-    axes[1].plot(t, tilt_deg(log["true_deck_motion"]), "k-", lw=1.2, label="true tilt")
-    tracked = np.where(log["deck_motion"][:, 6] > 0.5, tilt_deg(log["deck_motion"]), np.nan)
+    axes[1].plot(t, tilt_deg(log["true_deck_motion"][:, :2]), "k-", lw=1.2, label="true tilt")
+    tracked = np.where(log["deck_motion"][:, 6] > 0.5, tilt_deg(log["deck_motion"][:, :2]), np.nan)
     axes[1].plot(t, tracked, "--", color="tab:red", lw=1, label="tracked")
     axes[1].axhline(config.window.max_tilt_deg, color="tab:green", ls=":", lw=1, label="commit within")
     axes[1].axhline(config.window.abort_tilt_deg, color="tab:brown", ls=":", lw=1, label="abort beyond")

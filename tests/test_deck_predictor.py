@@ -27,7 +27,7 @@ from systems.estimators.deck_predictor import (
     sample_prediction,
     step_predictor,
 )
-from systems.estimators.deck_tracker import DeckTrack, DeckTrackerConfig, deck_estimate, step_deck_track
+from systems.estimators.deck_tracker import DeckTrack, DeckTrackerConfig, deck_estimate, step_deck_track, tilt_deg
 from systems.platforms.stewart import StewartGeometry, StewartMotion, StewartPlatformConfig
 
 PERIOD = 0.05
@@ -62,10 +62,6 @@ def tracked(scale: float, duration_s: float, seed: int = 0) -> tuple[np.ndarray,
         motions.append(deck_estimate(track, t, tracker)[2])
     first = next(k for k, m in enumerate(motions) if m[6])  # from the tracker's first confirmed frame
     return np.array(motions[first:]), np.array(truth[first:])
-
-
-def tilt_deg(n: np.ndarray) -> np.ndarray:
-    return np.degrees(np.arcsin(np.minimum(np.hypot(n[..., 0], n[..., 1]), 1.0)))
 
 
 def tilt_errors(motions, truth, horizon_s=2.0, start_s=40.0, every=10):

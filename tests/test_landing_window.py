@@ -8,10 +8,11 @@ import pytest
 from systems.control.landing_window import (
     LandingWindow,
     LandingWindowConfig,
-    predicted_tilt_deg,
     time_to_touchdown,
     window_flags,
 )
+from systems.estimators.deck_predictor import constant_rate_prediction
+from systems.estimators.deck_tracker import tilt_deg
 
 CONFIG = LandingWindowConfig()
 
@@ -26,7 +27,7 @@ def sin_deg(deg):
 
 def test_predicted_tilt_is_the_normal_moved_at_its_rate():
     m = motion((sin_deg(3.0), 0.0), (-sin_deg(3.0) / 2.0, 0.0))  # back to level in 2 s
-    tilt = predicted_tilt_deg(m, np.array([0.0, 1.0, 2.0, 4.0]))
+    tilt = tilt_deg(constant_rate_prediction(m, np.array([0.0, 1.0, 2.0, 4.0]))[:, :2])
     np.testing.assert_allclose(tilt, [3.0, math.degrees(math.asin(sin_deg(3.0) / 2)), 0.0, 3.0], atol=1e-9)
 
 

@@ -28,8 +28,13 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from systems.config import require, require_positive
-from systems.estimators.deck_predictor import DeckPredictorConfig, prediction_size, sample_prediction
-from systems.estimators.deck_tracker import DECK_MOTION_SIZE
+from systems.estimators.deck_predictor import (
+    DeckPredictorConfig,
+    constant_rate_prediction,
+    prediction_size,
+    sample_prediction,
+)
+from systems.estimators.deck_tracker import DECK_MOTION_SIZE, tilt_deg
 
 WINDOW_SAMPLES = 5  # predictions over tau +- the margin
 PREDICTIONS = ("constant_rate", "autoregressive")
@@ -59,13 +64,6 @@ class LandingWindowConfig:
         require(self.no_return_s >= 0, f"{prefix}.no_return_s must not be negative")
 
 
-def predicted_tilt_deg(deck_motion: np.ndarray, horizon_s: np.ndarray) -> np.ndarray:
-    """The deck's tilt [deg] predicted `horizon_s` [s] ahead at constant tilt rate."""
-    n_x = deck_motion[0] + deck_motion[2] * horizon_s
-    n_y = deck_motion[1] + deck_motion[3] * horizon_s
-    return np.degrees(np.arcsin(np.minimum(np.hypot(n_x, n_y), 1.0)))
-
-
 def window_flags(deck_motion: np.ndarray, time_to_touchdown_s: float, config: LandingWindowConfig,
                  prediction: np.ndarray | None = None) -> tuple[bool, bool]:
     """(open: commit now, holds: a committed descent may go on) for the deck's motion (DECK_MOTION_SIZE) and
@@ -78,11 +76,10 @@ def window_flags(deck_motion: np.ndarray, time_to_touchdown_s: float, config: La
     horizon = np.linspace(max(tau - config.timing_margin_s, 0.0), tau + config.timing_margin_s, WINDOW_SAMPLES)
     if prediction is not None and prediction[0] >= 0.5:
         predicted = sample_prediction(prediction, horizon)
-        tilt = float(np.degrees(np.arcsin(np.minimum(np.hypot(predicted[:, 0], predicted[:, 1]), 1.0))).max())
-        heave_rate = float(np.abs(predicted[:, 3]).max())
     else:
-        tilt = float(predicted_tilt_deg(deck_motion, horizon).max())
-        heave_rate = abs(float(deck_motion[5]))
+        predicted = constant_rate_prediction(deck_motion, horizon)
+    tilt = float(tilt_deg(predicted[:, :2]).max())
+    heave_rate = float(np.abs(predicted[:, 3]).max())
     return (tilt <= config.max_tilt_deg and heave_rate <= config.max_heave_rate_m_s,
             tau <= config.no_return_s or (tilt <= config.abort_tilt_deg and heave_rate <= 2 * config.max_heave_rate_m_s))
 

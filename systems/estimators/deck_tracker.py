@@ -69,6 +69,13 @@ class DeckTrackerConfig:
             getattr(self, name).validate(f"{prefix}.{name}")
 
 
+def tilt_deg(n_xy: np.ndarray) -> np.ndarray:
+    """The deck's tilt [deg] from its normal's x and y components in W, the last axis of `n_xy` (deck_motion's
+    first two entries, or a prediction's): |n_xy| = sin(tilt)."""
+    n_xy = np.asarray(n_xy, dtype=float)
+    return np.degrees(np.arcsin(np.minimum(np.hypot(n_xy[..., 0], n_xy[..., 1]), 1.0)))
+
+
 def tilt_rotation(n_xy: np.ndarray) -> RotationMatrix:
     """R_tilt: the smallest rotation taking z_W onto the unit normal whose x and y components are n_xy."""
     n_xy = np.asarray(n_xy, dtype=float)
