@@ -128,10 +128,8 @@ def adjustment_measurement(X_CP: RigidTransform, points_P: np.ndarray, pixel_std
                            X_BC: RigidTransform, K: np.ndarray) -> NodeMeasurement:
     """The adjustment node's pose (nodes.adjustment) with the covariance of its corners (points_P)
     as independent measurements at its fit's pixel noise per coordinate (`pixel_std`, px, from
-    `fit_pixel_std`; also the measurement's `quality`) (tests/test_federated_landing.py's short landing,
-    square-on, most fits at MIN_PIXEL_STD: normalised squared pose errors of mean 7.6-9.6 and median
-    4.4-5.6 by altitude band, 6 for a consistent covariance; the height's RMS error 0.31, 1.06 and 3.02 mm
-    at 0.8-1.5, 1.5-2.5 and 2.5-3.8 m against 0.30, 0.99 and 2.79 mm claimed)."""
+    `fit_pixel_std`; also the measurement's `quality`); how consistent it is in the loop: docs/results.md
+    (the federated filter's section)."""
     view = PatternView(X_CP, points_P, K, max(pixel_std, MIN_PIXEL_STD))
     return NodeMeasurement(time, "adjustment", None, X_PB=pose_of_body(X_CP, X_BC), quality=pixel_std, view=view)
 
