@@ -2,6 +2,7 @@
 (systems/viewers.py `draw_boxes`, `TrackOverlay`), and the scene's recorder wired to it."""
 
 import numpy as np
+from pydrake.systems.analysis import Simulator
 from pydrake.systems.sensors import ImageRgba8U
 
 from diagrams.gv_landing import build_gv_landing
@@ -43,6 +44,18 @@ def test_hybrid_scene_records_its_own_stream(tmp_path):
     assert scenario.has_video and scenario.camera() is None
     _, handles = build_gv_landing(scenario, video_path=tmp_path / "camera.mp4")
     assert isinstance(handles.video, VideoRecorder) and handles.video.path == tmp_path / "camera.mp4"
+    assert list(tmp_path.iterdir()) == []  # the recorder opens its file at the first frame, not while built
     handles.video.discard()
     _, plain = load_scenario("gv-landing")
     assert not plain.has_video
+
+
+def test_the_recorder_writes_its_partial_file_from_the_first_frame_and_renames_it_when_finished(tmp_path):
+    recorder = VideoRecorder(tmp_path / "camera.mp4", 0.1, 32, 24)
+    assert list(tmp_path.iterdir()) == []
+    simulator = Simulator(recorder)
+    recorder.get_input_port().FixValue(simulator.get_mutable_context(), ImageRgba8U(32, 24))
+    simulator.AdvanceTo(0.25)  # three frames
+    assert [p.name for p in tmp_path.iterdir()] == [".camera.partial.mp4"]
+    recorder.finish()
+    assert [p.name for p in tmp_path.iterdir()] == ["camera.mp4"]
