@@ -25,6 +25,7 @@ from diagrams.montecarlo import (
     CAMPAIGNS, CampaignDefinition, RunOutput, RunTask, campaign, campaign_settings, executors, parse_number_case,
     read_records, run_campaign, run_seed,
 )
+from diagrams.montecarlo.aggregate import aggregate_fields
 from diagrams.outputs import save_figure
 from systems.config import ConfigError
 from systems.noise import stream_id
@@ -201,6 +202,23 @@ def test_case_key_loads_the_scenario_with_case_overrides_and_seed():
 
 
 # ---- executors give identical summaries --------------------------------------------------------
+
+def test_the_aggregate_is_numpys_statistics_over_the_runs_that_have_each_figure():
+    metrics = [{"a": 1.0, "ok": True, "xy": [1.0, None], "group": {"b": 2.0}, "ragged": [1.0, 2.0]},
+               {"a": 3.0, "ok": False, "xy": [2.0, 4.0], "group": {"b": float("nan")}, "ragged": [1.0]},
+               {"a": -2.0, "ok": True, "xy": [None, None], "group": {"b": 5.0}, "ragged": [3.0, 4.0]}]
+    out = aggregate_fields(metrics)
+    a = np.array([1.0, 3.0, -2.0])
+    assert out["a"] == pytest.approx({"n": 3, "mean": np.mean(a), "std": np.std(a), "rms": np.sqrt(np.mean(a**2)),
+                                      "min": -2.0, "max": 3.0})
+    assert out["ok"]["mean"] == pytest.approx(2 / 3)  # bools as 0/1: a fraction
+    assert out["group.b"] == pytest.approx({"n": 2, "mean": 3.5, "std": 1.5, "rms": np.sqrt(14.5), "min": 2.0,
+                                            "max": 5.0})  # the NaN left out
+    # elementwise, each element over the runs where it is a number; a list with no number is no run's
+    assert out["xy"]["n"] == [2, 1] and out["xy"]["mean"] == pytest.approx([1.5, 4.0])
+    assert out["xy"]["rms"] == pytest.approx([np.sqrt(2.5), 4.0])
+    assert "ragged" not in out  # lists of different lengths have no elementwise statistics
+
 
 @pytest.fixture(scope="module")
 def pool_campaigns(tmp_path_factory):

@@ -13,8 +13,8 @@ from diagrams.montecarlo.records import RunRecord
 
 
 def _stats(values: np.ndarray) -> dict:
-    """n, mean, std, rms, min and max over axis 0 of the values that are not NaN (elementwise for vectors, each
-    element with its own n); NaN where there are none (null in summary.json)."""
+    """n, mean, std (the runs' own spread: ddof 0), rms and min and max over axis 0 of the values that are not
+    NaN (elementwise for vectors, each element with its own n); NaN where there are none (null in summary.json)."""
     def out(x):
         return x.tolist() if isinstance(x, np.ndarray) else x.item()
 
