@@ -70,6 +70,25 @@ def test_the_shortest_max_age_accepted_keeps_a_steady_broadcast_valid_between_me
         RendezvousConfig(source="broadcast", latency_periods=1, max_age_s=0.19).validate()
 
 
+@pytest.mark.parametrize("rate_hz, latency_periods", [(10.0, 1), (10.0, 2), (30.0, 1), (7.0, 3)])
+def test_at_the_shortest_max_age_a_held_message_stays_valid_at_the_send_times_themselves(rate_hz, latency_periods):
+    # At k / rate_hz, before that send's update, the held message is exactly max_age_s old: the round-off of
+    # the context's time minus the message's must not turn it invalid there.
+    max_age_s = (latency_periods + 1) / rate_hz
+    system, context = broadcast_system(position_std_m=0.0, rate_hz=rate_hz, latency_periods=latency_periods,
+                                       max_age_s=max_age_s)
+    system.GetInputPort("true_relative_state").FixValue(context, truth_at(0.0))
+    simulator = Simulator(system, context)
+    invalid = []
+    for k in range(latency_periods + 2, 200):
+        simulator.AdvanceTo(k / rate_hz)
+        if system.get_output_port().Eval(context)[VALID] != 1.0:
+            invalid.append(k)
+    assert invalid == []
+    context.SetTime(context.get_time() + 1.5 / rate_hz)  # no message since: older than max_age_s, invalid
+    assert system.get_output_port().Eval(context)[VALID] == 0.0
+
+
 def test_the_gnss_error_starts_from_its_stationary_spread():
     errors = []
     for seed in range(400):

@@ -22,6 +22,7 @@ from systems.config import require, require_non_negative, require_positive
 from systems.noise import sample_index, sample_rng
 from systems.perception.seam import P_BP_W, RELATIVE_STATE_SIZE, V_WP, VALID, seam_vector
 from systems.sensors.navigation import SecondOrderGaussMarkov
+from systems.stepped import TIME_TOLERANCE_S
 from systems.vehicles.quadrotor import P_WB, STATE_SIZE
 
 SOURCES = ("none", "broadcast")
@@ -69,8 +70,10 @@ class VehicleBroadcast(LeafSystem):
     """Inputs `true_relative_state` (the truth's seam) and `quadrotor_state` (17, the truth): the pad's
     true position and velocity in W. Input `X_WB` (RigidTransform): the UAV's own navigation. Output
     `relative_state` (the seam's layout) from the newest received message, dead-reckoned to now; valid
-    while it is at most max_age_s old. Discrete state: the GNSS error (3 axes x [e, e'], units of
-    position_std_m) and the messages in flight (latency_periods + 1 of MESSAGE_SIZE, newest last)."""
+    while it is at most max_age_s old, within TIME_TOLERANCE_S (at a send time, before its update, the held
+    message is (latency_periods + 1) / rate_hz old up to the times' round-off). Discrete state: the GNSS
+    error (3 axes x [e, e'], units of position_std_m) and the messages in flight (latency_periods + 1 of
+    MESSAGE_SIZE, newest last)."""
 
     def __init__(self, config: RendezvousConfig, seed: int = 0):
         super().__init__()
@@ -104,7 +107,7 @@ class VehicleBroadcast(LeafSystem):
     def _calc(self, context, output):
         received = context.get_discrete_state(self._messages).get_value()[:MESSAGE_SIZE]
         age = context.get_time() - received[6]
-        valid = bool(np.isfinite(age) and age <= self._config.max_age_s)
+        valid = bool(np.isfinite(age) and age <= self._config.max_age_s + TIME_TOLERANCE_S)
         p_WP = received[:3] + (received[3:6] * age if valid else 0.0)
         output.SetFromVector(seam_vector(self._X_WB.Eval(context), p_WP, received[3:6], np.zeros(3), valid))
 
