@@ -90,7 +90,7 @@ def test_unknown_key_given_by_set_is_named_too():
 
 
 def test_set_overrides_a_list_field_with_a_scalar():
-    _, scenario = load_scenario("stewart-hover", overrides=["platform.roll_amplitude_deg=8",
+    _, scenario = load_scenario("stewart-hover", overrides=["platform.motion=sinusoid", "platform.roll_amplitude_deg=8",
                                                             "platform.roll_frequency_hz=0.1"])
     assert scenario.platform.roll_amplitude_deg == [8.0]
     assert isinstance(scenario.platform.roll_amplitude_deg[0], float)

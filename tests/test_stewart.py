@@ -226,6 +226,12 @@ def test_random_walk_is_continuous():
     # deck joints 2 m out under a 1 m deck; the joints at 75 and 165 deg reach its edge (0.5 m) at 0.518 m
     ({"platform_radius_m": 2.0}, r"platform.platform_radius_m \(2 m\) puts deck joints off the 1 m deck"),
     ({"platform_radius_m": 0.52}, r"platform.platform_radius_m \(0.52 m\) puts deck joints off the 1 m deck"),
+    # a static deck (the default) stands still: a motion set for it was run as a still deck, silently
+    ({"roll_amplitude_deg": [8.0], "roll_frequency_hz": [0.05]},
+     r"platform.roll_amplitude_deg is \[8.0\] but platform.motion is 'static'"),
+    ({"z_amplitude_m": [0.0, -0.1]}, r"platform.z_amplitude_m is \[0.0, -0.1\] but platform.motion is 'static'"),
+    ({"x_frequency_hz": [0.2]}, r"platform.x_frequency_hz is \[0.2\] but platform.motion is 'static'"),
+    ({"yaw_phase_deg": [30.0]}, r"platform.yaw_phase_deg is \[30.0\] but platform.motion is 'static'"),
 ])
 def test_invalid_configuration_raises_config_error_naming_the_field(changes, field):
     config = StewartPlatformConfig(**changes)
@@ -239,6 +245,7 @@ def test_tag_that_just_fits_is_accepted():
     StewartPlatformConfig(tag_size_m=0.8, deck_size_m=1.0).validate()  # 0.8 m with border is exactly 1.0 m
     StewartPlatformConfig(motion="random_walk").validate()
     StewartPlatformConfig(platform_radius_m=0.515).validate()  # the joints at 75 and 165 deg 0.497 m out: under it
+    StewartPlatformConfig(motion="static", pitch_amplitude_deg=[0.0]).validate()  # a zero amplitude: still
 
 
 def test_the_shortest_random_walk_knot_interval_accepted_is_checked_against_the_stroke():

@@ -105,6 +105,11 @@ class StewartPlatformConfig:
                 f"{prefix}.tag_size_m = {self.tag_size_m} m does not fit on the deck: the tag with its white "
                 f"border is {tag_plate_scale(self.tag_size_m):.3f} m wide but {prefix}.deck_size_m is "
                 f"{self.deck_size_m} m")
+        for axis in AXES if self.motion == "static" else ():  # the deck stands still: a motion given is a mistake
+            for name in (f"{axis}_amplitude_{_axis_unit(axis)}", f"{axis}_frequency_hz", f"{axis}_phase_deg"):
+                value = getattr(self, name)
+                require(not (np.any(value) if "amplitude" in name else value), f"{prefix}.{name} is {value} but "
+                        f"{prefix}.motion is 'static' (the deck stands still): empty it or choose another motion")
         for axis in AXES if self.motion == "sinusoid" else ():  # a random walk takes only the bounds (amplitudes)
             unit = _axis_unit(axis)
             lengths = {len(getattr(self, f"{axis}_{part}")) for part in (f"amplitude_{unit}", "frequency_hz")}
