@@ -128,6 +128,28 @@ def test_the_lens_distorts_the_rendered_image_as_opencv_projects(tilted_scene, b
     assert shift.max() > 0.5
 
 
+def test_the_calibration_error_reaches_the_tag_corners_crhf_takes_through_the_estimators_lens_model(tilted_scene):
+    """docs/scenarios.md (camera row): the tag detector, whose corners CRHF takes, undistorts them with the
+    estimators' K and lens model (the scenes' wiring). Without a lens and a k1, k2 error that is the identity:
+    the intrinsics' error leaves the corners as detected; a k1 error alone moves them by about f k1 r^3."""
+    image = tilted_scene.eval(tilted_scene.handles.camera, "color_image", tilted_scene.context())
+    detected = AprilTagDetector(tilted_scene.config.platform.tag_id).detect(image_to_numpy(image))
+
+    def corners(**error):
+        camera = CameraConfig(calibration_error=CalibrationErrorConfig(**error))
+        detector = TagDetectorSystem(tilted_scene.config.platform.tag_id, 512, 512,
+                                     (camera.K_estimated, camera.D_estimated))
+        context = detector.CreateDefaultContext()
+        detector.get_input_port().FixValue(context, image)
+        return detector.GetOutputPort("tag_detection").Eval(context).corners
+
+    np.testing.assert_array_equal(corners(fx_pct=3.0, fy_pct=-2.0, cx_px=4.0, cy_px=-3.0), detected)
+    shift = np.linalg.norm(corners(k1=0.05) - detected, axis=1)
+    radius = np.linalg.norm((detected - K_EQ10[:2, 2]) / 458.5, axis=1)
+    np.testing.assert_allclose(shift, 458.5 * 0.05 * radius**3, rtol=0.1)
+    assert shift.max() > 0.1
+
+
 def test_the_stewart_scene_tag_corner_model_agrees(tilted_scene):
     # The platform's own tag frame and corners, used by the logs, project to the same pixels.
     from systems.perception.apriltag import project_points
