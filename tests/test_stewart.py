@@ -1,4 +1,4 @@
-"""Stewart platform: inverse and forward kinematics, the motion modes, the LeafSystem's outputs, and
+"""Stewart platform: inverse kinematics, the motion modes, the LeafSystem's outputs, and
 configuration errors."""
 
 import math
@@ -16,7 +16,6 @@ from systems.platforms.stewart import (
     StewartMotion,
     StewartPlatform,
     StewartPlatformConfig,
-    forward_kinematics,
     leg_lengths,
     stroke_violation,
     within_stroke,
@@ -81,23 +80,6 @@ def test_yaw_about_the_deck_centre_follows_the_law_of_cosines():
                           + config.nominal_height_m**2) for i in range(6)]
     np.testing.assert_allclose(leg_lengths(X, geometry), expected, rtol=0, atol=1e-12)
     np.testing.assert_allclose(expected, [hand_leg(config, i, yaw=yaw) for i in range(6)], atol=1e-12)
-
-
-def test_forward_kinematics_recovers_random_poses_within_the_stroke():
-    geometry = StewartGeometry.from_config(StewartPlatformConfig())
-    rng = np.random.default_rng(7)
-    tested = 0
-    while tested < 8:
-        offset = rng.uniform(-1, 1, 6) * [0.06, 0.06, 0.06, 0.15, 0.15, 0.2]
-        X = RigidTransform(RollPitchYaw(offset[3:]), geometry.X_SP0.translation() + offset[:3])
-        lengths = leg_lengths(X, geometry)
-        if not within_stroke(lengths, geometry):
-            continue
-        tested += 1
-        X_fk = forward_kinematics(lengths, geometry)
-        assert np.max(np.abs(X_fk.translation() - X.translation())) < 1e-6
-        assert X_fk.rotation().inverse().multiply(X.rotation()).ToAngleAxis().angle() < 1e-6
-        np.testing.assert_allclose(leg_lengths(X_fk, geometry), lengths, atol=1e-9)
 
 
 def test_within_stroke_checks_both_ends():

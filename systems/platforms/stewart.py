@@ -15,7 +15,7 @@ from pydrake.geometry import Box, Cylinder, FramePoseVector, GeometryFrame, Mesh
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 from scipy.interpolate import PchipInterpolator
-from scipy.optimize import least_squares, minimize_scalar
+from scipy.optimize import minimize_scalar
 
 from models.apriltag import tag_mesh_path, tag_plate_scale
 from systems.config import require, require_positive
@@ -152,23 +152,6 @@ def leg_lengths(X_SP: RigidTransform, geometry: StewartGeometry) -> np.ndarray:
 
 def within_stroke(lengths: np.ndarray, geometry: StewartGeometry) -> bool:
     return bool(np.all((lengths >= geometry.leg_min_m) & (lengths <= geometry.leg_max_m)))
-
-
-def forward_kinematics(lengths: np.ndarray, geometry: StewartGeometry,
-                       X_SP_guess: RigidTransform | None = None) -> RigidTransform:
-    """Forward kinematics by nonlinear least squares: the deck pose X_SP whose legs have `lengths`.
-
-    Starts from X_SP_guess (default: the nominal pose); Stewart FK has several solutions, and the one
-    nearest the guess is returned.
-    """
-    guess = X_SP_guess or geometry.X_SP0
-
-    def pose(v):
-        return RigidTransform(RollPitchYaw(v[3:]), v[:3])
-
-    v0 = np.concatenate([guess.translation(), RollPitchYaw(guess.rotation()).vector()])
-    fit = least_squares(lambda v: leg_lengths(pose(v), geometry) - lengths, v0, xtol=1e-14, ftol=1e-14)
-    return pose(fit.x)
 
 
 class StewartMotion:
