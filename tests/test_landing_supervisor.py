@@ -226,6 +226,23 @@ def test_abort_climbs_towards_ih_and_stops_there():
         assert command[2] == pytest.approx(expected)
 
 
+def test_abort_lost_for_lost_hold_s_turns_to_search_and_stops_coasting():
+    """ABORT coasts sideways at the last seen velocity, but only for lost_hold_s: then SEARCH, standing."""
+    script = Script()
+    for altitude in (1.0, 7.5, 7.5):
+        script.step(altitude=altitude, offset=(0.2, 0.0))
+    assert script.step(altitude=6.0, offset=(0.1, 0.0))[0] == Mode.APPROACH
+    assert script.step(altitude=3.0, offset=(0.1, 0.0), height=1.0)[0] == Mode.LAND
+    lost_at = script.time
+    mode, horizontal, _ = script.step(altitude=2.9, height=0.9, seen=False)
+    assert mode == Mode.ABORT
+    np.testing.assert_allclose(horizontal, TARGET_VELOCITY)
+    while script.machine.mode == Mode.ABORT and script.time - lost_at < 2 * CONFIG.lost_hold_s:
+        mode, horizontal, _ = script.step(altitude=4.0, seen=False)
+    assert mode == Mode.SEARCH and script.time - 0.02 - lost_at == pytest.approx(CONFIG.lost_hold_s)
+    assert not horizontal.any()
+
+
 @pytest.mark.parametrize("offset_m, mode", [(0.3, Mode.LAND), (1.2, Mode.FOLLOW), (5.0, Mode.FOLLOW)])
 def test_reaching_lh_off_centre_follows_rather_than_lands(offset_m, mode):
     """APPROACH reaching LH with the target beyond off_centre_radius_m (1 m) follows it again; before, LAND came

@@ -11,7 +11,7 @@ from systems.control.landing_window import (
     time_to_touchdown,
     window_flags,
 )
-from systems.estimators.deck_predictor import constant_rate_prediction
+from systems.estimators.deck_predictor import constant_rate_prediction, prediction_size
 from systems.estimators.deck_tracker import tilt_deg
 
 CONFIG = LandingWindowConfig()
@@ -56,6 +56,19 @@ def test_heave_rate_closes_it_and_no_estimate_closes_everything():
     assert window_flags(motion(heave_rate=0.25), 2.0, CONFIG) == (False, False)
     assert window_flags(motion(valid=False), 2.0, CONFIG) == (False, False)
     assert window_flags(motion(valid=False), 0.5, CONFIG) == (False, False)
+    # heaving down as fast: the same (the rate's size decides, not its sign)
+    assert window_flags(motion(heave_rate=-0.15), 2.0, CONFIG) == (False, True)
+    assert window_flags(motion(heave_rate=-0.25), 2.0, CONFIG) == (False, False)
+
+
+def test_a_prediction_flagged_invalid_is_not_used():
+    """The deck predictor's output with its valid flag 0 (its other entries a lively deck's): the window is the
+    constant rate's, open over a level, still deck."""
+    prediction = np.full(prediction_size(CONFIG.predictor), 0.5)
+    prediction[0] = 0.0
+    assert window_flags(motion(), 1.0, CONFIG, prediction) == (True, True)
+    prediction[0] = 1.0  # the same numbers, valid: n_xy 0.5 is a 30 deg deck
+    assert window_flags(motion(), 1.0, CONFIG, prediction)[0] is False
 
 
 def test_the_system_times_touchdown_from_the_seam_height():
