@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from scipy.spatial.transform import Rotation, Slerp
 
 from systems.estimators.federated.engine import (
     NODES,
@@ -18,7 +19,7 @@ from systems.estimators.federated.engine import (
     relative_std_m,
     step,
 )
-from systems.estimators.federated.fusion import fuse, reset
+from systems.estimators.federated.fusion import MIN_BETA, fuse, reset
 from systems.estimators.federated.local_filter import (
     LocalFilterConfig,
     LocalState,
@@ -31,6 +32,7 @@ from systems.estimators.federated.local_filter import (
     update_pattern_in_camera,
     update_pose,
 )
+from systems.noise import van_loan_discretisation
 from systems.perception.rqrlp.measurements import (
     NodeMeasurement,
     PatternView,
@@ -71,6 +73,38 @@ def test_fusion_of_equal_filters_is_their_mean_and_the_betas_are_equal():
     np.testing.assert_allclose(fused.p, [1.1, 0.2, 2.0], atol=1e-12)
     np.testing.assert_allclose(fused.P, a.P / 2, atol=1e-12)
     np.testing.assert_allclose(betas, [0.5, 0.5])
+
+
+def test_fusion_of_two_equally_certain_attitudes_is_their_geodesic_midpoint():
+    """Two filters as sure of themselves, 60 deg apart about an axis across the first's tilt: the fused attitude
+    is SciPy's Slerp halfway (the error vector's frame and the way it is applied back must agree)."""
+    R1 = Rotation.from_euler("x", 40, degrees=True)
+    R2 = Rotation.from_euler("z", 60, degrees=True) * R1
+    states = [LocalState(np.zeros(3), np.zeros(3), R.as_matrix(), np.eye(9) * 0.01) for R in (R1, R2)]
+    fused, _ = fuse(states)
+    halfway = Slerp([0.0, 1.0], Rotation.concatenate([R1, R2]))(0.5)
+    assert np.degrees((Rotation.from_matrix(fused.R) * halfway.inv()).magnitude()) < 1e-6
+
+
+def test_the_betas_sum_to_one_with_a_floor_for_a_filter_that_knows_nothing():
+    """Eq. (9)'s shares: a filter 1e9 times less certain than the other keeps its floor, MIN_BETA before the
+    shares are normalised again (its process noise stays finite), and the shares still sum to 1."""
+    _, betas = fuse([_state([0.0, 0.0, 1.0], 1e-3), _state([0.0, 0.0, 1.0], 1e6)])
+    assert betas.sum() == pytest.approx(1.0, abs=1e-12)
+    assert betas[1] == pytest.approx(MIN_BETA / (1 + MIN_BETA), rel=1e-6)
+
+
+def test_the_prediction_adds_the_exact_process_noise_of_a_white_acceleration():
+    """From a certain state, one step's covariance is Q: over position and velocity the Van Loan discretisation
+    (systems/noise.py) of p'' = white acceleration of accel_noise_psd, cross terms included."""
+    config, dt = LocalFilterConfig(), 0.01
+    state = LocalState(np.zeros(3), np.zeros(3), np.eye(3), np.zeros((9, 9)))
+    Q = predict(state, np.array([0.0, 0.0, G]), np.zeros(3), dt, config, G).P
+    A, BBt = np.zeros((6, 6)), np.zeros((6, 6))
+    A[0:3, 3:6] = np.eye(3)
+    BBt[3:6, 3:6] = config.accel_noise_psd * np.eye(3)
+    _, G_step = van_loan_discretisation(A * dt, BBt * dt)
+    np.testing.assert_allclose(Q[0:6, 0:6], G_step @ G_step.T, rtol=1e-6, atol=1e-15)
 
 
 def test_fusion_with_reset_equals_the_centralised_filter():
