@@ -3,6 +3,7 @@ bounds, the depth functions and the altimeter on synthetic pairs, the altitude K
 on analytic cases, and bad configurations."""
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -21,6 +22,8 @@ from systems.estimators.altitude_kf import (
     AltitudeKfConfig,
     AltitudeKfState,
     altitude_kf_step,
+    measurement,
+    process_noise,
 )
 from systems.perception.stereo_depth import (
     StereoAltimeter,
@@ -304,6 +307,30 @@ def test_kf_tracks_a_constant_descent_rate():
     # no lag: a constant rate is in the model (a position-only filter would trail the ramp)
     assert abs(altitude.mean()) < 0.01 and rms(altitude) < STD / 3
     assert abs(speed.mean()) < 0.03 and rms(speed) < 0.1
+
+
+def test_kf_models_are_eq_13_14_against_sampled_and_analytic_truths():
+    """Eq. 14's R is the covariance of [Z, (Z - Z_prev) / T] from two independent readings (against 2e5 drawn
+    pairs); Eq. 13's Q is a white acceleration held over the step, accel_std^2 G G^T, G = [T^2 / 2, T]; the
+    filter starts with the reading's own variance."""
+    config, T, z = AltitudeKfConfig(), 0.1, 4.0
+    rng = np.random.default_rng(1)
+    z0, z1 = z + config.measurement_std(z) * rng.standard_normal((2, 200_000))
+    np.testing.assert_allclose(measurement(z, z, T, config)[2], np.cov(np.vstack([z1, (z1 - z0) / T])), rtol=0.03)
+    G = np.array([T**2 / 2, T])
+    np.testing.assert_allclose(process_noise(T, 2.0), 4.0 * np.outer(G, G), rtol=1e-12)
+    first = altitude_kf_step(AltitudeKfState(), 5.0, True, 0.0, config)
+    assert first.P[0, 0] == pytest.approx(config.measurement_std(5.0) ** 2, rel=1e-12)
+
+
+def test_kf_rate_after_a_coasted_frame_is_not_taken_across_two_frames():
+    """Every other frame without a reading on a steady 0.5 m/s descent: a reading after a gap is Z alone (its
+    rate would span two frames), and the filter's rate stays the descent's."""
+    config = replace(MATCHED, measurement_std_m=1e-4, measurement_std_per_m2=0.0)
+    state = AltitudeKfState()
+    for k in range(60):
+        state = altitude_kf_step(state, 8.0 - 0.5 * k * T, k % 2 == 0, k * T, config)
+    assert state.x[1] == pytest.approx(-0.5, abs=0.02)
 
 
 def test_kf_coasts_on_invalid_input_then_turns_invalid():
