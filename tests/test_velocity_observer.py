@@ -522,3 +522,17 @@ def test_system_invalid_altitude_is_no_sighting():
     # altitude flagged invalid from k = 10: the window empties and the estimate turns invalid, never NaN-as-valid
     assert out[-1][1] == 0.0 and np.all(np.isnan(out[-1][0]))
     assert all(np.all(np.isfinite(v)) for v, valid in out if valid == 1.0)
+
+
+@pytest.mark.parametrize("altitude_m", [-3.0, 0.0])
+def test_system_an_altitude_at_or_below_zero_is_no_sighting(altitude_m):
+    """A displacement read at a non-positive altitude (flagged valid) would give a reversed or zero velocity:
+    it is no sighting, and the observer never turns valid."""
+    system = VelocityObserverSystem(VelocityObserverConfig(source="displacement"), K=K, X_BC=X_BC)
+
+    def inputs(context, k, tk):
+        system.GetInputPort("target_displacement").FixValue(context, [10.0, 0.0])
+        system.GetInputPort("altitude").FixValue(context, [altitude_m])
+        system.GetInputPort("X_WB").FixValue(context, RigidTransform([0.0, 0.0, 7.54]))
+
+    assert all(valid == 0.0 for _, valid in drive(system, inputs, np.arange(0.0, 1.0, T)))
