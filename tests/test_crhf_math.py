@@ -337,10 +337,13 @@ def tilt(n_ref, E, n):
     return E @ n / (n_ref @ n)
 
 
-@pytest.mark.parametrize("correlated", [False, True])
-def test_plane_tilt_covariance_matches_monte_carlo(correlated):
+@pytest.mark.parametrize("correlated, X", [
+    (False, X_CT), (True, X_CT),
+    (False, RigidTransform(RollPitchYaw(0.7, 0.0, 0.3), [0.05, -0.03, 1.2])),  # 40 deg: n_z^2 0.59, not n_z's 0.77
+])
+def test_plane_tilt_covariance_matches_monte_carlo(correlated, X):
     rng = np.random.default_rng(4)
-    n, d = deck_plane(X_CT)
+    n, d = deck_plane(X)
     p_s = sensor_positions_C(SENSOR_RADIUS)
     true_ranges = ranges_to_plane(p_s, n, d)
     cov = 0.002**2 * (np.eye(4) + (0.5 * (np.ones((4, 4)) - np.eye(4)) if correlated else 0.0))
