@@ -168,6 +168,32 @@ def test_constant_turn_model_is_exact_for_a_pad_off_the_rear_axle_in_a_steady_tu
     assert abs(v[1] / np.linalg.norm(v) - np.sin(12.0 / 41.0)) > 0.02  # its velocity is not along its heading
 
 
+def test_the_platform_attitude_covariance_is_that_of_twice_the_quaternions_vector():
+    """Near the identity a small rotation is dtheta = 2 dq_vec (Markley & Crassidis): a quaternion-vector std of
+    0.01 is an attitude std of 0.02 rad on each axis, what the seam is given."""
+    ekf = PaperMarkerEkf(MarkerLayout(), CameraConfig().X_BC)
+    x, P = np.zeros(ekf.n), np.zeros((ekf.n, ekf.n))
+    x[ekf._q] = [0.0, 0.0, 0.0, 1.0]
+    P[ekf._q, ekf._q] = np.diag([1e-4, 1e-4, 1e-4, 0.0])
+    np.testing.assert_allclose(np.diag(ekf.platform_covariance(x, P))[:3], (2 * 0.01) ** 2, rtol=1e-12)
+
+
+def test_the_stacked_innovations_take_q_and_minus_q_as_one_attitude():
+    """The batch path's innovations equal a single filter's when every measured quaternion is the negative of the
+    predicted one: the same attitude, so a zero attitude innovation."""
+    ekf = PaperMarkerEkf(MarkerLayout(), CameraConfig().X_BC)
+    m = len(ekf.p_PM)
+    x = np.zeros(ekf.n)
+    x[ekf._q] = np.array([0.1, 0.0, 0.0, 1.0]) / np.linalg.norm([0.1, 0.0, 0.0, 1.0])
+    camera = type("Camera", (), {"p_WC": np.array([0.0, 0.0, 5.0]), "R_CW": np.diag([1.0, -1.0, -1.0]),
+                                 "Q_RC": np.eye(4)})()
+    p_CM, q_MC = np.ones((m, 3)), np.tile(-x[ekf._q], (m, 1))
+    single = ekf.innovations(x, np.arange(m), camera, p_CM, q_MC)
+    stacked = ekf.innovations_stack(x[None], camera, p_CM, q_MC)[0]
+    np.testing.assert_allclose(stacked, single, atol=1e-12)
+    np.testing.assert_allclose(stacked[:, 3:], 0.0, atol=1e-12)
+
+
 def test_paper_process_is_eq_11():
     marker_filter = make(PaperMarkerEkf)
     x = state_from_truth(PaperMarkerEkf, pose([1, 2, 1.6], [0, 0, 20]))
