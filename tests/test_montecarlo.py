@@ -25,7 +25,8 @@ from diagrams.montecarlo import (
     CAMPAIGNS, CampaignDefinition, RunOutput, RunTask, campaign, campaign_settings, executors, parse_number_case,
     read_records, run_campaign, run_seed,
 )
-from diagrams.montecarlo.aggregate import aggregate_fields
+from diagrams.montecarlo.aggregate import aggregate_fields, default_aggregate
+from diagrams.montecarlo.records import RunRecord
 from diagrams.outputs import save_figure
 from systems.config import ConfigError
 from systems.noise import stream_id
@@ -218,6 +219,15 @@ def test_the_aggregate_is_numpys_statistics_over_the_runs_that_have_each_figure(
     assert out["xy"]["n"] == [2, 1] and out["xy"]["mean"] == pytest.approx([1.5, 4.0])
     assert out["xy"]["rms"] == pytest.approx([np.sqrt(2.5), 4.0])
     assert "ragged" not in out  # lists of different lengths have no elementwise statistics
+
+
+def test_runs_whose_estimators_group_holds_a_figure_are_aggregated_whole():
+    """DESIGN.md's shape is an "estimators" group of estimators; a run whose group also holds a plain figure is
+    not that shape, and its metrics are aggregated under "metrics" whole."""
+    record = RunRecord(case="3", index=0, seed=0, status="done", metrics={"estimators": {"ekf": {"e": 1.0}, "runs": 3}},
+                       error=None, wall_time_s=0.0, path=Path("00000.json"), has_arrays=False)
+    out = default_aggregate({"3": [record]})
+    assert list(out) == ["metrics"] and out["metrics"]["3"]["estimators.ekf.e"]["mean"] == 1.0
 
 
 @pytest.fixture(scope="module")
