@@ -178,6 +178,19 @@ def test_the_platform_attitude_covariance_is_that_of_twice_the_quaternions_vecto
     np.testing.assert_allclose(np.diag(ekf.platform_covariance(x, P))[:3], (2 * 0.01) ** 2, rtol=1e-12)
 
 
+def test_markers_not_seen_at_the_start_begin_where_the_layout_puts_them():
+    """The filter started from markers 1 and 2 alone on a pad yawed 30 deg: markers 0, 3 and 4 begin at the pad's
+    pose applied to the layout (the seen markers' mean less their offsets, turned into W)."""
+    ekf = PaperMarkerEkf(MarkerLayout(), CameraConfig().X_BC)
+    R_WP = RotationMatrix.MakeZRotation(np.radians(30.0))
+    p_WP = np.array([5.0, 2.0, 1.6])
+    slots = np.array([1, 2])
+    q_MR = np.tile(drake_to_paper(R_WP.ToQuaternion()), (2, 1))
+    x, _ = ekf.initial_state(slots, p_WP + ekf.p_PM[slots] @ R_WP.matrix().T, q_MR)
+    m = len(ekf.p_PM)
+    np.testing.assert_allclose(x[:6 * m].reshape(m, 6)[:, :3], p_WP + ekf.p_PM @ R_WP.matrix().T, atol=1e-12)
+
+
 def test_the_stacked_innovations_take_q_and_minus_q_as_one_attitude():
     """The batch path's innovations equal a single filter's when every measured quaternion is the negative of the
     predicted one: the same attitude, so a zero attitude innovation."""
