@@ -337,6 +337,10 @@ def tilt(n_ref, E, n):
     return E @ n / (n_ref @ n)
 
 
+def test_collinear_touch_points_fix_no_plane():
+    assert fit_plane(np.array([[0.0, 0.0, 1.0], [0.1, 0.1, 1.1], [0.2, 0.2, 1.2], [0.3, 0.3, 1.3]])).degenerate
+
+
 @pytest.mark.parametrize("correlated, X", [
     (False, X_CT), (True, X_CT),
     (False, RigidTransform(RollPitchYaw(0.7, 0.0, 0.3), [0.05, -0.03, 1.2])),  # 40 deg: n_z^2 0.59, not n_z's 0.77
@@ -487,6 +491,20 @@ def test_corners_that_disagree_with_the_ranges_and_have_no_agreeing_mirror_set_t
     # that times sin(15 deg) from the tilted plane through their centroid.
     assert estimate.touch_offset_m == pytest.approx(SENSOR_RADIUS / np.sqrt(2.0) * np.sin(np.radians(15.0)),
                                                     abs=1e-12)
+
+
+def test_the_touch_offset_is_the_farthest_touch_point_from_the_plane_taken():
+    # As above, with one range 3 cm long (a sensor reading past the deck's edge): the offset the range gate reads
+    # is that point's, the largest, not the four's mean.
+    X, uv = tilted_tag_on_the_axis(15.0, 1.2)
+    p_s, ranges, _ = ranges_and_touch_pixels(np.array([0.0, 0.0, 1.0]), 1.2)
+    ranges[0] += 0.03
+    estimate = crhf_tag_pose(p_s, ranges, project(touch_points(p_s, ranges)), uv, tag_corners_T(TAG_SIZE),
+                             range_covariance=0.005**2 * np.eye(4), corner_variance_px2=0.1)
+    assert estimate.valid
+    offsets = np.abs(touch_points(p_s, ranges) @ estimate.plane.normal - estimate.plane.offset)
+    assert offsets.max() > 1.2 * offsets.mean()
+    assert estimate.touch_offset_m == pytest.approx(offsets.max(), abs=1e-12)
 
 
 def test_corners_whose_mirror_agrees_with_the_ranges_are_flagged_without_a_previous_frame():
