@@ -11,7 +11,7 @@ from systems.control.landing_window import (
     time_to_touchdown,
     window_flags,
 )
-from systems.estimators.deck_predictor import constant_rate_prediction, prediction_size
+from systems.estimators.deck_predictor import PREDICTED, PREDICTION_STEP_S, constant_rate_prediction, prediction_size
 from systems.estimators.deck_tracker import tilt_deg
 
 CONFIG = LandingWindowConfig()
@@ -59,6 +59,14 @@ def test_heave_rate_closes_it_and_no_estimate_closes_everything():
     # heaving down as fast: the same (the rate's size decides, not its sign)
     assert window_flags(motion(heave_rate=-0.15), 2.0, CONFIG) == (False, True)
     assert window_flags(motion(heave_rate=-0.25), 2.0, CONFIG) == (False, False)
+
+
+def test_the_heave_rate_is_the_largest_over_the_touchdown_window_not_at_its_end():
+    """An autoregressive prediction whose dz/dt peaks at tau = 2 s and is zero at tau +- the margin: closed."""
+    size = prediction_size(CONFIG.predictor)
+    values = np.zeros((PREDICTED, (size - 2) // PREDICTED))
+    values[3, round(2.0 / PREDICTION_STEP_S)] = 0.3
+    assert window_flags(motion(), 2.0, CONFIG, np.r_[1.0, 1.0, values.ravel()]) == (False, False)
 
 
 def test_a_prediction_flagged_invalid_is_not_used():

@@ -54,3 +54,11 @@ def test_the_wind_and_the_navigation_step_with_the_shared_helpers():
     for mine, theirs in zip(turbulence_discrete(length, airspeed, dt), shared):
         np.testing.assert_array_equal(mine, theirs)
     np.testing.assert_array_equal(_STATIONARY_FACTOR, stationary_factor(_A, _B @ _B.T))
+
+
+def test_each_stream_draws_its_own_numbers():
+    """The same seed and sample index in two streams (the IMU's, the camera's) are independent draws."""
+    from systems.noise import sample_rng
+    imu, camera = sample_rng(7, "imu", 3).standard_normal(4), sample_rng(7, "camera", 3).standard_normal(4)
+    assert not np.allclose(imu, camera)
+    np.testing.assert_array_equal(imu, sample_rng(7, "imu", 3).standard_normal(4))  # and each repeats
