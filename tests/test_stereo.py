@@ -23,6 +23,7 @@ from systems.estimators.altitude_kf import (
     AltitudeKfState,
     altitude_kf_step,
     measurement,
+    predict,
     process_noise,
 )
 from systems.perception.stereo_depth import (
@@ -374,6 +375,33 @@ def test_kf_takes_nan_flagged_valid_as_invalid_and_starts_invalid():
     state = altitude_kf_step(state, 3.0, True, T, KF)
     state = altitude_kf_step(state, math.nan, True, 2 * T, KF)
     assert state.valid and state.coast_s == pytest.approx(T) and np.isfinite(state.x).all()
+
+
+def test_kf_update_covariance_is_the_information_forms():
+    """The Joseph form's P after an update equals (P^-1 + H^T R^-1 H)^-1 (left without its K R K^T, a filter
+    grows overconfident)."""
+    config = AltitudeKfConfig()
+    first = altitude_kf_step(AltitudeKfState(), 5.0, True, 0.0, config)
+    second = altitude_kf_step(first, 5.1, True, 0.1, config)
+    _, P = predict(first.x, first.P, 0.1, config)
+    _, H, R = measurement(5.1, 5.0, 0.1, config)
+    np.testing.assert_allclose(second.P, np.linalg.inv(np.linalg.inv(P) + H.T @ np.linalg.solve(R, H)), rtol=1e-6)
+
+
+def test_kf_system_outputs_are_predicted_to_the_contexts_time():
+    """Between steps the outputs are the last step's state carried to the context's time at its rate."""
+    system = AltitudeFilterSystem(period_s=0.1)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    system.GetInputPort("altitude_valid").FixValue(context, [1.0])
+    for k in range(4):
+        system.GetInputPort("altitude").FixValue(context, [5.0 - 0.2 * k])  # descending at 2 m/s
+        simulator.AdvanceTo(0.1 * k)
+    simulator.AdvanceTo(0.35)
+    state = system.state(context)
+    assert state.time == pytest.approx(0.3) and state.x[1] < -0.5
+    assert system.GetOutputPort("altitude").Eval(context)[0] == pytest.approx(state.x[0] + 0.05 * state.x[1])
+    assert system.GetOutputPort("vertical_speed").Eval(context)[0] == pytest.approx(state.x[1])
 
 
 def test_kf_system_steps_at_the_camera_rate_and_coasts():
