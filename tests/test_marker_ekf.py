@@ -191,6 +191,15 @@ def test_markers_not_seen_at_the_start_begin_where_the_layout_puts_them():
     np.testing.assert_allclose(x[:6 * m].reshape(m, 6)[:, :3], p_WP + ekf.p_PM @ R_WP.matrix().T, atol=1e-12)
 
 
+def test_markers_seen_as_q_and_minus_q_start_the_filter_at_the_pads_attitude():
+    """Two markers whose measured quaternions differ only in sign (the same attitude): the filter starts at that
+    attitude, not at the zero their plain sum would give."""
+    ekf = PaperMarkerEkf(MarkerLayout(), CameraConfig().X_BC)
+    q = drake_to_paper(RotationMatrix(RollPitchYaw(0.1, -0.05, 0.7)).ToQuaternion())
+    x, _ = ekf.initial_state(np.array([0, 1]), np.array([[1.0, 2.0, 0.5], [1.3, 2.1, 0.5]]), np.array([q, -q]))
+    assert abs(x[ekf._q] @ q) == pytest.approx(1.0, abs=1e-12)
+
+
 def test_the_stacked_innovations_take_q_and_minus_q_as_one_attitude():
     """The batch path's innovations equal a single filter's when every measured quaternion is the negative of the
     predicted one: the same attitude, so a zero attitude innovation."""
