@@ -139,6 +139,12 @@ def inverse(q: np.ndarray) -> np.ndarray:
     return np.asarray(q) * _INVERSE
 
 
+def toward(q: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """q (..., 4), each quaternion negated where it points away from `reference` (broadcast against q): q and -q
+    are one attitude, and a difference or a sum of quaternions needs them on one side."""
+    return q * np.where(np.sum(q * reference, axis=-1) < 0, -1.0, 1.0)[..., None]
+
+
 def dcm(q: np.ndarray) -> np.ndarray:
     """D(q) = (q4^2 - |q_{1:3}|^2) I3 - 2 q4 [q_{1:3} x] + 2 q_{1:3} q_{1:3}^T (Sec. 2.1, typo fixed);
     q must be unit. D(q^{B/A}) = D^{B/A} = R_BA. A stack q (..., 4) gives (..., 3, 3)."""

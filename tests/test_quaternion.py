@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from systems.quaternion import (dcm, drake_to_paper, inverse, odot, odot_matrix, omega_matrix, otimes, otimes_matrix,
                                 paper_to_drake, quat_conjugate, quat_multiply, quaternion_rate,
-                                rotation_from_quaternion, rotation_vector, skew, xi)
+                                rotation_from_quaternion, rotation_vector, skew, toward, xi)
 
 rng = np.random.default_rng(7)
 PAIRS = [(Rotation.random(random_state=rng).as_quat(), Rotation.random(random_state=rng).as_quat()) for _ in range(5)]
@@ -179,3 +179,10 @@ def test_quaternion_rate_is_body_rate_kinematics():
     symbolic = quaternion_rate(variables, w_B)
     assert symbolic.shape == (4,)
     np.testing.assert_allclose(Evaluate(symbolic, dict(zip(variables, q)))[:, 0], quaternion_rate(q, w_B), atol=1e-15)
+
+
+def test_toward_puts_a_stack_of_quaternions_on_the_references_side():
+    q = np.array([[0.1, 0.2, 0.3, 0.9], [-0.1, -0.2, -0.3, -0.9], [0.9, 0.0, 0.0, -0.5]])
+    np.testing.assert_array_equal(toward(q, q[0]), [q[0], q[0], -q[2]])  # q and -q: one attitude
+    stacked = toward(np.broadcast_to(q, (2, 3, 4)), np.array([q[0], -q[0]])[:, None])  # one reference per row
+    np.testing.assert_array_equal(stacked[1], -toward(q, q[0]))

@@ -19,7 +19,7 @@ from pydrake.math import RigidTransform
 
 from systems.estimators.marker_ekf.engine import MarkerEkfConfig, MarkerFilter, cv_noise
 from systems.perception.markers import MarkerLayout
-from systems.quaternion import dcm, omega_matrix, xi
+from systems.quaternion import dcm, omega_matrix, toward, xi
 
 
 class PaperMarkerEkf(MarkerFilter):
@@ -44,7 +44,7 @@ class PaperMarkerEkf(MarkerFilter):
 
     def initial_state(self, slots, p_WM, q_MR):
         c = self.config
-        q = np.sum(q_MR * np.sign(q_MR @ q_MR[0])[:, None], axis=0)  # every marker's attitude is the pad's
+        q = np.sum(toward(q_MR, q_MR[0]), axis=0)  # every marker's attitude is the pad's
         q /= np.linalg.norm(q)
         R_WP = dcm(q).T
         # markers not seen start where the layout puts them, from the mean of the seen ones
@@ -112,7 +112,7 @@ class PaperMarkerEkf(MarkerFilter):
 
     def innovations(self, x, slots, camera, p_CM, q_MC):
         p_hat, q_hat = self.predict_measurements(x, slots, camera)
-        q_MC = q_MC * np.where(q_MC @ q_hat < 0, -1.0, 1.0)[:, None]  # q and -q: the same attitude
+        q_MC = toward(q_MC, q_hat)
         return np.concatenate([p_CM - p_hat, q_MC - q_hat], axis=1)
 
     def process_stack(self, x, dt):
@@ -141,7 +141,7 @@ class PaperMarkerEkf(MarkerFilter):
         m = len(self.p_PM)
         p_hat = (x[:, :6 * m].reshape(len(x), m, 6)[..., :3] - camera.p_WC) @ camera.R_CW.T
         q_hat = x[:, self._q] @ camera.Q_RC.T
-        q_MC = q_MC * np.where(np.sum(q_MC * q_hat[:, None], axis=-1) < 0, -1.0, 1.0)[..., None]
+        q_MC = toward(q_MC, q_hat[:, None])
         return np.concatenate([p_CM - p_hat, q_MC - q_hat[:, None]], axis=-1)
 
     def jacobian_stack(self, x, camera):
