@@ -25,7 +25,6 @@ test.
 """
 
 import argparse
-import json
 import multiprocessing
 import sys
 import time
@@ -248,7 +247,7 @@ def frame_costs(overrides: tuple[str, ...], repeats: int = 3) -> dict:
 
 
 def main() -> int:
-    from diagrams.outputs import output_file
+    from diagrams.outputs import output_file, write_json
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=10)
@@ -285,7 +284,7 @@ def main() -> int:
         for label, ok, figure in results.get(name, {"checks": []})["checks"]:
             print(f"- reported: {label}: {'yes' if ok else 'no'} ({figure})")
     if args.json:
-        args.json.write_text(json.dumps(results, indent=1, default=str))
+        write_json(args.json, results)
     return 0 if all(ok for _, ok, _ in checks) else 1
 
 

@@ -11,14 +11,13 @@ Each run renders the fisheye (five faces) and the stereo pair at 10 Hz and runs 
 """
 
 import argparse
-import json
 import time
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
 from diagrams.gv_landing_run import fly
-from diagrams.outputs import output_file
+from diagrams.outputs import output_file, write_json
 from diagrams.runner import load_scenario
 from systems.vehicles.paths import PATH_NAMES
 
@@ -69,8 +68,8 @@ def main() -> None:
     print(f"speed {args.speed} m/s: success {success:.0%} of {len(runs)}, touchdown error p95 "
           f"{'-' if p95 is None else f'{p95:.3f} m'}")
     if args.json:
-        args.json.write_text(json.dumps({"speed": args.speed, "success_rate": success, "touchdown_error_p95_m": p95,
-                                         "runs": runs}, indent=2))
+        write_json(args.json, {"speed": args.speed, "success_rate": success, "touchdown_error_p95_m": p95,
+                               "runs": runs})
 
 
 if __name__ == "__main__":

@@ -29,7 +29,6 @@ No assertion on time anywhere (tests/test_hybrid_timing.py only checks the entri
 
 import argparse
 import copy
-import json
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
@@ -44,7 +43,7 @@ import systems.control.pid as pid_module
 import systems.estimators.altitude_kf as altitude_kf_module
 import systems.perception.hybrid_pad as hybrid_module
 from diagrams.gv_landing import build_gv_landing
-from diagrams.outputs import output_file
+from diagrams.outputs import output_file, write_json
 from diagrams.runner import load_scenario
 from systems.perception.aruco import to_grey
 from systems.perception.box_tracker import Detection, TrackerState, step_tracker, target_box
@@ -405,7 +404,7 @@ def main() -> None:
     result = run(args.frames, min(low, args.frames), args.repeats)
     print_table(result, args.repeats)
     if args.json:
-        args.json.write_text(json.dumps(result, indent=2))
+        write_json(args.json, result)
 
 
 if __name__ == "__main__":

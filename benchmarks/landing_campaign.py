@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from diagrams.montecarlo import run_campaign  # noqa: E402
 from diagrams.montecarlo.grid import grid_settings  # noqa: E402
-from diagrams.outputs import output_file  # noqa: E402
+from diagrams.outputs import output_file, write_json  # noqa: E402
 from systems.config import ConfigError  # noqa: E402
 
 SCENARIO = "marker-landing-wind"
@@ -186,7 +186,7 @@ def main() -> int:
     for name, met, figure in checks:
         print(f"{'PASS' if met else 'FAIL'}  {name}  ({figure})")
     if args.json:
-        args.json.write_text(json.dumps({"figures": report, "checks": checks}, indent=1))
+        write_json(args.json, {"figures": report, "checks": checks})
     return 0
 
 

@@ -25,7 +25,6 @@ with other work it varies from run to run, so the real-time factor is the best o
 """
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -41,7 +40,7 @@ from diagrams.gv_landing_run import fly, fly_diagram  # noqa: E402
 from diagrams.landing_metrics import (  # noqa: E402
     SETTLED_TOLERANCE_M, SETTLED_WINDOW_S, TARGET_TOUCHDOWN_ERROR_M, TARGET_TOUCHDOWN_REL_SPEED_MPS,
 )
-from diagrams.outputs import output_file  # noqa: E402
+from diagrams.outputs import output_file, write_json  # noqa: E402
 from diagrams.runner import load_scenario  # noqa: E402
 from systems.vehicles.paths import PATH_NAMES  # noqa: E402
 
@@ -256,9 +255,8 @@ def main() -> None:
           f"by {d['time_to_land_s']:.2f} s")
 
     if args.json:
-        Path(args.json).write_text(json.dumps({"runs": rows, "late_start_runs": late, "realtime": timing,
-                                               "accuracy": accuracy,
-                                               "landing_vs_fine_integration": fine}, indent=2) + "\n")
+        write_json(args.json, {"runs": rows, "late_start_runs": late, "realtime": timing, "accuracy": accuracy,
+                                "landing_vs_fine_integration": fine})
 
 
 if __name__ == "__main__":

@@ -14,7 +14,6 @@ from the acquisition height (10 m) down to 0.3 m.
 """
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -24,7 +23,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from diagrams.marker_visibility import VisibilityRig  # noqa: E402
-from diagrams.outputs import output_file  # noqa: E402
+from diagrams.outputs import output_file, write_json  # noqa: E402
 from diagrams.runner import load_scenario  # noqa: E402
 
 HEIGHTS_M = (0.3, 0.4, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0, 7.5, 10.0)
@@ -71,7 +70,7 @@ def main() -> int:
     args = parser.parse_args()
     out = {name: report(name, visibility(scenario)) for name, scenario in LAYOUTS.items()}
     if args.json:
-        args.json.write_text(json.dumps(out, indent=1))
+        write_json(args.json, out)
     return 0
 
 

@@ -20,14 +20,13 @@ Never a timed assertion in a test.
 """
 
 import argparse
-import json
 import time
 
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from diagrams.outputs import output_file
+from diagrams.outputs import output_file, write_json
 from models.ground_texture import ground_texture_image
 from systems.perception.motion_compensation import (
     MotionCompensationConfig,
@@ -136,7 +135,7 @@ def main(argv: list[str] | None = None) -> None:
               f"{ms['step']:7.1f}    | {e['median']:.3f} / {e['max']:.3f} ({u['median']:.3f} / {u['max']:.3f}), "
               f"{r['inliers_median']:.0f} inliers of {r['features']} features")
     if args.json:
-        args.json.write_text(json.dumps(results, indent=2))
+        write_json(args.json, results)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ Prints PASS/FAIL against Figure 16; never a timed assertion in a test.
 """
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -25,7 +24,7 @@ import time
 import numpy as np
 from pydrake.math import RigidTransform
 
-from diagrams.outputs import output_file
+from diagrams.outputs import output_file, write_json
 from diagrams.stereo_hover import StereoHoverConfig, build_stereo_hover
 from systems.estimators.altitude_kf import AltitudeKfConfig, AltitudeKfState, altitude_kf_step
 from systems.perception.aruco import to_grey
@@ -205,8 +204,8 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"\nFigure 16 bounds: {'PASS' if ok else 'FAIL'}")
     if args.json:
-        args.json.write_text(json.dumps({"per_frame_ms": per_frame, "table": table, "sweep": sweep,
-                                         "noise": args.noise, "pass": bool(ok)}, indent=2))
+        write_json(args.json, {"per_frame_ms": per_frame, "table": table, "sweep": sweep,
+                               "noise": args.noise, "pass": bool(ok)})
     return 0 if ok else 1
 
 

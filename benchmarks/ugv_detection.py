@@ -18,7 +18,6 @@ results/; the held-out seeds and ground texture are never used in training (mode
 """
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -26,7 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from diagrams.outputs import output_file
+from diagrams.outputs import output_file, write_json
 from diagrams.ugv_detection_scenes import (
     HELD_OUT_SEEDS,
     UgvDataset,
@@ -161,8 +160,8 @@ def main(argv: list[str] | None = None) -> int:
                      f"{percent(k['f1'], ''):>6s}, {k['targets']:3d}, {k['fp']:2d}")
         print(line)
     if args.json:
-        args.json.write_text(json.dumps({"frames": len(dataset), "table3": TABLE3, "table7_detection_ms":
-                                         TABLE7_DETECTION_MS, "detectors": results}, indent=2))
+        write_json(args.json, {"frames": len(dataset), "table3": TABLE3, "table7_detection_ms":
+                               TABLE7_DETECTION_MS, "detectors": results})
     return 0
 
 

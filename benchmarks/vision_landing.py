@@ -38,7 +38,7 @@ import numpy as np  # noqa: E402
 
 from diagrams.marker_metrics import pooled_rms  # noqa: E402
 from diagrams.montecarlo import campaign_definition, campaign_settings, run_campaign, run_seed  # noqa: E402
-from diagrams.outputs import output_file  # noqa: E402
+from diagrams.outputs import output_file, write_json  # noqa: E402
 
 SOURCES = ("ct_ekf", "paper_ekf", "truth")
 SPEEDS = ("3", "6", "12")
@@ -221,7 +221,7 @@ def main() -> int:
     for label, ok, detail in checks:
         print(f"{'PASS' if ok else 'FAIL'}  {label}: {detail}")
     if args.json:
-        args.json.write_text(json.dumps(results, indent=2, default=str))
+        write_json(args.json, results)
     return 0 if all(ok for _, ok, _ in checks) else 1
 
 

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import pytest
 
 from benchmarks.hybrid_timing import PAPER_TABLE7, RECORDED, Frame, Recording, run, summarise
+from diagrams.outputs import write_json
 
 MODULES = ("fisheye_correction", "fisheye_composition", "stereo", "detection_learned", "detection_classical",
            "tracking_learned", "tracking_classical", "motion_compensation", "hybrid_estimate", "stereo_pad_fix",
@@ -15,9 +16,10 @@ MODULES = ("fisheye_correction", "fisheye_composition", "stereo", "detection_lea
 
 
 @pytest.mark.slow
-def test_two_frames_give_every_module():
+def test_two_frames_give_every_module(tmp_path):
     result = run(frames=2, low_frames=1, repeats=1)  # one frame from 3 m: the stereo pad fix runs below 3 m
-    json.dumps(result)  # --json writes it
+    write_json(tmp_path / "figures.json", result)  # as --json writes it
+    assert json.loads((tmp_path / "figures.json").read_text())["frames"] == 2
     assert result["frames"] == 2
     modules = result["modules"]
     for name in MODULES:
