@@ -18,6 +18,12 @@ from pydrake.systems.framework import LeafSystem, ValueProducer
 TIME_TOLERANCE_S = 1e-9
 
 
+def in_intervals(t: float, intervals) -> bool:
+    """t [s] lies in one of the [start, end] intervals [s], bounds included within TIME_TOLERANCE_S: an event
+    time k T lands a rounding off the bound it was meant to hit (20 Hz: 12 * 0.05 = 0.6000000000000001)."""
+    return any(start - TIME_TOLERANCE_S <= t <= end + TIME_TOLERANCE_S for start, end in intervals)
+
+
 def is_step_time(t: float, period_s: float) -> bool:
     """t [s] is a multiple of period_s (within TIME_TOLERANCE_S)."""
     return abs(t - round(t / period_s) * period_s) <= TIME_TOLERANCE_S

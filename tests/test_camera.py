@@ -346,6 +346,23 @@ def test_same_seed_and_time_give_identical_noise():
     assert np.mean(a != other_seed) > 0.5
 
 
+def test_a_blackout_covers_the_frames_on_its_bounds():
+    """Frame times are k T in floating point: at 20 Hz the frame meant for 0.6 s comes at 12 * 0.05 =
+    0.6000000000000001 s, and a blackout [0.3, 0.6] covers it (before, it came out lit)."""
+    image = synthetic_image()
+    config = CameraConfig(width=image.width(), height=image.height(), cx=image.width() / 2, cy=image.height() / 2,
+                          blackouts_s=[[0.3, 0.6]])
+    camera = NoisyCamera(config)
+    context = camera.CreateDefaultContext()
+    camera.get_input_port().FixValue(context, image)
+    covered = []
+    for k in range(4, 15):
+        context.SetTime(k * config.period_s)
+        covered.append(int(image_to_numpy(camera.get_output_port().Eval(context))[..., :3].max()) == 0)
+    assert 12 * config.period_s > 0.6
+    assert covered == [False] * 2 + [True] * 7 + [False] * 2  # 0.30 to 0.60 s: 7 frames
+
+
 def test_add_pixel_noise_saturates_instead_of_wrapping():
     rgba = np.zeros((64, 64, 4), np.uint8)
     rgba[:32] = 255

@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 from systems.config import require, require_non_negative, require_positive
 from systems.noise import sample_index, sample_rng
 from systems.perception.markers import MarkerMeasurement
-from systems.stepped import TIME_TOLERANCE_S
+from systems.stepped import in_intervals
 
 
 @dataclass
@@ -72,7 +72,7 @@ class FaultsConfig:
 def occluded(k: int, period_s: float, config: FaultsConfig, seed: int) -> bool:
     """Whether sample k is covered (module docstring)."""
     t = k * period_s  # the interval is inclusive: a bound on a sample's time, k T to rounding, covers it
-    if any(start - TIME_TOLERANCE_S <= t <= end + TIME_TOLERANCE_S for start, end in config.occlusions_s):
+    if in_intervals(t, config.occlusions_s):
         return True
     if not config.occlusion_rate_hz:
         return False

@@ -30,6 +30,7 @@ from scipy.stats import norm
 
 from systems.config import require, require_positive
 from systems.noise import sample_index, sample_rng
+from systems.stepped import in_intervals
 
 RENDERER_NAME = "vtk"
 
@@ -380,7 +381,7 @@ class NoisyCamera(LeafSystem):
 
     def _calc_image(self, context, output):
         t = context.get_time()
-        if any(start <= t <= end for start, end in self._blackouts):
+        if in_intervals(t, self._blackouts):
             output.get_mutable_value().mutable_data[:] = 0
             output.get_mutable_value().mutable_data[..., 3] = 255
             return

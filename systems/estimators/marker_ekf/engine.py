@@ -37,8 +37,8 @@ from systems.config import require, require_positive
 from systems.estimators.estimate import PoseEstimate
 from systems.perception.markers import MarkerLayout, MarkerMeasurement
 from systems.quaternion import dcm, drake_to_paper, inverse, odot_matrix, paper_to_drake
+from systems.stepped import TIME_TOLERANCE_S
 
-TIME_TOLERANCE_S = 1e-9
 MIN_QUATERNION_NORM = 1e-6  # a measured quaternion this short has no direction: rejected
 _TIME = attrgetter("time")
 

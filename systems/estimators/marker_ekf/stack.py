@@ -18,8 +18,9 @@ from typing import NamedTuple
 import numpy as np
 
 from systems.config import require
-from systems.estimators.marker_ekf.engine import TIME_TOLERANCE_S, Camera, FilterStats, MarkerFilter
+from systems.estimators.marker_ekf.engine import Camera, FilterStats, MarkerFilter
 from systems.perception.markers import MarkerMeasurement
+from systems.stepped import TIME_TOLERANCE_S
 
 
 class StackRecords(NamedTuple):
