@@ -379,6 +379,11 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     ({"rate_hz": -1.0}, "camera.rate_hz"),
     ({"cx": 600.0}, "camera.cx"),
     ({"far_m": 0.01}, "camera.far_m"),
+    # Drake's own limits (before: its RuntimeError at build time): the principal point within the image's pixels,
+    # and the depth range, 1 % inside the clipping range at each end, not empty.
+    ({"cx": 511.6}, "camera.cx must lie inside the image (-0.5 < cx < width - 0.5"),
+    ({"cy": -0.5}, "camera.cy must lie inside the image"),
+    ({"near_m": 1.0, "far_m": 1.015}, "camera.far_m must exceed camera.near_m by over 2 %"),
     ({"pixel_noise_std": -1.0}, "camera.pixel_noise_std"),
     ({"full_well_e": -1.0}, "camera.full_well_e"),
     ({"exposure_s": -0.001}, "camera.exposure_s"),
@@ -403,6 +408,13 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=re.escape(field)):
         CameraConfig(**changes).validate()
+
+
+@pytest.mark.parametrize("changes", [{"cx": 511.45}, {"cx": -0.45, "cy": 511.45}, {"near_m": 1.0, "far_m": 1.0203}])
+def test_drake_builds_the_camera_at_the_limits_the_check_lets_through(changes):
+    config = CameraConfig(**changes)
+    config.validate()
+    make_camera(config, SceneGraph().world_frame_id(), RigidTransform())
 
 
 @pytest.mark.parametrize("D", [[-0.2, 0.0, 0.0, 0.0, 0.0], [0.3, 0.0, 0.0, 0.0, 0.0], [-0.6, 0.2, 0.0, 0.0, 0.0]])

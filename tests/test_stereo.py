@@ -510,6 +510,8 @@ def test_kf_let_go_in_the_near_band_does_not_start_again_on_a_wrong_match():
     (StereoConfig(baseline_m=0.0), "stereo.baseline_m must be positive"),
     (StereoConfig(focal_length_px=-1.0), "stereo.focal_length_px must be positive"),
     (StereoConfig(cx=800.0), "stereo.cx must lie inside the image"),
+    (StereoConfig(cy=-0.6), "stereo.cy must lie inside the image"),
+    (StereoConfig(near_m=0.1, far_m=0.102), "stereo.far_m must exceed stereo.near_m by over 2 %"),
     (StereoConfig(pixel_noise_std=-2.0), "stereo.pixel_noise_std must not be negative"),
     (StereoConfig(mount_xyz_m=[0.0, 0.0]), "stereo.mount_xyz_m needs 3 numbers"),
     (StereoConfig(min_altitude_m=0.11), "must be under half the image width"),

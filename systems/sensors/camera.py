@@ -101,9 +101,7 @@ class CameraConfig:
         require(self.width > 0 and self.height > 0, f"{prefix}.width and {prefix}.height must be positive")
         for name in ("fx", "fy", "rate_hz", "near_m"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
-        require(0 < self.cx < self.width, f"{prefix}.cx must lie inside the image (0 < cx < width)")
-        require(0 < self.cy < self.height, f"{prefix}.cy must lie inside the image (0 < cy < height)")
-        require(self.far_m > self.near_m, f"{prefix}.far_m must exceed {prefix}.near_m")
+        require_render_limits(self, prefix)
         require(self.pixel_noise_std >= 0, f"{prefix}.pixel_noise_std must not be negative")
         require(self.full_well_e >= 0, f"{prefix}.full_well_e must not be negative")
         require(self.read_noise_e >= 0, f"{prefix}.read_noise_e must not be negative")
@@ -118,7 +116,7 @@ class CameraConfig:
         require(len(self.distortion) == 5, f"{prefix}.distortion needs 5 numbers [k1, k2, p1, p2, k3]")
         self.calibration_error.validate(f"{prefix}.calibration_error")
         e = self.calibration_error
-        require(0 < self.cx + e.cx_px < self.width and 0 < self.cy + e.cy_px < self.height,
+        require(-0.5 < self.cx + e.cx_px < self.width - 0.5 and -0.5 < self.cy + e.cy_px < self.height - 0.5,
                 f"{prefix}.calibration_error.cx_px and cy_px must keep the estimators' principal point inside the "
                 f"image, got ({self.cx + e.cx_px:g}, {self.cy + e.cy_px:g})")
         for interval in self.blackouts_s:
@@ -171,6 +169,25 @@ class CameraConfig:
 
 
 MAX_ROUND_TRIP_PX = 0.05  # a lens model that maps a pixel back farther than this from itself is refused
+DEPTH_INSET = 0.01  # a depth camera's range lies this fraction inside its clipping range at each end (Drake's rule)
+
+
+def require_render_limits(config, prefix: str) -> None:
+    """What Drake's render camera takes, checked on a camera config's `width`, `height`, `cx`, `cy` (OpenCV's
+    pixel centres at whole numbers: the image spans -0.5 to width - 0.5 px) and `near_m`, `far_m`, so that a
+    setting it refuses is one line naming the key, not Drake's error at build time."""
+    for name, size, bound in (("cx", config.width, "width"), ("cy", config.height, "height")):
+        value = getattr(config, name)
+        require(-0.5 < value < size - 0.5, f"{prefix}.{name} must lie inside the image (-0.5 < {name} < {bound} - 0.5, "
+                                           f"pixel centres at whole numbers), got {value:g}")
+    require(config.far_m * (1 - DEPTH_INSET) > config.near_m * (1 + DEPTH_INSET),
+            f"{prefix}.far_m must exceed {prefix}.near_m by over 2 % (the depth range lies {DEPTH_INSET:.0%} inside "
+            f"both), got {config.near_m:g} and {config.far_m:g}")
+
+
+def depth_range(near_m: float, far_m: float) -> DepthRange:
+    """The depth camera's range for the clipping range [near_m, far_m] [m]: DEPTH_INSET inside it at each end."""
+    return DepthRange(near_m * (1 + DEPTH_INSET), far_m * (1 - DEPTH_INSET))
 
 
 def distortion_folds(config: CameraConfig, D=None) -> float:
@@ -269,7 +286,7 @@ def make_camera(config: CameraConfig, parent_frame_id, X_PC: RigidTransform) -> 
                                                        config.fy, config.cx + m, config.cy + m),
                             ClippingRange(config.near_m, config.far_m), RigidTransform())
     return RgbdSensor(parent_frame_id, X_PC, ColorRenderCamera(core, False),
-                      DepthRenderCamera(core, DepthRange(config.near_m * 1.01, config.far_m * 0.99)))
+                      DepthRenderCamera(core, depth_range(config.near_m, config.far_m)))
 
 
 def add_renderer(scene_graph: SceneGraph) -> None:

@@ -35,7 +35,6 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
     ClippingRange,
     ColorRenderCamera,
-    DepthRange,
     DepthRenderCamera,
     LightParameter,
     MakeRenderEngineVtk,
@@ -89,9 +88,7 @@ class FisheyeConfig:
         require(0 < self.fov_deg < 180, f"{prefix}.fov_deg must lie in (0, 180) deg, got {self.fov_deg}")
         for name in ("f", "rate_hz", "near_m"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
-        require(0 < self.cx < self.width, f"{prefix}.cx must lie inside the image (0 < cx < width), got {self.cx}")
-        require(0 < self.cy < self.height, f"{prefix}.cy must lie inside the image (0 < cy < height), got {self.cy}")
-        require(self.far_m > self.near_m, f"{prefix}.far_m must exceed {prefix}.near_m")
+        require_render_limits(self, prefix)
         require(isinstance(self.face_px, int) and self.face_px >= 16,
                 f"{prefix}.face_px must be an integer of at least 16, got {self.face_px}")
         require(30 <= self.side_axis_deg <= 90, f"{prefix}.side_axis_deg must lie in [30, 90] deg, "

@@ -28,7 +28,7 @@ from pydrake.systems.sensors import RgbdSensor
 
 from systems.config import require, require_positive
 from systems.noise import stream_id
-from systems.sensors.camera import CameraConfig, NoisyCamera, make_camera
+from systems.sensors.camera import CameraConfig, NoisyCamera, make_camera, require_render_limits
 
 MYNT_EYE_PIXEL_PITCH_M = 6.0e-6  # 1/3" WVGA global-shutter sensor (MT9V034 class), see the module docstring
 MYNT_EYE_FOCAL_LENGTH_M = 2.1e-3  # seed 003 section 2.1 table
@@ -62,9 +62,7 @@ class StereoConfig:
                 f"{prefix}.width and {prefix}.height must be positive integers, got {self.width} x {self.height}")
         for name in ("focal_length_px", "baseline_m", "rate_hz", "near_m"):
             require_positive(getattr(self, name), f"{prefix}.{name}")
-        require(0 < self.cx < self.width, f"{prefix}.cx must lie inside the image (0 < cx < width), got {self.cx}")
-        require(0 < self.cy < self.height, f"{prefix}.cy must lie inside the image (0 < cy < height), got {self.cy}")
-        require(self.far_m > self.near_m, f"{prefix}.far_m must exceed {prefix}.near_m")
+        require_render_limits(self, prefix)
         require(self.pixel_noise_std >= 0, f"{prefix}.pixel_noise_std must not be negative, got "
                                            f"{self.pixel_noise_std}")
         require(len(self.mount_xyz_m) == 3, f"{prefix}.mount_xyz_m needs 3 numbers, got {len(self.mount_xyz_m)}")
