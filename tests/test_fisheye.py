@@ -106,10 +106,12 @@ def fixed_camera(config, face_images):
     return camera, context
 
 
-def test_composition_of_analytic_faces_matches_the_rays():
+@pytest.mark.parametrize("config", [FisheyeConfig(), FisheyeConfig(fov_deg=50.0), FisheyeConfig(cx=450.0)])
+def test_composition_of_analytic_faces_matches_the_rays(config):
     """Faces painted from the ray's direction compose into the same function of each fisheye pixel's
-    ray: the face frames, intrinsics and tables agree with the model, seams included."""
-    config = FisheyeConfig()
+    ray: the face frames, intrinsics and tables agree with the model, seams included. Also where a face serves
+    no pixel: the side faces (60 deg off the axis) beyond a 50 deg field of view, or the side of the circle
+    that a principal point far off the centre puts beyond the image (before: an empty array's minimum)."""
     camera, context = fixed_camera(config, synthetic_face_images(fisheye_layout(config)))
     image = camera.GetOutputPort("color_image").Eval(context).data
     layout = camera.layout

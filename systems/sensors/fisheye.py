@@ -48,7 +48,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.sensors import ImageRgba8U, RgbdSensor
 
 from systems.config import require, require_positive
-from systems.sensors.camera import camera_info
+from systems.sensors.camera import camera_info, depth_range, require_render_limits
 
 FISHEYE_RENDERER_NAME = "vtk_fisheye"
 FACE_NAMES = ("down", "right", "bottom", "left", "top")  # side faces: +x_C, +y_C, -x_C, -y_C
@@ -254,9 +254,13 @@ def fisheye_layout(config: FisheyeConfig) -> FisheyeLayout:
         mine = nearest == index
         r_F = rays[mine] @ R_CF.matrix()  # rows: (R_CF^T r_C)^T
         xy = focal * r_F[:, :2] / r_F[:, 2:]
-        # Integer crop bounds with the principal point (xy = 0) strictly inside, as Drake requires.
-        low = np.minimum(np.floor(xy.min(axis=0)) - FACE_MARGIN_PX, -1)
-        high = np.maximum(np.ceil(xy.max(axis=0)) + FACE_MARGIN_PX, 1)
+        # Integer crop bounds with the principal point (xy = 0) strictly inside, as Drake requires; a face that
+        # serves no pixel (a narrow field of view, or its side of the circle beyond the image) is 3 x 3, never read.
+        if len(xy):
+            low = np.minimum(np.floor(xy.min(axis=0)) - FACE_MARGIN_PX, -1)
+            high = np.maximum(np.ceil(xy.max(axis=0)) + FACE_MARGIN_PX, 1)
+        else:
+            low, high = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
         size = (high - low + 1).astype(int)
         faces.append(Face(name, R_CF, int(size[0]), int(size[1]), focal, float(-low[0]), float(-low[1])))
         targets = np.flatnonzero(inside)[mine]
@@ -333,7 +337,7 @@ def make_face_sensor(face: Face, config: FisheyeConfig, body_frame_id) -> RgbdSe
                             camera_info(face.width, face.height, face.focal_px, face.focal_px, face.cx, face.cy),
                             ClippingRange(config.near_m, config.far_m), RigidTransform())
     return RgbdSensor(body_frame_id, config.X_BC.multiply(RigidTransform(face.R_CF)), ColorRenderCamera(core, False),
-                      DepthRenderCamera(core, DepthRange(config.near_m * 1.01, config.far_m * 0.99)))
+                      DepthRenderCamera(core, depth_range(config.near_m, config.far_m)))
 
 
 @dataclass
