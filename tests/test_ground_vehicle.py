@@ -99,6 +99,10 @@ def test_steering_lag_and_limit():
     ("{path: sine, path_length_m: 0.05}", r"^vehicle.path_length_m must be at least two sample spacings, 0.2 m, "
                                           r"got 0.05$"),
     ("{speed_schedule_times_s: [0, 1], speed_schedule_m_s: [1]}", "must have the same length"),
+    # A path sampled every 0.1 m over 1e9 m: MemoryError (75 GiB) before
+    ("{path: straight, path_length_m: 1.0e9}", r"^vehicle.path_length_m must be at most 100000 m \(the path is "
+                                               r"sampled every 0.1 m\), got 1e\+09$"),
+    ("{path: circle, path_radius_m: 2.0e5}", r"^vehicle.path_radius_m must be at most 100000 m"),
     # 12 m/s at 20 Hz drives 0.6 m per follower update: a 5 cm window lost the path at once
     ("{path: sine, speed: 12.0, follower: {search_window_m: 0.05}}",
      r"^vehicle.follower.search_window_m \(0.05 m\) must exceed the distance driven per follower update, "

@@ -239,6 +239,16 @@ def test_the_shortest_random_walk_knot_interval_accepted_is_checked_against_the_
     assert stroke_violation(config, 0.5) is not None
 
 
+def test_a_motion_too_long_or_fast_to_check_against_the_stroke_is_refused():
+    """The check samples the motion 40 times a period of its fastest sinusoid over the whole run: at 1 GHz or over
+    1e9 s that was a MemoryError (87 TiB); now one line."""
+    fast = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[0.01], z_frequency_hz=[1.0e9])
+    for config, duration_s in ((fast, 1.0), (StewartPlatformConfig(), 1.0e9)):
+        with pytest.raises(ConfigError, match=r"^platform: the deck's motion cannot be checked against the legs' "
+                                              r"stroke over .* s: at .* s a sample .* over 1e\+06 samples"):
+            stroke_violation(config, duration_s)
+
+
 def moving_platform(**motion):
     config = StewartPlatformConfig(motion="sinusoid", **motion)
     platform = StewartPlatform(config, SceneGraph())

@@ -225,6 +225,9 @@ class StewartMotion:
         return turn.axis() * turn.angle() / (2 * h)
 
 
+MAX_STROKE_SAMPLES = 1e6  # the stroke check's samples at most (0.05 s apart: 14 hours of motion)
+
+
 def stroke_step_s(config: StewartPlatformConfig) -> float:
     """A sampling step [s] that resolves the motion: 40 samples a period of its fastest sinusoid (a sampled
     peak then falls short of the true one by under 0.4 % of its amplitude), 10 a random-walk knot, at most
@@ -242,9 +245,14 @@ def stroke_violation(config: StewartPlatformConfig, duration_s: float, seed: int
     """Where the configured motion takes a leg outside [leg_min_m, leg_max_m] within duration_s: "t = ... s,
     leg i L m" for the first such time, or None when it stays within the stroke. Sampled every
     `stroke_step_s`; each leg's sampled extremes near a limit are refined between their neighbours
-    (SciPy's bounded scalar search), so a peak between two samples is not missed."""
+    (SciPy's bounded scalar search), so a peak between two samples is not missed. ConfigError where that
+    takes over MAX_STROKE_SAMPLES samples."""
     geometry, motion = StewartGeometry.from_config(config), StewartMotion(config, seed)
     step = stroke_step_s(config)
+    require(duration_s / step <= MAX_STROKE_SAMPLES,
+            f"platform: the deck's motion cannot be checked against the legs' stroke over {duration_s:g} s: at "
+            f"{step:.3g} s a sample (its fastest sinusoid or random-walk knot) that is over {MAX_STROKE_SAMPLES:g} "
+            f"samples; shorten the run or slow the motion")
     times = np.append(np.arange(0.0, duration_s, step), duration_s)  # the run's end, not past it
     legs = np.array([leg_lengths(motion.X_SP(float(t), geometry), geometry) for t in times])
     found = []  # (t, leg, length) outside the stroke

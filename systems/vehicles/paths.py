@@ -14,6 +14,7 @@ import numpy as np
 from systems.config import require, require_positive
 
 SAMPLE_SPACING_M = 0.1  # polyline resolution: 0.1 mm chord error on a 15 m radius
+MAX_SIZE_M = 100_000.0  # a path's lengths and radius at most (a circle of it: 6.3 million samples, 150 MB)
 # The open manoeuvres: their arcs' signed turning angles (rad), after the straight lead.
 MANOEUVRE_TURNS = {"s-shape": (np.pi, -np.pi), "turn-90": (np.pi / 2,), "turn-180": (np.pi,)}
 
@@ -32,6 +33,9 @@ class PathConfig:
                 f"{prefix} '{self.name}' is not a path (known: {', '.join(PATH_NAMES)})")
         for name in ("radius_m", "lead_m", "side_m"):
             require_positive(getattr(self, name), f"{prefix}_{name}")
+        for name in ("length_m", "radius_m", "lead_m", "side_m"):
+            require(getattr(self, name) <= MAX_SIZE_M, f"{prefix}_{name} must be at most {MAX_SIZE_M:g} m (the path "
+                                                       f"is sampled every {SAMPLE_SPACING_M:g} m), got {getattr(self, name):g}")
         # Under two sample spacings the polyline (Path) can be a single sample, which has no spacing.
         require(self.length_m >= 2 * SAMPLE_SPACING_M,
                 f"{prefix}_length_m must be at least two sample spacings, {2 * SAMPLE_SPACING_M:g} m, "
