@@ -25,7 +25,9 @@ def seed001_camera() -> CameraConfig:
     """Seed 001 Table 1's camera (GoPro 4: 1080p at 50 fps, f 1280 px, principal point (948.9,
     543.2), distortion (-0.00908, -0.03128, 0.00109, -0.00198, 0)) at half its resolution, the same
     field of view: 1080p renders 3.8x slower here (docs/results.md gives both's cost and accuracy).
-    Pixel noise as the other scenes' cameras."""
+    Its principal point is Table 1's halved; a sensor binned 2 x 2 would have it at (c - 0.5) / 2, a quarter
+    pixel up and left (pixel centres at whole numbers). Kept, as docs/results.md's figures were measured with
+    it; renderer and estimators share it. Pixel noise as the other scenes' cameras."""
     return CameraConfig(width=960, height=540, fx=640.0, fy=640.0, cx=474.45, cy=271.6, rate_hz=50.0,
                         pixel_noise_std=2.0, distortion=[-0.00908, -0.03128, 0.00109, -0.00198, 0.0])
 
