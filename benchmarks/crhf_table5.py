@@ -21,10 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from diagrams.outputs import write_json
+from diagrams.outputs import check_writable, output_file, write_json
 from diagrams.runner import RunOptions, load_scenario, run
 from diagrams.scenario import read_scenario, scenario_path
 from diagrams.stewart_scene import StewartSceneConfig
+from systems.config import ConfigError
 from systems.estimators.crhf import CrhfEstimator, CrhfState
 from systems.sensors.tof import sensor_positions_C
 
@@ -41,6 +42,7 @@ CASES = {
     "camera at 1.5 m": ["hover.height_above_deck_m=1.5"],
     "camera at 3 m": ["hover.height_above_deck_m=3.0"],
 }
+DEFAULT_OUT = Path("results/crhf_table5.json")  # its folder made at the end if missing
 
 
 # stewart-hardware's effects, each a group of its settings, switched on one at a time over stewart-dynamic.
@@ -111,25 +113,37 @@ def verdicts(ours: dict) -> list[str]:
             f"CRHF flips: {ours['crhf']['flips']} (target 0)"]
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=200.0, help="simulated seconds per run")
     parser.add_argument("--quick", action="store_true", help="stewart-dynamic only")
     parser.add_argument("--hardware", action="store_true",
                         help="stewart-hardware, then each of its effects alone on stewart-dynamic")
-    parser.add_argument("--out", default="results/crhf_table5.json", help="where to write the figures as JSON")
-    args = parser.parse_args()
+    parser.add_argument("--out", type=output_file,
+                        help=f"where to write the figures as JSON (default {DEFAULT_OUT}, its folder made if missing)")
+    args = parser.parse_args(argv)
+    if args.out is None:
+        try:
+            check_writable(DEFAULT_OUT.parent)
+        except ConfigError as e:
+            parser.error(f"--out (default {DEFAULT_OUT}): {e}")
+    out_file = args.out or DEFAULT_OUT
     results = {}
     cases = {case: ("stewart-dynamic", overrides) for case, overrides in CASES.items()}
     if args.quick:
         cases = {"stewart-dynamic": ("stewart-dynamic", [])}
     elif args.hardware:
         cases = hardware_cases()
+    # Every case's scenario before the first run: a bad --duration is refused before the work, not after it.
+    try:
+        scenarios = {case: load_scenario(scenario_name, overrides=["estimators=[atda, crhf]", *overrides],
+                                         duration_s=args.duration)
+                     for case, (scenario_name, overrides) in cases.items()}
+    except ConfigError as e:
+        parser.exit(2, f"{e}\n")
     header = "  " + " " * 14 + "".join(f"{h:>9s}" for h in ("x m", "y m", "z m", "roll", "pitch", "yaw"))
     with tempfile.TemporaryDirectory() as tmp:
-        for case, (scenario_name, overrides) in cases.items():
-            name, scenario = load_scenario(scenario_name, overrides=["estimators=[atda, crhf]", *overrides],
-                                           duration_s=args.duration)
+        for case, (name, scenario) in scenarios.items():
             out = Path(tmp) / case.replace(" ", "_")
             metrics = run(name, scenario, out, RunOptions(progress=False))
             log = dict(np.load(out / "log.npz"))
@@ -146,9 +160,9 @@ def main() -> None:
                 print(f"  {line}")
             results[case] = {"estimators": metrics["estimators"], "crhf_compute_ms": compute_ms,
                              "realtime_factor": metrics["realtime_factor"], "duration_s": args.duration}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    write_json(Path(args.out), {"paper_mae": PAPER, "cases": results})
-    print(f"\nfigures written to {args.out}")
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    write_json(out_file, {"paper_mae": PAPER, "cases": results})
+    print(f"\nfigures written to {out_file}")
 
 
 if __name__ == "__main__":

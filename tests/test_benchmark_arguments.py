@@ -4,6 +4,7 @@ or camera the project's checks refuse is that check's line alone."""
 
 import pytest
 
+import benchmarks.crhf_table5 as crhf_table5
 import benchmarks.fisheye as fisheye
 import benchmarks.marker_ekf_mc as marker_ekf_mc
 import benchmarks.motion_blur as motion_blur
@@ -44,6 +45,8 @@ import benchmarks.ugv_detection as ugv_detection
     (realtime.main, ["--out", "/no-such-folder/x.json"],
      "error: argument --out: no folder /no-such-folder to write x.json in"),
     (stereo.main, ["--json", "/"], "error: argument --json: / is a folder, not a file"),
+    (crhf_table5.main, ["--quick", "--out", "/no-such-folder/x.json"],
+     "error: argument --out: no folder /no-such-folder to write x.json in"),
 ])
 def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, argv, line):
     with pytest.raises(SystemExit) as exit_info:
@@ -57,6 +60,8 @@ def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, a
     (motion_blur.main, ["--scenario", "nope"], "unknown scenario 'nope' (known: "),
     (motion_blur.main, ["--duration", "0"], "duration_s must be positive, got 0.0"),
     (fisheye.main, ["--side-axis-deg", "200"], "fisheye.side_axis_deg must lie in [30, 90] deg, got 200.0"),
+    # Every case's scenario is loaded before the first run (11 minutes of them without --quick).
+    (crhf_table5.main, ["--duration", "-1"], "duration_s must be positive, got -1.0"),
 ])
 def test_a_scenario_or_camera_the_checks_refuse_is_their_line(capsys, main, argv, line):
     with pytest.raises(SystemExit) as exit_info:
@@ -76,3 +81,16 @@ def test_a_folder_no_campaign_wrote_is_not_removed_for_one(capsys, tmp_path):
     assert captured.err.splitlines()[-1].endswith(f"--out {tmp_path} holds no campaign.json: not a campaign's folder, "
                                                   "left as it is")
     assert (tmp_path / "thesis.txt").read_text() == "mine"
+
+
+def test_crhf_table5_s_default_figures_file_is_checked_before_the_work(capsys, tmp_path, monkeypatch):
+    """Without --out the figures go to results/crhf_table5.json, the folder made if missing: a path it cannot make
+    is refused before the 11 minutes of runs."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "results").write_text("not a folder")
+    with pytest.raises(SystemExit) as exit_info:
+        crhf_table5.main(["--quick"])
+    captured = capsys.readouterr()
+    assert exit_info.value.code == 2 and captured.out == ""
+    assert captured.err.splitlines()[-1].endswith(f"error: --out (default results/crhf_table5.json): output path "
+                                                  f"{tmp_path}/results exists and is not a directory")
