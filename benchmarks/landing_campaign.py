@@ -146,7 +146,7 @@ def throughput(runs: int, scaling_runs: int, workers: int, out: Path) -> tuple[d
     return result, checks
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--runs", type=int, default=20, help="synthetic-stream runs per case")
     parser.add_argument("--rendered-runs", type=int, default=5, help="rendered-camera runs per case")
@@ -159,7 +159,11 @@ def main() -> int:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scenario field in every group's runs (repeatable), e.g. "
                              "landing.land_acceptance_radius_m=0.15")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    # 0 skips a stream or a measurement (--workers 0: every run in this process); checked before any campaign.
+    for name in ("runs", "rendered_runs", "throughput_runs", "scaling_runs", "workers"):
+        if getattr(args, name) < 0:
+            parser.error(f"--{name.replace('_', '-')} must not be negative, got {getattr(args, name)}")
     report, checks = {}, []
     try:
         grid_settings(SCENARIO, ["vehicle.speed=3"], 1, 0, COMMON + args.set)

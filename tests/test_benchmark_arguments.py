@@ -6,6 +6,7 @@ import pytest
 
 import benchmarks.crhf_table5 as crhf_table5
 import benchmarks.fisheye as fisheye
+import benchmarks.landing_campaign as landing_campaign
 import benchmarks.marker_ekf_mc as marker_ekf_mc
 import benchmarks.motion_blur as motion_blur
 import benchmarks.motion_compensation as motion_compensation
@@ -47,6 +48,12 @@ import benchmarks.ugv_detection as ugv_detection
     (stereo.main, ["--json", "/"], "error: argument --json: / is a folder, not a file"),
     (crhf_table5.main, ["--quick", "--out", "/no-such-folder/x.json"],
      "error: argument --out: no folder /no-such-folder to write x.json in"),
+    # Refused before the group campaigns, not by the throughput measurement after them.
+    (landing_campaign.main, ["--throughput-runs", "-3"], "error: --throughput-runs must not be negative, got -3"),
+    (landing_campaign.main, ["--scaling-runs", "-1"], "error: --scaling-runs must not be negative, got -1"),
+    (landing_campaign.main, ["--workers", "-1"], "error: --workers must not be negative, got -1"),
+    (landing_campaign.main, ["--runs", "-1"], "error: --runs must not be negative, got -1"),
+    (landing_campaign.main, ["--rendered-runs", "-2"], "error: --rendered-runs must not be negative, got -2"),
 ])
 def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, argv, line):
     with pytest.raises(SystemExit) as exit_info:
