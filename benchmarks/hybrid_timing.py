@@ -392,16 +392,21 @@ def run(frames: int, low_frames: int, repeats: int, threads: int = 1) -> dict:
     return result
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=40, help="frames in all (10 Hz)")
     parser.add_argument("--low-frames", type=int, default=None, help="of them from a flight starting at 3 m "
                                                                       "(default a quarter)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--json", type=output_file)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    for name in ("frames", "repeats"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
     low = args.frames // 4 if args.low_frames is None else args.low_frames
-    result = run(args.frames, min(low, args.frames), args.repeats)
+    if not 0 <= low <= args.frames:
+        parser.error(f"--low-frames must lie in 0..{args.frames} (of the --frames), got {low}")
+    result = run(args.frames, low, args.repeats)
     print_table(result, args.repeats)
     if args.json:
         write_json(args.json, result)

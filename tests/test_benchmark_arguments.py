@@ -6,6 +6,7 @@ import pytest
 
 import benchmarks.crhf_table5 as crhf_table5
 import benchmarks.fisheye as fisheye
+import benchmarks.hybrid_timing as hybrid_timing
 import benchmarks.landing_campaign as landing_campaign
 import benchmarks.marker_ekf_mc as marker_ekf_mc
 import benchmarks.motion_blur as motion_blur
@@ -54,6 +55,13 @@ import benchmarks.ugv_detection as ugv_detection
     (landing_campaign.main, ["--workers", "-1"], "error: --workers must not be negative, got -1"),
     (landing_campaign.main, ["--runs", "-1"], "error: --runs must not be negative, got -1"),
     (landing_campaign.main, ["--rendered-runs", "-2"], "error: --rendered-runs must not be negative, got -2"),
+    (hybrid_timing.main, ["--frames", "0"], "error: --frames must be at least 1, got 0"),
+    (hybrid_timing.main, ["--frames", "1", "--repeats", "0"], "error: --repeats must be at least 1, got 0"),
+    # Not 45 frames recorded for --frames 40, nor a --low-frames above --frames cut to it unsaid.
+    (hybrid_timing.main, ["--frames", "40", "--low-frames", "-5"],
+     "error: --low-frames must lie in 0..40 (of the --frames), got -5"),
+    (hybrid_timing.main, ["--frames", "4", "--low-frames", "5"],
+     "error: --low-frames must lie in 0..4 (of the --frames), got 5"),
 ])
 def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, argv, line):
     with pytest.raises(SystemExit) as exit_info:
