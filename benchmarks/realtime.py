@@ -24,7 +24,7 @@ from pydrake.systems.analysis import Simulator
 
 from diagrams.outputs import output_file, write_json
 from diagrams.runner import load_scenario
-from diagrams.stewart_scene import build_stewart_scene
+from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import ConfigError
 from systems.sensors.camera import image_to_numpy
 
@@ -76,10 +76,16 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     try:
-        _, scenario = load_scenario(args.scenario, overrides=args.overrides, duration_s=args.duration)
+        name, scenario = load_scenario(args.scenario, overrides=args.overrides, duration_s=args.duration)
     except ConfigError as e:
         print(f"realtime: {e}", file=sys.stderr)
         return 2
+    if not isinstance(scenario, StewartSceneConfig):
+        parser.exit(2, f"{name}: not a Stewart scene\n")
+    # The first camera period is simulated before the timing (VTK's set-up); the figures are per timed frame.
+    if args.duration < 2 * scenario.camera.period_s - 1e-9:
+        parser.error(f"--duration must be at least {2 * scenario.camera.period_s:g} s (one {scenario.camera.rate_hz:g} "
+                     f"Hz camera frame before the timing, one timed), got {args.duration:g}")
     diagram, handles = build_stewart_scene(scenario)
     simulator = Simulator(diagram)
     simulator.Initialize()

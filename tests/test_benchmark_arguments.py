@@ -46,6 +46,11 @@ import benchmarks.ugv_detection as ugv_detection
      "error: argument --json: no folder /no-such-folder to write x.json in"),
     (realtime.main, ["--out", "/no-such-folder/x.json"],
      "error: argument --out: no folder /no-such-folder to write x.json in"),
+    # stewart-dynamic's camera at 20 Hz: 0.05 s before the timing, then at least one timed frame.
+    (realtime.main, ["--duration", "0.04"],
+     "error: --duration must be at least 0.1 s (one 20 Hz camera frame before the timing, one timed), got 0.04"),
+    (realtime.main, ["--duration", "0.09"],
+     "error: --duration must be at least 0.1 s (one 20 Hz camera frame before the timing, one timed), got 0.09"),
     (stereo.main, ["--json", "/"], "error: argument --json: / is a folder, not a file"),
     (crhf_table5.main, ["--quick", "--out", "/no-such-folder/x.json"],
      "error: argument --out: no folder /no-such-folder to write x.json in"),
@@ -77,6 +82,7 @@ def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, a
     (fisheye.main, ["--side-axis-deg", "200"], "fisheye.side_axis_deg must lie in [30, 90] deg, got 200.0"),
     # Every case's scenario is loaded before the first run (11 minutes of them without --quick).
     (crhf_table5.main, ["--duration", "-1"], "duration_s must be positive, got -1.0"),
+    (realtime.main, ["--scenario", "gv-landing", "--duration", "1"], "gv-landing: not a Stewart scene"),
 ])
 def test_a_scenario_or_camera_the_checks_refuse_is_their_line(capsys, main, argv, line):
     with pytest.raises(SystemExit) as exit_info:
