@@ -19,15 +19,23 @@ import numpy as np
 from diagrams.gv_landing_run import fly
 from diagrams.outputs import output_file, write_json
 from diagrams.runner import load_scenario
+from systems.config import ConfigError
 from systems.vehicles.paths import PATH_NAMES
 
 
-def one_run(task: tuple) -> dict:
+def task_scenario(task: tuple):
+    """The ugv-hybrid scenario of one run, `task` = (path, speed [m/s], seed, duration [s], overrides); a
+    ConfigError names what it refuses."""
     path, speed, seed, duration_s, extra = task
-    _, scenario = load_scenario("ugv-hybrid", overrides=[f"vehicle.path={path}", f"vehicle.speed={speed}", *extra],
-                                seed=seed)
+    return load_scenario("ugv-hybrid", overrides=[f"vehicle.path={path}", f"vehicle.speed={speed}", *extra],
+                         seed=seed, duration_s=duration_s)[1]
+
+
+def one_run(task: tuple) -> dict:
+    path, speed, seed, _, _ = task
+    scenario = task_scenario(task)
     start = time.perf_counter()
-    metrics, _ = fly(scenario, duration_s, progress=False)
+    metrics, _ = fly(scenario, scenario.duration_s, progress=False)
     landing, hybrid = metrics["landing"], metrics["estimators"]["hybrid"]
     return {"path": path, "speed": speed, "seed": seed, "success": landing["success"],
             "touchdown_error_m": landing["touchdown_error_m"], "rel_speed_mps": landing["touchdown_rel_speed_mps"],
@@ -38,7 +46,7 @@ def one_run(task: tuple) -> dict:
             "wall_s": time.perf_counter() - start}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--speed", type=float, default=0.5)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
@@ -47,8 +55,15 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=120.0)
     parser.add_argument("--json", type=output_file)
     parser.add_argument("--set", action="append", default=[], dest="overrides")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    if args.jobs < 1:
+        parser.error(f"--jobs must be at least 1, got {args.jobs}")
     tasks = [(p, args.speed, s, args.duration, tuple(args.overrides)) for p in args.paths for s in args.seeds]
+    try:  # every run's scenario here, not a traceback from the process pool
+        for task in tasks:
+            task_scenario(task)
+    except ConfigError as e:
+        parser.exit(2, f"{e}\n")
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         runs = list(pool.map(one_run, tasks))
     print(f"{'path':<13}{'seed':>5}{'ok':>4}{'error m':>9}{'v_rel':>7}{'t land':>8}{'est rms':>9}{'valid':>7}"

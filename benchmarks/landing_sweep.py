@@ -42,6 +42,7 @@ from diagrams.landing_metrics import (  # noqa: E402
 )
 from diagrams.outputs import output_file, write_json  # noqa: E402
 from diagrams.runner import load_scenario  # noqa: E402
+from systems.config import ConfigError  # noqa: E402
 from systems.vehicles.paths import PATH_NAMES  # noqa: E402
 
 SPEEDS = (0.2, 0.5, 0.8, 1.5, 3.0, 6.0)
@@ -55,9 +56,16 @@ def load(overrides=()):
     return load_scenario("gv-landing", overrides=list(overrides))[1]
 
 
-def one_run(args) -> dict:
-    path, speed, overrides = args
-    scenario = load([f"vehicle.path={path}", f"vehicle.speed={speed}", *overrides])
+def task_scenario(task: tuple):
+    """The gv-landing scenario of one sweep run, `task` = (path, speed [m/s], overrides); a ConfigError names
+    what it refuses."""
+    path, speed, overrides = task
+    return load([f"vehicle.path={path}", f"vehicle.speed={speed}", *overrides])
+
+
+def one_run(task: tuple) -> dict:
+    path, speed, _ = task
+    scenario = task_scenario(task)
     metrics, _ = fly(scenario, scenario.duration_s)
     landing, tracking = metrics["landing"], metrics["tracking"]
     settled = tracking.get("before_final_descent_max_abs_xy_m")
@@ -82,10 +90,14 @@ def late_start(speed: float) -> list[str]:
             f"vehicle.speed_schedule_m_s=[0.0, 0.0, {speed}]"]
 
 
-def sweep(paths, speeds, jobs: int, overrides, late: bool = False) -> list[dict]:
-    work = [(path, speed, [*overrides, *(late_start(speed) if late else [])]) for speed in speeds for path in paths]
+def sweep_tasks(paths, speeds, overrides, late: bool = False) -> list[tuple]:
+    """Each sweep run's (path, speed [m/s], overrides); `late`: the vehicle starting late (late_start)."""
+    return [(path, speed, [*overrides, *(late_start(speed) if late else [])]) for speed in speeds for path in paths]
+
+
+def sweep(tasks: list[tuple], jobs: int) -> list[dict]:
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        return list(pool.map(one_run, work))
+        return list(pool.map(one_run, tasks))
 
 
 def print_table(rows: list[dict]) -> None:
@@ -209,24 +221,32 @@ def landing_vs_fine_integration() -> dict:
             "difference": {k: abs(runs["configured"][k] - runs["rk3_0.1ms"][k]) for k in keys}}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="3 paths x 2 speeds, short timing")
-    parser.add_argument("--jobs", type=int, default=os.cpu_count(), help="parallel runs (default: CPU count)")
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel runs (default: CPU count)")
     parser.add_argument("--json", type=output_file, metavar="FILE", help="also write the results as JSON")
     parser.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append", default=[],
                         help="a scenario override for every sweep run (repeatable)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    if args.jobs < 1:
+        parser.error(f"--jobs must be at least 1, got {args.jobs}")
 
     paths, speeds = QUICK if args.quick else (PATH_NAMES, SPEEDS)
     overrides = [*SWEEP_OVERRIDES, *args.overrides]
+    tasks = sweep_tasks(paths, speeds, overrides)
+    late_tasks = sweep_tasks(paths, speeds[-1:] if args.quick else LATE_START_SPEEDS, overrides, late=True)
+    try:  # every run's scenario here, not a traceback from the process pool
+        for task in tasks + late_tasks:
+            task_scenario(task)
+    except ConfigError as e:
+        parser.exit(2, f"{e}\n")
     start = time.perf_counter()
-    rows = sweep(paths, speeds, args.jobs, overrides)
+    rows = sweep(tasks, args.jobs)
     print(f"## gv-landing sweep: {len(paths)} paths x {len(speeds)} speeds ({' '.join(overrides)}), "
           f"{time.perf_counter() - start:.0f} s wall with {args.jobs} processes\n")
     print_table(rows)
-    late_speeds = speeds[-1:] if args.quick else LATE_START_SPEEDS
-    late = sweep(paths, late_speeds, args.jobs, overrides, late=True)
+    late = sweep(late_tasks, args.jobs)
     print("\n## The same, the vehicle starting when the UAV is at IH (t = 10 s, then 1 m/s^2)\n")
     print_table(late)
     for r in rows + late:

@@ -6,8 +6,10 @@ import pytest
 
 import benchmarks.crhf_table5 as crhf_table5
 import benchmarks.fisheye as fisheye
+import benchmarks.hybrid as hybrid
 import benchmarks.hybrid_timing as hybrid_timing
 import benchmarks.landing_campaign as landing_campaign
+import benchmarks.landing_sweep as landing_sweep
 import benchmarks.marker_ekf_mc as marker_ekf_mc
 import benchmarks.motion_blur as motion_blur
 import benchmarks.motion_compensation as motion_compensation
@@ -67,6 +69,8 @@ import benchmarks.ugv_detection as ugv_detection
      "error: --low-frames must lie in 0..40 (of the --frames), got -5"),
     (hybrid_timing.main, ["--frames", "4", "--low-frames", "5"],
      "error: --low-frames must lie in 0..4 (of the --frames), got 5"),
+    (hybrid.main, ["--jobs", "0"], "error: --jobs must be at least 1, got 0"),
+    (landing_sweep.main, ["--jobs", "0", "--quick"], "error: --jobs must be at least 1, got 0"),
 ])
 def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, argv, line):
     with pytest.raises(SystemExit) as exit_info:
@@ -83,6 +87,11 @@ def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, a
     # Every case's scenario is loaded before the first run (11 minutes of them without --quick).
     (crhf_table5.main, ["--duration", "-1"], "duration_s must be positive, got -1.0"),
     (realtime.main, ["--scenario", "gv-landing", "--duration", "1"], "gv-landing: not a Stewart scene"),
+    # Every run's scenario before the process pool starts, not a traceback from inside it.
+    (hybrid.main, ["--paths", "straight", "--seeds", "0", "--set", "bogus=1"], "unknown key 'bogus'"),
+    (hybrid.main, ["--seeds", "0", "-1"], "seed must not be negative"),
+    (hybrid.main, ["--duration", "-1"], "duration_s must be positive, got -1.0"),
+    (landing_sweep.main, ["--quick", "--set", "bogus=1"], "unknown key 'bogus'"),
 ])
 def test_a_scenario_or_camera_the_checks_refuse_is_their_line(capsys, main, argv, line):
     with pytest.raises(SystemExit) as exit_info:
