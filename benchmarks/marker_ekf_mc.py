@@ -116,6 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="campaign directory (default: a temporary one); a campaign already there is run afresh")
     args = parser.parse_args(argv)
+    if args.runs < 1:
+        parser.error(f"--runs must be at least 1, got {args.runs}")
+    for name in ("workers", "scaling_runs", "detector_runs"):  # 0: in this process, or the part skipped
+        if getattr(args, name) < 0:
+            parser.error(f"--{name.replace('_', '-')} must not be negative, got {getattr(args, name)}")
     # The campaign is timed, so it starts afresh; but only a folder a campaign wrote is removed for it.
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         parser.error(f"--out {args.out} is a file, not a campaign's folder")

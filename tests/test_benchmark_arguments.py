@@ -71,6 +71,11 @@ import benchmarks.ugv_detection as ugv_detection
      "error: --low-frames must lie in 0..4 (of the --frames), got 5"),
     (hybrid.main, ["--jobs", "0"], "error: --jobs must be at least 1, got 0"),
     (landing_sweep.main, ["--jobs", "0", "--quick"], "error: --jobs must be at least 1, got 0"),
+    # Before the campaign (and its temporary folder), not a traceback from it or from the scaling after it.
+    (marker_ekf_mc.main, ["--runs", "0"], "error: --runs must be at least 1, got 0"),
+    (marker_ekf_mc.main, ["--workers", "-1"], "error: --workers must not be negative, got -1"),
+    (marker_ekf_mc.main, ["--scaling-runs", "-1"], "error: --scaling-runs must not be negative, got -1"),
+    (marker_ekf_mc.main, ["--detector-runs", "-2"], "error: --detector-runs must not be negative, got -2"),
 ])
 def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, argv, line):
     with pytest.raises(SystemExit) as exit_info:
