@@ -10,9 +10,10 @@ camera's processing of it (lens, blur and pixel noise), ToF (the rays cast on th
 shared depth render, and the readings, times the readings per frame when they keep their own clock), tag
 detection, 4 frames after each simulated second, so the render and the simulation are timed under the same
 load; "rest" is the simulation's wall time per frame minus those (logging, IMU, events, Python overhead). `--out`
-writes the figures as JSON too (`render_ms`, `per_frame_ms`, their ratio, the real-time factor and the
-stages), beside the printout. `--set` overrides a scenario field as `landing-sim run` does (e.g.
-`estimators=[]` or `camera.pixel_noise_std=0.0`, to see what a part of the scene costs).
+writes the figures as JSON too (`render_ms`, `per_frame_ms`, their ratio, the real-time factor, the stages and
+`stage_frames`, the frames their medians are over), beside the printout. `--set` overrides a scenario field as
+`landing-sim run` does (e.g. `estimators=[]` or `camera.pixel_noise_std=0.0`, to see what a part of the scene
+costs).
 """
 
 import argparse
@@ -60,6 +61,11 @@ class StageTimer:
             t4 = time.perf_counter()
             for name, dt in zip(self.times, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
                 self.times[name].append(dt * 1e3)
+
+    @property
+    def frames(self) -> int:
+        """The frames each stage has been timed on."""
+        return self._k
 
     def medians_ms(self) -> dict[str, float]:
         """Median milliseconds per frame of each stage over every sample."""
@@ -110,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     per_frame = wall / frames * 1e3
     print(f"{args.scenario}, {simulated:.1f} s simulated in {wall:.1f} s: real-time factor {simulated / wall:.2f}")
     print(f"per frame ({frames} frames at {scenario.camera.rate_hz:g} Hz): {per_frame:.1f} ms, "
-          f"{per_frame / stages['render']:.2f}x the render")
+          f"{per_frame / stages['render']:.2f}x the render; each stage the median of {timer.frames} frames")
     for name, ms in stages.items():
         print(f"  {name:10s} {ms:6.1f} ms" + (f" ({tof_readings:g} readings per frame)" if name == "tof" else ""))
     print(f"  {'rest':10s} {per_frame - sum(stages.values()):6.1f} ms (logging, IMU, events)")
@@ -119,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
                               "wall_s": wall,
                               "realtime_factor": simulated / wall, "frames": frames, "render_ms": stages["render"],
                               "per_frame_ms": per_frame, "per_frame_over_render": per_frame / stages["render"],
-                              "stages_ms": {**stages, "rest": per_frame - sum(stages.values())}})
+                              "stages_ms": {**stages, "rest": per_frame - sum(stages.values())},
+                              "stage_frames": timer.frames})
     return 0
 
 
