@@ -373,6 +373,19 @@ def test_an_estimate_with_a_figure_not_finite_is_invalid(cls):
     assert not np.isfinite(vectors[1]).all()
 
 
+def test_an_estimate_with_a_marker_position_not_finite_is_invalid():
+    """The paper filter estimates each marker apart: marker 2's position NaN leaves the pad's own figures (marker
+    0's) finite, and the estimate, whose p_WM carries it, is invalid all the same."""
+    marker_filter = make(PaperMarkerEkf)
+    x = state_from_truth(PaperMarkerEkf, pose([12, -4, 1.6], [0, 0, 35]))
+    broken = x.copy()
+    broken[12:15] = np.nan  # marker 2's position: six states per marker
+    vectors, p_WM, _ = marker_filter.estimate_vectors(np.stack([x, broken]), np.array([0.01, 0.01]),
+                                                      np.array([1.0, 1.0]))
+    assert np.isfinite(np.delete(vectors, EST_VALID, axis=1)).all() and np.isnan(p_WM[1, 2]).all()
+    assert vectors[:, EST_VALID].tolist() == [1.0, 0.0]
+
+
 @pytest.mark.parametrize("cls", BOTH)
 @pytest.mark.parametrize("outlier", ["moved 1 m", "flipped"])
 def test_the_chi_square_gate_rejects_a_gross_outlier(cls, outlier):
@@ -496,6 +509,36 @@ def test_measurements_older_than_the_history_are_counted_too_late(cls):
     b.step(t, uav_over(truth(t), t), [])
     assert_same_belief(a, b)
     assert a.stats.too_late == 5
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_a_late_measurement_at_the_oldest_kept_steps_time_is_too_late(cls):
+    """Once the history has dropped its first steps, the oldest step kept has lost the posterior it was run
+    from: a measurement taken at its time cannot be re-run into it. It counts as too late and leaves the
+    belief as it was (it must not restart the filter from that frame alone)."""
+    a, b = twins(cls)
+    truth, t = straight(6.0), 60 * TS
+    oldest = a._history[0].time
+    assert oldest > 0 and t - oldest > a.config.history_s  # the first steps were dropped
+    a.step(t, uav_over(truth(t), t), measure(truth, oldest, np.random.default_rng(6)))
+    b.step(t, uav_over(truth(t), t), [])
+    assert_same_belief(a, b)
+    assert a.stats.too_late == 5 and a.stats.resets == b.stats.resets == 0
+
+
+def test_the_camera_between_two_steps_across_a_yaw_of_180_degrees_is_halfway():
+    """The UAV yawed 179 deg at one step and 181 deg at the next: Drake's quaternions of the two (w >= 0) have
+    opposite signs, the same attitudes as q and -q. Halfway between them the camera is that of the UAV at
+    180 deg and the mid position (Drake's X_WB X_BC), not turned back through 0 deg."""
+    marker_filter = make(ConstantTurnEkf)
+    X_WB = [RigidTransform(RollPitchYaw(0.04, -0.03, np.radians(yaw)), p)
+            for yaw, p in ((179.0, [1.0, 2.0, 4.0]), (181.0, [1.4, 1.8, 4.2]))]
+    a, b = (marker_filter.camera_at(X) for X in X_WB)
+    assert a.q_BR @ b.q_BR < 0
+    halfway = marker_filter._interpolate(a, b, 0.5)
+    X_WC = RigidTransform(RollPitchYaw(0.04, -0.03, np.pi), [1.2, 1.9, 4.1]).multiply(X_BC)
+    np.testing.assert_allclose(halfway.R_CW, X_WC.rotation().inverse().matrix(), atol=1e-12)
+    np.testing.assert_allclose(halfway.p_WC, X_WC.translation(), atol=1e-12)
 
 
 # ---- any subset of markers ---------------------------------------------------------------------
