@@ -11,6 +11,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
+from scipy.linalg import expm
 from scipy.stats import chi2
 
 from systems.config import ConfigError
@@ -214,6 +215,35 @@ def test_the_stacked_innovations_take_q_and_minus_q_as_one_attitude():
     stacked = ekf.innovations_stack(x[None], camera, p_CM, q_MC)[0]
     np.testing.assert_allclose(stacked, single, atol=1e-12)
     np.testing.assert_allclose(stacked[:, 3:], 0.0, atol=1e-12)
+
+
+def test_the_constant_turn_process_noise_is_white_acceleration_on_each_axis():
+    """Q over dt against Van Loan's discretisation (SciPy's expm) of p' = v, psi' = omega with white accelerations:
+    x and y under acceleration_psd, z under vertical_acceleration_psd (a different value), omega under
+    angular_acceleration_psd; nothing across axes."""
+    marker_filter = make(ConstantTurnEkf, acceleration_psd=0.5, vertical_acceleration_psd=0.01,
+                         angular_acceleration_psd=0.002)
+    dt = 0.1
+    A, W = np.zeros((8, 8)), np.diag([0.0, 0.0, 0.0, 0.5, 0.5, 0.01, 0.0, 0.002])
+    A[0, 3] = A[1, 4] = A[2, 5] = A[6, 7] = 1.0
+    E = expm(np.block([[-A, W], [np.zeros((8, 8)), A.T]]) * dt)
+    Q = E[8:, 8:].T @ E[:8, 8:]
+    x = state_from_truth(ConstantTurnEkf, pose([1, 2, 1.6], [0, 0, 20]))
+    np.testing.assert_allclose(marker_filter.process_noise(x, dt), Q, rtol=1e-9, atol=1e-15)
+
+
+def test_the_constant_turn_platform_covariance_is_its_yaw_and_position():
+    """[roll, pitch, yaw, x, y, z] of the pad: roll and pitch level by assumption (zero variance), the yaw's
+    (co)variances those of the state's psi, the position's those of p_WP."""
+    marker_filter = make(ConstantTurnEkf)
+    A = np.random.default_rng(1).standard_normal((8, 8))
+    P = A @ A.T
+    x = state_from_truth(ConstantTurnEkf, pose([1, 2, 1.6], [0, 0, 20]))
+    covariance = marker_filter.platform_covariance(x, P)
+    kept = [ConstantTurnEkf.PSI, 0, 1, 2]
+    np.testing.assert_array_equal(covariance[:2], 0.0)
+    np.testing.assert_array_equal(covariance[:, :2], 0.0)
+    np.testing.assert_allclose(covariance[2:, 2:], P[np.ix_(kept, kept)], rtol=1e-12)
 
 
 def test_paper_process_is_eq_11():
