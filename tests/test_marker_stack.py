@@ -8,6 +8,13 @@ import pytest
 from diagrams import marker_batch
 from diagrams.marker_batch import batch_run, batch_runs
 from diagrams.runner import load_scenario
+from systems.config import ConfigError
+from systems.estimators.marker_ekf import ConstantTurnEkf
+from systems.estimators.marker_ekf.engine import FilterStats
+from systems.estimators.marker_ekf.stack import run_stack
+from systems.perception.markers import MarkerMeasurement
+from systems.quaternion import drake_to_paper
+from tests.test_marker_ekf import LAYOUT, TS, make, measure, straight, uav_over
 
 SEEDS = [0, 1, 7, 12]
 
@@ -43,3 +50,47 @@ def test_stacked_runs_give_each_runs_batch_run(monkeypatch, speed, latency):
                 assert 0 < single.stats[name]["gated"] and single.stats[name]["resets"] == 0
             if seed == 7:
                 assert single.stats[name]["resets"] >= 1
+
+
+def _one_run(steps: int, off_steps=()):
+    """A constant-turn filter and one run's stream on a straight drive at TS (test_marker_ekf's truth): the
+    steps' times, UAV poses, cameras, and every marker's p_CM (1, N, 5, 3), q_CM (1, N, 5, 4), every marker
+    5 m off at `off_steps`."""
+    marker_filter, truth, rng = make(ConstantTurnEkf), straight(6.0), np.random.default_rng(0)
+    t = np.arange(steps) * TS
+    X_WB = [uav_over(truth(tk), tk) for tk in t]
+    frames = [measure(truth, tk, rng) for tk in t]
+    p_CM = np.array([[m.p_CM for m in frame] for frame in frames])[None]
+    q_CM = np.array([[m.q_CM for m in frame] for frame in frames])[None]
+    p_CM[0, list(off_steps)] += 5.0
+    cameras = marker_filter.camera(np.array([X.translation() for X in X_WB]),
+                                   np.array([drake_to_paper(X.rotation()) for X in X_WB]))
+    return marker_filter, t, X_WB, cameras, p_CM, q_CM
+
+
+def test_gated_steps_that_alternate_with_fused_ones_never_reset_the_stack():
+    """Every marker 5 m off at every other step from 20 to 58: 20 fully gated steps, never two in a row, so no
+    run of reset_after_rejected_steps (10) and no restart; the stack gives each filter step's stats and
+    records, as MarkerFilter.step does."""
+    off = range(20, 60, 2)
+    marker_filter, t, X_WB, cameras, p_CM, q_CM = _one_run(80, off)
+    stack = run_stack(marker_filter, t, cameras, p_CM, q_CM, 0)
+    stepped = make(ConstantTurnEkf)
+    for k, tk in enumerate(t):
+        frame = [MarkerMeasurement(tk, i, p, q) for i, p, q in zip(LAYOUT.ids, p_CM[0, k], q_CM[0, k])]
+        stepped.step(tk, X_WB[k], frame)
+        x, variance, last = stepped.record()
+        np.testing.assert_allclose(stack.x[0, k], x, rtol=0, atol=1e-9)
+        assert stack.position_variance[0, k] == pytest.approx(variance, abs=1e-12)
+        assert stack.last_measurement_s[0, k] == last
+    assert stack.stats[0] == stepped.stats == FilterStats(accepted=5 * (80 - len(off)), gated=5 * len(off))
+
+
+def test_a_stack_whose_stream_arrives_after_the_history_is_refused():
+    """At latency L a measurement of t_0 arrives at t_L: 15 steps of 35 ms (0.525 s) is past the filter's
+    0.5 s history, which MarkerFilter.step could not re-run; 14 steps (0.49 s) is within it."""
+    marker_filter, t, _, cameras, p_CM, q_CM = _one_run(40)
+    assert marker_filter.config.history_s == 0.5
+    with pytest.raises(ConfigError, match="within the filter's history"):
+        run_stack(marker_filter, t, cameras, p_CM, q_CM, 15)
+    assert run_stack(marker_filter, t, cameras, p_CM, q_CM, 14).started[14:].all()
