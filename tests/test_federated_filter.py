@@ -14,6 +14,7 @@ from systems.estimators.federated.engine import (
     X_PB,
     FederatedConfig,
     FederatedState,
+    NodeStats,
     is_valid,
     relative_jacobian,
     relative_std_m,
@@ -26,6 +27,7 @@ from systems.estimators.federated.local_filter import (
     centre_in_body,
     exp_so3,
     initial_state,
+    initial_velocity_covariance,
     log_so3,
     predict,
     update_centre_in_camera,
@@ -392,6 +394,50 @@ def test_a_non_finite_measurement_is_gated_and_never_starts_the_filters():
     state = step(state, 0.02, imu, {"approach": NodeMeasurement(0.02, "approach", covariance,
                                                                 p_CP=np.array([0.0, 0.0, 4.0]))}, config, X_BC)
     assert state.started and np.all(np.isfinite(state.fused.p)) and is_valid(state, config)
+
+
+def _centre_frame(t: float, height_m: float = 10.0) -> dict:
+    """A camera frame with the approaching node's exact centre, the UAV level height_m over the pattern."""
+    p_CP = X_BC.inverse().multiply(RigidTransform([0.0, 0.0, height_m]).inverse()).translation()
+    return {"approach": NodeMeasurement(t, "approach", approach_covariance(p_CP, 60.0, 640.0), p_CP=p_CP)}
+
+
+def test_the_measurement_that_starts_the_filters_counts_as_accepted():
+    """The first centre starts every filter: the approaching node's record has it accepted (one), none gated,
+    at its time."""
+    config, imu = FederatedConfig(), np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0]
+    state = step(FederatedState(), 0.0, imu, _centre_frame(0.0), config, X_BC)
+    assert state.started and state.stats == (NodeStats(1, 0, 0.0), NodeStats(), NodeStats())
+
+
+def test_a_restart_after_max_coast_adds_the_initial_velocity_covariance():
+    """Hovering, centres for 1 s, then frames without any for longer than max_coast_s: the next centre restarts
+    the filters (lost), counted accepted. The restart keeps the body's velocity covariance, turned into the new
+    attitude's axes, and adds the initial one to it (the velocity may have drifted off while lost)."""
+    config, imu = FederatedConfig(), np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0]
+    state = FederatedState()
+    for k in range(int(1.7 * 200)):
+        t = k / 200
+        state = step(state, t, imu, (_centre_frame(t) if t <= 1.0 else {}) if k % 4 == 0 else None, config, X_BC)
+    before = state
+    assert t - before.stats[0].last_accepted_s > config.max_coast_s and not is_valid(before, config)
+    after = step(before, 1.7, imu, _centre_frame(1.7), config, X_BC)
+    assert after.stats[0] == NodeStats(before.stats[0].accepted + 1, 0, 1.7) and is_valid(after, config)
+    R = after.fused.R @ before.fused.R.T
+    np.testing.assert_allclose(after.fused.P[3:6, 3:6],
+                               R @ before.fused.P[3:6, 3:6] @ R.T + initial_velocity_covariance(config),
+                               rtol=1e-9, atol=1e-12)
+
+
+def test_an_estimate_with_a_velocity_not_finite_is_invalid():
+    """is_valid: measured just now and the relative position certain, but a NaN velocity (which the relative
+    position's std does not read) is not valid."""
+    config, imu = FederatedConfig(), np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0]
+    state = step(FederatedState(), 0.0, imu, _centre_frame(0.0, 4.0), config, X_BC)
+    assert is_valid(state, config)
+    fused = replace(state.fused, v=np.array([np.nan, 0.0, 0.0]))
+    assert relative_std_m(fused) < config.max_relative_std_m
+    assert not is_valid(replace(state, fused=fused), config)
 
 
 def test_an_estimate_whose_relative_position_is_too_uncertain_is_invalid():
