@@ -79,10 +79,8 @@ def print_table(title: str, summary: dict) -> None:
           "| aborts | failures |")
     print("|---|---|---|---|---|---|")
     for case, c in summary["cases"].items():
-        ended = c["done"] + c["failed"]  # a run that raised is a failure (landing_case_summary's run_failed)
-        landed = round((c["success_rate"] or 0.0) * ended)
         reasons = ", ".join(f"{k} {v}" for k, v in c["failure_reasons"].items()) or "-"
-        print(f"| {case} | {landed}/{ended} | {cell(c['touchdown_error_m'])} | "
+        print(f"| {case} | {c['landed']}/{c['ended']} | {cell(c['touchdown_error_m'])} | "
               f"{cell(c['touchdown_rel_speed_mps'])} | {c['aborts']} | {reasons} |")
 
 

@@ -63,17 +63,17 @@ def _percentiles(values: list[float]) -> dict | None:
 def landing_case_summary(records: list, failed: int = 0) -> dict:
     """One case's landing figures in summary.json's "cases" (a `--case` campaign's, diagrams/montecarlo/grid.py,
     and, with `source_summary`'s, the `--cases` campaign's per source), from its finished runs (RunRecord) and
-    the number of its runs that raised (`failed`, each a failure, reason "run_failed"): success rate, touchdown
-    error (m) and relative vertical speed (m/s; p50, p95, max over the runs that touched down), failure reasons
-    counted, aborts, how many met the targets, and on a deck its tilt at touchdown (deg) and the time waited for a
-    landing window (s)."""
+    the number of its runs that raised (`failed`, each a failure, reason "run_failed"): the runs that ended
+    (finished or raised), how many of them landed and the success rate, touchdown error (m) and relative vertical
+    speed (m/s; p50, p95, max over the runs that touched down), failure reasons counted, aborts, how many met the
+    targets, and on a deck its tilt at touchdown (deg) and the time waited for a landing window (s)."""
     landings = [r.metrics["landing"] for r in records]
     touched = [m for m in landings if m["touchdown_error_m"] is not None]
     reasons = Counter(m["failure_reason"] for m in landings if m["failure_reason"])
     if failed:
         reasons["run_failed"] = failed
-    ended = len(landings) + failed
-    return {"success_rate": sum(m["success"] for m in landings) / ended if ended else None,
+    ended, landed = len(landings) + failed, sum(bool(m["success"]) for m in landings)
+    return {"ended": ended, "landed": landed, "success_rate": landed / ended if ended else None,
             "touchdown_error_m": _percentiles([m["touchdown_error_m"] for m in touched]),
             "touchdown_rel_speed_mps": _percentiles([m["touchdown_rel_speed_mps"] for m in touched]),
             "failure_reasons": dict(reasons),

@@ -19,7 +19,8 @@ import benchmarks.vision_landing as vision_landing
 
 def _landing_figures(done: int, failed: int, landed: int) -> dict:
     """A source's entry in summary.json's "cases" (diagrams/landing_campaign.source_summary)."""
-    return {"requested": done + failed, "done": done, "failed": failed, "success_rate": landed / (done + failed),
+    return {"requested": done + failed, "done": done, "failed": failed, "ended": done + failed, "landed": landed,
+            "success_rate": landed / (done + failed),
             "meets_targets": landed, "failure_reasons": {"run_failed": failed} if failed else {}, "aborts": 0,
             "touchdown_error_m": {"p50": 0.01, "p95": 0.01, "max": 0.01},
             "touchdown_rel_speed_mps": {"p50": 0.3, "p95": 0.3, "max": 0.3}, "steering_rms_position_m": 0.01,
@@ -40,7 +41,7 @@ def test_vision_landing_counts_a_run_that_raised_as_not_landed(monkeypatch, tmp_
     out = capsys.readouterr().out
     assert "| ct_ekf | 9/10 (1 raised) | 9/10 | 0.0100 / 0.0100 / 0.0100 |" in out
     assert "| truth | 10/10 | 10/10 |" in out
-    assert result["figures"]["ct_ekf"]["runs"] == 10 and result["figures"]["ct_ekf"]["failed"] == 1
+    assert result["figures"]["ct_ekf"]["ended"] == 10 and result["figures"]["ct_ekf"]["failed"] == 1
 
 
 class _InlinePool:

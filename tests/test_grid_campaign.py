@@ -102,7 +102,7 @@ def a_landing(error_m: float | None, speed_mps: float | None, xy_m=None) -> Simp
 
 def test_a_run_that_raised_counts_against_the_success_rate():
     summary = landing_case_summary([a_landing(0.01, 0.3), a_landing(0.02, 0.3), a_landing(None, None)], failed=1)
-    assert summary["success_rate"] == 0.5
+    assert summary["success_rate"] == 0.5 and (summary["landed"], summary["ended"]) == (2, 4)
     assert summary["failure_reasons"] == {"timeout": 1, "run_failed": 1}
     assert summary["touchdown_error_m"]["max"] == 0.02
 
