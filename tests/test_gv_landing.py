@@ -24,8 +24,8 @@ from diagrams.gv_landing_run import fly, fly_diagram
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.control.landing import Mode
-from systems.control.monitor import FAILURE_REASONS, LandingMonitor
-from systems.perception.seam import A_WP, HEIGHT, P_BP_B, P_BP_W, V_WP, VALID, SeamSplit
+from systems.control.monitor import FAILURE_REASONS, LandingMonitor, gear_on_pad, pad_offset
+from systems.perception.seam import A_WP, HEIGHT, P_BP_B, P_BP_W, RELATIVE_STATE_SIZE, V_WP, VALID, SeamSplit
 from systems.perception.truth import RelativeStateTruth
 from systems.vehicles.quadrotor import P_WB, hover_state, pose_from_state, quadrotor_state
 
@@ -373,6 +373,43 @@ def test_monitor_names_each_way_a_run_ends():
     assert check(quad=fast).startswith("diverged")
     assert check(t=30.0, last_seen=5.0).startswith("target_lost: no valid estimate for 25.0 s")
     assert check(t=30.0, last_seen=0.0, seen_ever=False).startswith("target_lost: no valid estimate of the pad")
+
+
+@pytest.mark.parametrize("valid, ends", [(0.0, True), (1.0, False)])
+def test_the_monitor_ends_a_run_without_a_valid_estimate_as_target_lost(valid, ends):
+    """The monitor reads its target_valid input: held at 0 the run ends "target_lost" one check after
+    lost_timeout_s; held at 1 the same hover flies on."""
+    config = GvLandingConfig()
+    termination = dataclasses.replace(config.termination, lost_timeout_s=0.5)
+    monitor = LandingMonitor(termination, config.platform, config.landing.touchdown_height_m)
+    context = monitor.CreateDefaultContext()
+    relative = np.zeros(RELATIVE_STATE_SIZE)
+    relative[P_BP_W], relative[HEIGHT] = [-18.25, 0.0, -3.4], 3.4  # the true relative state of the hover
+    monitor.GetInputPort("quadrotor_state").FixValue(context, hover_state(config.quadrotor, [20.0, 0.0, 5.0]))
+    monitor.GetInputPort("vehicle_state").FixValue(context, np.zeros(4))
+    monitor.GetInputPort("true_relative_state").FixValue(context, relative)
+    monitor.GetInputPort("target_valid").FixValue(context, [valid])
+    monitor.GetInputPort("mode").FixValue(context, [float(Mode.FOLLOW)])
+    status = Simulator(monitor, context).AdvanceTo(2.0)
+    if ends:
+        assert status.message().startswith("target_lost: no valid estimate of the pad")
+        assert context.get_time() <= 0.5 + 1.0 / termination.rate_hz + 1e-9
+    else:
+        assert status.message() == "" and context.get_time() == 2.0
+
+
+@pytest.mark.parametrize("heading_deg", [0.0, 30.0, 90.0, -135.0])
+def test_pad_offset_is_the_uav_in_the_pad_frame_turned_with_the_vehicle(heading_deg):
+    """pad_offset is R_WP^T (p_WB - p_WP) for the pad frame P yawed by the vehicle's heading (Drake's
+    rotation as the truth), and the gear touches the 1 m pad by that offset: 0.45 m along and 0.3 m across
+    the vehicle is on it, 0.55 m along is off it, at any heading."""
+    heading = np.radians(heading_deg)
+    R_WP = RotationMatrix.MakeZRotation(heading)
+    for offset_P, on_pad in (([0.45, 0.3, 0.0], True), ([0.55, 0.0, 0.0], False)):
+        relative = np.zeros(RELATIVE_STATE_SIZE)
+        relative[P_BP_W], relative[HEIGHT] = -R_WP.multiply(offset_P), 0.05  # pad minus UAV; 5 cm above it
+        np.testing.assert_allclose(pad_offset(relative, heading), offset_P[:2], atol=1e-12)
+        assert gear_on_pad(relative, heading, 0.1, 1.0, 0.02) == on_pad
 
 
 def test_meshcat_shows_the_scene_path_and_trail():
