@@ -144,6 +144,31 @@ def test_acceleration_feed_forward_is_added_to_the_velocity_loop():
     np.testing.assert_allclose(f_W, QUAD.mass_kg * np.array([0.8, -0.4, QUAD.gravity_m_s2 + 0.5]), rtol=1e-14)
 
 
+
+@pytest.mark.parametrize("v_z_desired", [-50.0, 0.0, 50.0])  # sinking and climbing at max_vertical_accel_m_s2
+def test_a_saturated_thrust_tilts_by_max_tilt_deg_whatever_the_vertical_acceleration(v_z_desired):
+    """The horizontal limit scales with the vertical thrust: a saturated horizontal command tilts the desired
+    thrust f_W by exactly max_tilt_deg, also while sinking or climbing at the vertical limit, and keeps the
+    vertical thrust m (g + a_z)."""
+    law = FlightLaw(QUAD, CONFIG)
+    f_W = np.array(law.thrust([0.0, 0.0, 0.0], [30.0, -40.0, v_z_desired], [0.0, 0.0, 0.0]))
+    a_z = np.clip(CONFIG.velocity_gain_z * v_z_desired, -CONFIG.max_vertical_accel_m_s2,
+                  CONFIG.max_vertical_accel_m_s2)
+    assert f_W[2] == pytest.approx(QUAD.mass_kg * (QUAD.gravity_m_s2 + a_z), rel=1e-14)
+    assert np.degrees(np.arctan2(np.hypot(f_W[0], f_W[1]), f_W[2])) == pytest.approx(CONFIG.max_tilt_deg, abs=1e-9)
+    np.testing.assert_allclose(f_W[:2] / np.hypot(f_W[0], f_W[1]), [0.6, -0.8], rtol=1e-14)  # the command's way
+
+
+def test_at_the_desired_attitude_the_torque_is_damping_plus_the_gyroscopic_term():
+    """Lee et al. (2010): at R = R_des (e_R = 0) T_B = -J k_w w_B + w_B x (J w_B), computed here with numpy."""
+    law = FlightLaw(QUAD, CONFIG)
+    _, k_w = CONFIG.attitude_gains()
+    J = QUAD.inertia_diagonal
+    w_B = np.array([1.0, -2.0, 3.0])
+    identity = np.eye(3).ravel().tolist()
+    np.testing.assert_allclose(law.torque(identity, identity, w_B), -J * k_w * w_B + np.cross(w_B, J * w_B),
+                               rtol=1e-12)
+
 @pytest.mark.parametrize("feed_forward", [True, False])
 def test_a_ramp_in_velocity_is_tracked_without_lag_with_its_acceleration_fed_forward(feed_forward):
     # v_des = a t along x for 4 s: without the feed-forward the velocity lags by a / K_v.
