@@ -15,9 +15,11 @@ from systems.estimators.deck_tracker import (
     attitude_coordinates,
     attitude_rotation,
     deck_estimate,
+    predicted,
     step_deck_track,
 )
 from systems.estimators.estimate import PoseEstimate
+from systems.estimators.track_filter import Track
 
 PERIOD = 0.05
 CONFIG = DeckTrackerConfig()
@@ -42,6 +44,52 @@ def test_attitude_coordinates_round_trip_drake_rotations():
     # A level deck: the heading alone.
     np.testing.assert_allclose(attitude_coordinates(RotationMatrix.MakeZRotation(0.7)), [0.0, 0.0, 0.7], atol=1e-12)
 
+
+
+def test_a_deck_heading_across_plus_minus_180_deg_is_tracked():
+    """Headings 179.9 deg and -179.9 deg in turn are 0.2 deg apart, not 359.8: each frame's yaw is unwrapped
+    next to the track's, so none is gated, every frame counts and the estimate heads 180 deg."""
+    track = DeckTrack()
+    for k in range(40):
+        yaw = math.pi - 0.002 if k % 2 else -math.pi + 0.002
+        track = step_deck_track(track, RigidTransform(RotationMatrix.MakeZRotation(yaw), [0.0, 0.0, 1.0]),
+                                k * PERIOD, CONFIG, PERIOD)
+    estimate, _, _ = deck_estimate(track, 39 * PERIOD, CONFIG)
+    assert track.frames_used == 40 and track.coasted_steps == 0 and estimate.valid
+    heading = estimate.X_WP.rotation().multiply(RotationMatrix.MakeZRotation(-math.pi))  # 180 deg off it
+    assert heading.ToAngleAxis().angle() < math.radians(0.5)
+
+
+def test_the_estimates_covariance_puts_roll_and_pitch_on_the_normals_y_and_x():
+    """[roll, pitch, yaw] variances of a level deck from the attitude track's [n_x, n_y, yaw]: through the
+    Jacobian of attitude_coordinates in Drake's roll-pitch-yaw (roll moves n_y, pitch n_x), with var(n_x),
+    var(n_y) and var(yaw) all different so that no two may swap; and x, y, z the position track's."""
+    P_attitude = np.diag([1e-4, 4e-4, 9e-4, 0.0, 0.0, 0.0])
+    P_position = np.diag([1e-6, 2e-6, 3e-6, 0.0, 0.0, 0.0])
+    track = DeckTrack(1.0, Track(np.zeros(6), P_position), Track(np.zeros(6), P_attitude), frames_used=5)
+    covariance = deck_estimate(track, 1.0, CONFIG)[0].covariance
+    h = 1e-6
+    J = np.column_stack([(attitude_coordinates(RotationMatrix(RollPitchYaw(h * e)))
+                          - attitude_coordinates(RotationMatrix(RollPitchYaw(-h * e)))) / (2 * h) for e in np.eye(3)])
+    J_inverse = np.linalg.inv(J)  # d[roll, pitch, yaw] / d[n_x, n_y, yaw]
+    np.testing.assert_allclose(np.diag(covariance)[:3], np.diag(J_inverse @ P_attitude[:3, :3] @ J_inverse.T),
+                               rtol=1e-6)
+    np.testing.assert_allclose(np.diag(covariance)[3:], [1e-6, 2e-6, 3e-6], rtol=1e-12)
+
+
+def test_predicted_variances_are_those_of_the_constant_velocity_step():
+    """predicted()'s variances are diag(F P F^T) for F = [[I, dt I], [0, I]] (numpy as the truth), the values'
+    and rates' cross-covariance included."""
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(6, 6))
+    P = A @ A.T
+    dt = 0.3
+    F = np.kron([[1.0, dt], [0.0, 1.0]], np.eye(3))
+    x = rng.normal(size=6)
+    values, rates, variances = predicted(Track(x, P), dt)
+    np.testing.assert_allclose(values, (F @ x)[:3], rtol=1e-12)
+    np.testing.assert_allclose(rates, x[3:], rtol=1e-12)
+    np.testing.assert_allclose(variances, np.diag(F @ P @ F.T)[:3], rtol=1e-12)
 
 def track_run(frames, measured=lambda k: True, noise_m=0.002, noise_rad=0.002, seed=0):
     """Steps a tracker over camera frames of the moving deck with noisy poses (where `measured`)."""
