@@ -124,6 +124,29 @@ def test_falls_back_to_the_constant_rate_on_a_short_or_broken_history():
     np.testing.assert_array_equal(prediction, constant_rate_prediction(motions[-1], horizons))
 
 
+
+@pytest.mark.parametrize("beyond, plausible", [(0.9, True), (1.1, False), (-0.9, True), (-1.1, False)])
+def test_a_forecast_is_plausible_within_one_span_of_the_historys_range(beyond, plausible):
+    """A forecast may leave the history's range by up to the range's own span (module docstring), no more: a
+    model without lags (a_i = 0) forecasts its mean plus c, a constant put `beyond` spans above the heave's
+    highest (below its lowest where negative); past one span predict_deck falls back to the constant rate."""
+    t = PERIOD * np.arange(round(CONFIG.history_s / PERIOD))
+    history = np.column_stack([0.05 * np.sin(2 * np.pi * t / 20), 0.05 * np.cos(2 * np.pi * t / 27),
+                               0.69 + 0.06 * np.sin(2 * np.pi * t / 24)])
+    low, high = history[:, 2].min(), history[:, 2].max()
+    target = (high if beyond > 0 else low) + beyond * (high - low)
+    mean = history.mean(axis=0)
+    coefficients = np.zeros((3, CONFIG.order + 1))
+    coefficients[2, 0] = target - mean[2]
+    motion = np.array([*history[-1, :2], 0.0, 0.0, history[-1, 2], 0.0, 1.0, 0.0])
+    horizons = np.linspace(0.0, 4.0, 9)
+    prediction, autoregressive = predict_deck(history, motion, horizons, CONFIG, PERIOD, ArModel(mean, coefficients))
+    assert autoregressive == plausible
+    if plausible:
+        np.testing.assert_allclose(prediction[1:, 2], target, rtol=1e-12)  # from the first frame ahead on
+    else:
+        np.testing.assert_array_equal(prediction, constant_rate_prediction(motion, horizons))
+
 def test_the_window_fed_the_fallback_decides_as_at_constant_rate():
     window = LandingWindowConfig()
     rng = np.random.default_rng(4)
