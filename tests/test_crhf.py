@@ -425,6 +425,35 @@ def test_the_first_frame_weighs_its_corners_by_their_own_residual(crhf):
     assert np.degrees(error) < 3.0
 
 
+
+def test_the_first_frames_corner_noise_is_its_residual_over_its_two_degrees_of_freedom(crhf):
+    """With nothing pooled, a frame's corner noise is its own PnP residual over its 2 degrees of freedom, the
+    variance the state then pools: the first frame's pose is the one the same frame gives once that variance
+    is pooled."""
+    rng = np.random.default_rng(3)
+    X_CT = pose([0.0, 0.0, 2.0], [3.0, 0.0, 0.0])
+    corners = project_points(K, X_CT, tag_corners_T(0.5)) + 0.3 * rng.standard_normal((4, 2))
+    ranges = np.full(4, 2.0)
+    state, first = crhf.step(CrhfState(), corners, ranges, 0.0)
+    assert first.valid and state.corner_variance.weight == 2
+    _, pooled = crhf.step(CrhfState(corner_variance=state.corner_variance), corners, ranges, 0.0)
+    assert first.X_RT.rotation().inverse().multiply(pooled.X_RT.rotation()).ToAngleAxis().angle() < 1e-12
+    np.testing.assert_allclose(first.X_RT.translation(), pooled.X_RT.translation(), atol=1e-12)
+
+
+@pytest.mark.parametrize("next_range, accepted", [(2.0 - 0.05 * 2.5, True), (2.0, False)])
+def test_the_range_gate_is_centred_on_the_tracks_prediction_one_frame_ahead(crhf, next_range, accepted):
+    """A range track at 2 m closing at 2.5 m/s predicts 1.875 m one 0.05 s frame on: ranges there are 0.125 m
+    from its position but on its prediction, and pass the 0.1 m gate; ranges still at 2 m are 0.125 m off the
+    prediction, gated (the track coasts and the frame is flagged)."""
+    rate = -2.5
+    state = CrhfState(ranges=Track(np.r_[np.full(4, 2.0), np.full(4, rate)], np.eye(8) * 1e-6))
+    corners = project_points(K, pose([0.0, 0.0, next_range], [0, 0, 0]), tag_corners_T(0.5))
+    state, estimate = crhf.step(state, corners, np.full(4, next_range), 0.05)
+    assert estimate.valid == accepted and state.ranges.coasted_steps == (0 if accepted else 1)
+    if accepted:
+        assert estimate.X_CT.translation()[2] == pytest.approx(next_range, abs=1e-3)
+
 def test_a_sensor_past_the_decks_edge_is_gated_and_does_not_pull_the_range_track(crhf):
     corners, ranges = level_frame()
     state = CrhfState()
