@@ -69,6 +69,19 @@ def test_table1_ranges_separate_the_pad_colours():
     assert colours_matching((0, 255, 0)) == {"green", "yellow"}  # why PAD_RGB's green is darker
 
 
+
+@pytest.mark.parametrize("colour, channel, low_high", [("red", 2, 0), ("yellow", 0, 0), ("blue", 0, 1)])
+def test_table1_bounds_are_exclusive(colour, channel, low_high):
+    """segment_colour keeps a pixel strictly inside every Table 1 range: a channel on its bound is out, a
+    hundredth inside it in (the other channels mid-range)."""
+    ycbcr = np.array([[[np.mean(bounds) for bounds in YCBCR_RANGES[colour]]]], dtype=np.float32)
+    assert segment_colour(ycbcr, colour)[0, 0] == 1
+    bound = YCBCR_RANGES[colour][channel][low_high]
+    ycbcr[0, 0, channel] = bound
+    assert segment_colour(ycbcr, colour)[0, 0] == 0
+    ycbcr[0, 0, channel] = bound + (0.01 if low_high == 0 else -0.01)
+    assert segment_colour(ycbcr, colour)[0, 0] == 1
+
 def draw_pads(rng, centres, hole=None):
     """A grey 512x512 RGB image with a 30 px disc per pad colour at sub-pixel centres, noise and a
     stray red speck; `hole` (centre, radius) punches a grey hole into the blue pad."""
@@ -215,6 +228,18 @@ def test_from_frames_drops_missing_samples_and_merges_repeated_ranges():
         PadCalibration.from_frames(ranges, pixels)
 
 
+
+@pytest.mark.parametrize("bad_range", [-0.5, 0.0])
+def test_non_positive_ranges_are_dropped(bad_range):
+    """A sensor calibration keeps distinct positive ranges only: a negative or zero range (with a finite pixel)
+    is dropped, and Eq. 18 fits the rest exactly (pixel = 100 / range + 250)."""
+    ranges = np.array([bad_range, 0.5, 1.0, 1.5, 2.0])
+    pixels = np.column_stack([100.0 / ranges[1:] + 250.0] * 2)
+    sensor = SensorCalibration("red", ranges, np.vstack([[450.0, 450.0], pixels]))
+    np.testing.assert_array_equal(sensor.ranges, [0.5, 1.0, 1.5, 2.0])
+    np.testing.assert_array_equal(sensor.pixels, pixels)
+    assert sensor.fit_u.a == pytest.approx(100.0, rel=1e-9) and sensor.fit_u.c == pytest.approx(250.0, rel=1e-9)
+
 def test_save_load_round_trip(tmp_path):
     cal = calibration()
     path = tmp_path / "pads.npz"
@@ -305,3 +330,20 @@ def test_load_errors_name_the_file_and_the_problem(tmp_path):
     np.savez(no_lens, **arrays, flight_camera=np.array([FX, FY, CX, CY, 512.0, 512.0]), flight_p_C_sensors=P_C_SENSORS)
     with pytest.raises(CalibrationError, match=re.escape(f"{no_lens}: {message}")):
         PadCalibration.load(no_lens)
+
+
+@pytest.mark.parametrize("wrong", [{"flight_camera": np.zeros(5)}, {"flight_distortion": np.zeros(4)},
+                                   {"flight_p_C_sensors": np.zeros((3, 3))}], ids=["camera", "distortion", "sensors"])
+def test_a_flight_array_of_the_wrong_shape_is_refused_at_load(tmp_path, wrong):
+    """All three flight arrays present but one of the wrong shape: a CalibrationError naming the file and the
+    shapes, not a flight that fails later."""
+    flight = {"flight_camera": np.array([FX, FY, CX, CY, 512.0, 512.0]), "flight_distortion": np.zeros(5),
+              "flight_p_C_sensors": P_C_SENSORS}
+    path = tmp_path / "wrong_shape.npz"
+    PadCalibration(calibration().sensors).save(path)
+    with np.load(path) as data:
+        arrays = dict(data)
+    np.savez(path, **arrays, **{**flight, **wrong})
+    message = "the flight needs flight_camera (6,), flight_distortion (5,) and flight_p_C_sensors (4, 3)"
+    with pytest.raises(CalibrationError, match=re.escape(f"{path}: {message}")):
+        PadCalibration.load(path)
