@@ -1,10 +1,14 @@
 """ATDA: the tag pose from four corners by OpenCV's SQPnP, in the project's tag frame T (and why not IPPE_SQUARE)."""
 
+import itertools
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 
+import systems.estimators.atda as atda
 from systems.estimators.atda import AtdaEstimator, atda_pose
 from systems.perception.apriltag import TagDetection, project_points, tag_corners_T
 from systems.sensors.camera import CameraConfig
@@ -26,6 +30,7 @@ def test_exact_corners_give_the_exact_pose(X_CT):
 def test_a_level_tag_under_the_camera_has_identity_rotation():
     X = atda_pose(project_points(K, RigidTransform([0, 0, 2.0]), tag_corners_T(TAG)), K, TAG)
     np.testing.assert_allclose(X.rotation().matrix(), np.eye(3), atol=1e-9)
+
 
 
 def test_the_system_flags_a_missing_detection_invalid():
@@ -52,6 +57,21 @@ def test_the_system_times_each_frames_pose():
     assert context.get_abstract_state(0).get_value().weight == 3
     assert system.per_frame_ms(context) > 0
 
+
+
+def test_per_frame_ms_is_in_milliseconds(monkeypatch):
+    """per_frame_ms is the mean of the frames' pose times in ms: with ATDA's clock advancing 2 ms at each
+    reading (start and end of every pose), every frame took 2 ms and the mean is 2.0."""
+    clock = itertools.count(0.0, 0.002)  # s
+    monkeypatch.setattr(atda, "time", SimpleNamespace(perf_counter=lambda: next(clock)))
+    system = AtdaEstimator(K, TAG, 0.05)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    system.get_input_port().FixValue(context, TagDetection(0.0, project_points(K, pose([0, 0, 2.0], [0, 0, 0]),
+                                                                               tag_corners_T(TAG))))
+    simulator.AdvanceTo(0.12)
+    assert context.get_abstract_state(0).get_value().weight == 3
+    assert system.per_frame_ms(context) == pytest.approx(2.0, rel=1e-9)
 
 def test_opencv_ippe_square_fails_head_on_before_5_1_which_is_why_atda_uses_sqpnp():
     # The reason for the solver choice in atda.py. Measured: OpenCV 4.10.0 and 5.0.0 return two wrong poses
