@@ -33,6 +33,18 @@ def test_a_level_tag_under_the_camera_has_identity_rotation():
 
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_corners_with_a_non_finite_entry_give_no_pose(bad):
+    """atda_pose returns None where it cannot give a pose: a corner with a NaN or an infinity gives none (SQPnP
+    would raise cv2.error on it), and the system flags such a detection invalid."""
+    corners = project_points(K, pose([0, 0, 2.0], [0, 0, 0]), tag_corners_T(TAG))
+    corners[1, 0] = bad
+    assert atda_pose(corners, K, TAG) is None
+    system = AtdaEstimator(K, TAG, 0.05)
+    context = system.CreateDefaultContext()
+    system.get_input_port().FixValue(context, TagDetection(0.0, corners))
+    assert not system.get_output_port().Eval(context).valid
+
 def test_the_system_flags_a_missing_detection_invalid():
     system = AtdaEstimator(K, TAG, 0.05)
     context = system.CreateDefaultContext()

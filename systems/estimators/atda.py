@@ -27,10 +27,13 @@ _X_ST = RigidTransform(RotationMatrix.MakeXRotation(np.pi))
 
 
 def atda_pose(corners_px: np.ndarray, K: np.ndarray, tag_size_m: float) -> RigidTransform | None:
-    """X_CT from the tag's four corners (4x2 px, ArUco order), or None if PnP fails."""
+    """X_CT from the tag's four corners (4x2 px, ArUco order), or None if a corner is not finite (SQPnP would
+    raise on it) or PnP fails."""
+    corners = np.asarray(corners_px, dtype=float).reshape(4, 1, 2)
+    if not np.all(np.isfinite(corners)):
+        return None
     object_points_S = _X_ST.multiply(tag_corners_T(tag_size_m).T).T
-    ok, rvec, tvec = cv2.solvePnP(object_points_S, np.asarray(corners_px, dtype=float).reshape(4, 1, 2), K, None,
-                                  flags=cv2.SOLVEPNP_SQPNP)
+    ok, rvec, tvec = cv2.solvePnP(object_points_S, corners, K, None, flags=cv2.SOLVEPNP_SQPNP)
     if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
         return None
     R_CS, _ = cv2.Rodrigues(rvec)
