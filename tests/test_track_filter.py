@@ -151,3 +151,15 @@ def test_innovation_distance_is_the_residual_over_its_covariance():
     z = np.array([1.03, 1.98])
     expected = (0.03**2) / S[0, 0] + (0.02**2) / S[1, 1]
     assert innovation_distance(track, z, params) == pytest.approx(expected)
+
+
+def test_a_new_track_knows_its_position_to_the_measurement_and_its_rate_to_initial_velocity_std():
+    """The first measurement starts the track at it with zero rate, the position's variance the measurement's
+    and the rate's initial_velocity_std^2 (unknown, not a pixel's 1 px/s): so the second measurement, 2 px on,
+    gives nearly the finite-difference rate, 2 px / dt, as the Kalman gain for a nearly unknown rate does."""
+    params = TrackFilterParams(measurement_std=1.0, initial_velocity_std=200.0)
+    track = step_track(Track(), [10.0, 20.0], params)
+    np.testing.assert_array_equal(track.x, [10.0, 20.0, 0.0, 0.0])
+    np.testing.assert_allclose(np.diag(track.P), [1.0, 1.0, 200.0**2, 200.0**2])
+    track = step_track(track, [12.0, 20.0], params)
+    np.testing.assert_allclose(track.x[2:], [2.0 / params.dt_s, 0.0], rtol=0.05, atol=1e-9)
