@@ -22,6 +22,8 @@ from systems.perception.box_tracker import (
     TrackerState,
     _filter_params,
     box_centre_pixel,
+    box_corners,
+    box_pixels,
     centre_form,
     colour_cost_matrix,
     colour_histogram,
@@ -79,6 +81,20 @@ def patch(colours, size=(20, 30)) -> np.ndarray:
     for k, colour in enumerate(colours):
         image[:, k * size[1] // len(colours):(k + 1) * size[1] // len(colours), :3] = colour
     return image
+
+
+def test_box_pixels_are_those_the_box_covers_more_than_half_of():
+    """A box from 10.6 to 15.6 px covers 0.4 of column 10 and 0.6 of column 15: its pixels are columns 11-15 (its
+    corners rounded, as np.rint does away from halves), not 10-14; likewise rows; clipped to the image."""
+    box = np.array([10.6, 20.4, 5.0, 5.0])
+    assert box_pixels(box, 100, 100) == (11, 20, 16, 25)
+    assert box_pixels(box, 100, 100) == tuple(int(c) for c in np.rint(box_corners(box)))
+    assert box_pixels(np.array([-3.7, 96.6, 10.0, 10.0]), 100, 100) == (0, 97, 6, 100)
+    # the histogram reads those pixels: a one-column red stripe at column 10 lies outside the box
+    image = patch([BLUE], size=(40, 30))
+    image[:, 10, :3] = RED
+    assert histogram_similarity(colour_histogram(image, box), colour_histogram(patch([BLUE]), [0, 0, 5, 5])) == \
+        pytest.approx(1.0)
 
 
 def test_histogram_has_75_bins_of_25_per_channel():
@@ -404,6 +420,38 @@ def test_lock_takes_only_a_confident_track():
         assert state.target.score == (0.95 if min_score else 0.6)
 
 
+def test_a_tracks_score_is_its_best_detections():
+    """A track first boxed at 0.95, then at 0.6: its score stays 0.95 (the best of its detections), so with
+    lock_min_score 0.8 the lock takes it once it is confirmed, though its latest boxes are marginal."""
+    box = np.array([250.0, 250.0, 30.0, 30.0])
+    tracker = BoxTracker(BoxTrackerConfig(cue_px=[256.0, 256.0], lock_min_score=0.8))
+    for k, score in enumerate((0.95, 0.6, 0.6, 0.6)):
+        state = tracker.step([Detection(box, score)], None, 0.1 * k)
+    assert [t.score for t in state.tracks] == [0.95]
+    assert state.target is not None and state.target.id == state.tracks[0].id
+
+
+def test_reacquire_skips_a_nearer_tentative_track_for_a_confirmed_one():
+    """The locked target's track dies (max_misses 0) in the frame where a new, tentative track starts right on
+    its last box (a box three times its size, outside its gate): the lock passes at once to the confirmed
+    track 80 px away (within reacquire_radius_px), the nearest confirmed one, not held back by the nearer
+    tentative one."""
+    target, other = np.array([100.0, 100.0, 20.0, 20.0]), np.array([180.0, 100.0, 20.0, 20.0])
+    config = BoxTrackerConfig(cue_px=[110.0, 110.0], cue_radius_px=30.0, max_misses=0)
+    tracker = BoxTracker(config)
+    for k in range(4):
+        state = tracker.step([Detection(target), Detection(other)], None, 0.1 * k)
+    target_id = state.target.id
+    other_id = next(t.id for t in state.tracks if t.id != target_id)
+    assert target_id != other_id and all(t.confirmed for t in state.tracks)
+    state = tracker.step([Detection(np.array([80.0, 80.0, 60.0, 60.0])), Detection(other)], None, 0.4)
+    newcomer = next(t for t in state.tracks if t.id not in (target_id, other_id))
+    assert state.track(target_id) is None and not newcomer.confirmed
+    last = centre_form(target)[:2]
+    assert np.linalg.norm(newcomer.centre - last) < np.linalg.norm(state.track(other_id).centre - last)
+    assert state.lock.track_id == other_id
+
+
 def test_false_alarms_are_never_locked_or_confirmed():
     """One-frame false alarms (truth id -1) start tentative tracks that die unconfirmed."""
     sequence = make_sequence(5)
@@ -427,6 +475,9 @@ def test_identity_switch_counter_on_hand_made_histories():
     assert (s.id_changes, s.object_changes, s.frames_off_target) == (0, 2, 1)
     # an id change onto another object counts once
     assert count_identity_switches([3, 4], [1, 2]).total == 1
+    # re-acquired under another id that is coasting at first: its first matched object is no object change
+    s = count_identity_switches([3, 3, 7, 7], [1, 1, none, 2])
+    assert (s.id_changes, s.object_changes) == (1, 0)
     with pytest.raises(ConfigError, match="one entry per frame"):
         count_identity_switches([1, 2], [1])
 
@@ -450,6 +501,13 @@ def test_low_scores_and_bad_boxes_are_not_used():
     detections = [Detection(np.array([0.0, 0.0, 10.0, 10.0]), 0.2), Detection(np.array([5.0, 5.0, 0.0, 4.0])),
                   Detection(np.array([np.nan, 0.0, 10.0, 10.0]))]
     assert step_tracker(TrackerState(), detections, None, 0.0, config).tracks == ()
+
+
+def test_a_box_of_no_height_or_width_is_not_used():
+    """A box with a zero or negative height (or width) covers no pixel: it starts no track, whatever its score."""
+    for box in ([5.0, 5.0, 4.0, 0.0], [5.0, 5.0, 4.0, -3.0], [5.0, 5.0, 0.0, 4.0], [5.0, 5.0, -3.0, 4.0]):
+        state = step_tracker(TrackerState(), [Detection(np.array(box), 0.9)], None, 0.0, BoxTrackerConfig(min_hits=1))
+        assert state.tracks == (), box
 
 
 def test_bad_configs_name_the_field():
