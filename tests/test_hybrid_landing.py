@@ -203,6 +203,20 @@ def test_oblique_ray_measures_only_above_the_landing_zone(height_m, measures):
         assert std == pytest.approx(HybridPadConfig().position_std_m / math.cos(math.radians(70)), rel=1e-5)
 
 
+def test_carried_altitude_follows_the_navigations_descent():
+    """The stereo altitude valid at 6 m, then invalid while the UAV descends to 4 m: the camera's height is carried
+    on from the last valid one by the navigation's change in height (source 2), so it stays the true height and an
+    off-axis box still lands on its point (the last valid height kept would put it 1.6 times too far out at 4 m)."""
+    p = np.array([1.0, 0.5, Z_PAD])
+    steps = [(0.1 * k, True, k < 5, p) for k in range(15)]
+    states = _run(steps, height_m=lambda t: 6.0 if t < 0.45 else 6.0 - 2.0 * (t - 0.4))
+    for k, state in enumerate(states[5:], start=5):
+        true_h = RigidTransform([0.0, 0.0, 6.0 - 2.0 * (0.1 * k - 0.4)]).multiply(FISHEYE.X_BC).translation()[2]
+        assert state.height_source == 2 and state.height_m == pytest.approx(true_h, abs=1e-9)
+        assert state.estimate.valid and state.measured
+        assert np.allclose(state.estimate.X_RT.translation(), p, atol=1e-6)
+
+
 def test_estimator_without_altitude_is_invalid():
     states = _run([(0.1 * k, True, False, (0.0, 0.0, Z_PAD)) for k in range(5)])
     assert not any(s.estimate.valid for s in states)
@@ -421,6 +435,26 @@ def test_estimator_gates_an_outlier():
     config = HybridPadConfig()
     assert math.sqrt(last.estimate.covariance[3, 3]) == pytest.approx(
         config.position_std_m * used + config.coast_std_growth_m_s * 0.1, rel=1e-9)
+
+
+@pytest.mark.parametrize("off_m, used", [(0.8, True), (1.3, False)])
+def test_the_gate_grows_with_the_time_since_the_last_measurement(off_m, used):
+    """In the final landing, after a 2 s coast the gate is gate_m + gate_growth_m_s * 2 s = 1.1 m: a measurement
+    0.8 m off the coast's prediction (beyond gate_m's 0.5 m alone) is used, one 1.3 m off is not."""
+    v = np.array([0.5, 0.0, 0.0])
+    seen = [(0.1 * k, True, True, np.array([0.0, 0.0, Z_PAD]) + v * 0.1 * k) for k in range(10)]
+    blind = [(0.1 * k, False, True, None) for k in range(10, 29)]
+    again = [(2.9, True, True, np.array([0.0, off_m, Z_PAD]) + v * 2.9)]
+    config = HybridPadConfig()
+    assert config.gate_m < 0.8 < config.gate_m + 2.0 * config.gate_growth_m_s < 1.3
+    states = _run(seen + blind + again, config, height_m=2.0)
+    assert states[-2].estimate.valid and not states[-2].measured
+    predicted = states[-2].estimate.X_RT.translation() + 0.1 * states[-2].velocity
+    assert abs(np.linalg.norm(again[0][3][:2] - predicted[:2]) - off_m) < 0.05
+    last = states[-1]
+    assert last.measured == used and last.gated == (0 if used else 1)
+    if used:
+        assert np.allclose(last.estimate.X_RT.translation(), again[0][3], atol=1e-6)
 
 
 def _state_rows(p_WB, rpy=(0.0, 0.0, 0.0), vehicle=(0.0, 0.0, 0.0)):
