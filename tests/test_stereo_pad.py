@@ -3,6 +3,7 @@ the pose a synthetic view was drawn at, the World transform and the plane check,
 use of every fix it gives."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -53,6 +54,20 @@ def test_one_threshold_window_gives_the_default_searchs_fix(height_m, xy, yaw_de
     assert np.linalg.norm(one - X_LP.translation()) < 0.01 * height_m
 
 
+def test_one_misplaced_marker_does_not_move_the_fix():
+    """Marker 1 surveyed 0.3 m off where the pad has it (its offset in the finder's layout wrong): the five markers
+    found give four centres at the pad's and one 0.3 m off, and the fix, their median, stays within 1 % of the
+    distance of the truth (their mean would be 6 cm off)."""
+    X_LP = X_CP_at(1.5, (0.1, -0.05), 20.0)
+    image = render_pad(X_LP, camera=EYE)
+    offsets = [list(o) for o in LAYOUT.offsets_m]
+    offsets[LAYOUT.index(1)][0] += 0.3
+    misplaced = replace(LAYOUT, offsets_m=offsets)
+    assert len(detect_marker_poses(image, EYE.K, misplaced, threshold_window_px=23)) == 5
+    p_LP = pad_centre_in_eye(image, EYE.K, misplaced, 23)
+    assert np.linalg.norm(p_LP - X_LP.translation()) < 0.01 * 1.5
+
+
 def test_no_markers_no_fix():
     assert pad_centre_in_eye(np.full((EYE.height, EYE.width), 120, np.uint8), EYE.K, LAYOUT) is None
 
@@ -94,6 +109,22 @@ def test_finder_system_searches_only_low_over_the_pad(max_height_m, found):
     finder.GetInputPort("X_WB").FixValue(context, X_WB)
     p_WP = finder.get_output_port().Eval(context)
     assert np.allclose(p_WP, [2.0, 1.0, Z_PAD], atol=0.01) if found else np.all(np.isnan(p_WP))
+
+
+def test_finder_system_searches_by_the_eyes_height_over_the_pad():
+    """max_height_m bounds the left eye's height over the pad, not the body's: with the eye 1.0 m over it and the
+    body 1.05 m (the eye mounted 5 cm below), a limit between the two still searches and finds the pad."""
+    finder, image, X_WB = _finder_view(Z_PAD)
+    eye_m, body_m = X_WB.multiply(STEREO.X_BL).translation()[2] - Z_PAD, X_WB.translation()[2] - Z_PAD
+    assert eye_m < body_m - 0.04
+    finder = StereoPadFinder(STEREO, LAYOUT, Z_PAD, StereoPadConfig(max_height_m=(eye_m + body_m) / 2))
+    context = finder.CreateDefaultContext()
+    frame = ImageRgba8U(EYE.width, EYE.height)
+    frame.mutable_data[..., :3] = image[..., None]
+    frame.mutable_data[..., 3] = 255
+    finder.GetInputPort("left_image").FixValue(context, frame)
+    finder.GetInputPort("X_WB").FixValue(context, X_WB)
+    assert np.allclose(finder.get_output_port().Eval(context), [2.0, 1.0, Z_PAD], atol=0.01)
 
 
 @pytest.mark.parametrize("height_m", [2.0, 2.9])
