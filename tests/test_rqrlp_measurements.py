@@ -6,7 +6,17 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
-from systems.perception.rqrlp.measurements import PatternView, body_pose_covariance
+from systems.perception.rqrlp.measurements import (
+    APPROACH_PIXEL_STD,
+    APPROACH_REL_STD,
+    MIN_PIXEL_STD,
+    TRACK_STEP_PX,
+    NodeMeasurement,
+    PatternView,
+    approach_covariance,
+    body_pose_covariance,
+    touchdown_measurement,
+)
 from systems.perception.rqrlp.nodes import layout_corners
 from systems.perception.rqrlp.pattern import RqrlpLayout
 
@@ -16,7 +26,7 @@ POINTS_P = layout_corners(RqrlpLayout())
 PIXEL_STD = 0.4
 
 
-def _opencv_covariance(perturbed_X_CP, step=1e-6):
+def _opencv_covariance(perturbed_X_CP, step=1e-6, pixel_std=PIXEL_STD):
     """pixel_std^2 (J^T J)^-1 with J the pixels' derivative over a 6-vector, by central differences of
     cv2.projectPoints of the pattern at perturbed_X_CP(delta)."""
     def pixels(delta):
@@ -25,7 +35,7 @@ def _opencv_covariance(perturbed_X_CP, step=1e-6):
         return cv2.projectPoints(POINTS_P, rvec, X_CP.translation(), K, None)[0].ravel()
 
     J = np.stack([(pixels(step * e) - pixels(-step * e)) / (2 * step) for e in np.eye(6)], axis=1)
-    return PIXEL_STD**2 * np.linalg.inv(J.T @ J)
+    return pixel_std**2 * np.linalg.inv(J.T @ J)
 
 
 def _exp(rotation_vector):
@@ -45,3 +55,62 @@ def test_the_pattern_and_body_pose_covariances_are_the_reprojection_jacobians(he
     in_pattern = _opencv_covariance(lambda d: X_BC.inverse().multiply(
         RigidTransform(_exp(d[:3]).multiply(X_PB.rotation()), X_PB.translation() + d[3:]).inverse()))
     np.testing.assert_allclose(body_pose_covariance(view, X_BC), in_pattern, rtol=1e-5, atol=1e-14)
+
+
+def _in_camera(X_CP):
+    """The perturbation [dtheta, dp] in C of the pattern's pose: Exp(dtheta) R_CP, p_CP + dp."""
+    return lambda d: RigidTransform(_exp(d[:3]).multiply(X_CP.rotation()), X_CP.translation() + d[3:])
+
+
+def test_no_fit_is_trusted_beyond_min_pixel_std():
+    """A view claiming 0.05 px (a touchdown chain's anchor can) is taken at MIN_PIXEL_STD (0.3 px): its covariance
+    is OpenCV's reprojection Jacobian's at 0.3 px; above the floor, at its own (0.6 px)."""
+    X_CP = X_BC.inverse().multiply(RigidTransform(RollPitchYaw(0.04, -0.03, 0.8), [0.3, -0.2, 3.0]).inverse())
+    for claimed, used in ((0.05, MIN_PIXEL_STD), (0.6, 0.6)):
+        np.testing.assert_allclose(PatternView(X_CP, POINTS_P, K, claimed).covariance_at(X_CP),
+                                   _opencv_covariance(_in_camera(X_CP), pixel_std=used), rtol=1e-5, atol=1e-14)
+
+
+def test_the_touchdown_chain_adds_its_random_walk_per_chained_frame():
+    """After 100 chained frames the touchdown pose's pixel noise is sqrt(anchor^2 + 100 TRACK_STEP_PX^2), and its
+    covariance OpenCV's reprojection Jacobian's at that noise."""
+    X_CP = X_BC.inverse().multiply(RigidTransform(RollPitchYaw(0.02, 0.01, -0.5), [0.1, 0.2, 1.2]).inverse())
+    measurement = touchdown_measurement(X_CP, POINTS_P, 0.5, 100, 0.0, X_BC, K)
+    expected = np.sqrt(0.5**2 + 100 * TRACK_STEP_PX**2)
+    assert measurement.view.pixel_std == pytest.approx(expected)
+    np.testing.assert_allclose(measurement.view.covariance_at(X_CP),
+                               _opencv_covariance(_in_camera(X_CP), pixel_std=expected), rtol=1e-5, atol=1e-14)
+
+
+def test_a_view_with_a_nan_pixel_noise_is_not_finite():
+    """A pose node's view whose pixel noise is NaN (a fit of NaN residuals) has measured nothing: its covariance is
+    NaN, and the measurement says it is not finite."""
+    X_CP = RigidTransform([0.0, 0.0, 2.0])
+    view = PatternView(X_CP, POINTS_P, K, float("nan"))
+    assert np.isnan(view.covariance_at(X_CP)).any()
+    assert not NodeMeasurement(0.0, "adjustment", None, X_PB=X_CP.inverse(), view=view).finite
+    view = PatternView(X_CP, POINTS_P, K, 0.4)
+    assert NodeMeasurement(0.0, "adjustment", None, X_PB=X_CP.inverse(), view=view).finite
+
+
+def test_the_approach_covariance_is_that_of_z_u_v_sampled():
+    """p_CP = z [u, v, 1] with u, v at APPROACH_PIXEL_STD / focal and z at its relative std
+    sqrt((APPROACH_PIXEL_STD / side)^2 + APPROACH_REL_STD^2), independent: 200 000 samples of them give the
+    covariance approach_covariance reports off the axis, where x and y share z's error (to 2 % of each pair's
+    std product)."""
+    p_CP, side_px, focal_px = np.array([1.5, -0.9, 6.0]), 40.0, 500.0
+    rng = np.random.default_rng(7)
+    n = 200_000
+    u = p_CP[0] / p_CP[2] + APPROACH_PIXEL_STD / focal_px * rng.standard_normal(n)
+    v = p_CP[1] / p_CP[2] + APPROACH_PIXEL_STD / focal_px * rng.standard_normal(n)
+    z = p_CP[2] * (1 + np.hypot(APPROACH_PIXEL_STD / side_px, APPROACH_REL_STD) * rng.standard_normal(n))
+    sampled = np.cov(np.stack([z * u, z * v, z]))
+    covariance = approach_covariance(p_CP, side_px, focal_px)
+    scale = np.sqrt(np.outer(np.diag(sampled), np.diag(sampled)))
+    assert np.all(np.abs(covariance - sampled) <= 0.02 * scale)
+
+
+def test_the_approach_depth_is_never_trusted_beyond_its_relative_std():
+    """However many pixels the outline spans, its depth's std is at least APPROACH_REL_STD of the depth."""
+    covariance = approach_covariance(np.array([0.0, 0.0, 5.0]), 1e6, 640.0)
+    assert np.sqrt(covariance[2, 2]) == pytest.approx(5.0 * APPROACH_REL_STD, rel=1e-6)
