@@ -77,6 +77,17 @@ def test_eq_2_recovers_a_pose_from_its_homography():
     assert position < 1e-12 and angle < 1e-9
 
 
+def test_eq_1_is_opencvs_homography_of_the_projected_pattern():
+    """Eq. (1)'s H = K [r1 r2 t], scaled to H[2, 2] = 1, is the homography cv2.findHomography fits to the
+    pattern's corners and their projections by cv2.projectPoints (which it scales alike; its fit to 1e-4)."""
+    X_CP = X_CP_at(3.0, xy=(0.4, -0.2), tilt_deg=(8.0, -5.0))
+    points = layout_corners(LAYOUT)
+    rvec = cv2.Rodrigues(X_CP.rotation().matrix())[0]
+    pixels = cv2.projectPoints(points, rvec, X_CP.translation(), K, None)[0].reshape(-1, 2)
+    H, _ = cv2.findHomography(points[:, :2], pixels, 0)
+    np.testing.assert_allclose(homography_from_pose(X_CP, K), H, rtol=1e-3, atol=1e-9)
+
+
 @pytest.mark.parametrize("height_m, yaw_deg, tilt_deg", [(1.0, 0.0, (0, 0)), (2.5, 30.0, (6, -4)),
                                                         (4.0, 200.0, (-10, 8)), (3.0, -75.0, (3, 3))])
 def test_adjustment_finds_the_pose_and_agrees_with_opencvs_pnp(height_m, yaw_deg, tilt_deg):
