@@ -97,9 +97,9 @@ def test_disabled_fix_is_not_in_the_diagram(enabled):
     assert diagram.HasSubsystemNamed("stereo_pad") == enabled
 
 
-@pytest.mark.parametrize("max_height_m, found", [(3.0, True), (0.5, False)])
-def test_finder_system_searches_only_low_over_the_pad(max_height_m, found):
-    """The system's output: the fix with the eye 1 m over the pad, NaN when that is above max_height_m."""
+def _finder_output(max_height_m: float) -> np.ndarray:
+    """The finder system's output (p_WP [m], NaN for none) with the left eye 1 m over the pad, searching up to
+    max_height_m over it."""
     finder, image, X_WB = _finder_view(Z_PAD, StereoPadConfig(max_height_m=max_height_m))
     context = finder.CreateDefaultContext()
     frame = ImageRgba8U(EYE.width, EYE.height)
@@ -107,24 +107,23 @@ def test_finder_system_searches_only_low_over_the_pad(max_height_m, found):
     frame.mutable_data[..., 3] = 255
     finder.GetInputPort("left_image").FixValue(context, frame)
     finder.GetInputPort("X_WB").FixValue(context, X_WB)
-    p_WP = finder.get_output_port().Eval(context)
+    return finder.get_output_port().Eval(context)
+
+
+@pytest.mark.parametrize("max_height_m, found", [(3.0, True), (0.5, False)])
+def test_finder_system_searches_only_low_over_the_pad(max_height_m, found):
+    """The system's output: the fix with the eye 1 m over the pad, NaN when that is above max_height_m."""
+    p_WP = _finder_output(max_height_m)
     assert np.allclose(p_WP, [2.0, 1.0, Z_PAD], atol=0.01) if found else np.all(np.isnan(p_WP))
 
 
 def test_finder_system_searches_by_the_eyes_height_over_the_pad():
     """max_height_m bounds the left eye's height over the pad, not the body's: with the eye 1.0 m over it and the
     body 1.05 m (the eye mounted 5 cm below), a limit between the two still searches and finds the pad."""
-    finder, image, X_WB = _finder_view(Z_PAD)
+    _, _, X_WB = _finder_view(Z_PAD)
     eye_m, body_m = X_WB.multiply(STEREO.X_BL).translation()[2] - Z_PAD, X_WB.translation()[2] - Z_PAD
     assert eye_m < body_m - 0.04
-    finder = StereoPadFinder(STEREO, LAYOUT, Z_PAD, StereoPadConfig(max_height_m=(eye_m + body_m) / 2))
-    context = finder.CreateDefaultContext()
-    frame = ImageRgba8U(EYE.width, EYE.height)
-    frame.mutable_data[..., :3] = image[..., None]
-    frame.mutable_data[..., 3] = 255
-    finder.GetInputPort("left_image").FixValue(context, frame)
-    finder.GetInputPort("X_WB").FixValue(context, X_WB)
-    assert np.allclose(finder.get_output_port().Eval(context), [2.0, 1.0, Z_PAD], atol=0.01)
+    assert np.allclose(_finder_output((eye_m + body_m) / 2), [2.0, 1.0, Z_PAD], atol=0.01)
 
 
 @pytest.mark.parametrize("height_m", [2.0, 2.9])
