@@ -78,6 +78,42 @@ def test_the_system_is_seeded_its_errors_the_configured_size_and_its_velocity_er
     assert not np.array_equal(states, _simulate(4, config, 40.0))
 
 
+def _attitude_errors(states: np.ndarray) -> np.ndarray:
+    """[roll, pitch, yaw] (rad) of R_WB_true^-1 R_WB_nav, per logged state."""
+    R_BW = pose_from_state(TRUE).rotation().inverse()
+    return np.array([RollPitchYaw(R_BW.multiply(pose_from_state(s).rotation())).vector() for s in states])
+
+
+def test_the_attitude_error_has_the_configured_tilt_and_yaw_sizes_and_time_constant():
+    """The attitude error (the truth's rotation undone from the navigation's) is a first-order Gauss-Markov
+    process per axis: standard deviation [tilt, tilt, yaw] and autocorrelation e^(-|t| / tau_att), with
+    tau_att its own (the position's is a minute here); 40 s is 800 correlation times."""
+    tau = 0.05
+    config = NavigationConfig(source="gnss_ins", tilt_std_deg=0.5, yaw_std_deg=2.0, attitude_time_constant_s=tau,
+                              position_time_constant_s=60.0)
+    errors = np.degrees(_attitude_errors(_simulate(3, config, 40.0)))
+    np.testing.assert_allclose(errors.std(axis=0), [0.5, 0.5, 2.0], rtol=0.1)
+    lag = 5  # 0.05 s of the 0.01 s log
+    for axis in range(3):
+        correlation = np.corrcoef(errors[:-lag, axis], errors[lag:, axis])[0, 1]
+        assert correlation == pytest.approx(math.exp(-lag * 0.01 / tau), abs=0.08)
+
+
+def test_the_errors_start_from_their_stationary_distribution():
+    """At t = 0, across 150 seeds, the position and attitude errors already have their configured sizes."""
+    config = NavigationConfig(source="gnss_ins", position_std_m=2.0, tilt_std_deg=0.5, yaw_std_deg=2.0)
+    position, attitude = [], []
+    for seed in range(150):
+        navigation = NavigationSystem(config, seed)
+        context = navigation.CreateDefaultContext()
+        navigation.get_input_port().FixValue(context, TRUE)
+        state = navigation.GetOutputPort("state").Eval(context)
+        position.append(state[P_WB] - TRUE[P_WB])
+        attitude.append(_attitude_errors([state])[0])
+    np.testing.assert_allclose(np.std(position, axis=0), [2.0] * 3, rtol=0.2)
+    np.testing.assert_allclose(np.degrees(np.std(attitude, axis=0)), [0.5, 0.5, 2.0], rtol=0.2)
+
+
 def test_the_second_order_model_is_exact():
     phi, g, stationary = second_order_model(5.0, 0.01)
     P = stationary @ stationary.T
