@@ -27,6 +27,7 @@ from systems.sensors.tof import (
     apply_range_limits,
     cone_range,
     flat_target_path_factor,
+    ray_depths,
     sensor_positions_C,
     tof_camera_view,
     view_geometry,
@@ -249,6 +250,36 @@ def test_a_cone_partly_over_an_edge_reads_between_the_two_surfaces_nearer_the_ne
     ranges, _, truth = outputs(tof, context)
     assert np.all((ranges[2:] > 1.1) & (ranges[2:] < 1.5)), ranges
     np.testing.assert_allclose(truth[2:], 2.0, rtol=0, atol=1e-9)
+
+
+def test_ray_depths_on_a_plane_tilted_about_x_are_the_ray_plane_depths():
+    """ray_depths places each ray's point in K's image by both its x and its y (sensor offset and direction):
+    on the plane z_C = h + b y_C (tilted about x), a ray from p_S along [x_S, y_S, 1] meets it at
+    s = (h + b y_S0) / (1 - b y_S), y_S0 the sensor's y, with x_S0 != y_S0 so the two cannot be swapped."""
+    config = TofConfig(cone_deg=27.0)
+    _, f, c = tof_camera_view(config)
+    h, b = 2.0, math.tan(math.radians(15.0))
+    # K's line of sight at (x, y) meets the plane at K-depth (h + back) / (1 - b y), z-depth from C's plane less back.
+    depth_K = camera_image(config, lambda x, y: (h + TOF_CAMERA_BACK_M) / (1 - b * y) - TOF_CAMERA_BACK_M + 0 * x)
+    p_CS = np.array([[0.09, -0.05, 0.0], [-0.1, 0.12, 0.0], [0.02, 0.1, 0.0], [-0.08, -0.11, 0.0]])
+    x_S, y_S = np.array([0.0, 0.1, -0.2, 0.05]), np.array([0.0, -0.1, 0.2, 0.15])
+    s = ray_depths(depth_K.data[..., 0], f, c, p_CS, x_S, y_S)
+    np.testing.assert_allclose(s, (h + b * p_CS[:, 1]) / (1 - b * y_S), rtol=1e-6)
+
+
+def test_ray_depths_across_a_depth_step_read_one_side_or_the_other():
+    """Where a ray's point in K's image falls between pixels either side of an edge (1 m deck, 2 m ground),
+    ray_depths takes the nearest pixel's depth: every reading is 1 m or 2 m, none between (an interpolated
+    inverse depth would be a surface that is not there)."""
+    config = TofConfig(cone_deg=27.0)
+    _, f, c = tof_camera_view(config)
+    edge = 0.045
+    depth_K = camera_image(config, lambda x, y: np.where(x * (TOF_CAMERA_BACK_M + 1.0) < edge, 1.0, 2.0) + 0 * y)
+    x_S = np.linspace(-0.06, 0.0, 61)
+    p_CS = np.repeat(sensor_positions_C(0.135, 45.0)[2:3], len(x_S), axis=0)
+    s = ray_depths(depth_K.data[..., 0], f, c, p_CS, x_S, np.zeros_like(x_S))
+    assert np.all(np.isclose(s, 1.0, rtol=1e-6) | np.isclose(s, 2.0, rtol=1e-6)), s
+    assert np.any(np.isclose(s, 1.0, rtol=1e-6)) and np.any(np.isclose(s, 2.0, rtol=1e-6))  # both sides are read
 
 
 def test_a_cone_that_sees_nothing_is_invalid():
