@@ -148,6 +148,38 @@ def test_the_eyes_are_a_rectified_pair_one_baseline_apart():
                                    [F_PX, F_PX, 376.0, 240.0], rtol=1e-12)  # Drake's centre: OpenCV's + 0.5
 
 
+def test_each_eye_is_the_stereo_config_as_a_camera():
+    """StereoConfig.eye() carries every setting an eye's camera needs: size, intrinsics, rate, pixel noise,
+    clipping and mount (none left at CameraConfig's defaults)."""
+    stereo = StereoConfig(width=640, height=400, focal_length_px=300.0, cx=310.0, cy=190.0, rate_hz=45.0,
+                          pixel_noise_std=1.5, near_m=0.2, far_m=40.0, mount_xyz_m=[0.1, 0.02, -0.03])
+    eye = stereo.eye()
+    assert (eye.width, eye.height, eye.fx, eye.fy, eye.cx, eye.cy) == (640, 400, 300.0, 300.0, 310.0, 190.0)
+    assert (eye.rate_hz, eye.pixel_noise_std, eye.near_m, eye.far_m) == (45.0, 1.5, 0.2, 40.0)
+    assert eye.mount_xyz_m == [0.1, 0.02, -0.03]
+
+
+def test_the_two_eyes_have_the_configured_pixel_noise_each_its_own():
+    """The pair's two NoisyCameras add pixel_noise_std of noise to the same grey image, and the two eyes'
+    noise is independent (uncorrelated across the 752 x 480 x 3 values), as two sensors' is."""
+    from pydrake.geometry import SceneGraph
+    from pydrake.systems.framework import DiagramBuilder
+
+    builder = DiagramBuilder()
+    scene_graph = builder.AddSystem(SceneGraph())
+    pair = add_stereo_pair(builder, scene_graph, scene_graph.world_frame_id(), StereoConfig(pixel_noise_std=2.0), 5)
+    grey = np.full((480, 752), 128, np.uint8)
+    noise = []
+    for camera in (pair.left, pair.right):
+        context = camera.CreateDefaultContext()
+        camera.GetInputPort("rendered_image").FixValue(context, rgba(grey))
+        context.SetTime(1.0 / 60.0)
+        noise.append(camera.get_output_port().Eval(context).data[..., :3].astype(float).ravel() - 128.0)
+    for n in noise:
+        assert n.std() == pytest.approx(math.sqrt(2.0**2 + 1.0 / 12.0), rel=0.03)  # plus rounding to levels
+    assert abs(np.corrcoef(noise[0], noise[1])[0, 1]) < 0.05
+
+
 # ---------------------------------------------------------------------------------------------
 # Depth functions and the altimeter on synthetic pairs
 
@@ -516,6 +548,7 @@ def test_kf_let_go_in_the_near_band_does_not_start_again_on_a_wrong_match():
     (StereoConfig(mount_xyz_m=[0.0, 0.0]), "stereo.mount_xyz_m needs 3 numbers"),
     (StereoConfig(min_altitude_m=0.11), "must be under half the image width"),
     (StereoConfig(max_altitude_m=60.0), "must lie within the clipping range"),
+    (StereoConfig(near_m=1.0, min_altitude_m=0.7), "must lie within the clipping range"),
 ])
 def test_bad_stereo_config_names_the_field(config, message):
     with pytest.raises(ConfigError, match=message):
