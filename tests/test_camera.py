@@ -19,6 +19,7 @@ from systems.sensors.camera import (
     CameraConfig,
     NoisyCamera,
     add_pixel_noise,
+    distortion_folds,
     distortion_maps,
     image_to_numpy,
     make_camera,
@@ -314,6 +315,29 @@ def test_a_blur_kernel_is_a_centred_line_of_the_flow_s_length():
     assert np.sum(kernel * across**2) < 0.2
 
 
+
+@pytest.mark.parametrize("length", range(1, 11))
+def test_a_blur_kernel_of_a_whole_number_of_pixels_along_either_axis_is_centred(length):
+    """Smears of 1 to 10 px along +-x and +-y (even lengths reach the kernel's edge pixels): the kernel holds
+    the whole line, sums to 1 and is centred on its middle pixel."""
+    for flow in ([length, 0.0], [-length, 0.0], [0.0, length], [0.0, -length]):
+        kernel = motion_blur_kernel(np.array(flow)).astype(float)
+        assert kernel.sum() == pytest.approx(1.0)
+        centre = kernel.shape[0] // 2
+        v, u = np.mgrid[:kernel.shape[0], :kernel.shape[1]] - centre
+        np.testing.assert_allclose([np.sum(kernel * u), np.sum(kernel * v)], 0.0, atol=1e-6)
+        along = u if flow[0] else v
+        assert np.abs(along[kernel > 1e-6]).max() == pytest.approx(length / 2, abs=1.0)  # reaches both ends
+
+
+def test_a_smear_of_half_a_pixel_or_more_blurs():
+    """motion_blur_kernel's threshold is half a pixel: under it no kernel, from it on a kernel (a 1 px smear
+    blurs)."""
+    assert motion_blur_kernel(np.array([0.49, 0.0])) is None
+    for flow in ([0.51, 0.0], [0.0, 0.51], [1.0, 0.0], [0.6, 0.8]):
+        kernel = motion_blur_kernel(np.array(flow))
+        assert kernel is not None and kernel.sum() == pytest.approx(1.0)
+
 def test_the_camera_smears_a_point_along_its_turn_over_the_exposure():
     config = CameraConfig(width=96, height=96, cx=48, cy=48, exposure_s=0.01)
     image = ImageRgba8U(96, 96)
@@ -410,6 +434,27 @@ def test_invalid_configuration_names_the_field(changes, field):
         CameraConfig(**changes).validate()
 
 
+
+def test_distortion_folds_is_where_the_radial_map_turns_back_short_of_the_farthest_corner():
+    """distortion_folds measures against the farthest corner (the half-diagonal): a k1 lens, r_d = r (1 + k1 r^2),
+    turns back at r* = 1 / sqrt(-3 k1), r_d(r*) = 2 r* / 3; with r_d(r*) between the nearest and the farthest
+    corner's radius (principal point off-centre) it folds at r_d(r*) / farthest. A k3 lens, r_d = r (1 + k3 r^6),
+    turns back at r* = (-1 / (7 k3))^(1/6), r_d(r*) = 6 r* / 7. Mild lenses: 0."""
+    config = CameraConfig(cx=150.0, cy=140.0)
+    radii = [np.hypot(u / config.fx, v / config.fy) for u in (config.cx, config.width - config.cx)
+             for v in (config.cy, config.height - config.cy)]
+    nearest, farthest = min(radii), max(radii)
+    turn = (nearest + farthest) / 2  # r_d(r*)
+    k1 = -1.0 / (3.0 * (1.5 * turn) ** 2)
+    assert distortion_folds(config, [k1, 0.0, 0.0, 0.0, 0.0]) == pytest.approx(turn / farthest, rel=1e-3)
+    k3 = -1.5
+    r_star = (-1.0 / (7.0 * k3)) ** (1.0 / 6.0)
+    assert 6.0 / 7.0 * r_star < farthest  # never reaches the farthest corner
+    expected = 6.0 / 7.0 * r_star / farthest
+    assert distortion_folds(config, [0.0, 0.0, 0.0, 0.0, k3]) == pytest.approx(expected, rel=1e-3)
+    for D in ([-0.00908, -0.03128, 0.00109, -0.00198, 0.0], [-0.2, 0.0, 0.0, 0.0, 0.0], [0.3, 0.0, 0.0, 0.0, 0.0]):
+        assert distortion_folds(CameraConfig(), D) == 0.0
+
 @pytest.mark.parametrize("changes", [{"cx": 511.45}, {"cx": -0.45, "cy": 511.45}, {"near_m": 1.0, "far_m": 1.0203}])
 def test_drake_builds_the_camera_at_the_limits_the_check_lets_through(changes):
     config = CameraConfig(**changes)
@@ -456,13 +501,16 @@ def _checkerboard(x_n: np.ndarray, y_n: np.ndarray) -> np.ndarray:
     return np.where((np.floor(x_n / 0.05) + np.floor(y_n / 0.05)) % 2 == 0, 230, 25).astype(np.uint8)
 
 
-@pytest.mark.parametrize("D", [[-0.00908, -0.03128, 0.00109, -0.00198, 0.0], [-0.2, 0.0, 0.0, 0.0, 0.0]])
-def test_a_barrel_lens_images_the_scene_out_to_its_rim(D):
+@pytest.mark.parametrize("D, size", [([-0.00908, -0.03128, 0.00109, -0.00198, 0.0], {}),
+                                     ([-0.2, 0.0, 0.0, 0.0, 0.0], {}),
+                                     ([-0.2, 0.0, 0.0, 0.0, 0.0], {"width": 256, "cx": 127.5})])  # taller than wide
+def test_a_barrel_lens_images_the_scene_out_to_its_rim(D, size):
     """The pinhole render is render_margin_px wider on every side (make_camera), so the distorted image's rim,
     which looks beyond a same-size render, is the scene's: each output pixel equals the scene at its ray
     (exact undistortion) but where the bilinear sample straddles a square's edge. Before: the rim replicated
-    the render's edge (stewart-hardware's lens: 1.9 % of the image; k1 -0.2: 16 %, a third of it wrong)."""
-    config = CameraConfig(distortion=D)
+    the render's edge (stewart-hardware's lens: 1.9 % of the image; k1 -0.2: 16 %, a third of it wrong). A camera
+    taller than wide needs its margin for the top and bottom rows."""
+    config = CameraConfig(distortion=D, **size)
     config.validate()
     m = render_margin_px(config)
     info = make_camera(config, SceneGraph().world_frame_id(), RigidTransform()).default_color_render_camera().core(
