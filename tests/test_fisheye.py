@@ -76,6 +76,20 @@ def test_projection_is_opencvs_equidistant_model_and_the_ray_inverts_it():
     assert not in_field_of_view(project_points([[np.sin(1.32), 0.0, np.cos(1.32)]], config), config).any()
 
 
+
+def test_the_field_of_view_circle_is_centred_on_the_principal_point():
+    """in_field_of_view is whether a pixel's ray lies within fov_deg / 2 of the optical axis, also with the
+    principal point off the image centre and cx != cy: rays just inside and just outside the field of view, all
+    round the axis, projected by OpenCV's fisheye model, fall inside and outside the circle."""
+    config = FisheyeConfig(cx=300.0, cy=200.0)
+    half = np.radians(config.fov_deg / 2)
+    phi = np.linspace(-np.pi, np.pi, 72, endpoint=False)
+    for theta, expected in ((half - 0.01, True), (half + 0.01, False)):
+        rays = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                                np.full_like(phi, np.cos(theta))])
+        inside = in_field_of_view(project_points(rays, config), config)
+        assert np.all(inside == expected), np.degrees(phi[inside != expected])
+
 # ---------------------------------------------------------------- the faces and the composition
 
 
