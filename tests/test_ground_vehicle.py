@@ -99,6 +99,7 @@ def test_steering_lag_and_limit():
     ("{path: sine, path_length_m: 0.05}", r"^vehicle.path_length_m must be at least two sample spacings, 0.2 m, "
                                           r"got 0.05$"),
     ("{speed_schedule_times_s: [0, 1], speed_schedule_m_s: [1]}", "must have the same length"),
+    ("{speed_schedule_times_s: [0, 0], speed_schedule_m_s: [1, 2]}", "vehicle.speed_schedule_times_s must increase"),
     # A path sampled every 0.1 m over 1e9 m: MemoryError (75 GiB) before
     ("{path: straight, path_length_m: 1.0e9}", r"^vehicle.path_length_m must be at most 100000 m \(the path is "
                                                r"sampled every 0.1 m\), got 1e\+09$"),
@@ -175,6 +176,28 @@ def test_nearest_keeps_to_its_branch_where_the_figure_eight_crosses():
     assert path.nearest([0.01, 0.0], s_hint=crossing_again - 1.0) == pytest.approx(
         crossing_again, abs=0.02)
 
+
+
+def test_nearest_with_a_hint_searches_across_a_closed_paths_closing_point():
+    """On the circle, a hint just before the end finds a point just past the start, and a hint just past the start
+    a point just before the end: the search window wraps round the closing point (the nearest is the point
+    itself)."""
+    path = make_path(PathConfig(name="circle"))
+    for s_true, s_hint in ((0.3, path.length - 0.2), (path.length - 0.3, 0.2)):
+        p = path.position(s_true)
+        found = path.nearest(p, s_hint=s_hint)
+        np.testing.assert_allclose(path.position(found), p, atol=1e-3)
+        assert (found - s_true + path.length / 2) % path.length - path.length / 2 == pytest.approx(0.0, abs=1e-3)
+
+
+def test_the_rectangle_is_side_m_by_half_of_it_with_rounded_corners():
+    """PathConfig: the rectangle's long straight is side_m, the short one side_m / 2, joined by quarter circles of
+    radius_m: its extent is side_m + 2 radius_m by side_m / 2 + 2 radius_m."""
+    side, radius = 40.0, 10.0
+    path = make_path(PathConfig(name="rectangle", side_m=side, radius_m=radius))
+    np.testing.assert_allclose(path.xy.max(axis=0) - path.xy.min(axis=0), [side + 2 * radius, side / 2 + 2 * radius],
+                               atol=1e-3)
+    assert path.length == pytest.approx(2 * (side + side / 2) + 2 * np.pi * radius, rel=1e-9)
 
 @pytest.mark.parametrize("name", [n for n in PATH_NAMES if n != "sine"])
 def test_follower_tracks_seed_003_figure_9_paths(name):
@@ -270,6 +293,14 @@ def test_the_ground_covers_what_the_vehicle_drives_in_the_run():
         xy = make_path(short.path_config()).polyline(400.0)
         np.testing.assert_array_equal(short.ground_extent()[1], xy.max(axis=0) + 25.0)
 
+
+
+def test_the_ground_reaches_the_furthest_distractor():
+    """With distractors' lead (factor 1.4, ahead 15 m), the ground covers where the furthest one gets: it starts
+    15 m ahead and drives 1.4 times the UGV's 10 m/s, 15 + 1.4 x 10 x 100 = 1415 m along at 100 s (the ahead
+    metres are not scaled by the factor, nor dropped)."""
+    config = GroundVehicleConfig(path="straight", speed=10.0)
+    assert config.ground_length_m(100.0, (1.4, 15.0)) == pytest.approx(15.0 + 1.4 * 10.0 * 100.0, rel=1e-12)
 
 def test_ground_pose():
     X_WV = ground_pose([3.0, -4.0, np.pi / 2, 0.1])
