@@ -51,6 +51,17 @@ def test_output_holds_the_last_sample():
                                atol=1e-12)
 
 
+
+@pytest.mark.parametrize("gravity", [G, 3.71])
+def test_before_its_first_sample_the_output_is_a_level_body_at_rest(gravity):
+    """At t = 0 after Initialize (the t = 0 sample is seen only after t = 0) the output already reads a level body
+    at rest: the specific force +g up (the configured world's g) and no rotation, not zeros."""
+    imu, context = imu_with_inputs(ideal_config(gravity_m_s2=gravity))
+    simulator = Simulator(imu, context)
+    simulator.Initialize()
+    np.testing.assert_allclose(imu.get_output_port().Eval(simulator.get_context()), [0, 0, gravity, 0, 0, 0],
+                               rtol=0, atol=1e-12)
+
 @pytest.mark.parametrize("rpy_deg, expected", [
     ((90.0, 0.0, 0.0), [0.0, G, 0.0]),  # rolled right: the body's y axis (left) points up
     ((-90.0, 0.0, 0.0), [0.0, -G, 0.0]),
@@ -144,6 +155,8 @@ def test_same_seed_same_readings_other_seed_other_readings():
     ({"accel_range_m_s2": 1.0}, "imu.accel_range_m_s2 must exceed imu.gravity_m_s2"),
     ({"accel_range_m_s2": 9.81}, "imu.accel_range_m_s2 must exceed imu.gravity_m_s2"),
     ({"gyro_noise_density_deg_s_rthz": -0.1}, "imu.gyro_noise_density_deg_s_rthz"),
+    # g points down the world's z: a negative g would read -g up at rest (an upside-down world).
+    ({"gravity_m_s2": -9.81}, "imu.gravity_m_s2 must be positive"),
 ])
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
