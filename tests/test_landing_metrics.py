@@ -103,3 +103,55 @@ def test_pad_landing_on_a_hand_built_log():
     assert not out["meets_targets"]  # on the pad, 5 cm off, but at 0.6 m/s (the target: under 0.5)
     # One wait, from 0.7 to 2.0 s (the samples at 0.7 and 1.2 s, each until the next).
     assert out["waits"] == 1 and out["wait_s"] == pytest.approx(1.3)
+
+
+def test_gv_landing_scores_the_contact_sample_in_the_pad_frame():
+    """landing_metrics of a gv flight at the contact sample k (the third; the vehicle turning, so its heading
+    changes per sample): the UAV's offset in the pad frame (Drake's R_WP^T applied to UAV minus pad), the
+    vehicle's speed at k (not the log's last) and its bicycle turn radius wheelbase / tan(steering)."""
+    from pydrake.math import RollPitchYaw, RotationMatrix
+
+    from diagrams.landing_metrics import landing_metrics
+    from diagrams.runner import load_scenario
+    config = load_scenario("gv-landing")[1]
+    n, k, steering = 5, 2, 0.2
+    heading = np.array([0.3, 0.8, 1.3, 1.8, 2.3])
+    relative = np.zeros((n, RELATIVE_STATE_SIZE))
+    relative[:, HEIGHT] = 2.0
+    relative[k:, HEIGHT] = config.landing.touchdown_height_m - 0.05  # the gear on the pad from sample k
+    relative[:, P_BP_W.start:P_BP_W.start + 2] = [-0.3, 0.1]  # pad minus UAV in W
+    vehicle = np.zeros((n, 4))
+    vehicle[:, 2], vehicle[:, 3] = heading, steering
+    log = {"t": 0.02 * np.arange(n), "mode": np.full(n, int(Mode.LAND)), "true_relative_state": relative,
+           "quadrotor_state": np.zeros((n, STATE_SIZE)), "vehicle_state": vehicle,
+           "vehicle_speed": np.array([5.0, 6.0, 7.0, 8.0, 9.0])}
+    out = landing_metrics(log, COMPLETED, config)
+    assert out["touchdown_by"] == "contact" and out["time_to_land_s"] == pytest.approx(log["t"][k])
+    R_WP = RotationMatrix(RollPitchYaw(0.0, 0.0, heading[k]))
+    np.testing.assert_allclose(out["touchdown_offset_pad_xy_m"], R_WP.inverse().multiply([0.3, -0.1, 0.0])[:2],
+                               atol=1e-12)
+    assert out["vehicle_speed_at_touchdown_m_s"] == 7.0
+    assert out["vehicle_turn_radius_at_touchdown_m"] == pytest.approx(config.vehicle.wheelbase_m / np.tan(steering))
+
+
+def test_impact_of_a_uav_at_the_pad_is_its_descent_speed_and_zero_when_rising():
+    """At or under the touchdown height the motors stop on the pad: the impact speed is the downward speed,
+    and none for a UAV moving up at that moment (it lifts off the pad, it does not hit it)."""
+    from diagrams.landing_metrics import impact
+    assert impact(0.0, -0.4, 9.81) == (0.0, pytest.approx(0.4))
+    assert impact(-0.01, 0.3, 9.81) == (0.0, 0.0)
+
+
+def test_tracking_metrics_leave_out_an_approach_after_the_final_descent_and_keep_the_window_edge():
+    """Only what comes before the first LAND counts: an APPROACH after a retried LAND is left out of the
+    approach figures; the 2 s window before LAND includes a sample exactly 2 s before it."""
+    F, A, L = Mode.FOLLOW, Mode.APPROACH, Mode.LAND
+    t = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    mode = np.array([F, A, A, A, L, A, L], dtype=int)
+    error = np.array([[0.5, 0.5], [0.04, -0.01], [0.03, -0.06], [0.01, 0.02], [0.0, 0.0], [0.9, -0.9], [0.0, 0.0]])
+    relative = np.zeros((len(t), RELATIVE_STATE_SIZE))
+    relative[:, P_BP_W.start:P_BP_W.start + 2] = error
+    out = tracking_metrics({"t": t, "mode": mode, "true_relative_state": relative})
+    np.testing.assert_allclose(out["approach_max_abs_xy_m"], [0.04, 0.06])
+    np.testing.assert_allclose(out["approach_rmse_xy_m"], np.sqrt(np.mean(error[1:4] ** 2, axis=0)))
+    np.testing.assert_allclose(out["before_final_descent_max_abs_xy_m"], [0.03, 0.06])  # t = 2.0 = 4.0 - 2.0 in
