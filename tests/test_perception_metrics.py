@@ -92,3 +92,33 @@ def test_the_longest_span_follows_uneven_sample_times():
     t = np.array([0.0, 0.1, 0.3, 0.35, 1.0])
     assert longest_span_s(t, np.array([False, True, True, False, False])) == pytest.approx(0.25)
     assert longest_span_s(t, np.array([True, False, False, True, True])) == pytest.approx(0.65)
+
+
+def test_the_heading_error_wraps_across_180_deg():
+    """An estimate at 179 deg of a vehicle at -179 deg is 2 deg off, not 358."""
+    log = _log(np.radians(179.0))
+    log["vehicle_state"][:, 2] = np.radians(-179.0)
+    assert perception_metrics(log, "ct_ekf")["rms_heading_deg"] == pytest.approx(2.0)
+
+
+def test_the_position_error_is_the_rms_of_the_3d_error_over_the_valid_samples():
+    """A seam off by (0.02, 0.04, 0.04) m (0.06 m) where valid; its first 5 samples invalid and far off, left
+    out; the first valid time is the sixth sample's."""
+    log = _log(np.radians(90.0))
+    log["relative_state"][:, P_BP_W] += [0.02, 0.04, 0.04]
+    log["relative_state"][:5, VALID] = 0.0
+    log["relative_state"][:5, P_BP_W] += 10.0
+    out = perception_metrics(log, "ct_ekf")
+    assert out["rms_position_m"] == pytest.approx(0.06)
+    assert out["first_valid_s"] == pytest.approx(log["t"][5])
+
+
+def test_the_coast_before_touchdown_is_from_the_last_fusion_before_it():
+    """Fusions until 0.3 s, touchdown at 0.5 s: 0.2 s of coasting; a fusion after touchdown does not count."""
+    from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, ESTIMATE_VECTOR_SIZE
+    t = np.arange(N) * 0.02
+    estimate = np.zeros((N, ESTIMATE_VECTOR_SIZE))
+    estimate[:, EST_LAST_MEASUREMENT] = np.minimum(t, 0.3)
+    estimate[t > 0.6, EST_LAST_MEASUREMENT] = 0.8
+    out = perception_metrics(_log(np.radians(90.0)), "ct_ekf", touchdown_s=0.5, filter_t=t, filter_estimate=estimate)
+    assert out["coast_before_touchdown_s"] == pytest.approx(0.2)
