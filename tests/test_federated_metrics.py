@@ -7,6 +7,7 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
+import pytest
 from pydrake.math import RigidTransform
 
 from diagrams.federated_metrics import FederatedLog, federated_metrics, filter_metrics, overlap_metrics
@@ -146,3 +147,51 @@ def test_with_a_touchdown_every_valid_fraction_is_over_the_frames_up_to_it():
     for name in ("local_approach", "local_adjustment", "local_touchdown"):
         np.testing.assert_allclose(out[name]["valid_fraction"], 4 / 6)
     assert out["federated"]["valid_fraction"] == 0.5
+
+
+def test_the_truth_is_drakes_X_PB_and_p_CP():
+    """true_X_PB of a tilted UAV over a yawed pad is X_WP^-1 X_WB (Drake, the platform's own X_WP), and
+    true_p_CP the pad centre in a rotated, offset camera: X_CB X_BP's translation."""
+    from pydrake.math import RollPitchYaw
+
+    from diagrams.federated_metrics import true_p_CP, true_X_PB
+    from systems.vehicles.ground_vehicle_geometry import PlatformConfig
+    from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
+    platform = PlatformConfig()
+    X_WB = RigidTransform(RollPitchYaw(0.1, -0.2, 0.7), [1.0, 2.0, 4.0])
+    vehicle = np.array([[0.5, -1.0, 0.6, 0.0]])
+    quadrotor = np.zeros((1, STATE_SIZE))
+    quadrotor[0, P_WB], quadrotor[0, Q_WB] = X_WB.translation(), X_WB.rotation().ToQuaternion().wxyz()
+    X_PB = platform.X_WP(vehicle[0]).inverse().multiply(X_WB)
+    got = true_X_PB(quadrotor, vehicle, platform)[0]
+    np.testing.assert_allclose(got[:3], X_PB.translation(), atol=1e-12)
+    assert abs(np.dot(got[3:], X_PB.rotation().ToQuaternion().wxyz())) == pytest.approx(1.0, abs=1e-12)
+    X_BC = RigidTransform(RollPitchYaw(np.pi, 0.0, np.pi / 2), [0.05, 0.0, -0.1])
+    log = FederatedLog(np.zeros(1), np.zeros((1, FEDERATED_VECTOR_SIZE)), {}, got[None, :])
+    np.testing.assert_allclose(true_p_CP(log, X_BC)[0], X_BC.inverse().multiply(X_PB.inverse()).translation(),
+                               atol=1e-12)
+
+
+def test_the_local_filters_and_the_fused_estimate_are_scored_in_3d_and_as_rms():
+    """Truth yawed 0.3 rad; each local filter's rotation vector exactly it (no attitude error) and its position
+    off by (0.03, 0.04, 0.12) m (RMSE 0.13 m in 3-D); the fused estimate exact in position, its attitude off
+    about z by 0.1 rad on one frame and 0.3 rad on the other: an orientation RMSE of sqrt((0.1^2 + 0.3^2) / 2)."""
+    from scipy.spatial.transform import Rotation
+    n, yaw = 2, 0.3
+    q = Rotation.from_rotvec([0.0, 0.0, yaw]).as_quat()  # x y z w
+    X_PB = np.tile([1.0, 2.0, 3.0, q[3], *q[:3]], (n, 1))
+    federated = np.zeros((n, FEDERATED_VECTOR_SIZE))
+    federated[:, FED_STARTED] = federated[:, FED_VALID] = 1.0
+    federated[:, FED_LOCAL_P] = np.tile([1.03, 2.04, 3.12], 3)
+    federated[:, FED_LOCAL_THETA] = np.tile([0.0, 0.0, yaw], 3)
+    federated[:, FED_P_PB] = [1.0, 2.0, 3.0]
+    for i, extra in enumerate((0.1, -0.3)):
+        xyzw = Rotation.from_rotvec([0.0, 0.0, yaw + extra]).as_quat()
+        federated[i, FED_Q_PB] = [xyzw[3], *xyzw[:3]]
+    out = filter_metrics(FederatedLog(np.arange(n) * 0.02, federated, {}, X_PB), np.ones(n, bool))
+    for name in ("local_approach", "local_adjustment", "local_touchdown"):
+        assert out[name]["rmse_position_m"] == pytest.approx(0.13)
+        assert out[name]["rmse_orientation_rad"] == pytest.approx(0.0, abs=1e-9)
+        np.testing.assert_allclose(out[name]["mae_xyz_m"], [0.03, 0.04, 0.12], atol=1e-12)
+    assert out["federated"]["rmse_position_m"] == pytest.approx(0.0, abs=1e-12)
+    assert out["federated"]["rmse_orientation_rad"] == pytest.approx(np.sqrt((0.1**2 + 0.3**2) / 2))
