@@ -132,6 +132,28 @@ def test_the_truths_marker_poses_in_the_camera_are_drakes():
         assert abs(abs(np.dot(q_CP[k], X_CP.rotation().ToQuaternion().wxyz())) - 1) < 1e-12
 
 
+def test_a_filters_heading_error_wraps_and_its_largest_position_error_is_3d():
+    """ct_ekf's estimate at 179 deg of a pad headed -179 deg is 2 deg off (not 358); its position off by
+    (0.03, 0.04, 0.12) m on one step and (0.01, 0, 0) on the other: the largest error is 0.13 m, in 3-D."""
+    from systems.estimators.marker_ekf.engine import EST_P_WP, EST_Q_WP, EST_VALID, EST_YAW
+    s = scenario()
+    vehicle = np.array([[0.0, 0.5, np.radians(-179.0), 0.0]] * 2)
+    quad = np.array([quadrotor_state(p_WB=[0.0, 0.5, 5.0])] * 2)
+    run = SampledRun(np.array([0.0, 0.035]), quad, vehicle, np.full((2, 5, 7), np.nan), {}, {}, {}, {})
+    truth = pad_truth(quad, vehicle, s.platform)
+    estimate = np.zeros((2, ESTIMATE_VECTOR_SIZE))
+    estimate[:, EST_VALID], estimate[:, EST_YAW] = 1.0, np.radians(179.0)
+    estimate[:, EST_P_WP] = truth.p_WP + [[0.03, 0.04, 0.12], [0.01, 0.0, 0.0]]
+    estimate[:, EST_Q_WP] = RollPitchYaw(0.0, 0.0, np.radians(179.0)).ToQuaternion().wxyz()
+    n = len(s.platform.markers.p_PM)
+    run.estimates, run.p_WM = {"ct_ekf": estimate}, {"ct_ekf": np.zeros((2, n, 3))}
+    run.stats, run.compute_s = {"ct_ekf": {}}, {"ct_ekf": 0.0}
+    _, metrics, errors = marker_metrics(run, s.platform, s.estimation.X_BC, 0.0)
+    np.testing.assert_allclose(np.degrees(errors["ct_ekf"].heading), -2.0)
+    assert metrics["ct_ekf"]["rms_heading_deg"] == pytest.approx(2.0)
+    assert metrics["ct_ekf"]["max_position_m"] == pytest.approx(0.13)
+
+
 def test_synthetic_measurements_have_the_papers_accuracy():
     s = scenario(6, 0, "duration_s=20")  # 572 samples of 5 markers: the RMS to about 2 %
     run = batch_run(s, s.run_length_s)
