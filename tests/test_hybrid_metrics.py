@@ -1,5 +1,6 @@
 """The UGV detector's scores (diagrams/hybrid_metrics.detection_scores) on constructed boxes, logged as the loop
-logs them (DetectionsToTracker's detection_vector); the tracker's identity switches from the lock's log."""
+logs them (DetectionsToTracker's detection_vector); the tracker's identity switches from the lock's log; the
+true stereo window depth, and hybrid_metrics' position and altitude errors on a constructed log."""
 
 import numpy as np
 import pytest
@@ -55,3 +56,63 @@ def test_identity_switches_count_changes_of_the_locked_id_across_frames_without_
     lock = np.column_stack([ids, np.zeros(len(ids))]).astype(float)
     assert identity_switches(lock) == {"identity_switches": 2, "frames_locked": 6, "tracks_locked": 2}
     assert identity_switches(lock[:3]) == {"identity_switches": 0, "frames_locked": 2, "tracks_locked": 1}
+
+
+def _hover(p_WB, rpy, ugv_yaw, n=1):
+    """n frames of the UAV at p_WB with attitude rpy over the UGV at the origin headed ugv_yaw."""
+    from pydrake.math import RollPitchYaw
+
+    from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
+    quadrotor = np.zeros((n, STATE_SIZE))
+    quadrotor[:, P_WB], quadrotor[:, Q_WB] = p_WB, RollPitchYaw(*rpy).ToQuaternion().wxyz()
+    return quadrotor, np.tile([0.0, 0.0, ugv_yaw, 0.0], (n, 1))
+
+
+def _ugv_hybrid():
+    from diagrams.runner import load_scenario
+    from diagrams.ugv_detection_scenes import ugv_bounds_V
+    config = load_scenario("ugv-hybrid")[1]
+    return config, ugv_bounds_V(config.platform, config.vehicle.wheelbase_m)[1][2]
+
+
+def test_the_true_window_depth_follows_the_ugvs_heading_and_ignores_a_box_behind_the_eye():
+    """The left eye (X_BL) looking straight down on the UGV's box top: the eye's height minus the box's, the
+    same over the box's centre line with the UGV headed 0 or 90 deg (its frame turned); NaN looking up, the box
+    then behind the eye and no ground ahead."""
+    from diagrams.hybrid_metrics import true_window_depth
+    config, top = _ugv_hybrid()
+    eye_height = 3.0 + config.hybrid.stereo.X_BL.translation()[2]
+    straight = true_window_depth(*_hover([0.45, 0.0, 3.0], (0, 0, 0), 0.0), config)[0]
+    turned = true_window_depth(*_hover([0.0, 0.45, 3.0], (0, 0, 0), np.pi / 2), config)[0]
+    assert straight == pytest.approx(eye_height - top) and turned == pytest.approx(eye_height - top)
+    assert np.isnan(true_window_depth(*_hover([0.45, 0.0, 3.0], (np.pi, 0, 0), 0.0), config)[0])
+
+
+def test_hybrid_metrics_on_a_constructed_log():
+    """The estimate off in z alone (0.2 m): no horizontal error; an invalid frame's far-off estimate left out;
+    the stereo altitude's bias is its reading minus the true depth (raw 0.1 m over, filtered 0.05 m under)."""
+    from diagrams.hybrid_metrics import hybrid_metrics
+    from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
+    from systems.perception.seam import P_BP_W, RELATIVE_STATE_SIZE
+    from systems.vehicles.quadrotor import P_WB
+    config, top = _ugv_hybrid()
+    n = 4
+    quadrotor, vehicle = _hover([0.45, 0.0, 3.0], (0, 0, 0), 0.0, n)
+    truth = np.zeros((n, RELATIVE_STATE_SIZE))
+    truth[:, P_BP_W] = [0.1, -0.2, -2.5]
+    hybrid = np.zeros((n, HYBRID_VECTOR_SIZE))
+    hybrid[:, 0] = hybrid[:, 4] = 1.0
+    hybrid[:, 1:4] = quadrotor[:, P_WB] + truth[:, P_BP_W] + [0.0, 0.0, 0.2]
+    hybrid[-1, 0], hybrid[-1, 1:4] = 0.0, 50.0  # invalid: not scored
+    depth = 3.0 + config.hybrid.stereo.X_BL.translation()[2] - top
+    ones, column = np.ones((n, 1)), np.ones((n, 1)) * depth
+    log = {"t": np.arange(n) * 0.1, "hybrid": hybrid, "true_relative_state": truth, "quadrotor_state": quadrotor,
+           "vehicle_state": vehicle, "v_valid": ones, "v_WP": np.zeros((n, 3)), "detections": np.zeros((n, 6)),
+           "lock": np.tile([-1.0, 0.0], (n, 1)), "stereo_altitude": column + 0.1, "stereo_valid": ones,
+           "altitude": column - 0.05, "altitude_valid": ones}
+    out = hybrid_metrics(log, config, None)
+    position = out["hybrid"]["position_m"]
+    assert position["samples"] == 3 and position["rmse_horizontal"] == pytest.approx(0.0, abs=1e-12)
+    np.testing.assert_allclose(position["rmse_xyz"], [0.0, 0.0, 0.2], atol=1e-12)
+    assert out["hybrid_stereo_altitude"]["raw"]["bias_m"] == pytest.approx(0.1)
+    assert out["hybrid_stereo_altitude"]["filtered"]["bias_m"] == pytest.approx(-0.05)
