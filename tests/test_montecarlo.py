@@ -81,6 +81,11 @@ def recording_interrupting_run(started: list, task: RunTask):
     return toy_run(task)
 
 
+def unkeepable_run(task: RunTask) -> dict:
+    """Run 1 returns metrics that JSON cannot hold (a set); the others a number."""
+    return {"x": {1, 2} if task.index == 1 else float(task.index)}
+
+
 def wait_for_files(paths: list[Path], limit_s: float = 120.0) -> None:
     """Returns once every path exists. Raises after `limit_s` without them, so that a run that would
     wait forever fails instead of hanging the test session."""
@@ -593,3 +598,56 @@ def test_runs_that_took_a_pool_down_run_alone_each_and_one_that_dies_alone_is_bl
     assert pool.pools == [[0, 1, 2, 3], [1], [2, 3], [4, 5]]
     assert sorted((task.index, outcome.status) for task, outcome in kept) == [
         (0, "done"), (1, "failed"), (2, "done"), (3, "failed"), (4, "done"), (5, "done")]
+
+
+# ---- records ------------------------------------------------------------------------------------
+
+def test_a_record_of_another_seed_or_unfinished_is_redone_on_resume(tmp_path):
+    """A run's record that holds another seed than the campaign's for it, or a status other than done or
+    failed, is not the campaign's: read_records leaves it out and a resumed campaign runs it again."""
+    s = settings(cases=["3"], runs=3)
+    run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    for index, change in ((1, {"seed": run_seed(0, "3", 1) + 1}), (2, {"status": "running"})):
+        path = tmp_path / "runs" / "3" / f"{index:05d}.json"
+        path.write_text(json.dumps({**json.loads(path.read_text()), **change}))
+    assert sorted(read_records(tmp_path, s)) == [("3", 0)]
+    summary = run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    assert summary["runs"]["computed_now"] == 2 and summary["runs"]["done"] == 3
+    records = read_records(tmp_path, s)
+    assert [records[("3", i)].seed for i in range(3)] == [run_seed(0, "3", i) for i in range(3)]
+
+
+def test_a_run_returning_a_dict_has_no_arrays(tmp_path):
+    run_campaign(toy(run=nan_run), settings(cases=["3"], runs=2), tmp_path, workers=0, progress=False)
+    for record in read_records(tmp_path, settings(cases=["3"], runs=2)).values():
+        assert not record.has_arrays and record.arrays() == {}
+    assert not list(tmp_path.rglob("*.npz"))
+
+
+def test_a_run_whose_metrics_json_cannot_hold_is_recorded_failed_and_the_campaign_goes_on(tmp_path):
+    s = settings(cases=["3"], runs=3)
+    summary = run_campaign(toy(run=unkeepable_run), s, tmp_path, workers=0, progress=False)
+    assert summary["runs"]["done"] == 2 and summary["runs"]["failed"] == 1
+    record = read_records(tmp_path, s)[("3", 1)]
+    assert record.status == "failed" and record.error["type"] == "TypeError" and record.metrics == {}
+
+
+def test_a_groups_time_is_shared_by_its_runs(monkeypatch):
+    """A group of 3 runs taking 3 s (a clock that moves only while the group runs): 1 s for each run."""
+    from diagrams.montecarlo import records
+
+    class Clock:
+        now = 100.0
+
+        @staticmethod
+        def perf_counter():
+            return Clock.now
+
+    def group(tasks):
+        Clock.now += 3.0
+        return [{"index": task.index} for task in tasks]
+
+    monkeypatch.setattr(records, "time", Clock)
+    outcomes = records._execute_group(toy_run, group, tuple(settings(cases=["3"], runs=3).tasks()))
+    assert [o.status for o in outcomes] == ["done"] * 3
+    assert [o.wall_time_s for o in outcomes] == [1.0, 1.0, 1.0]
