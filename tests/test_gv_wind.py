@@ -8,9 +8,9 @@ from pydrake.geometry import Meshcat, MeshcatParams
 from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly, fly_diagram
 from diagrams.runner import load_scenario
-from diagrams.wind_report import plot_wind
+from diagrams.wind_report import plot_wind, wind_metrics
 from systems.config import ConfigError
-from systems.environment.wind import GustConfig
+from systems.environment.wind import GustConfig, WindConfig
 from systems.vehicles.quadrotor import Q_WB, V_WB, rotation_from_quaternion
 from systems.viewers import arrow_polyline
 
@@ -73,3 +73,12 @@ def test_an_arrow_runs_along_its_vector_with_its_head_at_the_tip():
         offset = barb - (tail + vector)
         assert np.linalg.norm(offset) == pytest.approx(0.4)
         assert np.degrees(np.arccos(-offset @ vector / (np.linalg.norm(offset) * 2.0))) == pytest.approx(25.0)
+
+
+def test_the_wind_report_gives_the_standard_deviation_and_the_largest_speed():
+    """The air at the UAV (3, 4, 0) then (-3, -4, 0) m/s: a standard deviation (not variance) of (3, 4, 0) m/s
+    per axis and a largest speed of 5 m/s (the vector's norm, not its largest component)."""
+    out = wind_metrics({"wind": np.array([[3.0, 4.0, 0.0], [-3.0, -4.0, 0.0]])}, WindConfig())["at_uav"]
+    np.testing.assert_allclose(out["mean_W_m_s"], 0.0)
+    np.testing.assert_allclose(out["std_W_m_s"], [3.0, 4.0, 0.0])
+    assert out["max_speed_m_s"] == pytest.approx(5.0)
