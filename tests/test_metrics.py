@@ -104,3 +104,21 @@ def test_the_shared_pose_helpers_agree_with_drake():
     level = level_poses(p, drake_yaw)
     expected = [pose_vector(RigidTransform(RollPitchYaw(0.0, 0.0, yaw), xyz)) for yaw, xyz in zip(drake_yaw, p)]
     np.testing.assert_allclose(level, expected, atol=1e-12)
+
+
+def test_pose_errors_are_the_estimate_minus_the_truth():
+    """An estimate 0.01 m ahead in x, 0.02 m below in z and yawed 2 deg more than the truth: errors
+    (+0.01, 0, -0.02) m and +2 deg in yaw (signed, not the truth minus the estimate)."""
+    truth = np.array([pose_vector(X) for X in poses(3)])
+    offset = np.array([0.01, 0.0, -0.02])
+    estimate = np.array([estimate_vector(PoseEstimate(0.0, RigidTransform(X.rotation(), X.translation() + offset),
+                                                      True)) for X in poses(3, yaw_offset_deg=2.0)])
+    _, xyz, rpy, _ = pose_errors(truth, estimate)
+    np.testing.assert_allclose(xyz, np.tile([0.01, 0.0, -0.02], (3, 1)), atol=1e-12)
+    np.testing.assert_allclose(rpy, np.tile([0.0, 0.0, 2.0], (3, 1)), atol=1e-9)
+
+
+def test_a_run_without_estimates_has_no_valid_fraction():
+    """No frame at all: a valid fraction of 0 (none was valid), nothing scored."""
+    m = estimator_metrics(np.zeros((0, 7)), np.zeros((0, 8)))
+    assert m["valid_fraction"] == 0.0 and m["frames_scored"] == 0 and "mae_xyz_m" not in m
