@@ -111,6 +111,15 @@ def test_tof_readings_are_valid_and_scatter_about_the_truth(dynamic_run):
     assert np.all(np.abs(log["true_ranges"] - 2.0) < 0.3)
 
 
+def test_a_tof_error_is_the_reading_less_the_truth_and_nan_where_invalid():
+    """Readings 5 cm long, 3 cm short, flagged invalid (far off) and exact: errors +0.05, -0.03, NaN and 0 m
+    (signed: measured less true)."""
+    from diagrams.stewart_run import range_errors
+    log = {"ranges": np.array([[2.05, 1.97, 9.0, 2.0]]), "true_ranges": np.full((1, 4), 2.0),
+           "ranges_valid": np.array([[1.0, 1.0, 0.0, 1.0]])}
+    np.testing.assert_allclose(range_errors(log), [[0.05, -0.03, np.nan, 0.0]], atol=1e-12)
+
+
 def test_the_tof_plot_shows_each_sensors_error_beside_its_range(dynamic_run, tmp_path, monkeypatch):
     from diagrams import stewart_run
 
