@@ -10,9 +10,9 @@ of position and heading per speed per filter and the runs each is over, checks t
   - ct_ekf: position error at 12 m/s <= 1.5 x its error at 3 m/s, and below paper_ekf at every speed;
   - speed: the campaign under 300 s (the issue's target for 300 runs on 2 cores);
 and reports wall time and runs per second (both of the whole `run_campaign` call, its summary and plots
-included: what a user waits for, stricter than the summary's own `wall_time_s`, which stops at the last run), then the scaling from 1 to 2 workers on a smaller
-campaign (`--scaling-runs` per speed, fresh directories). Prints PASS/FAIL per target; never a
-timed assertion in a test. Last, with `--detector-runs` > 0, the same filters on the real pipeline
+included: what a user waits for, stricter than the summary's own `wall_time_s`, which stops at the last
+run), then the scaling from 1 to 2 workers on a smaller campaign (`--scaling-runs` per speed, fresh
+directories). Prints PASS/FAIL per target; never a timed assertion in a test. Last, with `--detector-runs` > 0, the same filters on the real pipeline
 (estimation.source=detector: the rendered camera, ArUco, solvePnP; every run flies and renders,
 about 0.9 s per simulated second), reported beside the synthetic figures without a target: the
 issue sets none for it.

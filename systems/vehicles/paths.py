@@ -34,8 +34,9 @@ class PathConfig:
         for name in ("radius_m", "lead_m", "side_m"):
             require_positive(getattr(self, name), f"{prefix}_{name}")
         for name in ("length_m", "radius_m", "lead_m", "side_m"):
-            require(getattr(self, name) <= MAX_SIZE_M, f"{prefix}_{name} must be at most {MAX_SIZE_M:g} m (the path "
-                                                       f"is sampled every {SAMPLE_SPACING_M:g} m), got {getattr(self, name):g}")
+            value = getattr(self, name)
+            require(value <= MAX_SIZE_M, f"{prefix}_{name} must be at most {MAX_SIZE_M:g} m (the path is sampled every "
+                                         f"{SAMPLE_SPACING_M:g} m), got {value:g}")
         # Under two sample spacings the polyline (Path) can be a single sample, which has no spacing.
         require(self.length_m >= 2 * SAMPLE_SPACING_M,
                 f"{prefix}_length_m must be at least two sample spacings, {2 * SAMPLE_SPACING_M:g} m, "
