@@ -35,12 +35,13 @@ from scipy.ndimage import map_coordinates
 
 from systems.config import require, require_positive
 from systems.noise import sample_index, sample_rng
-from systems.sensors.camera import RENDERER_NAME, camera_info
+from systems.sensors.camera import DEPTH_INSET, RENDERER_NAME, camera_info
 from systems.sensors.ray_cast import cast_rays
 
 _CONE_PIXELS = 31
 _NEAR_M, _FAR_M = 0.005, 20.0  # the sensors' render range (from the camera plane), wider than any sensor's range
-_MIN_DEPTH_M, _MAX_DEPTH_M = _NEAR_M * 1.01, _FAR_M * 0.99  # nearer: 0 (too close); farther: inf (nothing seen)
+# the depth camera's range, DEPTH_INSET inside the render range: nearer reads 0 (too close), farther inf (nothing seen)
+_MIN_DEPTH_M, _MAX_DEPTH_M = _NEAR_M * (1 + DEPTH_INSET), _FAR_M * (1 - DEPTH_INSET)
 # The shared depth camera K's distance behind the camera plane; with the 19.8 m of range it stays under
 # the 65.5 m an RgbdSensor's 16-bit depth output can hold (Drake warns otherwise).
 TOF_CAMERA_BACK_M = 45.0
