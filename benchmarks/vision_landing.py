@@ -184,7 +184,7 @@ def frame_costs(frames: int = 100) -> dict:
     return {"per_frame_ms": per_frame, "stages_ms": stages, "rest_ms": rest, "realtime_factor": sim.realtime_factor}
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=10, help="closed-loop seeds per source (0: skip)")
     parser.add_argument("--workers", type=int, default=2)
@@ -192,7 +192,10 @@ def main() -> int:
     parser.add_argument("--previous", default=PREVIOUS, help="the commit whose open-loop figures to compare with")
     parser.add_argument("--costs", action=argparse.BooleanOptionalAction, default=True, help="time a frame's stages")
     parser.add_argument("--json", type=output_file, help="write the figures here")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    for name in ("runs", "open_loop_runs", "workers"):  # 0: the part skipped, or every run in this process
+        if getattr(args, name) < 0:
+            parser.error(f"--{name.replace('_', '-')} must not be negative, got {getattr(args, name)}")
     tmp = Path(tempfile.mkdtemp(prefix="vision_landing_"))
     results, checks = {}, []
     try:

@@ -16,6 +16,7 @@ import benchmarks.motion_compensation as motion_compensation
 import benchmarks.realtime as realtime
 import benchmarks.stereo as stereo
 import benchmarks.ugv_detection as ugv_detection
+import benchmarks.vision_landing as vision_landing
 
 
 @pytest.mark.parametrize("main, argv, line", [
@@ -70,6 +71,10 @@ import benchmarks.ugv_detection as ugv_detection
     (hybrid_timing.main, ["--frames", "4", "--low-frames", "5"],
      "error: --low-frames must lie in 0..4 (of the --frames), got 5"),
     (hybrid.main, ["--jobs", "0"], "error: --jobs must be at least 1, got 0"),
+    # Before the closed-loop campaign (a negative count skipped its part unsaid).
+    (vision_landing.main, ["--runs", "-1"], "error: --runs must not be negative, got -1"),
+    (vision_landing.main, ["--open-loop-runs", "-2"], "error: --open-loop-runs must not be negative, got -2"),
+    (vision_landing.main, ["--workers", "-1"], "error: --workers must not be negative, got -1"),
     (landing_sweep.main, ["--jobs", "0", "--quick"], "error: --jobs must be at least 1, got 0"),
     # Before the campaign (and its temporary folder), not a traceback from it or from the scaling after it.
     (marker_ekf_mc.main, ["--runs", "0"], "error: --runs must be at least 1, got 0"),
