@@ -45,6 +45,21 @@ def test_corners_with_a_non_finite_entry_give_no_pose(bad):
     system.get_input_port().FixValue(context, TagDetection(0.0, corners))
     assert not system.get_output_port().Eval(context).valid
 
+HEAD_ON = project_points(K, pose([0, 0, 2.0], [0, 0, 0]), tag_corners_T(TAG))
+
+
+@pytest.mark.parametrize("corners", [np.full((4, 2), 200.0), HEAD_ON[[0, 2, 1, 3]],
+                                     np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]]),
+                                     np.array([[200.0, 200.0], [200.5, 200.0], [200.5, 200.5], [200.0, 200.5]]),
+                                     HEAD_ON * 1e4], ids=["coincident", "crossed", "collinear", "under-a-pixel",
+                                                          "beyond-a-million-px"])
+def test_corners_that_are_no_tags_image_give_no_pose(corners):
+    """Four corners that no tag in front of the camera can project to give no pose: coincident ones made SQPnP
+    raise cv2.error, collinear ones gave a pose of nothing, a crossed order or a quadrilateral under a square
+    pixel is no tag's outline, and corners a million pixels out are beyond any image."""
+    assert atda_pose(corners, K, TAG) is None
+
+
 def test_the_system_flags_a_missing_detection_invalid():
     system = AtdaEstimator(K, TAG, 0.05)
     context = system.CreateDefaultContext()

@@ -24,13 +24,20 @@ from systems.perception.apriltag import TagDetection, tag_corners_T
 
 # T (camera-facing: y down, z into the tag) from OpenCV's marker frame S (y up, z out of the tag).
 _X_ST = RigidTransform(RotationMatrix.MakeXRotation(np.pi))
+# No camera's image reaches a million pixels from its corner; the bound keeps the corners within float32's range
+# and a tenth of a pixel, in the type OpenCV's contour functions take.
+MAX_CORNER_PX = 1e6
 
 
 def atda_pose(corners_px: np.ndarray, K: np.ndarray, tag_size_m: float) -> RigidTransform | None:
-    """X_CT from the tag's four corners (4x2 px, ArUco order), or None if a corner is not finite (SQPnP would
-    raise on it) or PnP fails."""
+    """X_CT from the tag's four corners (4x2 px, ArUco order), or None where they cannot be a tag's image: a
+    corner not finite or beyond `MAX_CORNER_PX`, the four not a convex quadrilateral of at least a square pixel
+    (coincident corners make SQPnP raise, collinear ones give it a pose of nothing), or PnP fails."""
     corners = np.asarray(corners_px, dtype=float).reshape(4, 1, 2)
-    if not np.all(np.isfinite(corners)):
+    if not np.all(np.abs(corners) < MAX_CORNER_PX):  # False for NaN too
+        return None
+    quad = corners.astype(np.float32)
+    if not cv2.isContourConvex(quad) or cv2.contourArea(quad) < 1.0:
         return None
     object_points_S = _X_ST.multiply(tag_corners_T(tag_size_m).T).T
     ok, rvec, tvec = cv2.solvePnP(object_points_S, corners, K, None, flags=cv2.SOLVEPNP_SQPNP)
