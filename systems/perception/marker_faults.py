@@ -71,8 +71,7 @@ class FaultsConfig:
 
 def occluded(k: int, period_s: float, config: FaultsConfig, seed: int) -> bool:
     """Whether sample k is covered (module docstring)."""
-    t = k * period_s  # the interval is inclusive: a bound on a sample's time, k T to rounding, covers it
-    if in_intervals(t, config.occlusions_s):
+    if in_intervals(k * period_s, config.occlusions_s):
         return True
     if not config.occlusion_rate_hz:
         return False
