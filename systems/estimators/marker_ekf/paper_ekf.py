@@ -22,6 +22,20 @@ from systems.perception.markers import MarkerLayout
 from systems.quaternion import dcm, omega_matrix, toward, xi
 
 
+def attitude_noise(q: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """Q's [q, omega] block (7x7; (..., 7, 7) for quaternions q (..., 4)): white angular acceleration on omega,
+    `rotation` = psd [[dt^3/3, dt^2/2], [dt^2/2, dt]], reaching q through dq/dt = G omega with G = Xi(q)/2
+    held over dt: [[r00 G G^T, r01 G], [r01 G^T, r11 I3]]."""
+    G = xi(q) / 2
+    G_T = np.swapaxes(G, -1, -2)
+    block = np.zeros(G.shape[:-2] + (7, 7))
+    block[..., :4, :4] = rotation[0, 0] * G @ G_T
+    block[..., :4, 4:] = rotation[0, 1] * G
+    block[..., 4:, :4] = rotation[0, 1] * G_T
+    block[..., 4:, 4:] = rotation[1, 1] * np.eye(3)
+    return block
+
+
 class PaperMarkerEkf(MarkerFilter):
     """Seed 002's EKF, Eq. (11)-(12). State x (6 n + 7; 37 for five markers):
     [p_WM_1, v_WM_1, ..., p_WM_n, v_WM_n (m, m/s, in W), q^{P/R} (scalar last), omega (rad/s, in P)]."""
@@ -35,6 +49,7 @@ class PaperMarkerEkf(MarkerFilter):
         self.n = 6 * len(layout.ids) + 7
         self._q = slice(self.n - 7, self.n - 3)
         self._w = slice(self.n - 3, self.n)
+        self._attitude = slice(self.n - 7, self.n)  # [q, omega]
         super().__init__(layout, X_BC, config)
 
     def marker_noise(self, sigma_p, sigma_q):
@@ -78,10 +93,7 @@ class PaperMarkerEkf(MarkerFilter):
         q through Xi(q)/2 (the same [[dt^3/3, dt^2/2], [dt^2/2, dt]] shape)."""
         _, Q, rotation = self.constants(dt)
         Q = Q.copy()
-        G = xi(x[self._q]) / 2
-        Q[self._q, self._q] = rotation[0, 0] * G @ G.T
-        Q[self._q, self._w] = rotation[0, 1] * G
-        Q[self._w, self._q] = Q[self._q, self._w].T
+        Q[self._attitude, self._attitude] = attitude_noise(x[self._q], rotation)
         return Q
 
     def constant_parts(self, dt):
@@ -131,10 +143,7 @@ class PaperMarkerEkf(MarkerFilter):
     def process_noise_stack(self, x, dt):
         _, Q, rotation = self.constants(dt)
         Q = np.repeat(Q[None], len(x), axis=0)
-        G = xi(x[:, self._q]) / 2
-        Q[:, self._q, self._q] = rotation[0, 0] * G @ np.swapaxes(G, -1, -2)
-        Q[:, self._q, self._w] = rotation[0, 1] * G
-        Q[:, self._w, self._q] = np.swapaxes(Q[:, self._q, self._w], -1, -2)
+        Q[:, self._attitude, self._attitude] = attitude_noise(x[:, self._q], rotation)
         return Q
 
     def innovations_stack(self, x, camera, p_CM, q_MC):
