@@ -192,6 +192,19 @@ def test_markers_not_seen_at_the_start_begin_where_the_layout_puts_them():
     np.testing.assert_allclose(x[:6 * m].reshape(m, 6)[:, :3], p_WP + ekf.p_PM @ R_WP.matrix().T, atol=1e-12)
 
 
+def test_the_constant_turn_filter_starts_at_the_pads_origin_from_any_markers():
+    """The constant-turn filter started from markers 1 and 2 alone on a pad yawed 30 deg: its p_WP is the pad's
+    origin (the seen markers less their layout offsets turned into W) and its yaw 30 deg."""
+    ekf = ConstantTurnEkf(MarkerLayout(), CameraConfig().X_BC)
+    R_WP = RotationMatrix.MakeZRotation(np.radians(30.0))
+    p_WP = np.array([5.0, 2.0, 1.6])
+    slots = np.array([1, 2])
+    q_MR = np.tile(drake_to_paper(R_WP.ToQuaternion()), (2, 1))
+    x, _ = ekf.initial_state(slots, p_WP + ekf.p_PM[slots] @ R_WP.matrix().T, q_MR)
+    np.testing.assert_allclose(x[:3], p_WP, atol=1e-12)
+    assert x[ConstantTurnEkf.PSI] == pytest.approx(np.radians(30.0), abs=1e-12)
+
+
 def test_markers_seen_as_q_and_minus_q_start_the_filter_at_the_pads_attitude():
     """Two markers whose measured quaternions differ only in sign (the same attitude): the filter starts at that
     attitude, not at the zero their plain sum would give."""
@@ -230,6 +243,75 @@ def test_the_constant_turn_process_noise_is_white_acceleration_on_each_axis():
     Q = E[8:, 8:].T @ E[:8, 8:]
     x = state_from_truth(ConstantTurnEkf, pose([1, 2, 1.6], [0, 0, 20]))
     np.testing.assert_allclose(marker_filter.process_noise(x, dt), Q, rtol=1e-9, atol=1e-15)
+
+
+def van_loan(A: np.ndarray, W: np.ndarray, dt: float) -> np.ndarray:
+    """Van Loan's discretisation (SciPy's expm) of x' = A x + w, w white with spectral density W: Q over dt."""
+    n = len(A)
+    E = expm(np.block([[-A, W], [np.zeros((n, n)), A.T]]) * dt)
+    return E[n:, n:].T @ E[:n, n:]
+
+
+def test_the_paper_filters_marker_process_noise_is_white_acceleration_on_each_axis():
+    """Each marker's [p, v] block of the paper filter's Q against Van Loan's discretisation of p' = v with white
+    acceleration, x and y under acceleration_psd, z under vertical_acceleration_psd (a different value); nothing
+    between markers or between a marker and the attitude."""
+    marker_filter = make(PaperMarkerEkf, acceleration_psd=0.5, vertical_acceleration_psd=0.01)
+    dt = 0.1
+    A = np.zeros((6, 6))
+    A[:3, 3:] = np.eye(3)
+    marker = van_loan(A, np.diag([0.0, 0.0, 0.0, 0.5, 0.5, 0.01]), dt)
+    m = len(LAYOUT.p_PM)
+    Q = marker_filter.process_noise(state_from_truth(PaperMarkerEkf, pose([1, 2, 1.6], [0, 0, 20])), dt)
+    np.testing.assert_allclose(Q[:6 * m, :6 * m], np.kron(np.eye(m), marker), rtol=1e-9, atol=1e-15)
+    np.testing.assert_array_equal(Q[:6 * m, 6 * m:], 0.0)
+
+
+def test_the_paper_filters_attitude_process_noise_is_white_angular_acceleration_through_xi():
+    """The [q, omega] block of the paper filter's Q (single and stacked) against Van Loan's discretisation of
+    q' = G omega, omega' = white angular acceleration, G = Xi(q)/2 held at the state's q: the q-omega cross term
+    included, and G G^T (not a quarter of it) on q."""
+    psd, dt = 0.002, 0.1
+    marker_filter = make(PaperMarkerEkf, angular_acceleration_psd=psd)
+    x = state_from_truth(PaperMarkerEkf, pose([1, 2, 1.6], [6, -4, 150]))
+    A = np.zeros((7, 7))
+    A[:4, 4:] = xi(x[30:34]) / 2
+    expected = van_loan(A, np.diag([0.0, 0.0, 0.0, 0.0, psd, psd, psd]), dt)
+    np.testing.assert_allclose(marker_filter.process_noise(x, dt)[30:, 30:], expected, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(marker_filter.process_noise_stack(x[None], dt)[0, 30:, 30:], expected,
+                               rtol=1e-9, atol=1e-15)
+
+
+def test_the_paper_filters_platform_velocity_is_marker_0s():
+    """The paper filter's platform velocity is marker 0's (the pad frame's origin), with every marker given a
+    different velocity, and its acceleration zero (constant velocity)."""
+    marker_filter = make(PaperMarkerEkf)
+    x = state_from_truth(PaperMarkerEkf, pose([1, 2, 1.6], [0, 0, 20]))
+    m = len(LAYOUT.p_PM)
+    velocities = np.array([[1.0 + i, -0.5 * i, 0.1 * i] for i in range(m)])
+    x[:6 * m].reshape(m, 6)[:, 3:] = velocities
+    v, a = marker_filter.platform_rates(x)
+    np.testing.assert_array_equal(v, velocities[0])
+    np.testing.assert_array_equal(a, 0.0)
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_the_initial_covariance_is_the_configured_variances(cls):
+    """The starting P is diagonal with the configuration's variances: position_std_m^2 on positions,
+    initial_velocity_std_mps^2 on velocities, the attitude's (attitude_std_deg in rad, halved on each quaternion
+    component for the paper filter), initial_angular_velocity_std_radps^2 on the angular velocity."""
+    c = MarkerEkfConfig(position_std_m=0.2, attitude_std_deg=4.0, initial_velocity_std_mps=7.0,
+                        initial_angular_velocity_std_radps=0.3)
+    marker_filter = cls(LAYOUT, X_BC, c)
+    q = np.tile(drake_to_paper(RotationMatrix.MakeZRotation(0.5).ToQuaternion()), (2, 1))
+    _, P = marker_filter.initial_state(np.array([0, 1]), np.array([[1.0, 2.0, 1.6], [1.3, 2.1, 1.6]]), q)
+    sigma_q = np.radians(c.attitude_std_deg)
+    if cls is ConstantTurnEkf:
+        expected = np.r_[np.full(3, 0.2**2), np.full(3, 7.0**2), sigma_q**2, 0.3**2]
+    else:
+        expected = np.r_[np.tile(np.r_[np.full(3, 0.2**2), np.full(3, 7.0**2)], len(LAYOUT.p_PM)),
+                         np.full(4, (sigma_q / 2) ** 2), np.full(3, 0.3**2)]
+    np.testing.assert_allclose(P, np.diag(expected), rtol=1e-12, atol=0.0)
 
 
 def test_the_constant_turn_platform_covariance_is_its_yaw_and_position():
