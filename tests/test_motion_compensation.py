@@ -35,6 +35,7 @@ from systems.perception.motion_compensation import (
     ground_homography,
     map_point,
     plane_homography,
+    refine_matches,
 )
 from systems.sensors.camera import CameraConfig, add_renderer, make_camera
 from systems.sensors.fisheye import FisheyeConfig, rectified_K
@@ -232,6 +233,62 @@ def test_ground_homography_rejects_what_it_cannot_trust(case):
     assert not result.valid and result.reason and np.all(np.isnan(result.H))
     expected = {"random": "inlier", "clustered": "cover", "mirrored": "mirrors", "zoomed": "scales"}[case]
     assert expected in result.reason
+
+
+def test_ground_homography_rejects_too_few_inliers_among_the_matches():
+    """50 true matches among 200 (the rest random): enough inliers (50 >= min_inliers) spread over the image, but
+    a ratio of 0.25, under min_inlier_ratio 0.3: invalid for that reason."""
+    H = np.array([[1.02, -0.03, 12.0], [0.03, 1.02, -7.0], [1e-5, -2e-5, 1.0]])
+    src, dst = matched_points(H)
+    dst[50:] = np.random.default_rng(5).uniform(0, SIZE, (150, 2)).astype(np.float32)
+    result = ground_homography(src, dst, (SIZE, SIZE), MotionCompensationConfig())
+    assert result.inliers >= MotionCompensationConfig().min_inliers
+    assert not result.valid and "inlier ratio" in result.reason, result.reason
+
+
+@pytest.mark.parametrize("zoom", [1.3, 1 / 1.3])
+def test_a_zoom_within_max_scale_change_is_valid(zoom):
+    """max_scale_change 1.5 bounds the image's area ratio by 1.5^2 either way: a 1.3x zoom in or out (area 1.69
+    or 1 / 1.69) is a plausible frame-to-frame change."""
+    centre = (SIZE - 1) / 2
+    Z = np.array([[zoom, 0, centre * (1 - zoom)], [0, zoom, centre * (1 - zoom)], [0, 0, 1.0]])
+    result = ground_homography(*matched_points(Z), (SIZE, SIZE), MotionCompensationConfig())
+    assert result.valid, result.reason
+    assert corner_error(result.H, Z) < 0.5
+
+
+def test_refinement_drops_a_match_lucas_kanade_loses():
+    """A match whose point lies outside the frame cannot be tracked (cv2's status 0, its shift 0): dropped, the
+    two inside kept."""
+    previous = ground_texture_image(3, 512, 2, 8)[:400, :400]
+    current = np.roll(previous, (2, 3), axis=(0, 1))  # the ground moved by (3, 2) px
+    H = np.array([[1, 0, 3.0], [0, 1, 2.0], [0, 0, 1]])
+    src = np.array([[100, 100], [200, 150], [420.0, 420.0]], np.float32)
+    kept_src, kept_dst = refine_matches(previous, current, H, src, src + np.float32([3, 2]), 11, 2.0)
+    np.testing.assert_array_equal(kept_src, src[:2])
+    np.testing.assert_allclose(kept_dst, src[:2] + [3, 2], atol=0.1)
+
+
+def test_refined_matches_that_move_off_the_ground_motion_are_not_inliers(ground):
+    """180 ground matches and 20 on a UGV moving 3 px, the latter placed 1.5 px along its motion (so within
+    RANSAC's 2 px of the ground's H: inliers without refinement). Lucas-Kanade moves them to the UGV's true
+    motion, 3 px off the ground's H: the second RANSAC drops them, and the inliers are the ground's 180."""
+    f = frames(ground, vehicle_side=80, vehicle_step=(3.0, 0.0), move=(0.05, -0.03, 0.0), yaw_deg=1.0, tilt_deg=0.0)
+    rng = np.random.default_rng(4)
+    x, y, w, h = f.previous_box
+    points = rng.uniform(40, SIZE - 40, (600, 2))
+    away = (points[:, 0] < x - 25) | (points[:, 0] > x + w + 25) | (points[:, 1] < y - 25) | (points[:, 1] > y + h + 25)
+    on_ground = points[away][:180]
+    on_vehicle = np.c_[rng.uniform(x + 20, x + w - 20, 20), rng.uniform(y + 20, y + h - 20, 20)]
+    src = np.r_[on_ground, on_vehicle].astype(np.float32)
+    dst = np.r_[map_point(f.H, on_ground) + rng.normal(0, 0.3, on_ground.shape),
+                map_point(f.H, on_vehicle) + 1.5 * f.displacement / np.linalg.norm(f.displacement)].astype(np.float32)
+    config = MotionCompensationConfig()
+    assert ground_homography(src, dst, (SIZE, SIZE), config).inliers == 200  # unrefined: all within 2 px
+    result = ground_homography(src, dst, (SIZE, SIZE), config, f.previous, f.current)
+    assert result.valid, result.reason
+    assert result.inliers == len(on_ground)
+    assert corner_error(result.H, f.H) < 0.5
 
 
 def test_config_checks_name_the_field():
