@@ -353,6 +353,32 @@ def test_speed_heading_mode_reads_noise_as_speed():
     assert np.abs(printed[20:, 0] + 0.8).max() < 0.1
 
 
+def test_speed_heading_mode_reads_the_vertical_velocity():
+    """Eq. 18-19 average the horizontal speed and heading; the vertical velocity is averaged beside them: on a
+    track climbing at 0.2 m/s both modes read the true [0.8, 0.3, 0.2] m/s."""
+    t = np.arange(0.0, 3.0, T)
+    climbing = np.c_[0.8 * t, 0.3 * t, 0.2 * t]
+    printed, valid = observe_velocities(t, climbing, VelocityObserverConfig(combine="speed_heading"))
+    vector, _ = observe_velocities(t, climbing, VelocityObserverConfig(fit="mean"))
+    assert valid[3:].all()
+    np.testing.assert_allclose(printed[3:], np.tile([0.8, 0.3, 0.2], (len(t) - 3, 1)), atol=1e-12)
+    np.testing.assert_allclose(printed[3:], vector[3:], atol=1e-12)
+
+
+@pytest.mark.parametrize("gap_s, joined", [(0.5, True), (0.6, False), (1.0, False)])
+def test_a_gap_longer_than_max_gap_s_gives_no_instant_velocity(gap_s, joined):
+    """A sighting max_gap_s (0.5 s) after the last is differenced with it (an instant velocity of 5 m over the
+    gap); one any later (0.6 s, twice max_gap_s) restarts the differences."""
+    config = VelocityObserverConfig()
+    assert config.max_gap_s == 0.5
+    state = step_observer(ObserverState(), 1.0, config, p_W=np.zeros(3))
+    state = step_observer(state, 1.0 + gap_s, config, p_W=np.array([5.0, 0.0, 0.0]))
+    assert len(state.times) == (1 if joined else 0)
+    if joined:
+        np.testing.assert_allclose(state.velocities[0], [5.0 / gap_s, 0.0, 0.0])
+    assert state.last_time == 1.0 + gap_s  # the new sighting is the next difference's start either way
+
+
 def test_validity_history_and_gaps():
     config = VelocityObserverConfig()
     state = ObserverState()
