@@ -420,6 +420,23 @@ def test_kf_update_covariance_is_the_information_forms():
     np.testing.assert_allclose(second.P, np.linalg.inv(np.linalg.inv(P) + H.T @ np.linalg.solve(R, H)), rtol=1e-6)
 
 
+def test_kf_without_the_rate_measurement_updates_on_the_altitude_alone():
+    """use_rate_measurement False: Eq. 14's z is Z alone (H = [1, 0]) even with the previous frame's reading, and a
+    step is the scalar Kalman update of the prediction, K = P H^T / (H P H^T + sigma_Z^2), computed here by hand."""
+    config, T = AltitudeKfConfig(use_rate_measurement=False), 0.1
+    z, H, R = measurement(5.1, 5.0, T, config)
+    np.testing.assert_array_equal(z, [5.1])
+    np.testing.assert_array_equal(H, [[1.0, 0.0]])
+    np.testing.assert_allclose(R, [[config.measurement_std(5.1) ** 2]], rtol=1e-12)
+    first = altitude_kf_step(AltitudeKfState(), 5.0, True, 0.0, config)
+    second = altitude_kf_step(first, 5.1, True, T, config)
+    A, G = np.array([[1.0, T], [0.0, 1.0]]), np.array([T**2 / 2, T])
+    x, P = A @ first.x, A @ first.P @ A.T + config.accel_std_mps2**2 * np.outer(G, G)
+    gain = P[:, 0] / (P[0, 0] + config.measurement_std(5.1) ** 2)
+    np.testing.assert_allclose(second.x, x + gain * (5.1 - x[0]), rtol=1e-12)
+    np.testing.assert_allclose(second.P, P - np.outer(gain, P[0]), rtol=1e-9)
+
+
 def test_kf_system_outputs_are_predicted_to_the_contexts_time():
     """Between steps the outputs are the last step's state carried to the context's time at its rate."""
     system = AltitudeFilterSystem(period_s=0.1)
