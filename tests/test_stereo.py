@@ -32,6 +32,7 @@ from systems.perception.stereo_depth import (
     StereoDepthConfig,
     central_window,
     depth_from_disparity,
+    make_matcher,
     window_altitude,
 )
 from systems.sensors.stereo import StereoConfig, add_stereo_pair
@@ -208,6 +209,58 @@ def test_window_altitude_is_eq_12_over_valid_pixels():
     depth[:6] = np.nan
     altitude, valid, fraction = window_altitude(depth, 0.5)
     assert not valid and math.isnan(altitude) and fraction == pytest.approx(0.3)
+
+
+@pytest.mark.parametrize("cx", [376.0, 376.5, 377.0, 377.5])
+@pytest.mark.parametrize("cols", [100, 99])
+def test_the_window_is_centred_on_any_centre(cx, cols):
+    """Pixel j's centre is at x = j (OpenCV): the window's columns start .. start + cols - 1 have their middle at
+    start + (cols - 1) / 2, within half a pixel of the configured centre for whole and half-pixel centres of either
+    parity, an even and an odd width (Python's round takes halves to even)."""
+    rows, columns = central_window((480, 752), (cx, 239.5), 100, cols)
+    assert columns.stop - columns.start == cols and rows == slice(190, 290)
+    assert abs(columns.start + (cols - 1) / 2 - cx) <= 0.5
+
+
+def test_window_of_takes_the_windows_pixels_out_of_the_matched_region():
+    """Through the crop and back: an image of each pixel's index, cropped to the matched region, gives the
+    window's indices of the full frame."""
+    estimator = StereoAltitudeEstimator(StereoConfig())
+    full = np.arange(480 * 752).reshape(480, 752)
+    np.testing.assert_array_equal(estimator.window_of(full[estimator.crop]), full[estimator.window])
+
+
+def test_the_configured_estimator_gives_the_altitude():
+    """estimator "median": 10 % of the window on a farther object (6 px, 7 m) over ground at 21 px (2 m): the
+    altitude is NumPy's median of Eq. 11's depths, 2 m (their mean is 2.5 m)."""
+    window = np.full((100, 100), 21.0)
+    window[:10] = 6.0
+    depth = F_PX * BASELINE / window
+    median = StereoAltitudeEstimator(StereoConfig(), StereoDepthConfig(estimator="median")).altitude(window)
+    assert median.valid and median.altitude_m == pytest.approx(float(np.median(depth)), rel=1e-12)
+    mean = StereoAltitudeEstimator(StereoConfig(), StereoDepthConfig(estimator="mean")).altitude(window)
+    assert mean.valid and mean.altitude_m == pytest.approx(float(np.mean(depth)), rel=1e-12)
+    assert abs(mean.altitude_m - median.altitude_m) > 0.4
+
+
+def test_a_window_exactly_min_valid_fraction_matched_is_valid():
+    """Invalid only when fewer than min_valid_fraction of the window's pixels have a depth: exactly 60 % with
+    0.6 is valid, one pixel fewer is not."""
+    depth = np.full((10, 10), np.nan)
+    depth.flat[:60] = 2.0
+    assert window_altitude(depth, 0.6) == (2.0, True, 0.6)
+    depth.flat[59] = np.nan
+    altitude, valid, fraction = window_altitude(depth, 0.6)
+    assert not valid and math.isnan(altitude) and fraction == pytest.approx(0.59)
+
+
+@pytest.mark.parametrize("block_size", [3, 5, 11])
+def test_the_matchers_smoothness_penalties_are_opencvs_recommended(block_size):
+    """OpenCV's StereoSGBM requires P2 > P1 and recommends P1 = 8 cn B^2, P2 = 32 cn B^2 (cn = 1: grey images),
+    the source make_matcher names."""
+    matcher = make_matcher(16, StereoDepthConfig(block_size=block_size))
+    assert matcher.getP2() > matcher.getP1()
+    assert (matcher.getP1(), matcher.getP2()) == (8 * block_size**2, 32 * block_size**2)
 
 
 def shifted_pair(d: int, noise_std: float = 0.0, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
