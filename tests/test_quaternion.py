@@ -92,6 +92,16 @@ def test_rotation_vector_matches_scipy_for_either_sign():
     np.testing.assert_allclose(rotation_vector(np.array([0.0, 0.0, 1.0, 0.0])), [0, 0, np.pi])
 
 
+def test_rotation_vector_of_the_identity_is_exactly_zero():
+    """The identity (either sign) has angle 0: its rotation vector is exactly zero, not 0/0 = NaN, also in a stack."""
+    for w in (1.0, -1.0):
+        assert np.array_equal(rotation_vector(np.array([0.0, 0.0, 0.0, w])), np.zeros(3))
+    rotations = Rotation.random(3, random_state=np.random.default_rng(3))  # own stream: the shared one stays as it was
+    q = np.vstack([rotations.as_quat(), [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, -1.0]])
+    expected = np.vstack([rotations.as_rotvec(), np.zeros((2, 3))])
+    np.testing.assert_allclose(rotation_vector(q), expected, atol=1e-12)
+
+
 # ---- Drake order [w, x, y, z] ----------------------------------------------------------------
 
 
