@@ -202,6 +202,9 @@ def test_random_walk_is_continuous():
     ({"motion": "sinusoid", "roll_amplitude_deg": [5.0]}, "platform.roll_amplitude_deg"),
     ({"motion": "sinusoid", "y_amplitude_m": [0.1], "y_frequency_hz": [-1.0]}, "platform.y_frequency_hz"),
     ({"tag_id": 587}, "platform.tag_id"),
+    ({"tag_id": -1}, "platform.tag_id"),  # unchecked: cv2.error from the tag's mesh
+    # unchecked: a random walk at t = -1 s raised TypeError
+    ({"motion": "random_walk", "z_amplitude_m": [0.02], "time_offset_s": -1.0}, "platform.time_offset_s"),
     # 1e-8 s knots: the stroke check sampled 3e9 times over 30 s (MemoryError)
     ({"motion": "random_walk", "random_walk_knot_interval_s": 1e-8},
      "platform.random_walk_knot_interval_s must be at least 0.001 s"),
@@ -268,6 +271,10 @@ def test_pad_motion_is_the_sinusoids_and_their_derivatives():
     np.testing.assert_allclose(motion[8], -a * w * w * math.sin(w * t + phase), rtol=1e-4, atol=1e-9)
     wx = 2 * math.pi * 0.031
     np.testing.assert_allclose(motion[3], 0.05 * wx * math.cos(wx * t), rtol=1e-6)
+    # the true deck_motion's heave is the same deck top's z (X_WP), and its rate the same derivative
+    deck = platform.GetOutputPort("deck_motion").Eval(context)
+    np.testing.assert_allclose(deck[4], top + a * math.sin(w * t + phase), atol=1e-12)
+    np.testing.assert_allclose(deck[5], a * w * math.cos(w * t + phase), rtol=1e-6)
 
 
 def test_the_deck_s_spatial_velocity_is_drake_s_from_the_angles_rates():
