@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_load_typed
@@ -48,13 +50,30 @@ def test_table1_hover_speed_is_plausible():
     assert PARAMS.hover_rotor_speed() == pytest.approx(479.5, abs=0.1)
 
 
-@pytest.mark.parametrize("field, value", [
-    ("mass_kg", 0.0), ("inertia_zz_kg_m2", -1.0), ("motor_time_constant_s", 0.0),
-    ("thrust_coefficient", 0.0), ("arm_lateral_m", -0.1), ("max_rotor_speed_rad_s", 0.0),
-])
+# every constant but the rotor drag (0 is seed 002's no-drag model) is a mass, length, time, gain or coefficient > 0
+POSITIVE_FIELDS = [f.name for f in dataclasses.fields(QuadrotorParams) if f.name != "rotor_drag_coefficient"]
+
+
+@pytest.mark.parametrize("value", [0.0, -0.1])
+@pytest.mark.parametrize("field", POSITIVE_FIELDS)
 def test_nonpositive_fields_are_rejected_by_name(field, value):
+    """Each of the 12 positive constants, set to zero or below, is a ConfigError naming it."""
     with pytest.raises(ValueError, match=f"quadrotor.{field} must be positive"):
         QuadrotorParams(**{field: value}).validate()
+
+
+def test_negative_rotor_drag_is_rejected_and_zero_accepted():
+    """The rotor drag opposes the air's velocity: a negative coefficient is a ConfigError; 0 (no drag) is valid."""
+    with pytest.raises(ValueError, match="quadrotor.rotor_drag_coefficient must not be negative"):
+        QuadrotorParams(rotor_drag_coefficient=-1e-5).validate()
+    QuadrotorParams(rotor_drag_coefficient=0.0).validate()
+
+
+@pytest.mark.parametrize("field", ["inertia_xx_kg_m2", "inertia_yy_kg_m2", "inertia_zz_kg_m2"])
+def test_each_principal_inertia_over_the_sum_of_the_others_is_rejected(field):
+    """No rigid body has one principal moment above the sum of the other two (here 0.1 > 0.015 + 0.03 at most)."""
+    with pytest.raises(ValueError, match="triangle inequality"):
+        QuadrotorParams(**{field: 0.1}).validate()
 
 
 def test_paper_inertia_as_printed_is_rejected():
