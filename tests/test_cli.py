@@ -106,6 +106,8 @@ def bad_config(tmp_path):
     (["run", "stewart-hover", "--duration", "0.1", "--meshcat-port", "99999"], "--meshcat-port"),  # wrapped before
     (["run", "stewart-hover", "--duration", "0.1", "--record", "--meshcat-port", "80"], "--meshcat-port"),
     (["run", "stewart-hover", "--duration", "0.1", "--record", "--meshcat-port", "-1"], "--meshcat-port"),
+    # the scene's config checks uav.*: unchecked, Drake's Cylinder() failed on the radius, naming no field
+    (["run", "stewart-hover", "--set", "uav.propeller_radius_m=0"], "uav.propeller_radius_m must be positive"),
 ], ids=["bad-name", "unknown-key", "negative-rate", "tag-too-big", "negative-duration", "type-error",
         "name-and-config", "unknown-option", "missing-config", "latin1-config", "federated-on-markers", "two-cameras",
         "backward-blackout", "imu-rate", "rqrlp-border-under-a-pixel",
@@ -116,7 +118,7 @@ def bad_config(tmp_path):
         "negative-joint-height",
         "deck-source", "deck-ih", "deck-negative-latency", "tof-phase-beyond-period",
         "missing-detector-model", "corrupt-detector-model", "meshcat-port-beyond-65535", "meshcat-port-below-1024",
-        "meshcat-port-negative"])
+        "meshcat-port-negative", "zero-propeller-radius"])
 def test_bad_input_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path, bad_config, args, named):
     out = tmp_path / "new" / "out"  # two folders to make: a build's error removes both
     corrupt = tmp_path / "corrupt.onnx"
