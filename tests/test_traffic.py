@@ -28,6 +28,12 @@ def test_draws_are_seeded_and_within_the_settings():
     assert draw_distractors(DistractorsConfig(count=7, same_colour=2), 0)[:6] == a
 
 
+def test_lanes_are_drawn_on_either_side_of_the_path():
+    """The lane's side is drawn too: among 16 distractors some drive left of the path (+) and some right (-)."""
+    signs = {np.sign(d.lane_m) for d in draw_distractors(DistractorsConfig(count=16), 0)}
+    assert signs == {-1.0, 1.0}
+
+
 @pytest.mark.parametrize("path_name", ["straight", "circle"])
 def test_pose_keeps_its_lane_along_the_path(path_name):
     vehicle = GroundVehicleConfig(path=path_name)
@@ -90,10 +96,23 @@ def test_under_a_speed_schedule_they_keep_their_factor_of_the_ugvs_speed():
                                             ("distractors.same_colour=1", "distractors.same_colour"),
                                             ("distractors.lane_min_m=0", "distractors.lane_min_m"),
                                             ("distractors.speed_factor_range=[1.5, 1.0]",
-                                             "distractors.speed_factor_range")])
+                                             "distractors.speed_factor_range"),
+                                            ("distractors.lane_max_m=2.0", "distractors.lane_max_m must not be under"),
+                                            ("distractors.size_low_m=[2.0, 0.8, 0.35]",
+                                             "distractors.size_low_m/size_high_m")])
 def test_bad_setting_names_the_field(setting, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         load_scenario("ugv-hybrid", overrides=[setting])
+
+
+def test_the_ground_reaches_the_ugv_when_every_distractor_is_slower():
+    """lead() sizes the ground (GroundVehicleConfig.ground_length_m: as far as anything on the path gets): with
+    distractors at 0.5-0.8 of the UGV's speed the ground must still reach as far as the UGV itself drives."""
+    config, vehicle, duration = DistractorsConfig(count=4, speed_factor_range=[0.5, 0.8]), GroundVehicleConfig(), 2000.0
+    driven = vehicle.distance_driven_m(duration)
+    furthest = max(d.s0_m + d.speed_factor * driven for d in draw_distractors(config, 0))
+    assert furthest < driven  # the UGV is the furthest thing on the path
+    assert vehicle.ground_length_m(duration, config.lead()) >= driven
 
 
 def test_a_lane_wider_than_the_paths_tightest_radius_is_refused():
