@@ -10,15 +10,16 @@ from pydrake.systems.primitives import ConstantVectorSource
 from pydrake.systems.sensors import RgbdSensor
 
 from systems.sensors.camera import RENDERER_NAME, add_renderer, camera_info
-from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry, PlatformConfig
+from systems.vehicles.ground_vehicle_geometry import PATTERN_GAP_M, GroundVehicleGeometry, PlatformConfig
 
 PIXELS, RANGE_M = 33, 2.0
-
-
-@pytest.mark.parametrize("platform", [
+PLATFORMS = [
     PlatformConfig(),  # the markers on the vehicle's roof
     PlatformConfig(carrier="ground", height_m=0.02, pattern="rqrlp", pad_size_m=1.2),  # open-landing's
-])
+]
+
+
+@pytest.mark.parametrize("platform", PLATFORMS)
 def test_a_camera_sees_the_pattern_in_the_pad_frames_plane(platform):
     builder = DiagramBuilder()
     scene_graph = builder.AddSystem(SceneGraph())
@@ -39,3 +40,19 @@ def test_a_camera_sees_the_pattern_in_the_pad_frames_plane(platform):
     depth = camera.depth_image_32F_output_port().Eval(camera.GetMyContextFromRoot(context)).data[..., 0]
     centre = depth[PIXELS // 2 - 2:PIXELS // 2 + 3, PIXELS // 2 - 2:PIXELS // 2 + 3]
     np.testing.assert_allclose(centre, RANGE_M, atol=1e-4)  # drawn 1 mm above P before dde8e8b
+
+
+@pytest.mark.parametrize("platform", PLATFORMS)
+def test_the_pads_white_face_lies_a_gap_under_the_pattern(platform):
+    """The pattern lies in P's plane and the pad's white box from the roof (P's plane less pad_thickness_m) up to
+    PATTERN_GAP_M under it: flush with the pattern, the white face won the renderer's z-fight and hid the markers."""
+    scene_graph = SceneGraph()
+    pad = GroundVehicleGeometry(3.5, platform, scene_graph)
+    inspector = scene_graph.model_inspector()
+    geometry = {inspector.GetName(g): g for g in inspector.GetGeometries(pad.body_frame_id)}
+    box, pattern = geometry["gv_pad"], geometry["gv_pad_pattern"]
+    assert inspector.GetPoseInFrame(pattern).translation()[2] == pytest.approx(platform.height_m, abs=1e-12)
+    z, height = inspector.GetPoseInFrame(box).translation()[2], inspector.GetShape(box).height()
+    assert z + height / 2 == pytest.approx(platform.height_m - PATTERN_GAP_M, abs=1e-12)
+    assert z - height / 2 == pytest.approx(platform.height_m - platform.pad_thickness_m, abs=1e-12)
+    assert PATTERN_GAP_M >= 1e-4  # a gap the depth buffer resolves at the cameras' metres of range
