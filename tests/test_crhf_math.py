@@ -178,6 +178,33 @@ def test_a_sensor_on_a_camera_axis_gives_an_invalid_pose_not_an_error():
     assert not estimate.valid and np.isnan(estimate.focal_lengths).all()
 
 
+def test_a_corner_ray_that_misses_the_deck_gives_an_invalid_pose_not_an_error():
+    """A deck tilted 70 deg about y: the ray of a corner at u = 20 px meets its plane behind the camera, so that
+    corner has no point on the deck and the frame is flagged invalid (without raising)."""
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    tilt = np.radians(70.0)
+    n, d = np.array([np.sin(tilt), 0.0, np.cos(tilt)]), 1.0
+    p_t = touch_points(p_s, ranges_to_plane(p_s, n, d))
+    uv_corners = np.array([[20.0, 240.0], [300.0, 240.0], [300.0, 270.0], [20.0, 270.0]])
+    assert n @ [(20.0 - CX) / FX, 0.0, 1.0] < 0  # so the ray meets n . p = d > 0 at a negative depth
+    estimate = crhf_tag_pose(p_s, p_t[:, 2], project(p_t), uv_corners, tag_corners_T(TAG_SIZE),
+                             intrinsics=([FX, FY], [CX, CY]))
+    assert not estimate.valid and estimate.X_CT.IsExactlyIdentity()
+    assert np.isnan(estimate.p_C_corners[[0, 3]]).all() and np.isfinite(estimate.p_C_corners[[1, 2]]).all()
+
+
+@pytest.mark.parametrize("focal_lengths", [[-FX, FY], [FX, -FY]])
+def test_given_intrinsics_with_a_negative_focal_length_give_an_invalid_pose(focal_lengths):
+    """A focal length must be positive: given intrinsics with fx or fy < 0 (rays mirrored) are refused, while the
+    same frame with the true ones is a valid pose."""
+    p_s, p_T = sensor_positions_C(SENSOR_RADIUS), tag_corners_T(TAG_SIZE)
+    ranges = np.full(4, 2.0)
+    uv_corners = project(np.array([RigidTransform([0.0, 0.0, 2.0]).multiply(p) for p in p_T]))
+    args = (p_s, ranges, project(touch_points(p_s, ranges)), uv_corners, p_T)
+    assert crhf_tag_pose(*args, intrinsics=([FX, FY], [CX, CY])).valid
+    assert not crhf_tag_pose(*args, intrinsics=(focal_lengths, [CX, CY])).valid
+
+
 def test_ray_plane_intersection_recovers_tag_corners_exactly():
     p_C_corners = np.array([X_CT.multiply(p) for p in tag_corners_T(TAG_SIZE)])
     n, d = deck_plane(X_CT)
@@ -579,6 +606,26 @@ def test_corners_that_fit_no_rigid_tag_are_not_fused():
     fused = crhf_tag_pose(*args, range_covariance=0.005**2 * np.eye(4),
                           corner_variance_px2=refused.corner_residual_px2)
     assert not np.allclose(fused.plane.normal, refused.plane.normal, atol=1e-6)
+
+
+def test_the_pipeline_gates_the_corners_with_the_pooled_variances_degrees_of_freedom():
+    """crhf_tag_pose judges the corners by residual_gate(corner_variance_dof): a residual between the exact-variance
+    gate (NORMAL_GATE) and the 10-dof one is fused with a variance pooled over 10 dof and not with an exact one."""
+    p_s, p_T = sensor_positions_C(SENSOR_RADIUS), tag_corners_T(TAG_SIZE)
+    n, d = deck_plane(X_CT)
+    ranges = ranges_to_plane(p_s, n, d)
+    uv_corners = project(np.array([X_CT.multiply(p) for p in p_T]))
+    uv_corners[0] += [3.0, 0.0]  # one corner 3 px off: no rigid tag fits exactly
+    residual = corner_normal(uv_corners, [FX, FY], [CX, CY], p_T).residual_px2
+    variance = residual / ((NORMAL_GATE + residual_gate(10.0)) / 2)  # the residual midway between the two gates
+    args = (p_s, ranges, project(touch_points(p_s, ranges)), uv_corners, p_T)
+    options = dict(range_covariance=1e-4 * np.eye(4), corner_variance_px2=variance)
+    ranges_normal = fit_plane(touch_points(p_s, ranges)).normal
+    exact = crhf_tag_pose(*args, corner_variance_dof=np.inf, **options)
+    assert exact.valid and exact.corner_residual_px2 == pytest.approx(residual)
+    np.testing.assert_allclose(exact.plane.normal, ranges_normal, atol=1e-12)  # not fused: the ranges' plane
+    pooled = crhf_tag_pose(*args, corner_variance_dof=10.0, **options)
+    assert pooled.valid and np.degrees(np.arccos(min(1.0, pooled.plane.normal @ ranges_normal))) > 0.5  # fused
 
 
 def test_crhf_pipeline_with_fusion_and_given_intrinsics_recovers_the_tag_pose():
