@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from scipy.spatial.transform import Rotation, Slerp
+from scipy.stats import chi2
 
 from systems.estimators.federated.engine import (
     NODES,
@@ -133,6 +134,42 @@ def test_the_gate_rejects_a_ten_sigma_pose():
     far = update_pose(state, np.array([0.0, 0.0, 6.0]), np.eye(3), np.eye(6) * 1e-4, LocalFilterConfig())
     assert far.gated == 1 and far.accepted == 0
     np.testing.assert_array_equal(far.p, state.p)
+
+
+def test_the_gate_takes_the_chi_square_quantile_of_all_six_degrees_of_freedom_of_a_pose():
+    """A full pose's innovation has 6 components: a position error whose NIS lies just under
+    chi2.ppf(gate_probability, 6) is accepted, just over it gated (a quantile of 3 dof, 21.1 at 0.9999 against
+    27.9, gated poses that pass)."""
+    config = LocalFilterConfig()
+    state = _state([0.0, 0.0, 5.0])
+    threshold = chi2.ppf(config.gate_probability, 6)
+    noise = np.eye(6) * 1e-4
+    for ratio, accepted in ((0.98, 1), (1.02, 0)):
+        dz = np.sqrt(ratio * threshold * (state.P[2, 2] + noise[5, 5]))  # NIS = dz^2 / S_zz
+        after = update_pose(state, np.array([0.0, 0.0, 5.0 + dz]), np.eye(3), noise, config)
+        assert (after.accepted, after.gated) == (accepted, 1 - accepted)
+
+
+def test_a_tight_pose_brings_a_turned_filter_onto_its_attitude():
+    """update_pose's attitude innovation in P, as its Jacobian and the update take it (R = Exp(dtheta) R):
+    a filter yawed 90 deg, a pose turned 0.1 rad about P's x from it and measured tightly, lands on the pose's
+    attitude (the innovation taken in B, R^T R_PB, turns it about P's y instead: 8 deg off)."""
+    R0 = exp_so3([0.0, 0.0, np.pi / 2])
+    R_measured = exp_so3([0.1, 0.0, 0.0]) @ R0
+    state = LocalState(np.array([0.0, 0.0, 5.0]), np.zeros(3), R0, np.eye(9) * 0.01)
+    after = update_pose(state, state.p, R_measured, np.eye(6) * 1e-10, LocalFilterConfig())
+    assert after.accepted == 1
+    np.testing.assert_allclose(log_so3(R_measured @ after.R.T), 0.0, atol=1e-6)
+
+
+def test_a_started_filter_takes_its_velocity_covariance_from_the_horizontal_and_vertical_stds():
+    """The velocity's initial covariance in P (z up): the horizontal std on x and y, the vertical on z, as the
+    config names them, in initial_velocity_covariance and in a filter started from the centre."""
+    config = LocalFilterConfig(initial_velocity_std_mps=0.7, initial_vertical_velocity_std_mps=0.3)
+    expected = np.diag([0.7**2, 0.7**2, 0.3**2])
+    np.testing.assert_allclose(initial_velocity_covariance(config), expected, rtol=1e-12)
+    state = initial_state(np.array([0.4, -0.3, -15.0]), 0.01 * np.eye(3), np.array([0.0, 0.0, G]), config)
+    np.testing.assert_allclose(state.P[3:6, 3:6], expected, rtol=1e-12)
 
 
 def test_a_local_filter_gates_a_non_finite_measurement():
