@@ -4,16 +4,16 @@
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
-from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
-from systems.estimators.federated.engine import NODES, X_PB, FederatedConfig, FederatedState, step
-from systems.estimators.federated.local_filter import log_so3
-from systems.estimators.federated.system import FED_STARTED, FED_VALID, FederatedFilterSystem
+from systems.estimators.federated.engine import NODES, X_PB, FederatedConfig, FederatedState, NodeStats, step
+from systems.estimators.federated.local_filter import LocalState, exp_so3, log_so3
+from systems.estimators.federated.system import FED_LOCAL_TRACES, FED_STARTED, FED_VALID, FederatedFilterSystem
 from systems.perception.rqrlp.measurements import approach_measurement
 
 G = 9.81
@@ -130,3 +130,97 @@ def test_max_coast_must_exceed_the_camera_period(max_coast_s):
         FederatedFilterSystem(FederatedConfig(max_coast_s=max_coast_s), X_BC, IMU_PERIOD, CAMERA_PERIOD)
     FederatedFilterSystem(FederatedConfig(max_coast_s=0.03), X_BC, IMU_PERIOD, CAMERA_PERIOD)
     load_scenario("open-landing", overrides=["federated.filter.max_coast_s=0.03"])
+
+
+def _random_covariance(rng, n=9):
+    A = rng.normal(scale=0.03, size=(n, n))
+    return A @ A.T + 1e-4 * np.eye(n)
+
+
+def _system_at(fused, heading_known, local_estimates, V_WB):
+    """The system's context at t = 0.1 s holding a fused estimate set by hand (its step of t already taken, so
+    the outputs read it as it is)."""
+    t = 0.1
+    federated = FederatedFilterSystem(FederatedConfig(), X_BC, IMU_PERIOD, CAMERA_PERIOD)
+    context = federated.CreateDefaultContext()
+    context.SetTime(t)
+    state = FederatedState(time=t, fused=fused, filters=local_estimates, local_estimates=local_estimates,
+                           stats=(NodeStats(1, 0, t), NodeStats(), NodeStats()), heading_known=heading_known)
+    context.SetAbstractState(0, state)
+    federated.GetInputPort("imu").FixValue(context, IMU)
+    for node in NODES:
+        federated.GetInputPort(node).FixValue(context, [])
+    federated.GetInputPort("X_WB").FixValue(context, X_WB)
+    federated.GetInputPort("V_WB").FixValue(context, V_WB)
+    return federated, context
+
+
+def _pose_jacobians(fused):
+    """d[dtheta; dp] of X_PB (in P) and of X_WP = X_WB X_PB^-1 (in W) over the fused error state [dp, dv, dtheta]
+    (attitude errors Exp(dtheta) R_PB), by central differences of Drake's RigidTransform; and the same of a turn
+    psi of P about its own z at its origin (the heading gauge)."""
+    X_PB_0 = RigidTransform(RotationMatrix(fused.R), fused.p)
+    X_WP_0 = X_WB.multiply(X_PB_0.inverse())
+
+    def error(X, X0):
+        return np.r_[log_so3(X.rotation().matrix() @ X0.rotation().matrix().T), X.translation() - X0.translation()]
+
+    def poses(dx):
+        X = RigidTransform(RotationMatrix(exp_so3(dx[6:9]) @ fused.R), fused.p + dx[0:3])
+        return error(X, X_PB_0), error(X_WB.multiply(X.inverse()), X_WP_0)
+
+    def turned(psi):
+        X = RigidTransform(RotationMatrix.MakeZRotation(psi).inverse(), np.zeros(3)).multiply(X_PB_0)  # X_P'B
+        return error(X, X_PB_0), error(X_WB.multiply(X.inverse()), X_WP_0)
+
+    h = 1e-6
+    columns = [[(a - b) / (2 * h) for a, b in zip(poses(h * e), poses(-h * e))] for e in np.eye(9)]
+    J_PB, J_WP = (np.column_stack([c[k] for c in columns]) for k in (0, 1))
+    g_PB, g_WP = ((a - b) / (2 * h) for a, b in zip(turned(h), turned(-h)))
+    return J_PB, J_WP, g_PB, g_WP
+
+
+@pytest.mark.parametrize("heading_known", [True, False])
+def test_the_pose_covariances_are_the_fused_covariance_through_the_poses_jacobians(heading_known):
+    """X_PB_estimate's and X_WP_estimate's covariances ([dtheta; dp], in P and in W) against the fused covariance
+    propagated through Jacobians of the poses taken by differencing Drake's RigidTransform, a tilted attitude
+    and a covariance with every block filled; before a full pose (heading unknown) with pi^2 along a turn of P
+    about its z at its own origin (P level in W, as the gauge takes it: the fused attitude a yaw)."""
+    rng = np.random.default_rng(3)
+    R = exp_so3([0.15, -0.1, 0.7]) if heading_known else exp_so3([0.0, 0.0, 0.7])
+    fused = LocalState(np.array([0.8, -0.5, 4.0]), np.array([0.2, -0.1, 0.05]), R, _random_covariance(rng))
+    federated, context = _system_at(fused, heading_known, (fused,) * len(NODES), np.zeros(6))
+    J_PB, J_WP, g_PB, g_WP = _pose_jacobians(fused)
+    expected_PB, expected_WP = J_PB @ fused.P @ J_PB.T, J_WP @ fused.P @ J_WP.T
+    if not heading_known:
+        expected_PB = expected_PB + np.pi**2 * np.outer(g_PB, g_PB)
+        expected_WP = expected_WP + np.pi**2 * np.outer(g_WP, g_WP)
+    X_PB_estimate = federated.GetOutputPort("X_PB_estimate").Eval(context)
+    X_WP_estimate = federated.GetOutputPort("X_WP_estimate").Eval(context)
+    assert X_PB_estimate.valid and X_WP_estimate.valid
+    np.testing.assert_allclose(X_PB_estimate.covariance, expected_PB, atol=1e-8)
+    np.testing.assert_allclose(X_WP_estimate.covariance, expected_WP, atol=1e-8)
+
+
+def test_the_patterns_velocity_is_the_bodys_less_the_bodys_relative_to_the_pattern():
+    """v_WP_estimate: p_WB = p_WP + R_WP p_PB with the pattern not turning, so v_WP = v_WB - R_WP v_PB, for a
+    body moving relative to the pattern (v_PB not zero) and in the world."""
+    rng = np.random.default_rng(4)
+    fused = LocalState(np.array([0.8, -0.5, 4.0]), np.array([0.6, -0.4, 0.2]), exp_so3([0.1, -0.05, 0.9]),
+                       _random_covariance(rng))
+    V_WB = np.array([0.0, 0.0, 0.1, 1.5, -0.7, 0.3])  # [w; v] in W
+    federated, context = _system_at(fused, True, (fused,) * len(NODES), V_WB)
+    R_WP = X_WB.multiply(RigidTransform(RotationMatrix(fused.R), fused.p).inverse()).rotation().matrix()
+    np.testing.assert_allclose(federated.GetOutputPort("v_WP_estimate").Eval(context), V_WB[3:] - R_WP @ fused.v,
+                               atol=1e-12)
+
+
+def test_the_vector_logs_the_trace_of_each_local_filters_position_covariance():
+    """federated_vector's FED_LOCAL_TRACES: the trace of each local filter's position block (m^2), as its
+    layout says, not of its whole covariance."""
+    rng = np.random.default_rng(5)
+    locals_ = tuple(LocalState(np.array([0.0, 0.0, 4.0]), np.zeros(3), np.eye(3), _random_covariance(rng))
+                    for _ in NODES)
+    federated, context = _system_at(locals_[0], True, locals_, np.zeros(6))
+    vector = federated.GetOutputPort("federated_vector").Eval(context)
+    np.testing.assert_allclose(vector[FED_LOCAL_TRACES], [np.trace(s.P[0:3, 0:3]) for s in locals_], rtol=1e-12)
