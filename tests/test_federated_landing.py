@@ -4,9 +4,14 @@ against the simulation's truth. benchmarks/federated.py runs the full scenes (20
 
 import numpy as np
 import pytest
+from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
+from pydrake.systems.sensors import ImageRgba8U
 
 from diagrams.federated_metrics import federated_log
+from diagrams.federated_perception import FederatedPerceptionConfig, add_federated_perception
 from diagrams.gv_landing_run import fly
 from diagrams.rqrlp_maneuvers import ManeuversConfig
 from diagrams.rqrlp_maneuvers_run import fly as fly_maneuvers
@@ -15,6 +20,7 @@ from systems.config import ConfigError
 from systems.control.flight_controller import COMMAND_SIZE
 from systems.control.landing import Mode
 from systems.estimators.federated.system import FED_BETAS, FED_RELATIVE_STD
+from systems.perception.rqrlp.pattern import RqrlpLayout
 from systems.perception.seam import VALID
 from systems.vehicles.quadrotor import P_WB, V_WB, hover_state
 
@@ -175,3 +181,37 @@ def test_the_manoeuvres_camera_exposure_is_fed_the_patterns_flow():
     height_C = ((RigidTransform(x[P_WB]) @ config.federated.camera.X_BC).translation()[2]
                 - flow.GetInputPort("X_WS").Eval(flow_context).translation()[2])
     assert np.linalg.norm(flow.get_output_port().Eval(flow_context)) == pytest.approx(1.0 / height_C, rel=1e-9)
+
+
+def test_the_filters_gravity_must_be_the_imus():
+    """federated.filter.gravity_m_s2 apart from federated.imu.gravity_m_s2 is one ConfigError line (the filter
+    would take the IMU's reading at rest for an acceleration); both set alike load."""
+    with pytest.raises(ConfigError, match=r"^federated\.filter\.gravity_m_s2 must be the IMU's \(9\.81\)$"):
+        load_scenario("open-landing", overrides=["federated.filter.gravity_m_s2=9.5"])
+    _, config = load_scenario("open-landing", overrides=["federated.filter.gravity_m_s2=9.5",
+                                                         "federated.imu.gravity_m_s2=9.5"])
+    assert config.federated.filter.gravity_m_s2 == config.federated.imu.gravity_m_s2 == 9.5
+
+
+def _federated_imu_sample(seed: int) -> np.ndarray:
+    """The first sample of the IMU that add_federated_perception builds with `seed`, the UAV still at 5 m."""
+    config = FederatedPerceptionConfig()
+    builder = DiagramBuilder()
+    image = builder.AddSystem(ConstantValueSource(AbstractValue.Make(ImageRgba8U(config.camera.width,
+                                                                                  config.camera.height))))
+    X_WB = builder.AddSystem(ConstantValueSource(AbstractValue.Make(RigidTransform([0.0, 0.0, 5.0]))))
+    still = [builder.AddSystem(ConstantVectorSource(np.zeros(6))).get_output_port() for _ in range(2)]  # V_WB, A_WB
+    ports = add_federated_perception(builder, config, RqrlpLayout(), seed, image.get_output_port(),
+                                     X_WB.get_output_port(), *still)
+    diagram = builder.Build()
+    context = ports.imu.GetMyContextFromRoot(diagram.CreateDefaultContext())
+    return ports.imu.EvalUniquePeriodicDiscreteUpdate(context).get_vector().CopyToVector()
+
+
+def test_the_federated_imu_draws_its_noise_from_the_runs_seed():
+    """The perception's IMU takes the run's seed: a Monte Carlo run's seeds give the IMU different biases and
+    noise, one seed the same samples (it had been seeded 0, every run's IMU alike)."""
+    first = _federated_imu_sample(3)
+    np.testing.assert_array_equal(_federated_imu_sample(3), first)
+    assert np.all(_federated_imu_sample(4) != first)
+    np.testing.assert_allclose(first, [0.0, 0.0, 9.81, 0.0, 0.0, 0.0], atol=0.05)  # a reading at rest, noisy
