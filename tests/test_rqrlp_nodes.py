@@ -38,21 +38,23 @@ MAPS = distortion_maps(CAMERA)
 LOOKING_DOWN = RotationMatrix.MakeXRotation(np.pi)
 
 
-def view(X_CP: RigidTransform, supersample: int = 3, ground: int = 200, noise: float = 2.0) -> np.ndarray:
-    """The grey image of the pattern at X_CP: the plane's homography at `supersample` times the
-    resolution averaged down, distorted by the lens, with the camera's pixel noise (`noise` levels,
+def view(X_CP: RigidTransform, supersample: int = 3, ground: int = 200, noise: float = 2.0,
+         camera: CameraConfig = CAMERA) -> np.ndarray:
+    """The grey image of the pattern at X_CP seen by `camera`: the plane's homography at `supersample` times
+    the resolution averaged down, distorted by the lens, with the camera's pixel noise (`noise` levels,
     seeded by the pose)."""
     scale, half = TEXTURE.shape[0] / LAYOUT.size_m, LAYOUT.size_m / 2
     texel_to_P = np.array([[1 / scale, 0, 0.5 / scale - half], [0, -1 / scale, half - 0.5 / scale], [0, 0, 1]])
-    K_big = K.copy()
+    K_big = camera.K.copy()
     K_big[:2] *= supersample
-    K_big[:2, 2] = (K[:2, 2] + 0.5) * supersample - 0.5
+    K_big[:2, 2] = (camera.K[:2, 2] + 0.5) * supersample - 0.5
     R, t = X_CP.rotation().matrix(), X_CP.translation()
     H = K_big @ np.column_stack([R[:, 0], R[:, 1], t]) @ texel_to_P
-    big = cv2.warpPerspective(TEXTURE, H, (CAMERA.width * supersample, CAMERA.height * supersample),
+    big = cv2.warpPerspective(TEXTURE, H, (camera.width * supersample, camera.height * supersample),
                               flags=cv2.INTER_LINEAR, borderValue=ground)
-    pinhole = cv2.resize(big, (CAMERA.width, CAMERA.height), interpolation=cv2.INTER_AREA)
-    distorted = cv2.remap(pinhole, *MAPS, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    pinhole = cv2.resize(big, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    maps = MAPS if camera is CAMERA else distortion_maps(camera)
+    distorted = cv2.remap(pinhole, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     rng = np.random.default_rng(zlib.crc32(X_CP.GetAsMatrix34().tobytes()))
     return np.clip(distorted + rng.normal(0.0, noise, distorted.shape), 0, 255).astype(np.uint8)
 
@@ -160,10 +162,49 @@ def test_the_adjustment_nodes_covariance_is_of_the_corners_its_pose_was_fitted_t
     np.testing.assert_array_equal(adjustment(grey, K, D, LAYOUT).inliers, np.arange(36) >= 12)
 
 
+def test_adjustment_refuses_corners_whose_rms_residual_is_over_max_residual_px(monkeypatch):
+    """Every corner 1.5 px off its true place, in random directions: about the pose fitted to them they
+    are some 1.2 px off (RMS), over the 1 px max_residual_px, and adjustment gives no pose; allowed 2 px,
+    it gives that pose."""
+    X_CP = X_CP_at(2.5, tilt_deg=(3, -2))
+    grey = view(X_CP)
+    true = cv2.projectPoints(layout_corners(LAYOUT), cv2.Rodrigues(X_CP.rotation().matrix())[0], X_CP.translation(),
+                             K, D)[0].reshape(-1, 4, 2)
+    angle = np.random.default_rng(0).uniform(0.0, 2 * np.pi, true.shape[:2])
+    off = true + 1.5 * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+    monkeypatch.setattr(nodes, "corners_from_sides", lambda grey, quads, search_px: (off, np.ones(len(quads), bool)))
+    assert adjustment(grey, K, D, LAYOUT) is None
+    allowed = adjustment(grey, K, D, LAYOUT, max_residual_px=2.0)
+    assert allowed is not None and 1.0 < allowed.rms_residual_px < 2.0
+
+
 def test_adjustment_needs_the_markers_resolved():
     assert adjustment(view(X_CP_at(4.5)), K, D, LAYOUT) is None  # modules under 5 px
     assert adjustment(np.full((540, 960), 200, np.uint8), K, D, LAYOUT) is None
     assert adjustment(view(X_CP_at(1.0, xy=(0.6, 0.0))), K, D, LAYOUT) is None  # a marker out of view
+
+
+@pytest.mark.parametrize("inner", [[(50, 50, 60, 60)], [(41, 41, 69, 69), (32, 32, 35, 35)]],
+                         ids=["out_of_proportion", "two_squares_in_its_hole"])
+def test_location_markers_pass_over_nested_squares_that_are_no_marker(inner):
+    """Beside the pattern (2.5 m below), dark, light and dark nested squares that are no location marker:
+    sides 71 : 51 : 11 px (areas 1 : 0.52 : 0.02, not 49 : 25 : 9), or a marker's 71 : 51 : 29 with a second
+    square in its hole. The candidates are the pattern's three markers, each where its centre projects,
+    and the pose is found (a fourth candidate lost it)."""
+    X_CP = X_CP_at(2.5, xy=(0.3, 0.0), yaw_deg=10.0)
+    grey = view(X_CP)
+    cv2.rectangle(grey, (20, 20), (90, 90), 10, -1)
+    cv2.rectangle(grey, (30, 30), (80, 80), 250, -1)
+    for x0, y0, x1, y1 in inner:
+        cv2.rectangle(grey, (x0, y0), (x1, y1), 10, -1)
+    candidates = nodes.location_markers(grey)
+    assert len(candidates) == 3
+    centres_P = np.array([[*LAYOUT.marker_centres_P[m], 0.0] for m in ("top", "right", "bottom")])
+    true = cv2.projectPoints(centres_P, cv2.Rodrigues(X_CP.rotation().matrix())[0], X_CP.translation(), K,
+                             D)[0].reshape(-1, 2)
+    found = np.array([c[0].mean(axis=0) for c in candidates])
+    assert np.max(np.min(np.linalg.norm(true[:, None] - found[None], axis=2), axis=1)) < 1.0
+    assert adjustment(grey, K, D, LAYOUT) is not None
 
 
 @pytest.mark.parametrize("height_m", [4.0, 10.0, 20.0])
@@ -174,14 +215,16 @@ def test_approach_gives_a_rough_position_from_far(height_m):
     assert np.linalg.norm(found.p_CP - X_CP.translation()) < 0.03 * height_m  # a few per cent of the range
 
 
-@pytest.mark.parametrize("shape", ["triangle", "hexagon"])
+@pytest.mark.parametrize("shape", ["triangle", "hexagon", "rectangle"])
 def test_a_larger_dark_region_that_is_no_quadrilateral_does_not_hide_the_outline(shape):
     """A dark triangle or hexagon larger than the pattern (10 m below), apart from it: not a quadrilateral, it is
-    passed over for the next largest region, the outline, as on the clean image."""
+    passed over for the next largest region, the outline, as on the clean image. So is a dark 3 : 1 rectangle
+    (a vehicle's body): a quadrilateral, but longer against its width than MAX_ASPECT (a square ~50 deg off)."""
     X_CP = X_CP_at(10.0, xy=(0.8, -0.5), tilt_deg=(5, -3))
     grey = view(X_CP)
-    polygon = (np.array([[60, 380], [260, 380], [160, 200]]) if shape == "triangle"
-               else cv2.ellipse2Poly((150, 120), (90, 90), 0, 0, 360, 60))
+    polygon = {"triangle": np.array([[60, 380], [260, 380], [160, 200]]),
+               "hexagon": cv2.ellipse2Poly((150, 120), (90, 90), 0, 0, 360, 60),
+               "rectangle": np.array([[60, 100], [360, 100], [360, 200], [60, 200]])}[shape]
     cv2.fillPoly(grey, [polygon.astype(np.int32)], 30)
     found, clean = approach(grey, K, D, LAYOUT), approach(view(X_CP), K, D, LAYOUT)
     assert found is not None and np.linalg.norm(found.p_CP - clean.p_CP) < 0.01
@@ -198,10 +241,24 @@ def test_the_approach_node_weighs_its_centre_by_the_estimators_focal_length():
                                rtol=1e-12)
 
 
-@pytest.mark.parametrize("height_m", [2.0, 3.0, 4.0, 5.0])
+def test_approach_depth_takes_the_focal_length_of_both_axes():
+    """A camera whose pixels are not square (fx 640 px, fy 560): the outline's side, sqrt of its area, is the
+    geometric mean of its sizes along both axes, and its depth f size / side with f = sqrt(fx fy), within
+    `test_approach_depth_near`'s 0.15 % (with fx alone: sqrt(fx / fy) - 1 = 6.9 % too far)."""
+    camera = replace(CAMERA, fy=560.0)
+    for yaw_deg in (0.0, 45.0):
+        X_CP = X_CP_at(3.0, xy=(0.1, -0.05), yaw_deg=yaw_deg)
+        found = approach(view(X_CP, camera=camera), camera.K, camera.D, LAYOUT)
+        assert found is not None
+        assert abs(found.p_CP[2] / X_CP.translation()[2] - 1) < 0.0015, yaw_deg
+
+
+@pytest.mark.parametrize("height_m", [2.0, 3.0, 4.0, 5.0, 5.5, 6.0])
 def test_approach_depth_near_is_within_a_fraction_of_a_per_cent(height_m):
-    """Where its border is a few pixels wide the outline's corners are its fitted sides' crossings:
-    the depth within 0.15 % at any heading (from the contour's corners: up to 0.43 %)."""
+    """Where its border is a few pixels wide (MIN_REFINED_BORDER_PX, to 6.4 m) the outline's corners are its
+    fitted sides' crossings: the depth within 0.15 % at any heading (from the contour's corners: up to 0.43 %).
+    Past 5 m the border is under 4 px wide and the search across it stays within its outer half (a search of
+    EDGE_SEARCH_PX reached its inner edge: up to 0.69 % at 6 m)."""
     for yaw_deg in (0.0, 20.0, 45.0, 70.0):
         X_CP = X_CP_at(height_m, xy=(0.1, -0.05), yaw_deg=yaw_deg, tilt_deg=(2, -1))
         found = approach(view(X_CP), K, D, LAYOUT)
@@ -209,9 +266,44 @@ def test_approach_depth_near_is_within_a_fraction_of_a_per_cent(height_m):
         assert abs(found.p_CP[2] / X_CP.translation()[2] - 1) < 0.0015, yaw_deg
 
 
+@pytest.mark.parametrize("height_m", [8.0, 10.0])
+def test_approach_depth_far_counts_the_outline_to_its_edge(height_m):
+    """Past 6.4 m the outline's corners are the contour's, through its edge pixels' centres, half a pixel
+    inside the edge: its side (54-68 px at 8-10 m) is a pixel more than the contour's, which alone puts the
+    depth 1.5-1.9 % too far. The depth within 1 %, under that pixel's worth."""
+    for yaw_deg in (0.0, 30.0):
+        X_CP = X_CP_at(height_m, xy=(0.8, -0.5), yaw_deg=yaw_deg, tilt_deg=(5, -3))
+        found = approach(view(X_CP), K, D, LAYOUT)
+        assert found is not None
+        assert abs(found.p_CP[2] / X_CP.translation()[2] - 1) < 0.01, yaw_deg
+
+
 @pytest.mark.parametrize("height_m", [0.3, 0.9])
 def test_approach_ignores_an_outline_the_image_cuts_and_the_texture_inside_it(height_m):
     assert approach(view(X_CP_at(height_m)), K, D, LAYOUT) is None  # 0.85 m at 0.9 m: taller than the image
+
+
+def test_approach_ignores_an_outline_the_images_side_cuts():
+    """The pattern 3 m below, its left edge 5-25 cm beyond the image's: the dark region's hull runs along the
+    image's edge, a quadrilateral whose centre is not the pattern's, and no outline is given. 5 cm inside the
+    image's edge, it is."""
+    z = 3.0
+    left = -CAMERA.cx / CAMERA.fx * z  # the image's left edge at that depth (the lens' distortion aside)
+    for cut_m in (0.05, 0.15, 0.25):
+        X_CP = X_CP_at(z, xy=(left + LAYOUT.size_m / 2 - cut_m, 0.0), yaw_deg=0.0)
+        assert approach(view(X_CP), K, D, LAYOUT) is None, cut_m
+    X_CP = X_CP_at(z, xy=(left + LAYOUT.size_m / 2 + 0.05, 0.0), yaw_deg=0.0)
+    found = approach(view(X_CP), K, D, LAYOUT)
+    assert found is not None and np.linalg.norm(found.p_CP - X_CP.translation()) < 0.03 * z
+
+
+def test_approach_takes_no_dark_x_for_the_outline():
+    """A dark X (two crossed beams, a shadow) larger than the pattern would be, with no pattern in view: its
+    hull is a square-ish quadrilateral, but its edges are light, no border's: no outline."""
+    grey = np.full((CAMERA.height, CAMERA.width), 200, np.uint8)
+    cv2.line(grey, (60, 60), (300, 300), 30, 25)
+    cv2.line(grey, (60, 300), (300, 60), 30, 25)
+    assert approach(grey, K, D, LAYOUT) is None
 
 
 def test_approach_takes_no_location_marker_for_the_outline_below_it():
@@ -237,6 +329,18 @@ def test_touchdown_chains_the_pose_through_a_descent_without_markers_in_view():
     assert worst[0] < 0.01 and worst[1] < 1.0, worst
     assert tracker.chained == 20
     assert TouchdownTracker(K, D, LAYOUT).track(images[1])[1] is None  # no anchor, no pose
+
+
+def test_touchdown_gives_no_pose_from_fewer_inliers_than_min_features():
+    """A jump between two frames at 1 m (25 deg of yaw and 10 cm) that the flow mostly loses: the frames'
+    homography rests on fewer than min_features (12) RANSAC inliers, and the tracker gives no pose and drops
+    its chain (the pose from those 8 inliers was 0.24 m off)."""
+    X_before = X_CP_at(1.0, xy=(0.02, -0.01), yaw_deg=30.0)
+    X_after = X_CP_at(1.0, xy=(0.12, -0.01), yaw_deg=55.0)
+    tracker = TouchdownTracker(K, D, LAYOUT).anchored(view(X_before), X_before)
+    tracker, estimate, features = tracker.track(view(X_after))
+    assert estimate is None and features < tracker.min_features
+    assert tracker.H is None
 
 
 def point_sampled_square(x0: float, x1: float, y0: float, y1: float, size: int = 80) -> np.ndarray:
@@ -276,3 +380,33 @@ def test_a_light_squares_turned_hull_is_refined_to_its_sides():
     corners, refined = corners_from_sides(grey, turned[None], 3.0)
     assert refined[0]
     np.testing.assert_allclose(corners[0], expected, atol=0.02)
+
+
+def test_a_contour_farther_from_its_square_than_max_corner_shift_keeps_its_own_corners():
+    """A contour 3 px off its square along both axes (its corners 4.2 px off the square's): the square's
+    sides are found, within a 5 px search, but their crossings are over MAX_CORNER_SHIFT_PX (3 px) from the
+    contour's corners, and the quadrilateral keeps its own, unrefined."""
+    x0, y0 = 20.1, 20.1
+    x1, y1 = x0 + 30.35, y0 + 29.7
+    grey = point_sampled_square(x0, x1, y0, y1)
+    left, right, top, bottom = np.ceil(x0) - 0.5, np.floor(x1) + 0.5, np.ceil(y0) - 0.5, np.floor(y1) + 0.5
+    square = np.array([[left, top], [left, bottom], [right, bottom], [right, top]])
+    contour = square + 3.0
+    corners, refined = corners_from_sides(grey, contour[None], 5.0)
+    assert not refined[0]
+    np.testing.assert_array_equal(corners[0], contour)
+    corners, refined = corners_from_sides(grey, (square + 1.5)[None], 5.0)  # 2.1 px off: refined to the square
+    assert refined[0]
+    np.testing.assert_allclose(corners[0], square, atol=0.02)
+
+
+def test_the_peak_is_the_centroid_of_its_part_above_half_its_height():
+    """An asymmetric peak, a tent rising over 2 px and falling over 1 (sampled every 0.25 px, its kinks on
+    samples): its part above half its height is a triangle with corners at -1, 0 and 0.5 px, whose centroid
+    is at the corners' mean, -1/6 px (weighed by the whole height of the samples above the half: -0.225 px).
+    The mirrored tent's, +1/6 px."""
+    offsets = np.arange(-3.0, 3.0 + 1e-9, 0.25)
+    tent = np.interp(offsets, [-2.0, 0.0, 1.0], [0.0, 1.0, 0.0])
+    profiles = np.array([tent, tent[::-1]])
+    peak = np.argmax(profiles, axis=1)
+    np.testing.assert_allclose(nodes._peak_centroid(profiles, peak, offsets), [-1 / 6, 1 / 6], atol=1e-12)
