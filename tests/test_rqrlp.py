@@ -35,6 +35,28 @@ def test_the_texture_shows_the_layouts_markers_and_outline():
     assert np.array_equal(image, rqrlp_image(LAYOUT))  # the same pattern every time
 
 
+def test_the_texture_draws_the_border_and_each_square_to_the_layouts_pixels():
+    """Measured in the image, the border on each side spans texture_px(border_m), and each marker's three
+    squares start and end (along its centre row and column) at their corners' positions in texture pixels:
+    the image's runs of black and white change exactly there, a whole pixel of the texture to each."""
+    image = rqrlp_image(LAYOUT)
+    n, half = LAYOUT.pixels, LAYOUT.size_m / 2
+    border = LAYOUT.texture_px(LAYOUT.border_m)
+    assert border == round(border) and border > 0
+    for line in (image[n // 2], image[n // 2, ::-1], image[:, n // 2], image[::-1, n // 2]):  # from each side
+        assert np.argmax(line != 0) == border  # the texture inside is never black
+    for marker in MARKERS:
+        squares = LAYOUT.marker_corners_P(marker)
+        centre = LAYOUT.marker_centres_P[marker]
+        cols = [LAYOUT.texture_px(x + half) for x in (*squares[:, 0, 0], *squares[::-1, 2, 0])]
+        rows = [LAYOUT.texture_px(half - y) for y in (*squares[:, 0, 1], *squares[::-1, 2, 1])]
+        row, col = round(LAYOUT.texture_px(half - centre[1])), round(LAYOUT.texture_px(centre[0] + half))
+        for line, edges in ((image[row], cols), (image[:, col], rows)):
+            start, end = round(edges[0]) - 5, round(edges[-1]) + 5  # from the quiet zone around it
+            changes = start + 1 + np.flatnonzero(np.diff(line[start:end].astype(int)) != 0)
+            np.testing.assert_array_equal(changes, edges)
+
+
 def test_top_is_off_the_longest_line_between_the_markers():
     centres = LAYOUT.marker_centres_P
     right_bottom = np.linalg.norm(centres["right"] - centres["bottom"])
@@ -77,3 +99,14 @@ def test_the_smallest_layout_the_texture_draws_shows_its_markers_and_border():
     n = layout.pixels
     assert not image[[0, n - 1], :].any() and not image[:, [0, n - 1]].any()
     assert image[1:n - 1, 1:n - 1].min() == 0 and np.mean(image[1:n - 1, 1:n - 1] == 0) < 0.01
+
+
+@pytest.mark.parametrize("size_m, pixels", [(0.85, 1700), (0.5, 856), (1.0, 2100)])
+def test_a_layout_of_whole_texture_pixels_is_valid(size_m, pixels):
+    """A border, quiet zone and texture cell of one texture pixel (size_m / pixels) and a module of two, the
+    least `validate` allows: valid, however the floats round (0.5 / 856 * 856 / 0.5 = 1 - 1e-16)."""
+    pixel = size_m / pixels
+    layout = RqrlpLayout(size_m=size_m, pixels=pixels, border_m=pixel, margin_m=2 * pixel, marker_m=14 * pixel,
+                         texture_cell_m=pixel)
+    layout.validate()
+    assert layout.texture_px(pixel) == 1.0 and layout.texture_px(2 * pixel) == 2.0
