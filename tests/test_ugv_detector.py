@@ -1,7 +1,8 @@
 """Seed 003's UGV detectors (Sec. 2.2.1; systems/perception/ugv_detector.py) on rendered held-out fisheye
 frames (diagrams/ugv_detection_scenes.py): both find the UGV and not a distractor of another colour; the
-true box's and the pad centre's projections against hand cases; greedy NMS on hand cases. The
-learned detector's own parts: tests/test_ugv_cnn_detector.py."""
+true box's and the pad centre's projections against hand cases; greedy NMS, Table 3's matching and the
+classical detector's strip and roof tests on hand cases. The learned detector's own parts:
+tests/test_ugv_cnn_detector.py."""
 
 import dataclasses
 import math
@@ -33,6 +34,7 @@ from systems.perception.ugv_detector import (
     ColourPadConfig,
     ColourPadDetector,
     UgvDetectorSystem,
+    _Part,
     match_truth,
     non_maximum_suppression,
 )
@@ -124,6 +126,13 @@ def test_nms_keeps_the_best_and_drops_only_what_overlaps_a_kept_box():
         == [0, 1]
 
 
+def test_nms_keeps_at_most_max_keep_boxes_the_best_first():
+    boxes = np.array([[0, 0, 10, 10], [20, 0, 10, 10], [40, 0, 10, 10], [60, 0, 10, 10]])  # none overlapping
+    scores = np.array([0.5, 0.9, 0.7, 0.8])
+    assert list(non_maximum_suppression(boxes, scores, 0.3, max_keep=2)) == [1, 3]
+    assert list(non_maximum_suppression(boxes, scores, 0.3)) == [1, 3, 2, 0]
+
+
 def test_match_truth_takes_the_best_scoring_overlap_only():
     truth = np.array([10.0, 10.0, 20.0, 20.0])
     detections = [(np.array([11.0, 10.0, 20.0, 20.0]), 0.6), (np.array([10.0, 12.0, 20.0, 20.0]), 0.9),
@@ -131,6 +140,15 @@ def test_match_truth_takes_the_best_scoring_overlap_only():
     _, scores, matched = match_truth(detections, truth)
     assert list(matched) == [False, True, False] and list(scores) == [0.6, 0.9, 0.95]
     assert not match_truth(detections, None)[2].any()
+
+
+@pytest.mark.parametrize("dx, matched", [(8.0, False), (0.0, True)])
+def test_match_truth_needs_an_iou_of_one_half(dx, matched):
+    """Table 3's true positive needs IOU >= 0.5 with the true box: a detection shifted 8 px along a 20 px box
+    (IOU 240 / 560 = 0.43) is not one; half the true box (IOU exactly 0.5) is."""
+    truth = np.array([0.0, 0.0, 20.0, 20.0])
+    box = np.array([dx, 0.0, 20.0, 20.0]) if dx else np.array([0.0, 0.0, 20.0, 10.0])
+    assert list(match_truth([(box, 0.9)], truth)[2]) == [matched]
 
 
 @pytest.mark.parametrize("field, value, message", [
@@ -144,6 +162,63 @@ def test_bad_classical_settings_name_the_field(field, value, message):
     with pytest.raises(ConfigError, match=rf"hybrid\.classical\.{field} {re.escape(message)}"):
         ColourPadConfig(**{field: value}).validate("hybrid.classical")
     ColourPadConfig(max_strip_angle_deg=90.0, min_part_px=1, min_box_px=1, min_shaped_part_px=0.0).validate()
+
+
+# ---------------------------------------------------------------- the classical detector on hand cases
+
+BODY = (191, 77, 38)  # GroundVehicleGeometry's (0.75, 0.3, 0.15)
+
+
+def strip(x: float, y: float, length: float, width: float, angle: float = 0.0) -> _Part:
+    """A body-coloured part centred at (x, y) px, its long axis at `angle` rad (only its shape: no pixels)."""
+    return _Part(np.zeros((1, 2), np.int32), np.array([x, y]), length, width, angle)
+
+
+@pytest.mark.parametrize("p, q, paired", [
+    (strip(0, 0, 30, 8), strip(0, 30, 30, 8), True),  # side by side, a length apart: the UGV's end strips
+    (strip(0, 0, 30, 8), strip(0, 30, 30, 8, math.pi / 2), False),  # at right angles (over 27 deg)
+    (strip(0, 0, 30, 8), strip(40, 0, 30, 8), False),  # end to end: the offset runs along the strips
+    (strip(0, 0, 30, 28), strip(0, 30, 30, 28), False),  # squares, not strips (elongation 1.07 < 1.6)
+    (strip(0, 0, 30, 8), strip(0, 3, 30, 8), False),  # 3 px apart: under 0.3 of their length
+    (strip(0, 0, 30, 8), strip(0, 45, 90, 8), False),  # lengths 1 : 3 (over 2.5)
+], ids=["pair", "crossed", "end-to-end", "not-elongated", "too-close", "unequal"])
+def test_each_strip_test_alone_rejects_a_pair(p, q, paired):
+    """ColourPadConfig's strip tests, one failing at a time on parts that pass all the others."""
+    detector = ColourPadDetector()
+    assert detector._strip_pair(p, q) is paired
+    assert detector._strip_pair(q, p) is paired
+
+
+def grey_ground() -> np.ndarray:
+    return np.full((200, 300, 3), 110, np.uint8)
+
+
+def test_a_strip_belongs_to_one_ugv_only():
+    """Three body-coloured strips with the pad's white between each two: the middle strip is paired once, so one
+    roof is found (the first pair's, rows 60-110), not also the two others sharing its strips."""
+    image = grey_ground()
+    for y in (60, 100, 140):
+        image[y:y + 10, 100:140] = BODY
+    image[70:100, 100:140] = image[110:140, 100:140] = 240
+    assert [box.tolist() for box, _ in ColourPadDetector().detect(image)] == [[100, 60, 40, 50]]
+
+
+def test_a_body_coloured_box_with_a_white_spot_is_not_the_ugv():
+    """A 40 px box of the UGV's colour with a 14 px white centre: white enough (0.12 of its hull), but the body's
+    colour fills 0.88 of it (over max_body_fraction 0.72): a plain box of that colour, not the roof."""
+    image = grey_ground()
+    image[50:90, 50:90] = BODY
+    image[63:77, 63:77] = 240
+    assert ColourPadDetector().detect(image) == []
+
+
+def test_strips_with_ground_between_are_not_the_ugv():
+    """Two strips that pair 80 px apart around a small white patch: their joint hull is 0.66 grey ground (over
+    max_ground_fraction 0.45), not a roof."""
+    image = grey_ground()
+    image[60:70, 100:140] = image[140:150, 100:140] = BODY
+    image[98:112, 105:135] = 240
+    assert ColourPadDetector().detect(image) == []
 
 
 # ---------------------------------------------------------------- rendered held-out frames
