@@ -1,7 +1,8 @@
 """The learned UGV detector's network (systems/perception/ugv_cnn_detector.py) and its trainer's pure parts
 (models/train_ugv_cnn.py, importable without the train extra): the trainer's targets decode to the box they
-were made from, its turned boxes follow np.rot90 and np.fliplr, and a missing or corrupt model file is one
-ConfigError line naming it. Finding the UGV on rendered held-out frames: tests/test_ugv_detector.py."""
+were made from, its turned boxes follow np.rot90 and np.fliplr, decoding keeps peaks at or above min_score, drops
+overlaps and caps the count, and a missing or corrupt model file is one ConfigError line naming it. Finding the UGV
+on rendered held-out frames: tests/test_ugv_detector.py."""
 
 import cv2
 import numpy as np
@@ -22,6 +23,55 @@ def test_training_targets_decode_to_their_box(box):
     assert len(found) == 1
     np.testing.assert_allclose(found[0][0], box, atol=1e-4)
     assert found[0][1] == 1.0
+
+
+def heat_map(peaks: dict[tuple[int, int], float], cells: int = 32) -> np.ndarray:
+    """A network output (5, cells, cells) with the given heat peaks {(row, col): heat}, each a box of 4 x 4 cells
+    centred on its cell (offsets 0)."""
+    out = np.zeros((5, cells, cells), np.float32)
+    out[3:] = np.log(4.0)
+    for (row, col), heat in peaks.items():
+        out[0, row, col] = heat
+    return out
+
+
+def test_decode_keeps_at_most_max_detections_the_best_first():
+    """12 separate peaks (boxes at most touching: IOU 0): the 10 best, highest score first."""
+    scores = [0.9 - 0.01 * k for k in range(12)]
+    out = heat_map({(2 * k % 32, 4 * k % 32 + 2): score for k, score in enumerate(scores)})
+    found = decode(out, 4, 0.5, max_detections=10)
+    np.testing.assert_allclose([score for _, score in found], scores[:10], rtol=1e-6)
+    assert len(decode(out, 4, 0.5, max_detections=12)) == 12
+
+
+def test_decode_drops_a_box_overlapping_a_better_one():
+    """Two peaks 2 cells apart (both 3 x 3 maxima), their 16 px boxes 8 px apart: IOU 128 / 384 = 0.33, over nms_iou
+    0.3, so the weaker goes; at nms_iou 0.4 both stay."""
+    out = heat_map({(10, 10): 0.9, (10, 12): 0.8})
+    found = decode(out, 4, 0.5, nms_iou=0.3)
+    assert len(found) == 1 and found[0][1] == pytest.approx(0.9)
+    np.testing.assert_allclose(found[0][0], [32.0, 32.0, 16.0, 16.0], atol=1e-5)
+    assert len(decode(out, 4, 0.5, nms_iou=0.4)) == 2
+
+
+def test_decode_keeps_a_peak_at_min_score_and_drops_one_under_it():
+    """The docstring's "at or above min_score": a peak of exactly 0.5 is a detection, one of 0.49 is not."""
+    assert len(decode(heat_map({(10, 10): 0.5}), 4, 0.5)) == 1
+    assert decode(heat_map({(10, 10): 0.49}), 4, 0.5) == []
+
+
+def test_the_detector_keeps_only_what_scores_at_least_its_min_score():
+    """A drawn UGV (strips of its colour, the pad's white between) on grey, which the network scores between 0.5
+    and 0.99: a detector at min_score m gives exactly a lax detector's detections scoring at least m."""
+    image = np.full((512, 512, 3), 110, np.uint8)
+    image[200:210, 200:240] = image[240:250, 200:240] = (191, 77, 38)
+    image[210:240, 200:240] = 240
+    lax = CnnDetector(min_score=0.01).detect(image)
+    assert any(0.5 <= score < 0.99 for _, score in lax)
+    for m in (0.5, 0.99):
+        strict = CnnDetector(min_score=m).detect(image)
+        assert [(box.tolist(), score) for box, score in strict] == \
+            [(box.tolist(), score) for box, score in lax if score >= m]
 
 
 def test_a_box_centred_outside_the_crop_has_no_target():
