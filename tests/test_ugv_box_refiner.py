@@ -111,6 +111,49 @@ def test_a_colour_box_cut_by_the_window_is_not_taken():
     np.testing.assert_array_equal(box, left)
 
 
+def turned(image: np.ndarray) -> np.ndarray:
+    """The image mirrored about its diagonal (rows for columns): a UGV drawn by draw_ugv turned, strips left and
+    right; a box [x, y, w, h] in it is [y, x, h, w]."""
+    return np.ascontiguousarray(image.transpose(1, 0, 2))
+
+
+@pytest.mark.parametrize("side, detection", [
+    ("left", [112.0, 80.0, 28.0, 50.0]),  # the window starts at x = 109
+    ("top", [80.0, 112.0, 50.0, 28.0]),  # turned: the window starts at y = 109
+    ("bottom", [80.0, 100.0, 50.0, 28.0]),  # turned: the window ends at y = 131
+])
+def test_a_colour_box_cut_on_any_other_side_is_not_taken(side, detection):
+    """As above on the other sides: a box on 70 % of the UGV's length (the UGV turned for top and bottom), a window of
+    margin 0.1 ending inside the UGV; the colour box there touches that edge and agrees with the box (0.9 inside)."""
+    image = ground()
+    draw_ugv(image, 100, 80)
+    if side != "left":
+        image = turned(image)
+    (box, _), = refined([(detection, 0.9)], image, margin=0.1, min_margin_px=0)
+    np.testing.assert_array_equal(box, detection)
+
+
+def test_the_window_grows_the_box_by_margin_of_its_own_width_and_height():
+    """margin 0.5 of a 40 x 10 px box: 20 px left and right, 5 (so min_margin_px, 8) above and below; outwards to whole
+    pixels, clipped to the image."""
+    config = BoxRefinementConfig(margin=0.5, min_margin_px=8)
+    refiner = ColourRefinedDetector(FixedDetector(), ColourPadDetector(), config)
+    assert refiner.window(np.array([100.0, 50.0, 40.0, 10.0]), (200, 300)) == (80, 42, 160, 68)
+    assert refiner.window(np.array([100.5, 50.5, 40.0, 10.0]), (200, 300)) == (80, 42, 161, 69)
+    assert refiner.window(np.array([10.0, 5.0, 40.0, 10.0]), (200, 300)) == (0, 0, 70, 23)
+    assert refiner.window(np.array([270.0, 185.0, 40.0, 10.0]), (200, 300)) == (250, 177, 300, 200)
+
+
+@pytest.mark.parametrize("which", [0, 1])
+def test_of_two_colour_boxes_in_the_window_the_one_within_the_box_is_taken(which):
+    """A wide window (margin 3) around a box on one of two UGVs holds both whole: the box moves onto its own."""
+    image = ground()
+    truths = [draw_ugv(image, 20, 20), draw_ugv(image, 100, 110)]
+    detection = truths[which] + [-2.0, -4.0, 4.0, 8.0]
+    (box, _), = refined([(detection, 0.9)], image, margin=3.0)
+    np.testing.assert_array_equal(centre(box), centre(truths[which]))
+
+
 def test_a_ugv_at_the_image_edge_is_refined():
     """A window clipped by the image is not a cut: the UGV in the corner is still re-measured."""
     image = ground()
@@ -119,11 +162,15 @@ def test_a_ugv_at_the_image_edge_is_refined():
     np.testing.assert_array_equal(centre(box), centre(truth))
 
 
-def test_a_box_over_max_box_px_keeps_its_own():
-    """Close up (a box over 80 px) the network's box stays; allowed larger boxes, the colour's is taken."""
+@pytest.mark.parametrize("turn", [False, True])
+def test_a_box_over_max_box_px_keeps_its_own(turn):
+    """Close up (a box over 80 px wide, or turned, high) the network's box stays; allowed larger boxes, the colour's
+    is taken."""
     image = ground(400, 400)
     truth = draw_ugv(image, 100, 80, width=110)  # 110 x 50 px
     detection = ([98.0, 76.0, 116.0, 58.0], 0.9)
+    if turn:
+        image, truth, detection = turned(image), truth[[1, 0, 3, 2]], ([76.0, 98.0, 58.0, 116.0], 0.9)
     (box, _), = refined([detection], image)
     np.testing.assert_array_equal(box, detection[0])
     (box, _), = refined([detection], image, max_box_px=120.0)
