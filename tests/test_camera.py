@@ -1,5 +1,5 @@
-"""Downward camera: rendered tag corners against the pinhole projection of the true corners, the
-image view helper, and the pixel-noise system on fixed images."""
+"""Downward camera: rendered tag corners against the pinhole projection of the true corners, the tag
+detector on drawn frames, the image view helper, and the pixel-noise system on fixed images."""
 
 import re
 
@@ -159,6 +159,53 @@ def test_the_stewart_scene_tag_corner_model_agrees(tilted_scene):
     X_CT = tilted_scene.X_WC().inverse().multiply(tilted_scene.X_WP_static()).multiply(handles.platform.X_PT)
     np.testing.assert_allclose(project_points(K_EQ10, X_CT, handles.platform.tag_corners_T()),
                                true_corners_px(tilted_scene), atol=1e-9)
+
+
+TAG_ID = 3
+
+
+def drawn_tags(*columns: int) -> ImageRgba8U:
+    """A white 240 x 160 RGBA frame with tag36h11 id TAG_ID drawn 80 px wide (its black square the whole 80 px:
+    OpenCV's image of the marker is the black square) at rows 40-120 and each of `columns`."""
+    tag = cv2.aruco.generateImageMarker(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), TAG_ID, 80)
+    image = ImageRgba8U(240, 160)
+    image.mutable_data[:] = 255
+    for column in columns:
+        image.mutable_data[40:120, column:column + 80, :3] = tag[..., None]
+    return image
+
+
+def test_two_copies_of_the_tag_are_not_a_detection():
+    """The detector finds one tag by id: one copy in the frame gives its corners (the black square's edges at 40 and
+    120 px, pixel centres at whole numbers), two copies give None, as does another id."""
+    corners = AprilTagDetector(TAG_ID).detect(image_to_numpy(drawn_tags(40)))
+    np.testing.assert_allclose(corners, [[39.5, 39.5], [119.5, 39.5], [119.5, 119.5], [39.5, 119.5]], atol=0.2)
+    assert AprilTagDetector(TAG_ID).detect(image_to_numpy(drawn_tags(20, 140))) is None
+    assert AprilTagDetector(TAG_ID + 1).detect(image_to_numpy(drawn_tags(40))) is None
+
+
+def tag_outputs(image: ImageRgba8U, time: float):
+    """The tag detector system's three outputs on `image` at `time`: (tag_detection, tag_corners, tag_detected)."""
+    system = TagDetectorSystem(TAG_ID, image.width(), image.height())
+    context = system.CreateDefaultContext()
+    context.SetTime(time)
+    system.get_input_port().FixValue(context, image)
+    return tuple(system.GetOutputPort(name).Eval(context) for name in ("tag_detection", "tag_corners", "tag_detected"))
+
+
+def test_the_tag_detector_system_outputs_a_tag_and_its_absence():
+    """With the tag in view: its detection stamped with the context's time, its corners (u0, v0, ..., u3, v3) and
+    detected [1]. On a blank grey frame: no corners, all eight NaN (what the logs count as not detected), and [0]."""
+    detection, corners, detected = tag_outputs(drawn_tags(40), 2.5)
+    assert detection.detected and detection.time == 2.5
+    np.testing.assert_allclose(corners, [39.5, 39.5, 119.5, 39.5, 119.5, 119.5, 39.5, 119.5], atol=0.2)
+    assert list(detected) == [1.0]
+    blank = ImageRgba8U(240, 160)
+    blank.mutable_data[:] = 128
+    detection, corners, detected = tag_outputs(blank, 2.5)
+    assert not detection.detected and detection.time == 2.5
+    assert corners.shape == (8,) and np.isnan(corners).all()
+    assert list(detected) == [0.0]
 
 
 def test_image_to_numpy_is_a_view_without_copying():
