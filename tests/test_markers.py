@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
-from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource
@@ -19,7 +19,12 @@ from systems.noise import sample_rng
 from systems.perception.latency import MeasurementLatency, delay_queue
 from systems.perception.marker_detector import MarkerDetectorSystem, detect_marker_poses
 from systems.perception.markers import MarkerLayout, MarkerMeasurement, measurements_vector, pad_texture
-from systems.perception.synthetic_markers import STREAM, SyntheticMarkerSource, synthetic_marker_measurements
+from systems.perception.synthetic_markers import (
+    STREAM,
+    SyntheticMarkerSource,
+    noisy_marker_poses,
+    synthetic_marker_measurements,
+)
 from systems.quaternion import drake_to_paper, paper_to_drake
 from systems.sensors.camera import CameraConfig, distortion_maps
 from tests.conftest import pose
@@ -156,6 +161,27 @@ def test_synthetic_noise_has_the_papers_standard_deviations():
     np.testing.assert_allclose(angle_errors.std(axis=0), 5.0, rtol=0.05)
 
 
+def test_the_attitude_noise_is_a_rotation_vector_in_the_marker_frame():
+    """R_CM = R_CP Exp(dtheta), the noise in the marker frame (noisy_marker_poses): with a fixed dtheta per marker
+    and the pad at a general attitude, R_CP^T R_CM is SciPy's Exp(dtheta) (noise in C would make it
+    R_CM R_CP^T instead); the position noise simply adds."""
+    R_CP = RotationMatrix(RollPitchYaw(2.0, 0.3, 0.7))
+    dtheta = np.array([[0.05, -0.02, 0.08], [-0.3, 0.1, 0.2]])
+    dp = np.array([[0.01, 0.02, -0.03], [0.0, -0.1, 0.2]])
+    p_CM = np.array([[0.1, 0.2, 3.0], [-0.4, 0.0, 2.5]])
+    p, q = noisy_marker_poses(p_CM, drake_to_paper(R_CP), dp, dtheta)
+    np.testing.assert_allclose(p, p_CM + dp, atol=1e-15)
+    for q_CM, d in zip(q, dtheta, strict=True):
+        R_CM = RotationMatrix(paper_to_drake(q_CM)).matrix()
+        np.testing.assert_allclose(R_CP.matrix().T @ R_CM, Rotation.from_rotvec(d).as_matrix(), atol=1e-12)
+
+
+@pytest.mark.parametrize("noise", [{"sigma_p": -0.1}, {"sigma_deg": -1.0}])
+def test_negative_synthetic_noise_is_refused(noise):
+    with pytest.raises(ConfigError, match="marker measurement noise must not be negative"):
+        SyntheticMarkerSource(LAYOUT, CAMERA.X_BC, **noise)
+
+
 def test_measurements_are_immutable_and_copies_share_them():
     m = MarkerMeasurement(0.0, 0, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0])
     with pytest.raises(ValueError):
@@ -269,6 +295,25 @@ def test_the_stream_as_a_vector_has_nan_for_markers_not_measured():
 
 
 # ---- the real pipeline: ArUco detection and per-marker solvePnP -------------------------------
+
+
+def test_a_marker_measured_twice_is_nan_in_the_stream_vector():
+    """Two measurements of one marker in a sample are ambiguous: its row is NaN; a marker measured once is logged."""
+    twice = MarkerMeasurement(0.0, LAYOUT.ids[1], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0])
+    once = MarkerMeasurement(0.0, LAYOUT.ids[2], [0.1, 0.2, 1.5], [0.0, 0.0, 0.6, 0.8])
+    vector = measurements_vector([twice, once, twice], LAYOUT).reshape(5, 7)
+    assert np.isnan(vector[[0, 1, 3, 4]]).all()
+    np.testing.assert_array_equal(vector[2], [0.1, 0.2, 1.5, 0.0, 0.0, 0.6, 0.8])
+
+
+@pytest.mark.parametrize("p_CM, q_CM, norm", [
+    ([0.0, 0.0, 1.0], [0.0, 0.0, 0.6, 0.8], 1.0), ([0.0, 0.0, 1.0], [0.0, 0.0, 1.2, 1.6], 2.0),
+    ([0.0, 1.0], [0.0, 0.0, 0.6, 0.8], np.nan), ([0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.6, 0.8], np.nan),
+    ([0.0, 0.0, 1.0], [0.0, 0.6, 0.8], np.nan), ([0.0, np.nan, 1.0], [0.0, 0.0, 0.6, 0.8], np.nan)])
+def test_a_malformed_measurement_has_a_nan_quaternion_norm(p_CM, q_CM, norm):
+    """quaternion_norm is |q_CM| for a well-formed, finite measurement; NaN for a p_CM not of 3 numbers, a q_CM not
+    of 4, or a non-finite entry."""
+    np.testing.assert_equal(MarkerMeasurement(0.0, 0, p_CM, q_CM).quaternion_norm, norm)
 
 
 def test_detected_marker_poses_match_the_truth():
