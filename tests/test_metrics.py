@@ -51,6 +51,16 @@ def test_invalid_frames_are_left_out_and_counted():
     np.testing.assert_allclose(m["mae_xyz_m"], [0.02, 0.0, 0.0], atol=1e-12)
 
 
+def test_an_invalid_estimate_logs_no_pose_whatever_it_carries():
+    """estimate_vector: [0, NaN x 7] for an estimate not valid, even one holding a pose; [1, x, y, z, qw, qx, qy, qz]
+    (Drake's quaternion) for a valid one."""
+    X = RigidTransform(RollPitchYaw(0.1, 0.2, 0.3), [1.0, 2.0, 3.0])
+    invalid = estimate_vector(PoseEstimate(0.0, X, False))
+    assert invalid[0] == 0.0 and invalid.shape == (8,) and np.isnan(invalid[1:]).all()
+    np.testing.assert_array_equal(estimate_vector(PoseEstimate(0.0, X, True)),
+                                  np.r_[1.0, 1.0, 2.0, 3.0, X.rotation().ToQuaternion().wxyz()])
+
+
 def test_angle_errors_wrap_and_flips_are_counted():
     # Truth at yaw 179 deg, estimate at -179 deg: 2 deg apart, not 358.
     truth = np.array([pose_vector(RigidTransform(RollPitchYaw(0, 0, np.deg2rad(179)), [0, 0, 2]))])
