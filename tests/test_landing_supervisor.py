@@ -13,6 +13,7 @@ from systems.control.landing import (
     LandingSupervisor,
     Mode,
     SupervisorInputs,
+    hold_rate,
 )
 from systems.perception.seam import HEIGHT
 
@@ -243,6 +244,33 @@ def test_abort_lost_for_lost_hold_s_turns_to_search_and_stops_coasting():
     assert not horizontal.any()
 
 
+@pytest.mark.parametrize("lost_mode", [Mode.HOLD, Mode.ABORT], ids=lambda mode: mode.name)
+def test_search_begins_exactly_lost_hold_s_after_the_target_was_lost(lost_mode):
+    """The boundary itself: lost_hold_s after entering HOLD or ABORT (times exactly representable) it is SEARCH,
+    a step before it is not."""
+    config = dataclasses.replace(CONFIG, lost_hold_s=0.75)
+    machine = LandingStateMachine(config)
+    machine.memory = machine.memory._replace(mode=lost_mode, mode_since_s=0.25, altitude_hold_m=5.0)
+
+    def step(time_s):
+        machine.step(SupervisorInputs(time_s=time_s, altitude_m=5.0, height_above_target_m=5.0, target_valid=False))
+        return machine.mode
+
+    assert step(0.5) == lost_mode
+    assert step(1.0) == Mode.SEARCH
+
+
+@pytest.mark.parametrize("climb, descent", [(1.0, 0.5), (0.5, 2.0)])
+def test_the_altitude_hold_is_limited_to_the_descent_speed_down_and_the_climb_speed_up(climb, descent):
+    """hold_rate's P loop saturates at -descent_speed_m_s towards a height far below and at +climb_speed_m_s
+    towards one far above (the two speeds set apart, either the larger); near the height it is altitude_gain x the
+    error."""
+    config = dataclasses.replace(CONFIG, climb_speed_m_s=climb, descent_speed_m_s=descent)
+    assert hold_rate(-5.0, config) == -descent
+    assert hold_rate(5.0, config) == climb
+    assert hold_rate(-0.25, config) == pytest.approx(-0.25 * config.altitude_gain)
+
+
 @pytest.mark.parametrize("offset_m, mode", [(0.3, Mode.LAND), (1.2, Mode.FOLLOW), (5.0, Mode.FOLLOW)])
 def test_reaching_lh_off_centre_follows_rather_than_lands(offset_m, mode):
     """APPROACH reaching LH with the target beyond off_centre_radius_m (1 m) follows it again; before, LAND came
@@ -301,6 +329,51 @@ def test_system_wraps_the_state_machine():
     system.GetInputPort("target_valid").FixValue(context, [0.0])
     simulator.AdvanceTo(0.09)
     assert mode.Eval(context)[0] == Mode.ABORT  # its memory kept the last valid height, 0 m: below LH
+
+
+def approaching_system(window=None):
+    """A LandingSupervisor flown by fixed inputs to APPROACH at IH over a centred, seen target (samples at 0, 20,
+    40 and 60 ms: TAKEOFF -> CLIMB -> FOLLOW -> APPROACH); `window` fixes its landing_window input."""
+    system = LandingSupervisor(CONFIG)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    for name, value in (("altitude", [7.5]), ("height_above_target", [7.5]), ("target_valid", [1.0]),
+                        ("target_offset", [0.0, 0.0]), ("target_velocity", TARGET_VELOCITY),
+                        ("tracking_velocity", TRACKING), ("tracking_acceleration", TRACKING_ACCELERATION)):
+        system.GetInputPort(name).FixValue(context, value)
+    if window is not None:
+        system.GetInputPort("landing_window").FixValue(context, window)
+    simulator.AdvanceTo(0.07)
+    assert system.GetOutputPort("mode").Eval(context)[0] == Mode.APPROACH
+    return system, simulator, context
+
+
+def test_system_reads_the_landing_window_as_open_then_holds():
+    """The landing_window port is [open, holds]: reaching LH with [0, 1] waits at LH, with [1, 0] commits to LAND
+    and, its window not holding, waves off to WAIT at the next sample."""
+    system, simulator, context = approaching_system(window=[0.0, 1.0])
+    mode = system.GetOutputPort("mode")
+    system.GetInputPort("height_above_target").FixValue(context, [CONFIG.landing_height_m - 0.1])
+    simulator.AdvanceTo(0.09)
+    assert mode.Eval(context)[0] == Mode.WAIT
+
+    system, simulator, context = approaching_system(window=[1.0, 0.0])
+    system.GetInputPort("height_above_target").FixValue(context, [CONFIG.landing_height_m - 0.1])
+    simulator.AdvanceTo(0.09)
+    assert system.GetOutputPort("mode").Eval(context)[0] == Mode.LAND
+    simulator.AdvanceTo(0.11)
+    assert system.GetOutputPort("mode").Eval(context)[0] == Mode.WAIT
+
+
+def test_system_coasts_with_the_last_target_velocity_it_kept():
+    """The system's memory keeps the last valid target velocity as (x, y): lost above LH, HOLD coasts with exactly
+    it (not the NaN of the invalid estimate now, nor its axes swapped)."""
+    system, simulator, context = approaching_system()
+    system.GetInputPort("target_valid").FixValue(context, [0.0])
+    system.GetInputPort("target_velocity").FixValue(context, [np.nan, np.nan])
+    simulator.AdvanceTo(0.09)
+    assert system.GetOutputPort("mode").Eval(context)[0] == Mode.HOLD
+    np.testing.assert_array_equal(system.GetOutputPort("command").Eval(context)[:2], TARGET_VELOCITY)
 
 
 def test_aborted_and_retried_final_descents_are_counted():

@@ -145,8 +145,9 @@ def test_the_supervisor_tracks_the_rendezvous_target_unseen_and_never_descends_o
     command = step(0.02, config.initial_height_m)  # at IH, unseen: SEARCH, following the broadcast
     assert machine.mode == Mode.SEARCH and command[2] == 0.0
     np.testing.assert_allclose(command[:2], tracking)
+    np.testing.assert_allclose(command[4:6], [0.5, 0.0])  # with the PID's feed-forward, as in CLIMB
     command = step(0.04, config.initial_height_m, rendezvous=False)
-    assert machine.mode == Mode.SEARCH and not command[:2].any()
+    assert machine.mode == Mode.SEARCH and not command[:2].any() and not command[4:].any()
     step(0.06, config.initial_height_m, seen=True)
     assert machine.mode == Mode.FOLLOW  # the camera has it: the vision takes over
 
