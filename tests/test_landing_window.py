@@ -51,6 +51,17 @@ def test_hysteresis_and_no_return():
     assert window_flags(tilting, CONFIG.no_return_s, CONFIG) == (False, True)  # too late to climb out
 
 
+def test_the_touchdown_window_never_reaches_into_the_past():
+    """tau is clamped at 0 and its window starts no earlier than now. A deck at 2 deg tilting 2 deg/s more, with
+    the height already under touchdown (tau -0.2 s): judged as tau 0, over the next 0.3 s, where it reaches 2.6 deg:
+    closed (not over the 0.1 s that -0.2 + 0.3 leaves). A deck at 2.4 deg levelling at 2 deg/s, 0.1 s from
+    touchdown: at most 2.4 deg from now on: open (its 2.8 deg of 0.2 s ago does not count)."""
+    tilting = motion((sin_deg(2.0), 0.0), (sin_deg(2.0), 0.0))
+    assert window_flags(tilting, -0.2, CONFIG) == window_flags(tilting, 0.0, CONFIG) == (False, True)
+    levelling = motion((sin_deg(2.4), 0.0), (-sin_deg(2.0), 0.0))
+    assert window_flags(levelling, 0.1, CONFIG) == (True, True)
+
+
 def test_heave_rate_closes_it_and_no_estimate_closes_everything():
     assert window_flags(motion(heave_rate=0.15), 2.0, CONFIG) == (False, True)
     assert window_flags(motion(heave_rate=0.25), 2.0, CONFIG) == (False, False)
