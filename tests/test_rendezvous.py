@@ -13,6 +13,7 @@ from diagrams.runner import load_scenario
 from systems.control.landing import LandingConfig, LandingStateMachine, Mode, SupervisorInputs
 from systems.perception.rendezvous import RendezvousConfig, SeamSelect, VehicleBroadcast
 from systems.perception.seam import P_BP_W, V_WP, VALID, seam_vector
+from systems.sensors.navigation import SecondOrderGaussMarkov
 from systems.vehicles.quadrotor import STATE_SIZE
 
 P0, V = np.array([5.0, -2.0, 1.6]), np.array([3.0, 1.0, 0.0])  # the pad at t = 0 [m] and its velocity [m/s]
@@ -96,6 +97,50 @@ def test_the_gnss_error_starts_from_its_stationary_spread():
         errors.append(system.CreateDefaultContext().get_discrete_state(0).get_value().reshape(3, 2)[:, 0])
     std = np.std(np.array(errors) * RendezvousConfig().position_std_m)
     assert std == pytest.approx(2.0, rel=0.1)
+
+
+def gnss_error(context):
+    """The broadcast's GNSS error state: 3 axes x [e, e'], in units of position_std_m."""
+    return context.get_discrete_state(0).get_value().reshape(3, 2).copy()
+
+
+def test_the_broadcast_carries_the_gnss_position_error_and_its_rate_as_the_velocity_error():
+    """Each message is the truth plus std x the error state at its send: e on the position, e' (its rate) on the
+    velocity (module docstring); read at 10 ms old, dead-reckoned on the message's velocity."""
+    std = 2.0
+    system, context = broadcast_system(position_std_m=std, latency_periods=0)
+    simulator = Simulator(system, context)
+    for t in (0.0, 0.1, 0.2):
+        error = gnss_error(context)
+        send(simulator, system, t)
+        seam = system.get_output_port().Eval(context)
+        velocity_error = seam[V_WP] - V
+        assert np.linalg.norm(velocity_error) > 1e-3  # a GNSS error of about 2 cm/s
+        np.testing.assert_allclose(velocity_error, std * error[:, 1], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(seam[P_BP_W] - truth_at(t)[P_BP_W] - (V + velocity_error) * 0.01,
+                                   std * error[:, 0], rtol=0, atol=1e-12)
+
+
+def test_the_gnss_error_is_driven_by_fresh_white_noise_at_every_send():
+    """The noise that steps the GNSS error at each send, recovered from its successive states through the
+    second-order Gauss-Markov model (systems/sensors/navigation.py), is white and of unit spread over 120 sends,
+    not one draw repeated."""
+    config = RendezvousConfig(source="broadcast")
+    model = SecondOrderGaussMarkov(config.position_time_constant_s, 1.0 / config.rate_hz)
+    g = np.column_stack([model.step(np.zeros(6), np.eye(6)[i])[:2] for i in range(2)])  # one axis's noise gain
+    system, context = broadcast_system()
+    simulator = Simulator(system, context)
+    system.GetInputPort("true_relative_state").FixValue(context, truth_at(0.0))
+    errors = [gnss_error(context)]
+    for k in range(120):
+        simulator.AdvanceTo(k / config.rate_hz + 0.01)
+        errors.append(gnss_error(context))
+    noise = np.array([np.linalg.solve(g, (after - model.step(before, np.zeros(6)).reshape(3, 2)).T).T
+                      for before, after in zip(errors, errors[1:])]).reshape(120, 6)
+    np.testing.assert_allclose(noise.std(axis=0), 1.0, rtol=0.25)
+    assert np.all(np.abs(noise.mean(axis=0)) < 0.4)
+    lag_one = np.mean(noise[1:] * noise[:-1]) / np.mean(noise**2)
+    assert abs(lag_one) < 0.15
 
 
 def test_seam_select_prefers_vision_and_flags_which():
