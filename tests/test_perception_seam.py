@@ -1,5 +1,5 @@
 """The perception seam: the adapter's vector and its validity (the estimate's own flag, covariance and
-age), and the registry behind `perception.source` with its one-line errors."""
+age), and the registry behind `perception.source` with its one-line errors and its sources' wiring."""
 
 import copy
 import pickle
@@ -9,6 +9,7 @@ import pytest
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from diagrams.cli import main
+from diagrams.gv_landing import build_gv_landing
 from diagrams.perception_sources import SOURCES, PerceptionSource, perception_source
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
@@ -139,3 +140,23 @@ def test_any_gv_scenario_takes_a_perception_source():
     for name in ("gv-landing", "gv-marker-ekf", "marker-landing"):
         _, s = load_scenario(name, overrides=["perception.source=paper_ekf", "estimation.source=synthetic"])
         assert s.perception.source == "paper_ekf" and "paper_ekf" in s.filter_names
+
+
+@pytest.mark.parametrize("scenario, overrides, estimator, ports", [
+    ("gv-landing", ["perception.source=ct_ekf", "estimation.source=synthetic"], "ct_ekf",
+     ("X_WP_estimate", "v_WP_estimate", "a_WP_estimate")),
+    ("gv-landing", ["perception.source=paper_ekf", "estimation.source=synthetic"], "paper_ekf",
+     ("X_WP_estimate", "v_WP_estimate", "a_WP_estimate")),
+    ("open-landing", ["perception.source=federated"], "federated_filter", ("X_WP_estimate", "v_WP_estimate")),
+], ids=["ct_ekf", "paper_ekf", "federated"])
+def test_a_source_wires_its_estimators_rates_into_the_seam(scenario, overrides, estimator, ports):
+    """The built diagram's adapter (estimate_to_seam) takes the pose and every rate the source's estimator has
+    from it: a marker filter's velocity and acceleration (the PID's feed-forward), the federated filter's
+    velocity (it has no acceleration); the UAV's pose besides."""
+    _, config = load_scenario(scenario, overrides=overrides)
+    diagram, _ = build_gv_landing(config)
+    adapter = diagram.GetSubsystemByName("estimate_to_seam")
+    wired = {system.get_input_port(i).get_name(): (source.get_name(), source.get_output_port(j).get_name())
+             for (system, i), (source, j) in diagram.connection_map().items() if system is adapter}
+    assert wired.pop("X_WB") is not None
+    assert wired == {name: (estimator, name) for name in ports}
