@@ -5,6 +5,7 @@ import dataclasses
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -165,6 +166,9 @@ def test_type_errors_are_config_errors(assignment):
     ("platform.roll_amplitude_deg=[1.0, .nan]", "platform.roll_amplitude_deg"),
     ("camera.pixel_noise_std=.inf", "camera.pixel_noise_std"),  # accepted before: a range check is x >= 0
     ("imu.rate_hz=.inf", "imu.rate_hz"),
+    # true and false are ints to Python: unchecked here, Drake's loader refused them naming only 'rate_hz', 'width'
+    ("camera.rate_hz=true", "camera.rate_hz must be a number, got True"),
+    ("camera.width=false", "camera.width must be a whole number, got False"),
 ])
 def test_a_type_error_names_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
@@ -225,6 +229,20 @@ def test_whole_numbers_beyond_a_cpp_int_are_refused_in_lists_and_taken_for_seeds
     assert load_scenario("stewart-hover", seed=2**64)[1].seed == 2**64  # numpy's generators take any size
 
 
+def test_whole_numbers_at_a_cpp_ints_limits_are_accepted_and_one_beyond_refused():
+    """The range's ends are a 32-bit int's own (numpy's int32 limits), both included."""
+    @dataclasses.dataclass
+    class Counts:
+        n: int = 0
+
+    int32 = np.iinfo(np.int32)
+    for value in (int(int32.max), int(int32.min)):
+        assert normalise({"n": value}, Counts) == {"n": value}
+    for value in (int(int32.max) + 1, int(int32.min) - 1):
+        with pytest.raises(ConfigError, match=rf"^n must lie in {int32.min} to {int32.max} .*got {value}$"):
+            normalise({"n": value}, Counts)
+
+
 @pytest.mark.parametrize("name", ["gv-landing", "deck-landing", "rqrlp-maneuvers"])
 def test_an_integration_scheme_these_diagrams_cannot_run_is_refused(name):
     """cenic integrates a MultibodyPlant, and none of them has one (it failed at the first step)."""
@@ -263,6 +281,8 @@ def test_unknown_scenario_lists_the_known_ones():
     ("camera:\n  fx: 400.0\nduration_s: 1.0\ncamera:\n  pixel_noise_std: 0.0\n",
      r"key 'camera' is given twice in one mapping \(lines 1 and 4\)"),  # PyYAML kept the second: fx lost
     ("platform:\n  motion: static\n  motion: sinusoid\n", r"key 'motion' is given twice .* \(lines 2 and 3\)"),
+    # a list as a key: PyYAML's own error, not a TypeError from the check for a repeated key
+    ("? [a, b]\n: 1\n", "is not valid YAML: while constructing a mapping"),
 ])
 def test_bad_files_are_config_errors(tmp_path, text, fragment):
     with pytest.raises(ConfigError, match=fragment):
