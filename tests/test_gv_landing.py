@@ -109,7 +109,11 @@ def test_impossible_configuration_is_a_config_error_naming_the_field(assignment,
     (["start.xy_m=[300.0, 0.0]"], "start.xy_m [300.0, 0.0] is 298.2 m from the pad, beyond termination.max_distance_m"),
     (["termination.max_altitude_m=7"], "landing.initial_height_m (IH, 7.5 m above the ground) must be below "
                                        "termination.max_altitude_m (7 m)"),
-], ids=["in-the-body", "under-the-pad", "above-max-altitude", "beyond-max-distance", "ih-above-max-altitude"])
+    # IH at the limit: the climb reaches it and the monitor ends the run there
+    (["termination.max_altitude_m=7.5", "landing.initial_height_m=7.5"],
+     "landing.initial_height_m (IH, 7.5 m above the ground) must be below termination.max_altitude_m (7.5 m)"),
+], ids=["in-the-body", "under-the-pad", "above-max-altitude", "beyond-max-distance", "ih-above-max-altitude",
+        "ih-at-max-altitude"])
 def test_a_start_the_scene_contradicts_is_one_line_and_exit_2(capfd, tmp_path, overrides, named):
     """Before: each ran, ending at t = 0 (or on the climb to IH) as a failure, exit 0 and its files written."""
     out = tmp_path / "out"

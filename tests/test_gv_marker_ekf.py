@@ -287,6 +287,16 @@ def test_bad_campaign_settings_are_one_line(capfd, tmp_path, args, message):
     assert not out.exists()
 
 
+def test_a_camera_faster_than_the_filter_is_refused_as_a_slower_one_is():
+    """One frame per filter step: a camera at twice the filter's rate is refused as one at half of it is (the
+    periods' difference checked both ways)."""
+    period = scenario().estimation.ekf.period_s
+    for rate, filter_rate in ((2 / period, 1 / period), (0.5 / period, 1 / period)):
+        with pytest.raises(ConfigError, match=rf"^estimation\.camera\.rate_hz \({rate:g}\) must be 1 / "
+                                              rf"estimation\.ekf\.period_s \({filter_rate:g} Hz\)"):
+            scenario(12, 0, f"estimation.camera.rate_hz={rate!r}")
+
+
 def test_bad_scenario_values():
     with pytest.raises(ConfigError, match="estimation.filters"):
         scenario(12, 0, "estimation.filters=[nope]")
