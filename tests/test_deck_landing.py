@@ -11,7 +11,9 @@ from diagrams.perception_sources import SOURCES, PerceptionSource, SeamPorts
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.control.landing import Mode
+from systems.control.monitor import inside_carrier
 from systems.estimators.deck_tracker import tilt_deg
+from systems.noise import sample_rng
 from systems.perception.seam import HEIGHT, RELATIVE_STATE_SIZE, VALID
 
 COMMAND_VZ = 2  # in the supervisor's command [v (3), yaw, a (3)]
@@ -135,6 +137,52 @@ def test_settings_that_cannot_work_are_config_errors(settings, named):
 def test_a_start_beside_the_deck_on_the_ground_is_accepted():
     _, config = load_scenario("deck-landing", overrides=["start.height_m=0.0", "start.xy_m=[3.0, 0.0]"])
     assert config.start.height_m == 0.0
+
+
+def test_a_start_just_beside_the_deck_is_accepted_and_one_just_under_its_touchdown_height_refused():
+    """The deck is a square of side deck_size_m centred at O: 0.2 m beyond its edge is beside it; over it, the
+    start must be higher than its top plus landing.touchdown_height_m, half of that is too low."""
+    _, config = load_scenario("deck-landing")
+    beside = config.platform.deck_size_m / 2 + 0.2
+    load_scenario("deck-landing", overrides=["start.height_m=0.0", f"start.xy_m=[{beside!r}, 0.0]"])
+    load_scenario("deck-landing", overrides=["start.height_m=0.0", f"start.xy_m=[0.0, {-beside!r}]"])
+    top, touchdown = config.deck_top_m, config.landing.touchdown_height_m
+    with pytest.raises(ConfigError, match=r"start\.height_m .* over the deck, must be above its top"):
+        load_scenario("deck-landing", overrides=[f"start.height_m={top + 0.5 * touchdown!r}"])
+    load_scenario("deck-landing", overrides=[f"start.height_m={top + 1.5 * touchdown!r}"])
+
+
+def test_the_random_deck_time_is_drawn_after_the_platforms_own_time_offset():
+    """deck(): platform.time_offset_s plus the seed's draw, uniform in [0, random_deck_time_s) from the "deck_time"
+    stream (deck-landing-hardware sets a time_offset_s of its own)."""
+    for seed in (0, 7):
+        _, config = load_scenario("deck-landing", overrides=["platform.time_offset_s=5.0"], seed=seed)
+        assert config.random_deck_time_s > 0 and config.platform.time_offset_s == 5.0
+        drawn = sample_rng(seed, "deck_time", 0).uniform(0.0, config.random_deck_time_s)
+        assert 0.0 <= drawn < config.random_deck_time_s
+        assert config.deck().time_offset_s == pytest.approx(5.0 + drawn, abs=1e-12)
+    _, config = load_scenario("deck-landing", overrides=["platform.time_offset_s=5.0", "random_deck_time_s=0.0"])
+    assert config.deck().time_offset_s == 5.0
+
+
+@pytest.mark.parametrize("carrier_state", [[0.0, 0.0, 0.0, 0.0], [0.3, -0.2, 0.6, 0.0]])
+def test_the_carrier_the_monitor_crashes_on_is_the_deck_centred_on_its_carrier_state(carrier_state):
+    """StewartPlatform's carrier_state is the deck's centre and heading: the carrier's body is the deck's square
+    around it (inside at 0.45 of its side from the centre, along and across, outside at 0.55), below its underside."""
+    _, config = load_scenario("deck-landing")
+    body, size = config.carrier(), config.platform.deck_size_m
+    underside = config.deck_top_m - config.platform.deck_thickness_m
+    x, y, yaw = carrier_state[:3]
+    c, s = np.cos(yaw), np.sin(yaw)
+
+    def inside(along, across, z=underside - 0.05):  # a point in the deck's frame, its centre at the origin
+        return inside_carrier(body, [x + c * along - s * across, y + s * along + c * across, z], carrier_state)
+
+    for along, across in ((0.45, 0.0), (-0.45, 0.0), (0.0, 0.45), (0.0, -0.45), (0.45, -0.45), (-0.45, 0.45)):
+        assert inside(along * size, across * size), (along, across)
+    for along, across in ((0.55, 0.0), (-0.55, 0.0), (0.0, 0.55), (0.0, -0.55), (-0.7, 0.0)):
+        assert not inside(along * size, across * size), (along, across)
+    assert not inside(0.0, 0.0, underside + 0.01) and inside(0.0, 0.0, 0.0)  # over its underside; on the ground
 
 
 class HigherSeam(LeafSystem):
