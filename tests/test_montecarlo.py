@@ -22,8 +22,8 @@ import pytest
 
 from diagrams.cli import main
 from diagrams.montecarlo import (
-    CAMPAIGNS, CampaignDefinition, RunOutput, RunTask, campaign, campaign_settings, executors, parse_number_case,
-    read_records, run_campaign, run_seed,
+    CAMPAIGNS, FORMAT, CampaignDefinition, RunOutput, RunTask, campaign, campaign_settings, executors,
+    parse_number_case, read_records, run_campaign, run_seed,
 )
 from diagrams.montecarlo.aggregate import aggregate_fields, default_aggregate
 from diagrams.montecarlo.records import RunRecord
@@ -182,6 +182,8 @@ def test_seeds_are_a_function_of_base_seed_case_and_index():
     ({"runs": 0}, "--runs"),
     ({"base_seed": -1}, "--seed"),
     ({"overrides": ["vehicle.speed"]}, "key=value"),
+    ({"cases": ["0"]}, "speed 0 must be a positive number"),  # at rest: no speed case
+    ({"cases": ["-3"]}, "speed -3 must be a positive number"),
 ])
 def test_bad_settings_are_config_errors(kwargs, message):
     with pytest.raises(ConfigError, match=message):
@@ -424,6 +426,24 @@ def test_same_settings_in_another_case_order_resume_the_campaign(pool_campaigns)
     before = snapshot(out / "runs")
     summary = run_campaign(TOY, settings(cases=["12", "6", "3"]), out, workers=0, progress=False)
     assert summary["runs"]["computed_now"] == 0 and snapshot(out / "runs") == before
+
+
+def test_a_campaign_json_without_paired_resumes_as_unpaired_and_one_of_another_format_is_refused(tmp_path):
+    """A campaign.json from before `paired` existed has no such key: its runs were unpaired, and it resumes as
+    paired: false (a paired campaign is another one). A campaign.json of another format is another campaign."""
+    s = settings(runs=1)
+    run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    saved = json.loads((tmp_path / "campaign.json").read_text())
+    (tmp_path / "campaign.json").write_text(json.dumps({key: value for key, value in saved.items() if key != "paired"}))
+    before = snapshot(tmp_path / "runs")
+    assert run_campaign(TOY, s, tmp_path, workers=0, progress=False)["runs"]["computed_now"] == 0
+    assert snapshot(tmp_path / "runs") == before
+    with pytest.raises(ConfigError, match=r"\(paired: False there, True asked\)"):
+        run_campaign(TOY, dataclasses.replace(s, paired=True), tmp_path, workers=0, progress=False)
+    (tmp_path / "campaign.json").write_text(json.dumps({**saved, "format": FORMAT + 1}))
+    with pytest.raises(ConfigError, match=rf"\(format: {FORMAT + 1} there, {FORMAT} asked\)"):
+        run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    assert snapshot(tmp_path / "runs") == before
 
 
 def test_a_non_empty_directory_that_is_no_campaign_is_an_error(tmp_path):
