@@ -6,6 +6,7 @@ import io
 import json
 import os
 import socket
+import stat
 import subprocess
 from pathlib import Path
 
@@ -14,6 +15,7 @@ import numpy as np
 import pytest
 
 from diagrams.cli import main
+from diagrams.outputs import write_json
 from tests.conftest import landing_sim_command
 
 SYS_OUT = Path("/sys/landing-sim-test/out")  # /sys refuses to create entries, even for root (EPERM)
@@ -267,3 +269,33 @@ def test_a_run_into_an_earlier_runs_directory_names_what_it_did_not_write(tmp_pa
     assert len(lines) == 1 and lines[0].endswith(": comparison.png, meshcat.html")  # the seed-1 recording
     assert json.loads((out / "metrics.json").read_text())["seed"] == 2
     assert (out / "meshcat.html").exists() and (out / "comparison.png").read_bytes() == b"the user's own"
+
+
+# ---- what every file is written with (diagrams/outputs.py) ----
+
+def _refusing_constants(name):
+    raise ValueError(f"{name} is no JSON number")
+
+
+def test_write_json_writes_every_non_finite_number_as_null(tmp_path):
+    """Python's, numpy's, in arrays, lists and tuples, at any depth: json.dumps(allow_nan=False) would raise on each."""
+    nan, inf = float("nan"), float("inf")
+    write_json(tmp_path / "a.json", {"inf": inf, "ninf": np.float64(-inf), "f32": np.float32(nan),
+                                     "ok": np.float64(2.5), "arr": np.array([nan, 1.0]),
+                                     "grid": np.array([[inf, 0.5], [1.5, -inf]]), "tup": (nan, 2.0),
+                                     "nested": [{"x": (inf, [nan])}], "n": 3, "s": "nan"})
+    data = json.loads((tmp_path / "a.json").read_text(), parse_constant=_refusing_constants)  # strict JSON
+    assert data == {"inf": None, "ninf": None, "f32": None, "ok": 2.5, "arr": [None, 1.0],
+                    "grid": [[None, 0.5], [1.5, None]], "tup": [None, 2.0], "nested": [{"x": [None, [None]]}], "n": 3,
+                    "s": "nan"}
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o002, 0o077], ids=["022", "002", "077"])
+def test_a_written_file_gets_the_mode_the_umask_gives_not_mkstemps_0600(tmp_path, umask):
+    """As open() would create it: 0o666 less the umask (the temporary file it is renamed from is 0600)."""
+    previous = os.umask(umask)
+    try:
+        write_json(tmp_path / "a.json", {})
+    finally:
+        os.umask(previous)
+    assert stat.S_IMODE((tmp_path / "a.json").stat().st_mode) == 0o666 & ~umask
