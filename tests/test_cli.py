@@ -5,6 +5,7 @@ import contextlib
 import io
 import json
 import os
+import signal
 import socket
 import stat
 import subprocess
@@ -14,6 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
+from diagrams import runner
 from diagrams.cli import main
 from diagrams.outputs import write_json
 from tests.conftest import landing_sim_command
@@ -299,3 +301,30 @@ def test_a_written_file_gets_the_mode_the_umask_gives_not_mkstemps_0600(tmp_path
     finally:
         os.umask(previous)
     assert stat.S_IMODE((tmp_path / "a.json").stat().st_mode) == 0o666 & ~umask
+
+
+# ---- exit statuses past bad input: Ctrl-C, an internal error ----
+
+def _raising(exception):
+    def run(*args, **kwargs):
+        raise exception
+    return run
+
+
+def test_ctrl_c_during_a_run_is_one_line_and_exit_130(monkeypatch, capfd, tmp_path):
+    """128 + SIGINT, as a shell reports a command that Ctrl-C ended; no traceback."""
+    monkeypatch.setattr(runner, "run", _raising(KeyboardInterrupt()))
+    code, stdout, stderr = run_main(capfd, "run", "stewart-hover", "--out", str(tmp_path / "out"), "--quiet")
+    assert code == 128 + signal.SIGINT == 130
+    assert stderr == "landing-sim: interrupted\n" and stdout == ""
+
+
+def test_an_internal_error_is_one_line_and_exit_1_and_with_debug_its_traceback(monkeypatch, capfd, tmp_path):
+    """Without --debug one line that says how to see more; with --debug the exception itself, for its traceback."""
+    monkeypatch.setattr(runner, "run", _raising(RuntimeError("the integrator diverged")))
+    args = ["run", "stewart-hover", "--out", str(tmp_path / "out"), "--quiet"]
+    code, _, stderr = run_main(capfd, *args)
+    assert code == 1 and stderr == ("landing-sim: internal error: RuntimeError: the integrator diverged "
+                                    "(run with --debug for the traceback)\n")
+    with pytest.raises(RuntimeError, match="the integrator diverged"):
+        main(["--debug", *args])
