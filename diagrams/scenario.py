@@ -43,8 +43,7 @@ class _Loader(yaml.SafeLoader):
             line = key_node.start_mark.line + 1
             if key in lines:
                 raise yaml.constructor.ConstructorError(
-                    None, None, f"key {key!r} is given twice in one mapping (lines {lines[key]} and {line})",
-                    key_node.start_mark)
+                    None, None, f"key {key!r} is given twice in one mapping (lines {lines[key]} and {line})")
             lines[key] = line
         return super().construct_mapping(node, deep)
 
@@ -182,8 +181,8 @@ def set_override(raw: dict, assignment: str) -> None:
         raise ConfigError(f"--set expects key=value, got '{assignment}'")
     try:
         value = parse_yaml(text)
-    except yaml.YAMLError:
-        raise ConfigError(f"--set {key}: cannot parse the value '{text}'") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"--set {key}: cannot parse the value '{text}': {yaml_problem(e)}") from None
     node = raw
     parts = key.split(".")
     for part in parts[:-1]:
@@ -236,5 +235,14 @@ def read_yaml(path: Path):
     except UnicodeDecodeError as e:
         raise ConfigError(f"{path} is not UTF-8 text (byte {e.start}: {e.object[e.start:e.start + 1]!r})") from None
     except yaml.YAMLError as e:
-        raise ConfigError(f"{path} is not valid YAML: {str(e).splitlines()[0]}") from None
+        raise ConfigError(f"{path} is not valid YAML: {yaml_problem(e)}") from None
     return {} if raw is None else raw
+
+
+def yaml_problem(error: yaml.YAMLError) -> str:
+    """PyYAML's error in one line: what is wrong and where (its first line alone can be only the context, as
+    "while constructing a mapping")."""
+    problem, mark = getattr(error, "problem", None), getattr(error, "problem_mark", None)
+    if not problem:
+        return str(error).splitlines()[0]
+    return f"{problem} (line {mark.line + 1}, column {mark.column + 1})" if mark else problem

@@ -273,16 +273,17 @@ def test_unknown_scenario_lists_the_known_ones():
 
 
 @pytest.mark.parametrize("text, fragment", [
-    ("platform: [1, 2\n", "not valid YAML"),
+    ("platform: [1, 2\n", r"not valid YAML: expected ',' or '\]', but got '<stream end>' \(line 2, column 1\)$"),
     ("- 1\n- 2\n", "mapping"),
     ("[]\n", "mapping"), ("0\n", "mapping"), ("false\n", "mapping"), ("''\n", "mapping"),  # not an empty file
     ("diagram: no_such_diagram\n", "no_such_diagram"),
     ("diagram: [1]\n", r"unknown diagram \[1\]"),
     ("camera:\n  fx: 400.0\nduration_s: 1.0\ncamera:\n  pixel_noise_std: 0.0\n",
-     r"key 'camera' is given twice in one mapping \(lines 1 and 4\)"),  # PyYAML kept the second: fx lost
+     r"key 'camera' is given twice in one mapping \(lines 1 and 4\)$"),  # PyYAML kept the second: fx lost
     ("platform:\n  motion: static\n  motion: sinusoid\n", r"key 'motion' is given twice .* \(lines 2 and 3\)"),
-    # a list as a key: PyYAML's own error, not a TypeError from the check for a repeated key
-    ("? [a, b]\n: 1\n", "is not valid YAML: while constructing a mapping"),
+    # a list as a key: PyYAML's own error, not a TypeError from the check for a repeated key; its problem and
+    # where, not its first line alone ("while constructing a mapping")
+    ("? [a, b]\n: 1\n", r"is not valid YAML: found unhashable key \(line 1, column 3\)$"),
 ])
 def test_bad_files_are_config_errors(tmp_path, text, fragment):
     with pytest.raises(ConfigError, match=fragment):
@@ -355,8 +356,15 @@ def test_integers_are_read_as_yaml_1_2_reads_them():
         -7, 15, "1:30", "1:30.0", "0b11", "1_000"]
     with pytest.raises(ConfigError, match=r"^camera\.rate_hz must be a number, got '1:30'$"):
         load_scenario("stewart-dynamic", overrides=["camera.rate_hz=1:30"])
-    with pytest.raises(ConfigError, match=r"^--set seed: cannot parse the value '!!int 0b11'$"):  # tagged by hand
+    with pytest.raises(ConfigError, match=r"^--set seed: cannot parse the value '!!int 0b11': '0b11' is not a YAML "
+                                          r"1\.2 integer \(line 1, column 1\)$"):  # tagged by hand
         load_scenario("stewart-dynamic", overrides=["seed=!!int 0b11"])
+
+
+def test_a_value_that_is_no_yaml_names_its_problem_and_where():
+    with pytest.raises(ConfigError, match=r"^--set camera\.fx: cannot parse the value '\[1, 2': expected ',' or "
+                                          r"'\]', but got '<stream end>' \(line 1, column 6\)$"):
+        load_scenario("stewart-dynamic", overrides=["camera.fx=[1, 2"])
 
 
 def test_a_scenario_starts_from_its_base_and_replaces_what_it_sets(tmp_path):
