@@ -402,6 +402,55 @@ def test_campaign_rms_is_over_every_scored_step_of_every_run():
         np.testing.assert_allclose(figures["rms_marker_position_m"], np.sqrt(np.mean(markers**2, axis=0)), rtol=1e-9)
 
 
+def _ensemble_record(t, true_xy, true_yaw, xy, yaw, marker_error, measurements):
+    """A campaign record of one filter "f" holding the given decimated arrays (as `_output` keeps them: NaN
+    where the filter flags its estimate) and measurement counts."""
+    from types import SimpleNamespace
+
+    arrays = dict(t=t, true_xy=true_xy, true_yaw=true_yaw, f_xy=xy, f_yaw=yaw, f_marker_error=marker_error)
+    arrays = {k: np.asarray(v, dtype=np.float32) for k, v in arrays.items()}
+    m = {"rms_position_m": 1.0, "rms_heading_deg": 1.0, "rms_position_xy_m": 1.0, "rms_marker_position_m": [1.0] * 5,
+         "frames_scored": len(t), "per_frame_ms": 1.0, "measurements": measurements}
+    return SimpleNamespace(metrics={"settle_s": 1.0, "estimators": {"f": m},
+                                    "measurements": {"measured_fraction": [1.0] * 5}}, arrays=lambda: arrays)
+
+
+def test_ensemble_mean_figures_are_the_error_of_the_mean_estimate_after_settling():
+    """summary.json's ensemble_mean_* (the paper's epsilon) on two hand-made runs: the error of the runs' mean
+    estimate at each step from settle_s on, its heading a circular mean across +-pi, each step over the runs
+    with a valid estimate; the plots' marker error is the RMS over the runs; the counts are summed per kind."""
+    from diagrams.gv_marker_ekf_mc import _ensemble, aggregate
+
+    t = np.arange(0.0, 3.0, 0.5)  # settle_s 1.0: steps 2 to 5 are scored
+    n = len(t)
+    true_xy = np.c_[2.0 * t, np.ones(n)]
+    true_yaw = np.angle(np.exp(1j * (2.8 + 0.15 * np.arange(n))))  # turning left through +-pi at the scored steps
+    settling = t < 1.0
+    offsets, heading_errors, marker_errors = ((0.2, 0.3), (0.4, 0.5)), (0.1, 0.3), (3.0, 4.0)
+    counts = ({"gated": 5, "invalid": 3, "resets": 1}, {"gated": 7, "invalid": 0, "resets": 0})
+    records = []
+    for (dx, dy), dyaw, dm, counted in zip(offsets, heading_errors, marker_errors, counts):
+        error = np.tile([dx, dy], (n, 1))
+        error[settling] *= 10.0  # large while the filters settle: left out
+        xy = true_xy + error
+        yaw = np.angle(np.exp(1j * (true_yaw + dyaw)))  # wrapped to (-pi, pi] as the filters give it
+        records.append([t, true_xy, true_yaw, xy, yaw, np.full((n, 5), dm), counted])
+    for part in (3, 4, 5):  # the first run flags its estimate at the last step
+        records[0][part] = np.array(records[0][part], dtype=float)
+        records[0][part][-1] = np.nan
+    records = [_ensemble_record(*r) for r in records]
+    out = aggregate({"6": records})["f"]["6"]
+    # Scored steps 2-4: mean offset (0.3, 0.4), 0.5 m, and mean heading error 0.2 rad (the circular mean of
+    # 0.1 and 0.3); step 5, the second run alone: (0.4, 0.5) and 0.3 rad.
+    assert out["ensemble_mean_position_xy_m"] == pytest.approx(np.sqrt((3 * 0.5**2 + 0.4**2 + 0.5**2) / 4), rel=1e-6)
+    assert out["ensemble_mean_heading_deg"] == pytest.approx(np.degrees(np.sqrt((3 * 0.2**2 + 0.3**2) / 4)),
+                                                             rel=1e-5)
+    assert (out["runs"], out["gated"], out["invalid"], out["resets"]) == (2, 12, 3, 1)
+    markers = _ensemble(records, "f")[5]
+    np.testing.assert_allclose(markers[:-1], np.sqrt((3.0**2 + 4.0**2) / 2), rtol=1e-6)  # RMS of 3 and 4: 3.54
+    np.testing.assert_allclose(markers[-1], 4.0, rtol=1e-6)
+
+
 @pytest.mark.parametrize("path, label", [("sine", "reference (Eq. 13)"), ("circle", "reference (circle)")])
 def test_the_path_plot_names_the_vehicles_reference_path(path, label):
     import matplotlib.pyplot as plt
