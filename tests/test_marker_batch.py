@@ -84,3 +84,25 @@ def test_no_seed_alters_the_flight_the_batch_path_replays():
     np.testing.assert_allclose(batch.quadrotor_state, flights[1].quadrotor_state, rtol=0, atol=1e-9)
     for name in batch.estimates:
         np.testing.assert_allclose(batch.estimates[name], flights[1].estimates[name], rtol=0, atol=1e-9)
+
+
+def test_each_run_of_a_group_reports_its_share_of_the_filters_time(monkeypatch):
+    """batch_runs steps the filters of 4 runs together: with a clock that moves 4 s while they step (and only
+    then), each run's compute_s is 1 s per filter, its share, not the group's 4 s."""
+    from types import SimpleNamespace
+
+    import diagrams.marker_batch as marker_batch
+
+    clock = SimpleNamespace(now=100.0)
+    stepped = marker_batch.run_stack
+
+    def run_stack(*args, **kwargs):
+        clock.now += 4.0
+        return stepped(*args, **kwargs)
+
+    monkeypatch.setattr(marker_batch, "run_stack", run_stack)
+    monkeypatch.setattr(marker_batch, "time", SimpleNamespace(perf_counter=lambda: clock.now))
+    _, s = load_scenario("gv-marker-ekf", overrides=["vehicle.speed=6"])
+    runs = marker_batch.batch_runs(s, [0, 1, 2, 3], 1.0)
+    assert len(s.filter_names) == 2
+    assert [run.compute_s for run in runs] == [{name: 1.0 for name in s.filter_names}] * 4
