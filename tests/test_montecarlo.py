@@ -12,6 +12,7 @@ import json
 import multiprocessing
 import os
 import re
+import signal
 import time
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -101,6 +102,12 @@ def dying_run(task: RunTask):
     if task.case == "6" and task.index == 1:
         os._exit(3)
     return toy_run(task)
+
+
+def sleeping_run(started: Path, seconds: float) -> None:
+    """Notes that it started (the file `started`), then sleeps: a long run a worker is busy with."""
+    started.touch()
+    time.sleep(seconds)
 
 
 def always_dying_run(task: RunTask):
@@ -314,10 +321,36 @@ def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("workers", [True, -1, 1.5])
+def test_a_worker_count_that_is_no_whole_number_is_refused_before_anything_runs(tmp_path, workers):
+    """--workers is a whole number of at least 0: True (a bool, though Python counts it as 1), a negative
+    number or a fraction is a ConfigError, and nothing is written."""
+    with pytest.raises(ConfigError, match=rf"--workers must be a whole number .*, got {workers}$"):
+        run_campaign(TOY, settings(cases=["3"], runs=1), tmp_path / "out", workers=workers, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_closing_the_pool_on_ctrl_c_ends_the_workers_busy_with_a_run(tmp_path):
+    """Workers ignore Ctrl-C, so the pool closed on an abort terminates them rather than waiting for
+    their runs: the worker busy with a 5 s run ends on a signal (a negative exit code), the run unfinished.
+    (Waiting instead takes those 5 s and the worker exits with 0.)"""
+    pool = executors._ProcessPool(1)
+    started = tmp_path / "started"
+    future = pool.executor.submit(sleeping_run, started, 5.0)
+    try:
+        wait_for_files([started], limit_s=60.0)
+        workers = list(pool.executor._processes.values())
+    finally:
+        pool.close(abort=True)
+    assert [worker.exitcode for worker in workers] == [-signal.SIGTERM]
+    assert isinstance(future.exception(timeout=0), BrokenProcessPool)
+
+
 @pytest.mark.parametrize("address, problem", [
     ("127.0.0.1", "missing port number"),  # a Client half-built on it: two tracebacks and a 20 s wait
     ("tcp://127.0.0.1:99999", "port 99999 is not 1 to 65535"),  # reported as unreachable after 10 s
     ("tcp://127.0.0.1:0", "port 0 is not 1 to 65535"),
+    ("tcp://127.0.0.1:65536", "port 65536 is not 1 to 65535"),  # one past the largest port
     ("tcp://127.0.0.1:http", "invalid literal"),
 ])
 def test_a_scheduler_address_without_a_good_port_is_refused_at_once(capfd, tmp_path, address, problem):
@@ -551,18 +584,19 @@ def test_a_failed_group_runs_one_by_one(tmp_path):
 
 
 class _PoolDyingBetweenRuns:
-    """An in-process pool (one worker) whose executor turns out broken at one submission, when every
-    run it held has already finished (a worker that dies after its last result came in)."""
+    """An in-process pool (one worker) whose executor turns out broken at the submissions numbered in
+    `broken_at` (from 1), when every run it held has already finished (a worker that dies after its last
+    result came in)."""
 
     workers = 1
 
-    def __init__(self, broken_at: int):
+    def __init__(self, broken_at: set[int]):
         self.executor = self
         self.submissions, self.broken_at, self.restarts = 0, broken_at, 0
 
     def submit(self, fn, /, *args, **kwargs):
         self.submissions += 1
-        if self.submissions == self.broken_at:
+        if self.submissions in self.broken_at:
             raise BrokenProcessPool("a process in the pool was terminated abruptly")
         return executors._InlineExecutor().submit(fn, *args, **kwargs)
 
@@ -571,13 +605,74 @@ class _PoolDyingBetweenRuns:
 
 
 def test_a_pool_found_dead_at_a_submission_is_replaced_and_every_run_is_done_once():
-    pool = _PoolDyingBetweenRuns(broken_at=3)  # the window is 2: the third submission follows two finished runs
+    pool = _PoolDyingBetweenRuns(broken_at={3})  # the window is 2: the third submission follows two finished runs
     tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(RUNS)]
     kept = []
     campaign._drive(pool, toy_run, [(task,) for task in tasks], lambda task, outcome: kept.append((task, outcome)))
     assert sorted((task for task, _ in kept), key=lambda task: task.index) == tasks  # each once
     assert [outcome.status for _, outcome in kept] == ["done"] * RUNS
     assert pool.restarts == 1
+
+
+def test_pool_deaths_with_runs_finishing_between_them_never_stop_the_campaign():
+    """More pool deaths than MAX_POOL_DEATHS, but runs finish between every two: each death is the first in a
+    row, so the pool is replaced each time and every run is done."""
+    deaths = campaign.MAX_POOL_DEATHS + 2
+    # the window is 2: each round's first submission finds the pool dead, the next two run
+    pool = _PoolDyingBetweenRuns(broken_at={1 + 3 * k for k in range(deaths)})
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(2 * deaths)]
+    kept = []
+    campaign._drive(pool, toy_run, [(task,) for task in tasks], lambda task, outcome: kept.append((task, outcome)))
+    assert sorted((task for task, _ in kept), key=lambda task: task.index) == tasks  # each once
+    assert {outcome.status for _, outcome in kept} == {"done"} and pool.restarts == deaths
+
+
+class _PoolDeadAtEverySubmission:
+    """A pool found dead at every submission, however often it is replaced (something outside the runs is
+    wrong); fails the test after 20 replacements rather than replacing it forever."""
+
+    workers = 1
+
+    def __init__(self):
+        self.executor, self.restarts = self, 0
+
+    def submit(self, fn, /, *args, **kwargs):
+        raise BrokenProcessPool("a process in the pool was terminated abruptly")
+
+    def restart(self) -> None:
+        self.restarts += 1
+        if self.restarts >= 20:
+            pytest.fail("the pool was replaced 20 times with no run finishing and the campaign goes on")
+
+
+def test_a_pool_that_keeps_dying_with_no_run_finishing_stops_the_campaign():
+    """MAX_POOL_DEATHS deaths in a row with no run finishing are replaced; the next one stops the campaign
+    with a RuntimeError naming the deaths."""
+    pool = _PoolDeadAtEverySubmission()
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(3)]
+    kept = []
+    with pytest.raises(RuntimeError, match=f"died {campaign.MAX_POOL_DEATHS + 1} times in a row with no run"):
+        campaign._drive(pool, toy_run, [(task,) for task in tasks], lambda task, outcome: kept.append(task))
+    assert pool.restarts == campaign.MAX_POOL_DEATHS and kept == []
+
+
+def test_runs_that_finished_before_an_interrupt_are_kept():
+    """Ctrl-C while the first of two finished runs is being kept: the second, finished as well, is still
+    kept before the interrupt passes on (only unfinished runs are redone on resume); none is started after."""
+    pool = _PoolDyingBetweenRuns(broken_at=set())  # the window is 2: two runs in flight, both finished
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(4)]
+    interrupted, kept = [], []
+
+    def keep(task, outcome):
+        if not interrupted:
+            interrupted.append(task)
+            raise KeyboardInterrupt
+        kept.append((task, outcome.status))
+
+    with pytest.raises(KeyboardInterrupt):
+        campaign._drive(pool, toy_run, [(task,) for task in tasks], keep)
+    assert pool.submissions == 2 and len(interrupted) == 1
+    assert kept == [(next(task for task in tasks[:2] if task not in interrupted), "done")]
 
 
 class _PoolOfDyingRuns:
