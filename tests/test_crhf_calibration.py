@@ -1,6 +1,7 @@
 """The colour-pad calibration flight (seed 000 Sec. 2.3): pad segmentation on rendered frames, the
 PadCentroidsSystem, a short calibration run, scenario validation and the command line."""
 
+import dataclasses
 import json
 import subprocess
 from pathlib import Path
@@ -8,14 +9,21 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.sensors import ImageRgba8U
 
-from diagrams.crhf_calibration import build_calibration_scene
+from diagrams.crhf_calibration import (
+    build_calibration_scene,
+    calibration_metrics,
+    leave_one_out_residuals,
+    true_pad_pixels,
+)
 from diagrams.runner import RunOptions, load_scenario, run
 from systems.config import ConfigError
 from systems.estimators.pad_calibration import PAD_COLOURS, PAD_RGB, PadCalibration, rgb_to_ycbcr, segment_colour
 from systems.perception.color_pads import PadCentroidsSystem
 from systems.sensors.tof import sensor_positions_C
+from systems.vehicles.airframe import PrescribedPose
 from tests.conftest import landing_sim_command
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -57,6 +65,20 @@ def test_pads_are_found_within_a_pixel_of_their_projection(scene, fraction):
     assert np.abs(found - expected).max() < 1.0
 
 
+def test_the_logged_true_pad_pixels_are_the_pads_projection(scene):
+    """true_pad_pixels (the truth the pad centroid errors are taken against) is cv2.projectPoints of the pads'
+    centres from the camera's pose at each time: on the climb flown, and from a camera off the pads' axis,
+    tilted and yawed (on the climb, straight above the origin looking down, X_WC is its own inverse)."""
+    scenario, _, handles, _ = scene
+    times = np.array([0.0, 0.5, 1.0]) * scenario.duration_s
+    off_axis = dataclasses.replace(handles, body=PrescribedPose(
+        RigidTransform(RollPitchYaw(0.05, -0.03, 0.4), [0.03, -0.02, 0.0]).multiply(handles.body.X_WB(0.0)),
+        (0.02, 0.01, 0.15)))
+    for h in (handles, off_axis):
+        expected = [projected_pad_centres(scenario, h, t) for t in times]
+        np.testing.assert_allclose(true_pad_pixels(h, scenario.camera.K, times), expected, rtol=0, atol=1e-9)
+
+
 def test_rendered_pad_colours_stay_inside_their_table1_range_only(scene):
     """The renderer's headlight leaves PAD_RGB as it is on the level floor: each pad's pixels
     segment as its own colour and no other, and the floor as none."""
@@ -90,6 +112,51 @@ def test_pad_centroids_system_orders_pads_and_flags_missing_ones():
     assert np.isnan(pixels[[PAD_COLOURS.index("yellow"), PAD_COLOURS.index("blue")]]).all()
 
 
+def test_leave_one_out_residuals_are_each_interior_sample_against_the_pchip_through_the_others():
+    """On samples of Eq. 18's a / r + c: SciPy's PCHIP through all samples but the k-th, at the k-th range,
+    less that sample. On a straight line with one sample off it by (1, -0.5) px, the PCHIP through the
+    others is the line itself: that sample's residual is (-1, 0.5) px."""
+    from scipy.interpolate import PchipInterpolator
+
+    ranges = np.array([0.3, 0.4, 0.55, 0.7, 1.0, 1.4, 2.0])
+    pixels = np.column_stack([40.0 / ranges + 250.0, -30.0 / ranges + 260.0])
+    expected = [PchipInterpolator(np.delete(ranges, k), np.delete(pixels, k, axis=0), axis=0)(ranges[k]) - pixels[k]
+                for k in range(1, len(ranges) - 1)]
+    residuals = leave_one_out_residuals(ranges, pixels)
+    np.testing.assert_allclose(residuals, expected, rtol=0, atol=1e-12)
+    assert np.all(np.abs(residuals) > 1e-3)
+    line = np.column_stack([2.0 * ranges + 1.0, -ranges])
+    line[3] += [1.0, -0.5]
+    np.testing.assert_allclose(leave_one_out_residuals(ranges, line)[2], [-1.0, 0.5], rtol=0, atol=1e-12)
+
+
+def test_calibration_metrics_against_the_true_camera():
+    """A calibration from exact projections u = fx X / r + cx, v = fy Y / r + cy (sensor at X, Y): its
+    hyperbolas are the truth. One from a camera with fx 1 % and fy 2 % too small, cx 2 px and cy 3 px too
+    large implies those intrinsics: implied_error_percent is (implied - true) / true, signed."""
+    _, scenario = load_scenario("crhf-calibration")
+    p_C = sensor_positions_C(scenario.tof.arm_m, scenario.tof.angle_deg)
+    ranges = np.tile(np.linspace(0.3, 2.3, 41)[:, None], (1, 4))
+
+    def metrics(fx, fy, cx, cy):
+        pixels = np.stack([fx * p_C[:, 0] / ranges + cx, fy * p_C[:, 1] / ranges + cy], axis=-1)
+        calibration = PadCalibration.from_frames(ranges, pixels, PAD_COLOURS)
+        return calibration_metrics(calibration, {"pad_pixels": pixels.reshape(-1, 8)}, scenario, p_C)
+
+    exact = metrics(*EQ10)
+    for colour in PAD_COLOURS:
+        pad = exact["pads"][colour]
+        assert pad["detected_fraction"] == 1.0
+        np.testing.assert_allclose(pad["hyperbola_vs_truth_rmse_px"], [0.0, 0.0], atol=1e-6)
+        np.testing.assert_allclose(pad["pchip_vs_truth_rmse_px"], [0.0, 0.0], atol=0.05)
+        np.testing.assert_allclose(list(pad["implied_error_percent"].values()), np.zeros(4), atol=1e-6)
+    off = metrics(*(EQ10 * [0.99, 0.98, 1.0, 1.0] + [0.0, 0.0, 2.0, 3.0]))
+    expected = {"fx": -1.0, "fy": -2.0, "cx": 100 * 2.0 / EQ10[2], "cy": 100 * 3.0 / EQ10[3]}
+    for colour in PAD_COLOURS:
+        assert off["pads"][colour]["implied_error_percent"] == pytest.approx(expected, rel=1e-6)
+    assert off["implied_error_percent_mean"] == pytest.approx(expected, rel=1e-6)
+
+
 @pytest.mark.slow
 def test_a_short_calibration_climb_implies_the_camera_intrinsics(tmp_path):
     name, scenario = load_scenario("crhf-calibration", overrides=["climb_speed_m_s=1.0"], duration_s=2.0)
@@ -107,6 +174,19 @@ def test_a_short_calibration_climb_implies_the_camera_intrinsics(tmp_path):
         assert pad["samples"] == 41 and pad["detected_fraction"] == 1.0
         assert set(pad["hyperbola"]) == {"u", "v"} and set(pad["hyperbola"]["u"]) >= {"a", "c"}
         assert pad["pchip_leave_one_out_rmse_px"][0] < 5.0
+        assert max(pad["hyperbola_vs_truth_rmse_px"]) < 1.0
+    true = dict(zip(("fx", "fy", "cx", "cy"), EQ10))
+    for colour, row in zip(PAD_COLOURS, implied):
+        expected = {k: 100.0 * (v - true[k]) / true[k] for k, v in zip(true, row)}
+        assert section["pads"][colour]["implied_error_percent"] == pytest.approx(expected, rel=1e-9, abs=1e-12)
+    # each pad's centroid error: against cv2.projectPoints of that pad at each frame
+    _, handles = build_calibration_scene(scenario)
+    with np.load(tmp_path / "log.npz") as log:
+        t, found = log["t"], log["pad_pixels"].reshape(-1, 4, 2)
+    errors = np.linalg.norm(found - np.array([projected_pad_centres(scenario, handles, ti) for ti in t]), axis=2)
+    rmse = metrics["perception"]["pad_centroid_error_px_rmse"]
+    np.testing.assert_allclose(rmse, np.sqrt(np.mean(errors**2, axis=0)), rtol=1e-6)
+    assert max(rmse) < 1.0
     for name in ("log.npz", "metrics.json", "calibration_u.png", "calibration_v.png"):
         assert (tmp_path / name).is_file()
 
@@ -120,6 +200,8 @@ def test_a_short_calibration_climb_implies_the_camera_intrinsics(tmp_path):
     ("climb_speed_m_s=0", "climb_speed_m_s"),
     ("pad_radius_m=0.12", "pad_radius_m"),  # neighbouring pads overlap
     ("pad_radius_m=0.02", "pad_radius_m"),  # too small to segment at the top
+    ("start_height_m=0.1", "the pads do not fit in the image"),  # the outer pads' rims off the image's edges
+    ("camera.cx=100", "the pads do not fit in the image"),  # the left pads off the image
     ("tof.noise_std_m=-1", "tof.noise_std_m"),
     ("pad_radius=0.1", "pad_radius"),  # unknown key
 ])
