@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 from pydrake.common.eigen_geometry import Quaternion
-from pydrake.geometry import Meshcat
+from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from diagrams.cli import main
@@ -230,6 +230,23 @@ def test_meshcat_records_the_flight_and_shows_the_estimates():
     assert sizes[1] > sizes[0] + 10_000  # the recording holds the whole flight, not its last frame
     for name in ("paper_ekf", "ct_ekf"):
         assert meshcat.HasPath(f"gv_landing/{name}_pad_path")
+
+
+def test_a_trail_leaves_out_flagged_and_non_finite_estimates():
+    """MeshcatTrail draws its line only through samples with a finite position and, given valid_index, the
+    valid flag set: fed only estimates the filter flags, or only NaN positions, it draws nothing."""
+    from pydrake.systems.analysis import Simulator
+
+    from systems.viewers import MeshcatTrail
+
+    meshcat = Meshcat(params=MeshcatParams(host="localhost"))
+    for path, position, drawn in (("/valid", [1.0, 2.0, 3.0, 1.0], True), ("/flagged", [1.0, 2.0, 3.0, 0.0], False),
+                                  ("/nan", [np.nan, 2.0, 3.0, 1.0], False)):
+        trail = MeshcatTrail(meshcat, path, size=4, valid_index=3)
+        simulator = Simulator(trail)
+        trail.get_input_port().FixValue(simulator.get_mutable_context(), position)
+        simulator.AdvanceTo(0.5)  # six samples at 10 Hz
+        assert meshcat.HasPath(path) == drawn, path
 
 
 def campaign(tmp_path, workers, runs=2, speeds=("3", "12")):

@@ -12,7 +12,7 @@ from diagrams.wind_report import plot_wind, wind_metrics
 from systems.config import ConfigError
 from systems.environment.wind import GustConfig, WindConfig
 from systems.vehicles.quadrotor import Q_WB, V_WB, rotation_from_quaternion
-from systems.viewers import arrow_polyline
+from systems.viewers import MeshcatArrow, arrow_polyline
 
 pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
 
@@ -73,6 +73,36 @@ def test_an_arrow_runs_along_its_vector_with_its_head_at_the_tip():
         offset = barb - (tail + vector)
         assert np.linalg.norm(offset) == pytest.approx(0.4)
         assert np.degrees(np.arccos(-offset @ vector / (np.linalg.norm(offset) * 2.0))) == pytest.approx(25.0)
+
+
+def test_an_arrows_barbs_lie_on_either_side_of_its_shaft():
+    """The head's two barbs mirror each other across the shaft: both end 0.4 cos 25 deg behind the tip along
+    it, 0.4 sin 25 deg off it on opposite sides."""
+    tail, vector = np.array([1.0, 2.0, 3.0]), np.array([0.0, 2.0, 0.0])
+    points = arrow_polyline(tail, vector)
+    along = vector / 2.0
+    np.testing.assert_allclose((points[2] + points[4]) / 2, tail + vector - 0.4 * np.cos(np.radians(25)) * along,
+                               atol=1e-12)
+    apart = points[2] - points[4]
+    assert apart @ along == pytest.approx(0.0, abs=1e-12)
+    assert np.linalg.norm(apart) == pytest.approx(2 * 0.4 * np.sin(np.radians(25)))
+
+
+def test_an_arrow_for_a_vector_under_min_norm_is_hidden():
+    """MeshcatArrow hides the arrow, drawing nothing, for a vector under min_norm (0.05, here 0.03), and draws
+    and shows it for one over it."""
+    import msgpack
+    from pydrake.systems.analysis import Simulator
+
+    meshcat = Meshcat(params=MeshcatParams(host="localhost"))
+    for path, vector, shown in (("/calm", [0.03, 0.0, 0.0], False), ("/wind", [1.0, 0.0, 0.0], True)):
+        arrow = MeshcatArrow(meshcat, path)
+        simulator = Simulator(arrow)
+        arrow.GetInputPort("position").FixValue(simulator.get_mutable_context(), [0.0, 0.0, 1.0])
+        arrow.GetInputPort("vector").FixValue(simulator.get_mutable_context(), vector)
+        simulator.AdvanceTo(0.3)
+        assert msgpack.unpackb(meshcat._GetPackedProperty(path, "visible"))["value"] is shown, path
+        assert bool(meshcat._GetPackedObject(path)) is shown, path  # the line, drawn or not
 
 
 def test_the_wind_report_gives_the_standard_deviation_and_the_largest_speed():

@@ -1,7 +1,9 @@
 """--video for the hybrid source: the fisheye stream with the detector's boxes and the tracker's target drawn
 (systems/viewers.py `draw_boxes`, `TrackOverlay`), and the scene's recorder wired to it."""
 
+import cv2
 import numpy as np
+import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.sensors import ImageRgba8U
 
@@ -59,3 +61,24 @@ def test_the_recorder_writes_its_partial_file_from_the_first_frame_and_renames_i
     assert [p.name for p in tmp_path.iterdir()] == [".camera.partial.mp4"]
     recorder.finish()
     assert [p.name for p in tmp_path.iterdir()] == ["camera.mp4"]
+
+
+def test_the_recorder_writes_the_frames_colours_at_the_camera_rate(tmp_path):
+    """Red RGBA frames every 0.1 s come back from the finished video, read by cv2.VideoCapture, as red (BGR
+    (0, 0, 255) within the codec's error), 10 frames at 10 frames per second."""
+    recorder = VideoRecorder(tmp_path / "camera.mp4", 0.1, 64, 48)
+    simulator = Simulator(recorder)
+    red = ImageRgba8U(64, 48)
+    red.mutable_data[:] = (255, 0, 0, 255)
+    recorder.get_input_port().FixValue(simulator.get_mutable_context(), red)
+    simulator.AdvanceTo(0.95)  # frames at 0, 0.1, ..., 0.9 s
+    recorder.finish()
+    capture = cv2.VideoCapture(str(tmp_path / "camera.mp4"))
+    try:
+        fps, frames = capture.get(cv2.CAP_PROP_FPS), []
+        while (frame := capture.read())[0]:
+            frames.append(frame[1])
+    finally:
+        capture.release()
+    assert fps == pytest.approx(10.0) and len(frames) == 10
+    assert np.abs(np.array(frames, dtype=float) - [0.0, 0.0, 255.0]).max() < 10
