@@ -1,9 +1,11 @@
 """Wind in the gv scenarios: the `wind` section through the scenario loader, the WindSystem wired to
 the quadrotor's rotor drag in the diagram, logged, reported in metrics.json and wind.png."""
 
+import msgpack
 import numpy as np
 import pytest
 from pydrake.geometry import Meshcat, MeshcatParams
+from pydrake.systems.analysis import Simulator
 
 from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly, fly_diagram
@@ -91,9 +93,6 @@ def test_an_arrows_barbs_lie_on_either_side_of_its_shaft():
 def test_an_arrow_for_a_vector_under_min_norm_is_hidden():
     """MeshcatArrow hides the arrow, drawing nothing, for a vector under min_norm (0.05, here 0.03), and draws
     and shows it for one over it."""
-    import msgpack
-    from pydrake.systems.analysis import Simulator
-
     meshcat = Meshcat(params=MeshcatParams(host="localhost"))
     for path, vector, shown in (("/calm", [0.03, 0.0, 0.0], False), ("/wind", [1.0, 0.0, 0.0], True)):
         arrow = MeshcatArrow(meshcat, path)
