@@ -99,8 +99,9 @@ class Scenario(RunSettings):
         u = c.fx * (np.abs(p_CS[:, 0]).max() + self.pad_radius_m) / self.start_height_m
         v = c.fy * (np.abs(p_CS[:, 1]).max() + self.pad_radius_m) / self.start_height_m
         require(c.cx - u >= 0 and c.cx + u <= c.width - 1 and c.cy - v >= 0 and c.cy + v <= c.height - 1,
-                f"pad_radius_m ({self.pad_radius_m} m) or start_height_m ({self.start_height_m} m): the pads do "
-                "not fit in the image at the start height")
+                f"pad_radius_m ({self.pad_radius_m} m), start_height_m ({self.start_height_m} m) or the camera "
+                f"(principal point {c.cx:g}, {c.cy:g} px in {c.width} x {c.height}): the pads do not fit in the image "
+                f"at the start height (they reach {u:.0f} x {v:.0f} px from the principal point)")
         radius_px = min(c.fx, c.fy) * self.pad_radius_m / self.end_height_m
         require(radius_px >= MIN_PAD_RADIUS_PX,
                 f"pad_radius_m ({self.pad_radius_m} m) is too small: at end_height_m a pad would be "
