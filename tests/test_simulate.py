@@ -8,12 +8,12 @@ import io
 import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import SimulatorConfig
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import ConstantVectorSource
+from pydrake.systems.framework import DiagramBuilder, EventStatus, LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource, Integrator
 
 from diagrams.cli import main
 from diagrams.perception_sources import SOURCES, PerceptionSource, add_estimate_to_seam
-from diagrams.simulate import COMPLETED, simulate
+from diagrams.simulate import COMPLETED, integrator_failed, simulate
 from systems.estimators.estimate import PoseEstimate
 
 
@@ -69,6 +69,53 @@ def test_the_integrator_failing_is_a_diverged_run():
                                                     accuracy=1e-6, max_step_size=0.01), video=video)
     assert run.status.startswith("diverged: the integrator failed at t = 1.00 s (Error control wants")
     assert run.sim_time_s == pytest.approx(1.0, abs=1e-3) and video.ended == "finished"
+
+
+def test_both_of_drakes_integrator_failure_messages_are_a_diverged_run():
+    """Both of the messages Drake's integrator fails with (libdrake's text: the error-control floor and the
+    near-zero step) count as the integrator failing; another RuntimeError, or another exception type with
+    such a message, does not."""
+    drake_messages = ("Error control wants to select step smaller than minimum allowed (1e-14). This is typically "
+                      "an indication that some part of your system *with continuous state* is going unstable",
+                      "Integrator has been directed to a near zero-length step in order to obtain convergence.")
+    for message in drake_messages:
+        assert integrator_failed(RuntimeError(message))
+        assert not integrator_failed(ValueError(message))
+    assert not integrator_failed(RuntimeError("broken"))
+
+
+class Lander(LeafSystem):
+    """Ends the run from t = 0.3 s, as the landing monitor does on touchdown (its event every 0.02 s)."""
+
+    def __init__(self):
+        super().__init__()
+        self.DeclarePeriodicPublishEvent(0.02, 0.0, self._check)
+
+    def _check(self, context):
+        if context.get_time() >= 0.3 - 1e-9:
+            return EventStatus.ReachedTermination(self, "landed: touchdown")
+        return EventStatus.Succeeded()
+
+
+def test_a_termination_event_stops_the_run_with_its_message():
+    """A system's ReachedTermination ends the run there, well inside the 2 s asked for, with its message
+    as the status (not run on to the duration)."""
+    run = simulate(_diagram(Lander()), 2.0)
+    assert run.status == "landed: touchdown"
+    assert run.sim_time_s == pytest.approx(0.3, abs=1e-9)
+
+
+def test_a_run_shorter_than_a_progress_chunk_stops_at_its_duration():
+    """A 0.3 s run (less than one 0.5 s progress chunk) stops at 0.3 s: the integral of a constant 1 is
+    then 0.3, not the 0.5 of a whole chunk."""
+    builder = DiagramBuilder()
+    source, integrator = builder.AddSystem(ConstantVectorSource([1.0])), builder.AddSystem(Integrator(1))
+    builder.Connect(source.get_output_port(), integrator.get_input_port())
+    diagram = builder.Build()
+    run = simulate(diagram, 0.3)
+    assert run.status == COMPLETED and run.sim_time_s == pytest.approx(0.3, abs=1e-12)
+    state = diagram.GetSubsystemContext(integrator, run.context).get_continuous_state_vector().CopyToVector()
+    assert state[0] == pytest.approx(0.3, abs=1e-9)
 
 
 def test_an_unconnected_input_raises_not_diverges():
