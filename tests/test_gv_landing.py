@@ -131,6 +131,20 @@ def test_a_start_beside_over_or_far_from_the_vehicle_within_the_limits_is_accept
         load_scenario("gv-landing", overrides=overrides)
 
 
+def test_the_uav_starts_turned_by_start_yaw_deg_counterclockwise():
+    """start.yaw_deg = 30 starts the UAV level and turned 30 degrees counterclockwise seen from above (about
+    +z, toward +y): its body x axis points along (cos 30, sin 30, 0) in World, at the start position."""
+    _, scenario = load_scenario("gv-landing", overrides=["start.yaw_deg=30", "start.xy_m=[-2.0, 1.0]"])
+    diagram, handles = build_gv_landing(scenario)
+    context = diagram.CreateDefaultContext()
+    handles.initialize(context)
+    X_WB = handles.quadrotor.GetOutputPort("X_WB").Eval(handles.quadrotor.GetMyContextFromRoot(context))
+    R = X_WB.rotation().matrix()
+    np.testing.assert_allclose(R[:, 0], [np.cos(np.pi / 6), np.sin(np.pi / 6), 0.0], atol=1e-12)
+    np.testing.assert_allclose(R[:, 2], [0.0, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(X_WB.translation(), [-2.0, 1.0, scenario.start.height_m], atol=1e-12)
+
+
 def test_a_path_tighter_than_the_vehicle_turns_names_its_radius():
     with pytest.raises(ConfigError, match=r"vehicle\.path_radius_m"):
         load_scenario("gv-landing", overrides=["vehicle.path=circle", "vehicle.path_radius_m=5"])

@@ -11,6 +11,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
+from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
@@ -141,3 +142,24 @@ def test_in_the_loop_the_controller_flies_on_the_navigation():
         flights[source] = fly(s, 3.0)[1].log["quadrotor_state"][:, P_WB]
     assert np.abs(flights["truth"][:, :2] - flights["truth"][0, :2]).max() < 1e-6
     assert np.abs(flights["gnss_ins"][:, :2] - flights["gnss_ins"][0, :2]).max() > 1e-3
+
+
+def test_the_marker_filters_and_the_vehicle_broadcast_place_the_pad_with_the_navigations_pose():
+    """The marker filters and the vehicle's broadcast (which turn what they measure into World) take the UAV's
+    pose from its navigation, as the controller does, not the true pose the camera and the referee keep: at
+    t = 0 their X_WB inputs are the navigation's, which is off the truth by its starting error."""
+    _, s = load_scenario("gv-marker-ekf", overrides=["navigation.source=gnss_ins", "rendezvous.source=broadcast"])
+    diagram, handles = build_gv_landing(s)
+    context = diagram.CreateDefaultContext()
+    handles.initialize(context)
+
+    def output(system, name):
+        return system.GetOutputPort(name).Eval(system.GetMyContextFromRoot(context))
+
+    navigation, truth = output(diagram.GetSubsystemByName("navigation"), "X_WB"), output(handles.quadrotor, "X_WB")
+    assert np.linalg.norm(navigation.translation() - truth.translation()) > 1e-3
+    readers = [*handles.filters.values(), diagram.GetSubsystemByName("vehicle_broadcast")]
+    assert len(readers) == 3
+    for system in readers:
+        X_WB = system.GetInputPort("X_WB").Eval(system.GetMyContextFromRoot(context))
+        assert X_WB.IsExactlyEqualTo(navigation), system.get_name()

@@ -223,3 +223,21 @@ def test_the_12_m_s_sine_path_from_10_m_lands_on_the_truth_with_the_broadcast(so
         assert landing["touchdown_error_m"] < 0.1 and landing["touchdown_rel_speed_mps"] < 0.5
     else:
         assert landing["failure_reason"] == "diverged"
+
+
+def test_the_search_is_told_of_vision_by_the_perception_seam_not_the_truth():
+    """The rendezvous search sweeps while the camera has no pad: its `vision` input is the seam the perception
+    steers on. At t = 0 in marker-landing-wind the pad is in view (the truth's seam is valid) but the marker
+    filter has fused nothing yet (the perception's is not): the search must see the latter."""
+    _, config = load_scenario("marker-landing-wind", overrides=["rendezvous.source=broadcast"])
+    diagram, handles = build_gv_landing(config)
+    context = diagram.CreateDefaultContext()
+    handles.initialize(context)
+
+    def value(port):
+        return port.Eval(port.get_system().GetMyContextFromRoot(context))
+
+    search = diagram.GetSubsystemByName("rendezvous_search")
+    vision, seam = value(search.GetInputPort("vision")), value(handles.perception.relative_state)
+    assert value(handles.truth.get_output_port())[VALID] == 1.0 and seam[VALID] == 0.0
+    np.testing.assert_array_equal(vision, seam)
