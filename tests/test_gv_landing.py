@@ -389,6 +389,23 @@ def test_python_flight_controller_flies_the_same_as_the_symbolic_one(integration
     assert np.abs(uav - uav_python).max() < 1e-6
 
 
+def test_continuous_vehicles_integrate_as_the_scenario_says(monkeypatch):
+    """With integration.discrete false the Simulator integrates the vehicles, with the scenario's scheme and
+    step (fixed-step RK2 at 1 ms here), not Drake's default (error-controlled RK3)."""
+    import diagrams.simulate
+
+    simulators, simulator = [], diagrams.simulate.Simulator
+    monkeypatch.setattr(diagrams.simulate, "Simulator", lambda diagram: simulators.append(simulator(diagram))
+                        or simulators[-1])
+    _, scenario = load_scenario("gv-landing", overrides=[
+        "integration.discrete=false", "integration.scheme=runge_kutta2", "integration.max_step_s=0.001",
+        "integration.error_control=false"])
+    fly(scenario, 0.06)
+    integrator = simulators[-1].get_integrator()
+    assert type(integrator).__name__ == "RungeKutta2Integrator"
+    assert integrator.get_fixed_step_mode() and integrator.get_maximum_step_size() == 0.001
+
+
 def test_monitor_names_each_way_a_run_ends():
     config = GvLandingConfig()
     monitor = LandingMonitor(config.termination, config.platform, config.landing.touchdown_height_m)

@@ -23,6 +23,7 @@ from diagrams.montecarlo import campaign_definition, campaign_settings, run_camp
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, ESTIMATE_VECTOR_SIZE
+from systems.perception.seam import HEIGHT, P_BP_W
 from systems.vehicles.quadrotor import P_WB, quadrotor_state
 
 SHORT = ["duration_s=4"]
@@ -50,6 +51,10 @@ def test_run_command_writes_metrics(capfd, tmp_path):
     with np.load(out / "log.npz") as log:
         assert log["ct_ekf_estimate"].shape == (len(log["t_sample"]), ESTIMATE_VECTOR_SIZE)
         assert log["measurements"].shape == (len(log["t_sample"]), 5, 7)
+        # The flight's end: the true offset in x-y only (the height above the pad is its own figure).
+        last = log["true_relative_state"][-1]
+    assert metrics["flight"]["final_horizontal_offset_m"] == pytest.approx(np.hypot(*last[P_BP_W][:2]), abs=1e-12)
+    assert metrics["flight"]["final_height_above_pad_m"] == pytest.approx(last[HEIGHT], abs=1e-12)
 
 
 def test_default_run_length_is_500_m_of_driving():
