@@ -215,3 +215,55 @@ def test_the_federated_imu_draws_its_noise_from_the_runs_seed():
     np.testing.assert_array_equal(_federated_imu_sample(3), first)
     assert np.all(_federated_imu_sample(4) != first)
     np.testing.assert_allclose(first, [0.0, 0.0, 9.81, 0.0, 0.0, 0.0], atol=0.05)  # a reading at rest, noisy
+
+
+def test_the_manoeuvres_command_ramps_the_velocity_and_turns_from_the_start_s_yaw():
+    """rqrlp-maneuvers' command trajectory, as its docstring has it: each manoeuvre's velocity reached linearly
+    over RAMP_S (half a manoeuvre shorter than twice that), its yaw rate from its start on, the yaw from
+    start.yaw_deg; the flight controller's command is [velocity, yaw, the velocity's derivative]."""
+    from diagrams.rqrlp_maneuvers import RAMP_S, build_rqrlp_maneuvers
+    from systems.control.flight_controller import flight_command
+
+    v, rate_deg_s, yaw0 = np.array([0.4, -0.2, 0.1]), 90.0, np.radians(30.0)
+    config = ManeuversConfig(manoeuvres=[[2.0, *v, rate_deg_s], [0.6, 0.0, 0.0, 0.0, 0.0]])
+    config.start.yaw_deg = 30.0
+    turned = yaw0 + 2.0 * np.radians(rate_deg_s)
+
+    def expected(t):  # [v, yaw, dv/dt] by hand: up to v over RAMP_S turning at 90 deg/s, then down over 0.3 s
+        if t < RAMP_S:
+            return flight_command(v * t / RAMP_S, yaw0 + np.radians(rate_deg_s) * t, v / RAMP_S)
+        if t < 2.0:
+            return flight_command(v, yaw0 + np.radians(rate_deg_s) * t, np.zeros(3))
+        if t < 2.3:
+            return flight_command(v * (2.3 - t) / 0.3, turned, -v / 0.3)
+        return flight_command(np.zeros(3), turned, np.zeros(3))
+
+    times = [0.1, 0.3, 1.2, 1.9, 2.1, 2.25, 2.4]
+    trajectory = config.command_trajectory()
+    for t in times:
+        np.testing.assert_allclose(trajectory.value(t).ravel(), expected(t)[:4], atol=1e-12)
+        np.testing.assert_allclose(trajectory.EvalDerivative(t, 1).ravel()[:3], expected(t)[4:], atol=1e-12)
+    diagram, handles = build_rqrlp_maneuvers(config)
+    controller = diagram.GetSubsystemByName("flight_controller")
+    context = diagram.CreateDefaultContext()
+    handles.initialize(context)
+    for t in times:
+        context.SetTime(t)
+        command = controller.GetInputPort("command").Eval(controller.GetMyContextFromRoot(context))
+        np.testing.assert_allclose(command, expected(t), atol=1e-12)
+
+
+def test_the_manoeuvres_start_hovering_at_the_start_s_yaw():
+    """start.yaw_deg is the heading the UAV starts with: X_WB's yaw, counter-clockwise about z up."""
+    from scipy.spatial.transform import Rotation
+
+    from diagrams.rqrlp_maneuvers import build_rqrlp_maneuvers
+
+    _, config = load_scenario("rqrlp-maneuvers", overrides=["start.yaw_deg=30.0"])
+    diagram, handles = build_rqrlp_maneuvers(config)
+    context = diagram.CreateDefaultContext()
+    handles.initialize(context)
+    X_WB = handles.quadrotor.GetOutputPort("X_WB").Eval(handles.quadrotor.GetMyContextFromRoot(context))
+    np.testing.assert_allclose(Rotation.from_matrix(X_WB.rotation().matrix()).as_euler("xyz", degrees=True),
+                               [0.0, 0.0, 30.0], atol=1e-9)
+    np.testing.assert_allclose(X_WB.translation(), [*config.start.xy_m, config.start.height_m], atol=1e-12)
