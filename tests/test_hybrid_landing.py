@@ -284,6 +284,26 @@ def test_the_altitude_filter_knows_the_altimeters_nearest_range():
     assert altitude.nearest_m == altimeter.estimator.nearest_m == pytest.approx(350.0 * 0.12 / 63)  # disparities 0-63
 
 
+def test_the_estimator_and_the_logs_read_the_altitudes_they_are_named_for():
+    """In the built ugv-hybrid diagram the hybrid pad estimator takes the altitude filter's altitude and its
+    validity (not the raw stereo flag), and the `stereo_altitude` log is the altimeter's raw reading (not the
+    filtered one, which `altitude` logs)."""
+    _, scenario = load_scenario("ugv-hybrid")
+    diagram, handles = build_gv_landing(scenario)
+    wired = {(system.get_name(), system.get_input_port(i).get_name()):
+             (source.get_name(), source.get_output_port(j).get_name())
+             for (system, i), (source, j) in diagram.connection_map().items()}
+    assert wired["hybrid_pad", "altitude"] == ("altitude_filter", "altitude")
+    assert wired["hybrid_pad", "altitude_valid"] == ("altitude_filter", "valid")
+    assert wired["altitude_filter", "altitude_valid"] == ("stereo_altimeter", "altitude_valid")
+    logs = handles.perception.logs
+    for name, source in (("stereo_altitude", ("stereo_altimeter", "altitude")),
+                         ("stereo_valid", ("stereo_altimeter", "altitude_valid")),
+                         ("altitude", ("altitude_filter", "altitude")),
+                         ("altitude_valid", ("altitude_filter", "valid"))):
+        assert wired[logs[name].get_name(), logs[name].get_input_port().get_name()] == source, name
+
+
 def test_scenario_loads():
     name, scenario = load_scenario("ugv-hybrid")
     assert name == "ugv-hybrid" and scenario.perception.source == "hybrid"
@@ -315,7 +335,12 @@ def test_scenario_loads():
                                              "hybrid.classical.max_strip_angle_deg"),
                                             ("hybrid.classical.min_part_px=-1", "hybrid.classical.min_part_px"),
                                             ("hybrid.classical.min_box_px=-3", "hybrid.classical.min_box_px"),
-                                            ("hybrid.no_such_key=1", "hybrid.no_such_key")])
+                                            ("hybrid.no_such_key=1", "hybrid.no_such_key"),
+                                            # the observer steps once per fisheye frame, on the hybrid p_WP
+                                            ("hybrid.velocity_observer.rate_hz=20",
+                                             "hybrid.velocity_observer.rate_hz"),
+                                            ("hybrid.velocity_observer.source=pixel",
+                                             "hybrid.velocity_observer.source must be world")])
 def test_bad_setting_names_the_field(setting, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         load_scenario("ugv-hybrid", overrides=[setting])
