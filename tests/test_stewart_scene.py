@@ -227,3 +227,73 @@ def test_the_estimates_arrive_the_latency_s_frames_late(dynamic_run):
         np.testing.assert_array_equal(late[name][:2, 0], 0.0, err_msg=name)  # nothing due yet: invalid
         np.testing.assert_array_equal(late[name][2:], log[name][:len(late["t"]) - 2], err_msg=name)
     np.testing.assert_array_equal(late["X_CP"], log["X_CP"][:len(late["t"])])  # the truth is not late
+
+
+def _tof_noise(seed: int) -> np.ndarray:
+    """The ToF readings less the true ranges over the first four camera frames of a default scene with range
+    noise, built with `seed` (the UAV hovering 2 m over the deck: every reading valid)."""
+    config = StewartSceneConfig(seed=seed)
+    config.tof.noise_std_m = 0.005  # stewart-dynamic's (none by default)
+    diagram, handles = build_stewart_scene(config)
+    context = diagram.CreateDefaultContext()
+    tof_context = handles.tof.GetMyContextFromRoot(context)
+    noise = []
+    for k in range(4):
+        context.SetTime(k * config.camera.period_s)
+        ranges, true = (handles.tof.GetOutputPort(name).Eval(tof_context) for name in ("ranges", "true_ranges"))
+        noise.append(ranges - true)
+    return np.array(noise)
+
+
+def test_the_tof_noise_is_drawn_from_the_scene_s_seed():
+    """The scene's seed reaches the ToF sensors: one seed gives the same range noise twice, another seed other
+    noise (a Monte Carlo run's ranges are not every run's)."""
+    first = _tof_noise(0)
+    assert np.all(np.isfinite(first)) and np.all(first != 0.0)
+    np.testing.assert_array_equal(_tof_noise(0), first)
+    assert np.all(_tof_noise(1) != first)
+
+
+def test_the_true_tag_corners_are_the_tag_seen_through_the_renderer_s_intrinsics():
+    """collect_log's true_tag_corners are the tag's corners at the true X_CT projected with the camera the
+    renderer has (K, which the log keeps), not with the estimators' miscalibrated K_estimated: checked
+    against cv2.projectPoints."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    import cv2
+    from pydrake.systems.primitives import VectorLog
+
+    from diagrams.stewart_run import collect_log
+    from systems.sensors.ground_truth import pose_vector
+
+    config = StewartSceneConfig()
+    config.camera.calibration_error.fx_pct, config.camera.calibration_error.cx_px = 3.0, 4.0
+    _, handles = build_stewart_scene(config)
+    X_CP = [RigidTransform(RotationMatrix(Rotation.from_euler("xyz", rpy, degrees=True).as_matrix()), p)
+            for rpy, p in (((180.0, 0.0, 10.0), [0.05, -0.02, 2.0]), ((174.0, 3.0, -20.0), [-0.1, 0.08, 1.8]))]
+    poses, imu = VectorLog(7), VectorLog(6)
+    for k, X in enumerate(X_CP):
+        poses.AddData(k * config.camera.period_s, pose_vector(X))
+        imu.AddData(k * config.camera.period_s, np.zeros(6))
+    loggers = {name: SimpleNamespace(FindLog=lambda context, log=log: log) for name, log in (("X_CP", poses),
+                                                                                          ("imu", imu))}
+    log = collect_log(dataclasses.replace(handles, loggers=loggers), None, config)
+    corners_T = handles.platform.tag_corners_T()
+    np.testing.assert_array_equal(log["K"], config.camera.K)
+    for X, corners in zip(X_CP, log["true_tag_corners"]):
+        X_CT = X.multiply(handles.platform.X_PT)
+        rvec = Rotation.from_matrix(X_CT.rotation().matrix()).as_rotvec()
+        expected, _ = cv2.projectPoints(corners_T, rvec, X_CT.translation(), config.camera.K, None)
+        np.testing.assert_allclose(corners, expected.ravel(), atol=1e-6)
+
+
+def test_the_stroke_exceeded_fraction_is_the_fraction_of_frames():
+    """scene_metrics' stroke_exceeded_fraction: the share of frames with a leg out of its stroke (1 of 4 here)."""
+    from diagrams.stewart_run import scene_metrics
+
+    n = 4
+    log = {"tag_corners": np.zeros((n, 8)), "true_tag_corners": np.zeros((n, 8)), "ranges": np.full((n, 4), 2.0),
+           "true_ranges": np.full((n, 4), 2.0), "ranges_valid": np.ones((n, 4)),
+           "stroke_exceeded": np.array([[0.0], [1.0], [0.0], [0.0]]), "leg_lengths": np.full((n, 6), 0.5)}
+    assert scene_metrics(log)["platform"]["stroke_exceeded_fraction"] == 0.25
