@@ -106,6 +106,21 @@ def build(config: StewartSceneConfig) -> Scene:
     return Scene(config, diagram, handles)
 
 
+@pytest.fixture
+def recorded_simulators(monkeypatch) -> list:
+    """Every Simulator that diagrams.simulate makes during the test, in order (to read its integrator)."""
+    import diagrams.simulate
+
+    simulators, make = [], diagrams.simulate.Simulator
+
+    def record(diagram):
+        simulators.append(make(diagram))
+        return simulators[-1]
+
+    monkeypatch.setattr(diagrams.simulate, "Simulator", record)
+    return simulators
+
+
 @pytest.fixture(scope="session")
 def build_scene():
     """Builds a scene from a StewartSceneConfig: `build_scene(config) -> Scene`."""

@@ -4,7 +4,6 @@ scored against the simulation's truth; a covered lens is flagged, coasted and ne
 import numpy as np
 import pytest
 from pydrake.systems.framework import LeafSystem
-from scipy.spatial.transform import Rotation
 
 from diagrams import deck_landing_run
 from diagrams.deck_landing_run import fly
@@ -307,20 +306,6 @@ def test_a_touchdown_on_a_deck_tilted_past_the_target_misses_the_targets_and_the
     assert metrics["success"] and metrics["deck_tilt_at_touchdown_deg"] == pytest.approx(5.0, abs=1e-9)
     assert not metrics["meets_targets"]
     assert metrics["deck_heave_rate_at_touchdown_m_s"] == 0.3
-
-
-def test_the_uav_starts_hovering_at_the_start_s_yaw():
-    """start.yaw_deg is the heading the UAV starts with: X_WB's yaw, counter-clockwise about z up."""
-    from diagrams.deck_landing import build_deck_landing
-
-    _, config = load_scenario("deck-landing", overrides=["start.yaw_deg=30.0"])
-    diagram, handles = build_deck_landing(config)
-    context = diagram.CreateDefaultContext()
-    handles.initialize(context)
-    X_WB = handles.quadrotor.GetOutputPort("X_WB").Eval(handles.quadrotor.GetMyContextFromRoot(context))
-    np.testing.assert_allclose(Rotation.from_matrix(X_WB.rotation().matrix()).as_euler("xyz", degrees=True),
-                               [0.0, 0.0, 30.0], atol=1e-9)
-    np.testing.assert_allclose(X_WB.translation(), [*config.start.xy_m, config.start.height_m], atol=1e-12)
 
 
 def test_crhf_is_told_the_camera_s_velocity_at_the_frame_s_exposure():

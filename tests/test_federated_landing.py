@@ -145,17 +145,12 @@ def test_a_manoeuvre_is_five_finite_numbers_its_duration_positive(row):
         config.validate()
 
 
-def test_the_manoeuvres_integrate_as_the_scenario_says(monkeypatch):
-    import diagrams.simulate
-
-    simulators, simulator = [], diagrams.simulate.Simulator
-    monkeypatch.setattr(diagrams.simulate, "Simulator", lambda diagram: simulators.append(simulator(diagram))
-                        or simulators[-1])
+def test_the_manoeuvres_integrate_as_the_scenario_says(recorded_simulators):
     _, config = load_scenario("rqrlp-maneuvers", overrides=[
         "integration.discrete=false", "integration.scheme=runge_kutta2", "integration.max_step_s=0.001",
         "integration.error_control=false"])
     fly_maneuvers(config, 0.06)
-    integrator = simulators[-1].get_integrator()
+    integrator = recorded_simulators[-1].get_integrator()
     assert type(integrator).__name__ == "RungeKutta2Integrator"
     assert integrator.get_fixed_step_mode() and integrator.get_maximum_step_size() == 0.001
 
@@ -251,19 +246,3 @@ def test_the_manoeuvres_command_ramps_the_velocity_and_turns_from_the_start_s_ya
         context.SetTime(t)
         command = controller.GetInputPort("command").Eval(controller.GetMyContextFromRoot(context))
         np.testing.assert_allclose(command, expected(t), atol=1e-12)
-
-
-def test_the_manoeuvres_start_hovering_at_the_start_s_yaw():
-    """start.yaw_deg is the heading the UAV starts with: X_WB's yaw, counter-clockwise about z up."""
-    from scipy.spatial.transform import Rotation
-
-    from diagrams.rqrlp_maneuvers import build_rqrlp_maneuvers
-
-    _, config = load_scenario("rqrlp-maneuvers", overrides=["start.yaw_deg=30.0"])
-    diagram, handles = build_rqrlp_maneuvers(config)
-    context = diagram.CreateDefaultContext()
-    handles.initialize(context)
-    X_WB = handles.quadrotor.GetOutputPort("X_WB").Eval(handles.quadrotor.GetMyContextFromRoot(context))
-    np.testing.assert_allclose(Rotation.from_matrix(X_WB.rotation().matrix()).as_euler("xyz", degrees=True),
-                               [0.0, 0.0, 30.0], atol=1e-9)
-    np.testing.assert_allclose(X_WB.translation(), [*config.start.xy_m, config.start.height_m], atol=1e-12)

@@ -13,6 +13,7 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorC
 from pydrake.systems.primitives import LinearSystem
 
 from diagrams.cli import main
+from diagrams.deck_landing import build_deck_landing
 from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_config import (
     EXPLICIT_STABILITY_LIMITS,
@@ -21,6 +22,7 @@ from diagrams.gv_landing_config import (
     GvLandingConfig,
 )
 from diagrams.gv_landing_run import fly, fly_diagram
+from diagrams.rqrlp_maneuvers import build_rqrlp_maneuvers
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.control.landing import Mode
@@ -131,11 +133,14 @@ def test_a_start_beside_over_or_far_from_the_vehicle_within_the_limits_is_accept
         load_scenario("gv-landing", overrides=overrides)
 
 
-def test_the_uav_starts_turned_by_start_yaw_deg_counterclockwise():
+@pytest.mark.parametrize("name, builder", [("gv-landing", build_gv_landing), ("deck-landing", build_deck_landing),
+                                           ("rqrlp-maneuvers", build_rqrlp_maneuvers)])
+def test_the_uav_starts_turned_by_start_yaw_deg_counterclockwise(name, builder):
     """start.yaw_deg = 30 starts the UAV level and turned 30 degrees counterclockwise seen from above (about
-    +z, toward +y): its body x axis points along (cos 30, sin 30, 0) in World, at the start position."""
-    _, scenario = load_scenario("gv-landing", overrides=["start.yaw_deg=30", "start.xy_m=[-2.0, 1.0]"])
-    diagram, handles = build_gv_landing(scenario)
+    +z, toward +y): its body x axis points along (cos 30, sin 30, 0) in World, at the start position; in each
+    scenario that flies from a StartConfig."""
+    _, scenario = load_scenario(name, overrides=["start.yaw_deg=30", "start.xy_m=[-2.0, 1.0]"])
+    diagram, handles = builder(scenario)
     context = diagram.CreateDefaultContext()
     handles.initialize(context)
     X_WB = handles.quadrotor.GetOutputPort("X_WB").Eval(handles.quadrotor.GetMyContextFromRoot(context))
@@ -389,19 +394,14 @@ def test_python_flight_controller_flies_the_same_as_the_symbolic_one(integration
     assert np.abs(uav - uav_python).max() < 1e-6
 
 
-def test_continuous_vehicles_integrate_as_the_scenario_says(monkeypatch):
+def test_continuous_vehicles_integrate_as_the_scenario_says(recorded_simulators):
     """With integration.discrete false the Simulator integrates the vehicles, with the scenario's scheme and
     step (fixed-step RK2 at 1 ms here), not Drake's default (error-controlled RK3)."""
-    import diagrams.simulate
-
-    simulators, simulator = [], diagrams.simulate.Simulator
-    monkeypatch.setattr(diagrams.simulate, "Simulator", lambda diagram: simulators.append(simulator(diagram))
-                        or simulators[-1])
     _, scenario = load_scenario("gv-landing", overrides=[
         "integration.discrete=false", "integration.scheme=runge_kutta2", "integration.max_step_s=0.001",
         "integration.error_control=false"])
     fly(scenario, 0.06)
-    integrator = simulators[-1].get_integrator()
+    integrator = recorded_simulators[-1].get_integrator()
     assert type(integrator).__name__ == "RungeKutta2Integrator"
     assert integrator.get_fixed_step_mode() and integrator.get_maximum_step_size() == 0.001
 
