@@ -145,16 +145,6 @@ def test_a_manoeuvre_is_five_finite_numbers_its_duration_positive(row):
         config.validate()
 
 
-def test_the_manoeuvres_integrate_as_the_scenario_says(recorded_simulators):
-    _, config = load_scenario("rqrlp-maneuvers", overrides=[
-        "integration.discrete=false", "integration.scheme=runge_kutta2", "integration.max_step_s=0.001",
-        "integration.error_control=false"])
-    fly_maneuvers(config, 0.06)
-    integrator = recorded_simulators[-1].get_integrator()
-    assert type(integrator).__name__ == "RungeKutta2Integrator"
-    assert integrator.get_fixed_step_mode() and integrator.get_maximum_step_size() == 0.001
-
-
 def test_the_manoeuvres_camera_exposure_is_fed_the_patterns_flow():
     from diagrams.rqrlp_maneuvers import build_rqrlp_maneuvers
     from systems.sensors.camera import NoisyCamera

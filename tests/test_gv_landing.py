@@ -23,6 +23,7 @@ from diagrams.gv_landing_config import (
 )
 from diagrams.gv_landing_run import fly, fly_diagram
 from diagrams.rqrlp_maneuvers import build_rqrlp_maneuvers
+from diagrams.rqrlp_maneuvers_run import fly as fly_maneuvers
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.control.landing import Mode
@@ -394,13 +395,14 @@ def test_python_flight_controller_flies_the_same_as_the_symbolic_one(integration
     assert np.abs(uav - uav_python).max() < 1e-6
 
 
-def test_continuous_vehicles_integrate_as_the_scenario_says(recorded_simulators):
+@pytest.mark.parametrize("name, fly_scenario", [("gv-landing", fly), ("rqrlp-maneuvers", fly_maneuvers)])
+def test_continuous_vehicles_integrate_as_the_scenario_says(recorded_simulators, name, fly_scenario):
     """With integration.discrete false the Simulator integrates the vehicles, with the scenario's scheme and
     step (fixed-step RK2 at 1 ms here), not Drake's default (error-controlled RK3)."""
-    _, scenario = load_scenario("gv-landing", overrides=[
+    _, scenario = load_scenario(name, overrides=[
         "integration.discrete=false", "integration.scheme=runge_kutta2", "integration.max_step_s=0.001",
         "integration.error_control=false"])
-    fly(scenario, 0.06)
+    fly_scenario(scenario, 0.06)
     integrator = recorded_simulators[-1].get_integrator()
     assert type(integrator).__name__ == "RungeKutta2Integrator"
     assert integrator.get_fixed_step_mode() and integrator.get_maximum_step_size() == 0.001
