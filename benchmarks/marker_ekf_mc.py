@@ -12,10 +12,10 @@ of position and heading per speed per filter and the runs each is over, checks t
 and reports wall time and runs per second (both of the whole `run_campaign` call, its summary and plots
 included: what a user waits for, stricter than the summary's own `wall_time_s`, which stops at the last
 run), then the scaling from 1 to 2 workers on a smaller campaign (`--scaling-runs` per speed, fresh
-directories). Prints PASS/FAIL per target; never a timed assertion in a test. Last, with `--detector-runs` > 0, the same filters on the real pipeline
-(estimation.source=detector: the rendered camera, ArUco, solvePnP; every run flies and renders,
-about 0.9 s per simulated second), reported beside the synthetic figures without a target: the
-issue sets none for it.
+directories). Prints PASS/FAIL per target; never a timed assertion in a test. Last, with `--detector-runs` > 0,
+the same filters on the real pipeline (estimation.source=detector: the rendered camera, ArUco, solvePnP; every
+run flies and renders, about 0.9 s per simulated second), reported beside the synthetic figures without a
+target: the issue sets none for it.
 """
 
 import argparse

@@ -179,28 +179,30 @@ def test_the_platform_attitude_covariance_is_that_of_twice_the_quaternions_vecto
     np.testing.assert_allclose(np.diag(ekf.platform_covariance(x, P))[:3], (2 * 0.01) ** 2, rtol=1e-12)
 
 
-def test_markers_not_seen_at_the_start_begin_where_the_layout_puts_them():
-    """The filter started from markers 1 and 2 alone on a pad yawed 30 deg: markers 0, 3 and 4 begin at the pad's
-    pose applied to the layout (the seen markers' mean less their offsets, turned into W)."""
-    ekf = PaperMarkerEkf(MarkerLayout(), CameraConfig().X_BC)
+def started_from_markers_1_and_2(cls):
+    """(filter, its first state, p_WP, R_WP): `cls` started from markers 1 and 2 alone, seen exactly on a pad at
+    p_WP yawed 30 deg."""
+    ekf = cls(MarkerLayout(), CameraConfig().X_BC)
     R_WP = RotationMatrix.MakeZRotation(np.radians(30.0))
     p_WP = np.array([5.0, 2.0, 1.6])
     slots = np.array([1, 2])
     q_MR = np.tile(drake_to_paper(R_WP.ToQuaternion()), (2, 1))
     x, _ = ekf.initial_state(slots, p_WP + ekf.p_PM[slots] @ R_WP.matrix().T, q_MR)
+    return ekf, x, p_WP, R_WP
+
+
+def test_markers_not_seen_at_the_start_begin_where_the_layout_puts_them():
+    """The paper filter started from markers 1 and 2 alone: markers 0, 3 and 4 begin at the pad's pose applied to
+    the layout (the seen markers' mean less their offsets, turned into W)."""
+    ekf, x, p_WP, R_WP = started_from_markers_1_and_2(PaperMarkerEkf)
     m = len(ekf.p_PM)
     np.testing.assert_allclose(x[:6 * m].reshape(m, 6)[:, :3], p_WP + ekf.p_PM @ R_WP.matrix().T, atol=1e-12)
 
 
 def test_the_constant_turn_filter_starts_at_the_pads_origin_from_any_markers():
-    """The constant-turn filter started from markers 1 and 2 alone on a pad yawed 30 deg: its p_WP is the pad's
-    origin (the seen markers less their layout offsets turned into W) and its yaw 30 deg."""
-    ekf = ConstantTurnEkf(MarkerLayout(), CameraConfig().X_BC)
-    R_WP = RotationMatrix.MakeZRotation(np.radians(30.0))
-    p_WP = np.array([5.0, 2.0, 1.6])
-    slots = np.array([1, 2])
-    q_MR = np.tile(drake_to_paper(R_WP.ToQuaternion()), (2, 1))
-    x, _ = ekf.initial_state(slots, p_WP + ekf.p_PM[slots] @ R_WP.matrix().T, q_MR)
+    """The constant-turn filter started from markers 1 and 2 alone: its p_WP is the pad's origin (the seen markers
+    less their layout offsets turned into W) and its yaw 30 deg."""
+    _, x, p_WP, _ = started_from_markers_1_and_2(ConstantTurnEkf)
     np.testing.assert_allclose(x[:3], p_WP, atol=1e-12)
     assert x[ConstantTurnEkf.PSI] == pytest.approx(np.radians(30.0), abs=1e-12)
 
