@@ -185,9 +185,9 @@ def test_the_pose_covariances_are_the_fused_covariance_through_the_poses_jacobia
     """X_PB_estimate's and X_WP_estimate's covariances ([dtheta; dp], in P and in W) against the fused covariance
     propagated through Jacobians of the poses taken by differencing Drake's RigidTransform, a tilted attitude
     and a covariance with every block filled; before a full pose (heading unknown) with pi^2 along a turn of P
-    about its z at its own origin (P level in W, as the gauge takes it: the fused attitude a yaw)."""
+    about its own z at its own origin, which is not W's z: P is tilted in W."""
     rng = np.random.default_rng(3)
-    R = exp_so3([0.15, -0.1, 0.7]) if heading_known else exp_so3([0.0, 0.0, 0.7])
+    R = exp_so3([0.15, -0.1, 0.7])
     fused = LocalState(np.array([0.8, -0.5, 4.0]), np.array([0.2, -0.1, 0.05]), R, _random_covariance(rng))
     federated, context = _system_at(fused, heading_known, (fused,) * len(NODES), np.zeros(6))
     J_PB, J_WP, g_PB, g_WP = _pose_jacobians(fused)

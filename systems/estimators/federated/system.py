@@ -54,12 +54,12 @@ def federated_vector(state: FederatedState, valid: bool) -> np.ndarray:
     return out
 
 
-def with_heading_gauge(covariance: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """`covariance` (6x6 over [dtheta (rad); dp (m)], in a frame F whose z is P's) with the pattern's
-    heading unknown: a turn psi of P about its z at its origin moves a point at p (m, in F, from P's
-    origin) by e_z x p psi, so the covariance gains pi^2 g g^T with g = [e_z; e_z x p]."""
-    e_z = np.array([0.0, 0.0, 1.0])
-    g = np.concatenate([e_z, np.cross(e_z, p)])
+def with_heading_gauge(covariance: np.ndarray, p: np.ndarray, z_P: np.ndarray) -> np.ndarray:
+    """`covariance` (6x6 over [dtheta (rad); dp (m)], in a frame F) with the pattern's heading unknown:
+    a turn psi of P about its own z axis (z_P, a unit vector in F) at its origin turns the attitude by
+    z_P psi and moves a point at p (m, in F, from P's origin) by z_P x p psi, so the covariance gains
+    pi^2 g g^T with g = [z_P; z_P x p]."""
+    g = np.concatenate([z_P, np.cross(z_P, p)])
     return covariance + np.pi**2 * np.outer(g, g)
 
 
@@ -124,7 +124,7 @@ class FederatedFilterSystem(LeafSystem):
         P = state.fused.P
         covariance = np.block([[P[6:9, 6:9], P[6:9, 0:3]], [P[0:3, 6:9], P[0:3, 0:3]]])
         if not state.heading_known:  # P's heading is a gauge until a full pose (engine.py): it turns p_PB too
-            covariance = with_heading_gauge(covariance, state.fused.p)
+            covariance = with_heading_gauge(covariance, state.fused.p, np.array([0.0, 0.0, 1.0]))
         return PoseEstimate(context.get_time(), X_PB(state.fused), is_valid(state, self._config), covariance, "P", "B")
 
     def _X_WP(self, context) -> PoseEstimate:
@@ -140,7 +140,7 @@ class FederatedFilterSystem(LeafSystem):
         J[3:6] = R_WB @ relative_jacobian(state.fused)
         covariance = J @ state.fused.P @ J.T
         if not state.heading_known:  # the pattern's heading is a gauge until a full pose (engine.py)
-            covariance = with_heading_gauge(covariance, np.zeros(3))  # P turns about p_WP: it stays
+            covariance = with_heading_gauge(covariance, np.zeros(3), R_WP[:, 2])  # P turns about p_WP: it stays
         return PoseEstimate(context.get_time(), X_WP, is_valid(state, self._config), (covariance + covariance.T) / 2,
                             "W", "P")
 
