@@ -81,14 +81,15 @@ class FederatedFilterSystem(LeafSystem):
     """The federated filter stepped at the IMU's rate, its nodes read at the camera's.
 
     Inputs: `imu` (6: f_B m/s^2, w_B rad/s, systems/sensors/imu.py), one input per node in NODES
-    (a list of 0 or 1 NodeMeasurement, systems/perception/rqrlp/node_systems.py) (`approach`, `adjustment`, `touchdown`), and the UAV's own navigation
-    `X_WB` (RigidTransform) and `V_WB` (6, [w; v] in W) that put the pattern in the world.
+    (`approach`, `adjustment`, `touchdown`: a list of 0 or 1 NodeMeasurement,
+    systems/perception/rqrlp/node_systems.py), and the UAV's own navigation `X_WB` (RigidTransform) and
+    `V_WB` (6, [w; v] in W) that put the pattern in the world.
     Outputs at t, with the step at t included (systems/stepped.py):
     `X_PB_estimate` (PoseEstimate of B in P, covariance [dtheta; dp] in P, with the heading's pi^2 and the
-    horizontal position it turns before the first full pose), `X_WP_estimate`
-    (PoseEstimate of the pattern in W: X_WB X_PB^-1, its position covariance the relative
-    position's, its heading's pi^2 before the first full pose, valid by engine.is_valid), `v_WP_estimate` (3, m/s in W: the pattern's velocity,
-    v_WB minus the body's velocity relative to P) and `federated_vector` (FED_* layout).
+    horizontal position it turns before the first full pose), `X_WP_estimate` (PoseEstimate of the
+    pattern in W: X_WB X_PB^-1, its position covariance the relative position's, its heading's pi^2 about
+    P's z before the first full pose, valid by engine.is_valid), `v_WP_estimate` (3, m/s in W: the
+    pattern's velocity, v_WB minus the body's velocity relative to P) and `federated_vector` (FED_* layout).
     """
 
     def __init__(self, config: FederatedConfig, X_BC: RigidTransform, imu_period_s: float, camera_period_s: float):
