@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from diagrams.stereo_hover import GroundConfig, add_textured_ground
+from diagrams.stereo_hover import GroundConfig, add_stereo_altimeter, add_textured_ground
 from systems.config import require
 from systems.estimators.altitude_kf import AltitudeFilterSystem, AltitudeKfConfig
 from systems.estimators.velocity_observer import VelocityObserverConfig
@@ -138,14 +138,7 @@ def add_hybrid_perception(builder: DiagramBuilder, config: HybridPerceptionConfi
     tracker = builder.AddNamedSystem("box_tracker", BoxTrackerSystem(config.tracker, fe.width, fe.height))
     builder.Connect(to_tracker.GetOutputPort("detections"), tracker.GetInputPort("detections"))
     builder.Connect(rig.color_image, tracker.GetInputPort("color_image"))
-    altimeter = builder.AddNamedSystem("stereo_altimeter", StereoAltimeter(config.stereo, config.depth))
-    builder.Connect(pair.left_image, altimeter.GetInputPort("left_image"))
-    builder.Connect(pair.right_image, altimeter.GetInputPort("right_image"))
-    altitude = builder.AddNamedSystem("altitude_filter", AltitudeFilterSystem(config.altitude_kf,
-                                                                              config.stereo.period_s,
-                                                                              altimeter.estimator.nearest_m))
-    builder.Connect(altimeter.GetOutputPort("altitude"), altitude.GetInputPort("altitude"))
-    builder.Connect(altimeter.GetOutputPort("altitude_valid"), altitude.GetInputPort("altitude_valid"))
+    altimeter, altitude = add_stereo_altimeter(builder, pair, config.stereo, config.depth, config.altitude_kf)
     estimator = builder.AddNamedSystem("hybrid_pad", HybridPadEstimator(fe, config.stereo.X_BL, z_pad, config.estimator,
                                                                         config.velocity_observer))
     builder.Connect(tracker.GetOutputPort("target_box"), estimator.GetInputPort("target_box"))

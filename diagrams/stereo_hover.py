@@ -106,6 +106,20 @@ def add_textured_ground(scene_graph: SceneGraph, config: GroundConfig, height_m:
                         Mesh(str(shown), config.size_m), f"textured_ground_shown{suffix}", rgba=None, perceived=False)
 
 
+def add_stereo_altimeter(builder: DiagramBuilder, pair: StereoPair, stereo: StereoConfig, depth: StereoDepthConfig,
+                         altitude_kf: AltitudeKfConfig) -> tuple[StereoAltimeter, AltitudeFilterSystem]:
+    """The altimeter on the pair's two images and the altitude filter on the altimeter (seed 003 Eq. 11-14),
+    the filter told the altimeter's nearest range [m]."""
+    altimeter = builder.AddNamedSystem("stereo_altimeter", StereoAltimeter(stereo, depth))
+    builder.Connect(pair.left_image, altimeter.GetInputPort("left_image"))
+    builder.Connect(pair.right_image, altimeter.GetInputPort("right_image"))
+    altitude_filter = builder.AddNamedSystem("altitude_filter", AltitudeFilterSystem(altitude_kf, stereo.period_s,
+                                                                                     altimeter.estimator.nearest_m))
+    builder.Connect(altimeter.GetOutputPort("altitude"), altitude_filter.GetInputPort("altitude"))
+    builder.Connect(altimeter.GetOutputPort("altitude_valid"), altitude_filter.GetInputPort("altitude_valid"))
+    return altimeter, altitude_filter
+
+
 def build_stereo_hover(config: StereoHoverConfig | None = None) -> tuple[Diagram, StereoHoverHandles]:
     """The scene, the pair, the altimeter on its images and the filter on the altimeter."""
     config = config or StereoHoverConfig()
@@ -118,12 +132,6 @@ def build_stereo_hover(config: StereoHoverConfig | None = None) -> tuple[Diagram
     builder.Connect(airframe.get_output_port(), scene_graph.get_source_pose_port(airframe.source_id))
     X_WB_input_index = builder.ExportInput(airframe.get_input_port(), "X_WB")
     pair = add_stereo_pair(builder, scene_graph, airframe.body_frame_id, config.stereo, config.seed)
-    altimeter = builder.AddSystem(StereoAltimeter(config.stereo, config.depth))
-    builder.Connect(pair.left_image, altimeter.GetInputPort("left_image"))
-    builder.Connect(pair.right_image, altimeter.GetInputPort("right_image"))
-    altitude_filter = builder.AddSystem(AltitudeFilterSystem(config.altitude_kf, config.stereo.period_s,
-                                                             altimeter.estimator.nearest_m))
-    builder.Connect(altimeter.GetOutputPort("altitude"), altitude_filter.GetInputPort("altitude"))
-    builder.Connect(altimeter.GetOutputPort("altitude_valid"), altitude_filter.GetInputPort("altitude_valid"))
+    altimeter, altitude_filter = add_stereo_altimeter(builder, pair, config.stereo, config.depth, config.altitude_kf)
     diagram = builder.Build()
     return diagram, StereoHoverHandles(scene_graph, airframe, pair, altimeter, altitude_filter, X_WB_input_index)
