@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from systems.config import ConfigError
 from systems.noise import sample_rng
+from systems.perception.aruco import subpix_detector, to_grey
 from systems.perception.latency import MeasurementLatency, delay_queue
 from systems.perception.marker_detector import MarkerDetectorSystem, detect_marker_poses
 from systems.perception.markers import MarkerLayout, MarkerMeasurement, measurements_vector, pad_texture
@@ -372,6 +373,39 @@ def test_markers_out_of_view_are_simply_absent():
     for m in measurements:
         assert np.linalg.norm(m.p_CM - true_X_CM(X_CP, m.marker_id).translation()) < 0.02
     assert detect_marker_poses(np.full((512, 512, 3), 128, np.uint8), K, LAYOUT) == []
+
+
+def test_a_marker_seen_twice_and_one_outside_the_layout_are_not_measured():
+    """Marker 1 drawn twice (which copy is the pad's is unknown) and marker 49 (in the dictionary, not in the
+    layout): neither is measured; marker 2, drawn once, is."""
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, LAYOUT.dictionary))
+    image = np.full((512, 512), 200, np.uint8)
+    for marker_id, (row, col) in [(1, (60, 60)), (1, (60, 300)), (2, (300, 60)), (49, (300, 300))]:
+        image[row:row + 120, col:col + 120] = cv2.aruco.generateImageMarker(dictionary, marker_id, 120)
+    assert 49 not in LAYOUT.ids
+    assert [m.marker_id for m in detect_marker_poses(image, K, LAYOUT)] == [2]
+
+
+def test_one_threshold_window_is_the_detectors_only_window():
+    """subpix_detector with a threshold window sets OpenCV's smallest and largest adaptive windows both to it
+    (one thresholding pass), and without one keeps OpenCV's defaults (3 to 23 px)."""
+    one = subpix_detector(LAYOUT.dictionary, 13).getDetectorParameters()
+    assert (one.adaptiveThreshWinSizeMin, one.adaptiveThreshWinSizeMax) == (13, 13)
+    default, opencv = subpix_detector(LAYOUT.dictionary).getDetectorParameters(), cv2.aruco.DetectorParameters()
+    assert (default.adaptiveThreshWinSizeMin, default.adaptiveThreshWinSizeMax) == (
+        opencv.adaptiveThreshWinSizeMin, opencv.adaptiveThreshWinSizeMax)
+    assert default.cornerRefinementMethod == one.cornerRefinementMethod == cv2.aruco.CORNER_REFINE_SUBPIX
+
+
+def test_to_grey_reads_rgb_and_rgba_as_rgb():
+    """Random colours (red and blue weigh differently in the grey): an RGB and an RGBA image give OpenCV's
+    RGB-to-grey, a grey image is returned as it is."""
+    rgb = np.random.default_rng(0).integers(0, 256, (16, 16, 3), np.uint8)
+    expected = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    assert not np.array_equal(expected, cv2.cvtColor(rgb, cv2.COLOR_BGR2GRAY))
+    np.testing.assert_array_equal(to_grey(rgb), expected)
+    np.testing.assert_array_equal(to_grey(np.dstack([rgb, np.full((16, 16), 255, np.uint8)])), expected)
+    assert to_grey(expected) is expected
 
 
 def test_detector_system_reads_the_colour_image():
