@@ -112,6 +112,31 @@ def test_pad_centroids_system_orders_pads_and_flags_missing_ones():
     assert np.isnan(pixels[[PAD_COLOURS.index("yellow"), PAD_COLOURS.index("blue")]]).all()
 
 
+def test_pad_centroids_system_drops_pads_smaller_than_its_min_area():
+    """A 13 px green pad and a 49 px red one: the default system (min_area_px 20) finds the red one only, a
+    system with min_area_px 10 finds both, each at its disc's centre."""
+    rgba = np.full((48, 64, 4), 128, np.uint8)
+    rgba[..., 3] = 255
+    cv2.circle(rgba, (16, 20), 2, (*PAD_RGB["green"], 255), -1)
+    cv2.circle(rgba, (45, 30), 4, (*PAD_RGB["red"], 255), -1)
+    ycbcr = rgb_to_ycbcr(rgba)
+    assert segment_colour(ycbcr, "green").sum() == 13 and segment_colour(ycbcr, "red").sum() == 49
+    image = ImageRgba8U(64, 48)
+    image.mutable_data[:] = rgba
+    green, red = PAD_COLOURS.index("green"), PAD_COLOURS.index("red")
+
+    def pad_pixels(system):
+        context = system.CreateDefaultContext()
+        system.get_input_port().FixValue(context, image)
+        return np.asarray(system.GetOutputPort("pad_pixels").Eval(context)).reshape(4, 2)
+
+    default = pad_pixels(PadCentroidsSystem(64, 48))
+    assert np.isnan(default[green]).all()
+    np.testing.assert_allclose(default[red], [45, 30], atol=0.2)
+    smaller = pad_pixels(PadCentroidsSystem(64, 48, min_area_px=10))
+    np.testing.assert_allclose(smaller[[green, red]], [[16, 20], [45, 30]], atol=0.2)
+
+
 def test_leave_one_out_residuals_are_each_interior_sample_against_the_pchip_through_the_others():
     """On samples of Eq. 18's a / r + c: SciPy's PCHIP through all samples but the k-th, at the k-th range,
     less that sample. On a straight line with one sample off it by (1, -0.5) px, the PCHIP through the
