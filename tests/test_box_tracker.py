@@ -547,6 +547,8 @@ def to_drake_image(rgba: np.ndarray) -> ImageRgba8U:
 
 
 def test_box_tracker_system_outputs_the_locked_box():
+    """The system against the BoxTracker stepped by hand on the same frames: the same target box, the same
+    tracks, each with the same colour histogram (read from its color_image input)."""
     config = BoxTrackerConfig(cue_px=CUE)
     system = BoxTrackerSystem(config, WIDTH, HEIGHT)
     sequence = make_sequence(0)
@@ -569,6 +571,9 @@ def test_box_tracker_system_outputs_the_locked_box():
             np.testing.assert_allclose(box, state.target.box)
         tracks = system.GetOutputPort("tracks").Eval(context)
         assert [tr.id for tr in tracks] == [tr.id for tr in state.tracks]
+        for ours, theirs in zip(tracks, state.tracks):  # the appearance is read from the color_image input
+            np.testing.assert_allclose(ours.histogram, theirs.histogram)
+            assert ours.histogram.sum() == pytest.approx(1.0, abs=1e-5)  # L1-normalised, not the imageless zeros
         simulator.AdvanceTo(t + 0.05)  # the update at t stores the frame's step with the inputs of t
     assert valid == 1.0
     np.testing.assert_allclose(box, true_boxes(sequence.times[29], BLUE)[TARGET], atol=3.0)
