@@ -14,7 +14,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.sensors import ImageRgba8U
 
-from diagrams.stereo_hover import StereoHoverConfig, build_stereo_hover
+from diagrams.stereo_hover import StereoHoverConfig, add_stereo_altimeter, build_stereo_hover
 from models.ground_texture import ground_texture_image, ground_texture_mesh
 from systems.config import ConfigError
 from systems.estimators.altitude_kf import (
@@ -129,6 +129,29 @@ def test_the_ground_has_one_geometry_per_role():
                      "textured_ground_shown": (False, True, "ground_texture_s0_p4096_f2_o8_shown1024.obj", 0.01)}
 
 
+def test_add_stereo_altimeter_wires_the_pair_into_the_altimeter_and_the_altimeter_into_the_filter():
+    """The left eye's stream to the altimeter's left input and the right's to its right, the altimeter's
+    altitude and altitude_valid to the filter's inputs of those names, and the filter told the altimeter's
+    nearest range (f b / (disparities - 1), seed 003's near band)."""
+    from pydrake.systems.framework import DiagramBuilder
+
+    builder = DiagramBuilder()
+    scene_graph = builder.AddSystem(SceneGraph())
+    config = StereoConfig()
+    pair = add_stereo_pair(builder, scene_graph, scene_graph.world_frame_id(), config)
+    altimeter, altitude_filter = add_stereo_altimeter(builder, pair, config, StereoDepthConfig(), AltitudeKfConfig())
+    diagram = builder.Build()
+    wired = {(system, system.get_input_port(i).get_name()): (source, source.get_output_port(j).get_name())
+             for (system, i), (source, j) in diagram.connection_map().items()}
+    assert wired[altimeter, "left_image"] == (pair.left, pair.left_image.get_name())
+    assert wired[altimeter, "right_image"] == (pair.right, pair.right_image.get_name())
+    assert wired[altitude_filter, "altitude"] == (altimeter, "altitude")
+    assert wired[altitude_filter, "altitude_valid"] == (altimeter, "altitude_valid")
+    disparities = StereoDepthConfig().disparities_for(config)
+    assert altitude_filter.nearest_m == pytest.approx(F_PX * BASELINE / (disparities - 1), rel=1e-12)
+    assert altitude_filter.nearest_m == altimeter.estimator.nearest_m
+
+
 def test_the_eyes_are_a_rectified_pair_one_baseline_apart():
     from pydrake.geometry import SceneGraph
     from pydrake.systems.framework import DiagramBuilder
@@ -179,6 +202,23 @@ def test_the_two_eyes_have_the_configured_pixel_noise_each_its_own():
     for n in noise:
         assert n.std() == pytest.approx(math.sqrt(2.0**2 + 1.0 / 12.0), rel=0.03)  # plus rounding to levels
     assert abs(np.corrcoef(noise[0], noise[1])[0, 1]) < 0.05
+
+
+def test_the_hover_scenes_seed_seeds_the_eyes_noise():
+    """Two stereo-hover scenes of different seeds, with pixel noise, give the same grey image different noise in
+    the left eye (the scene's seed reaches the pair)."""
+    grey = np.full((480, 752), 128, np.uint8)
+    images = []
+    for seed in (0, 1):
+        config = StereoHoverConfig(seed=seed)
+        config.stereo.pixel_noise_std = 2.0
+        left = build_stereo_hover(config)[1].pair.left
+        context = left.CreateDefaultContext()
+        left.GetInputPort("rendered_image").FixValue(context, rgba(grey))
+        context.SetTime(1.0 / 60.0)
+        images.append(left.get_output_port().Eval(context).data[..., :3].copy())
+    assert all(image.std() > 1.0 for image in images)  # noisy
+    assert np.mean(images[0] != images[1]) > 0.5
 
 
 # ---------------------------------------------------------------------------------------------
