@@ -1,13 +1,15 @@
 """Seed 003's UGV detectors (Sec. 2.2.1; systems/perception/ugv_detector.py) on rendered held-out fisheye
 frames (diagrams/ugv_detection_scenes.py): both find the UGV and not a distractor of another colour; the
 true box's and the pad centre's projections against hand cases; greedy NMS, Table 3's matching and the
-classical detector's strip and roof tests on hand cases. The learned detector's own parts:
+classical detector's strip and roof tests on hand cases; the scenes' placement rules, and rendered frames
+against their true boxes, their blur and the frame cache. The learned detector's own parts:
 tests/test_ugv_cnn_detector.py."""
 
 import dataclasses
 import math
 import re
 
+import cv2
 import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw
@@ -21,10 +23,13 @@ from diagrams.ugv_detection_scenes import (
     box_surface_points,
     distractor_boxes,
     distractor_pool,
+    load_or_render_dataset,
+    motion_blur,
     motion_blur_kernel,
     pad_centre_pixel,
     projected_box,
     sample_scene,
+    ugv_bounds_V,
     ugv_box,
 )
 from systems.config import ConfigError
@@ -86,6 +91,19 @@ def test_true_box_is_clipped_to_the_field_of_view_and_none_behind_the_lens():
     assert box[0] + box[2] == pytest.approx(config.cx + 0.5 + config.radius_px, abs=0.3)
 
 
+def test_points_behind_the_lens_do_not_count_at_the_rim():
+    """A bar from (1, 0, 1) m, 45 deg off the axis along +x, down through the lens's plane to (-1, 0, -5),
+    behind it: its box runs from the 45 deg point out to the rim at azimuth 0 (where it leaves the view in
+    front of the lens), not across to the rim at azimuth 180 deg (its part behind the lens lies at x < 0)."""
+    config = FisheyeConfig()
+    t = np.linspace(0.0, 1.0, 601)[:, None]
+    bar = np.vstack([np.array([1.0, y, 1.0]) + t * np.array([-2.0, 0.0, -6.0]) for y in (-0.05, 0.0, 0.05)])
+    box = projected_box(bar, config)
+    centre = config.cx + 0.5  # pixel-index space
+    assert box[0] == pytest.approx(centre + config.f * theta_distorted(math.pi / 4, config.k1, config.k2), abs=0.5)
+    assert box[0] + box[2] == pytest.approx(centre + config.radius_px, abs=1e-6)
+
+
 def test_scene_draws_repeat_and_give_boxes_in_the_image():
     config = UgvSceneConfig()
     pool = distractor_pool(config)
@@ -103,6 +121,31 @@ def test_scene_draws_repeat_and_give_boxes_in_the_image():
         for box in ([] if ugv is None else [ugv]) + others:
             assert box[0] >= 0 and box[1] >= 0 and box[0] + box[2] <= 512 and box[1] + box[3] <= 512
     assert present >= 40 and distractors > 0  # measured: the UGV in 47 of the 50 frames, 97 distractor boxes
+
+
+def test_sampled_scenes_keep_their_placement_rules():
+    """Over 300 held-out draws: the UGV's centre (the middle of its bounding box, half its height up) within
+    max_off_axis_deg of the fisheye's axis (small-target frames: small_off_axis_range_deg), no pool box shown
+    twice in a frame, and the UGV's and the distractors' centres at least min_separation_m apart."""
+    config = UgvSceneConfig()
+    pool = distractor_pool(config)
+    low, high = ugv_bounds_V(config.platform)
+    centre_V = np.array([*(low[:2] + high[:2]) / 2, config.platform.height_m / 2])
+    for seed in HELD_OUT_SEEDS[:300]:
+        scene = sample_scene(seed, config, pool)
+        slots = [index for index, _ in scene.distractors]
+        assert len(slots) == len(set(slots)), f"seed {seed}: a pool box shown twice"
+        spots = [X_WD.translation()[:2] for _, X_WD in scene.distractors]
+        if scene.ugv_state is not None:
+            x, y, heading, _ = scene.ugv_state
+            p_Wcentre = RigidTransform(RollPitchYaw(0.0, 0.0, heading), [x, y, 0.0]).multiply(centre_V)
+            p_C = scene.X_WB.multiply(config.fisheye.X_BC).inverse().multiply(p_Wcentre)
+            limit = config.small_off_axis_range_deg[1] if scene.small else config.max_off_axis_deg
+            assert math.degrees(math.atan2(math.hypot(p_C[0], p_C[1]), p_C[2])) <= limit + 1e-9, f"seed {seed}"
+            spots.insert(0, p_Wcentre[:2])
+        for k, a in enumerate(spots):
+            for b in spots[k + 1:]:
+                assert np.linalg.norm(a - b) >= config.min_separation_m - 1e-9, f"seed {seed}: centres too close"
 
 
 def test_motion_blur_kernel_is_a_normalised_line_of_the_given_length():
@@ -287,3 +330,86 @@ def test_detector_system_outputs_the_detectors_detections(held_out):
     for (box, score), (box_e, score_e) in zip(out, expected):
         np.testing.assert_array_equal(box, box_e)
         assert score == score_e
+
+
+# ---------------------------------------------------------------- the renderer against the true boxes
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    return UgvSceneRenderer(UgvSceneConfig())
+
+
+def looking_down_from_2_m(config: UgvSceneConfig, **fields) -> UgvScene:
+    """The lens 2 m over the origin looking straight down, nothing shown, no blur; `fields` replace those."""
+    X_WC = RigidTransform(RollPitchYaw(math.pi, 0.0, 0.0), [0.0, 0.0, 2.0])
+    scene = UgvScene(0, X_WC.multiply(config.fisheye.X_BC.inverse()), None, [], 0.0, 0.0, False)
+    return dataclasses.replace(scene, **fields)
+
+
+def changed_pixels_rect(image: np.ndarray, empty: np.ndarray) -> np.ndarray:
+    """[x0, y0, x1, y1] px (pixel-index space) of the pixels that differ from `empty` by over 10 levels."""
+    x, y, w, h = cv2.boundingRect((np.abs(image.astype(int) - empty).max(axis=2) > 10).astype(np.uint8))
+    return np.array([x, y, x + w, y + h], float)
+
+
+@pytest.mark.slow
+def test_the_true_boxes_enclose_the_rendered_ugv_and_distractor(renderer):
+    """The UGV beside the nadir (its side and wheels towards the lens) and the longer red pool box 2.3 m off,
+    each rendered alone over the empty ground: the pixels they change lie inside their true boxes (to 1.5 px:
+    the rendered fisheye's interpolation), the UGV's box meets them on some side (its 3-D bounding box is
+    larger than the vehicle at its corners), and the distractor's, a box's own, meets them on all four."""
+    config, pool = renderer.config, renderer.pool
+    red = [i for i, box in enumerate(pool) if box.colour == "red"]
+    index = max(red, key=lambda i: pool[i].size_m[0])  # the other red box is 0.37 m shorter
+    # The vehicle's centre (0.45 m ahead of V's origin) 0.6 m to the side of the nadir.
+    ugv = looking_down_from_2_m(config, ugv_state=np.array([-0.45, 0.6, 0.0, 0.0]))
+    distractor = looking_down_from_2_m(
+        config, distractors=[(index, RigidTransform(RollPitchYaw(0.0, 0.0, 0.3), [0.5, -2.3, 0.0]))])
+    empty = renderer.render(looking_down_from_2_m(config)).astype(int)
+
+    def outside(scene, box):  # how far (px) the rendered pixels reach beyond the box on each side
+        rendered = changed_pixels_rect(renderer.render(scene), empty)
+        x, y, w, h = box
+        return np.array([x - rendered[0], y - rendered[1], rendered[2] - (x + w), rendered[3] - (y + h)])
+
+    beyond = outside(ugv, ugv_box(ugv, config))
+    assert -1.5 <= beyond.max() <= 1.5
+    [box] = distractor_boxes(distractor, config, pool)
+    np.testing.assert_allclose(outside(distractor, box), 0.0, atol=1.5)
+
+
+@pytest.mark.slow
+def test_a_blurred_frame_is_smeared_along_its_blur_direction(renderer):
+    """A frame drawn with 9 px of blur along the image's y is the sharp frame through motion_blur at that length
+    and direction: its vertical gradients lose more than its horizontal ones."""
+    config = renderer.config
+    sharp_scene = looking_down_from_2_m(config, ugv_state=np.array([-0.45, 0.6, 0.0, 0.0]))
+    sharp = renderer.render(sharp_scene)
+    blurred = renderer.render(dataclasses.replace(sharp_scene, blur_px=9.0, blur_angle_rad=math.pi / 2))
+    np.testing.assert_array_equal(blurred, motion_blur(sharp, 9.0, math.pi / 2))
+
+    def kept(axis):  # the fraction of the sharp frame's gradient energy along `axis` (0: image y) left
+        return np.abs(np.diff(blurred.astype(float), axis=axis)).sum() / np.abs(np.diff(sharp.astype(float),
+                                                                                        axis=axis)).sum()
+
+    assert kept(0) < 0.75 * kept(1)  # measured: 0.37 of the vertical, 0.62 of the horizontal
+
+
+@pytest.mark.slow
+def test_a_cached_dataset_reads_back_as_rendered(renderer, tmp_path):
+    """Two held-out frames (one blurred with 3 distractors, one a small-target frame with a blur and none) rendered
+    into an empty cache, then read back from it: every field the same, in the same dtypes."""
+    seeds = [HELD_OUT_SEEDS[2], HELD_OUT_SEEDS[10]]
+    rendered = load_or_render_dataset(seeds, cache_dir=tmp_path, renderer=renderer)
+    assert len(list(tmp_path.glob("*.npz"))) == 1
+    cached = load_or_render_dataset(seeds, cache_dir=tmp_path, renderer=renderer)
+    assert rendered.blur_px.tolist() != rendered.small.tolist()
+    assert [len(boxes) for boxes in rendered.distractor_boxes] == [3, 0]
+    for name in ("images", "ugv_boxes", "seeds", "blur_px", "small"):
+        a, b = getattr(rendered, name), getattr(cached, name)
+        assert a.dtype == b.dtype, name
+        np.testing.assert_array_equal(a, b, err_msg=name)
+    assert len(cached.distractor_boxes) == 2
+    for a, b in zip(rendered.distractor_boxes, cached.distractor_boxes):
+        np.testing.assert_array_equal(a, b)
