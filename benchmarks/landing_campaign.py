@@ -22,8 +22,9 @@ rendered camera (ArUco + solvePnP; `--rendered-runs` per case), the same seeds.
 - throughput: a --throughput-runs synthetic campaign on --workers (runs/s), and --scaling-runs on 1 and on
   2 workers (target >= 1.7x); each from the campaign's wall time (summary.json's wall_time_s: the pool's
   start-up and the runs, not the summary and plots written after them).
-Prints PASS/FAIL per target and Feng et al. (2018)'s 0.37 m at 12 m/s beside ours; never a timed assertion
-in a test. Campaign directories under --out are resumed when run again (delete them for a fresh run).
+Prints PASS/FAIL per target and Feng et al. (2018)'s 0.37 m at 12 m/s beside ours, and exits 1 on any
+FAIL; never a timed assertion in a test. Campaign directories under --out are resumed when run again
+(delete them for a fresh run).
 """
 
 import argparse
@@ -37,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from diagrams.montecarlo import run_campaign  # noqa: E402
 from diagrams.montecarlo.grid import grid_settings  # noqa: E402
-from diagrams.outputs import output_file, write_json  # noqa: E402
+from diagrams.outputs import check_writable, output_file, write_json  # noqa: E402
 from systems.config import ConfigError  # noqa: E402
 
 SCENARIO = "marker-landing-wind"
@@ -165,6 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     report, checks = {}, []
     try:
         grid_settings(SCENARIO, ["vehicle.speed=3"], 1, 0, COMMON + args.set)
+        check_writable(args.out)
     except ConfigError as e:
         print(f"landing_campaign: {e}", file=sys.stderr)
         return 2
@@ -189,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'PASS' if met else 'FAIL'}  {name}  ({figure})")
     if args.json:
         write_json(args.json, {"figures": report, "checks": checks})
-    return 0
+    return 0 if all(met for _, met, _ in checks) else 1
 
 
 if __name__ == "__main__":

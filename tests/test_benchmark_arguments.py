@@ -134,3 +134,28 @@ def test_crhf_table5_s_default_figures_file_is_checked_before_the_work(capsys, t
     assert exit_info.value.code == 2 and captured.out == ""
     assert captured.err.splitlines()[-1].endswith(f"error: --out (default results/crhf_table5.json): output path "
                                                   f"{tmp_path}/results exists and is not a directory")
+
+
+def test_landing_campaign_s_out_that_is_a_file_is_one_line_before_the_work(capsys, tmp_path):
+    """--out names a file: the campaigns' folder cannot be made there, said in one line, exit 2, before any run."""
+    (tmp_path / "afile").write_text("mine")
+    assert landing_campaign.main(["--out", str(tmp_path / "afile")]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and len(captured.err.splitlines()) == 1
+    assert captured.err.startswith(f"landing_campaign: output path {tmp_path / 'afile'} exists and is not a directory")
+    assert (tmp_path / "afile").read_text() == "mine"
+
+
+@pytest.mark.parametrize("met", [(True, True), (True, False)])
+def test_landing_campaign_exits_1_on_any_failed_target(capsys, monkeypatch, tmp_path, met):
+    """The benchmark's exit code is 0 when every target's check passes and 1 when one fails, as the other
+    benchmarks' (the campaigns themselves replaced by a summary and two checks)."""
+    monkeypatch.setattr(landing_campaign, "campaign", lambda *args, **kwargs: {"wall_time_s": 1.0, "cases": {}})
+    monkeypatch.setattr(landing_campaign, "print_table", lambda *args: None)
+    monkeypatch.setattr(landing_campaign, "checks_for",
+                        lambda group, stream, summary: [(f"{group} {k}", ok, "x") for k, ok in enumerate(met)])
+    code = landing_campaign.main(["--only", "wind", "--runs", "1", "--rendered-runs", "0", "--throughput-runs", "0",
+                                  "--scaling-runs", "0", "--out", str(tmp_path / "c")])
+    printed = capsys.readouterr().out
+    assert code == (0 if all(met) else 1)
+    assert printed.count("FAIL") == met.count(False) and printed.count("PASS") == met.count(True)
