@@ -195,3 +195,40 @@ def test_the_local_filters_and_the_fused_estimate_are_scored_in_3d_and_as_rms():
         np.testing.assert_allclose(out[name]["mae_xyz_m"], [0.03, 0.04, 0.12], atol=1e-12)
     assert out["federated"]["rmse_position_m"] == pytest.approx(0.0, abs=1e-12)
     assert out["federated"]["rmse_orientation_rad"] == pytest.approx(np.sqrt((0.1**2 + 0.3**2) / 2))
+
+
+def test_each_federated_panel_draws_the_channel_it_names(tmp_path, monkeypatch):
+    """federated.png against its log: (a) each node's height is its z (column 3), NaN where it is absent; (b) the
+    approaching node's error is against the true depth along the camera's axis (Drake's X_CB X_BP), the others' and
+    the fused one's against the true height; (e) each local filter's line is its own p_PB z, and the fused line is
+    NaN where the fused estimate is invalid."""
+    from pydrake.math import RollPitchYaw
+
+    from diagrams import federated_plots
+
+    log, heights = _log()
+    X_BC = RigidTransform(RollPitchYaw(np.pi, 0.0, np.pi / 2), [0.05, 0.0, -0.3])  # 0.3 m under the body
+    depth = np.array([X_BC.inverse().multiply(RigidTransform(-np.array([0.0, 0.0, h]))).translation()[2]
+                      for h in heights])
+    assert np.all(np.abs(depth - heights) > 0.1)
+    for i, name in enumerate(("approach", "adjustment", "touchdown")):
+        present = log.nodes[name][:, 0] > 0.5
+        truth = depth if name == "approach" else heights
+        log.nodes[name][present, 1:4] = np.column_stack([np.full(present.sum(), 0.7), np.full(present.sum(), -0.4),
+                                                         truth[present] + 0.01 * (i + 1)])
+    figures = []
+    monkeypatch.setattr(federated_plots, "save_figure", lambda fig, path: figures.append(fig))
+    plot_federated(log, X_BC, tmp_path)
+    axes = figures[0].axes
+    lines = [{line.get_label(): line.get_ydata() for line in ax.get_lines()} for ax in axes]
+    fused = np.where(log.federated[:, FED_VALID] > 0.5, log.federated[:, FED_P_PB.start + 2], np.nan)
+    assert np.isnan(fused[7])
+    for i, name in enumerate(("approach", "adjustment", "touchdown")):
+        present = log.nodes[name][:, 0] > 0.5
+        truth = depth if name == "approach" else heights
+        np.testing.assert_allclose(lines[0][name], np.where(present, truth + 0.01 * (i + 1), np.nan))
+        np.testing.assert_allclose(lines[1][name], np.where(present, 0.01 * (i + 1), np.nan), atol=1e-12)
+        np.testing.assert_allclose(lines[4][f"LF {name}"], log.federated[:, FED_LOCAL_P.start + 3 * i + 2])
+    np.testing.assert_allclose(lines[1]["federated"], np.abs(fused - heights), atol=1e-12)  # 0.01, NaN on frame 7
+    np.testing.assert_allclose(lines[4]["federated (valid)"], fused)
+    np.testing.assert_allclose(lines[4]["true"], heights)
