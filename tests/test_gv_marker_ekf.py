@@ -159,6 +159,41 @@ def test_a_filters_heading_error_wraps_and_its_largest_position_error_is_3d():
     assert metrics["ct_ekf"]["max_position_m"] == pytest.approx(0.13)
 
 
+
+def test_a_filters_figures_leave_out_the_estimates_it_flags_invalid():
+    """Seed 002's figures are over the valid estimates only: steps 1 and 3, flagged invalid, are 10 m, 90 deg and
+    10 m per marker off, and change none of them; the valid steps 0 and 2 are off by (0.03, 0.04, 0.12) m and
+    (0.05, 0, 0) m, +1 and -3 deg, and each marker j by 0.01 (j + 1) m along x and 0.02 (j + 1) m along y."""
+    from diagrams.marker_metrics import true_marker_positions
+    from systems.estimators.marker_ekf.engine import EST_P_WP, EST_Q_WP, EST_VALID, EST_YAW
+    s = scenario()
+    k = 4
+    vehicle = np.array([[2.0, 0.5, np.radians(30.0), 0.0]] * k)
+    quad = np.array([quadrotor_state(p_WB=[2.0, 0.5, 5.0])] * k)
+    run = SampledRun(np.arange(k) * 0.035, quad, vehicle, np.full((k, 5, 7), np.nan), {}, {}, {}, {})
+    truth = pad_truth(quad, vehicle, s.platform)
+    yaw_error = np.radians([1.0, 90.0, -3.0, 90.0])
+    estimate = np.zeros((k, ESTIMATE_VECTOR_SIZE))
+    estimate[:, EST_VALID] = [1.0, 0.0, 1.0, 0.0]
+    estimate[:, EST_YAW] = truth.yaw + yaw_error
+    estimate[:, EST_P_WP] = truth.p_WP + [[0.03, 0.04, 0.12], [10.0, 0.0, 0.0], [0.05, 0.0, 0.0], [10.0, 0.0, 0.0]]
+    estimate[:, EST_Q_WP] = [RollPitchYaw(0.0, 0.0, y).ToQuaternion().wxyz() for y in estimate[:, EST_YAW]]
+    n = len(s.platform.markers.p_PM)
+    scale = np.arange(1, n + 1)[:, None]
+    p_WM = true_marker_positions(truth, s.platform.markers)
+    p_WM[0] += scale * [0.01, 0.0, 0.0]
+    p_WM[2] += scale * [0.0, 0.02, 0.0]
+    p_WM[[1, 3]] += [10.0, 0.0, 0.0]
+    run.estimates, run.p_WM = {"ct_ekf": estimate}, {"ct_ekf": p_WM}
+    run.stats, run.compute_s = {"ct_ekf": {}}, {"ct_ekf": 0.0}
+    _, metrics, _ = marker_metrics(run, s.platform, s.estimation.X_BC, 0.0)
+    m = metrics["ct_ekf"]
+    assert m["frames_scored"] == 2
+    assert m["rms_position_m"] == pytest.approx(np.sqrt((0.13**2 + 0.05**2) / 2))
+    assert m["max_position_m"] == pytest.approx(0.13)
+    assert m["rms_heading_deg"] == pytest.approx(np.sqrt((1.0 + 9.0) / 2))
+    np.testing.assert_allclose(m["rms_marker_position_m"], np.arange(1, n + 1) * np.sqrt((0.01**2 + 0.02**2) / 2))
+
 def test_synthetic_measurements_have_the_papers_accuracy():
     s = scenario(6, 0, "duration_s=20")  # 572 samples of 5 markers: the RMS to about 2 %
     run = batch_run(s, s.run_length_s)
@@ -479,10 +514,13 @@ def test_the_path_plot_names_the_vehicles_reference_path(path, label):
 
     import diagrams.marker_plots as marker_plots
 
-    xy = np.c_[np.arange(5.0), np.zeros(5)]
+    reference = np.c_[np.arange(30.0), np.zeros(30)]
+    true_xy = np.c_[np.arange(5.0), 5.0 + np.arange(5.0)]  # reaching x = 4 m (and y = 9 m)
     fig, ax = plt.subplots()
-    marker_plots.plot_path(ax, xy, xy, {}, "title", path)
+    marker_plots.plot_path(ax, reference, true_xy, {}, "title", path)
     assert ax.get_legend().get_texts()[0].get_text() == label
+    # The reference is drawn up to 10 m past the farthest x the pad reached (x, not y).
+    np.testing.assert_array_equal(ax.lines[0].get_xdata(), np.arange(15.0))
     plt.close(fig)
 
 
@@ -507,6 +545,19 @@ def test_run_plots_leave_out_the_estimates_the_filters_flag(monkeypatch, tmp_pat
                  "marker 0": np.asarray(figures["marker_errors.png"].axes[i].lines[0].get_ydata(), dtype=float)}
         for what, y in drawn.items():
             assert np.all(np.isnan(y[flagged])) and np.all(np.isfinite(y[e.valid])), (name, what)
+        # On the valid rows each line is the error it names: the heading error in degrees, marker j's own error.
+        error = figures["heading.png"].axes[1].lines[i].get_ydata()
+        np.testing.assert_allclose(error[e.valid], np.degrees(e.heading[e.valid]), atol=1e-9)
+        for j, line in enumerate(figures["marker_errors.png"].axes[i].lines):
+            np.testing.assert_allclose(line.get_ydata()[e.valid], e.markers[e.valid, j])
+        assert len(figures["marker_errors.png"].axes[i].lines) == e.markers.shape[1]
+    # The truth drawn is the pad's (from the vehicle's state): its path in x, y and its heading.
+    truth = pad_truth(run.quadrotor_state, run.vehicle_state, s.platform)
+    true_path = next(line for line in figures["path.png"].axes[0].lines if line.get_label() == "true (pad P)")
+    np.testing.assert_allclose(true_path.get_xydata(), truth.p_WP[:, :2])
+    heading = figures["heading.png"].axes[0].lines[0]
+    assert heading.get_label() == "true"
+    np.testing.assert_allclose(heading.get_ydata(), np.degrees(np.angle(np.exp(1j * truth.yaw))), atol=1e-9)
     # The titles give the speed the vehicle drove: under a schedule its range (before: vehicle.speed, 6 m/s).
     scheduled = dataclasses.replace(s, vehicle=dataclasses.replace(s.vehicle, speed_schedule_times_s=[0.0, 5.0],
                                                                    speed_schedule_m_s=[0.0, 12.0]))
