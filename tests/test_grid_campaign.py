@@ -5,6 +5,7 @@ campaign in this process with its per-case landing figures, resumed, its touchdo
 import json
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from diagrams.cli import main
@@ -106,6 +107,33 @@ def test_a_run_that_raised_counts_against_the_success_rate():
     assert summary["failure_reasons"] == {"timeout": 1, "run_failed": 1}
     assert summary["touchdown_error_m"]["max"] == 0.02
 
+
+
+def test_a_cases_touchdowns_aborts_targets_and_waits_are_each_over_the_runs_they_name():
+    """On a deck: the touchdown figures are over every run that touched down, a failed (hard) touchdown included;
+    aborts and the targets met are counted over every run (the aborts of a run that never touched down too; a
+    success that misses the targets not counted); the tilt over the touchdowns, the waits over every run."""
+    def deck(success, error_m, speed_mps, reason, aborts, meets, wait_s, tilt_deg=None):
+        landing = {"success": success, "touchdown_error_m": error_m, "touchdown_rel_speed_mps": speed_mps,
+                   "failure_reason": reason, "aborts": aborts, "meets_targets": meets, "wait_s": wait_s}
+        if tilt_deg is not None:  # only a run that touched down has a tilt at touchdown
+            landing["deck_tilt_at_touchdown_deg"] = tilt_deg
+        return SimpleNamespace(metrics={"landing": landing})
+
+    records = [deck(True, 0.02, 0.3, None, 0, True, 1.0, 2.0),
+               deck(False, 0.3, 1.2, "hard", 0, False, 4.0, 5.0),  # touched down, too hard
+               deck(False, None, None, "timeout", 2, False, 10.0),  # aborted twice, never touched down
+               deck(True, 0.12, 0.6, None, 0, False, 2.0, 3.0)]  # landed, off the targets
+
+    def percentiles(values):
+        return {"p50": np.median(values), "p95": np.percentile(values, 95), "max": np.max(values)}
+
+    summary = landing_case_summary(records)
+    assert (summary["landed"], summary["aborts"], summary["meets_targets"]) == (2, 2, 1)
+    assert summary["failure_reasons"] == {"hard": 1, "timeout": 1}
+    for key, values in (("touchdown_error_m", [0.02, 0.3, 0.12]), ("touchdown_rel_speed_mps", [0.3, 1.2, 0.6]),
+                        ("deck_tilt_at_touchdown_deg", [2.0, 5.0, 3.0]), ("wait_s", [1.0, 4.0, 10.0, 2.0])):
+        assert summary[key] == pytest.approx(percentiles(values)), key
 
 def test_a_sources_figures_are_a_cases_with_the_steering_figures_added():
     """`--cases` (per source) and `--case` (per case) summarise landings in one summary, summary.json's "cases"."""
