@@ -18,6 +18,7 @@ import pytest
 from diagrams import runner
 from diagrams.cli import main
 from diagrams.outputs import write_json
+from systems.config import ConfigError
 from tests.conftest import landing_sim_command
 
 SYS_OUT = Path("/sys/landing-sim-test/out")  # /sys refuses to create entries, even for root (EPERM)
@@ -156,6 +157,43 @@ def test_a_refused_run_with_video_leaves_the_folder_as_it_was(capfd, tmp_path, a
     assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]  # no video, no hidden partial one
     assert (out / "metrics.json").read_text() == "an earlier run's"
 
+
+
+@pytest.mark.parametrize("exception", [KeyboardInterrupt(), RuntimeError("the integrator diverged")],
+                         ids=["ctrl-c", "error"])
+def test_a_run_that_fails_removes_what_it_wrote_and_the_folders_it_made(monkeypatch, tmp_path, exception):
+    """runner.run, on any exception (Ctrl-C too): the files of a run's kinds that it wrote, new or replacing an
+    earlier one, are removed; the files it did not touch stay as they were; the folders it made are removed."""
+    import diagrams.stewart_run
+    from diagrams.outputs import write_text
+
+    def failing_run(scenario, ctx):
+        write_text(ctx.out_dir / "pose_translation.png", "half a plot")
+        write_json(ctx.out_dir / "metrics.json", {"seed": scenario.seed})  # replaces an earlier run's
+        raise exception
+
+    monkeypatch.setattr(diagrams.stewart_run, "run", failing_run)
+    _, scenario = runner.load_scenario("stewart-hover")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "metrics.json").write_text("an earlier run's")
+    (out / "camera.mp4").write_text("an earlier run's video")
+    with pytest.raises(type(exception)):
+        runner.run("stewart-hover", scenario, out, runner.RunOptions(progress=False))
+    assert {p.name: p.read_text() for p in out.iterdir()} == {"camera.mp4": "an earlier run's video"}
+    with pytest.raises(type(exception)):
+        runner.run("stewart-hover", scenario, tmp_path / "new" / "out", runner.RunOptions(progress=False))
+    assert not (tmp_path / "new").exists()
+
+
+def test_meshcat_takes_port_0_or_1024_to_65535():
+    """make_meshcat refuses a port Meshcat does not take (1 to 1023, past 65535) before anything is served;
+    without a scene to show or record it serves none."""
+    for port in (1023, 65536):
+        with pytest.raises(ConfigError, match=f"--meshcat-port must be 0 .* got {port}"):
+            runner.make_meshcat(runner.RunOptions(meshcat_port=port))
+    for port in (None, 0, 1024, 65535):
+        assert runner.make_meshcat(runner.RunOptions(meshcat_port=port)) is None
 
 def test_a_meshcat_port_in_use_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path):
     with socket.socket() as busy:
