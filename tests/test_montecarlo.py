@@ -719,17 +719,19 @@ def test_runs_that_took_a_pool_down_run_alone_each_and_one_that_dies_alone_is_bl
 
 def test_a_record_of_another_seed_or_unfinished_is_redone_on_resume(tmp_path):
     """A run's record that holds another seed than the campaign's for it, or a status other than done or
-    failed, is not the campaign's: read_records leaves it out and a resumed campaign runs it again."""
-    s = settings(cases=["3"], runs=3)
+    failed, is not the campaign's, and one that is no JSON (cut short: "{") cannot be read: read_records leaves
+    each out and a resumed campaign runs it again."""
+    s = settings(cases=["3"], runs=4)
     run_campaign(TOY, s, tmp_path, workers=0, progress=False)
     for index, change in ((1, {"seed": run_seed(0, "3", 1) + 1}), (2, {"status": "running"})):
         path = tmp_path / "runs" / "3" / f"{index:05d}.json"
         path.write_text(json.dumps({**json.loads(path.read_text()), **change}))
+    (tmp_path / "runs" / "3" / "00003.json").write_text("{")
     assert sorted(read_records(tmp_path, s)) == [("3", 0)]
     summary = run_campaign(TOY, s, tmp_path, workers=0, progress=False)
-    assert summary["runs"]["computed_now"] == 2 and summary["runs"]["done"] == 3
+    assert summary["runs"]["computed_now"] == 3 and summary["runs"]["done"] == 4
     records = read_records(tmp_path, s)
-    assert [records[("3", i)].seed for i in range(3)] == [run_seed(0, "3", i) for i in range(3)]
+    assert [records[("3", i)].seed for i in range(4)] == [run_seed(0, "3", i) for i in range(4)]
 
 
 def test_a_run_returning_a_dict_has_no_arrays(tmp_path):
