@@ -135,6 +135,37 @@ def test_over_manoeuvres_the_federated_pose_beats_every_node(maneuvers):
     assert fused["rmse_orientation_rad"] <= 0.0818  # seed 001's figure
 
 
+def test_a_short_manoeuvres_flight_reports_its_seed_and_scores_the_approach_node_in_its_own_camera():
+    """0.06 s of rqrlp-maneuvers, seed 7, the camera mounted off the default: metrics.json's seed is the run's,
+    and the approaching node's errors are against the pattern's centre in the configured camera, Drake's
+    (X_PB X_BC)^-1 of the logged truth (not in the body, nor in a default camera)."""
+    from pydrake.common.eigen_geometry import Quaternion
+
+    _, config = load_scenario("rqrlp-maneuvers", overrides=["federated.camera.mount_xyz_m=[0.03, -0.02, -0.1]"],
+                              seed=7)
+    X_BC = config.federated.camera.X_BC
+    metrics, log = fly_maneuvers(config, 0.06)
+    assert metrics["seed"] == 7
+    truth = federated_log(log, config.platform)
+    rows = truth.nodes["approach"]
+    present = rows[:, 0] > 0.5
+    assert present.sum() >= 2
+    p_CP = np.array([X_BC.inverse().multiply(RigidTransform(Quaternion(X[3:] / np.linalg.norm(X[3:])), X[:3])
+                                             .inverse()).translation() for X in truth.X_PB[present]])
+    error = rows[present, 1:4] - p_CP
+    approach = metrics["estimators"]["approach"]
+    np.testing.assert_allclose(approach["rmse_xyz_m"], np.sqrt(np.mean(error**2, axis=0)), rtol=1e-9)
+    assert approach["rmse_position_m"] < 0.05  # the node measures the pattern where it is
+
+
+def test_a_negative_manoeuvres_duration_is_refused():
+    """duration_s 0 is the manoeuvres' length; below 0 it is a ConfigError naming duration_s."""
+    with pytest.raises(ConfigError, match="duration_s must not be negative"):
+        load_scenario("rqrlp-maneuvers", duration_s=-1.0)
+    with pytest.raises(ConfigError, match="duration_s must not be negative"):
+        load_scenario("rqrlp-maneuvers", overrides=["duration_s=-1"])
+
+
 @pytest.mark.parametrize("row", [[2.0, np.nan, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, -np.inf, 0.0],
                                  [2.0, 0.0, 0.0, 0.0, np.inf], [np.inf, 0.2, 0.0, 0.0, 0.0],
                                  [0.0, 0.2, 0.0, 0.0, 0.0], [2.0, 0.2, 0.0, 0.0]])
