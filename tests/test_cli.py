@@ -158,7 +158,6 @@ def test_a_refused_run_with_video_leaves_the_folder_as_it_was(capfd, tmp_path, a
     assert (out / "metrics.json").read_text() == "an earlier run's"
 
 
-
 @pytest.mark.parametrize("exception", [KeyboardInterrupt(), RuntimeError("the integrator diverged")],
                          ids=["ctrl-c", "error"])
 def test_a_run_that_fails_removes_what_it_wrote_and_the_folders_it_made(monkeypatch, tmp_path, exception):
@@ -194,6 +193,7 @@ def test_meshcat_takes_port_0_or_1024_to_65535():
             runner.make_meshcat(runner.RunOptions(meshcat_port=port))
     for port in (None, 0, 1024, 65535):
         assert runner.make_meshcat(runner.RunOptions(meshcat_port=port)) is None
+
 
 def test_a_meshcat_port_in_use_gives_one_line_and_exit_2_and_writes_nothing(capfd, tmp_path):
     with socket.socket() as busy:

@@ -135,6 +135,7 @@ def test_over_manoeuvres_the_federated_pose_beats_every_node(maneuvers):
     assert fused["rmse_orientation_rad"] <= 0.0818  # seed 001's figure
 
 
+@pytest.mark.slow  # renders
 def test_a_short_manoeuvres_flight_reports_its_seed_and_scores_the_approach_node_in_its_own_camera():
     """0.06 s of rqrlp-maneuvers, seed 7, the camera mounted off the default: metrics.json's seed is the run's,
     and the approaching node's errors are against the pattern's centre in the configured camera, Drake's

@@ -108,7 +108,6 @@ def test_a_run_that_raised_counts_against_the_success_rate():
     assert summary["touchdown_error_m"]["max"] == 0.02
 
 
-
 def test_a_cases_touchdowns_aborts_targets_and_waits_are_each_over_the_runs_they_name():
     """On a deck: the touchdown figures are over every run that touched down, a failed (hard) touchdown included;
     aborts and the targets met are counted over every run (the aborts of a run that never touched down too; a
@@ -134,6 +133,7 @@ def test_a_cases_touchdowns_aborts_targets_and_waits_are_each_over_the_runs_they
     for key, values in (("touchdown_error_m", [0.02, 0.3, 0.12]), ("touchdown_rel_speed_mps", [0.3, 1.2, 0.6]),
                         ("deck_tilt_at_touchdown_deg", [2.0, 5.0, 3.0]), ("wait_s", [1.0, 4.0, 10.0, 2.0])):
         assert summary[key] == pytest.approx(percentiles(values)), key
+
 
 def test_a_sources_figures_are_a_cases_with_the_steering_figures_added():
     """`--cases` (per source) and `--case` (per case) summarise landings in one summary, summary.json's "cases"."""

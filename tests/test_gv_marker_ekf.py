@@ -159,7 +159,6 @@ def test_a_filters_heading_error_wraps_and_its_largest_position_error_is_3d():
     assert metrics["ct_ekf"]["max_position_m"] == pytest.approx(0.13)
 
 
-
 def test_a_filters_figures_leave_out_the_estimates_it_flags_invalid():
     """Seed 002's figures are over the valid estimates only: steps 1 and 3, flagged invalid, are 10 m, 90 deg and
     10 m per marker off, and change none of them; the valid steps 0 and 2 are off by (0.03, 0.04, 0.12) m and
@@ -193,6 +192,7 @@ def test_a_filters_figures_leave_out_the_estimates_it_flags_invalid():
     assert m["max_position_m"] == pytest.approx(0.13)
     assert m["rms_heading_deg"] == pytest.approx(np.sqrt((1.0 + 9.0) / 2))
     np.testing.assert_allclose(m["rms_marker_position_m"], np.arange(1, n + 1) * np.sqrt((0.01**2 + 0.02**2) / 2))
+
 
 def test_synthetic_measurements_have_the_papers_accuracy():
     s = scenario(6, 0, "duration_s=20")  # 572 samples of 5 markers: the RMS to about 2 %
