@@ -454,6 +454,27 @@ def test_monitor_names_each_way_a_run_ends():
     assert check(t=30.0, last_seen=0.0, seen_ever=False).startswith("target_lost: no valid estimate of the pad")
 
 
+@pytest.mark.parametrize("touchdown_by", ["estimate", "contact"])
+def test_the_stacks_monitor_ends_on_landed_as_the_landing_says_and_the_pid_descends_on_the_seam(touchdown_by):
+    """In the built diagram the monitor ends the run on the supervisor's LANDED only with landing.touchdown_by
+    estimate (contact descends on until the gear touches), and the tracking PID's height is the seam's height
+    above the target, not the UAV's altitude."""
+    _, config = load_scenario("gv-landing", overrides=[f"landing.touchdown_by={touchdown_by}"])
+    diagram, handles = build_gv_landing(config)
+    quad = hover_state(config.quadrotor, [20.0, 0.0, 5.0])
+    relative = np.zeros(RELATIVE_STATE_SIZE)
+    relative[P_BP_W], relative[HEIGHT] = [-18.25, 0.0, -3.4], 3.4  # far from the pad's gear
+    ended = handles.monitor.check(1.0, quad, np.zeros(4), relative, Mode.LANDED, 1.0)
+    if touchdown_by == "estimate":
+        assert ended.startswith("landed: the supervisor")
+    else:
+        assert ended is None
+    wired = {(system.get_name(), system.get_input_port(i).get_name()):
+             (source.get_name(), source.get_output_port(j).get_name())
+             for (system, i), (source, j) in diagram.connection_map().items()}
+    assert wired["tracking_pid", "height"] == ("seam", "height_above_target")
+
+
 @pytest.mark.parametrize("valid, ends", [(0.0, True), (1.0, False)])
 def test_the_monitor_ends_a_run_without_a_valid_estimate_as_target_lost(valid, ends):
     """The monitor reads its target_valid input: held at 0 the run ends "target_lost" one check after

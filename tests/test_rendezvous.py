@@ -241,3 +241,23 @@ def test_the_search_is_told_of_vision_by_the_perception_seam_not_the_truth():
     vision, seam = value(search.GetInputPort("vision")), value(handles.perception.relative_state)
     assert value(handles.truth.get_output_port())[VALID] == 1.0 and seam[VALID] == 0.0
     np.testing.assert_array_equal(vision, seam)
+
+
+def test_the_supervisor_and_the_monitor_are_told_of_vision_not_of_the_broadcast():
+    """The supervisor descends only on the camera's seam and the monitor's target_lost waits for it: both take
+    the seam select's vision flag, not the selected seam's, which the broadcast keeps valid. 40 m from a still
+    vehicle, out of view, after 1 s the seam that steers is valid (the broadcast's) while their target_valid
+    inputs are 0 (wired to the seam's flag, the supervisor would follow and descend on the broadcast alone)."""
+    _, config = load_scenario("gv-landing", overrides=["rendezvous.source=broadcast", "start.xy_m=[-40, -40]",
+                                                       "vehicle.speed=0"])
+    diagram, handles = build_gv_landing(config)
+    root = diagram.CreateDefaultContext()
+    handles.initialize(root)
+    Simulator(diagram, root).AdvanceTo(1.0)
+
+    def value(port):
+        return port.Eval(port.get_system().GetMyContextFromRoot(root))[0]
+
+    assert value(diagram.GetSubsystemByName("seam").GetOutputPort("target_valid")) == 1.0
+    assert value(handles.supervisor.GetInputPort("target_valid")) == 0.0
+    assert value(handles.monitor.GetInputPort("target_valid")) == 0.0

@@ -7,6 +7,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
+from diagrams.gv_landing import build_gv_landing
+from diagrams.runner import load_scenario
 from systems.control.flight_controller import FlightController, FlightControllerConfig, flight_command
 from systems.control.velocity_integral import VelocityIntegral, integral_step
 from systems.vehicles.quadrotor import V_WB, Quadrotor, QuadrotorParams, hover_state
@@ -51,3 +53,25 @@ def test_a_quadrotor_told_to_hold_still_in_a_steady_wind(gain):
     else:  # K_v v = c (4 - v), c = k_rd 4 w_hover / m: the proportional loop's steady drift downwind
         c = QUAD.rotor_drag_coefficient * 4 * QUAD.hover_rotor_speed() / QUAD.mass_kg
         assert v[0] == pytest.approx(4.0 * c / (config.velocity_gain_xy + c), rel=0.02) and v[0] > 0.2
+
+
+@pytest.mark.parametrize("gain", [0.0, 1.0])
+def test_the_landing_stack_puts_the_integral_between_the_supervisor_and_the_controller_on_the_navigation(gain):
+    """In the gv-landing diagram (diagrams/flight_stack.py) with a positive velocity_integral_gain_xy, the
+    supervisor's command reaches the flight controller through the integral, which integrates the velocity
+    the UAV's navigation (gnss_ins here) believes, as the controller does, not the true one; with gain 0 there is
+    no integral and the supervisor commands the controller directly."""
+    _, config = load_scenario("gv-landing", overrides=["navigation.source=gnss_ins",
+                                                       f"controller.velocity_integral_gain_xy={gain}"])
+    diagram, _ = build_gv_landing(config)
+    wired = {(system.get_name(), system.get_input_port(i).get_name()):
+             (source.get_name(), source.get_output_port(j).get_name())
+             for (system, i), (source, j) in diagram.connection_map().items()}
+    assert wired["flight_controller", "state"] == ("navigation", "state")
+    if gain:
+        assert wired["velocity_integral", "command"] == ("landing_supervisor", "command")
+        assert wired["velocity_integral", "state"] == ("navigation", "state")
+        assert wired["flight_controller", "command"] == ("velocity_integral", "command")
+    else:
+        assert not diagram.HasSubsystemNamed("velocity_integral")
+        assert wired["flight_controller", "command"] == ("landing_supervisor", "command")
