@@ -454,6 +454,25 @@ def test_monitor_names_each_way_a_run_ends():
     assert check(t=30.0, last_seen=0.0, seen_ever=False).startswith("target_lost: no valid estimate of the pad")
 
 
+def test_the_monitor_counts_a_vertical_dive_and_without_stop_on_landed_flies_on_over_the_pad():
+    """The speed that counts as "diverged" is |v_WB| with its vertical part: a straight dive at 45 m/s (over
+    max_speed 40) ends the run. With termination.stop_on_landed false the gear's touch in FOLLOW does not end it."""
+    config = GvLandingConfig()
+    monitor = LandingMonitor(config.termination, config.platform, config.landing.touchdown_height_m)
+    quad, vehicle = hover_state(config.quadrotor, [20.0, 0.0, 5.0]), np.zeros(4)
+    relative = np.zeros(RELATIVE_STATE_SIZE)
+    relative[P_BP_W], relative[HEIGHT] = [-18.25, 0.0, -3.4], 3.4  # the true relative state of `quad`
+    dive = quad.copy()
+    dive[9] = -45.0  # v_WB's z
+    assert monitor.check(1.0, dive, vehicle, relative, Mode.FOLLOW, 1.0).startswith("diverged: speed 45.0 m/s")
+    flying_on = LandingMonitor(dataclasses.replace(config.termination, stop_on_landed=False), config.platform,
+                               config.landing.touchdown_height_m)
+    touching = relative.copy()
+    touching[P_BP_W], touching[HEIGHT] = [0.3, -0.2, -0.08], 0.08  # the gear on the pad
+    assert monitor.check(1.0, quad, vehicle, touching, Mode.FOLLOW, 1.0).startswith("landed: the gear touched")
+    assert flying_on.check(1.0, quad, vehicle, touching, Mode.FOLLOW, 1.0) is None
+
+
 @pytest.mark.parametrize("touchdown_by", ["estimate", "contact"])
 def test_the_stacks_monitor_ends_on_landed_as_the_landing_says_and_the_pid_descends_on_the_seam(touchdown_by):
     """In the built diagram the monitor ends the run on the supervisor's LANDED only with landing.touchdown_by
