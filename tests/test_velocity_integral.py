@@ -26,6 +26,23 @@ def test_the_integral_accumulates_the_error_and_is_clamped():
     assert clamped[1] > 0
 
 
+def test_the_system_steps_the_integral_at_its_rate_and_adds_it_to_the_horizontal_feed_forward():
+    """Commanded v_des = (1, -0.5, 0) with a_ff = (0.1, 0.2, 0.3), flying v_WB = (0.2, 0.1, 0), K_i = 1 at 200 Hz:
+    by t = 22.5 ms the steps of 0, 5, 10, 15 and 20 ms have each added T (v_des - v)_xy = 0.005 (0.8, -0.6), so
+    I = (0.02, -0.015) and the output's a_ff is (0.1 + 0.02, 0.2 - 0.015, 0.3); the rest of the command passes."""
+    system = VelocityIntegral(FlightControllerConfig(velocity_integral_gain_xy=1.0, rate_hz=200.0))
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    command = flight_command([1.0, -0.5, 0.0], 0.7, [0.1, 0.2, 0.3])
+    system.GetInputPort("command").FixValue(context, command)
+    state = hover_state(QUAD, [0.0, 0.0, 10.0])
+    state[V_WB] = [0.2, 0.1, 0.0]
+    system.GetInputPort("state").FixValue(context, state)
+    simulator.AdvanceTo(0.0225)
+    np.testing.assert_allclose(system.get_output_port().Eval(context),
+                               [1.0, -0.5, 0.0, 0.7, 0.1 + 0.02, 0.2 - 0.015, 0.3], rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("gain", [0.0, 1.0])
 def test_a_quadrotor_told_to_hold_still_in_a_steady_wind(gain):
     config = FlightControllerConfig(velocity_integral_gain_xy=gain)
