@@ -215,13 +215,15 @@ def simulate(config: WindConfig, seed: int, duration_s: float, state=None):
 
 
 def test_system_replays_the_pure_functions():
-    """A vehicle at 20 m moving at [3, 0, -1] m/s in a 5 m/s wind toward +y, with a gust: the log at t_(k+1)
-    holds the sample of t_k (a publish at t_(k+1) comes before that time's update)."""
+    """A vehicle at 20 m moving at [3, 2, -1] m/s in a 5 m/s wind toward +y, with a gust: the log at t_(k+1)
+    holds the sample of t_k (a publish at t_(k+1) comes before that time's update). The turbulence passes at the
+    airspeed |v_WB - v_mean| = |(3, -3, -1)|; the velocity has a part along the wind, so -v_WB (|(-3, -7, 1)|)
+    would step it otherwise."""
     gust = GustConfig(start_s=0.3, duration_s=0.5, magnitude_m_s=3.0, direction_deg=10.0)
     config = WindConfig(mean_m_s=5.0, direction_deg=90.0, turbulence="moderate", gusts=[gust])
-    times, data = simulate(config, 11, 1.0, quadrotor_state(20.0, (3.0, 0.0, -1.0)))
+    times, data = simulate(config, 11, 1.0, quadrotor_state(20.0, (3.0, 2.0, -1.0)))
     sigma, length = dryden_low_altitude(20.0, MODERATE_W20)
-    airspeed = np.linalg.norm([3.0, -5.0, -1.0])
+    airspeed = np.linalg.norm([3.0, -3.0, -1.0])
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     x = stationary_turbulence_state(sample_rng(11, "wind", 0).standard_normal(5))
     assert len(times) == 101
