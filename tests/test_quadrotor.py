@@ -264,7 +264,9 @@ def test_pose_and_kinematics_outputs():
 
 
 def test_discretised_quadrotor_matches_the_continuous_one():
-    # RK5 over each 5 ms period (the gv-landing default) against error-controlled integration.
+    """RK5 over each 5 ms period (the default of a Quadrotor given a time_period) against error-controlled
+    integration: 2.4e-11 apart after 2 s in every component, rotor speeds included, well inside 1e-9 (RK3 per
+    period is 4.8e-8 off, which a tolerance relative to the 480 rad/s rotor speeds would not see)."""
     state0 = quadrotor_state(p_WB=[0.0, 0.0, 10.0], R_WB=RotationMatrix(RollPitchYaw(0.1, -0.05, 0.3)),
                              v_WB=[1.0, 0.5, 0.0], w_WB_B=[0.2, -0.1, 0.3],
                              rotor_speeds=np.full(4, PARAMS.hover_rotor_speed()))
@@ -272,7 +274,7 @@ def test_discretised_quadrotor_matches_the_continuous_one():
     continuous = simulate_constant_commands(PARAMS, state0, commands, 2.0)
     discrete = simulate_constant_commands(PARAMS, state0, commands, 2.0, time_period=0.005)
     assert np.linalg.norm(continuous[P_WB] - state0[P_WB]) > 1.0  # it went somewhere
-    np.testing.assert_allclose(discrete, continuous, rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(discrete, continuous, rtol=0, atol=1e-9)
 
 
 def test_discretised_quadrotor_outputs_the_same_kinematics():
