@@ -736,5 +736,25 @@ def test_filter_system_contexts_do_not_share_the_filter():
     assert stats(clone).accepted == 55 and stats(simulator.get_context()).accepted == 105
 
 
+def test_reading_the_filter_system_leaves_its_stored_filter_as_it_was():
+    """An output read at a step time steps a copy of the stored filter: the context's filter is stored only by the
+    update. Read at t = 0 with no measurements yet, the stored filter is still unstarted; the measurements of
+    t = 0 then arriving (another system's update at the same time) are in the step the next read and the
+    update take, all five accepted."""
+    X_WB, X_WP = pose([0, 0, 4.6], [0, 0, 0]), pose([0, 0, 1.6], [0, 0, 30])
+    estimator = MarkerFilterSystem(make(ConstantTurnEkf))
+    context = estimator.CreateDefaultContext()
+    estimator.GetInputPort("X_WB").FixValue(context, X_WB)
+    estimator.GetInputPort("marker_measurements").FixValue(context, [])
+    assert not estimator.GetOutputPort("X_WP_estimate").Eval(context).valid
+    stored = context.get_abstract_state(0).get_value()
+    assert stored.time is None and stored.stats.accepted == 0
+    X_CP = X_BC.inverse().multiply(X_WB.inverse()).multiply(X_WP)
+    measurements = synthetic_marker_measurements(X_CP, LAYOUT, np.random.default_rng(1), time=0.0)
+    estimator.GetInputPort("marker_measurements").FixValue(context, measurements)
+    assert estimator.GetOutputPort("filter_stats").Eval(context).accepted == 5
+    assert estimator.GetOutputPort("X_WP_estimate").Eval(context).valid
+
+
 def test_filters_are_registered_by_name():
     assert FILTERS == {"paper_ekf": PaperMarkerEkf, "ct_ekf": ConstantTurnEkf}
