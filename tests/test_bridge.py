@@ -34,6 +34,33 @@ def test_deck_and_piers_are_registered_for_the_cameras():
     assert inspector.GetPoseInFrame(deck).translation()[2] == pytest.approx(config.clearance_m + config.thickness_m / 2)
 
 
+def test_deck_and_piers_span_the_boxes_the_config_describes():
+    """Each registered box, in the bridge frame D (x along the path, on the ground), is axis-aligned and spans:
+    the deck x in +-length/2, y in +-width/2, z from the clearance up by its thickness; each pier the deck's
+    length, across from the gap between the piers' inner faces (gap_m, centred on the path) out to the deck's
+    edge, and from the ground up to the deck's underside. On a circle, where D is turned in W."""
+    config = BridgeConfig(enabled=True, at_m=30.0)
+    path = make_path(GroundVehicleConfig(path="circle").path_config())
+    scene_graph = SceneGraph()
+    register_bridge(scene_graph, path, config)
+    inspector = scene_graph.model_inspector()
+    X_DW = bridge_pose(path, config).inverse()
+    half_length, half_width, clearance = config.length_m / 2, config.width_m / 2, config.clearance_m
+    expected = {"bridge_deck": [[-half_length, -half_width, clearance],
+                                [half_length, half_width, clearance + config.thickness_m]],
+                "bridge_pier_1": [[-half_length, config.gap_m / 2, 0.0], [half_length, half_width, clearance]],
+                "bridge_pier_-1": [[-half_length, -half_width, 0.0], [half_length, -config.gap_m / 2, clearance]]}
+    spans = {}
+    for geometry in inspector.GetAllGeometryIds(Role.kPerception):
+        box, X_DG = inspector.GetShape(geometry), X_DW.multiply(inspector.GetPoseInFrame(geometry))
+        assert np.allclose(X_DG.rotation().matrix(), np.eye(3), atol=1e-12)
+        half = np.array([box.width(), box.depth(), box.height()]) / 2
+        spans[inspector.GetName(geometry).split("::")[-1]] = [X_DG.translation() - half, X_DG.translation() + half]
+    assert spans.keys() == expected.keys()
+    for name, span in expected.items():
+        np.testing.assert_allclose(spans[name], span, rtol=0, atol=1e-9, err_msg=name)
+
+
 @pytest.mark.parametrize("setting, message", [("bridge.clearance_m=0.4", "bridge.clearance_m"),
                                               ("bridge.length_m=0", "bridge.length_m"),
                                               ("bridge.at_m=-50", "bridge.at_m must not be negative"),  # clipped
