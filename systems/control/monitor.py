@@ -76,7 +76,8 @@ def inside_carrier(platform: PlatformConfig, p_WB, vehicle) -> bool:
 
 class LandingMonitor(LeafSystem):
     """Inputs `quadrotor_state` (17), `vehicle_state` (4), `true_relative_state` (the seam's layout,
-    from the truth), `target_valid` (1, the seam's flag: what steers) and `mode` (1)."""
+    from the truth), `target_valid` (1, the vision seam's flag: with a rendezvous the broadcast may steer
+    while the pad is out of view, and target_lost waits for the camera) and `mode` (1)."""
 
     def __init__(self, termination: TerminationConfig, platform: PlatformConfig, touchdown_height_m: float,
                  ends_on_landed: bool = True):
