@@ -16,9 +16,9 @@ from diagrams.stewart_run import collect_log
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import ConfigError
 from systems.estimators.crhf import CrhfConfig, CrhfEstimator, CrhfState, RunningMean
-from systems.estimators.crhf_math import residual_gate
+from systems.estimators.crhf_math import crhf_tag_pose, residual_gate
 from systems.estimators.pad_calibration import CalibrationError, CalibrationFlight, PadCalibration
-from systems.estimators.track_filter import Track
+from systems.estimators.track_filter import Track, TrackFilterParams
 from systems.perception.apriltag import TagDetection, project_points, tag_corners_T
 from systems.sensors.camera import CameraConfig
 from systems.sensors.tof import sensor_positions_C
@@ -134,13 +134,15 @@ def test_an_invalid_range_or_one_outside_the_calibration_is_flagged_not_nan(crhf
 def test_the_system_output_is_this_frames_estimate():
     system = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05, CAMERA)
     context = system.CreateDefaultContext()
+    context.SetTime(0.1)  # a frame time: the estimate, valid or not, is stamped with it
     corners, ranges = level_frame(1.5)
-    system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.0, corners))
+    system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.1, corners))
     system.GetInputPort("ranges").FixValue(context, ranges)
     estimate = system.get_output_port().Eval(context)
-    assert estimate.valid and abs(estimate.X_RT.translation()[2] - 1.5) < 2e-3
-    system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.0, None))
-    assert not system.get_output_port().Eval(context).valid
+    assert estimate.valid and abs(estimate.X_RT.translation()[2] - 1.5) < 2e-3 and estimate.time == 0.1
+    system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.1, None))
+    estimate = system.get_output_port().Eval(context)
+    assert not estimate.valid and estimate.time == 0.1
 
 
 def test_the_system_times_each_frames_step():
@@ -284,6 +286,49 @@ def test_fusion_and_averaging_switched_off_give_the_papers_pipeline_on_filtered_
     assert not ours_estimate.X_RT.IsNearlyEqualTo(paper_estimate.X_RT, 1e-6)
 
 
+def test_averaged_intrinsics_are_the_mean_of_the_earlier_frames_measurements():
+    """average_intrinsics: each frame's corners are lifted with the mean of the focal lengths and principal point
+    that the earlier frames measured (Eq. 40-45 on their own touch points), the first frame with its own. Without
+    the corners' normal (fuse_corner_normal off) a frame's pose is then crhf_tag_pose on the tracked corners and
+    ranges given that mean."""
+    crhf = CrhfEstimator(CrhfConfig(fuse_corner_normal=False), P_C_SENSORS, 0.5, 0.05, CAMERA)
+    calibration = PadCalibration.load(CrhfConfig().calibration_path())
+    state, measured = CrhfState(), []
+    for k, (corners, ranges) in enumerate(noisy_level_frames(20)):
+        state, estimate = crhf.step(state, corners, ranges, 0.05 * k)
+        tracked = state.ranges.position
+        uv_touch, uv_corners = calibration.touch_pixels(tracked, "pchip"), state.corners.position.reshape(4, 2)
+        own = crhf_tag_pose(P_C_SENSORS, tracked, uv_touch, uv_corners, tag_corners_T(0.5))
+        mean = np.mean(measured, axis=0) if measured else np.r_[own.focal_lengths, own.principal_point]
+        expected = crhf_tag_pose(P_C_SENSORS, tracked, uv_touch, uv_corners, tag_corners_T(0.5),
+                                 intrinsics=(mean[:2], mean[2:]))
+        assert estimate.valid and expected.valid
+        np.testing.assert_allclose(estimate.X_CT.GetAsMatrix4(), expected.X_CT.GetAsMatrix4(), rtol=0, atol=1e-9)
+        measured.append(np.r_[own.focal_lengths, own.principal_point])
+
+
+def test_raw_ranges_are_fused_with_the_configured_range_variance():
+    """filter_ranges=False feeds the frame's raw ranges to the plane fit, their covariance the range filter's
+    measurement variance times I: with the corner noise known, the fused pose is crhf_tag_pose's on the raw ranges
+    with that covariance (here 1 cm, so 1e-4 m^2)."""
+    std = 0.01
+    config = CrhfConfig(filter_ranges=False, range_filter=TrackFilterParams(
+        measurement_std=std, acceleration_std=0.05, initial_velocity_std=0.2))
+    crhf = CrhfEstimator(config, P_C_SENSORS, 0.5, 0.05, CAMERA)
+    rng = np.random.default_rng(4)
+    X_CT = pose([0.05, -0.03, 2.0], [8.0, -5.0, 20.0])
+    corners = project_points(K, X_CT, tag_corners_T(0.5)) + 0.3 * rng.standard_normal((4, 2))
+    ranges = ranges_to_plane(X_CT.rotation().col(2), X_CT.translation()) + std * rng.standard_normal(4)
+    noise = RunningMean().add(0.09, 20.0)  # 0.3 px, known over 20 degrees of freedom
+    state, estimate = crhf.step(CrhfState(corner_variance=noise), corners, ranges, 0.0)
+    expected = crhf_tag_pose(
+        P_C_SENSORS, ranges, PadCalibration.load(config.calibration_path()).touch_pixels(ranges, "pchip"),
+        state.corners.position.reshape(4, 2), tag_corners_T(0.5), range_covariance=std**2 * np.eye(4),
+        corner_variance_px2=0.09, corner_variance_dof=20.0)
+    assert estimate.valid and expected.valid and not state.ranges.valid  # no range track
+    np.testing.assert_allclose(estimate.X_CT.GetAsMatrix4(), expected.X_CT.GetAsMatrix4(), rtol=0, atol=1e-12)
+
+
 def test_a_tag_tilted_away_from_the_plane_the_ranges_see_is_estimated_from_its_corners(crhf):
     # The ranges read a level surface through the tag's centre (as hardware cones can, averaging the deck's
     # surroundings), the corners a tag tilted 15 deg: beyond the normals' gate, with the corners' mirror
@@ -366,6 +411,27 @@ def test_the_last_valid_frames_deck_breaks_the_tie_across_a_short_gap(crhf, gap_
     assert np.degrees(max(errors)) < 3.0
 
 
+def test_a_valid_frame_between_two_gaps_renews_the_decks_memory(crhf):
+    """Ambiguous corners (ranges tilted the mirror's way) with two sensor drop-outs of 12 frames each (0.6 s, under
+    deck_normal_memory_s' 1 s) and 10 valid frames between them: each valid frame's deck starts the memory's age
+    again, so after the second gap, 1.1 s of gaps in all, the last valid frame's deck still decides."""
+    rng = np.random.default_rng(5)
+    X_CT, exact, n = tag_tilted_15_deg_and_its_mirror()
+    mirror_ranges = ranges_to_plane(n, X_CT.translation())
+    gaps = [*range(30, 42), *range(52, 64)]
+    state, valid, errors = CrhfState(), [], []
+    for k in range(80):
+        ranges = (np.full(4, 2.0) if k < 20 else mirror_ranges) + 0.005 * rng.standard_normal(4)
+        if k in gaps:
+            ranges[1] = np.nan
+        state, estimate = crhf.step(state, exact + 0.3 * rng.standard_normal(exact.shape), ranges, 0.05 * k)
+        valid.append(estimate.valid)
+        if estimate.valid:
+            errors.append(estimate.X_RT.rotation().inverse().multiply(X_CT.rotation()).ToAngleAxis().angle())
+    assert [k for k in range(80) if not valid[k]] == gaps
+    assert np.degrees(max(errors)) < 3.0
+
+
 @pytest.mark.parametrize("seed", [1, 2, 5])
 def test_the_previous_frames_deck_breaks_the_tie_as_seen_after_the_cameras_own_turn(crhf, seed):
     # A tag tilted 6 deg about x; the ranges read a level surface through its centre, then (from frame 12) the plane
@@ -407,6 +473,8 @@ def test_corners_and_ranges_that_agree_on_the_mirrors_plane_from_the_first_frame
         valid.append(estimate.valid)
         if estimate.valid:
             errors.append(estimate.X_RT.rotation().inverse().multiply(X_CT.rotation()).ToAngleAxis().angle())
+        else:  # flagged: the range track still took the frame's ranges, neither dropped nor coasted
+            assert state.ranges.valid and state.ranges.coasted_steps == 0
     assert not any(valid[:5]) and all(valid[5:]) and np.degrees(max(errors)) < 3.0
 
 
