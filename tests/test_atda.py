@@ -73,6 +73,19 @@ def test_the_system_flags_a_missing_detection_invalid():
     assert np.allclose(estimate.X_RT.translation(), X_CT.translation(), atol=1e-6)
 
 
+def test_the_systems_estimate_is_stamped_with_the_frames_time():
+    """The estimate refers to the frame at the context's time (0.1 s here), valid or not."""
+    system = AtdaEstimator(K, TAG, 0.05)
+    context = system.CreateDefaultContext()
+    context.SetTime(0.1)
+    system.get_input_port().FixValue(context, TagDetection(0.1, HEAD_ON))
+    estimate = system.get_output_port().Eval(context)
+    assert estimate.valid and estimate.time == 0.1
+    system.get_input_port().FixValue(context, TagDetection(0.1, None))
+    estimate = system.get_output_port().Eval(context)
+    assert not estimate.valid and estimate.time == 0.1
+
+
 def test_the_system_times_each_frames_pose():
     system = AtdaEstimator(K, TAG, 0.05)
     simulator = Simulator(system)
