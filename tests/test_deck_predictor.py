@@ -159,6 +159,16 @@ def test_the_window_fed_the_fallback_decides_as_at_constant_rate():
         assert window_flags(motion, tau, window, prediction) == window_flags(motion, tau, window)
 
 
+def test_beyond_the_grid_the_fallback_is_extended_at_its_constant_rate():
+    """Past the output grid's 5 s, sample_prediction extends its last two samples: the constant-rate fallback
+    (one frame of history) read at 6 and 8 s is the constant rate's own value there."""
+    motion = np.array([0.02, -0.01, 0.01, 0.005, 0.69, 0.1, 1.0, 0.0])
+    output = predictor_output(step_predictor(PredictorState(), motion, 0.0, CONFIG, PERIOD), 0.0, CONFIG, PERIOD)
+    assert output[0] == 1.0 and output[1] == 0.0
+    np.testing.assert_allclose(sample_prediction(output, [6.0, 8.0]), constant_rate_prediction(motion, [6.0, 8.0]),
+                               rtol=0, atol=1e-12)
+
+
 def test_a_frame_flagged_invalid_clears_the_history_whatever_its_numbers():
     """A frame flagged invalid (deck_motion[6] 0) with finite numbers in it (a stale pose): the history is
     cleared, not extended with them, and the output is all zero; the next valid frame starts a new one."""
@@ -210,6 +220,7 @@ def test_a_coasted_frame_appends_the_models_forecast():
     after = step_predictor(state, coasting, (len(motions) - 1) * PERIOD, CONFIG, PERIOD)
     assert autoregressive
     np.testing.assert_allclose(after.history[-1], forecast[0, :3])
+    np.testing.assert_allclose(after.deck_motion[[0, 1, 4]], forecast[0, :3])  # the frame's motion is the forecast
     assert after.model is state.model
 
 
