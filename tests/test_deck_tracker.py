@@ -135,6 +135,9 @@ def test_coasts_then_turns_invalid_without_measurements():
     seen = 200
     track = track_run(range(seen + CONFIG.position.max_coast_steps), measured=lambda k: k < seen)
     assert track.tracking and track.coasted_steps == CONFIG.position.max_coast_steps
+    last = (seen + CONFIG.position.max_coast_steps - 1) * PERIOD  # the last frame: still valid, its motion counts
+    estimate, _, motion = deck_estimate(track, last, CONFIG)  # the frames it coasted through, all unseen
+    assert estimate.valid and motion[6] == 1.0 and motion[7] == CONFIG.position.max_coast_steps
     track = step_deck_track(track, None, (seen + 40) * PERIOD, CONFIG, PERIOD)
     estimate, v_WP, motion = deck_estimate(track, (seen + 40) * PERIOD, CONFIG)
     assert not estimate.valid and motion[6] == 0.0 and not np.any(v_WP)
