@@ -290,6 +290,15 @@ def test_waits_and_wave_offs_are_counted():
     assert out == {"aborts": 2, "retries": 2, "waits": 2, "wait_s": 1.5}
 
 
+@pytest.mark.parametrize("modes, aborts", [([Mode.APPROACH, Mode.WAIT, Mode.LAND, Mode.LANDED], 0),
+                                            ([Mode.LAND, Mode.WAIT, Mode.LAND], 1)], ids=["approach-wait", "land-wait"])
+def test_a_wave_off_is_land_back_to_wait_only(modes, aborts):
+    """A wave-off gives up the final descent: LAND back to WAIT counts as an abort; waiting from APPROACH (the
+    window not yet open) gives nothing up."""
+    t = 0.5 * np.arange(len(modes))
+    assert descent_counts(t, np.array(modes, dtype=int))["aborts"] == aborts
+
+
 @pytest.mark.parametrize("yaml, message", [
     ("initial_height_m: 1.0", r"landing.initial_height_m \(IH = 1.0\) must be above"),
     ("landing_height_m: 8.0", r"must be above landing.landing_height_m \(LH = 8.0\)"),
