@@ -88,6 +88,36 @@ def test_the_true_window_depth_follows_the_ugvs_heading_and_ignores_a_box_behind
     assert np.isnan(true_window_depth(*_hover([0.45, 0.0, 3.0], (np.pi, 0, 0), 0.0), config)[0])
 
 
+def test_the_true_window_depth_along_a_slanted_axis_meets_the_turned_ugvs_box():
+    """The UAV pitched 20 deg, its left eye's axis slanting towards the UGV headed 90 deg: the depth is where a fine
+    march along that axis first enters the box (tested in the UGV's frame) or the ground, here the box's top."""
+    from pydrake.math import RigidTransform, RollPitchYaw
+
+    from diagrams.hybrid_metrics import true_window_depth
+    from diagrams.hybrid_perception import GROUND_LIFT_M
+    from diagrams.ugv_detection_scenes import ugv_bounds_V
+    config, top = _ugv_hybrid()
+    low, high = ugv_bounds_V(config.platform, config.vehicle.wheelbase_m)
+    p_WB, rpy, yaw = [1.0, 0.45, 3.0], (0.0, np.radians(20.0), 0.0), np.pi / 2
+    X_WL = RigidTransform(RollPitchYaw(*rpy), p_WB).multiply(config.hybrid.stereo.X_BL)
+    s = np.arange(0.0, 10.0, 1e-4)
+    p_W = X_WL.translation() + np.outer(s, X_WL.rotation().col(2))
+    R_VW = np.array([[np.cos(yaw), np.sin(yaw), 0.0], [-np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    p_V = p_W @ R_VW.T  # the UGV at the World's origin
+    hit = np.all((p_V >= low) & (p_V <= high), axis=1) | (p_W[:, 2] <= GROUND_LIFT_M)
+    expected = s[np.argmax(hit)]
+    assert p_W[np.argmax(hit), 2] == pytest.approx(top, abs=1e-3)  # on the box's top, not the ground
+    assert true_window_depth(*_hover(p_WB, rpy, yaw), config)[0] == pytest.approx(expected, abs=2e-4)
+
+
+def test_a_ray_from_inside_the_box_enters_it_at_once():
+    """ray_box_entry from a point inside the box is 0, whichever way the ray goes."""
+    from diagrams.hybrid_metrics import ray_box_entry
+    low, high = np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 0.5])
+    for d in ([0.0, 0.0, -1.0], [0.6, -0.8, 0.0], [0.3, 0.4, 0.866]):
+        assert ray_box_entry(np.array([0.2, -0.3, 0.25]), np.array(d), low, high) == 0.0
+
+
 def test_hybrid_metrics_on_a_constructed_log():
     """The estimate off in z alone (0.2 m): no horizontal error; an invalid frame's far-off estimate left out;
     the stereo altitude's bias is its reading minus the true depth (raw 0.1 m over, filtered 0.05 m under)."""
@@ -116,3 +146,25 @@ def test_hybrid_metrics_on_a_constructed_log():
     np.testing.assert_allclose(position["rmse_xyz"], [0.0, 0.0, 0.2], atol=1e-12)
     assert out["hybrid_stereo_altitude"]["raw"]["bias_m"] == pytest.approx(0.1)
     assert out["hybrid_stereo_altitude"]["filtered"]["bias_m"] == pytest.approx(-0.05)
+
+
+def test_the_valid_fraction_in_view_counts_only_frames_that_see_the_ugv():
+    """Two frames 30 m off (the UGV about 85 deg off the fisheye's axis, outside its 150 deg view) with the estimate
+    invalid, then two over it with the estimate valid: valid in half the frames, in every frame in view."""
+    from diagrams.hybrid_metrics import hybrid_metrics, true_ugv_boxes
+    from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
+    from systems.perception.seam import RELATIVE_STATE_SIZE
+    config, _ = _ugv_hybrid()
+    away, over = _hover([30.0, 0.0, 3.0], (0, 0, 0), 0.0, 2), _hover([0.45, 0.0, 3.0], (0, 0, 0), 0.0, 2)
+    quadrotor, vehicle = np.vstack([away[0], over[0]]), np.vstack([away[1], over[1]])
+    assert [box is None for box in true_ugv_boxes(quadrotor, vehicle, config)] == [True, True, False, False]
+    n = 4
+    hybrid = np.zeros((n, HYBRID_VECTOR_SIZE))
+    hybrid[2:, 0] = hybrid[2:, 4] = 1.0
+    ones = np.ones((n, 1))
+    log = {"t": np.arange(n) * 0.1, "hybrid": hybrid, "true_relative_state": np.zeros((n, RELATIVE_STATE_SIZE)),
+           "quadrotor_state": quadrotor, "vehicle_state": vehicle, "v_valid": ones, "v_WP": np.zeros((n, 3)),
+           "detections": np.zeros((n, 6)), "lock": np.tile([-1.0, 0.0], (n, 1)), "stereo_altitude": ones,
+           "stereo_valid": ones, "altitude": ones, "altitude_valid": ones}
+    out = hybrid_metrics(log, config, None)["hybrid"]
+    assert out["valid_fraction"] == 0.5 and out["valid_fraction_in_view"] == 1.0
