@@ -115,6 +115,94 @@ def test_federated_exits_1_on_a_failed_target(monkeypatch, capsys, fusion_ms, co
     assert ("FAIL: fusion < 1 ms per step" in capsys.readouterr().out) == bool(code)
 
 
+def _federated_run(height=0.02, locals_m=(0.05, 0.05, 0.05), valid=1.0, error=0.01, speed=0.2, overlap=0.02,
+                   overlap_locals_m=(0.05, 0.05, 0.05)) -> dict:
+    """open-landing's metrics for one run that found the pattern and landed, each figure the checks read settable:
+    the fused and local filters' height RMSEs over the flight and in Overlap 1, the valid fraction, the touchdown."""
+    est = {n: {"rmse_height_m": h} for n, h in zip(federated.LOCALS, locals_m)}
+    est.update({n: {"altitude_band_m": [1.0, 2.0]} for n in ("approach", "adjustment", "touchdown")})
+    rmse = {"federated": overlap, **dict(zip(federated.LOCALS, overlap_locals_m))}
+    est["federated"] = {"valid_fraction": valid, "rmse_height_m": height, "rmse_position_m": 0.03,
+                        "rmse_orientation_rad": 0.01,
+                        "overlaps": {"overlap_1": {"frames": 5, "altitude_band_m": [1.0, 2.0], "rmse_height_m": rmse}}}
+    landing = {"success": True, "touchdown_error_m": error, "touchdown_rel_speed_mps": speed}
+    return {"landing": landing, "estimators": est, "heading_deg": 0.0, "wall_time_s": 1.0, "sim_time_s": 60.0}
+
+
+@pytest.mark.parametrize("check, outside, inside", [
+    # below the smallest local filter's, not merely below one of them
+    ("open-landing: fused height RMSE below every local filter's, every run",
+     {"height": 0.02, "locals_m": (0.01, 0.05, 0.05)}, {"height": 0.009, "locals_m": (0.01, 0.05, 0.05)}),
+    ("open-landing, Overlap 1: fused height RMSE below every local filter's, every run",
+     {"overlap": 0.02, "overlap_locals_m": (0.05, 0.01, 0.05)},
+     {"overlap": 0.009, "overlap_locals_m": (0.05, 0.01, 0.05)}),
+    ("open-landing: valid fused pose >= 99 % of the descent, every run", {"valid": 0.98}, {"valid": 0.99}),
+    ("open-landing: fused height RMSE < 0.037 m, every run", {"height": 0.04}, {"height": 0.036}),
+    ("open-landing, Overlap 1: fused height RMSE < 0.037 m, every run",
+     {"overlap": 0.05, "overlap_locals_m": (0.06, 0.06, 0.06)}, {"overlap": 0.036}),
+    ("open-landing: every run on the pattern, error < 0.10 m, speed < 0.5 m/s", {"error": 0.105}, {"error": 0.095}),
+    ("open-landing: every run on the pattern, error < 0.10 m, speed < 0.5 m/s", {"speed": 0.55}, {"speed": 0.45})],
+    ids=["below-locals", "overlap-below-locals", "valid", "height", "overlap-height", "error", "speed"])
+def test_federated_open_landing_checks_hold_at_their_limits(monkeypatch, capsys, check, outside, inside):
+    """Each open-landing target fails when one of two runs is just outside its limit (the other run well inside
+    every one) and passes when that run is just inside; the other targets pass either way."""
+    monkeypatch.setattr(federated, "ProcessPoolExecutor", _InlinePool)
+    for figures, failed in ((outside, {check}), (inside, set())):
+        monkeypatch.setattr(federated, "landing", lambda seed, overrides, heading=False, figures=figures:
+                            _federated_run(**(figures if seed == 1 else {})))
+        checks = federated.landing_campaign("open-landing", range(0, 2), 1, ())["checks"]
+        assert len(checks) == 6 and {label for label, ok, _ in checks if not ok} == failed
+
+
+@pytest.mark.parametrize("position, ok", [(0.02, True), (0.03, False)])
+def test_federated_maneuvers_position_target_is_seed_001_s(monkeypatch, capsys, position, ok):
+    """rqrlp-maneuvers' fused position RMSE is held to seed 001's 0.0239 m (not to the 0.0818 rad of the
+    orientation's target)."""
+    fused = {"valid_fraction": 1.0, "rmse_position_m": position, "rmse_orientation_rad": 0.05}
+    estimators = {key: dict(fused) for key in ("adjustment", "touchdown", *federated.LOCALS, "federated")}
+    monkeypatch.setattr(federated, "maneuvers",
+                        lambda overrides: {"estimators": estimators, "sim_time_s": 60.0, "wall_time_s": 10.0})
+    checks = federated.maneuvers_figures("rqrlp-maneuvers", ())["checks"]
+    assert checks[0] == ("rqrlp-maneuvers: position RMSE <= 0.0239 m", ok, f"{position:.4f}") and checks[1][1]
+
+
+@pytest.mark.parametrize("failing, code", [("open-landing", 1), ("open-landing, moving (1 m/s, pad 1.6 m)", 0)])
+def test_federated_main_fails_on_open_landing_s_targets_over_the_seeds_asked(monkeypatch, capsys, failing, code):
+    """A failed open-landing target makes the exit code 1 (the moving variant's are only reported), and both
+    campaigns fly the seeds --first-seed 3 --runs 2 ask for: 3 and 4."""
+    seeds = {}
+
+    def landing_campaign(name, given, workers, overrides, heading=False):
+        seeds[name] = list(given)
+        return {"checks": [(f"{name}: a target", name != failing, "figure")]}
+
+    monkeypatch.setattr(federated, "maneuvers_figures", lambda name, overrides: {"checks": [("maneuvers", True, "")]})
+    monkeypatch.setattr(federated, "landing_campaign", landing_campaign)
+    monkeypatch.setattr(federated, "frame_costs", lambda *args, **kwargs: {"fusion": 0.5})
+    monkeypatch.setattr(sys, "argv", ["federated.py", "--skip-hd", "--first-seed", "3", "--runs", "2"])
+    assert federated.main() == code
+    assert seeds == {"open-landing": [3, 4], "open-landing, moving (1 m/s, pad 1.6 m)": [3, 4]}
+    line = ("- FAIL: open-landing: a target (figure)" if code else
+            "- reported: open-landing, moving (1 m/s, pad 1.6 m): a target: no (figure)")
+    assert line in capsys.readouterr().out
+
+
+def test_federated_start_is_within_1_m_of_the_pattern_s_centre():
+    """open-landing's start, drawn from the seed, is 0-1 m off the pattern's centre (1.75, 0), as its docstring
+    says; with a heading, the start's and the landing's are the same angle in [0, 360) deg."""
+    distances = []
+    for seed in range(201):
+        start = federated.start_offset(seed)
+        assert len(start) == 1 and start[0].startswith("start.xy_m=[")
+        x, y = map(float, start[0][len("start.xy_m=["):-1].split(","))
+        distances.append(math.hypot(x - 1.75, y))
+    assert max(distances) <= 1.0 + 1e-4  # the coordinates rounded to 0.1 mm
+    with_heading = federated.start_offset(7, heading=True)
+    assert with_heading[0] == federated.start_offset(7)[0]
+    yaw = float(with_heading[1].removeprefix("start.yaw_deg="))
+    assert with_heading[2] == f"landing.yaw_deg={yaw:.1f}" and 0.0 <= yaw < 360.0
+
+
 def _sweep_row(path: str, error: float | None, on_pad: bool) -> dict:
     return {"path": path, "speed_m_s": 1.5, "success": on_pad, "meets_targets": on_pad and error < 0.1,
             "touchdown_error_m": error, "touchdown_rel_speed_mps": None if error is None else 0.3,
