@@ -7,11 +7,14 @@ import itertools
 import math
 import sys
 import time
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import yaml
 
+import benchmarks.crhf_table5 as crhf_table5
 import benchmarks.federated as federated
 import benchmarks.landing_campaign as landing_campaign
 import benchmarks.landing_sweep as landing_sweep
@@ -471,3 +474,81 @@ def test_stereo_counts_heights_read_beyond_the_range_apart(monkeypatch, capsys, 
     out = capsys.readouterr().out
     for line in lines:
         assert line in out
+
+
+def _crhf_estimators(crhf, atda, flips: int = 0) -> dict:
+    """metrics.json's "estimators" of a Stewart run: each filter's six MAEs (x, y, z in m; roll, pitch, yaw in deg)."""
+    return {name: {"mae_xyz_m": list(v[:3]), "mae_rpy_deg": list(v[3:]), "flips": flips}
+            for name, v in (("crhf", crhf), ("atda", atda))}
+
+
+PAPER_CRHF, PAPER_ATDA = crhf_table5.PAPER["crhf"], crhf_table5.PAPER["atda"]
+
+
+@pytest.mark.parametrize("crhf, atda, below_paper, below_atda", [
+    (PAPER_CRHF, PAPER_ATDA, "yes", "yes"),
+    # 0.01 m in x: above the paper's CRHF (0.0047 m), though below its ATDA (0.0157 m)
+    ([0.01, *PAPER_CRHF[1:]], PAPER_ATDA, "NO", "yes"),
+    # below our ATDA on five axes, above it in yaw
+    (PAPER_CRHF, [*PAPER_ATDA[:5], 1.0], "yes", "NO")], ids=["both", "above-paper-in-x", "above-atda-in-yaw"])
+def test_crhf_table5_verdicts_hold_on_every_axis(crhf, atda, below_paper, below_atda):
+    """CRHF is to be at or below Table 5's CRHF and below our ATDA on all six axes: one axis over is a NO."""
+    assert crhf_table5.verdicts(_crhf_estimators(crhf, atda, flips=2)) == [
+        f"CRHF <= paper CRHF on all six axes: {below_paper}", f"CRHF < our ATDA on all six axes: {below_atda}",
+        "CRHF flips: 2 (target 0)"]
+
+
+def test_crhf_table5_hardware_verdicts_count_the_figures_within_half_and_twice_the_paper_s():
+    """stewart-hardware's targets: each filter's figures within 0.5x-2x of Table 5's (0.4x and 2.1x outside, 0.5x
+    and 2x inside: 5 of 6), then CRHF below our ATDA and its flips; not below the paper's CRHF, not asked there."""
+    atda = np.array(PAPER_ATDA) * [0.4, 0.5, 1.0, 2.0, 1.0, 1.0]
+    crhf = np.array(PAPER_CRHF) * [1.0, 1.0, 1.0, 1.0, 1.0, 2.1]  # yaw 2.79 deg: above the ATDA's 1.79
+    assert crhf_table5.hardware_verdicts(_crhf_estimators(crhf, atda)) == [
+        "ATDA within 0.5x-2x of Table 5: 5/6 (ratios 0.40 0.50 1.00 2.00 1.00 1.00)",
+        "CRHF within 0.5x-2x of Table 5: 5/6 (ratios 1.00 1.00 1.00 1.00 1.00 2.10)",
+        "CRHF < our ATDA on all six axes: NO", "CRHF flips: 0 (target 0)"]
+
+
+def test_crhf_table5_each_hardware_effect_alone_is_stewart_dynamic_with_stewart_hardware_s_setting():
+    """--hardware's "only ..." cases run stewart-dynamic with one effect's settings as scenarios/stewart-hardware.yaml
+    gives them (read here with PyYAML); the whole of stewart-hardware is its own case."""
+    hardware = yaml.safe_load((Path(__file__).resolve().parents[1] / "scenarios" / "stewart-hardware.yaml").read_text())
+    cases = crhf_table5.hardware_cases()
+    assert cases["stewart-hardware"] == ("stewart-hardware", [])
+    assert {case for case in cases if case.startswith("only ")} == {f"only {e}" for e in crhf_table5.HARDWARE_EFFECTS}
+    for effect, keys in crhf_table5.HARDWARE_EFFECTS.items():
+        scenario, overrides = cases[f"only {effect}"]
+        assert scenario == "stewart-dynamic" and [o.partition("=")[0] for o in overrides] == keys
+        for override in overrides:
+            key, _, value = override.partition("=")
+            expected = hardware
+            for part in key.split("."):
+                expected = expected[part]
+            assert yaml.safe_load(value) == expected
+
+
+def test_crhf_table5_compute_time_steps_one_crhf_on_from_its_own_state(monkeypatch):
+    """crhf_compute_ms replays the logged corners and ranges through one CRHF, each step from the state the step
+    before returned (not a fresh one each frame), and gives the median step in ms (a fake clock: 1, 3 and 2 ms)."""
+    from systems.estimators.crhf import CrhfState
+
+    clock, states = [0.0], []
+
+    class Crhf:
+        def __init__(self, *args):
+            pass
+
+        def step(self, state, corners, ranges, t):
+            assert corners.shape == (4, 2) and len(ranges) == 4
+            states.append(state)
+            clock[0] += (1e-3, 3e-3, 2e-3)[len(states) - 1]
+            return ("after", t), None
+
+    monkeypatch.setattr(crhf_table5, "CrhfEstimator", Crhf)
+    monkeypatch.setattr(crhf_table5, "sensor_positions_C", lambda arm_m, angle_deg: None)
+    monkeypatch.setattr(crhf_table5, "time", SimpleNamespace(perf_counter=lambda: clock[0]))
+    config = SimpleNamespace(crhf=None, tof=SimpleNamespace(arm_m=0.1, angle_deg=30.0),
+                             platform=SimpleNamespace(tag_size_m=0.2), camera=SimpleNamespace(period_s=0.05))
+    log = {"t": [0.05, 0.1, 0.15], "tag_corners": np.zeros((3, 8)), "ranges": np.ones((3, 4))}
+    assert crhf_table5.crhf_compute_ms(config, log) == pytest.approx(2.0)
+    assert isinstance(states[0], CrhfState) and states[1:] == [("after", 0.05), ("after", 0.1)]
