@@ -364,6 +364,136 @@ def test_landing_sweep_cpu_time_is_the_simulations_not_the_log_collection(monkey
     assert timing["thread_cpu_time_s"] == 1.5 and timing["wall_time_s"] == 2.0 and timing["realtime_factor"] == 30.0
 
 
+def test_landing_sweep_target_speeds_line_counts_the_runs_at_0_2_to_1_5_m_s(capsys):
+    """The target-speeds line is over the runs at issue 4's speeds, 1.5 m/s among them and 3 m/s not: how many meet
+    the touchdown targets, and how many track within 0.01 m before LH (0.005 and 0.008 m do; 0.02 m and none don't)."""
+    rows = [{**_sweep_row(f"p{i}", 0.0015, True), "settled_max_abs_xy_m": settled}
+            for i, settled in enumerate((0.005, 0.008, 0.02))]
+    rows += [{**_sweep_row("circle", 0.74, False), "settled_max_abs_xy_m": None}]
+    rows += [{**_sweep_row(f"q{i}", 0.0015, True), "speed_m_s": 3.0} for i in range(2)]
+    landing_sweep.print_table(rows)
+    assert ("target speeds 0.2, 0.5, 0.8, 1.5 m/s: 3/4 runs meet the touchdown targets (75 %; target 100 %), 2/4 "
+            "track within 0.01 m in x and y over the 2 s before LH") in capsys.readouterr().out
+
+
+def test_landing_sweep_late_start_waits_until_10_s_then_accelerates_at_1_m_s2():
+    """A late-start task's vehicle stands until t = 10 s and reaches its speed at 1 m/s^2: 3 m/s at 13 s, 6 m/s at
+    16 s; the sweep's other tasks carry only the overrides given."""
+    tasks = landing_sweep.sweep_tasks(["circle"], [3.0, 6.0], ["vehicle.path_lead_m=2.0"], late=True)
+    assert tasks == [(
+        "circle", speed, ["vehicle.path_lead_m=2.0", f"vehicle.speed_schedule_times_s=[0.0, 10.0, {reached}]",
+                          f"vehicle.speed_schedule_m_s=[0.0, 0.0, {speed}]"]) for speed, reached in ((3.0, 13.0),
+                                                                                                       (6.0, 16.0))]
+    assert landing_sweep.sweep_tasks(["circle"], [3.0], ["x=1"]) == [("circle", 3.0, ["x=1"])]
+
+
+def test_landing_sweep_main_s_second_sweep_starts_the_vehicle_late(monkeypatch, capsys):
+    """main's second table is the late start's: --quick sweeps its three paths at 1.5 m/s with the vehicle standing
+    until 10 s and at 1.5 m/s by 11.5 s; the first sweep's tasks start it at once."""
+    swept = []
+
+    def sweep(tasks, jobs):
+        swept.append(tasks)
+        return [{**_sweep_row(path, 0.0015, True), "speed_m_s": speed} for path, speed, _ in tasks]
+
+    e = {"max_position_error_m": 0.0, "max_velocity_error_m_s": 0.0, "max_quaternion_error": 0.0}
+    monkeypatch.setattr(landing_sweep, "task_scenario", lambda task: None)
+    monkeypatch.setattr(landing_sweep, "sweep", sweep)
+    monkeypatch.setattr(landing_sweep, "realtime", lambda duration_s: {
+        "sim_time_s": duration_s, "wall_time_s": 1.0, "all_wall_times_s": [1.0], "thread_cpu_time_s": 1.0,
+        "realtime_factor": duration_s, "build_time_s": 0.1})
+    monkeypatch.setattr(landing_sweep, "integration_accuracy", lambda samples: {
+        "period_s": 0.01, "samples": samples, "configured_scheme": "a scheme", "configured": e, "rk4_1ms": e})
+    monkeypatch.setattr(landing_sweep, "landing_vs_fine_integration", lambda: {"difference": {
+        "touchdown_error_m": 0.0, "touchdown_rel_speed_mps": 0.0, "time_to_land_s": 0.0}})
+    landing_sweep.main(["--quick", "--jobs", "1"])
+    (paths, speeds), (first, late) = landing_sweep.QUICK, swept
+    assert first == [(path, speed, ["vehicle.path_lead_m=2.0"]) for speed in speeds for path in paths]
+    assert late == [(path, 1.5, ["vehicle.path_lead_m=2.0", "vehicle.speed_schedule_times_s=[0.0, 10.0, 11.5]",
+                                 "vehicle.speed_schedule_m_s=[0.0, 0.0, 1.5]"]) for path in paths]
+
+
+def test_landing_sweep_run_s_tracking_error_is_the_larger_of_x_and_y(monkeypatch):
+    """A sweep run's tracking error before LH is the larger of its x and y maxima (both are held to 0.01 m)."""
+    landing = {"success": True, "meets_targets": True, "touchdown_error_m": 0.01, "touchdown_rel_speed_mps": 0.3,
+               "time_to_land_s": 30.0, "failure_reason": None, "failure_detail": None}
+    metrics = {"landing": landing, "tracking": {"before_final_descent_max_abs_xy_m": [0.004, 0.012]},
+               "sim_time_s": 30.0, "wall_time_s": 1.0}
+    monkeypatch.setattr(landing_sweep, "task_scenario", lambda task: SimpleNamespace(duration_s=60.0))
+    monkeypatch.setattr(landing_sweep, "fly", lambda scenario, duration_s: (metrics, None))
+    row = landing_sweep.one_run(("circle", 1.5, []))
+    assert row["settled_max_abs_xy_m"] == 0.012 and row["path"] == "circle" and row["speed_m_s"] == 1.5
+
+
+def test_landing_sweep_real_time_factor_is_the_best_of_the_repeats(monkeypatch):
+    """Of repeats taking 3 s and 2 s of wall time for 60 s of flight, the faster gives the figures: 30x real time,
+    and its own CPU time."""
+    runs = iter([(3.0, 2.5), (2.0, 1.5)])
+
+    def fly_diagram(diagram, handles, duration_s):
+        wall, cpu = next(runs)
+        simulation = SimpleNamespace(wall_time_s=wall, thread_cpu_time_s=cpu, sim_time_s=duration_s)
+        return SimpleNamespace(simulation=simulation, status="completed")
+
+    monkeypatch.setattr(landing_sweep, "load", lambda overrides=(): None)
+    monkeypatch.setattr(landing_sweep, "build_gv_landing", lambda scenario: (None, None))
+    monkeypatch.setattr(landing_sweep, "fly_diagram", fly_diagram)
+    timing = landing_sweep.realtime(60.0, repeats=2)
+    assert timing["wall_time_s"] == 2.0 and timing["realtime_factor"] == 30.0 and timing["thread_cpu_time_s"] == 1.5
+    assert timing["all_wall_times_s"] == [3.0, 2.0]
+
+
+class _ExactStepper:
+    """DiscreteTimeApproximation's stand-in for x' = u - x (u constant): one period solved exactly, then put off by
+    1, 2 and 3 mm in position, velocity and the quaternion."""
+
+    def __init__(self, system, period_s, config):
+        from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE, V_WB
+
+        self.period, self.offset = period_s, np.zeros(STATE_SIZE)
+        self.offset[P_WB], self.offset[V_WB], self.offset[Q_WB] = 1e-3, 2e-3, 3e-3
+
+    def __getattr__(self, name):  # CreateDefaultContext, get_input_port, ...: the stepper is its own context and port
+        return lambda *args: self
+
+    def SetDiscreteState(self, x):  # noqa: N802 (Drake's names)
+        self.x = np.asarray(x, dtype=float)
+
+    def FixValue(self, context, u):  # noqa: N802
+        self.u = np.asarray(u, dtype=float)
+
+    def CopyToVector(self):  # noqa: N802
+        return self.u + (self.x - self.u) * math.exp(-self.period) + self.offset
+
+
+def test_landing_sweep_integration_accuracy_on_a_linear_ode(monkeypatch):
+    """integration_accuracy on x' = u - x with u constant (SciPy's DOP853 at 1e-12 the reference): RK4 at 1 ms is
+    within 1e-9 over the 10 ms period (a first-order step would be ~1e-6 off), and the configured integrator's
+    1, 2 and 3 mm off the exact solution are in the position, velocity and quaternion columns."""
+    import pydrake.systems.analysis
+
+    import systems.control.flight_controller
+    import systems.vehicles.quadrotor as quadrotor
+
+    rng = np.random.default_rng(3)
+    log = {"t": np.arange(3.0), "quadrotor_state": rng.normal(size=(3, quadrotor.STATE_SIZE)),
+           "command": np.zeros((3, 4))}
+    u = rng.normal(size=quadrotor.STATE_SIZE)
+    integration = SimpleNamespace(simulator_config=lambda: None, scheme="exact", max_step_s=0.01, error_control=False)
+    scenario = SimpleNamespace(quadrotor=None, controller=None, period_s=0.01, duration_s=1.0, integration=integration)
+    monkeypatch.setattr(landing_sweep, "load", lambda overrides=(): scenario)
+    monkeypatch.setattr(landing_sweep, "fly", lambda s, duration_s: (None, SimpleNamespace(log=log)))
+    monkeypatch.setattr(pydrake.systems.analysis, "DiscreteTimeApproximation", _ExactStepper)
+    monkeypatch.setattr(quadrotor, "make_quadrotor_dynamics", lambda params: None)
+    monkeypatch.setattr(quadrotor, "quadrotor_state_derivative", lambda x, command, params: command - x)
+    monkeypatch.setattr(systems.control.flight_controller, "rotor_speed_commands", lambda x, c, params, config: u)
+    accuracy = landing_sweep.integration_accuracy(3)
+    assert accuracy["samples"] == 3 and accuracy["period_s"] == 0.01
+    assert max(accuracy["rk4_1ms"].values()) < 1e-9
+    assert accuracy["configured"] == pytest.approx({"max_position_error_m": 1e-3, "max_velocity_error_m_s": 2e-3,
+                                                    "max_quaternion_error": 3e-3}, abs=1e-9)
+
+
 def _marker_summary(ct_runs_at_6: int, none_at_12: bool) -> dict:
     """gv-marker-ekf's summary, 10 runs asked per speed; `ct_runs_at_6` of them finished at 6 m/s (the rest
     raised: in no filter's figures), and with `none_at_12` every run at 12 m/s raised."""
