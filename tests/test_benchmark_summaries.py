@@ -545,6 +545,46 @@ def test_marker_ekf_mc_a_speed_without_figures_fails_its_checks(monkeypatch, cap
             "12: - vs -") in out
 
 
+@pytest.mark.parametrize("changes, wall, failed", [
+    ([], 29.0, None),
+    # paper_ekf at 3/6/12 m/s: 0.1/0.3/0.2 m, higher at 12 than at 3 but not rising
+    ([("paper_ekf", "6", "rms_position_m", 0.3), ("paper_ekf", "12", "rms_position_m", 0.2)], 10.0,
+     "paper_ekf position error grows with speed"),
+    ([("paper_ekf", "6", "rms_heading_deg", 3.0), ("paper_ekf", "12", "rms_heading_deg", 2.0)], 10.0,
+     "paper_ekf heading error grows with speed"),
+    ([("ct_ekf", "12", "rms_position_m", 0.074)], 10.0, None),  # 1.48 x its 0.05 m at 3 m/s
+    ([("ct_ekf", "12", "rms_position_m", 0.08)], 10.0, "ct_ekf position at 12 m/s <= 1.5 x at 3 m/s"),
+    ([("paper_ekf", "6", "runs", 9)], 10.0, "every run at every speed gives both filters' figures"),
+    ([], 200.0, "campaign under 300 s (for 300 runs)")],  # 30 runs: 30 s, the issue's 300 s for 300 runs
+    ids=["inside", "position-not-rising", "heading-not-rising", "ct-1.48x", "ct-1.6x", "paper-short-of-a-run",
+         "200-s-for-30-runs"])
+def test_marker_ekf_mc_targets_at_their_limits(changes, wall, failed):
+    """Each target of a 30-run campaign (10 per speed) fails on its own when its figures miss it: paper_ekf's errors
+    not rising 3 < 6 < 12 m/s, ct_ekf's at 12 m/s over 1.5x its 3 m/s one, paper_ekf short of one run at 6 m/s,
+    or the campaign slower than 300 s per 300 runs; the others pass."""
+    summary = _marker_summary(10, False)
+    for name, speed, key, value in changes:
+        summary["filters"][name][speed][key] = value
+    checks = marker_ekf_mc.targets(summary, wall)
+    assert len(checks) == 6 and [label for label, ok, _ in checks if not ok] == ([failed] if failed else [])
+
+
+def test_marker_ekf_mc_scaling_counts_the_runs_of_every_speed(monkeypatch, capsys):
+    """--scaling-runs 2 asks 2 runs per speed of 1 and of 2 workers: 6 runs each, 12 s and 6 s of wall time,
+    0.50 and 1.00 runs/s."""
+    asked = []
+
+    def campaign(runs, workers, out, overrides=()):
+        asked.append((out.name, runs, workers))
+        return _marker_summary(10, False), {"scaling_1": 12.0, "scaling_2": 6.0}.get(out.name, 10.0)
+
+    monkeypatch.setattr(marker_ekf_mc, "campaign", campaign)
+    assert marker_ekf_mc.main(["--runs", "10", "--scaling-runs", "2", "--detector-runs", "0"]) == 0
+    assert asked[1:] == [("scaling_1", 2, 1), ("scaling_2", 2, 2)]
+    assert ("scaling (6 runs): 1 worker 12.0 s (0.50 runs/s), 2 workers 6.0 s (1.00 runs/s), speed-up 2.00x"
+            in capsys.readouterr().out)
+
+
 class _StereoBench:
     """stereo.py's Bench without the renders: every altitude 0.01 m over the truth; from `invalid_from` m up
     invalid (NaN), the window reading `window_m` (NaN: it matched no pixel)."""
