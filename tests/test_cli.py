@@ -18,6 +18,7 @@ import pytest
 from diagrams import runner
 from diagrams.cli import main
 from diagrams.outputs import write_json
+from diagrams.scenario import scenario_names
 from systems.config import ConfigError
 from tests.conftest import landing_sim_command
 
@@ -269,6 +270,30 @@ def test_a_short_run_writes_metrics_log_and_plots(short_run):
         assert log["tag_corners"].shape == (11, 8) and np.all(np.isfinite(log["tag_corners"]))
     plots = sorted(out.glob("*.png"))
     assert len(plots) >= 1
+    for plot in plots:
+        image = cv2.imread(str(plot))
+        assert image is not None and image.shape[0] > 100 and image.std() > 5, plot.name
+
+
+def _no_nan(constant):
+    raise ValueError(f"metrics.json holds {constant}: not strict JSON")
+
+
+@pytest.mark.slow  # renders
+@pytest.mark.parametrize("name", scenario_names())
+def test_every_shipped_scenario_runs_briefly_and_writes_its_metrics_log_and_plots(tmp_path, name):
+    """`landing-sim run NAME` for every scenario in scenarios/, a fraction of a second (gv-marker-ekf past its 2 s
+    settling, before which nothing is scored), seed 3: exit 0, metrics.json strict JSON naming the scenario, the
+    seed and the time flown, log.npz's clock within it, and every plot an image with something drawn."""
+    duration = 2.1 if name == "gv-marker-ekf" else 0.2
+    out = tmp_path / "out"
+    assert main(["run", name, "--duration", str(duration), "--seed", "3", "--out", str(out), "--quiet"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text(), parse_constant=_no_nan)
+    assert (metrics["scenario"], metrics["seed"], metrics["sim_time_s"]) == (name, 3, pytest.approx(duration))
+    with np.load(out / "log.npz") as log:
+        assert log["t"][0] >= 0.0 and log["t"][-1] <= duration + 1e-9
+    plots = sorted(out.glob("*.png"))
+    assert plots
     for plot in plots:
         image = cv2.imread(str(plot))
         assert image is not None and image.shape[0] > 100 and image.std() > 5, plot.name
