@@ -224,3 +224,23 @@ def test_the_vector_logs_the_trace_of_each_local_filters_position_covariance():
     federated, context = _system_at(locals_[0], True, locals_, np.zeros(6))
     vector = federated.GetOutputPort("federated_vector").Eval(context)
     np.testing.assert_allclose(vector[FED_LOCAL_TRACES], [np.trace(s.P[0:3, 0:3]) for s in locals_], rtol=1e-12)
+
+
+def test_before_any_measurement_every_output_says_there_is_nothing_yet():
+    """No node has measured (the pattern never seen): both poses invalid, stamped with the time, in their frames, the
+    pattern's velocity zeros (never NaN), the vector's valid and started flags 0 and the rest NaN."""
+    federated = FederatedFilterSystem(FederatedConfig(), X_BC, IMU_PERIOD, CAMERA_PERIOD)
+    context = federated.CreateDefaultContext()
+    context.SetTime(0.1)
+    federated.GetInputPort("imu").FixValue(context, IMU)
+    for node in NODES:
+        federated.GetInputPort(node).FixValue(context, [])
+    federated.GetInputPort("X_WB").FixValue(context, X_WB)
+    federated.GetInputPort("V_WB").FixValue(context, np.r_[0.0, 0.0, 0.0, 1.0, 2.0, 3.0])
+    for port, frames in (("X_PB_estimate", ("P", "B")), ("X_WP_estimate", ("W", "P"))):
+        estimate = federated.GetOutputPort(port).Eval(context)
+        assert not estimate.valid and (estimate.reference, estimate.target) == frames and estimate.time == 0.1
+    np.testing.assert_array_equal(federated.GetOutputPort("v_WP_estimate").Eval(context), np.zeros(3))
+    vector = federated.GetOutputPort("federated_vector").Eval(context)
+    assert vector[FED_VALID] == 0.0 and vector[FED_STARTED] == 0.0
+    assert np.isnan(np.delete(vector, [FED_VALID, FED_STARTED])).all()

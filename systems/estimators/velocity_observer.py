@@ -343,10 +343,6 @@ class VelocityObserverSystem(LeafSystem):
         self.DeclareVectorOutputPort("v_WT", 3, lambda c, o: o.SetFromVector(self.state(c).estimate), tickets)
         self.DeclareVectorOutputPort("valid", 1, lambda c, o: o.SetFromVector([float(self.state(c).valid)]), tickets)
 
-    @property
-    def config(self) -> VelocityObserverConfig:
-        return self._config
-
     def state(self, context) -> ObserverState:
         """The observer's state at the context's time (including the step of a frame at that time)."""
         return self._stepped.now.Eval(context)
