@@ -281,13 +281,16 @@ def _no_nan(constant):
 
 @pytest.mark.slow  # renders
 @pytest.mark.parametrize("name", scenario_names())
-def test_every_shipped_scenario_runs_briefly_and_writes_its_metrics_log_and_plots(tmp_path, name):
-    """`landing-sim run NAME` for every scenario in scenarios/, a fraction of a second (gv-marker-ekf past its 2 s
-    settling, before which nothing is scored), seed 3: exit 0, metrics.json strict JSON naming the scenario, the
-    seed and the time flown, log.npz's clock within it, and every plot an image with something drawn."""
+def test_every_shipped_scenario_runs_briefly_and_writes_its_metrics_log_plots_and_recording(tmp_path, name):
+    """`landing-sim run NAME --record` for every scenario in scenarios/, a fraction of a second (gv-marker-ekf past
+    its 2 s settling, before which nothing is scored), seed 3: exit 0, metrics.json strict JSON naming the
+    scenario, the seed and the time flown, log.npz's clock within it, every plot an image with something drawn,
+    and the scene's Meshcat recording (its viewers wired) written."""
     duration = 2.1 if name == "gv-marker-ekf" else 0.2
     out = tmp_path / "out"
-    assert main(["run", name, "--duration", str(duration), "--seed", "3", "--out", str(out), "--quiet"]) == 0
+    assert main(["run", name, "--duration", str(duration), "--seed", "3", "--record", "--out", str(out),
+                 "--quiet"]) == 0
+    assert (out / "meshcat.html").stat().st_size > 100_000
     metrics = json.loads((out / "metrics.json").read_text(), parse_constant=_no_nan)
     assert (metrics["scenario"], metrics["seed"], metrics["sim_time_s"]) == (name, 3, pytest.approx(duration))
     with np.load(out / "log.npz") as log:
