@@ -36,6 +36,23 @@ def _close_figures():
         sys.modules["matplotlib.pyplot"].close("all")
 
 
+class InlinePool:
+    """ProcessPoolExecutor's stand-in for the benchmarks' tests: maps in this process (a forked worker would
+    inherit this process's render context, and spawned ones import Drake again)."""
+
+    def __init__(self, *args, **kwargs):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *args):
+        return False
+
+    def map(self, fn, *iterables):
+        return map(fn, *iterables)
+
+
 def landing_sim_command() -> list[str]:
     """The installed `landing-sim` command, or the module when the console script is missing."""
     script = Path(sys.executable).with_name("landing-sim")

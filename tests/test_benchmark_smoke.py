@@ -23,25 +23,9 @@ import benchmarks.ugv_detection as ugv_detection
 from diagrams.fisheye_markers import MARKER_DIRECTIONS_DEG
 from diagrams.landing_metrics import SETTLED_TOLERANCE_M, TARGET_TOUCHDOWN_ERROR_M, TARGET_TOUCHDOWN_REL_SPEED_MPS
 from diagrams.runner import load_scenario
+from tests.conftest import InlinePool
 
 pytestmark = pytest.mark.slow
-
-
-class InlinePool:
-    """ProcessPoolExecutor's stand-in: maps in this process (a forked worker would inherit this process's
-    render context, and spawned ones import Drake again)."""
-
-    def __init__(self, *args, **kwargs):
-        pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *args):
-        return False
-
-    def map(self, fn, *iterables):
-        return map(fn, *iterables)
 
 
 @pytest.fixture(autouse=True)

@@ -21,6 +21,7 @@ import benchmarks.landing_sweep as landing_sweep
 import benchmarks.marker_ekf_mc as marker_ekf_mc
 import benchmarks.stereo as stereo
 import benchmarks.vision_landing as vision_landing
+from tests.conftest import InlinePool
 
 
 def _landing_figures(done: int, failed: int, landed: int) -> dict:
@@ -82,7 +83,7 @@ def test_vision_landing_open_loop_flies_the_campaign_s_seeds_and_compares_positi
         return {name: {"rms_position_m": position, "rms_heading_deg": 7.0, "frames_scored": 50}
                 for name, position in (("paper_ekf", 1.03), ("ct_ekf", 1.01))}
 
-    monkeypatch.setattr(vision_landing, "ProcessPoolExecutor", _InlinePool)
+    monkeypatch.setattr(vision_landing, "ProcessPoolExecutor", InlinePool)
     monkeypatch.setattr(vision_landing, "diagram_run", diagram_run)
     monkeypatch.setattr(vision_landing, "previous_figures", lambda commit, runs, workers, tmp: {
         name: dict.fromkeys(vision_landing.SPEEDS, 1.0) for name in vision_landing.FILTERS})
@@ -143,22 +144,6 @@ def test_vision_landing_frame_costs_are_per_camera_frame_of_the_flight(monkeypat
     assert costs["stages_ms"]["render"] == 1e3
 
 
-class _InlinePool:
-    """ProcessPoolExecutor's stand-in: maps in this process."""
-
-    def __init__(self, *args, **kwargs):
-        pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *args):
-        return False
-
-    def map(self, fn, *iterables):
-        return map(fn, *iterables)
-
-
 def _federated_landing(found: bool) -> dict:
     """open-landing's metrics for one run: `found` the pattern and landed, or never a valid fused estimate."""
     height = {"rmse_height_m": 0.02, "rmse_position_m": 0.03, "rmse_orientation_rad": 0.01} if found else {}
@@ -175,7 +160,7 @@ def _federated_landing(found: bool) -> dict:
 
 
 def test_federated_a_run_never_valid_is_a_dash_and_fails_its_checks(monkeypatch, capsys):
-    monkeypatch.setattr(federated, "ProcessPoolExecutor", _InlinePool)
+    monkeypatch.setattr(federated, "ProcessPoolExecutor", InlinePool)
     monkeypatch.setattr(federated, "landing", lambda seed, overrides, heading=False: _federated_landing(seed != 1))
     result = federated.landing_campaign("open-landing", range(0, 3), 1, ())
     out = capsys.readouterr().out
@@ -245,7 +230,7 @@ def _federated_run(height=0.02, locals_m=(0.05, 0.05, 0.05), valid=1.0, error=0.
 def test_federated_open_landing_checks_hold_at_their_limits(monkeypatch, capsys, check, outside, inside):
     """Each open-landing target fails when one of two runs is just outside its limit (the other run well inside
     every one) and passes when that run is just inside; the other targets pass either way."""
-    monkeypatch.setattr(federated, "ProcessPoolExecutor", _InlinePool)
+    monkeypatch.setattr(federated, "ProcessPoolExecutor", InlinePool)
     for figures, failed in ((outside, {check}), (inside, set())):
         monkeypatch.setattr(federated, "landing", lambda seed, overrides, heading=False, figures=figures:
                             _federated_run(**(figures if seed == 1 else {})))
@@ -413,21 +398,6 @@ def test_simulate_gives_the_thread_cpu_time_of_its_own_span():
     assert 0.0 < run.thread_cpu_time_s <= around  # within the call: its bracket, on this thread's clock
 
 
-def test_landing_sweep_cpu_time_is_the_simulations_not_the_log_collection(monkeypatch):
-    # fly_diagram spends CPU after simulate() (collecting the logs): the figure beside the wall time is
-    # simulate()'s own, the same span.
-    def fly_diagram(diagram, handles, duration_s):
-        sum(i * i for i in range(200_000))  # the logs, after the simulation's clocks stopped
-        simulation = SimpleNamespace(wall_time_s=2.0, thread_cpu_time_s=1.5, sim_time_s=duration_s)
-        return SimpleNamespace(simulation=simulation, status="completed")
-
-    monkeypatch.setattr(landing_sweep, "load", lambda overrides=(): None)
-    monkeypatch.setattr(landing_sweep, "build_gv_landing", lambda scenario: (None, None))
-    monkeypatch.setattr(landing_sweep, "fly_diagram", fly_diagram)
-    timing = landing_sweep.realtime(60.0, repeats=2)
-    assert timing["thread_cpu_time_s"] == 1.5 and timing["wall_time_s"] == 2.0 and timing["realtime_factor"] == 30.0
-
-
 def test_landing_sweep_target_speeds_line_counts_the_runs_at_0_2_to_1_5_m_s(capsys):
     """The target-speeds line is over the runs at issue 4's speeds, 1.5 m/s among them and 3 m/s not: how many meet
     the touchdown targets, and how many track within 0.01 m before LH (0.005 and 0.008 m do; 0.02 m and none don't)."""
@@ -491,10 +461,11 @@ def test_landing_sweep_run_s_tracking_error_is_the_larger_of_x_and_y(monkeypatch
 
 def test_landing_sweep_real_time_factor_is_the_best_of_the_repeats(monkeypatch):
     """Of repeats taking 3 s and 2 s of wall time for 60 s of flight, the faster gives the figures: 30x real time,
-    and its own CPU time."""
+    and its own CPU time: simulate()'s, not counting what fly_diagram spends after it (collecting the logs)."""
     runs = iter([(3.0, 2.5), (2.0, 1.5)])
 
     def fly_diagram(diagram, handles, duration_s):
+        sum(i * i for i in range(200_000))  # the logs, after the simulation's clocks stopped
         wall, cpu = next(runs)
         simulation = SimpleNamespace(wall_time_s=wall, thread_cpu_time_s=cpu, sim_time_s=duration_s)
         return SimpleNamespace(simulation=simulation, status="completed")
