@@ -99,7 +99,17 @@ def test_marker_landing_lands_by_vision_on_the_rendered_camera():
     assert metrics["measurements"]["source"] == "detector" and set(metrics["estimators"]) == {"paper_ekf", "ct_ekf"}
 
 
-def test_the_example_flies_an_estimator_of_ones_own(capsys):
+@pytest.fixture
+def registry_restored():
+    """The example registers its source in the process-wide SOURCES: put the registry back as it was after the
+    test, so that tests run later (test_perception_seam's list of sources) do not see it."""
+    saved = dict(SOURCES)
+    yield
+    SOURCES.clear()
+    SOURCES.update(saved)
+
+
+def test_the_example_flies_an_estimator_of_ones_own(capsys, registry_restored):
     metrics = runpy.run_path(str(EXAMPLE), run_name="example")["main"](["--set", "estimation.source=synthetic"])
     out = capsys.readouterr().out
     assert metrics["perception"]["source"] == "averaged_markers" and metrics["landing"]["success"]
@@ -107,7 +117,7 @@ def test_the_example_flies_an_estimator_of_ones_own(capsys):
     assert "averaged_markers" not in SOURCES or SOURCES["averaged_markers"].needs_markers
 
 
-def test_the_example_gives_bad_settings_one_line_and_exit_2(capsys):
+def test_the_example_gives_bad_settings_one_line_and_exit_2(capsys, registry_restored):
     with pytest.raises(SystemExit) as exit_:
         runpy.run_path(str(EXAMPLE), run_name="example")["main"](["--set", "estimation.source=bogus"])
     err = capsys.readouterr().err
