@@ -48,6 +48,8 @@ def test_the_seam_is_the_pad_relative_to_the_uav_in_world_and_body():
     (PoseEstimate(10.0, X_WP, False, covariance(0.3)), 10.0, False),  # the estimator says no
     (PoseEstimate(10.0, X_WP, True, covariance(1.5)), 10.0, False),  # too uncertain to steer on
     (PoseEstimate(10.0, X_WP, True, covariance(0.3)), 10.6, False),  # too old
+    (PoseEstimate(10.0, X_WP, True, covariance(0.3)), 10.5, True),  # exactly max_age_s old: "no older than"
+    (PoseEstimate(np.nan, X_WP, True, covariance(0.3)), 10.0, False),  # stamped NaN: it has no age to check
     (PoseEstimate(20.0, X_WP, True, covariance(0.3)), 10.0, False),  # stamped in the future
     (PoseEstimate(10.0 + 1e-6, X_WP, True, covariance(0.3)), 10.0, False),
     (PoseEstimate(10.0 + 1e-12, X_WP, True, covariance(0.3)), 10.0, True),  # the same time, to rounding
