@@ -16,7 +16,14 @@ from scipy.stats import chi2
 
 from systems.config import ConfigError
 from systems.estimators.marker_ekf import FILTERS, ConstantTurnEkf, MarkerEkfConfig, MarkerFilterSystem, PaperMarkerEkf
-from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, EST_P_WP, EST_V_WP, EST_VALID, EST_YAW
+from systems.estimators.marker_ekf.engine import (
+    EST_LAST_MEASUREMENT,
+    EST_P_WP,
+    EST_POSITION_STD,
+    EST_V_WP,
+    EST_VALID,
+    EST_YAW,
+)
 from systems.perception.latency import MeasurementLatency
 from systems.perception.markers import MarkerLayout, MarkerMeasurement
 from systems.perception.synthetic_markers import (
@@ -487,6 +494,17 @@ def test_an_estimate_with_a_figure_not_finite_is_invalid(cls):
     assert not np.isfinite(vectors[1]).all()
 
 
+@pytest.mark.parametrize("cls", BOTH)
+def test_the_estimates_position_std_is_the_square_root_of_its_variance(cls):
+    """The pad position's variance 0.36 m^2 is a std of 0.6 m: reported so, and over a 0.5 m limit invalid."""
+    marker_filter = make(cls, max_valid_position_std_m=0.5)
+    x = state_from_truth(cls, pose([12, -4, 1.6], [0, 0, 35]))
+    vector, _, _ = marker_filter.estimate_vectors(x, 0.36, 1.0)
+    assert vector[EST_POSITION_STD] == pytest.approx(0.6, abs=1e-12) and vector[EST_VALID] == 0.0
+    vector, _, _ = marker_filter.estimate_vectors(x, 0.16, 1.0)  # 0.4 m: within the limit
+    assert vector[EST_POSITION_STD] == pytest.approx(0.4, abs=1e-12) and vector[EST_VALID] == 1.0
+
+
 def test_an_estimate_with_a_marker_position_not_finite_is_invalid():
     """The paper filter estimates each marker apart: marker 2's position NaN leaves the pad's own figures (marker
     0's) finite, and the estimate, whose p_WM carries it, is invalid all the same."""
@@ -594,16 +612,17 @@ def test_late_measurements_are_fused_as_if_they_had_arrived_on_time(cls):
 
 
 @pytest.mark.parametrize("cls", BOTH)
-def test_a_measurement_between_steps_is_fused_at_its_own_time(cls):
-    """Taken half a step before the step it arrives at, with the UAV moving: the filter interpolates
-    the UAV's pose (exact here: constant velocity and attitude) and fuses it at its own time, as a
-    filter stepped at that time does."""
+@pytest.mark.parametrize("before", [0.5, 0.25])
+def test_a_measurement_between_steps_is_fused_at_its_own_time(cls, before):
+    """Taken half (or a quarter of) a step before the step it arrives at, with the UAV moving: the filter
+    interpolates the UAV's pose (exact here: constant velocity and attitude) and fuses it at its own time, as a
+    filter stepped at that time does (a quarter step early: three quarters of the way from the previous step)."""
     truth = straight(6.0)
     uav = lambda t: RigidTransform(RollPitchYaw(0.02, -0.01, 0.3), truth(t).translation() + [0.2, 0.1, 3.0])
     stepped_there, on_grid = make(cls), make(cls)
     rng = np.random.default_rng(4)
     for k in range(40):
-        t, t_m = k * TS, (k - 0.5) * TS
+        t, t_m = k * TS, (k - before) * TS
         measurements = []
         if k:
             X_CP = uav(t_m).multiply(X_BC).InvertAndCompose(truth(t_m))
@@ -623,6 +642,26 @@ def test_measurements_older_than_the_history_are_counted_too_late(cls):
     b.step(t, uav_over(truth(t), t), [])
     assert_same_belief(a, b)
     assert a.stats.too_late == 5
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_measurements_older_than_the_first_step_are_too_late_and_do_not_start_the_filter(cls):
+    """A fresh filter's first step, at 2 s, given a frame of 1 s before it: there is no step of that time to fuse
+    it in, so its five markers count as too late and the filter has not started."""
+    marker_filter, truth, t = make(cls), straight(6.0), 2.0
+    marker_filter.step(t, uav_over(truth(t), t), measure(truth, t - 1.0, np.random.default_rng(6)))
+    assert not marker_filter.started
+    assert marker_filter.stats.too_late == len(LAYOUT.ids) == 5
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_a_step_must_come_after_the_previous_one(cls):
+    """A second step at the previous step's time (or before it) is refused, not taken as a new step."""
+    marker_filter, truth = make(cls), straight(6.0)
+    marker_filter.step(1.0, uav_over(truth(1.0), 1.0), [])
+    for t in (1.0, 0.9):
+        with pytest.raises(ValueError, match="does not follow the previous step"):
+            marker_filter.step(t, uav_over(truth(t), t), [])
 
 
 @pytest.mark.parametrize("cls", BOTH)
