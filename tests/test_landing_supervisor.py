@@ -13,7 +13,9 @@ from systems.control.landing import (
     LandingSupervisor,
     Mode,
     SupervisorInputs,
+    SupervisorMemory,
     hold_rate,
+    next_mode,
 )
 from systems.perception.seam import HEIGHT
 
@@ -280,6 +282,21 @@ def test_reaching_lh_off_centre_follows_rather_than_lands(offset_m, mode):
         script.step(altitude=altitude, offset=(0.2, 0.0))
     assert script.step(altitude=6.0, offset=(0.1, 0.0))[0] == Mode.APPROACH
     assert script.step(altitude=3.0, offset=(offset_m, 0.0), height=CONFIG.landing_height_m - 0.05)[0] == mode
+
+
+@pytest.mark.parametrize("mode, offset_m, height_m, expected", [
+    (Mode.FOLLOW, CONFIG.centred_radius_m, 5.0, Mode.APPROACH),  # centred: within centred_radius_m
+    (Mode.APPROACH, CONFIG.off_centre_radius_m, 5.0, Mode.APPROACH),  # off centre only beyond off_centre_radius_m
+    (Mode.APPROACH, 0.0, CONFIG.landing_height_m, Mode.LAND),  # height above target <= LH
+    (Mode.LAND, 0.0, CONFIG.touchdown_height_m, Mode.LANDED),  # touchdown at touchdown_height_m
+], ids=["centred", "off-centre", "lh", "touchdown"])
+def test_each_threshold_exactly_at_its_limit_takes_the_documented_transition(mode, offset_m, height_m, expected):
+    """The supervisor's limits as the module docstring and LandingConfig give them: the target exactly
+    centred_radius_m off is centred, exactly off_centre_radius_m off is not yet off centre, a height above the
+    target exactly LH lands and exactly touchdown_height_m is touchdown."""
+    memory = SupervisorMemory(mode, 0.0, height_m, (0.0, 0.0), height_m)
+    inputs = SupervisorInputs(1.0, height_m, height_m, True, np.array([offset_m, 0.0]))
+    assert next_mode(memory, inputs, CONFIG) == expected
 
 
 def test_waits_and_wave_offs_are_counted():
