@@ -132,3 +132,16 @@ def test_the_window_counts_the_descents_lag_when_it_knows_the_vertical_velocity(
     assert window.get_output_port().Eval(context)[0] == 1.0
     window.GetInputPort("vertical_velocity").FixValue(context, [-0.4])  # already descending: 2 s, 2.5 deg off
     assert window.get_output_port().Eval(context)[0] == 0.0
+
+
+def test_without_the_vertical_velocity_the_window_leaves_the_descents_lag_out():
+    """`vertical_velocity` unconnected: tau is h / V (as at speed), not h / V + T (as from a hover). On the deck
+    above, levelling 2.5 s from now, tau 2 s (closed) rather than 2.5 s (open)."""
+    window = LandingWindow(CONFIG, touchdown_height_m=0.1, landing_speed_m_s=0.4, response_time_s=0.5)
+    context = window.CreateDefaultContext()
+    n0 = math.sin(math.radians(12.5))
+    levelling = motion((n0, 0.0), (-n0 / 2.5, 0.0))
+    window.GetInputPort("deck_motion").FixValue(context, levelling)
+    window.GetInputPort("height_above_target").FixValue(context, [0.9])
+    assert window_flags(levelling, 0.8 / 0.4, CONFIG)[0] is False and window_flags(levelling, 2.5, CONFIG)[0]
+    np.testing.assert_array_equal(window.get_output_port().Eval(context), window_flags(levelling, 2.0, CONFIG))
