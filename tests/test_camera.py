@@ -151,6 +151,17 @@ def test_the_calibration_error_reaches_the_tag_corners_crhf_takes_through_the_es
     assert shift.max() > 0.1
 
 
+def test_the_estimators_intrinsics_are_the_lens_plus_the_calibration_error():
+    """K_estimated: each focal length scaled by its per cent error, and the principal point moved by the pixels
+    cx_px, cy_px (in their own signs); D_estimated: the lens's k1, k2 plus theirs."""
+    camera = CameraConfig(calibration_error=CalibrationErrorConfig(fx_pct=3.0, fy_pct=-2.0, cx_px=4.0, cy_px=-3.0,
+                                                                   k1=0.05, k2=-0.01))
+    K = camera.K
+    np.testing.assert_allclose(camera.K_estimated, [[1.03 * K[0, 0], 0.0, K[0, 2] + 4.0],
+                                                    [0.0, 0.98 * K[1, 1], K[1, 2] - 3.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(camera.D_estimated, camera.D + [0.05, -0.01, 0.0, 0.0, 0.0])
+
+
 def test_the_stewart_scene_tag_corner_model_agrees(tilted_scene):
     # The platform's own tag frame and corners, used by the logs, project to the same pixels.
     from systems.perception.apriltag import project_points
