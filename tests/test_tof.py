@@ -282,6 +282,27 @@ def test_ray_depths_across_a_depth_step_read_one_side_or_the_other():
     assert np.any(np.isclose(s, 1.0, rtol=1e-6)) and np.any(np.isclose(s, 2.0, rtol=1e-6))  # both sides are read
 
 
+def test_a_cone_reads_past_pixels_too_close_to_render():
+    """A plane 1 m square to the axis with the top three rows of the cone's image too close to render (depth 0):
+    those pixels return nothing, as pixels that see nothing (inf) do; the rest read about 1 m, not NaN."""
+    too_close, unseen = np.full((31, 31), 1.0), np.full((31, 31), 1.0)
+    too_close[:3, :], unseen[:3, :] = 0.0, np.inf
+    _, _, in_cone = view_geometry(31, 27.0)
+    assert in_cone[:3, :].any()  # the rows are in the cone
+    assert cone_range(too_close, 27.0) == pytest.approx(1.0, abs=0.02)
+    assert cone_range(too_close, 27.0) == cone_range(unseen, 27.0)
+
+
+def test_ray_depths_over_a_surface_too_close_to_render_read_zero():
+    """K's depth image all 0 (a surface nearer than its near clipping plane): every ray reads 0, too close (as
+    documented), not inf, nothing seen."""
+    config = TofConfig(cone_deg=27.0)
+    pixels, f, c = tof_camera_view(config)
+    p_CS = sensor_positions_C(0.135, 45.0)
+    s = ray_depths(np.zeros((pixels, pixels), np.float32), f, c, p_CS, np.zeros(len(p_CS)), np.zeros(len(p_CS)))
+    np.testing.assert_array_equal(s, 0.0)
+
+
 def test_a_cone_that_sees_nothing_is_invalid():
     tof, context = cone_system(lambda x, y: np.inf)
     ranges, valid, _ = outputs(tof, context)
