@@ -83,8 +83,8 @@ class LandingConfig:
     landing_speed_m_s: float = 0.5  # final vertical landing, below LH
     altitude_gain: float = 1.0  # [1/s], altitude hold and climb to IH
     altitude_tolerance_m: float = 0.2  # IH reached
-    centred_radius_m: float = 0.5  # start descending when the target is this close horizontally
-    off_centre_radius_m: float = 1.0  # stop descending when it is this far (hysteresis)
+    centred_radius_m: float = 0.5  # start descending when the target is this close horizontally (or closer)
+    off_centre_radius_m: float = 1.0  # stop descending when it is farther than this (hysteresis)
     # LAND descends only while the target is this close horizontally, else holds its height and tracks
     # (PX4's precision landing, PLD_HACC_RAD; 0.2 m there): a pad that drifted off the centre during a
     # coast is caught up with before the gear comes down. 0: LAND descends whatever the offset.
