@@ -132,6 +132,18 @@ def test_an_open_path_as_short_as_accepted_is_a_path(name):
     assert path.nearest(path.position(path.length)) == pytest.approx(path.length)
 
 
+def test_a_manoeuvre_path_exactly_as_long_as_its_lead_and_turn_is_accepted():
+    """turn-90 of lead_m + radius_m pi/2 (what its validation says it needs) is a path: it ends where the quarter
+    circle does, (lead + r, r) off its start, turned 90 deg; a centimetre shorter is refused, naming the length."""
+    lead, radius = 20.0, 15.0
+    needed = lead + abs(np.pi / 2) * radius
+    path = make_path(PathConfig(name="turn-90", length_m=needed, lead_m=lead, radius_m=radius))
+    end = path.position(path.length)
+    np.testing.assert_allclose(np.abs(end[:2] - path.position(0.0)[:2]), [lead + radius, radius], atol=1e-6)
+    with pytest.raises(ValueError, match=r"path_length_m = .* is too short for 'turn-90' \(needs at least 43.56"):
+        make_path(PathConfig(name="turn-90", length_m=needed - 0.01, lead_m=lead, radius_m=radius))
+
+
 def test_max_curvature_is_the_tightest_bend():
     assert make_path(PathConfig(name="straight")).max_curvature == 0.0
     assert make_path(PathConfig(name="figure-eight", radius_m=12.0)).max_curvature == pytest.approx(1 / 12.0)

@@ -43,8 +43,9 @@ class PathConfig:
                 f"got {self.length_m}")
         if self.name in MANOEUVRE_TURNS:
             used = self.lead_m + sum(abs(angle) for angle in MANOEUVRE_TURNS[self.name]) * self.radius_m
-            require(used < self.length_m,
-                    f"{prefix}_length_m = {self.length_m} is too short for '{self.name}' (needs {used:.0f})")
+            require(used <= self.length_m,
+                    f"{prefix}_length_m = {self.length_m} is too short for '{self.name}' (needs at least {used:.2f}: "
+                    f"{prefix}_lead_m and its turns' arcs)")
 
 
 class Path:
