@@ -217,6 +217,32 @@ def test_carried_altitude_follows_the_navigations_descent():
         assert np.allclose(state.estimate.X_RT.translation(), p, atol=1e-6)
 
 
+def test_the_carried_height_expires_altitude_coast_s_after_the_last_valid_stereo_height():
+    """One valid stereo height, then none at 30 Hz: the height is carried (source 2) for altitude_coast_s after
+    that valid one, counted from it and not from the frame before, then there is none (source 0, NaN)."""
+    coast_s = 0.5
+    states = _run([(k / 30, False, k == 0, None) for k in range(25)], HybridPadConfig(altitude_coast_s=coast_s))
+    assert states[0].height_source == 1
+    for k, state in enumerate(states[1:], start=1):
+        if k / 30 <= coast_s:
+            assert state.height_source == 2 and math.isfinite(state.height_m)
+        else:
+            assert state.height_source == 0 and math.isnan(state.height_m)
+    assert states[15].height_source == 2 and states[16].height_source == 0  # 0.5 s exactly, then past it
+
+
+@pytest.mark.parametrize("camera_height_m", [-0.3, 0.0])
+def test_a_stereo_height_not_above_the_ground_is_not_a_height(camera_height_m):
+    """A stereo height at or below zero, flagged valid, is no camera height: none is used (source 0, NaN) and
+    the estimate of a box in view is not valid."""
+    X_WB = RigidTransform([0.0, 0.0, 4.0])
+    box = box_around(np.array([0.0, 0.0, Z_PAD]), X_WB)
+    state = hybrid_step(HybridPadState(), 0.0, box, True, camera_height_m, True, X_WB, FISHEYE, Z_PAD,
+                        HybridPadConfig(), VelocityObserverConfig())
+    assert state.height_source == 0 and math.isnan(state.height_m) and state.anchor is None
+    assert not state.estimate.valid
+
+
 def test_estimator_without_altitude_is_invalid():
     states = _run([(0.1 * k, True, False, (0.0, 0.0, Z_PAD)) for k in range(5)])
     assert not any(s.estimate.valid for s in states)
