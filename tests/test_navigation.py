@@ -115,6 +115,29 @@ def test_the_errors_start_from_their_stationary_distribution():
     np.testing.assert_allclose(np.degrees(np.std(attitude, axis=0)), [0.5, 0.5, 2.0], rtol=0.2)
 
 
+def test_each_step_draws_noise_of_its_own_not_the_initial_states():
+    """The step from t = 0 adds fresh noise: across 200 seeds its innovation in the attitude error (e_1 - a e_0,
+    over sigma sqrt(1 - a^2): standard normal) is uncorrelated with the standardised initial error e_0 / sigma
+    (with the initial state's draw reused the two would be equal)."""
+    config = NavigationConfig(source="gnss_ins", tilt_std_deg=0.5, yaw_std_deg=2.0, attitude_time_constant_s=0.05)
+    period = 1.0 / config.rate_hz
+    a = math.exp(-period / config.attitude_time_constant_s)
+    std = np.radians([0.5, 0.5, 2.0])
+    initial, innovation = [], []
+    for seed in range(200):
+        navigation = NavigationSystem(config, seed)
+        context = navigation.CreateDefaultContext()
+        navigation.get_input_port().FixValue(context, TRUE)
+        e0 = context.get_discrete_state_vector().CopyToVector()[6:9]
+        e1 = navigation.EvalUniquePeriodicDiscreteUpdate(context).get_vector().CopyToVector()[6:9]
+        initial.append(e0 / std)
+        innovation.append((e1 - a * e0) / (std * math.sqrt(1.0 - a * a)))
+    initial, innovation = np.array(initial), np.array(innovation)
+    np.testing.assert_allclose(innovation.std(axis=0), 1.0, rtol=0.2)
+    for axis in range(3):
+        assert abs(np.corrcoef(initial[:, axis], innovation[:, axis])[0, 1]) < 0.3
+
+
 def test_the_second_order_model_is_exact():
     phi, g, stationary = second_order_model(5.0, 0.01)
     P = stationary @ stationary.T
