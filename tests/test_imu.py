@@ -137,6 +137,27 @@ def test_biases_have_the_configured_spread():
     assert np.all(sample(imu, context, 0.0) != [0, 0, G, 0, 0, 0])
 
 
+def test_the_noise_is_drawn_apart_from_the_bias():
+    """The first sample's white noise is independent of the turn-on bias: across 300 seeds the standardised
+    noise (reading - ideal - bias) / sample std is uncorrelated with the standardised bias (drawn from the
+    bias's own numbers the two would be equal)."""
+    config = ImuConfig()
+    std = np.repeat([config.accel_sample_std_m_s2, config.gyro_sample_std_rad_s], 3)
+    bias_std = np.repeat([config.accel_bias_std_ug * 1e-6 * STANDARD_G,
+                          math.radians(config.gyro_bias_std_deg_h / 3600.0)], 3)
+    f_ideal, w_ideal = ideal_imu(RotationMatrix(), np.zeros(3), np.zeros(3), G)
+    noise, bias = [], []
+    for seed in range(300):
+        imu, context = imu_with_inputs(config, seed=seed)
+        b = np.r_[imu.accel_bias, imu.gyro_bias]
+        noise.append((sample(imu, context, 0.0) - np.r_[f_ideal, w_ideal] - b) / std)
+        bias.append(b / bias_std)
+    noise, bias = np.array(noise), np.array(bias)
+    np.testing.assert_allclose(noise.std(axis=0), 1.0, rtol=0.2)
+    for axis in range(6):
+        assert abs(np.corrcoef(noise[:, axis], bias[:, axis])[0, 1]) < 0.3
+
+
 def test_same_seed_same_readings_other_seed_other_readings():
     config = ImuConfig()
     a, ca = imu_with_inputs(config, seed=4)
