@@ -358,6 +358,15 @@ def test_no_axis_flow_where_the_axis_misses_the_plane():
                             np.zeros(6)) == 0.0)
 
 
+def test_no_axis_flow_from_a_camera_on_the_plane():
+    """A camera exactly on the scene plane (depth 0 along its axis) has no scene point ahead to track: the flow
+    is zero and finite, not a division by the zero depth, however the camera moves."""
+    on_plane = RigidTransform(RollPitchYaw(np.pi, 0.0, 0.0), [0.3, -0.2, 0.0])  # looking down from z = 0
+    for V_WC in (np.array([0.0, 1.0, 0.0, 0.5, 0.0, -0.2]), np.zeros(6)):
+        rate = axis_flow(on_plane, V_WC, RigidTransform(), np.zeros(6))
+        assert np.all(np.isfinite(rate)) and np.all(rate == 0.0)
+
+
 def test_a_blur_kernel_is_a_centred_line_of_the_flow_s_length():
     assert motion_blur_kernel(np.array([0.3, 0.2])) is None
     flow = np.array([6.0, -3.0])
