@@ -657,8 +657,11 @@ def test_kf_let_go_in_the_near_band_does_not_start_again_on_a_wrong_match():
     (StereoConfig(pixel_noise_std=-2.0), "stereo.pixel_noise_std must not be negative"),
     (StereoConfig(mount_xyz_m=[0.0, 0.0]), "stereo.mount_xyz_m needs 3 numbers"),
     (StereoConfig(min_altitude_m=0.11), "must be under half the image width"),
+    # 376 px * 0.5 m / 0.5 m = 376 px: exactly half the 752 px width is not under it.
+    (StereoConfig(focal_length_px=376.0, baseline_m=0.5, min_altitude_m=0.5), "must be under half the image width"),
     (StereoConfig(max_altitude_m=60.0), "must lie within the clipping range"),
     (StereoConfig(near_m=1.0, min_altitude_m=0.7), "must lie within the clipping range"),
+    (StereoConfig(near_m=0.7, min_altitude_m=0.7), "must lie within the clipping range"),  # on the near plane
 ])
 def test_bad_stereo_config_names_the_field(config, message):
     with pytest.raises(ConfigError, match=message):
