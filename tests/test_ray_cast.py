@@ -69,3 +69,11 @@ def test_a_ray_along_a_face_passes_it_and_ignored_or_far_geometry_is_not_seen():
     np.testing.assert_allclose(without_deck, [2.0, 2.0, 2.0, 0.97, 3.0], rtol=0, atol=1e-6)
     assert np.all(cast_rays(qo, p[[2, 4]], down[:2], 1.5) == np.inf)  # nothing within 1.5 m of either
     assert np.all(cast_rays(qo, p[:3], -down[:3], 20.0) == np.inf)  # looking up
+
+
+def test_a_surface_at_exactly_the_range_is_hit():
+    """A surface max_range_m away is within the range: hit at that distance; a hair nearer range sees nothing."""
+    qo, _ = query_object([(RigidTransform([0.0, 0.0, -0.5]), Box(5.0, 5.0, 1.0))])  # top face at z = 0
+    p, down = np.array([[0.0, 0.0, 2.0], [0.3, -0.2, 2.0]]), np.tile([0.0, 0.0, -1.0], (2, 1))
+    np.testing.assert_array_equal(cast_rays(qo, p, down, 2.0), [2.0, 2.0])
+    assert np.all(cast_rays(qo, p, down, np.nextafter(2.0, 0.0)) == np.inf)
