@@ -203,32 +203,41 @@ def _truth(t):
     return p, v, a, RollPitchYaw(0.0, 0.0, 0.2 * t + 0.5).ToRotationMatrix()
 
 
-def _fly(duration_s, nodes_until_s, rng, adjustment_gap_s=(0.0, 0.0)):
-    """The engine at 200 Hz with an ideal IMU, and at 50 Hz an approach centre (always) and an
-    adjustment pose (4 mm, 5 mrad; from 1 s, not within adjustment_gap_s), with the noise their covariances say,
-    until `nodes_until_s`. Returns (final state, errors, valid flags, config, betas per frame)."""
-    config = FederatedConfig()
-    state, errors, valid, betas = FederatedState(), [], [], []
+def _descent(duration_s, measurements, config: FederatedConfig | None = None):
+    """The engine at 200 Hz on _truth's descent with an ideal IMU, and at 50 Hz the frame
+    `measurements(t, p, R, X_CP)` gives (a dict of NodeMeasurement by node). Yields (t, the state before the
+    step, the state after it, the true p_PB, v_PB and R_PB, whether the step read a frame)."""
+    config, state = config or FederatedConfig(), FederatedState()
     for k in range(int(duration_s * 200) + 1):
         t = k / 200
-        p, _, a, R = _truth(t)
+        p, v, a, R = _truth(t)
         imu = np.r_[R.inverse().multiply(a + [0.0, 0.0, G]), [0.0, 0.0, 0.2]]
-        frame = None
-        if k % 4 == 0:
-            frame = {}
-            if t <= nodes_until_s:
-                X_PB_true = RigidTransform(R, p)
-                X_CP = X_BC.inverse().multiply(X_PB_true.inverse())
-                covariance = approach_covariance(X_CP.translation(), 60.0, 640.0)
-                p_CP = rng.multivariate_normal(X_CP.translation(), covariance)
-                frame["approach"] = NodeMeasurement(t, "approach", covariance, p_CP=p_CP)
-                if t >= 1.0 and not adjustment_gap_s[0] <= t < adjustment_gap_s[1]:
-                    noisy = RigidTransform(RollPitchYaw(*rng.normal(0, 0.005, 3)).ToRotationMatrix().multiply(R),
-                                           p + rng.normal(0, 0.004, 3))
-                    frame["adjustment"] = NodeMeasurement(t, "adjustment", np.diag([2.5e-5] * 3 + [1.6e-5] * 3),
-                                                          X_PB=noisy)
-        state = step(state, t, imu, frame, config, X_BC)
-        if frame is not None:
+        frame = measurements(t, p, R, X_BC.inverse().multiply(RigidTransform(R, p).inverse())) if k % 4 == 0 else None
+        before, state = state, step(state, t, imu, frame, config, X_BC)
+        yield t, before, state, (p, v, R), frame is not None
+
+
+def _fly(duration_s, nodes_until_s, rng, adjustment_gap_s=(0.0, 0.0)):
+    """_descent with, until `nodes_until_s`, an approach centre (always) and an adjustment pose (4 mm, 5 mrad;
+    from 1 s, not within adjustment_gap_s), with the noise their covariances say. Returns (final state, errors,
+    valid flags, config, betas per frame)."""
+    def measurements(t, p, R, X_CP):
+        frame = {}
+        if t <= nodes_until_s:
+            covariance = approach_covariance(X_CP.translation(), 60.0, 640.0)
+            frame["approach"] = NodeMeasurement(t, "approach", covariance,
+                                                p_CP=rng.multivariate_normal(X_CP.translation(), covariance))
+            if t >= 1.0 and not adjustment_gap_s[0] <= t < adjustment_gap_s[1]:
+                noisy = RigidTransform(RollPitchYaw(*rng.normal(0, 0.005, 3)).ToRotationMatrix().multiply(R),
+                                       p + rng.normal(0, 0.004, 3))
+                frame["adjustment"] = NodeMeasurement(t, "adjustment", np.diag([2.5e-5] * 3 + [1.6e-5] * 3),
+                                                      X_PB=noisy)
+        return frame
+
+    config = FederatedConfig()
+    errors, valid, betas = [], [], []
+    for t, _, state, (p, _, R), framed in _descent(duration_s, measurements, config):
+        if framed:
             betas.append((t, *state.betas))
         if state.started:
             errors.append(np.r_[X_PB(state.fused).translation() - p,
@@ -269,24 +278,17 @@ def test_the_velocity_kept_across_the_heading_restart_is_turned_into_the_new_hea
     """_truth's descent, exact centres from 0 s and exact poses from 1 s: the first pose restarts the filters in
     the pattern's heading, keeping the body's velocity, which must be turned from the old estimate's axes into
     the new ones (the centres' start had the heading 0.5 rad off here); kept unturned it is about 0.2 m/s off."""
-    config, state = FederatedConfig(), FederatedState()
-    for k in range(int(1.2 * 200) + 1):
-        t = k / 200
-        p, v, a, R = _truth(t)
-        imu = np.r_[R.inverse().multiply(a + [0.0, 0.0, G]), [0.0, 0.0, 0.2]]
-        frame = None
-        if k % 4 == 0:
-            X_CP = X_BC.inverse().multiply(RigidTransform(R, p).inverse())
-            frame = {"approach": NodeMeasurement(t, "approach", approach_covariance(X_CP.translation(), 60.0, 640.0),
-                                                 p_CP=X_CP.translation())}
-            if t >= 1.0:
-                frame["adjustment"] = NodeMeasurement(t, "adjustment", np.diag([2.5e-5] * 3 + [1.6e-5] * 3),
-                                                      X_PB=RigidTransform(R, p))
-        known = state.heading_known
-        state = step(state, t, imu, frame, config, X_BC)
-        if state.heading_known and not known:
-            break
-    assert state.heading_known and t == pytest.approx(1.0)
+    def exact(t, p, R, X_CP):
+        frame = {"approach": NodeMeasurement(t, "approach", approach_covariance(X_CP.translation(), 60.0, 640.0),
+                                             p_CP=X_CP.translation())}
+        if t >= 1.0:
+            frame["adjustment"] = NodeMeasurement(t, "adjustment", np.diag([2.5e-5] * 3 + [1.6e-5] * 3),
+                                                  X_PB=RigidTransform(R, p))
+        return frame
+
+    t, _, state, (_, v, _), _ = next(stepped for stepped in _descent(1.2, exact)
+                                     if stepped[2].heading_known and not stepped[1].heading_known)
+    assert t == pytest.approx(1.0)
     assert np.linalg.norm(state.fused.v - v) < 0.1
 
 
@@ -294,23 +296,20 @@ def test_a_node_whose_gate_rejects_its_measurement_restarts_from_the_fused_estim
     """_truth's descent with noisy centres and poses (so each filter's own state differs from the fused one), the
     adjustment pose 1 m off at 1.6 s: its gate rejects it, and its filter restarts from the fused estimate (only a
     node that accepted its measurement keeps its own state, the approaching node's here)."""
-    config, state, rng = FederatedConfig(), FederatedState(), np.random.default_rng(5)
-    for k in range(int(1.6 * 200) + 1):
-        t = k / 200
-        p, _, a, R = _truth(t)
-        imu = np.r_[R.inverse().multiply(a + [0.0, 0.0, G]), [0.0, 0.0, 0.2]]
-        frame = None
-        if k % 4 == 0:
-            X_CP = X_BC.inverse().multiply(RigidTransform(R, p).inverse())
-            covariance = approach_covariance(X_CP.translation(), 60.0, 640.0)
-            frame = {"approach": NodeMeasurement(t, "approach", covariance,
-                                                 p_CP=rng.multivariate_normal(X_CP.translation(), covariance))}
-            if t >= 1.0:
-                off = [0.0, 0.0, 1.0] if k == 320 else rng.normal(0, 0.004, 3)
-                frame["adjustment"] = NodeMeasurement(t, "adjustment", np.diag([2.5e-5] * 3 + [1.6e-5] * 3),
-                                                      X_PB=RigidTransform(R, p + off))
-        before = state
-        state = step(state, t, imu, frame, config, X_BC)
+    rng = np.random.default_rng(5)
+
+    def noisy(t, p, R, X_CP):
+        covariance = approach_covariance(X_CP.translation(), 60.0, 640.0)
+        frame = {"approach": NodeMeasurement(t, "approach", covariance,
+                                             p_CP=rng.multivariate_normal(X_CP.translation(), covariance))}
+        if t >= 1.0:
+            off = [0.0, 0.0, 1.0] if t == 1.6 else rng.normal(0, 0.004, 3)
+            frame["adjustment"] = NodeMeasurement(t, "adjustment", np.diag([2.5e-5] * 3 + [1.6e-5] * 3),
+                                                  X_PB=RigidTransform(R, p + off))
+        return frame
+
+    *_, (t, before, state, _, _) = _descent(1.6, noisy)
+    assert t == 1.6
     approach, adjustment = NODES.index("approach"), NODES.index("adjustment")
     assert state.stats[adjustment].gated == before.stats[adjustment].gated + 1
     assert state.stats[approach].accepted == before.stats[approach].accepted + 1
