@@ -330,14 +330,21 @@ def test_bad_config_is_rejected_by_name(yaml, message):
         LandingSupervisor(config)
 
 
-def test_system_wraps_the_state_machine():
+def supervisor_at(height_m: float, valid: float):
+    """A LandingSupervisor in a Simulator, its inputs fixed: altitude and height above the target `height_m`,
+    target_valid `valid`, the target centred, TARGET_VELOCITY and the tracking commands."""
     system = LandingSupervisor(CONFIG)
     simulator = Simulator(system)
     context = simulator.get_mutable_context()
-    for name, value in (("altitude", [0.0]), ("height_above_target", [0.0]), ("target_valid", [0.0]),
+    for name, value in (("altitude", [height_m]), ("height_above_target", [height_m]), ("target_valid", [valid]),
                         ("target_offset", [0.0, 0.0]), ("target_velocity", TARGET_VELOCITY),
                         ("tracking_velocity", TRACKING), ("tracking_acceleration", TRACKING_ACCELERATION)):
         system.GetInputPort(name).FixValue(context, value)
+    return system, simulator, context
+
+
+def test_system_wraps_the_state_machine():
+    system, simulator, context = supervisor_at(0.0, 0.0)
     command, mode = system.GetOutputPort("command"), system.GetOutputPort("mode")
     assert mode.Eval(context)[0] == Mode.TAKEOFF
     np.testing.assert_allclose(command.Eval(context), np.zeros(7))
@@ -360,13 +367,7 @@ def test_system_wraps_the_state_machine():
 def approaching_system(window=None):
     """A LandingSupervisor flown by fixed inputs to APPROACH at IH over a centred, seen target (samples at 0, 20,
     40 and 60 ms: TAKEOFF -> CLIMB -> FOLLOW -> APPROACH); `window` fixes its landing_window input."""
-    system = LandingSupervisor(CONFIG)
-    simulator = Simulator(system)
-    context = simulator.get_mutable_context()
-    for name, value in (("altitude", [7.5]), ("height_above_target", [7.5]), ("target_valid", [1.0]),
-                        ("target_offset", [0.0, 0.0]), ("target_velocity", TARGET_VELOCITY),
-                        ("tracking_velocity", TRACKING), ("tracking_acceleration", TRACKING_ACCELERATION)):
-        system.GetInputPort(name).FixValue(context, value)
+    system, simulator, context = supervisor_at(7.5, 1.0)
     if window is not None:
         system.GetInputPort("landing_window").FixValue(context, window)
     simulator.AdvanceTo(0.07)
