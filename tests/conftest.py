@@ -36,6 +36,13 @@ def _close_figures():
         sys.modules["matplotlib.pyplot"].close("all")
 
 
+def wiring(diagram) -> dict[tuple[str, str], tuple[str, str]]:
+    """A built Diagram's connections by name: (system, input port) -> (source system, output port)."""
+    return {(system.get_name(), system.get_input_port(i).get_name()):
+            (source.get_name(), source.get_output_port(j).get_name())
+            for (system, i), (source, j) in diagram.connection_map().items()}
+
+
 class InlinePool:
     """ProcessPoolExecutor's stand-in for the benchmarks' tests: maps in this process (a forked worker would
     inherit this process's render context, and spawned ones import Drake again)."""

@@ -40,6 +40,7 @@ from systems.vehicles.quadrotor import (
     quadrotor_state,
     quadrotor_state_derivative,
 )
+from tests.conftest import wiring
 
 # pydrake filters numpy's "invalid value" warnings from symbolic object arrays when imported;
 # pytest resets warning filters per test, so restore that one here.
@@ -524,9 +525,7 @@ def test_the_stacks_monitor_ends_on_landed_as_the_landing_says_and_the_pid_desce
         assert ended.startswith("landed: the supervisor")
     else:
         assert ended is None
-    wired = {(system.get_name(), system.get_input_port(i).get_name()):
-             (source.get_name(), source.get_output_port(j).get_name())
-             for (system, i), (source, j) in diagram.connection_map().items()}
+    wired = wiring(diagram)
     assert wired["tracking_pid", "height"] == ("seam", "height_above_target")
 
 

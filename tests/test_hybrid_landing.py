@@ -33,6 +33,7 @@ from systems.sensors.fisheye import FisheyeConfig, project_points
 from systems.sensors.stereo import add_stereo_pair
 from systems.vehicles.airframe import AirframeGeometry
 from systems.vehicles.quadrotor import P_WB, Q_WB
+from tests.conftest import wiring
 
 FISHEYE = FisheyeConfig()
 Z_PAD = 0.5
@@ -316,9 +317,7 @@ def test_the_estimator_and_the_logs_read_the_altitudes_they_are_named_for():
     filtered one, which `altitude` logs)."""
     _, scenario = load_scenario("ugv-hybrid")
     diagram, handles = build_gv_landing(scenario)
-    wired = {(system.get_name(), system.get_input_port(i).get_name()):
-             (source.get_name(), source.get_output_port(j).get_name())
-             for (system, i), (source, j) in diagram.connection_map().items()}
+    wired = wiring(diagram)
     assert wired["hybrid_pad", "altitude"] == ("altitude_filter", "altitude")
     assert wired["hybrid_pad", "altitude_valid"] == ("altitude_filter", "valid")
     assert wired["altitude_filter", "altitude_valid"] == ("stereo_altimeter", "altitude_valid")

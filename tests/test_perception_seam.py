@@ -18,6 +18,7 @@ from systems.perception.seam import (
     A_WP, HEIGHT, P_BP_B, P_BP_W, RELATIVE_STATE_SIZE, V_WP, VALID, EstimateToSeam, SeamConfig, estimate_is_valid,
     seam_vector,
 )
+from tests.conftest import wiring
 
 X_WB = RigidTransform(RollPitchYaw(0.1, -0.2, 1.3), [4.0, -2.0, 6.5])
 X_WP = RigidTransform(RollPitchYaw(0.0, 0.0, 0.4), [5.0, -1.0, 1.6])
@@ -157,8 +158,6 @@ def test_a_source_wires_its_estimators_rates_into_the_seam(scenario, overrides, 
     velocity (it has no acceleration); the UAV's pose besides."""
     _, config = load_scenario(scenario, overrides=overrides)
     diagram, _ = build_gv_landing(config)
-    adapter = diagram.GetSubsystemByName("estimate_to_seam")
-    wired = {system.get_input_port(i).get_name(): (source.get_name(), source.get_output_port(j).get_name())
-             for (system, i), (source, j) in diagram.connection_map().items() if system is adapter}
+    wired = {port: source for (system, port), source in wiring(diagram).items() if system == "estimate_to_seam"}
     assert wired.pop("X_WB") is not None
     assert wired == {name: (estimator, name) for name in ports}

@@ -36,6 +36,7 @@ from systems.perception.stereo_depth import (
     window_altitude,
 )
 from systems.sensors.stereo import StereoConfig, add_stereo_pair
+from tests.conftest import wiring
 
 F_PX = 350.0  # 2.1 mm / 6 um
 BASELINE = 0.12
@@ -141,12 +142,11 @@ def test_add_stereo_altimeter_wires_the_pair_into_the_altimeter_and_the_altimete
     pair = add_stereo_pair(builder, scene_graph, scene_graph.world_frame_id(), config)
     altimeter, altitude_filter = add_stereo_altimeter(builder, pair, config, StereoDepthConfig(), AltitudeKfConfig())
     diagram = builder.Build()
-    wired = {(system, system.get_input_port(i).get_name()): (source, source.get_output_port(j).get_name())
-             for (system, i), (source, j) in diagram.connection_map().items()}
-    assert wired[altimeter, "left_image"] == (pair.left, pair.left_image.get_name())
-    assert wired[altimeter, "right_image"] == (pair.right, pair.right_image.get_name())
-    assert wired[altitude_filter, "altitude"] == (altimeter, "altitude")
-    assert wired[altitude_filter, "altitude_valid"] == (altimeter, "altitude_valid")
+    wired = wiring(diagram)
+    assert wired["stereo_altimeter", "left_image"] == (pair.left.get_name(), pair.left_image.get_name())
+    assert wired["stereo_altimeter", "right_image"] == (pair.right.get_name(), pair.right_image.get_name())
+    assert wired["altitude_filter", "altitude"] == ("stereo_altimeter", "altitude")
+    assert wired["altitude_filter", "altitude_valid"] == ("stereo_altimeter", "altitude_valid")
     disparities = StereoDepthConfig().disparities_for(config)
     assert altitude_filter.nearest_m == pytest.approx(F_PX * BASELINE / (disparities - 1), rel=1e-12)
     assert altitude_filter.nearest_m == altimeter.estimator.nearest_m

@@ -12,6 +12,7 @@ from diagrams.runner import load_scenario
 from systems.control.flight_controller import FlightController, FlightControllerConfig, flight_command
 from systems.control.velocity_integral import VelocityIntegral, integral_step
 from systems.vehicles.quadrotor import V_WB, Quadrotor, QuadrotorParams, hover_state
+from tests.conftest import wiring
 
 pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
 
@@ -81,9 +82,7 @@ def test_the_landing_stack_puts_the_integral_between_the_supervisor_and_the_cont
     _, config = load_scenario("gv-landing", overrides=["navigation.source=gnss_ins",
                                                        f"controller.velocity_integral_gain_xy={gain}"])
     diagram, _ = build_gv_landing(config)
-    wired = {(system.get_name(), system.get_input_port(i).get_name()):
-             (source.get_name(), source.get_output_port(j).get_name())
-             for (system, i), (source, j) in diagram.connection_map().items()}
+    wired = wiring(diagram)
     assert wired["flight_controller", "state"] == ("navigation", "state")
     if gain:
         assert wired["velocity_integral", "command"] == ("landing_supervisor", "command")
