@@ -11,6 +11,7 @@ import benchmarks.hybrid_timing as hybrid_timing
 import benchmarks.landing_campaign as landing_campaign
 import benchmarks.landing_sweep as landing_sweep
 import benchmarks.marker_ekf_mc as marker_ekf_mc
+import benchmarks.marker_visibility as marker_visibility
 import benchmarks.motion_blur as motion_blur
 import benchmarks.motion_compensation as motion_compensation
 import benchmarks.realtime as realtime
@@ -81,6 +82,10 @@ import benchmarks.vision_landing as vision_landing
     (marker_ekf_mc.main, ["--workers", "-1"], "error: --workers must not be negative, got -1"),
     (marker_ekf_mc.main, ["--scaling-runs", "-1"], "error: --scaling-runs must not be negative, got -1"),
     (marker_ekf_mc.main, ["--detector-runs", "-2"], "error: --detector-runs must not be negative, got -2"),
+    # Before the first render, not a rig asked for a camera under the pad.
+    (marker_visibility.main, ["--heights", "0.3", "0"], "error: --heights must be finite and positive [m], got 0"),
+    (marker_visibility.main, ["--heights", "-1"], "error: --heights must be finite and positive [m], got -1"),
+    (marker_visibility.main, ["--heights", "nan"], "error: --heights must be finite and positive [m], got nan"),
 ])
 def test_a_count_below_1_or_a_negative_noise_is_argparse_s_error(capsys, main, argv, line):
     with pytest.raises(SystemExit) as exit_info:
@@ -159,3 +164,24 @@ def test_landing_campaign_exits_1_on_any_failed_target(capsys, monkeypatch, tmp_
     printed = capsys.readouterr().out
     assert code == (0 if all(met) else 1)
     assert printed.count("FAIL") == met.count(False) and printed.count("PASS") == met.count(True)
+
+
+@pytest.mark.parametrize("nested_everywhere", [True, False])
+def test_marker_visibility_exits_1_when_the_nested_layout_misses_a_pose(capsys, monkeypatch, nested_everywhere):
+    """The target is the nested layout's: exit 1 when it misses a pose, 0 when it sees a marker at every one, the
+    default five (seen nowhere here) reported either way (the rig replaced by detections made up per layout)."""
+    def visibility(scenario, heights_m):
+        seen_here = scenario == "marker-landing-wind" and nested_everywhere
+        seen = {(h, t): [{5} if seen_here or k else set() for k in range(len(marker_visibility.OFFSETS_M))]
+                for h in heights_m for t in marker_visibility.TILTS_DEG}
+        if scenario == "marker-landing":
+            seen = {key: [set()] * len(ids) for key, ids in seen.items()}
+        return {"ids": [0, 5], "sizes_m": [0.2, 0.06], "seen": seen}
+    monkeypatch.setattr(marker_visibility, "visibility", visibility)
+    code = marker_visibility.main(["--heights", "2", "0.5"])
+    printed = capsys.readouterr().out
+    assert code == (0 if nested_everywhere else 1)
+    assert "reported (not met): a marker at every pose from 2 m down to 0.5 m (lowest share 0%)" in printed
+    verdict = "PASS" if nested_everywhere else "FAIL"
+    share = "100%" if nested_everywhere else "96%"  # one offset of 25 without a marker
+    assert f"{verdict}: a marker at every pose from 2 m down to 0.5 m (lowest share {share})" in printed
