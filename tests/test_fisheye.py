@@ -205,6 +205,7 @@ def test_rendered_markers_in_the_rectified_view(marker_scene):
     ({"k1": -0.3}, "fisheye.k1 and fisheye.k2 fold"),
     ({"k2": -0.08}, "fisheye.k1 and fisheye.k2 fold"),
     ({"f": 0.0}, "fisheye.f must be positive"),
+    ({"rate_hz": 0.0}, "fisheye.rate_hz must be positive"),
     ({"cx": 600.0}, "fisheye.cx"),
     ({"face_px": 8}, "fisheye.face_px"),
     ({"side_axis_deg": 95.0}, "fisheye.side_axis_deg"),
