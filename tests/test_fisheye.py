@@ -20,6 +20,7 @@ from systems.sensors.fisheye import (
     pixel_rays,
     project_points,
     rectified_K,
+    rectify,
     rectify_maps,
 )
 
@@ -138,9 +139,10 @@ def test_composition_of_analytic_faces_matches_the_rays(config):
     assert (image[~inside] == BLACK).all()
 
 
-def test_rectified_view_is_the_pinhole_view_with_the_new_K():
-    """The rectified view painted from directions is `direction_colour` of K_new's pinhole rays."""
-    config = FisheyeConfig()
+@pytest.mark.parametrize("config", [FisheyeConfig(), FisheyeConfig(cx=300.0, cy=220.0, k1=0.0, k2=0.0)])
+def test_rectified_view_is_the_pinhole_view_with_the_new_K(config):
+    """The rectified view painted from directions is `direction_colour` of K_new's pinhole rays, with the camera's
+    own intrinsics: also with the principal point off the image centre and no distortion (k1 = k2 = 0)."""
     camera, context = fixed_camera(config, synthetic_face_images(fisheye_layout(config)))
     rectified = camera.GetOutputPort("rectified_image").Eval(context).data
     K_new = rectified_K(config)
@@ -152,6 +154,23 @@ def test_rectified_view_is_the_pinhole_view_with_the_new_K():
     maps = cv2.convertMaps(*rectify_maps(config), cv2.CV_32FC1)
     np.testing.assert_allclose(np.column_stack([maps[0][100, 300], maps[1][100, 300]]),
                                project_points(rays[100, 300], config), atol=0.05)
+
+
+@pytest.mark.parametrize("config", [FisheyeConfig(), FisheyeConfig(width=640, height=480, cx=300.0, cy=250.0)])
+def test_the_optical_axis_lands_on_the_rectified_image_centre(config):
+    """A blob on the fisheye's optical axis (at its principal point) appears at the rectified view's centre,
+    ((width - 1) / 2, (height - 1) / 2) in OpenCV's pixel coordinates (pixel centres at integers), wherever the
+    fisheye's own principal point lies."""
+    u, v = np.meshgrid(np.arange(config.width, dtype=float), np.arange(config.height, dtype=float))
+    dip = np.exp(-((u - config.cx) ** 2 + (v - config.cy) ** 2) / (2 * 2.0**2))  # a Gaussian, sigma 2 px
+    fisheye = np.zeros((config.height, config.width, 4), np.uint8)
+    fisheye[..., :3], fisheye[..., 3] = BACKGROUND, 255
+    fisheye[..., 1] = np.rint(BACKGROUND[1] * (1 - dip))  # blob_centroids weighs the green channel's dip
+    centre = np.array([(config.width - 1) / 2, (config.height - 1) / 2])
+    found = blob_centroids(rectify(fisheye, rectify_maps(config)), [centre])[0]
+    # The blob and the maps are symmetric about the axis, so the centroid stays put (to 1e-13 px here); 0.1 px is
+    # room for the maps' 1/32 px rounding. A principal point at width / 2 (pixel-index space) puts it 0.5 px off.
+    np.testing.assert_allclose(found, centre, atol=0.1)
 
 
 # ---------------------------------------------------------------- rendered
