@@ -503,6 +503,19 @@ def test_low_scores_and_bad_boxes_are_not_used():
     assert step_tracker(TrackerState(), detections, None, 0.0, config).tracks == ()
 
 
+def test_a_tracks_detection_indexes_the_frames_own_list():
+    """BoxTrack.detection counts the frame's dropped detections (a low score, a NaN box) too: the target listed
+    third is detection 2, at its track's birth and in later frames, and locked_truth_id finds its truth id."""
+    frame = [Detection(np.array([300.0, 50.0, 20.0, 20.0]), 0.2, truth_id=9),
+             Detection(np.array([np.nan, 0.0, 10.0, 10.0]), 0.9, truth_id=8),
+             Detection(np.array([100.0, 100.0, 20.0, 20.0]), 0.9, truth_id=TARGET)]
+    state = TrackerState()
+    for k in range(3):
+        state = step_tracker(state, frame, None, 0.1 * k, BoxTrackerConfig(min_hits=1))
+        assert [t.detection for t in state.tracks] == [2] and state.target.hits == k + 1
+        assert locked_truth_id(state, [d.truth_id for d in frame]) == TARGET
+
+
 def test_a_box_of_no_height_or_width_is_not_used():
     """A box with a zero or negative height (or width) covers no pixel: it starts no track, whatever its score."""
     for box in ([5.0, 5.0, 4.0, 0.0], [5.0, 5.0, 4.0, -3.0], [5.0, 5.0, 0.0, 4.0], [5.0, 5.0, -3.0, 4.0]):
