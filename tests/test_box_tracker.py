@@ -358,26 +358,48 @@ def test_lost_target_reacquired_under_a_new_id_counts_one_switch():
     assert len({i for i in locked if i is not None}) == 2
 
 
-def test_partial_view_is_not_measured_and_starts_no_track():
-    """A target boxed at 40 % of its width for 1 s (half under a bridge): the fragments are not associated and
-    start no track; the target's track coasts at its own velocity as if unseen (not pulled to the fragments'
-    centre) and, inside max_misses, matches the whole target's box again under its id."""
+@pytest.mark.parametrize("fragment", [(16.0, 30.0), (40.0, 12.0)], ids=["narrower", "shorter"])
+def test_partial_view_is_not_measured_and_starts_no_track(fragment):
+    """A target boxed at 40 % of its width, or of its height, for 1 s (half under a bridge): the fragments are not
+    associated and start no track; the target's track coasts at its own velocity as if unseen (not pulled to the
+    fragments' centre) and, inside max_misses, matches the whole target's box again under its id."""
     tracker, v = BoxTracker(BoxTrackerConfig()), np.array([20.0, 0.0])  # px/s
 
-    def box(t, width=40.0):
-        return np.array([*(np.array([200.0, 250.0]) + v * t), width, 30.0])
+    def box(t, width=40.0, height=30.0):
+        return np.array([*(np.array([200.0, 250.0]) + v * t), width, height])
 
     for k in range(10):
         state = tracker.step([Detection(box(0.1 * k))], None, 0.1 * k)
     target_id = state.target.id
     for k in range(10, 20):
-        state = tracker.step([Detection(box(0.1 * k, width=16.0))], None, 0.1 * k)
+        state = tracker.step([Detection(box(0.1 * k, *fragment))], None, 0.1 * k)
         target = state.target
         assert target.id == target_id and target.detection is None and target.misses == k - 9
         assert np.allclose(target.box, box(0.1 * k), atol=1.5)  # the whole box, predicted
         assert [t.id for t in state.tracks] == [target_id]
     state = tracker.step([Detection(box(2.0))], None, 2.0)
     assert state.target.id == target_id and state.target.detection == 0 and state.target.misses == 0
+
+
+def test_a_partial_view_in_an_image_leaves_the_other_detections_to_their_tracks():
+    """With images, a red target's fragment listed before a distant blue vehicle: the target coasts, and the
+    vehicle's track is matched with the vehicle's own detection and keeps a blue appearance, 1/3 in each of
+    the bins of (40, 60, 200) (25 bins of 10.24 levels: R bin 3, G bin 5, B bin 19)."""
+    target, vehicle = np.array([200.0, 250.0, 40.0, 30.0]), np.array([40.0, 40.0, 50.0, 40.0])
+    image = np.zeros((512, 512, 4), np.uint8)
+    image[250:280, 200:240, :3], image[40:80, 40:90, :3] = RED, BLUE
+    tracker = BoxTracker(BoxTrackerConfig(cue_px=[220.0, 265.0]))
+    for k in range(10):
+        state = tracker.step([Detection(target), Detection(vehicle)], image, 0.1 * k)
+    target_id, vehicle_id = state.target.id, next(t.id for t in state.tracks if t.id != state.target.id)
+    image[250:280, 216:240, :3] = 128  # the target's right 60 % under a grey bridge
+    for k in range(10, 15):
+        state = tracker.step([Detection(np.array([200.0, 250.0, 16.0, 30.0])), Detection(vehicle)], image, 0.1 * k)
+        assert [t.id for t in state.tracks] == [target_id, vehicle_id]
+        assert (state.target.detection, state.target.misses) == (None, k - 9)
+        blue = state.track(vehicle_id)
+        assert (blue.detection, blue.misses) == (1, 0)
+        np.testing.assert_allclose(blue.histogram[[3, 25 + 5, 50 + 19]], 1 / 3, atol=1e-6)
 
 
 def test_a_smaller_object_over_a_larger_track_keeps_its_own_track():
