@@ -430,6 +430,17 @@ def test_the_default_cue_is_the_image_centre_in_the_boxes_pixel_index_space():
     assert np.allclose(target_box(state)[0], down_right)
 
 
+def test_the_default_cue_is_the_centre_of_a_wide_image():
+    """A 640 x 480 image's centre is (320, 240) (u across its 640 columns, v down its 480 rows): of two boxes
+    centred there and at (240, 320) (113 px apart, within cue_radius_px), the lock takes the first."""
+    image = np.zeros((480, 640, 4), np.uint8)
+    centred, other = np.array([310.0, 230.0, 20.0, 20.0]), np.array([230.0, 310.0, 20.0, 20.0])
+    tracker = BoxTracker(BoxTrackerConfig())
+    for k in range(3):
+        state = tracker.step([Detection(other, 0.9), Detection(centred, 0.9)], image, 0.1 * k)
+    assert np.allclose(target_box(state)[0], centred)
+
+
 def test_lock_takes_only_a_confident_track():
     """Two steady tracks, the one nearer the cue scoring 0.6 (a marginal box), the other 0.95: with
     lock_min_score 0.8 the lock takes the confident one; without, the nearer."""
@@ -472,6 +483,40 @@ def test_reacquire_skips_a_nearer_tentative_track_for_a_confirmed_one():
     last = centre_form(target)[:2]
     assert np.linalg.norm(newcomer.centre - last) < np.linalg.norm(state.track(other_id).centre - last)
     assert state.lock.track_id == other_id
+
+
+def test_reacquire_measures_from_the_last_boxs_centre():
+    """A lost 60 px target's last box has its centre at (130, 130): the lock passes to the track centred 40 px
+    from it (at (170, 130)), not to the one 71 px away at (80, 80), though that one is nearer the box's
+    top-left corner (28 px against 76 px)."""
+    target = np.array([100.0, 100.0, 60.0, 60.0])
+    right, corner = np.array([160.0, 120.0, 20.0, 20.0]), np.array([70.0, 70.0, 20.0, 20.0])
+    tracker = BoxTracker(BoxTrackerConfig(cue_px=[130.0, 130.0], cue_radius_px=30.0, max_misses=0))
+    for k in range(3):
+        state = tracker.step([Detection(target), Detection(right), Detection(corner)], None, 0.1 * k)
+    target_id = state.target.id
+    state = tracker.step([Detection(right), Detection(corner)], None, 0.3)
+    assert state.track(target_id) is None
+    assert np.allclose(state.target.box, right)
+
+
+def test_reacquire_takes_a_track_of_the_targets_colour():
+    """A red target's track dies; a blue confirmed track lies 40 px from its last box and a red one 90 px: with
+    images the lock passes to the red one (the blue one's colour cost, 1, is over max_colour_cost); on boxes
+    alone to the nearer blue one."""
+    target, blue, red = (np.array([100.0, 100.0, 30.0, 20.0]), np.array([140.0, 100.0, 30.0, 20.0]),
+                         np.array([100.0, 190.0, 30.0, 20.0]))
+    image = np.zeros((240, 320, 4), np.uint8)
+    image[100:120, 100:130, :3], image[100:120, 140:170, :3], image[190:210, 100:130, :3] = RED, BLUE, RED
+    for use_image, expected in ((True, red), (False, blue)):
+        frame_image = image if use_image else None
+        tracker = BoxTracker(BoxTrackerConfig(cue_px=[115.0, 110.0], cue_radius_px=20.0, max_misses=0))
+        for k in range(3):
+            state = tracker.step([Detection(target), Detection(blue), Detection(red)], frame_image, 0.1 * k)
+        target_id = state.target.id
+        state = tracker.step([Detection(blue), Detection(red)], frame_image, 0.3)
+        assert state.track(target_id) is None
+        assert np.allclose(state.target.box, expected), use_image
 
 
 def test_false_alarms_are_never_locked_or_confirmed():
