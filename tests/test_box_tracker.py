@@ -321,6 +321,19 @@ def test_colour_keeps_a_newcomer_from_taking_the_coasting_target(seed):
         assert switches.frames_off_target >= 40  # from the gap's end (4 s) to the end (8 s)
 
 
+def test_a_colour_weight_of_zero_tracks_on_boxes_alone():
+    """With colour_weight 0 the images change nothing (no colour cost, no colour gate): the blue newcomer takes
+    the coasting target's track as it does on boxes alone, frame for frame. (max_cost 1: no cost gate, as there
+    is none on boxes alone with the default weights, whose cost a1 (1 - IOU) is at most 0.5.)"""
+    config = BoxTrackerConfig(cue_px=CUE, iou_weight=1.0, colour_weight=0.0, max_cost=1.0)
+    sequence = make_sequence_with_newcomer(0, BLUE)
+    locked, truth, state = run(sequence, config)
+    assert (locked, truth) == run(sequence, config, use_images=False)[:2]
+    switches = count_identity_switches(locked, truth, TARGET)
+    assert (switches.id_changes, switches.object_changes) == (0, 1)
+    assert not any(t.histogram.any() for t in state.tracks)  # no appearance kept
+
+
 def make_sequence_same_lane(seed: int, distractor_colour) -> Sequence:
     """The distractor drives in the target's lane and the detector misses the target while they overlap at
     all: the distractor's box sits on the target's predicted box."""
