@@ -232,8 +232,35 @@ def test_each_strip_test_alone_rejects_a_pair(p, q, paired):
     assert detector._strip_pair(q, p) is paired
 
 
+@pytest.mark.parametrize("p, q, paired", [
+    (strip(0, 0, 15, 3), strip(0, 12, 7, 3, math.pi / 2), False),  # the longer 15 px: the shape tests apply
+    (strip(0, 0, 7, 3), strip(0, 8, 6, 3, math.pi / 2), True),  # both under 8 px: only sizes and distance count
+], ids=["one-long-enough", "both-short"])
+def test_shape_tests_apply_once_the_longer_part_reaches_min_shaped_part_px(p, q, paired):
+    """Crossed parts of lengths 15 : 7 (or 7 : 6) that pass the length ratio and distance tests: rejected as at
+    right angles when the longer is at least min_shaped_part_px (8) long, accepted when both are shorter."""
+    detector = ColourPadDetector()
+    assert detector._strip_pair(p, q) is paired
+    assert detector._strip_pair(q, p) is paired
+
+
 def grey_ground() -> np.ndarray:
     return np.full((200, 300, 3), 110, np.uint8)
+
+
+@pytest.mark.parametrize("rows, cols, length, width, vertical", [
+    ((50, 60), (100, 140), 40.0, 10.0, False), ((50, 51), (100, 140), 40.0, 1.0, False),
+    ((50, 90), (100, 110), 40.0, 10.0, True)], ids=["40x10", "one-pixel-line", "10x40"])
+def test_a_drawn_body_rectangle_is_one_part_of_its_pixel_extent(rows, cols, length, width, vertical):
+    """A body-coloured rectangle of whole pixels is one part whose long and short sides are its pixels' extent (a
+    one-pixel line 1 px wide, not 0), its centre the pixels' mean, its long axis along the longer side."""
+    image = grey_ground()
+    image[rows[0]:rows[1], cols[0]:cols[1]] = BODY
+    detector = ColourPadDetector()
+    [part] = detector.parts(detector.masks(image)[0])
+    assert (part.length, part.width) == (length, width)
+    np.testing.assert_allclose(part.centre, [(cols[0] + cols[1] - 1) / 2, (rows[0] + rows[1] - 1) / 2])
+    assert abs(math.sin(part.angle)) == pytest.approx(1.0 if vertical else 0.0, abs=1e-9)
 
 
 def test_a_strip_belongs_to_one_ugv_only():
@@ -244,6 +271,16 @@ def test_a_strip_belongs_to_one_ugv_only():
         image[y:y + 10, 100:140] = BODY
     image[70:100, 100:140] = image[110:140, 100:140] = 240
     assert [box.tolist() for box, _ in ColourPadDetector().detect(image)] == [[100, 60, 40, 50]]
+
+
+def test_a_strip_paired_with_an_earlier_one_is_not_paired_again():
+    """Strips A (row 60), B (80) and C (120), grey ground between A and B, the pad's white between B and C: (A, B)
+    fails the roof test (no white), (A, C) passes and takes C; (B, C) would pass too, but C is taken: one roof."""
+    image = grey_ground()
+    for y in (60, 80, 120):
+        image[y:y + 10, 100:140] = BODY
+    image[90:120, 100:140] = 240
+    assert [box.tolist() for box, _ in ColourPadDetector().detect(image)] == [[100, 60, 40, 70]]
 
 
 def test_a_body_coloured_box_with_a_white_spot_is_not_the_ugv():
@@ -262,6 +299,44 @@ def test_strips_with_ground_between_are_not_the_ugv():
     image[60:70, 100:140] = image[140:150, 100:140] = BODY
     image[98:112, 105:135] = 240
     assert ColourPadDetector().detect(image) == []
+
+
+@pytest.mark.parametrize("ground_rows, score", [(0, 1.0), (15, 0.875), (22, 0.525)])
+def test_a_roof_scores_one_half_at_the_limits_and_one_from_a_margin_of_0_2(ground_rows, score):
+    """Two 40 x 10 px strips 30 rows apart, `ground_rows` of those grey ground and the rest white: the hull's
+    fractions (body 0.4, ground g = ground_rows / 50, white 0.6 - g) are at least `margin` inside all three
+    limits, and the score is 0.5 + 0.5 min(1, margin / 0.2): margin 0.32, 0.15, 0.01 (ground 0, 0.3, 0.44)."""
+    image = grey_ground()
+    image[60:70, 100:140] = image[100:110, 100:140] = BODY
+    image[70 + ground_rows:100, 100:140] = 240
+    [(box, found)] = ColourPadDetector().detect(image)
+    assert box.tolist() == [100, 60, 40, 50]
+    assert found == pytest.approx(score, abs=1e-12)
+
+
+def test_detections_come_highest_score_first():
+    """A strip pair whose hull is 0.3 grey ground (score 0.875, found first: pairs are) and a ring of the body's
+    colour around a white square (a margin over 0.2: score 1): the ring comes first."""
+    image = grey_ground()
+    image[20:30, 20:60] = image[60:70, 20:60] = BODY
+    image[30:60, 20:40] = 240  # the pair's hull 40 x 50 px: body 0.4, white 0.3, grey ground 0.3
+    image[20:60, 220:260] = BODY
+    image[25:55, 225:255] = 240  # the ring's hull 40 x 40 px: body 0.44, white 0.56
+    detections = ColourPadDetector().detect(image)
+    assert [box.tolist() for box, _ in detections] == [[220, 20, 40, 40], [20, 20, 40, 50]]
+    assert detections[0][1] > detections[1][1]
+
+
+def test_a_dark_shadow_on_the_roof_is_not_ground():
+    """A roof of 5 px strips and a 10 px white band whose hull is 0.6 dark grey (value 30, under the ground's mid-greys
+    from 60): the ground mask leaves it out (ground fraction 0, not 0.6 over 0.45), so the roof is found."""
+    shadow = 30
+    assert cv2.cvtColor(np.full((1, 1, 3), shadow, np.uint8), cv2.COLOR_RGB2HSV)[0, 0].tolist() == [0, 0, shadow]
+    image = grey_ground()
+    image[60:65, 100:140] = image[105:110, 100:140] = BODY
+    image[65:75, 100:140] = 240
+    image[75:105, 100:140] = shadow
+    assert [box.tolist() for box, _ in ColourPadDetector().detect(image)] == [[100, 60, 40, 50]]
 
 
 # ---------------------------------------------------------------- rendered held-out frames
