@@ -89,6 +89,28 @@ def test_a_box_without_the_body_colour_is_dropped(body_px, kept):
     assert len(refined(detections, image, min_body_px=0)) == 2
 
 
+def test_with_min_body_px_0_even_a_box_off_the_image_is_kept():
+    """min_body_px 0 keeps every learned box: one wholly outside the frame (no pixel to count) comes back as it
+    was, beside the UGV's own, refined."""
+    image = ground()
+    truth = draw_ugv(image, 200, 120)
+    outside = [-80.0, 20.0, 40.0, 50.0]
+    out = refined([(outside, 0.7), ([198.0, 118.0, 44.0, 54.0], 0.9)], image, min_body_px=0)
+    assert [score for _, score in out] == [0.7, 0.9]
+    np.testing.assert_array_equal(out[0][0], outside)
+    np.testing.assert_array_equal(centre(out[1][0]), centre(truth))
+
+
+@pytest.mark.parametrize("x, kept", [(30.0, False), (50.0, True)])
+def test_body_pixels_are_counted_within_the_box_width_only(x, kept):
+    """A tall box, 20 px wide and 60 px high, and 60 body-coloured pixels in columns 55-60: at x = 30 they lie
+    beyond its width (though within x + its height): dropped; at x = 50 inside it: kept."""
+    image = ground()
+    image[40:50, 55:61] = BODY
+    out = refined([([x, 30.0, 20.0, 60.0], 0.8)], image)
+    assert len(out) == (1 if kept else 0)
+
+
 def test_a_colour_box_not_within_the_network_box_is_not_taken():
     """A small box on one corner of the UGV: the colour's box (the whole roof) lies 0.16 within it, the
     network's part, not the whole."""
@@ -154,11 +176,15 @@ def test_of_two_colour_boxes_in_the_window_the_one_within_the_box_is_taken(which
     np.testing.assert_array_equal(centre(box), centre(truths[which]))
 
 
-def test_a_ugv_at_the_image_edge_is_refined():
-    """A window clipped by the image is not a cut: the UGV in the corner is still re-measured."""
+@pytest.mark.parametrize("corner, detection", [((0, 0), [0.0, 0.0, 44.0, 54.0]),
+                                               ((260, 150), [256.0, 146.0, 44.0, 54.0])],
+                         ids=["top-left", "bottom-right"])
+def test_a_ugv_at_the_image_edge_is_refined(corner, detection):
+    """A window clipped by the image is not a cut: the UGV in a corner of the 300 x 200 px frame (touching its left
+    and top edges, or its right and bottom ones) is still re-measured."""
     image = ground()
-    truth = draw_ugv(image, 0, 0)
-    (box, _), = refined([([0.0, 0.0, 44.0, 54.0], 0.9)], image)
+    truth = draw_ugv(image, *corner)
+    (box, _), = refined([(detection, 0.9)], image)
     np.testing.assert_array_equal(centre(box), centre(truth))
 
 
