@@ -127,14 +127,16 @@ def sensor_positions_C(arm_m: float, angle_deg: float = 45.0) -> np.ndarray:
     return np.column_stack([signs[:, 0] * arm_m * np.cos(a), signs[:, 1] * arm_m * np.sin(a), np.zeros(4)])
 
 
-def apply_range_limits(true_ranges: np.ndarray, noise: np.ndarray, min_range: float, max_range: float):
-    """Sensor readings from true ranges (m): (ranges with NaN where invalid, valid flags 0/1).
+def apply_range_limits(noise_free: np.ndarray, noise: np.ndarray, min_range: float, max_range: float):
+    """Sensor readings from their noise-free ranges (m: an ideal ray's true range, a cone's `cone_range`):
+    (ranges with NaN where invalid, valid flags 0/1).
 
-    A reading is valid when the true range is finite and inside [min_range, max_range], and the reading (with
-    its noise and bias) is a distance: positive."""
-    valid = np.isfinite(true_ranges) & (true_ranges >= min_range) & (true_ranges <= max_range)
-    valid &= np.where(valid, true_ranges + noise, np.nan) > 0
-    ranges = np.where(valid, true_ranges + noise, np.nan)
+    A reading is valid when its noise-free range is finite and inside [min_range, max_range] (for a cone, the
+    range its return gives, not its centre ray's), and the reading (with its noise and bias) is a distance:
+    positive."""
+    valid = np.isfinite(noise_free) & (noise_free >= min_range) & (noise_free <= max_range)
+    valid &= np.where(valid, noise_free + noise, np.nan) > 0
+    ranges = np.where(valid, noise_free + noise, np.nan)
     return ranges, valid.astype(float)
 
 
