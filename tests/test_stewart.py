@@ -9,9 +9,11 @@ import pytest
 from pydrake.geometry import SceneGraph
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder
+from scipy.stats import norm
 
 from systems.config import ConfigError
 from systems.platforms.stewart import (
+    TAG_ABOVE_DECK_M,
     StewartGeometry,
     StewartMotion,
     StewartPlatform,
@@ -20,6 +22,7 @@ from systems.platforms.stewart import (
     stroke_violation,
     within_stroke,
 )
+from tests.conftest import pose
 
 
 def hand_leg(config: StewartPlatformConfig, i: int, dz: float = 0.0, yaw: float = 0.0) -> float:
@@ -180,6 +183,42 @@ def test_random_walk_stays_inside_its_bound_and_uses_it():
         assert np.all(A[:, ~moving] == 0.0)
 
 
+def walk_at_knots(seeds=range(4), knots=2048) -> tuple[np.ndarray, np.ndarray]:
+    """A random walk with every axis moving (bounds 0.5 m, 10 deg) sampled at its knots t = k h, past a burn-in
+    of 64 knots (16 s, four time constants: the walk starts at zero): (offsets [seed, knot, axis], bounds)."""
+    config = StewartPlatformConfig(motion="random_walk", x_amplitude_m=[0.5], y_amplitude_m=[0.5],
+                                   z_amplitude_m=[0.5], roll_amplitude_deg=[10.0], pitch_amplitude_deg=[10.0],
+                                   yaw_amplitude_deg=[10.0])
+    h = config.random_walk_knot_interval_s
+    walks = [StewartMotion(config, seed) for seed in seeds]
+    offsets = np.array([[walk(h * k) for k in range(64, 64 + knots)] for walk in walks])
+    return offsets, np.array([0.5, 0.5, 0.5, *np.radians([10.0] * 3)])
+
+
+def test_random_walk_knots_are_an_ornstein_uhlenbeck_walk_of_unit_variance():
+    """At its knots the deck is bound tanh(x / 2) of an Ornstein-Uhlenbeck walk x of unit stationary variance
+    and correlation time tau: x's lag-1 autocorrelation is exp(-h / tau) (0.939 for h 0.25 s, tau 4 s)."""
+    offsets, bound = walk_at_knots()
+    x = 2.0 * np.arctanh(offsets / bound)
+    # 4 seeds x 2048 knots x 6 axes, correlated over 16 knots: about 1500 independent samples, so the variance is
+    # within 0.027 and the autocorrelation within 0.002 (one standard deviation, as seen over 15 groups of seeds):
+    # the tolerances are five of them.
+    assert np.mean(x**2) == pytest.approx(1.0, abs=0.15)
+    lag_1 = np.sum(x[:, 1:] * x[:, :-1]) / np.sum(x[:, :-1] ** 2)
+    assert lag_1 == pytest.approx(math.exp(-0.25 / 4.0), abs=0.01)
+
+
+def test_random_walk_spreads_over_its_bound_as_a_squashed_unit_normal():
+    """At its knots the deck's offset over its bound is tanh(x / 2), x standard normal: the quantile p of
+    |offset| / bound is tanh(Phi^-1((1 + p) / 2) / 2) (a median of 0.33: a third of the bound)."""
+    offsets, bound = walk_at_knots()
+    share = np.abs(offsets / bound).ravel()
+    for p in (0.25, 0.5, 0.75, 0.9):
+        # about 1500 independent samples (see above): each quantile within 0.007 (one standard deviation, over 15
+        # groups of seeds); the tolerance is four of them
+        assert np.quantile(share, p) == pytest.approx(math.tanh(norm.ppf((1 + p) / 2) / 2), abs=0.03), p
+
+
 def test_random_walk_is_continuous():
     walk = StewartMotion(random_walk_config(), seed=1)
     bound = np.array([0.05, 1.0, 0.04, math.radians(6.0), 1.0, math.radians(10.0)])
@@ -315,6 +354,17 @@ def test_deck_motion_and_carrier_state_describe_the_tilted_yawed_deck():
                                atol=1e-12)
 
 
+def test_a_level_downward_camera_over_the_level_deck_sees_the_tag_frame_unturned():
+    """X_PT is the tag frame of its docstring: a camera h above the level deck looking straight down (x_C along
+    x_W, z_C down: a half turn about x) sees the tag at X_CT = [I, (0, 0, h)], less the plate's 0.5 mm lift."""
+    config, h = StewartPlatformConfig(), 2.0
+    platform, _ = make_platform(config)
+    X_WC = pose([0.0, 0.0, nominal_top_z(config) + h], [180.0, 0.0, 0.0])
+    X_CT = X_WC.InvertAndCompose(platform.X_WP(0.0).multiply(platform.X_PT))
+    np.testing.assert_allclose(X_CT.GetAsMatrix4(), RigidTransform([0.0, 0.0, h - TAG_ABOVE_DECK_M]).GetAsMatrix4(),
+                               atol=1e-12)
+
+
 def test_time_offset_starts_the_motion_later():
     config = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[0.05], z_frequency_hz=[0.1])
     shifted = StewartMotion(StewartPlatformConfig(**{**config.__dict__, "time_offset_s": 1.5}))
@@ -335,6 +385,14 @@ def test_stroke_violation_names_when_and_which_leg():
     (10.0, 0.25, 0.0, None),  # every 0.05 s sample on a zero crossing: the legs reach 0.44-0.89 m between them
     (2.5, 0.1774, 22.5, 0.498),  # the shortest leg 2 mm under the stroke, at 0.275 s, between 0.25 and 0.30 s
     (2.5, 0.17525, 22.5, 0.4998),  # 0.2 mm under it, between two of the finer samples: found by the refinement
+    # the same across one 0.01 s sample step (9 deg of phase): the legs at their shortest, each joint pair 0.263 m
+    # apart horizontally, sqrt(0.263^2 + (0.6 - 0.17525)^2) = 0.4998 m, wherever that falls between two samples
+    # (the refinement searches both intervals beside a sampled minimum)
+    (2.5, 0.17525, 18.0, 0.4998),
+    (2.5, 0.17525, 19.8, 0.4998),
+    (2.5, 0.17525, 21.6, 0.4998),
+    (2.5, 0.17525, 24.3, 0.4998),
+    (2.5, 0.17525, 26.1, 0.4998),
 ])
 def test_a_stroke_left_between_samples_is_found(frequency_hz, amplitude_m, phase_deg, leg_m):
     config = StewartPlatformConfig(motion="sinusoid", z_amplitude_m=[amplitude_m], z_frequency_hz=[frequency_hz],
