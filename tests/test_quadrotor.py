@@ -10,8 +10,8 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Adder, ConstantVectorSource, Sine
 
 from systems.vehicles.quadrotor import (
-    P_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state,
-    mixer_matrix, quadrotor_state, quadrotor_state_derivative,
+    P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state,
+    mixer_matrix, pose_from_state, quadrotor_state, quadrotor_state_derivative,
     quaternion_rate, rotation_from_quaternion,
 )
 
@@ -166,6 +166,18 @@ def test_motor_lag_and_saturation():
     np.testing.assert_allclose(final[ROTOR_SPEEDS], np.full(4, w0 * np.exp(-1.0)), rtol=1e-7)
 
 
+def test_motor_gain_scales_the_command():
+    """Each rotor relaxes towards k_m times its command: with k_m = 2, a 240 rad/s command from rest reaches
+    2 x 240 (1 - e^-1) rad/s after tau_m, and half the hover speed commanded holds a hover."""
+    params = QuadrotorParams(motor_gain=2.0)
+    tau = params.motor_time_constant_s
+    final = simulate_constant_commands(params, quadrotor_state(p_WB=[0, 0, 50]), np.full(4, 240.0), duration=tau)
+    np.testing.assert_allclose(final[ROTOR_SPEEDS], np.full(4, 2 * 240.0 * (1 - np.exp(-1.0))), rtol=1e-7)
+    state0 = hover_state(params, p_WB=[1.0, -2.0, 10.0])
+    np.testing.assert_allclose(quadrotor_state_derivative(state0, np.full(4, params.hover_rotor_speed() / 2), params),
+                               np.zeros(STATE_SIZE), atol=1e-12)
+
+
 class DrakeQuadrotorInputs(LeafSystem):
     """Our `state` -> QuadrotorPlant's input u: Drake's rotors 0, 1, 2, 3 are our 1, 4, 3, 2,
     and with kF = k_t, kM = k_d its u_i is our w_i^2."""
@@ -261,6 +273,21 @@ def test_pose_and_kinematics_outputs():
     np.testing.assert_allclose(quad.GetOutputPort("A_WB").Eval(context),
                                np.concatenate([R_WB @ derivative[W_WB_B], derivative[V_WB]]),
                                atol=1e-12)
+
+
+def test_a_quaternion_off_unit_length_gives_the_pose_of_the_unit_one():
+    """The module docstring: drift in |q| never reaches the physics. A state whose quaternion is 1.3 times a unit
+    one has the pose of the unit one, from pose_from_state and the X_WB port alike."""
+    R_WB, p_WB = RotationMatrix(RollPitchYaw(0.2, -0.1, 0.5)), [1.0, 2.0, 5.0]
+    state = quadrotor_state(p_WB=p_WB, R_WB=R_WB, rotor_speeds=np.full(4, PARAMS.hover_rotor_speed()))
+    state[Q_WB] *= 1.3
+    expected = RigidTransform(R_WB, p_WB)
+    assert pose_from_state(state).IsNearlyEqualTo(expected, 1e-12)
+    quad = Quadrotor(PARAMS)
+    context = quad.CreateDefaultContext()
+    context.SetContinuousState(state)
+    quad.GetInputPort("rotor_speed_commands").FixValue(context, np.zeros(4))
+    assert quad.GetOutputPort("X_WB").Eval(context).IsNearlyEqualTo(expected, 1e-12)
 
 
 def test_discretised_quadrotor_matches_the_continuous_one():
