@@ -83,6 +83,9 @@ def test_steering_lag_and_limit():
     states = drive_bicycle(config, [0, 0, 0, 0], steering_command=1.0, speed=1.0, duration=tau)
     limit = np.radians(config.max_steering_deg)
     assert states[3, -1] == pytest.approx(limit * (1 - np.exp(-1.0)), rel=1e-6)
+    # the same limit turning right: -1 rad is held at -theta_max
+    states = drive_bicycle(config, [0, 0, 0, 0], steering_command=-1.0, speed=1.0, duration=tau)
+    assert states[3, -1] == pytest.approx(-limit * (1 - np.exp(-1.0)), rel=1e-6)
 
 
 @pytest.mark.parametrize("yaml, message", [
@@ -123,6 +126,16 @@ def test_a_path_within_the_steering_limit_is_accepted(yaml):
     """Each path's own tightest radius counts: a straight has none, Eq. (13)'s is 41.4 m (4.8 deg), a 9.7 m
     circle's is above the 9.6 m the default 3.5 m wheelbase turns at 20 deg."""
     GroundVehicle(yaml_load_typed(schema=GroundVehicleConfig, data=yaml))
+
+
+def test_a_circle_is_refused_just_under_the_minimum_turning_radius_and_accepted_just_over_it():
+    """The minimum turning radius R = d / tan(theta_max) = 3.5 m / tan(20 deg) = 9.62 m is where the circle's radius
+    stops being followable: 1 % under it is refused, 1 % over it accepted."""
+    radius = 3.5 / np.tan(np.radians(20.0))
+    with pytest.raises(ValueError, match=r"vehicle.path 'circle' turns on a 9.5 m radius at its tightest, under the "
+                                         r"vehicle's minimum turning radius 9.6 m"):
+        GroundVehicleConfig(path="circle", path_radius_m=0.99 * radius).validate()
+    GroundVehicleConfig(path="circle", path_radius_m=1.01 * radius).validate()
 
 
 @pytest.mark.parametrize("name", ["sine", "straight"])
@@ -220,6 +233,17 @@ def test_follower_tracks_seed_003_figure_9_paths(name):
     errors = cross_track_errors(path, states)
     assert errors.max() < 0.2 and np.sqrt(np.mean(errors**2)) < 0.05
     assert_progress(progress, distance, path, config, speed=2.0)
+
+
+def test_follower_keeps_to_the_circle_past_its_closing_point():
+    """On a closed path the path's heading jumps back by 2 pi where the arc length wraps, the vehicle's does not: 1.3
+    laps of the 15 m circle (centre (0, 15), turning left from the origin) at 2 m/s stay on it."""
+    config = GroundVehicleConfig(path="circle")
+    laps = 1.3
+    states, _ = follow(config, speed=2.0, distance=laps * 2 * np.pi * 15.0)
+    off_circle = np.abs(np.linalg.norm(states[:2].T - [0.0, 15.0], axis=1) - 15.0)
+    assert off_circle.max() < 0.05  # m: the seed-003 paths' RMS bound above; started on the circle, it stays on it
+    assert states[2, -1] > 2 * np.pi * (laps - 0.05)  # went round, past the closing point
 
 
 @pytest.mark.parametrize("speed", [3.0, 6.0, 12.0])  # seed 002 cases C1, C2, C3
