@@ -11,7 +11,14 @@ from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.vehicles.ground_vehicle import GroundVehicleConfig
 from systems.vehicles.paths import make_path
-from systems.vehicles.traffic import DISTRACTOR_COLOURS, DistractorsConfig, Traffic, distractor_pose, draw_distractors
+from systems.vehicles.traffic import (
+    DISTRACTOR_COLOURS,
+    Distractor,
+    DistractorsConfig,
+    Traffic,
+    distractor_pose,
+    draw_distractors,
+)
 
 CONFIG = DistractorsConfig(count=6, same_colour=2)
 
@@ -26,6 +33,14 @@ def test_draws_are_seeded_and_within_the_settings():
         assert 0.6 <= d.speed_factor <= 1.4 and 0 <= d.s0_m <= CONFIG.ahead_max_m
     # One stream per distractor: a seventh leaves the first six as they were.
     assert draw_distractors(DistractorsConfig(count=7, same_colour=2), 0)[:6] == a
+
+
+def test_the_rest_wear_the_other_colours_in_turn_from_the_first():
+    """The module docstring: the first same_colour wear the UGV's colour, the rest the other colours in turn,
+    starting from the first (red) whatever same_colour is, and round again after the eighth."""
+    colours = [d.colour for d in draw_distractors(DistractorsConfig(count=12, same_colour=2), 0)]
+    assert colours == ["ugv", "ugv", "red", "green", "blue", "yellow", "white", "dark", "purple", "cyan", "red",
+                       "green"]
 
 
 def test_lanes_are_drawn_on_either_side_of_the_path():
@@ -92,6 +107,16 @@ def test_under_a_speed_schedule_they_keep_their_factor_of_the_ugvs_speed():
                                atol=1e-9)
 
 
+def test_the_settings_limits_are_accepted():
+    """As many distractors as allowed (16), and a single lane width (lane_min_m = lane_max_m: every distractor that
+    far to one side or the other) are valid settings."""
+    _, config = load_scenario("ugv-hybrid", overrides=["distractors.count=16"])
+    assert len(draw_distractors(config.distractors, config.seed)) == 16
+    _, config = load_scenario("ugv-hybrid", overrides=["distractors.count=4", "distractors.lane_min_m=5",
+                                                       "distractors.lane_max_m=5"])
+    assert [abs(d.lane_m) for d in draw_distractors(config.distractors, config.seed)] == [5.0] * 4
+
+
 @pytest.mark.parametrize("setting, field", [("distractors.count=17", "distractors.count"),
                                             ("distractors.same_colour=1", "distractors.same_colour"),
                                             ("distractors.lane_min_m=0", "distractors.lane_min_m"),
@@ -123,6 +148,22 @@ def test_a_lane_wider_than_the_paths_tightest_radius_is_refused():
         load_scenario("ugv-hybrid", overrides=["vehicle.path=circle", *lanes])
     load_scenario("ugv-hybrid", overrides=["vehicle.path=straight", *lanes])  # no curve
     load_scenario("ugv-hybrid", overrides=["vehicle.path=sine", *lanes])  # Eq. (13)'s tightest radius: 41.4 m
+
+
+def test_a_lane_as_wide_as_the_paths_tightest_radius_is_refused():
+    """A 15 m lane on the 15 m circle puts a distractor in the left lane on the curve's centre, (0, 15), where it
+    stands whatever the time (it turns on the spot): refused, like a wider one."""
+    vehicle = GroundVehicleConfig(path="circle")
+    path = make_path(vehicle.path_config())
+    at_centre = Distractor("red", DISTRACTOR_COLOURS["red"], (1.4, 1.0, 0.5), 3.0, 1.0, 15.0)
+    for t in (0.0, 7.0, 30.0):
+        # the path is 0.1 m chords of the circle, 0.1 mm inside it at most
+        np.testing.assert_allclose(distractor_pose(path, vehicle, at_centre, t).translation(), [0.0, 15.0, 0.0],
+                                   atol=1e-3)
+    lanes = ["distractors.count=4", "distractors.lane_min_m=14", "distractors.lane_max_m=15"]
+    with pytest.raises(ConfigError, match=r"^distractors\.lane_max_m \(15 m\) must be under the tightest radius of "
+                                          r"vehicle\.path 'circle', 15\.0 m: "):
+        load_scenario("ugv-hybrid", overrides=["vehicle.path=circle", *lanes])
 
 
 def test_lanes_under_the_tightest_radius_keep_the_distractors_driving_forward():
