@@ -4,9 +4,11 @@ landing on a stream with outliers and bursts, the filter gating the outliers and
 aborting rather than descending blind."""
 
 import math
+from fractions import Fraction
 
 import numpy as np
 import pytest
+from pydrake.common.value import AbstractValue
 from scipy.spatial.transform import Rotation
 
 from diagrams.cli import main
@@ -20,6 +22,13 @@ pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:Runtim
 
 T = 0.035
 FRAME = [MarkerMeasurement(0.0, i, [0.1 * i, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0]) for i in range(3)]
+
+
+def covered_runs(covered) -> np.ndarray:
+    """The lengths of the runs of covered samples (True) that start and end inside `covered`."""
+    steps = np.diff(np.asarray(covered, dtype=int))
+    starts, ends = np.flatnonzero(steps == 1) + 1, np.flatnonzero(steps == -1) + 1
+    return ends[ends > starts[0]][:len(starts) - 1] - starts[:len(starts) - 1]
 
 
 def test_a_fixed_occlusion_covers_its_interval_and_nothing_else():
@@ -44,14 +53,23 @@ def test_random_bursts_cover_the_share_their_rate_and_length_give_and_are_seeded
     n = math.ceil(0.5 / T)
     expected = 1 - (1 - 0.2 * T) ** n
     assert covered.mean() == pytest.approx(expected, abs=4 * math.sqrt(expected * n / covered.size))
-    starts = np.flatnonzero(np.diff(covered.astype(int)) == 1) + 1
-    ends = np.flatnonzero(np.diff(covered.astype(int)) == -1) + 1
-    lengths = ends[ends > starts[0]][:len(starts) - 1] - starts[:len(starts) - 1]  # runs inside the 20000
+    lengths = covered_runs(covered)
     # a lone burst covers exactly its n samples (most of them: another starts within one with 1 - (1 - rate T)^n,
     # 10 %), two or more overlapping ones longer
     assert lengths.min() == n and np.bincount(lengths).argmax() == n
     assert np.array_equal(covered, [occluded(k, T, config, seed=3) for k in range(20000)])
     assert not np.array_equal(covered, [occluded(k, T, config, seed=4) for k in range(20000)])
+
+
+def test_a_burst_a_whole_number_of_periods_long_covers_that_many_samples():
+    """A 0.14 s burst on a 20 ms stream covers 7 samples: 0.14 / 0.02 is 7 (7.000000000000001 in floating point,
+    whose ceiling is 8), so a lone burst is 7 samples long."""
+    n = Fraction("0.14") / Fraction("0.02")
+    assert n == 7
+    config = FaultsConfig(occlusion_rate_hz=1.0, occlusion_duration_s=0.14)
+    lengths = covered_runs([occluded(k, 0.02, config, seed=2) for k in range(2000)])
+    # about 40 bursts, each overlapped by another with 1 - (1 - rate T)^7, 13 %: most alone
+    assert lengths.min() == n and np.bincount(lengths).argmax() == n
 
 
 def test_drops_and_outliers_at_their_rates_with_their_errors():
@@ -83,6 +101,7 @@ def test_an_outlier_leaves_a_measurement_without_a_rotation_as_it_is(q_CM):
 
 @pytest.mark.parametrize("assignment, field", [
     ("faults.occlusions_s=[[2.0, 1.0]]", r"faults\.occlusions_s\[0\]"),
+    ("faults.occlusions_s=[[1.0, 1.0]]", r"faults\.occlusions_s\[0\] must be \[start, end\] with 0 <= start < end"),
     ("faults.drop_probability=1.5", r"faults\.drop_probability"),
     ("faults.occlusion_duration_s=0", r"faults\.occlusion_duration_s"),
     ("faults.occlusions_s=[[0.0, 500.0]]", "longer than the run"),
@@ -108,6 +127,26 @@ def test_the_faults_system_refuses_a_burst_rate_above_one_per_sample():
     FaultsConfig(occlusion_rate_hz=20.0).check_period(0.05)  # exactly 1: every sample starts a burst
     with pytest.raises(ConfigError, match=r"faults\.occlusion_rate_hz \(100\) times the stream's period"):
         MarkerFaults(FaultsConfig(occlusion_rate_hz=100.0), T)
+
+
+def test_the_faults_system_applies_the_faults_of_the_sample_at_its_time():
+    """MarkerFaults at t_k = k T gives sample k's faults, apply_faults(..., k, ...), also where k T / T is not k in
+    floating point (k = 63, 119, 125, 126 at 35 ms: 118.99999999999999 for 119), where a cover of [4.15, 4.17] s
+    takes sample 119 (4.165 s)."""
+    config = FaultsConfig(occlusions_s=[[4.15, 4.17]], drop_probability=0.3, outlier_probability=0.3)
+    system = MarkerFaults(config, T, seed=4)
+    context = system.CreateDefaultContext()
+    system.get_input_port().FixValue(context, AbstractValue.Make(FRAME))
+
+    def numbers(frame):
+        return [(m.marker_id, m.p_CM.tolist(), m.q_CM.tolist()) for m in frame]
+
+    outputs = []
+    for k in range(200):
+        context.SetTime(k * T)
+        outputs.append(system.get_output_port().Eval(context))
+        assert numbers(outputs[k]) == numbers(apply_faults(FRAME, k, T, config, seed=4)), k
+    assert outputs[119] == []  # covered
 
 
 def test_faults_need_a_stream():
