@@ -143,6 +143,20 @@ def test_coasts_then_turns_invalid_without_measurements():
     assert not estimate.valid and motion[6] == 0.0 and not np.any(v_WP)
 
 
+def test_tracks_lost_by_coasting_are_confirmed_afresh_on_reacquisition():
+    """Tracks dropped after max_coast_steps start again from the next frame as new tracks: the frames used
+    before the loss do not count, so the estimate is invalid on the first two re-acquired frames and valid
+    on the third (confirm_frames, 3, in a row)."""
+    seen, lost = 200, CONFIG.position.max_coast_steps + 1
+    track = track_run(range(seen + lost), measured=lambda k: k < seen)
+    assert not track.tracking
+    valid = []
+    for k in range(seen + lost, seen + lost + 4):
+        track = step_deck_track(track, deck_pose(k * PERIOD), k * PERIOD, CONFIG, PERIOD)
+        valid.append(deck_estimate(track, k * PERIOD, CONFIG)[0].valid)
+    assert valid == [False, False, True, True]
+
+
 @pytest.mark.parametrize("nan_in", ["translation", "rotation"])
 def test_a_frame_with_a_nan_is_coasted_and_does_not_count(nan_in):
     """One good frame, then two with a NaN in the translation or the rotation: both tracks coast on them
@@ -160,8 +174,12 @@ def test_a_frame_with_a_nan_is_coasted_and_does_not_count(nan_in):
 
 
 def test_the_system_measures_the_deck_through_the_uav_pose():
+    """Each frame is X_WP = X_WB X_BC X_CT X_TP: the deck pose an X_CT was composed from by Drake comes back, with
+    a tag pose on the pad X_PT that is not its own inverse (turned over, tilted, yawed, off centre), so that X_PT
+    taken for X_TP = X_PT^-1 would show."""
     X_BC = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, -0.04])
-    X_PT = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, 0.0005])
+    X_PT = RigidTransform(RollPitchYaw(math.pi, 0.1, 0.4), [0.03, -0.02, 0.0005])
+    assert not X_PT.IsNearlyEqualTo(X_PT.inverse(), 1e-3)
     tracker = DeckTracker(replace(CONFIG, confirm_frames=1), X_BC, X_PT.inverse(), PERIOD)  # one frame steers
     context = tracker.CreateDefaultContext()
     X_WB = RigidTransform(RollPitchYaw(0.05, -0.03, 0.4), [0.1, -0.2, 2.7])
@@ -277,3 +295,22 @@ def test_frames_that_confirmed_tracks_gate_replace_them_when_they_agree():
         assert np.linalg.norm(estimate.X_WP.translation() - true.translation()) < 0.01
         assert track.challenger.frames_used < CONFIG.takeover_frames
     assert track.coasted_steps == 30
+
+
+def test_a_challenger_does_not_outlive_an_accepted_frame():
+    """takeover_frames gated frames must come in a row: a frame the tracks accept ends the challenger. Three
+    times one frame 6 deg and 5 cm off (gated: it starts a challenger) then two right ones: the challenger is
+    gone after each right frame and the shifted frames never take over."""
+    track = track_run(range(200))
+    shift = RigidTransform(RollPitchYaw(0.0, math.radians(6.0), 0.0), [0.05, 0.0, 0.0])
+    for k in range(200, 209):
+        true = deck_pose(k * PERIOD)
+        shifted = k % 3 == 2
+        track = step_deck_track(track, shift.multiply(true) if shifted else true, k * PERIOD, CONFIG, PERIOD)
+        estimate = deck_estimate(track, k * PERIOD, CONFIG)[0]
+        assert estimate.valid
+        assert math.degrees(estimate.X_WP.rotation().InvertAndCompose(true.rotation()).ToAngleAxis().angle()) < 0.5
+        if shifted:
+            assert track.coasted_steps == 1 and track.challenger.frames_used == 1
+        else:
+            assert track.coasted_steps == 0 and track.challenger is None
