@@ -73,6 +73,22 @@ def test_converges_on_a_constant_velocity_track_to_the_riccati_covariance():
     P_prior = solve_discrete_are(F.T, H.T, Q, R)
     P_post = P_prior - P_prior @ H.T @ np.linalg.solve(H @ P_prior @ H.T + R, H @ P_prior)
     np.testing.assert_allclose(tracks[-1].P, P_post, rtol=1e-6, atol=1e-9)
+    # Eq. 35 symmetrised: every update's P is exactly symmetric, round-off and all.
+    for track in tracks:
+        np.testing.assert_array_equal(track.P, track.P.T)
+
+
+def test_the_process_noise_is_a_white_acceleration_held_over_the_step():
+    """Q is acceleration_std^2 G G^T per coordinate, G = [dt^2 / 2, dt] the position and rate a unit
+    acceleration held over the step adds (the position's and rate's noise fully correlated), F the
+    constant-velocity step; coordinates independent."""
+    params = TrackFilterParams(dt_s=0.05, acceleration_std=3.0)
+    F, Q, H, R = constant_velocity_model(params, 2)
+    dt = params.dt_s
+    G = np.array([dt**2 / 2, dt])
+    np.testing.assert_allclose(Q, 9.0 * np.kron(np.outer(G, G), np.eye(2)), rtol=1e-12)
+    np.testing.assert_array_equal(F, [[1.0, 0.0, dt, 0.0], [0.0, 1.0, 0.0, dt], [0.0, 0.0, 1.0, 0.0],
+                                      [0.0, 0.0, 0.0, 1.0]])
 
 
 def test_coasts_through_a_three_frame_dropout_with_bounded_error():
