@@ -10,6 +10,7 @@ from scipy.interpolate import CubicSpline
 
 from systems.sensors.tof import sensor_positions_C
 from systems.estimators.pad_calibration import (
+    FLIGHT_RTOL,
     PAD_COLOURS,
     PAD_RGB,
     YCBCR_RANGES,
@@ -273,6 +274,19 @@ def test_the_flight_is_saved_and_loaded_and_compared_within_one_part_in_a_millio
         f"{[FX, FY, CX, CY + 0.01, 512.0, 512.0]} px")
     calibration().save(path)
     assert PadCalibration.load(path).flight is None
+
+
+@pytest.mark.parametrize("factor, accepted", [(0.5, True), (2.0, False)])
+def test_the_flight_is_compared_within_flight_rtol_of_each_arrays_largest_entry(factor, accepted):
+    """A scene differing from the flight by half FLIGHT_RTOL of an array's largest entry is the flight's, by
+    twice it is not: the sensor arms scaled (the largest entry arm cos 45 deg) and cy moved by a fraction of
+    the 512 px image width (the camera array's largest entry)."""
+    camera = SimpleNamespace(fx=FX, fy=FY, cx=CX, cy=CY, width=512, height=512, distortion=[0.0] * 5)
+    flight = CalibrationFlight.of(camera, P_C_SENSORS)
+    arms = CalibrationFlight.of(camera, sensor_positions_C(0.135 * (1 + factor * FLIGHT_RTOL)))
+    assert (flight.mismatch(arms) is None) == accepted
+    moved = SimpleNamespace(**{**vars(camera), "cy": CY + factor * FLIGHT_RTOL * 512})
+    assert (flight.mismatch(CalibrationFlight.of(moved, P_C_SENSORS)) is None) == accepted
 
 
 def test_a_flight_through_a_lens_is_recorded_and_refused_whatever_the_scenes_lens(tmp_path):
