@@ -644,6 +644,17 @@ def test_kf_let_go_in_the_near_band_does_not_start_again_on_a_wrong_match():
     assert [s.valid for s in again] == [False, True]
 
 
+def test_kf_near_the_nearest_range_coasts_through_a_reading_under_it():
+    """The near band is [nearest, nearest + near_band_m]: hovering 0.1 m over the nearest range, a reading 5 cm
+    under it (nearer than the stereo can see: a wrong match) is not used; the filter coasts on its prediction,
+    A x by hand."""
+    states = run_near([NEAREST + 0.1] * 10)
+    hovering = states[-1]
+    coasted = altitude_kf_step(hovering, NEAREST - 0.05, True, 10 * HYBRID_T, KF, NEAREST)
+    assert coasted.valid and coasted.coast_s == pytest.approx(HYBRID_T)
+    np.testing.assert_allclose(coasted.x, [hovering.x[0] + HYBRID_T * hovering.x[1], hovering.x[1]], rtol=1e-12)
+
+
 # ---------------------------------------------------------------------------------------------
 # Bad configurations
 
