@@ -353,6 +353,21 @@ def test_speed_heading_mode_reads_noise_as_speed():
     assert np.abs(printed[20:, 0] + 0.8).max() < 0.1
 
 
+def test_speed_heading_mode_unwraps_the_headings_next_to_the_newest():
+    """Eq. 19 on three unit instant velocities heading -120 deg (oldest), +120 deg and 0 deg (newest): each
+    heading is taken within 180 deg of the newest's, so they average as [0, 120, -120] deg with the weights
+    exp(-age^2 / 2 sigma^2) normalised (by hand), not as unwrapped next to any other."""
+    config = VelocityObserverConfig(combine="speed_heading")
+    headings = np.radians([-120.0, 120.0, 0.0])
+    velocities = np.c_[np.cos(headings), np.sin(headings), np.zeros(3)]
+    v, valid = weighted_velocity(np.array([0.8, 0.9, 1.0]), velocities, 1.0, config)
+    ages = np.array([0.0, 0.1, 0.2])  # newest first
+    w = np.exp(-ages**2 / (2 * config.sigma_s**2))
+    heading = (w / w.sum()) @ np.radians([0.0, 120.0, -120.0])
+    assert valid
+    np.testing.assert_allclose(v, [math.cos(heading), math.sin(heading), 0.0], atol=1e-12)
+
+
 def test_speed_heading_mode_reads_the_vertical_velocity():
     """Eq. 18-19 average the horizontal speed and heading; the vertical velocity is averaged beside them: on a
     track climbing at 0.2 m/s both modes read the true [0.8, 0.3, 0.2] m/s."""
@@ -528,6 +543,34 @@ def test_system_from_pixels_recovers_the_ground_velocity(source):
     for v, valid in out[first_valid:]:
         assert valid == 1.0
         np.testing.assert_allclose(v, v_target, atol=1e-9)
+
+
+def test_system_displacement_source_takes_the_linear_fit():
+    """fit linear from motion-compensated displacements (each frame's, unflagged: precise): a target accelerating
+    at 0.5 m/s^2 under a still, level UAV yawed 30 deg at 7.5 m; each instant velocity is the displacement over
+    the last period, a (t - T/2), so once linear_min_samples are in the window the estimate is that line now,
+    where Eq. 18-19's mean would lag it by about 0.4 s."""
+    config = VelocityObserverConfig(source="displacement", fit="linear")
+    system = VelocityObserverSystem(config, K=K, X_BC=X_BC)
+    a = np.array([0.5, 0.0, 0.0])
+    X_WB = RigidTransform(RotationMatrix.MakeZRotation(math.radians(30)), [1.0, 1.0, 7.54])
+    X_WC = X_WB.multiply(X_BC)
+    t = np.arange(0.0, 2.0, T)
+
+    def target(tk):
+        return np.array([2.0, 0.5, 0.0]) + 0.5 * a * tk**2
+
+    def inputs(context, k, tk):
+        system.GetInputPort("target_displacement").FixValue(
+            context, ground_pixel(target(tk), X_WC) - ground_pixel(target(tk - T), X_WC))
+        system.GetInputPort("altitude").FixValue(context, [7.5])
+        system.GetInputPort("X_WB").FixValue(context, X_WB)
+
+    out = drive(system, inputs, t)
+    first = config.linear_min_samples - 1  # a displacement gives an instant velocity from frame 0
+    for (v, valid), tk in zip(out[first:], t[first:]):
+        assert valid == 1.0
+        np.testing.assert_allclose(v, a * (tk - T / 2), atol=1e-9)
 
 
 def test_system_invalid_altitude_is_no_sighting():
