@@ -130,6 +130,21 @@ def test_the_two_backends_compute_the_same_law(held):
         np.testing.assert_allclose(outputs[1], outputs[0], rtol=1e-10)
 
 
+@pytest.mark.parametrize("backend", ["python", "symbolic"])
+def test_the_held_command_starts_at_hover(backend):
+    """Held, both backends put out the hover command, sqrt(m g / 4 k_t) / k_m per rotor, from initialize until
+    their first sample, whatever the law would give at the inputs."""
+    controller = make_flight_controller(QUAD, CONFIG, backend)
+    context = controller.CreateDefaultContext()
+    controller.initialize(context)
+    state, command = next(random_states_and_commands(1))
+    controller.GetInputPort("state").FixValue(context, state)
+    controller.GetInputPort("command").FixValue(context, command)
+    hover = np.sqrt(QUAD.mass_kg * QUAD.gravity_m_s2 / (4 * QUAD.thrust_coefficient)) / QUAD.motor_gain
+    np.testing.assert_allclose(controller.GetOutputPort("rotor_speed_commands").Eval(context), np.full(4, hover),
+                               rtol=1e-12)
+
+
 def test_the_two_backends_fly_alike():
     command, state0 = [2.0, -1.0, 0.5, 0.5], hover_state(QUAD, [0, 0, 5])
     _, python, _ = fly(command, state0, duration=3.0)
@@ -168,6 +183,21 @@ def test_at_the_desired_attitude_the_torque_is_damping_plus_the_gyroscopic_term(
     identity = np.eye(3).ravel().tolist()
     np.testing.assert_allclose(law.torque(identity, identity, w_B), -J * k_w * w_B + np.cross(w_B, J * w_B),
                                rtol=1e-12)
+
+
+def test_a_rotor_asked_for_negative_thrust_is_commanded_to_stop():
+    """Level, the weight's collective thrust F with a roll torque of 2 F l1: Eq. (8) by hand gives rotors 1 and 4
+    3F/4 and rotors 2 and 3 -F/4, which no rotor can push, so their w_des is 0 (not sqrt(F/4 / k_t)): the command
+    (w + (tau_m / tau_a)(w_des - w)) / k_m of the module docstring."""
+    law = FlightLaw(QUAD, CONFIG)
+    F = QUAD.mass_kg * QUAD.gravity_m_s2
+    w = np.array([400.0, 410.0, 420.0, 430.0])
+    commands = law.rotor_commands([0.0, 0.0, F], np.eye(3).ravel().tolist(), [2 * F * QUAD.arm_lateral_m, 0.0, 0.0],
+                                  w)
+    w_des = np.array([np.sqrt(0.75 * F / QUAD.thrust_coefficient), 0.0, 0.0,
+                      np.sqrt(0.75 * F / QUAD.thrust_coefficient)])
+    lag_ratio = QUAD.motor_time_constant_s / CONFIG.rotor_time_constant_s
+    np.testing.assert_allclose(commands, (w + lag_ratio * (w_des - w)) / QUAD.motor_gain, rtol=1e-12)
 
 @pytest.mark.parametrize("feed_forward", [True, False])
 def test_a_ramp_in_velocity_is_tracked_without_lag_with_its_acceleration_fed_forward(feed_forward):
