@@ -45,7 +45,6 @@ def test_attitude_coordinates_round_trip_drake_rotations():
     np.testing.assert_allclose(attitude_coordinates(RotationMatrix.MakeZRotation(0.7)), [0.0, 0.0, 0.7], atol=1e-12)
 
 
-
 def test_a_deck_heading_across_plus_minus_180_deg_is_tracked():
     """Headings 179.9 deg and -179.9 deg in turn are 0.2 deg apart, not 359.8: each frame's yaw is unwrapped
     next to the track's, so none is gated, every frame counts and the estimate heads 180 deg."""
@@ -90,6 +89,7 @@ def test_predicted_variances_are_those_of_the_constant_velocity_step():
     np.testing.assert_allclose(values, (F @ x)[:3], rtol=1e-12)
     np.testing.assert_allclose(rates, x[3:], rtol=1e-12)
     np.testing.assert_allclose(variances, np.diag(F @ P @ F.T)[:3], rtol=1e-12)
+
 
 def track_run(frames, measured=lambda k: True, noise_m=0.002, noise_rad=0.002, seed=0):
     """Steps a tracker over camera frames of the moving deck with noisy poses (where `measured`)."""

@@ -77,7 +77,6 @@ def test_projection_is_opencvs_equidistant_model_and_the_ray_inverts_it():
     assert not in_field_of_view(project_points([[np.sin(1.32), 0.0, np.cos(1.32)]], config), config).any()
 
 
-
 def test_the_field_of_view_circle_is_centred_on_the_principal_point():
     """in_field_of_view is whether a pixel's ray lies within fov_deg / 2 of the optical axis, also with the
     principal point off the image centre and cx != cy: rays just inside and just outside the field of view, all

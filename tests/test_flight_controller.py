@@ -159,7 +159,6 @@ def test_acceleration_feed_forward_is_added_to_the_velocity_loop():
     np.testing.assert_allclose(f_W, QUAD.mass_kg * np.array([0.8, -0.4, QUAD.gravity_m_s2 + 0.5]), rtol=1e-14)
 
 
-
 @pytest.mark.parametrize("v_z_desired", [-50.0, 0.0, 50.0])  # sinking and climbing at max_vertical_accel_m_s2
 def test_a_saturated_thrust_tilts_by_max_tilt_deg_whatever_the_vertical_acceleration(v_z_desired):
     """The horizontal limit scales with the vertical thrust: a saturated horizontal command tilts the desired
@@ -198,6 +197,7 @@ def test_a_rotor_asked_for_negative_thrust_is_commanded_to_stop():
                       np.sqrt(0.75 * F / QUAD.thrust_coefficient)])
     lag_ratio = QUAD.motor_time_constant_s / CONFIG.rotor_time_constant_s
     np.testing.assert_allclose(commands, (w + lag_ratio * (w_des - w)) / QUAD.motor_gain, rtol=1e-12)
+
 
 @pytest.mark.parametrize("feed_forward", [True, False])
 def test_a_ramp_in_velocity_is_tracked_without_lag_with_its_acceleration_fed_forward(feed_forward):

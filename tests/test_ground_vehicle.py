@@ -202,7 +202,6 @@ def test_nearest_keeps_to_its_branch_where_the_figure_eight_crosses():
         crossing_again, abs=0.02)
 
 
-
 def test_nearest_with_a_hint_searches_across_a_closed_paths_closing_point():
     """On the circle, a hint just before the end finds a point just past the start, and a hint just past the start
     a point just before the end: the search window wraps round the closing point (the nearest is the point
@@ -223,6 +222,7 @@ def test_the_rectangle_is_side_m_by_half_of_it_with_rounded_corners():
     np.testing.assert_allclose(path.xy.max(axis=0) - path.xy.min(axis=0), [side + 2 * radius, side / 2 + 2 * radius],
                                atol=1e-3)
     assert path.length == pytest.approx(2 * (side + side / 2) + 2 * np.pi * radius, rel=1e-9)
+
 
 @pytest.mark.parametrize("name", [n for n in PATH_NAMES if n != "sine"])
 def test_follower_tracks_seed_003_figure_9_paths(name):
@@ -330,13 +330,13 @@ def test_the_ground_covers_what_the_vehicle_drives_in_the_run():
         np.testing.assert_array_equal(short.ground_extent()[1], xy.max(axis=0) + 25.0)
 
 
-
 def test_the_ground_reaches_the_furthest_distractor():
     """With distractors' lead (factor 1.4, ahead 15 m), the ground covers where the furthest one gets: it starts
     15 m ahead and drives 1.4 times the UGV's 10 m/s, 15 + 1.4 x 10 x 100 = 1415 m along at 100 s (the ahead
     metres are not scaled by the factor, nor dropped)."""
     config = GroundVehicleConfig(path="straight", speed=10.0)
     assert config.ground_length_m(100.0, (1.4, 15.0)) == pytest.approx(15.0 + 1.4 * 10.0 * 100.0, rel=1e-12)
+
 
 def test_ground_pose():
     X_WV = ground_pose([3.0, -4.0, np.pi / 2, 0.1])

@@ -70,7 +70,6 @@ def test_table1_ranges_separate_the_pad_colours():
     assert colours_matching((0, 255, 0)) == {"green", "yellow"}  # why PAD_RGB's green is darker
 
 
-
 @pytest.mark.parametrize("colour, channel, low_high", [("red", 2, 0), ("yellow", 0, 0), ("blue", 0, 1)])
 def test_table1_bounds_are_exclusive(colour, channel, low_high):
     """segment_colour keeps a pixel strictly inside every Table 1 range: a channel on its bound is out, a
@@ -82,6 +81,7 @@ def test_table1_bounds_are_exclusive(colour, channel, low_high):
     assert segment_colour(ycbcr, colour)[0, 0] == 0
     ycbcr[0, 0, channel] = bound + (0.01 if low_high == 0 else -0.01)
     assert segment_colour(ycbcr, colour)[0, 0] == 1
+
 
 def draw_pads(rng, centres, hole=None):
     """A grey 512x512 RGB image with a 30 px disc per pad colour at sub-pixel centres, noise and a
@@ -229,7 +229,6 @@ def test_from_frames_drops_missing_samples_and_merges_repeated_ranges():
         PadCalibration.from_frames(ranges, pixels)
 
 
-
 @pytest.mark.parametrize("bad_range", [-0.5, 0.0])
 def test_non_positive_ranges_are_dropped(bad_range):
     """A sensor calibration keeps distinct positive ranges only: a negative or zero range (with a finite pixel)
@@ -240,6 +239,7 @@ def test_non_positive_ranges_are_dropped(bad_range):
     np.testing.assert_array_equal(sensor.ranges, [0.5, 1.0, 1.5, 2.0])
     np.testing.assert_array_equal(sensor.pixels, pixels)
     assert sensor.fit_u.a == pytest.approx(100.0, rel=1e-9) and sensor.fit_u.c == pytest.approx(250.0, rel=1e-9)
+
 
 def test_save_load_round_trip(tmp_path):
     cal = calibration()
