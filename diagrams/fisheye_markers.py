@@ -22,6 +22,8 @@ MARKER_RADIUS_M = 0.04  # 1.1 deg: blobs of about 8-11 px across
 MARKER_DIRECTIONS_DEG = [(0, 0), (15, 200), (30, 0), (30, 90), (39.2, 45), (39.2, 225), (45, 300), (50, 160),
                          (55, 135), (60, 270), (63, 30), (65, 315), (68, 100), (70, 0), (72, 190), (74, 160),
                          (74, 225), (74, 45)]
+
+
 def marker_points_C(directions_deg=MARKER_DIRECTIONS_DEG, distance_m=MARKER_DISTANCE_M) -> np.ndarray:
     """Marker centres (N, 3) in the camera frame C [m]."""
     theta, phi = np.radians(np.asarray(directions_deg, dtype=float)).T

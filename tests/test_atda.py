@@ -32,7 +32,6 @@ def test_a_level_tag_under_the_camera_has_identity_rotation():
     np.testing.assert_allclose(X.rotation().matrix(), np.eye(3), atol=1e-9)
 
 
-
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
 def test_corners_with_a_non_finite_entry_give_no_pose(bad):
     """atda_pose returns None where it cannot give a pose: a corner with a NaN or an infinity gives none (SQPnP
@@ -44,6 +43,7 @@ def test_corners_with_a_non_finite_entry_give_no_pose(bad):
     context = system.CreateDefaultContext()
     system.get_input_port().FixValue(context, TagDetection(0.0, corners))
     assert not system.get_output_port().Eval(context).valid
+
 
 HEAD_ON = project_points(K, pose([0, 0, 2.0], [0, 0, 0]), tag_corners_T(TAG))
 
@@ -98,7 +98,6 @@ def test_the_system_times_each_frames_pose():
     assert system.per_frame_ms(context) > 0
 
 
-
 def test_per_frame_ms_is_in_milliseconds(monkeypatch):
     """per_frame_ms is the mean of the frames' pose times in ms: with ATDA's clock advancing 2 ms at each
     reading (start and end of every pose), every frame took 2 ms and the mean is 2.0."""
@@ -112,6 +111,7 @@ def test_per_frame_ms_is_in_milliseconds(monkeypatch):
     simulator.AdvanceTo(0.12)
     assert context.get_abstract_state(0).get_value().weight == 3
     assert system.per_frame_ms(context) == pytest.approx(2.0, rel=1e-9)
+
 
 def test_opencv_ippe_square_fails_head_on_before_5_1_which_is_why_atda_uses_sqpnp():
     # The reason for the solver choice in atda.py. Measured: OpenCV 4.10.0 and 5.0.0 return two wrong poses

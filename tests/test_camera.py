@@ -382,7 +382,6 @@ def test_a_blur_kernel_is_a_centred_line_of_the_flow_s_length():
     assert np.sum(kernel * across**2) < 0.2
 
 
-
 @pytest.mark.parametrize("length", range(1, 11))
 def test_a_blur_kernel_of_a_whole_number_of_pixels_along_either_axis_is_centred(length):
     """Smears of 1 to 10 px along +-x and +-y (even lengths reach the kernel's edge pixels): the kernel holds
@@ -404,6 +403,7 @@ def test_a_smear_of_half_a_pixel_or_more_blurs():
     for flow in ([0.51, 0.0], [0.0, 0.51], [1.0, 0.0], [0.6, 0.8]):
         kernel = motion_blur_kernel(np.array(flow))
         assert kernel is not None and kernel.sum() == pytest.approx(1.0)
+
 
 def test_the_camera_smears_a_point_along_its_turn_over_the_exposure():
     config = CameraConfig(width=96, height=96, cx=48, cy=48, exposure_s=0.01)
@@ -501,7 +501,6 @@ def test_invalid_configuration_names_the_field(changes, field):
         CameraConfig(**changes).validate()
 
 
-
 def test_distortion_folds_is_where_the_radial_map_turns_back_short_of_the_farthest_corner():
     """distortion_folds measures against the farthest corner (the half-diagonal): a k1 lens, r_d = r (1 + k1 r^2),
     turns back at r* = 1 / sqrt(-3 k1), r_d(r*) = 2 r* / 3; with r_d(r*) between the nearest and the farthest
@@ -521,6 +520,7 @@ def test_distortion_folds_is_where_the_radial_map_turns_back_short_of_the_farthe
     assert distortion_folds(config, [0.0, 0.0, 0.0, 0.0, k3]) == pytest.approx(expected, rel=1e-3)
     for D in ([-0.00908, -0.03128, 0.00109, -0.00198, 0.0], [-0.2, 0.0, 0.0, 0.0, 0.0], [0.3, 0.0, 0.0, 0.0, 0.0]):
         assert distortion_folds(CameraConfig(), D) == 0.0
+
 
 @pytest.mark.parametrize("changes", [{"cx": 511.45}, {"cx": -0.45, "cy": 511.45}, {"near_m": 1.0, "far_m": 1.0203}])
 def test_drake_builds_the_camera_at_the_limits_the_check_lets_through(changes):

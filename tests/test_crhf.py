@@ -493,7 +493,6 @@ def test_the_first_frame_weighs_its_corners_by_their_own_residual(crhf):
     assert np.degrees(error) < 3.0
 
 
-
 def test_the_first_frames_corner_noise_is_its_residual_over_its_two_degrees_of_freedom(crhf):
     """With nothing pooled, a frame's corner noise is its own PnP residual over its 2 degrees of freedom, the
     variance the state then pools: the first frame's pose is the one the same frame gives once that variance
@@ -521,6 +520,7 @@ def test_the_range_gate_is_centred_on_the_tracks_prediction_one_frame_ahead(crhf
     assert estimate.valid == accepted and state.ranges.coasted_steps == (0 if accepted else 1)
     if accepted:
         assert estimate.X_CT.translation()[2] == pytest.approx(next_range, abs=1e-3)
+
 
 def test_a_sensor_past_the_decks_edge_is_gated_and_does_not_pull_the_range_track(crhf):
     corners, ranges = level_frame()

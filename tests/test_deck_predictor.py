@@ -124,7 +124,6 @@ def test_falls_back_to_the_constant_rate_on_a_short_or_broken_history():
     np.testing.assert_array_equal(prediction, constant_rate_prediction(motions[-1], horizons))
 
 
-
 @pytest.mark.parametrize("beyond, plausible", [(0.9, True), (1.1, False), (-0.9, True), (-1.1, False)])
 def test_a_forecast_is_plausible_within_one_span_of_the_historys_range(beyond, plausible):
     """A forecast may leave the history's range by up to the range's own span (module docstring), no more: a
@@ -146,6 +145,7 @@ def test_a_forecast_is_plausible_within_one_span_of_the_historys_range(beyond, p
         np.testing.assert_allclose(prediction[1:, 2], target, rtol=1e-12)  # from the first frame ahead on
     else:
         np.testing.assert_array_equal(prediction, constant_rate_prediction(motion, horizons))
+
 
 def test_the_window_fed_the_fallback_decides_as_at_constant_rate():
     window = LandingWindowConfig()

@@ -418,6 +418,7 @@ def test_a_first_pose_far_from_what_the_centres_measured_is_left_out_and_the_nex
     times its 3 mm) would put them all there. It is gated against the centres' estimate, turned to its
     heading (with the UAV 0.36 m off the centre, a wrong turn would gate the right pose too)."""
     t, known, height, yaw = _hover_then_poses(0.04, until_s=1.0)
+
     def at(when):
         return np.argmin(np.abs(t - when))
 

@@ -51,7 +51,6 @@ def test_output_holds_the_last_sample():
                                atol=1e-12)
 
 
-
 @pytest.mark.parametrize("gravity", [G, 3.71])
 def test_before_its_first_sample_the_output_is_a_level_body_at_rest(gravity):
     """At t = 0 after Initialize (the t = 0 sample is seen only after t = 0) the output already reads a level body
@@ -61,6 +60,7 @@ def test_before_its_first_sample_the_output_is_a_level_body_at_rest(gravity):
     simulator.Initialize()
     np.testing.assert_allclose(imu.get_output_port().Eval(simulator.get_context()), [0, 0, gravity, 0, 0, 0],
                                rtol=0, atol=1e-12)
+
 
 @pytest.mark.parametrize("rpy_deg, expected", [
     ((90.0, 0.0, 0.0), [0.0, G, 0.0]),  # rolled right: the body's y axis (left) points up

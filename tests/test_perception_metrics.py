@@ -73,7 +73,6 @@ def test_the_heading_error_is_drawn_only_for_a_source_that_estimates_it(heading,
         np.testing.assert_allclose(error.get_ydata(), -90.0)
 
 
-
 @pytest.mark.parametrize("invalid, expected_s", [
     (np.ones(N, bool), (N - 1) * 0.02),  # invalid throughout: the run's length, not one sample more
     (np.arange(N) >= 40, 9 * 0.02),  # to the end: from its first sample to the last
