@@ -35,14 +35,16 @@ def perception_metrics(log: dict[str, np.ndarray], source: str, touchdown_s: flo
     """The section for a flight's `log` (diagrams/gv_landing_run.collect_log); `filter_t` and
     `filter_estimate` are the steering marker filter's samples and estimate vectors, if one steered.
     `heading`: whether the source estimates the pad's heading; if not (a position alone, as the hybrid
-    source's), only positions are scored: no heading, rotation or flip figures."""
+    source's), or where no estimate steered (the truth: no `steering_estimate` in the log, as perception.png
+    has it), only positions are scored: no heading, rotation or flip figures."""
     t, seam, truth = log["t"], log["relative_state"], log["true_relative_state"]
     valid = seam[:, VALID] > 0.5
     p_WB = log["quadrotor_state"][:, P_WB]
     true_yaw = carrier_heading(log)
-    if heading and "steering_estimate" in log:  # [valid, x, y, z, qw, qx, qy, qz]; NaN where invalid
+    heading = heading and "steering_estimate" in log
+    if heading:  # [valid, x, y, z, qw, qx, qy, qz]; NaN where invalid
         yaw = quaternion_yaw(log["steering_estimate"][:, 4:])
-    else:  # the truth steers, or no heading is estimated: the true heading, its figures left out below
+    else:  # the true heading, its figures left out below
         yaw = true_yaw
     estimate = np.column_stack([valid, level_poses(p_WB + seam[:, P_BP_W], yaw)])
     out = {"source": source,

@@ -39,6 +39,16 @@ def test_a_position_alone_has_no_heading_figures():
     np.testing.assert_allclose(out["mae_xyz_m"], 0.0)
 
 
+def test_without_a_steering_estimate_there_is_no_heading_to_score():
+    """The truth steers with no estimate logged: its positions are scored (exact here), its heading is not (no
+    0 deg that no estimate made), as perception.png leaves out the heading panel."""
+    log = _log(None)
+    del log["steering_estimate"]
+    out = perception_metrics(log, "truth")
+    assert out["rms_position_m"] == 0.0 and out["frames_scored"] == N
+    assert not {"rms_heading_deg", "mae_rpy_deg", "rmse_rpy_deg", "flips"} & set(out)
+
+
 def test_an_estimated_heading_is_scored_against_the_vehicles():
     out = perception_metrics(_log(np.radians(88.0)), "ct_ekf")
     assert out["rms_heading_deg"] == pytest.approx(2.0)
