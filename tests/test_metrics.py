@@ -1,7 +1,8 @@
 """Estimate-against-truth metrics on analytic cases."""
 
 import numpy as np
-from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.common.eigen_geometry import AngleAxis
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from diagrams.metrics import (
     estimator_metrics,
@@ -71,6 +72,21 @@ def test_angle_errors_wrap_and_flips_are_counted():
                                                                                       np.deg2rad(179)), [0, 0, 2]),
                                                      True))])
     assert estimator_metrics(truth, flipped)["flips"] == 1
+
+
+def test_a_flip_is_a_rotation_error_over_10_deg():
+    """Estimates turned 9.9 and 10.1 deg about a skew axis from the truth (Drake's AngleAxis): only the
+    second is a pose flip (the threshold is 10 deg)."""
+    axis = np.array([0.3, -0.8, 0.5]) / np.linalg.norm([0.3, -0.8, 0.5])
+    truth = poses(2, roll_deg=5.0)
+    estimate = [X.multiply(RigidTransform(RotationMatrix(AngleAxis(np.radians(deg), axis)), [0.0, 0.0, 0.0]))
+                for X, deg in zip(truth, (9.9, 10.1))]
+    angles = [np.degrees(t.rotation().InvertAndCompose(e.rotation()).ToAngleAxis().angle())
+              for t, e in zip(truth, estimate)]
+    np.testing.assert_allclose(angles, [9.9, 10.1], atol=1e-9)
+    m = estimator_metrics(np.array([pose_vector(X) for X in truth]),
+                          np.array([estimate_vector(PoseEstimate(0.0, X, True)) for X in estimate]))
+    assert m["flips"] == 1
 
 
 def test_a_window_scores_only_its_frames_and_the_valid_fraction_stays_over_all():
