@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform
 
-from diagrams.federated_metrics import FederatedLog, federated_metrics, filter_metrics, overlap_metrics
+from diagrams.federated_metrics import FederatedLog, federated_metrics, filter_metrics, node_metrics, overlap_metrics
 from diagrams.federated_plots import plot_federated, shade_frames
 from diagrams.gv_landing_run import summary_lines
 from systems.estimators.federated.system import (
@@ -170,6 +170,64 @@ def test_the_truth_is_drakes_X_PB_and_p_CP():
     log = FederatedLog(np.zeros(1), np.zeros((1, FEDERATED_VECTOR_SIZE)), {}, got[None, :])
     np.testing.assert_allclose(true_p_CP(log, X_BC)[0], X_BC.inverse().multiply(X_PB.inverse()).translation(),
                                atol=1e-12)
+
+
+def test_true_p_CP_is_drakes_through_a_mount_whose_rotation_is_not_symmetric():
+    """A camera tilted off the vertical, mounted at RPY (pi - 0.3, 0.2, pi/2) (a rotation matrix that is not its
+    own transpose), offset from the body: true_p_CP of seeded random X_PB is Drake's X_BC^-1 X_PB^-1's translation."""
+    from pydrake.math import RollPitchYaw
+
+    from diagrams.federated_metrics import true_p_CP
+    from systems.sensors.ground_truth import pose_vector
+    X_BC = RigidTransform(RollPitchYaw(np.pi - 0.3, 0.2, np.pi / 2), [0.05, -0.02, -0.1])
+    R_BC = X_BC.rotation().matrix()
+    assert np.abs(R_BC - R_BC.T).max() > 0.4
+    rng = np.random.default_rng(25)
+    X_PB = [RigidTransform(RollPitchYaw(*rng.uniform(-0.5, 0.5, 3)), rng.uniform(-2.0, 2.0, 3) + [0.0, 0.0, 3.0])
+            for _ in range(5)]
+    log = FederatedLog(np.zeros(5), np.zeros((5, FEDERATED_VECTOR_SIZE)), {}, np.array([pose_vector(X) for X in X_PB]))
+    np.testing.assert_allclose(true_p_CP(log, X_BC), [X_BC.inverse().multiply(X.inverse()).translation() for X in X_PB],
+                               atol=1e-12)
+
+
+def test_the_approaching_nodes_p_CP_is_scored_in_C_within_the_window():
+    """The approaching node's p_CP off the truth (Drake's X_CB X_BP) by (0.02, -0.01, 0) and (-0.04, 0, 0.03) m on
+    alternate frames up to the window's end, and by 5 m after it: MAE per axis the mean |error| (0.03, 0.005, 0.015),
+    RMSE per axis and in 3-D the root mean squares of those two, the frames after the window left out."""
+    from pydrake.math import RollPitchYaw
+    log, _ = _log()
+    X_BC = RigidTransform(RollPitchYaw(np.pi, 0.0, np.pi / 2), [0.05, 0.0, -0.1])
+    assert np.all(log.X_PB[:, 3:] == [1.0, 0.0, 0.0, 0.0])  # X_PB a translation alone: X_BP = -p_PB
+    p_CP = np.array([X_BC.inverse().multiply(RigidTransform(-row[:3])).translation() for row in log.X_PB])
+    offsets = np.array([[0.02, -0.01, 0.0], [-0.04, 0.0, 0.03]] * 2 + [[5.0, 5.0, 5.0]] * 2)
+    log.nodes["approach"][:6, 1:4] = p_CP[:6] + offsets  # present on frames 0-5
+    for name in ("adjustment", "touchdown"):
+        log.nodes[name][:, 1:8] = log.X_PB  # the pose nodes exact, not scored here
+    window = np.arange(len(log.t)) <= 3
+    approach = node_metrics(log, X_BC, window)["approach"]
+    assert approach["frame"] == "C"
+    np.testing.assert_allclose(approach["mae_xyz_m"], [0.03, 0.005, 0.015], atol=1e-12)
+    np.testing.assert_allclose(approach["rmse_xyz_m"], np.sqrt([(0.02**2 + 0.04**2) / 2, 0.01**2 / 2, 0.03**2 / 2]),
+                               atol=1e-12)
+    assert approach["rmse_position_m"] == pytest.approx(np.sqrt((0.02**2 + 0.01**2 + 0.04**2 + 0.03**2) / 2))
+
+
+def test_the_pose_nodes_are_scored_on_their_own_X_PB():
+    """The adjustment node's X_PB off the truth by (0.01, -0.02, 0.03) m on every frame it measures, the touchdown
+    node's exact: MAE and RMSE per axis the offset's magnitude (0 for the touchdown node), its 3-D RMSE |offset|."""
+    log, _ = _log()
+    offset = np.array([0.01, -0.02, 0.03])
+    for name, error in (("adjustment", offset), ("touchdown", np.zeros(3))):
+        present = log.nodes[name][:, 0] > 0.5
+        log.nodes[name][present, 1:8] = log.X_PB[present] + np.r_[error, np.zeros(4)]
+    out = node_metrics(log, RigidTransform(), np.ones(len(log.t), bool))
+    np.testing.assert_allclose(out["adjustment"]["mae_xyz_m"], np.abs(offset), atol=1e-12)
+    np.testing.assert_allclose(out["adjustment"]["rmse_xyz_m"], np.abs(offset), atol=1e-12)
+    assert out["adjustment"]["rmse_position_m"] == pytest.approx(np.linalg.norm(offset))
+    assert out["adjustment"]["frames_scored"] == 7
+    np.testing.assert_allclose(out["touchdown"]["mae_xyz_m"], 0.0, atol=1e-12)
+    np.testing.assert_allclose(out["touchdown"]["rmse_xyz_m"], 0.0, atol=1e-12)
+    assert out["touchdown"]["rmse_position_m"] == pytest.approx(0.0, abs=1e-12)
 
 
 def test_the_local_filters_and_the_fused_estimate_are_scored_in_3d_and_as_rms():
