@@ -110,6 +110,26 @@ def test_the_heading_error_wraps_across_180_deg():
     assert perception_metrics(log, "ct_ekf")["rms_heading_deg"] == pytest.approx(2.0)
 
 
+def test_an_uneven_heading_error_is_scored_as_its_rms():
+    """Estimated headings 1 deg under and 3 deg over the vehicle's on alternate samples: an RMS heading error of
+    sqrt(5) deg (not the mean |error|, 2 deg), as the yaw's RMSE; its MAE 2 deg."""
+    log, over = _log(np.radians(89.0)), _log(np.radians(93.0))
+    log["steering_estimate"][1::2] = over["steering_estimate"][1::2]
+    out = perception_metrics(log, "ct_ekf")
+    assert out["rms_heading_deg"] == pytest.approx(np.sqrt(5.0))
+    assert out["rmse_rpy_deg"][2] == pytest.approx(np.sqrt(5.0)) and out["mae_rpy_deg"][2] == pytest.approx(2.0)
+
+
+def test_an_uneven_position_error_is_scored_as_the_rms_of_its_3d_norm():
+    """A seam off by (0.03, 0, 0) m and (0.03, 0.04, 0.12) m (0.13 m) on alternate samples: the RMS of the 3-D
+    error, sqrt((0.03^2 + 0.13^2) / 2) m, not the mean of its norm (0.08 m)."""
+    log = _log(np.radians(90.0))
+    log["relative_state"][0::2, P_BP_W] += [0.03, 0.0, 0.0]
+    log["relative_state"][1::2, P_BP_W] += [0.03, 0.04, 0.12]
+    out = perception_metrics(log, "ct_ekf")
+    assert out["rms_position_m"] == pytest.approx(np.sqrt((0.03**2 + 0.13**2) / 2))
+
+
 def test_the_position_error_is_the_rms_of_the_3d_error_over_the_valid_samples():
     """A seam off by (0.02, 0.04, 0.04) m (0.06 m) where valid; its first 5 samples invalid and far off, left
     out; the first valid time is the sixth sample's."""
@@ -131,3 +151,14 @@ def test_the_coast_before_touchdown_is_from_the_last_fusion_before_it():
     estimate[t > 0.6, EST_LAST_MEASUREMENT] = 0.8
     out = perception_metrics(_log(np.radians(90.0)), "ct_ekf", touchdown_s=0.5, filter_t=t, filter_estimate=estimate)
     assert out["coast_before_touchdown_s"] == pytest.approx(0.2)
+
+
+def test_a_fusion_at_the_touchdown_sample_leaves_no_coast():
+    """The filter fused at every sample, the touchdown exactly at one of them: no coasting before touchdown (0 s),
+    the later fusions not counted."""
+    from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, ESTIMATE_VECTOR_SIZE
+    t = np.arange(N) * 0.02
+    estimate = np.zeros((N, ESTIMATE_VECTOR_SIZE))
+    estimate[:, EST_LAST_MEASUREMENT] = t
+    out = perception_metrics(_log(np.radians(90.0)), "ct_ekf", touchdown_s=t[25], filter_t=t, filter_estimate=estimate)
+    assert out["coast_before_touchdown_s"] == 0.0
