@@ -72,26 +72,32 @@ def test_tracking_metrics_on_a_hand_built_log():
     np.testing.assert_allclose(out["before_final_descent_max_abs_xy_m"], [0.005, 0.008])
 
 
+def _landed(gap_m: float, p_BP_xy, v_WB) -> tuple[dict, int | None]:
+    """pad_landing of a hand-built log (headed 0, a 1 m pad 0.02 m thick, touchdown height 0.1 m, g = 10 m/s^2):
+    at k = 4, the sample before the supervisor's LANDED was logged, the gear gap_m [m] over its touchdown height and
+    the pad minus the UAV p_BP_xy [m] in x, y; the pad moving at (1, 0, 0) m/s, the UAV at v_WB [m/s]."""
+    F, A, W, L, D = Mode.FOLLOW, Mode.APPROACH, Mode.WAIT, Mode.LAND, Mode.LANDED
+    t = np.array([0.0, 0.3, 0.7, 1.2, 2.0, 2.1, 2.15])
+    mode = np.array([F, A, W, W, L, D, D], dtype=int)
+    n, k, touchdown_height = len(t), 4, 0.1
+    relative = np.zeros((n, RELATIVE_STATE_SIZE))
+    relative[:, HEIGHT] = 3.0
+    relative[k, HEIGHT] = touchdown_height + gap_m
+    relative[k, P_BP_W] = [*p_BP_xy, -relative[k, HEIGHT]]
+    relative[:, V_WP] = [1.0, 0.0, 0.0]  # the pad
+    quadrotor = np.zeros((n, STATE_SIZE))
+    quadrotor[:, V_WB] = v_WB
+    log = {"t": t, "mode": mode, "true_relative_state": relative, "quadrotor_state": quadrotor}
+    return pad_landing(log, "landed: the supervisor reported touchdown by t = 2.10 s", np.zeros(n), pad_size_m=1.0,
+                       pad_thickness_m=0.02, touchdown_height_m=touchdown_height, gravity_m_s2=10.0)
+
+
 def test_pad_landing_on_a_hand_built_log():
     """The supervisor's LANDED with the gear 16 mm over its touchdown height, descending at 0.2 m/s relative to
     the pad and drifting at (0.3, -0.4) m/s: g = 10 m/s^2 gives an impact at 0.6 m/s after 0.04 s, 0.05 m from
     the centre. Waits on unevenly spaced samples."""
-    F, A, W, L, D = Mode.FOLLOW, Mode.APPROACH, Mode.WAIT, Mode.LAND, Mode.LANDED
-    t = np.array([0.0, 0.3, 0.7, 1.2, 2.0, 2.1, 2.15])
-    mode = np.array([F, A, W, W, L, D, D], dtype=int)
-    n, k, g, touchdown_height = len(t), 4, 10.0, 0.1  # k: the sample before LANDED was logged
-    relative = np.zeros((n, RELATIVE_STATE_SIZE))
-    relative[:, HEIGHT] = 3.0
-    relative[k, HEIGHT] = touchdown_height + 0.016
-    relative[k, P_BP_W] = [0.042, 0.024, -relative[k, HEIGHT]]
-    relative[:, V_WP] = [1.0, 0.0, 0.0]  # the pad
-    quadrotor = np.zeros((n, STATE_SIZE))
-    quadrotor[:, V_WB] = [1.3, -0.4, -0.2]  # the UAV: (0.3, -0.4, -0.2) m/s relative to the pad
-    log = {"t": t, "mode": mode, "true_relative_state": relative, "quadrotor_state": quadrotor}
-    out, index = pad_landing(log, "landed: the supervisor reported touchdown by t = 2.10 s", np.zeros(n),
-                             pad_size_m=1.0, pad_thickness_m=0.02, touchdown_height_m=touchdown_height,
-                             gravity_m_s2=g)
-    assert index == k and out["touchdown_by"] == "supervisor" and out["success"]
+    out, index = _landed(0.016, [0.042, 0.024], [1.3, -0.4, -0.2])  # the UAV: (0.3, -0.4, -0.2) m/s relative to the pad
+    assert index == 4 and out["touchdown_by"] == "supervisor" and out["success"]
     # speed^2 = 0.2^2 + 2 g 0.016 = 0.36; fall = (0.6 - 0.2) / g = 0.04 s; drift 0.04 (0.3, -0.4) = (0.012, -0.016),
     # so the pad minus UAV at impact is (0.042 - 0.012, 0.024 + 0.016) = (0.03, 0.04), 0.05 m off.
     assert out["touchdown_rel_speed_mps"] == pytest.approx(0.6)
@@ -103,6 +109,16 @@ def test_pad_landing_on_a_hand_built_log():
     assert not out["meets_targets"]  # on the pad, 5 cm off, but at 0.6 m/s (the target: under 0.5)
     # One wait, from 0.7 to 2.0 s (the samples at 0.7 and 1.2 s, each until the next).
     assert out["waits"] == 1 and out["wait_s"] == pytest.approx(1.3)
+
+
+@pytest.mark.parametrize("p_BP_xy, error_m, meets", [([0.12, -0.16], 0.2, False), ([0.03, 0.04], 0.05, True)])
+def test_the_touchdown_error_target_is_10_cm(p_BP_xy, error_m, meets):
+    """A landing on the 1 m pad with the gear at its touchdown height (no fall), 0.3 m/s down (under the 0.5 m/s
+    target): it meets the targets 0.05 m from the centre, not 0.2 m from it, though on the pad either way."""
+    out, index = _landed(0.0, p_BP_xy, [1.0, 0.0, -0.3])
+    assert index == 4 and out["success"] and out["touchdown_rel_speed_mps"] == pytest.approx(0.3)
+    assert out["touchdown_error_m"] == pytest.approx(error_m)
+    assert out["meets_targets"] == meets
 
 
 def test_gv_landing_scores_the_contact_sample_in_the_pad_frame():
