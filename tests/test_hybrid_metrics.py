@@ -50,6 +50,13 @@ def test_f1_is_the_harmonic_mean_of_precision_and_recall():
     assert scores["f1"] == pytest.approx(4 / 7)
 
 
+def test_a_detection_at_exactly_the_match_iou_is_a_true_positive():
+    """A box of half the true box's width inside it: IOU 600 / 1200 px^2 = 0.5, seed 003 Table 3's match (IOU >=
+    0.5), so a true positive and no miss."""
+    scores = detection_scores(logged([[([100.0, 100.0, 20.0, 30.0], 0.9)]]), [TRUE_BOX])
+    assert (scores["true_positives"], scores["false_positives"], scores["false_negatives"]) == (1, 0, 0)
+
+
 def test_identity_switches_count_changes_of_the_locked_id_across_frames_without_a_lock():
     """LockedTrackVector's log: id -1 without a lock. 3 -> 7 and 7 -> 3 are switches, a gap under one id is not."""
     ids = [-1, 3, 3, -1, 3, 7, 7, -1, -1, 3]
@@ -73,6 +80,20 @@ def _ugv_hybrid():
     from diagrams.ugv_detection_scenes import ugv_bounds_V
     config = load_scenario("ugv-hybrid")[1]
     return config, ugv_bounds_V(config.platform, config.vehicle.wheelbase_m)[1][2]
+
+
+def _hybrid_log(quadrotor, vehicle, hybrid, truth=None, **channels) -> dict:
+    """hybrid_metrics' log of frames 0.1 s apart: the UAV's and UGV's states, the hybrid vectors, the true relative
+    state (zero if None); the pad velocity valid and zero, the stereo and altitude channels valid and reading 1 m (or
+    as `channels` give them), no detection, no lock."""
+    from systems.perception.seam import RELATIVE_STATE_SIZE
+    n = len(quadrotor)
+    ones = np.ones((n, 1))
+    return {"t": np.arange(n) * 0.1, "hybrid": hybrid,
+            "true_relative_state": np.zeros((n, RELATIVE_STATE_SIZE)) if truth is None else truth,
+            "quadrotor_state": quadrotor, "vehicle_state": vehicle, "v_valid": ones, "v_WP": np.zeros((n, 3)),
+            "detections": np.zeros((n, 6)), "lock": np.tile([-1.0, 0.0], (n, 1)), "stereo_altitude": ones,
+            "stereo_valid": ones, "altitude": ones, "altitude_valid": ones, **channels}
 
 
 def test_the_true_window_depth_follows_the_ugvs_heading_and_ignores_a_box_behind_the_eye():
@@ -135,11 +156,8 @@ def test_hybrid_metrics_on_a_constructed_log():
     hybrid[:, 1:4] = quadrotor[:, P_WB] + truth[:, P_BP_W] + [0.0, 0.0, 0.2]
     hybrid[-1, 0], hybrid[-1, 1:4] = 0.0, 50.0  # invalid: not scored
     depth = 3.0 + config.hybrid.stereo.X_BL.translation()[2] - top
-    ones, column = np.ones((n, 1)), np.ones((n, 1)) * depth
-    log = {"t": np.arange(n) * 0.1, "hybrid": hybrid, "true_relative_state": truth, "quadrotor_state": quadrotor,
-           "vehicle_state": vehicle, "v_valid": ones, "v_WP": np.zeros((n, 3)), "detections": np.zeros((n, 6)),
-           "lock": np.tile([-1.0, 0.0], (n, 1)), "stereo_altitude": column + 0.1, "stereo_valid": ones,
-           "altitude": column - 0.05, "altitude_valid": ones}
+    column = np.ones((n, 1)) * depth
+    log = _hybrid_log(quadrotor, vehicle, hybrid, truth, stereo_altitude=column + 0.1, altitude=column - 0.05)
     out = hybrid_metrics(log, config, None)
     position = out["hybrid"]["position_m"]
     assert position["samples"] == 3 and position["rmse_horizontal"] == pytest.approx(0.0, abs=1e-12)
@@ -153,7 +171,6 @@ def test_the_valid_fraction_in_view_counts_only_frames_that_see_the_ugv():
     invalid, then two over it with the estimate valid: valid in half the frames, in every frame in view."""
     from diagrams.hybrid_metrics import hybrid_metrics, true_ugv_boxes
     from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
-    from systems.perception.seam import RELATIVE_STATE_SIZE
     config, _ = _ugv_hybrid()
     away, over = _hover([30.0, 0.0, 3.0], (0, 0, 0), 0.0, 2), _hover([0.45, 0.0, 3.0], (0, 0, 0), 0.0, 2)
     quadrotor, vehicle = np.vstack([away[0], over[0]]), np.vstack([away[1], over[1]])
@@ -161,10 +178,128 @@ def test_the_valid_fraction_in_view_counts_only_frames_that_see_the_ugv():
     n = 4
     hybrid = np.zeros((n, HYBRID_VECTOR_SIZE))
     hybrid[2:, 0] = hybrid[2:, 4] = 1.0
-    ones = np.ones((n, 1))
-    log = {"t": np.arange(n) * 0.1, "hybrid": hybrid, "true_relative_state": np.zeros((n, RELATIVE_STATE_SIZE)),
-           "quadrotor_state": quadrotor, "vehicle_state": vehicle, "v_valid": ones, "v_WP": np.zeros((n, 3)),
-           "detections": np.zeros((n, 6)), "lock": np.tile([-1.0, 0.0], (n, 1)), "stereo_altitude": ones,
-           "stereo_valid": ones, "altitude": ones, "altitude_valid": ones}
-    out = hybrid_metrics(log, config, None)["hybrid"]
+    out = hybrid_metrics(_hybrid_log(quadrotor, vehicle, hybrid), config, None)["hybrid"]
     assert out["valid_fraction"] == 0.5 and out["valid_fraction_in_view"] == 1.0
+
+
+def test_the_horizontal_rmse_is_the_rms_of_the_horizontal_distance():
+    """Horizontal errors (0.03, 0.04) and (-0.06, 0.08) m, 0.05 and 0.1 m off, a NaN row left out: rmse_horizontal is
+    sqrt((0.05^2 + 0.1^2) / 2) m, the RMS of the distance (not of the two axes' errors together)."""
+    from diagrams.hybrid_metrics import axis_stats
+    stats = axis_stats(np.array([[0.03, 0.04, 0.5], [-0.06, 0.08, -0.5], [np.nan, np.nan, np.nan]]))
+    assert stats["samples"] == 2
+    assert stats["rmse_horizontal"] == pytest.approx(np.sqrt((0.05**2 + 0.1**2) / 2))
+    np.testing.assert_allclose(stats["mae_xyz"], [0.045, 0.06, 0.5])
+
+
+def _pad_frames(n, offsets, z=3.0):
+    """n frames of the UAV at (0.45, 0, z) over the UGV headed 0, the pad 2.5 m under it, and hybrid estimates of
+    it, valid and measured, off by `offsets` (n, 3) [m]: (quadrotor, vehicle, hybrid, truth)."""
+    from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
+    from systems.perception.seam import P_BP_W, RELATIVE_STATE_SIZE
+    from systems.vehicles.quadrotor import P_WB
+    quadrotor, vehicle = _hover([0.45, 0.0, 0.0], (0, 0, 0), 0.0, n)
+    quadrotor[:, P_WB.start + 2] = z
+    truth = np.zeros((n, RELATIVE_STATE_SIZE))
+    truth[:, P_BP_W] = [0.1, -0.2, -2.5]
+    hybrid = np.zeros((n, HYBRID_VECTOR_SIZE))
+    hybrid[:, 0] = hybrid[:, 4] = 1.0
+    hybrid[:, 1:4] = quadrotor[:, P_WB] + truth[:, P_BP_W] + offsets
+    return quadrotor, vehicle, hybrid, truth
+
+
+def test_the_error_after_the_climb_counts_the_frame_that_ends_it():
+    """Initial height IH: the UAV at 0.4 and 0.8 IH, then at IH from frame 2 (the climb's end, at or above 0.95 IH)
+    on; x errors 1 m in the climb, 0.3 and -0.1 m after it: after the climb 2 samples, MAE 0.2 m, RMSE sqrt(0.05)."""
+    from diagrams.hybrid_metrics import hybrid_metrics
+    config, _ = _ugv_hybrid()
+    ih = config.landing.initial_height_m
+    offsets = np.column_stack([[1.0, 1.0, 0.3, -0.1], np.zeros(4), np.zeros(4)])
+    quadrotor, vehicle, hybrid, truth = _pad_frames(4, offsets, np.array([0.4, 0.8, 1.0, 1.0]) * ih)
+    out = hybrid_metrics(_hybrid_log(quadrotor, vehicle, hybrid, truth), config, None)["hybrid"]
+    after = out["position_m_after_climb"]
+    assert after["samples"] == 2
+    np.testing.assert_allclose(after["mae_xyz"], [0.2, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(after["rmse_xyz"], [np.sqrt((0.3**2 + 0.1**2) / 2), 0.0, 0.0], atol=1e-12)
+
+
+def test_the_frames_up_to_the_end_time_are_scored_the_last_included():
+    """end_s the third frame's time: frames 0-2 scored (0.1 m off in y), the later ones 50 m off left out."""
+    from diagrams.hybrid_metrics import hybrid_metrics
+    config, _ = _ugv_hybrid()
+    offsets = np.array([[0.0, 0.1, 0.0]] * 3 + [[50.0, 50.0, 50.0]] * 2)
+    log = _hybrid_log(*_pad_frames(5, offsets))
+    out = hybrid_metrics(log, config, end_s=log["t"][2])["hybrid"]
+    assert out["frames"] == 3 and out["position_m"]["samples"] == 3
+    np.testing.assert_allclose(out["mae_xyz_m"], [0.0, 0.1, 0.0], atol=1e-12)
+
+
+def test_the_velocity_error_is_the_estimate_minus_the_truth():
+    """The pad moving at (1, 0, 0) m/s, its velocity estimated at (1.1, 0, 0) m/s: an error of 0.1 m/s in x."""
+    from diagrams.hybrid_metrics import hybrid_metrics
+    from systems.perception.seam import V_WP
+    config, _ = _ugv_hybrid()
+    quadrotor, vehicle, hybrid, truth = _pad_frames(3, np.zeros(3))
+    truth[:, V_WP] = [1.0, 0.0, 0.0]
+    log = _hybrid_log(quadrotor, vehicle, hybrid, truth, v_WP=np.tile([1.1, 0.0, 0.0], (3, 1)))
+    velocity = hybrid_metrics(log, config, None)["hybrid"]["velocity_mps"]
+    assert velocity["samples"] == 3
+    np.testing.assert_allclose(velocity["mae_xyz"], [0.1, 0.0, 0.0], atol=1e-12)
+
+
+def test_a_frame_measured_by_the_box_or_the_stereo_fix_counts_as_measured():
+    """The hybrid vector's `measured` (0 no, 1 by the box, 2 by the stereo eye's pad fix) 0, 1, 2, 2: measured in
+    3 of 4 frames, by the stereo fix in 2."""
+    from diagrams.hybrid_metrics import hybrid_metrics
+    config, _ = _ugv_hybrid()
+    quadrotor, vehicle, hybrid, truth = _pad_frames(4, np.zeros(3))
+    hybrid[:, 4] = [0.0, 1.0, 2.0, 2.0]
+    out = hybrid_metrics(_hybrid_log(quadrotor, vehicle, hybrid, truth), config, None)["hybrid"]
+    assert out["measured_fraction"] == 0.75 and out["stereo_pad_fraction"] == 0.5
+
+
+def test_the_true_ugv_box_follows_the_ugvs_heading():
+    """The UGV headed 0.6 rad, the UAV off its centre and yawed: its box is the enclosing box (pixel-index space,
+    +0.5 px) of its surface points placed by SciPy's yaw and seen through Drake's X_WC, projected by OpenCV's fisheye
+    model, the whole UGV inside the view and the image."""
+    import cv2
+    from pydrake.math import RigidTransform, RollPitchYaw
+    from scipy.spatial.transform import Rotation
+
+    from diagrams.hybrid_metrics import true_ugv_boxes
+    from diagrams.ugv_detection_scenes import box_surface_points, ugv_bounds_V
+    from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
+    config, _ = _ugv_hybrid()
+    fisheye = config.hybrid.fisheye
+    p_WV, yaw = np.array([0.5, -0.3, 0.0]), 0.6
+    X_WB = RigidTransform(RollPitchYaw(0.05, -0.1, 0.3), [1.5, 1.0, 4.0])
+    quadrotor = np.zeros((1, STATE_SIZE))
+    quadrotor[0, P_WB], quadrotor[0, Q_WB] = X_WB.translation(), X_WB.rotation().ToQuaternion().wxyz()
+    points_W = Rotation.from_rotvec([0.0, 0.0, yaw]).apply(box_surface_points(*ugv_bounds_V(
+        config.platform, config.vehicle.wheelbase_m), 9)) + p_WV
+    p_C = X_WB.multiply(fisheye.X_BC).inverse().multiply(points_W.T).T
+    assert np.all(np.arctan2(np.hypot(p_C[:, 0], p_C[:, 1]), p_C[:, 2]) < fisheye.theta_max)
+    uv = cv2.fisheye.projectPoints(p_C.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), fisheye.K, fisheye.D)[0]
+    uv = uv.reshape(-1, 2) + 0.5
+    assert np.all((uv > 0) & (uv < [fisheye.width, fisheye.height]))  # not clipped
+    box = true_ugv_boxes(quadrotor, np.array([[*p_WV[:2], yaw, 0.0]]), config)[0]
+    np.testing.assert_allclose(box, [*uv.min(axis=0), *(uv.max(axis=0) - uv.min(axis=0))], atol=1e-9)
+
+
+def test_a_frame_without_a_true_depth_is_left_out_of_the_stereo_errors():
+    """Three frames over the UGV's box top with the stereo reading 0.1 m over the true depth (the eye's height minus
+    the box's), then one looking up (nothing ahead: no true depth) with a valid reading: its error is left out, the
+    raw stereo's MAE, RMSE and bias 0.1 m; it still counts in the valid fraction."""
+    from diagrams.hybrid_metrics import hybrid_metrics, true_window_depth
+    from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
+    config, top = _ugv_hybrid()
+    over, up = _hover([0.45, 0.0, 3.0], (0, 0, 0), 0.0, 3), _hover([0.45, 0.0, 3.0], (np.pi, 0, 0), 0.0, 1)
+    quadrotor, vehicle = np.vstack([over[0], up[0]]), np.vstack([over[1], up[1]])
+    assert np.isnan(true_window_depth(quadrotor, vehicle, config)[3])
+    depth = 3.0 + config.hybrid.stereo.X_BL.translation()[2] - top
+    reading = np.array([[depth + 0.1]] * 3 + [[2.0]])
+    log = _hybrid_log(quadrotor, vehicle, np.zeros((4, HYBRID_VECTOR_SIZE)), stereo_altitude=reading)
+    raw = hybrid_metrics(log, config, None)["hybrid_stereo_altitude"]["raw"]
+    assert raw["valid_fraction"] == 1.0
+    assert raw["mae_m"] == pytest.approx(0.1) and raw["rmse_m"] == pytest.approx(0.1)
+    assert raw["bias_m"] == pytest.approx(0.1)
