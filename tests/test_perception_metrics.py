@@ -7,6 +7,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from diagrams.perception_metrics import longest_span_s, perception_metrics
 from systems.estimators.estimate import PoseEstimate, estimate_vector
+from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, ESTIMATE_VECTOR_SIZE
 from systems.perception.seam import HEIGHT, P_BP_W, RELATIVE_STATE_SIZE, VALID
 from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
 
@@ -144,7 +145,6 @@ def test_the_position_error_is_the_rms_of_the_3d_error_over_the_valid_samples():
 
 def test_the_coast_before_touchdown_is_from_the_last_fusion_before_it():
     """Fusions until 0.3 s, touchdown at 0.5 s: 0.2 s of coasting; a fusion after touchdown does not count."""
-    from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, ESTIMATE_VECTOR_SIZE
     t = np.arange(N) * 0.02
     estimate = np.zeros((N, ESTIMATE_VECTOR_SIZE))
     estimate[:, EST_LAST_MEASUREMENT] = np.minimum(t, 0.3)
@@ -156,7 +156,6 @@ def test_the_coast_before_touchdown_is_from_the_last_fusion_before_it():
 def test_a_fusion_at_the_touchdown_sample_leaves_no_coast():
     """The filter fused at every sample, the touchdown exactly at one of them: no coasting before touchdown (0 s),
     the later fusions not counted."""
-    from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, ESTIMATE_VECTOR_SIZE
     t = np.arange(N) * 0.02
     estimate = np.zeros((N, ESTIMATE_VECTOR_SIZE))
     estimate[:, EST_LAST_MEASUREMENT] = t
