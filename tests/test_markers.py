@@ -183,12 +183,26 @@ def test_negative_synthetic_noise_is_refused(noise):
         SyntheticMarkerSource(LAYOUT, CAMERA.X_BC, **noise)
 
 
+def test_the_synthetic_source_refuses_a_bad_layout():
+    """A layout with marker id 0 twice is a ConfigError naming the ids when the source is built."""
+    with pytest.raises(ConfigError, match="ids"):
+        SyntheticMarkerSource(MarkerLayout(ids=[0, 0, 1, 2, 3]), CAMERA.X_BC)
+
+
 def test_measurements_are_immutable_and_copies_share_them():
     m = MarkerMeasurement(0.0, 0, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0])
     with pytest.raises(ValueError):
         m.p_CM[0] = 1.0
     assert copy.deepcopy([m])[0] is m
     np.testing.assert_allclose(m.X_CM.translation(), [0, 0, 1])
+
+
+def test_the_pose_of_a_measurement_normalises_its_quaternion():
+    """A quaternion of norm 2, the paper's scalar-last [0, 0, 1.2, 1.6]: X_CM turns by its unit quaternion's angle
+    about z, 2 atan2(0.6, 0.8), where Drake refuses the raw quaternion."""
+    X_CM = MarkerMeasurement(0.0, 0, [0.0, 0.0, 1.0], [0.0, 0.0, 1.2, 1.6]).X_CM
+    assert angle_between(X_CM.rotation(), RotationMatrix.MakeZRotation(2 * np.arctan2(0.6, 0.8))) < 1e-12
+    np.testing.assert_allclose(X_CM.translation(), [0, 0, 1])
 
 
 def fixed_pose_source(source: SyntheticMarkerSource, X_WB: RigidTransform, X_WP: RigidTransform):
