@@ -18,6 +18,7 @@ from systems.perception.hybrid_pad import HybridPadConfig, HybridPadState, hybri
 from systems.perception.marker_detector import detect_marker_poses
 from systems.perception.stereo_pad import StereoPadConfig, StereoPadFinder, pad_centre_in_eye
 from systems.sensors.fisheye import FisheyeConfig
+from tests.conftest import pose
 from tests.test_markers import LAYOUT, X_CP_at, render_pad
 
 STEREO = hybrid_stereo()
@@ -54,6 +55,17 @@ def test_one_threshold_window_gives_the_default_searchs_fix(height_m, xy, yaw_de
     assert np.linalg.norm(one - X_LP.translation()) < 0.01 * height_m
 
 
+@pytest.mark.parametrize("rpy_deg", [(15.0, 10.0, 0.0), (-15.0, 10.0, 0.0)])
+def test_pad_centre_from_a_tilted_eye(rpy_deg):
+    """The eye rolled 15 deg and pitched 10 deg at 1.5 m, so that R_LM is no longer a symmetric half turn: each
+    marker's centre taken back by R_LM p_PM, the fix within 1 % of the distance (by R_LM^T instead: 6-8 cm off,
+    measured)."""
+    X_LP = pose([0.0, 0.0, 0.0], rpy_deg).inverse().multiply(X_CP_at(1.5, (0.1, -0.05), 20.0))
+    p_LP = pad_centre_in_eye(render_pad(X_LP, camera=EYE), EYE.K, LAYOUT)
+    assert p_LP is not None
+    assert np.linalg.norm(p_LP - X_LP.translation()) < 0.01 * 1.5
+
+
 def test_one_misplaced_marker_does_not_move_the_fix():
     """Marker 1 surveyed 0.3 m off where the pad has it (its offset in the finder's layout wrong): the five markers
     found give four centres at the pad's and one 0.3 m off, and the fix, their median, stays within 1 % of the
@@ -88,6 +100,15 @@ def test_finder_places_the_pad_in_world():
 def test_finder_off_the_plane_is_nan():
     finder, image, X_WB = _finder_view(Z_PAD + 0.3)
     assert np.all(np.isnan(finder.find(image, X_WB)))
+
+
+@pytest.mark.parametrize("off_m, kept", [(0.10, True), (-0.10, True), (0.20, False), (-0.20, False)])
+def test_finder_keeps_a_fix_within_the_height_tolerance_of_the_plane(off_m, kept):
+    """The finder's plane off the pad's by less than height_tolerance_m (0.15 m) keeps the fix, at the pad's
+    true centre; by more, on either side, it is NaN."""
+    finder, image, X_WB = _finder_view(Z_PAD + off_m)
+    p_WP = finder.find(image, X_WB)
+    assert np.allclose(p_WP, [2.0, 1.0, Z_PAD], atol=0.01) if kept else np.all(np.isnan(p_WP))
 
 
 @pytest.mark.parametrize("enabled", [True, False])
