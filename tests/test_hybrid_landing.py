@@ -24,6 +24,7 @@ from systems.perception.hybrid_pad import (
     HybridPadState,
     camera_height,
     hybrid_step,
+    hybrid_vector,
     pad_from_box,
 )
 from systems.perception.seam import P_BP_W, VALID, SeamConfig, estimate_is_valid
@@ -204,6 +205,16 @@ def test_oblique_ray_measures_only_above_the_landing_zone(height_m, measures):
         assert std == pytest.approx(HybridPadConfig().position_std_m / math.cos(math.radians(70)), rel=1e-5)
 
 
+@pytest.mark.parametrize("over_pad_m, measures", [(1.8, False), (2.1, True)])
+def test_the_landing_zone_is_counted_from_the_pads_plane(over_pad_m, measures):
+    """landing_zone_m (2 m) is the camera's height over the pad's plane (0.5 m up), not over the ground: a UGV 70 deg
+    off the vertical is not measured from 1.8 m over the pad (2.3 m over the ground), and is from 2.1 m."""
+    height_m = Z_PAD + over_pad_m - FISHEYE.X_BC.translation()[2]
+    p = np.array([over_pad_m * math.tan(math.radians(70)), 0.0, Z_PAD])
+    state = _run([(0.1 * k, True, True, p) for k in range(3)], height_m=height_m)[-1]
+    assert state.estimate.valid == measures and state.measured == measures
+
+
 def test_carried_altitude_follows_the_navigations_descent():
     """The stereo altitude valid at 6 m, then invalid while the UAV descends to 4 m: the camera's height is carried
     on from the last valid one by the navigation's change in height (source 2), so it stays the true height and an
@@ -302,6 +313,45 @@ def test_estimator_system_builds():
     assert np.all(np.isnan(system.GetOutputPort("v_WP_observed").Eval(context)))
     assert system.GetOutputPort("v_valid").Eval(context)[0] == 0.0
     assert np.array_equal(system.GetOutputPort("v_WP").Eval(context), np.zeros(3))  # never NaN to the seam
+
+
+def test_the_seams_velocity_past_the_observers_window_is_the_coasts():
+    """v_WP while the estimate coasts past the observer's window (1.5 s; the final landing, 2 m up): the velocity it
+    coasts with, the boxes' 0.5 m/s along x, not zero; v_WP_observed is NaN."""
+    v = np.array([0.5, 0.0, 0.0])
+    seen = [(0.1 * k, True, True, np.array([0.0, 0.0, Z_PAD]) + v * 0.1 * k) for k in range(10)]
+    state = _run(seen + [(0.1 * k, False, True, None) for k in range(10, 31)], height_m=2.0)[-1]
+    assert state.estimate.valid and not state.measured and not state.observer.valid
+    system = HybridPadEstimator(FISHEYE, HybridPerceptionConfig().stereo.X_BL, Z_PAD)
+    context = system.CreateDefaultContext()
+    context.SetTime(state.time)
+    context.SetAbstractState(0, state)  # the step at state.time taken: the outputs read it
+    # the boxes' points, recovered to the undistortion's precision (1e-6 m), lie on the line the observer fits
+    np.testing.assert_allclose(system.GetOutputPort("v_WP").Eval(context), v, atol=1e-3)
+    assert np.all(np.isnan(system.GetOutputPort("v_WP_observed").Eval(context)))
+
+
+@pytest.mark.parametrize("matched", [False, True])
+def test_only_a_box_matched_this_frame_measures(matched):
+    """With target_lock connected, a valid box measures only when the locked track was matched with a detection
+    this frame (lock [id, 1]), then at the point it was drawn around; the box of a track coasting without one
+    (lock [id, 0]) does not."""
+    X_BL = HybridPerceptionConfig().stereo.X_BL
+    X_WB, p_WP = RigidTransform([0.0, 0.0, 7.5]), np.array([1.0, -0.5, Z_PAD])
+    system = HybridPadEstimator(FISHEYE, X_BL, Z_PAD)
+    context = system.CreateDefaultContext()
+    system.GetInputPort("target_box").FixValue(context, box_around(p_WP, X_WB))
+    system.GetInputPort("target_valid").FixValue(context, [1.0])
+    system.GetInputPort("target_lock").FixValue(context, [3.0, float(matched)])
+    # level, the eye looking straight down at the ground (z = 0): its depth is its height
+    system.GetInputPort("altitude").FixValue(context, [X_WB.multiply(X_BL).translation()[2]])
+    system.GetInputPort("altitude_valid").FixValue(context, [1.0])
+    system.GetInputPort("X_WB").FixValue(context, X_WB)
+    assert system.GetOutputPort("hybrid_vector").Eval(context)[4] == float(matched)
+    estimate = system.GetOutputPort("X_WP_estimate").Eval(context)
+    assert estimate.valid == matched
+    if matched:
+        assert np.allclose(estimate.X_RT.translation(), p_WP, atol=1e-6)
 
 
 def test_the_altitude_filter_knows_the_altimeters_nearest_range():
@@ -505,6 +555,39 @@ def test_the_gate_grows_with_the_time_since_the_last_measurement(off_m, used):
     assert last.measured == used and last.gated == (0 if used else 1)
     if used:
         assert np.allclose(last.estimate.X_RT.translation(), again[0][3], atol=1e-6)
+
+
+def test_the_stereo_pad_fix_is_not_gated():
+    """In the final landing, a valid estimate moving at 0.5 m/s and a stereo eye's fix 1.5 m off its prediction
+    (beyond the gate, which refuses such a box): the fix measures, ungated, the estimate on it at the pad's plane."""
+    v = np.array([0.5, 0.0, 0.0])
+    states = _run([(0.1 * k, True, True, np.array([0.0, 0.0, Z_PAD]) + v * 0.1 * k) for k in range(10)], height_m=2.0)
+    last = states[-1]
+    assert last.estimate.valid and last.velocity is not None
+    X_WB = RigidTransform([0.0, 0.0, 2.0])
+    fix = np.array([0.5, 1.5, Z_PAD + 0.03])  # the prediction at 1.0 s is [0.5, 0]
+    predicted = last.last_p_WP + 0.1 * last.velocity
+    config = HybridPadConfig()
+    assert np.linalg.norm(fix[:2] - predicted[:2]) > config.gate_m + 0.1 * config.gate_growth_m_s
+    state = hybrid_step(last, 1.0, np.full(4, np.nan), False, X_WB.multiply(FISHEYE.X_BC).translation()[2], True,
+                        X_WB, FISHEYE, Z_PAD, config, VelocityObserverConfig(), pad_fix=fix)
+    assert state.fixed and state.measured and state.gated == 0
+    assert np.allclose(state.estimate.X_RT.translation(), [0.5, 1.5, Z_PAD])
+
+
+def test_the_hybrid_vector_codes_what_measured_the_frame():
+    """hybrid_vector's `measured` (index 4): 1 for a frame the box measured, 2 for one the stereo eye's fix did, 0
+    for one neither did (hybrid_metrics' stereo_pad_fraction counts the frames over 1.5)."""
+    X_WB = RigidTransform([0.0, 0.0, 2.0])
+    h = X_WB.multiply(FISHEYE.X_BC).translation()[2]
+    p = np.array([0.1, -0.2, Z_PAD])
+    frames = [(box_around(p, X_WB), True, None), (np.full(4, np.nan), False, p), (np.full(4, np.nan), False, None)]
+    state, measured = HybridPadState(), []
+    for k, (box, seen, fix) in enumerate(frames):
+        state = hybrid_step(state, 0.1 * k, box, seen, h, True, X_WB, FISHEYE, Z_PAD, HybridPadConfig(),
+                            VelocityObserverConfig(), pad_fix=fix)
+        measured.append(hybrid_vector(state)[4])
+    assert measured == [1.0, 2.0, 0.0]
 
 
 def _state_rows(p_WB, rpy=(0.0, 0.0, 0.0), vehicle=(0.0, 0.0, 0.0)):
