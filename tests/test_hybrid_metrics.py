@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from diagrams.hybrid_metrics import detection_scores, identity_switches
-from systems.perception.hybrid_pad import DetectionsToTracker
+from systems.perception.box_tracker import BoxTrack
+from systems.perception.hybrid_pad import DetectionsToTracker, LockedTrackVector
 
 TRUE_BOX = np.array([100.0, 100.0, 40.0, 30.0])  # [x, y, w, h] px
 
@@ -39,6 +40,16 @@ def test_every_detection_counts_however_many_a_frame_has():
     assert scores["f1"] == pytest.approx(2 / 15)  # 2 P R / (P + R) = (2 / 14) / (15 / 14)
 
 
+def test_the_detection_log_keeps_the_best_by_score_whatever_the_order_given():
+    """Twelve detections, the UGV's given last but the fourth by score: the log's ten rows are the ten best,
+    highest score first, the UGV's the fourth."""
+    false_alarms = [([20.0 * k, 400.0, 30.0, 30.0], 0.95 - 0.01 * k) for k in range(11)]
+    row = logged([false_alarms + [(TRUE_BOX.tolist(), 0.925)]])[0]
+    assert row[0] == 12
+    best = [box for box, _ in false_alarms[:3]] + [TRUE_BOX.tolist()] + [box for box, _ in false_alarms[3:9]]
+    np.testing.assert_array_equal(row[1:].reshape(10, 5), [[1.0, *box] for box in best])
+
+
 def test_f1_is_the_harmonic_mean_of_precision_and_recall():
     """Found with a false alarm beside it, missed (a box elsewhere instead), found: 2 true positives, 2 false, 1
     miss; precision 1/2, recall 2/3, F1 2 (1/2)(2/3) / (1/2 + 2/3) = 4/7."""
@@ -63,6 +74,22 @@ def test_identity_switches_count_changes_of_the_locked_id_across_frames_without_
     lock = np.column_stack([ids, np.zeros(len(ids))]).astype(float)
     assert identity_switches(lock) == {"identity_switches": 2, "frames_locked": 6, "tracks_locked": 2}
     assert identity_switches(lock[:3]) == {"identity_switches": 0, "frames_locked": 2, "tracks_locked": 1}
+
+
+@pytest.mark.parametrize("detection, matched", [(None, 0.0), (0, 1.0)])
+def test_the_lock_log_says_whether_the_locked_track_was_matched_this_frame(detection, matched):
+    """LockedTrackVector: the id of the track whose box is the target's, and 1 when it was matched with a detection
+    this frame (that of index 0 too), 0 when it coasts; [-1, 0] for a target box no track has."""
+    system = LockedTrackVector()
+    context = system.CreateDefaultContext()
+    centre_form = [TRUE_BOX[0] + TRUE_BOX[2] / 2, TRUE_BOX[1] + TRUE_BOX[3] / 2, *TRUE_BOX[2:]]
+    tracks = [BoxTrack(4, np.r_[400.0, 300.0, 40.0, 30.0, np.zeros(4)], np.eye(8), detection=1),
+              BoxTrack(7, np.r_[centre_form, np.zeros(4)], np.eye(8), detection=detection)]
+    system.GetInputPort("tracks").FixValue(context, tracks)
+    system.GetInputPort("target_box").FixValue(context, TRUE_BOX)
+    np.testing.assert_array_equal(system.get_output_port().Eval(context), [7.0, matched])
+    system.GetInputPort("target_box").FixValue(context, [10.0, 10.0, 40.0, 30.0])
+    np.testing.assert_array_equal(system.get_output_port().Eval(context), [-1.0, 0.0])
 
 
 def _hover(p_WB, rpy, ugv_yaw, n=1):
