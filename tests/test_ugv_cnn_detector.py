@@ -54,24 +54,65 @@ def test_decode_drops_a_box_overlapping_a_better_one():
     assert len(decode(out, 4, 0.5, nms_iou=0.4)) == 2
 
 
+def test_decode_scales_the_box_by_the_stride():
+    """A stride-8 grid, one peak at row 10, column 20, offsets 0.5, log w = log 3, log h = log 2 (cells): the box
+    is centred at (20.5, 10.5) cells, 3 x 2 cells: [164 - 12, 84 - 8, 24, 16] px."""
+    out = heat_map({(10, 20): 0.9}, cells=64)
+    out[1:3, 10, 20] = 0.5
+    out[3:, 10, 20] = np.log(3.0), np.log(2.0)
+    found = decode(out, 8, 0.5)
+    assert len(found) == 1
+    np.testing.assert_allclose(found[0][0], [152.0, 76.0, 24.0, 16.0], rtol=1e-6)
+
+
 def test_decode_keeps_a_peak_at_min_score_and_drops_one_under_it():
     """The docstring's "at or above min_score": a peak of exactly 0.5 is a detection, one of 0.49 is not."""
     assert len(decode(heat_map({(10, 10): 0.5}), 4, 0.5)) == 1
     assert decode(heat_map({(10, 10): 0.49}), 4, 0.5) == []
 
 
+def draw_ugv(image: np.ndarray, row: int, col: int) -> None:
+    """A UGV drawn on `image` from its top-left pixel (row, col): 40 px wide, two 10 px strips of its colour with the
+    pad's white 30 px between."""
+    image[row:row + 10, col:col + 40] = image[row + 40:row + 50, col:col + 40] = (191, 77, 38)
+    image[row + 10:row + 40, col:col + 40] = 240
+
+
 def test_the_detector_keeps_only_what_scores_at_least_its_min_score():
     """A drawn UGV (strips of its colour, the pad's white between) on grey, which the network scores between 0.5
     and 0.99: a detector at min_score m gives exactly a lax detector's detections scoring at least m."""
     image = np.full((512, 512, 3), 110, np.uint8)
-    image[200:210, 200:240] = image[240:250, 200:240] = (191, 77, 38)
-    image[210:240, 200:240] = 240
+    draw_ugv(image, 200, 200)
     lax = CnnDetector(min_score=0.01).detect(image)
     assert any(0.5 <= score < 0.99 for _, score in lax)
     for m in (0.5, 0.99):
         strict = CnnDetector(min_score=m).detect(image)
         assert [(box.tolist(), score) for box, score in strict] == \
             [(box.tolist(), score) for box, score in lax if score >= m]
+
+
+def test_the_detector_keeps_at_most_max_detections_the_best_first():
+    """Two drawn UGVs, each boxed by the network (a box centred on each): a detector of max_detections 1 keeps only
+    the better scoring of the two."""
+    image = np.full((512, 512, 3), 110, np.uint8)
+    ugvs = [(200, 200), (350, 350)]
+    for row, col in ugvs:
+        draw_ugv(image, row, col)
+    both = CnnDetector().detect(image)
+    assert len(both) == 2
+    for row, col in ugvs:
+        assert sum(col <= x + w / 2 < col + 40 and row <= y + h / 2 < row + 50 for (x, y, w, h), _ in both) == 1
+    best = max(both, key=lambda d: d[1])
+    found = CnnDetector(max_detections=1).detect(image)
+    assert len(found) == 1 and found[0][1] == best[1]
+    np.testing.assert_array_equal(found[0][0], best[0])
+
+
+@pytest.mark.parametrize("min_score", [0.0, 1.0, -0.1, 1.5])
+def test_a_min_score_outside_the_open_unit_interval_is_refused(min_score):
+    """The detector's min_score lies strictly between 0 and 1: 0, 1 and values beyond are a ConfigError."""
+    with pytest.raises(ConfigError, match=r"min_score must lie in \(0, 1\)"):
+        CnnDetector(min_score=min_score)
 
 
 def test_a_box_centred_outside_the_crop_has_no_target():
