@@ -30,7 +30,7 @@ from systems.config import ConfigError
 from systems.control.landing import Mode
 from systems.control.monitor import FAILURE_REASONS, LandingMonitor, gear_on_pad, pad_offset
 from systems.perception.seam import A_WP, HEIGHT, P_BP_B, P_BP_W, RELATIVE_STATE_SIZE, V_WP, VALID, SeamSplit
-from systems.perception.truth import PadPose, PadVelocity, RelativeStateTruth, pad_motion
+from systems.perception.truth import PadMotionTruth, PadPose, PadVelocity, RelativeStateTruth, in_view, pad_motion
 from systems.vehicles.ground_vehicle import bicycle_state_derivative
 from systems.vehicles.quadrotor import (
     P_WB,
@@ -278,6 +278,34 @@ def test_the_truth_gives_the_true_relative_state_and_the_split_names_its_parts()
     X_WB.FixValue(context, pose_from_state(quadrotor_state(p_WB=[11.0, 2.0, 5.0],
                                                            R_WB=RotationMatrix(RollPitchYaw(1.4, 0, 0)))))
     assert truth.get_output_port().Eval(context)[VALID] == 0.0
+
+
+@pytest.mark.parametrize("p_BP_B, seen", [
+    ([0.0, 0.0, -3.0], True),  # straight below
+    ([0.0, 0.0, 3.0], False),  # straight above
+    ([0.0, 0.0, -29.0], True), ([0.0, 0.0, -31.0], False),  # either side of the 30 m range
+    # 74 and 76 deg off -z_B, either side of the cone's 75 deg half angle
+    ([5.0 * np.sin(np.radians(74.0)), 0.0, -5.0 * np.cos(np.radians(74.0))], True),
+    ([0.0, -5.0 * np.sin(np.radians(76.0)), -5.0 * np.cos(np.radians(76.0))], False),
+])
+def test_the_pad_is_in_view_inside_the_downward_cone_and_range(p_BP_B, seen):
+    """in_view: the cone of 150 deg about -z_B, out to 30 m."""
+    assert in_view(np.array(p_BP_B), 150.0, 30.0) == seen
+
+
+@pytest.mark.parametrize("p_WB, roll_deg, valid", [([0.0, 0.0, 5.0], 0.0, 1.0), ([0.0, 0.0, 5.0], 80.0, 0.0),
+                                                   ([0.0, 0.0, 40.0], 0.0, 0.0)])
+def test_the_given_pad_motions_truth_is_valid_only_in_view(p_WB, roll_deg, valid):
+    """PadMotionTruth (the Stewart deck's seam): valid level 5 m over the pad, not rolled 80 deg (the pad 80 deg off
+    -z_B, outside the 150 deg cone) nor 40 m over it (beyond 30 m)."""
+    truth = PadMotionTruth(150.0, 30.0)
+    context = truth.CreateDefaultContext()
+    truth.GetInputPort("pad_motion").FixValue(context, np.zeros(9))
+    truth.GetInputPort("X_WB").FixValue(context, pose_from_state(quadrotor_state(
+        p_WB=p_WB, R_WB=RotationMatrix(RollPitchYaw(np.radians(roll_deg), 0, 0)))))
+    relative = truth.get_output_port().Eval(context)
+    assert relative[VALID] == valid
+    np.testing.assert_allclose(relative[P_BP_W], -np.array(p_WB), atol=1e-12)
 
 
 def test_the_pads_acceleration_is_the_rate_of_its_velocity():
