@@ -18,7 +18,7 @@ demo: $(STAMP) system-deps
 	$(VENV)/bin/landing-sim run marker-landing --out results/demo
 
 test: $(STAMP) system-deps browser
-	$(VENV)/bin/python -m pytest
+	$(VENV)/bin/python -m pytest -n auto --dist loadfile
 
 bench: $(STAMP) system-deps
 	$(VENV)/bin/python benchmarks/realtime.py
