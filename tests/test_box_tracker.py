@@ -431,27 +431,23 @@ def test_a_smaller_object_over_a_larger_track_keeps_its_own_track():
     assert np.allclose(target_box(state)[0], target) and target_box(state)[1]
 
 
-def test_the_default_cue_is_the_image_centre_in_the_boxes_pixel_index_space():
-    """A 512 px image's centre is (256, 256) in the boxes' centre form (x + w / 2): a box centred 7 px down
-    and right of it (9.90 px away) is nearer than one 7.2 px up and left (10.18 px), and the lock takes it
-    (taking OpenCV's (255.5, 255.5) for the centre would take the other: 10.61 against 9.48 px)."""
-    image = np.zeros((512, 512, 4), np.uint8)
-    down_right, up_left = np.array([258.0, 258.0, 10.0, 10.0]), np.array([243.8, 243.8, 10.0, 10.0])
+@pytest.mark.parametrize("rows_cols, nearer, farther", [
+    # 512 px: the centre (256, 256) in the boxes' centre form (x + w / 2); the box centred 7 px down and right of it
+    # (9.90 px away) is nearer than one 7.2 px up and left (10.18 px); OpenCV's (255.5, 255.5) would take the other
+    # (10.61 against 9.48 px)
+    ((512, 512), [258.0, 258.0, 10.0, 10.0], [243.8, 243.8, 10.0, 10.0]),
+    # 640 x 480: the centre (320, 240), u across the 640 columns, v down the 480 rows; the other box centred at
+    # (240, 320), 113 px off, within cue_radius_px
+    ((480, 640), [310.0, 230.0, 20.0, 20.0], [230.0, 310.0, 20.0, 20.0]),
+], ids=["square", "wide"])
+def test_the_default_cue_is_the_image_centre_in_the_boxes_pixel_index_space(rows_cols, nearer, farther):
+    """Without a cue the lock takes the track nearest the image's centre, (width / 2, height / 2) in the boxes'
+    pixel-index space."""
+    image = np.zeros((*rows_cols, 4), np.uint8)
     tracker = BoxTracker(BoxTrackerConfig())
     for k in range(3):
-        state = tracker.step([Detection(up_left, 0.9), Detection(down_right, 0.9)], image, 0.1 * k)
-    assert np.allclose(target_box(state)[0], down_right)
-
-
-def test_the_default_cue_is_the_centre_of_a_wide_image():
-    """A 640 x 480 image's centre is (320, 240) (u across its 640 columns, v down its 480 rows): of two boxes
-    centred there and at (240, 320) (113 px apart, within cue_radius_px), the lock takes the first."""
-    image = np.zeros((480, 640, 4), np.uint8)
-    centred, other = np.array([310.0, 230.0, 20.0, 20.0]), np.array([230.0, 310.0, 20.0, 20.0])
-    tracker = BoxTracker(BoxTrackerConfig())
-    for k in range(3):
-        state = tracker.step([Detection(other, 0.9), Detection(centred, 0.9)], image, 0.1 * k)
-    assert np.allclose(target_box(state)[0], centred)
+        state = tracker.step([Detection(np.array(farther), 0.9), Detection(np.array(nearer), 0.9)], image, 0.1 * k)
+    assert np.allclose(target_box(state)[0], nearer)
 
 
 def test_lock_takes_only_a_confident_track():
@@ -498,18 +494,26 @@ def test_reacquire_skips_a_nearer_tentative_track_for_a_confirmed_one():
     assert state.lock.track_id == other_id
 
 
+def lost_and_reacquired(target, others, config, image=None):
+    """The state after the target, locked over three frames among `others`, goes unseen for a frame (its track
+    dropped: config's max_misses 0) and the lock passes to another track."""
+    tracker = BoxTracker(config)
+    for k in range(3):
+        state = tracker.step([Detection(target), *map(Detection, others)], image, 0.1 * k)
+    target_id = state.target.id
+    state = tracker.step(list(map(Detection, others)), image, 0.3)
+    assert state.track(target_id) is None
+    return state
+
+
 def test_reacquire_measures_from_the_last_boxs_centre():
     """A lost 60 px target's last box has its centre at (130, 130): the lock passes to the track centred 40 px
     from it (at (170, 130)), not to the one 71 px away at (80, 80), though that one is nearer the box's
     top-left corner (28 px against 76 px)."""
     target = np.array([100.0, 100.0, 60.0, 60.0])
     right, corner = np.array([160.0, 120.0, 20.0, 20.0]), np.array([70.0, 70.0, 20.0, 20.0])
-    tracker = BoxTracker(BoxTrackerConfig(cue_px=[130.0, 130.0], cue_radius_px=30.0, max_misses=0))
-    for k in range(3):
-        state = tracker.step([Detection(target), Detection(right), Detection(corner)], None, 0.1 * k)
-    target_id = state.target.id
-    state = tracker.step([Detection(right), Detection(corner)], None, 0.3)
-    assert state.track(target_id) is None
+    state = lost_and_reacquired(target, [right, corner],
+                                BoxTrackerConfig(cue_px=[130.0, 130.0], cue_radius_px=30.0, max_misses=0))
     assert np.allclose(state.target.box, right)
 
 
@@ -521,14 +525,9 @@ def test_reacquire_takes_a_track_of_the_targets_colour():
                          np.array([100.0, 190.0, 30.0, 20.0]))
     image = np.zeros((240, 320, 4), np.uint8)
     image[100:120, 100:130, :3], image[100:120, 140:170, :3], image[190:210, 100:130, :3] = RED, BLUE, RED
+    config = BoxTrackerConfig(cue_px=[115.0, 110.0], cue_radius_px=20.0, max_misses=0)
     for use_image, expected in ((True, red), (False, blue)):
-        frame_image = image if use_image else None
-        tracker = BoxTracker(BoxTrackerConfig(cue_px=[115.0, 110.0], cue_radius_px=20.0, max_misses=0))
-        for k in range(3):
-            state = tracker.step([Detection(target), Detection(blue), Detection(red)], frame_image, 0.1 * k)
-        target_id = state.target.id
-        state = tracker.step([Detection(blue), Detection(red)], frame_image, 0.3)
-        assert state.track(target_id) is None
+        state = lost_and_reacquired(target, [blue, red], config, image if use_image else None)
         assert np.allclose(state.target.box, expected), use_image
 
 
