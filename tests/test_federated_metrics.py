@@ -8,9 +8,19 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
-from pydrake.math import RigidTransform
+from pydrake.math import RigidTransform, RollPitchYaw
+from scipy.spatial.transform import Rotation
 
-from diagrams.federated_metrics import FederatedLog, federated_metrics, filter_metrics, node_metrics, overlap_metrics
+from diagrams import federated_plots
+from diagrams.federated_metrics import (
+    FederatedLog,
+    federated_metrics,
+    filter_metrics,
+    node_metrics,
+    overlap_metrics,
+    true_p_CP,
+    true_X_PB,
+)
 from diagrams.federated_plots import plot_federated, shade_frames
 from diagrams.gv_landing_run import summary_lines
 from systems.estimators.federated.system import (
@@ -25,6 +35,9 @@ from systems.estimators.federated.system import (
 )
 from systems.perception.rqrlp.measurements import NODE_VECTOR_SIZE
 from systems.sensors.camera import CameraConfig
+from systems.sensors.ground_truth import pose_vector
+from systems.vehicles.ground_vehicle_geometry import PlatformConfig
+from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
 
 
 def _log() -> tuple[FederatedLog, np.ndarray]:
@@ -152,11 +165,6 @@ def test_with_a_touchdown_every_valid_fraction_is_over_the_frames_up_to_it():
 def test_the_truth_is_drakes_X_PB_and_p_CP():
     """true_X_PB of a tilted UAV over a yawed pad is X_WP^-1 X_WB (Drake, the platform's own X_WP), and
     true_p_CP the pad centre in a rotated, offset camera: X_CB X_BP's translation."""
-    from pydrake.math import RollPitchYaw
-
-    from diagrams.federated_metrics import true_p_CP, true_X_PB
-    from systems.vehicles.ground_vehicle_geometry import PlatformConfig
-    from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
     platform = PlatformConfig()
     X_WB = RigidTransform(RollPitchYaw(0.1, -0.2, 0.7), [1.0, 2.0, 4.0])
     vehicle = np.array([[0.5, -1.0, 0.6, 0.0]])
@@ -175,10 +183,6 @@ def test_the_truth_is_drakes_X_PB_and_p_CP():
 def test_true_p_CP_is_drakes_through_a_mount_whose_rotation_is_not_symmetric():
     """A camera tilted off the vertical, mounted at RPY (pi - 0.3, 0.2, pi/2) (a rotation matrix that is not its
     own transpose), offset from the body: true_p_CP of seeded random X_PB is Drake's X_BC^-1 X_PB^-1's translation."""
-    from pydrake.math import RollPitchYaw
-
-    from diagrams.federated_metrics import true_p_CP
-    from systems.sensors.ground_truth import pose_vector
     X_BC = RigidTransform(RollPitchYaw(np.pi - 0.3, 0.2, np.pi / 2), [0.05, -0.02, -0.1])
     R_BC = X_BC.rotation().matrix()
     assert np.abs(R_BC - R_BC.T).max() > 0.4
@@ -194,7 +198,6 @@ def test_the_approaching_nodes_p_CP_is_scored_in_C_within_the_window():
     """The approaching node's p_CP off the truth (Drake's X_CB X_BP) by (0.02, -0.01, 0) and (-0.04, 0, 0.03) m on
     alternate frames up to the window's end, and by 5 m after it: MAE per axis the mean |error| (0.03, 0.005, 0.015),
     RMSE per axis and in 3-D the root mean squares of those two, the frames after the window left out."""
-    from pydrake.math import RollPitchYaw
     log, _ = _log()
     X_BC = RigidTransform(RollPitchYaw(np.pi, 0.0, np.pi / 2), [0.05, 0.0, -0.1])
     assert np.all(log.X_PB[:, 3:] == [1.0, 0.0, 0.0, 0.0])  # X_PB a translation alone: X_BP = -p_PB
@@ -234,7 +237,6 @@ def test_the_local_filters_and_the_fused_estimate_are_scored_in_3d_and_as_rms():
     """Truth yawed 0.3 rad; each local filter's rotation vector exactly it (no attitude error) and its position
     off by (0.03, 0.04, 0.12) m (RMSE 0.13 m in 3-D); the fused estimate exact in position, its attitude off
     about z by 0.1 rad on one frame and 0.3 rad on the other: an orientation RMSE of sqrt((0.1^2 + 0.3^2) / 2)."""
-    from scipy.spatial.transform import Rotation
     n, yaw = 2, 0.3
     q = Rotation.from_rotvec([0.0, 0.0, yaw]).as_quat()  # x y z w
     X_PB = np.tile([1.0, 2.0, 3.0, q[3], *q[:3]], (n, 1))
@@ -260,10 +262,6 @@ def test_each_federated_panel_draws_the_channel_it_names(tmp_path, monkeypatch):
     approaching node's error is against the true depth along the camera's axis (Drake's X_CB X_BP), the others' and
     the fused one's against the true height; (e) each local filter's line is its own p_PB z, and the fused line is
     NaN where the fused estimate is invalid."""
-    from pydrake.math import RollPitchYaw
-
-    from diagrams import federated_plots
-
     log, heights = _log()
     X_BC = RigidTransform(RollPitchYaw(np.pi, 0.0, np.pi / 2), [0.05, 0.0, -0.3])  # 0.3 m under the body
     depth = np.array([X_BC.inverse().multiply(RigidTransform(-np.array([0.0, 0.0, h]))).translation()[2]

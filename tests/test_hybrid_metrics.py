@@ -2,12 +2,32 @@
 logs them (DetectionsToTracker's detection_vector); the tracker's identity switches from the lock's log; the
 true stereo window depth, and hybrid_metrics' position and altitude errors on a constructed log."""
 
+import cv2
 import numpy as np
 import pytest
+from pydrake.math import RigidTransform, RollPitchYaw
+from scipy.spatial.transform import Rotation
 
-from diagrams.hybrid_metrics import detection_scores, identity_switches
+from diagrams.hybrid_metrics import (
+    axis_stats,
+    detection_scores,
+    hybrid_metrics,
+    identity_switches,
+    ray_box_entry,
+    true_ugv_boxes,
+    true_window_depth,
+)
+from diagrams.hybrid_perception import GROUND_LIFT_M
+from diagrams.runner import load_scenario
+from diagrams.ugv_detection_scenes import box_surface_points, ugv_bounds_V
 from systems.perception.box_tracker import BoxTrack
-from systems.perception.hybrid_pad import DetectionsToTracker, LockedTrackVector
+from systems.perception.hybrid_pad import (
+    HYBRID_VECTOR_SIZE,
+    DetectionsToTracker,
+    LockedTrackVector,
+)
+from systems.perception.seam import P_BP_W, RELATIVE_STATE_SIZE, V_WP
+from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
 
 TRUE_BOX = np.array([100.0, 100.0, 40.0, 30.0])  # [x, y, w, h] px
 
@@ -94,17 +114,13 @@ def test_the_lock_log_says_whether_the_locked_track_was_matched_this_frame(detec
 
 def _hover(p_WB, rpy, ugv_yaw, n=1):
     """n frames of the UAV at p_WB with attitude rpy over the UGV at the origin headed ugv_yaw."""
-    from pydrake.math import RollPitchYaw
 
-    from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
     quadrotor = np.zeros((n, STATE_SIZE))
     quadrotor[:, P_WB], quadrotor[:, Q_WB] = p_WB, RollPitchYaw(*rpy).ToQuaternion().wxyz()
     return quadrotor, np.tile([0.0, 0.0, ugv_yaw, 0.0], (n, 1))
 
 
 def _ugv_hybrid():
-    from diagrams.runner import load_scenario
-    from diagrams.ugv_detection_scenes import ugv_bounds_V
     config = load_scenario("ugv-hybrid")[1]
     return config, ugv_bounds_V(config.platform, config.vehicle.wheelbase_m)[1][2]
 
@@ -113,7 +129,6 @@ def _hybrid_log(quadrotor, vehicle, hybrid, truth=None, **channels) -> dict:
     """hybrid_metrics' log of frames 0.1 s apart: the UAV's and UGV's states, the hybrid vectors, the true relative
     state (zero if None); the pad velocity valid and zero, the stereo and altitude channels valid and reading 1 m (or
     as `channels` give them), no detection, no lock."""
-    from systems.perception.seam import RELATIVE_STATE_SIZE
     n = len(quadrotor)
     ones = np.ones((n, 1))
     return {"t": np.arange(n) * 0.1, "hybrid": hybrid,
@@ -127,7 +142,6 @@ def test_the_true_window_depth_follows_the_ugvs_heading_and_ignores_a_box_behind
     """The left eye (X_BL) looking straight down on the UGV's box top: the eye's height minus the box's, the
     same over the box's centre line with the UGV headed 0 or 90 deg (its frame turned); NaN looking up, the box
     then behind the eye and no ground ahead."""
-    from diagrams.hybrid_metrics import true_window_depth
     config, top = _ugv_hybrid()
     eye_height = 3.0 + config.hybrid.stereo.X_BL.translation()[2]
     straight = true_window_depth(*_hover([0.45, 0.0, 3.0], (0, 0, 0), 0.0), config)[0]
@@ -139,11 +153,7 @@ def test_the_true_window_depth_follows_the_ugvs_heading_and_ignores_a_box_behind
 def test_the_true_window_depth_along_a_slanted_axis_meets_the_turned_ugvs_box():
     """The UAV pitched 20 deg, its left eye's axis slanting towards the UGV headed 90 deg: the depth is where a fine
     march along that axis first enters the box (tested in the UGV's frame) or the ground, here the box's top."""
-    from pydrake.math import RigidTransform, RollPitchYaw
 
-    from diagrams.hybrid_metrics import true_window_depth
-    from diagrams.hybrid_perception import GROUND_LIFT_M
-    from diagrams.ugv_detection_scenes import ugv_bounds_V
     config, top = _ugv_hybrid()
     low, high = ugv_bounds_V(config.platform, config.vehicle.wheelbase_m)
     p_WB, rpy, yaw = [1.0, 0.45, 3.0], (0.0, np.radians(20.0), 0.0), np.pi / 2
@@ -160,7 +170,6 @@ def test_the_true_window_depth_along_a_slanted_axis_meets_the_turned_ugvs_box():
 
 def test_a_ray_from_inside_the_box_enters_it_at_once():
     """ray_box_entry from a point inside the box is 0, whichever way the ray goes."""
-    from diagrams.hybrid_metrics import ray_box_entry
     low, high = np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 0.5])
     for d in ([0.0, 0.0, -1.0], [0.6, -0.8, 0.0], [0.3, 0.4, 0.866]):
         assert ray_box_entry(np.array([0.2, -0.3, 0.25]), np.array(d), low, high) == 0.0
@@ -169,10 +178,6 @@ def test_a_ray_from_inside_the_box_enters_it_at_once():
 def test_hybrid_metrics_on_a_constructed_log():
     """The estimate off in z alone (0.2 m): no horizontal error; an invalid frame's far-off estimate left out;
     the stereo altitude's bias is its reading minus the true depth (raw 0.1 m over, filtered 0.05 m under)."""
-    from diagrams.hybrid_metrics import hybrid_metrics
-    from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
-    from systems.perception.seam import P_BP_W, RELATIVE_STATE_SIZE
-    from systems.vehicles.quadrotor import P_WB
     config, top = _ugv_hybrid()
     n = 4
     quadrotor, vehicle = _hover([0.45, 0.0, 3.0], (0, 0, 0), 0.0, n)
@@ -196,8 +201,6 @@ def test_hybrid_metrics_on_a_constructed_log():
 def test_the_valid_fraction_in_view_counts_only_frames_that_see_the_ugv():
     """Two frames 30 m off (the UGV about 85 deg off the fisheye's axis, outside its 150 deg view) with the estimate
     invalid, then two over it with the estimate valid: valid in half the frames, in every frame in view."""
-    from diagrams.hybrid_metrics import hybrid_metrics, true_ugv_boxes
-    from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
     config, _ = _ugv_hybrid()
     away, over = _hover([30.0, 0.0, 3.0], (0, 0, 0), 0.0, 2), _hover([0.45, 0.0, 3.0], (0, 0, 0), 0.0, 2)
     quadrotor, vehicle = np.vstack([away[0], over[0]]), np.vstack([away[1], over[1]])
@@ -212,7 +215,6 @@ def test_the_valid_fraction_in_view_counts_only_frames_that_see_the_ugv():
 def test_the_horizontal_rmse_is_the_rms_of_the_horizontal_distance():
     """Horizontal errors (0.03, 0.04) and (-0.06, 0.08) m, 0.05 and 0.1 m off, a NaN row left out: rmse_horizontal is
     sqrt((0.05^2 + 0.1^2) / 2) m, the RMS of the distance (not of the two axes' errors together)."""
-    from diagrams.hybrid_metrics import axis_stats
     stats = axis_stats(np.array([[0.03, 0.04, 0.5], [-0.06, 0.08, -0.5], [np.nan, np.nan, np.nan]]))
     assert stats["samples"] == 2
     assert stats["rmse_horizontal"] == pytest.approx(np.sqrt((0.05**2 + 0.1**2) / 2))
@@ -222,9 +224,6 @@ def test_the_horizontal_rmse_is_the_rms_of_the_horizontal_distance():
 def _pad_frames(n, offsets, z=3.0):
     """n frames of the UAV at (0.45, 0, z) over the UGV headed 0, the pad 2.5 m under it, and hybrid estimates of
     it, valid and measured, off by `offsets` (n, 3) [m]: (quadrotor, vehicle, hybrid, truth)."""
-    from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
-    from systems.perception.seam import P_BP_W, RELATIVE_STATE_SIZE
-    from systems.vehicles.quadrotor import P_WB
     quadrotor, vehicle = _hover([0.45, 0.0, 0.0], (0, 0, 0), 0.0, n)
     quadrotor[:, P_WB.start + 2] = z
     truth = np.zeros((n, RELATIVE_STATE_SIZE))
@@ -238,7 +237,6 @@ def _pad_frames(n, offsets, z=3.0):
 def test_the_error_after_the_climb_counts_the_frame_that_ends_it():
     """Initial height IH: the UAV at 0.4 and 0.8 IH, then at IH from frame 2 (the climb's end, at or above 0.95 IH)
     on; x errors 1 m in the climb, 0.3 and -0.1 m after it: after the climb 2 samples, MAE 0.2 m, RMSE sqrt(0.05)."""
-    from diagrams.hybrid_metrics import hybrid_metrics
     config, _ = _ugv_hybrid()
     ih = config.landing.initial_height_m
     offsets = np.column_stack([[1.0, 1.0, 0.3, -0.1], np.zeros(4), np.zeros(4)])
@@ -252,7 +250,6 @@ def test_the_error_after_the_climb_counts_the_frame_that_ends_it():
 
 def test_the_frames_up_to_the_end_time_are_scored_the_last_included():
     """end_s the third frame's time: frames 0-2 scored (0.1 m off in y), the later ones 50 m off left out."""
-    from diagrams.hybrid_metrics import hybrid_metrics
     config, _ = _ugv_hybrid()
     offsets = np.array([[0.0, 0.1, 0.0]] * 3 + [[50.0, 50.0, 50.0]] * 2)
     log = _hybrid_log(*_pad_frames(5, offsets))
@@ -263,8 +260,6 @@ def test_the_frames_up_to_the_end_time_are_scored_the_last_included():
 
 def test_the_velocity_error_is_the_estimate_minus_the_truth():
     """The pad moving at (1, 0, 0) m/s, its velocity estimated at (1.1, 0, 0) m/s: an error of 0.1 m/s in x."""
-    from diagrams.hybrid_metrics import hybrid_metrics
-    from systems.perception.seam import V_WP
     config, _ = _ugv_hybrid()
     quadrotor, vehicle, hybrid, truth = _pad_frames(3, np.zeros(3))
     truth[:, V_WP] = [1.0, 0.0, 0.0]
@@ -277,7 +272,6 @@ def test_the_velocity_error_is_the_estimate_minus_the_truth():
 def test_a_frame_measured_by_the_box_or_the_stereo_fix_counts_as_measured():
     """The hybrid vector's `measured` (0 no, 1 by the box, 2 by the stereo eye's pad fix) 0, 1, 2, 2: measured in
     3 of 4 frames, by the stereo fix in 2."""
-    from diagrams.hybrid_metrics import hybrid_metrics
     config, _ = _ugv_hybrid()
     quadrotor, vehicle, hybrid, truth = _pad_frames(4, np.zeros(3))
     hybrid[:, 4] = [0.0, 1.0, 2.0, 2.0]
@@ -289,13 +283,7 @@ def test_the_true_ugv_box_follows_the_ugvs_heading():
     """The UGV headed 0.6 rad, the UAV off its centre and yawed: its box is the enclosing box (pixel-index space,
     +0.5 px) of its surface points placed by SciPy's yaw and seen through Drake's X_WC, projected by OpenCV's fisheye
     model, the whole UGV inside the view and the image."""
-    import cv2
-    from pydrake.math import RigidTransform, RollPitchYaw
-    from scipy.spatial.transform import Rotation
 
-    from diagrams.hybrid_metrics import true_ugv_boxes
-    from diagrams.ugv_detection_scenes import box_surface_points, ugv_bounds_V
-    from systems.vehicles.quadrotor import P_WB, Q_WB, STATE_SIZE
     config, _ = _ugv_hybrid()
     fisheye = config.hybrid.fisheye
     p_WV, yaw = np.array([0.5, -0.3, 0.0]), 0.6
@@ -317,8 +305,6 @@ def test_a_frame_without_a_true_depth_is_left_out_of_the_stereo_errors():
     """Three frames over the UGV's box top with the stereo reading 0.1 m over the true depth (the eye's height minus
     the box's), then one looking up (nothing ahead: no true depth) with a valid reading: its error is left out, the
     raw stereo's MAE, RMSE and bias 0.1 m; it still counts in the valid fraction."""
-    from diagrams.hybrid_metrics import hybrid_metrics, true_window_depth
-    from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
     config, top = _ugv_hybrid()
     over, up = _hover([0.45, 0.0, 3.0], (0, 0, 0), 0.0, 3), _hover([0.45, 0.0, 3.0], (np.pi, 0, 0), 0.0, 1)
     quadrotor, vehicle = np.vstack([over[0], up[0]]), np.vstack([over[1], up[1]])
