@@ -5,6 +5,7 @@ face) textured with the tag plus a one-cell white quiet zone: 10 cells across, o
 square is the middle 8. Scale it by `tag_plate_scale(tag_size_m)`.
 """
 
+import hashlib
 import os
 import tempfile
 from pathlib import Path
@@ -40,26 +41,51 @@ def _write_atomic(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
-def textured_quad_mesh(name: str, image: np.ndarray, directory: Path = GENERATED_DIR) -> Path:
-    """Writes `name`.obj/.mtl/.png: a unit quad in z = 0 showing `image` upright when seen from +z.
-    Returns the OBJ's path; files already there are reused."""
+def _quad_files(stem: str) -> dict[str, bytes]:
+    """The OBJ and MTL text of a unit quad in z = 0 showing `stem`.png upright when seen from +z."""
+    return {".mtl": f"newmtl {stem}\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {stem}.png\n".encode(),
+            ".obj": (f"mtllib {stem}.mtl\n"
+                     "v -0.5 -0.5 0\nv 0.5 -0.5 0\nv 0.5 0.5 0\nv -0.5 0.5 0\n"
+                     "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+                     "vn 0 0 1\n"
+                     f"usemtl {stem}\n"
+                     "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n").encode()}
+
+
+def source_digest(*paths: Path) -> str:
+    """10 hex digits of SHA-1 over these files and this one: a generated file named with it is made again
+    whenever the code that makes it changes."""
+    sha = hashlib.sha1()
+    for path in (Path(__file__), *paths):
+        sha.update(Path(path).read_bytes())
+    return sha.hexdigest()[:10]
+
+
+def quad_mesh(stem: str, image: np.ndarray, directory: Path = GENERATED_DIR) -> Path:
+    """`stem`.obj/.mtl/.png in `directory`: a unit quad in z = 0 showing `image` upright when seen from +z.
+    Returns the OBJ's path; files already there are reused, so `stem` must name this image and this code
+    (`textured_quad_mesh`, or parameters with `source_digest`)."""
     directory.mkdir(parents=True, exist_ok=True)
-    obj = directory / f"{name}.obj"
+    obj = directory / f"{stem}.obj"
     if obj.exists():
         return obj
     ok, png = cv2.imencode(".png", image)
     assert ok
-    _write_atomic(directory / f"{name}.png", png.tobytes())
-    _write_atomic(directory / f"{name}.mtl", (
-        f"newmtl {name}\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {name}.png\n").encode())
-    _write_atomic(obj, (
-        f"mtllib {name}.mtl\n"
-        "v -0.5 -0.5 0\nv 0.5 -0.5 0\nv 0.5 0.5 0\nv -0.5 0.5 0\n"
-        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
-        "vn 0 0 1\n"
-        f"usemtl {name}\n"
-        "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n").encode())
+    _write_atomic(directory / f"{stem}.png", png.tobytes())
+    files = _quad_files(stem)
+    _write_atomic(directory / f"{stem}.mtl", files[".mtl"])
+    _write_atomic(obj, files[".obj"])  # last: its presence says the three are whole
     return obj
+
+
+def textured_quad_mesh(name: str, image: np.ndarray, directory: Path = GENERATED_DIR) -> Path:
+    """`quad_mesh` named `name` and 12 hex digits of SHA-1 over the image (its shape, type and pixels) and
+    the quad's OBJ and MTL text: a file already there is reused only where it shows this image this way."""
+    sha = hashlib.sha1(f"{image.shape} {image.dtype}".encode())
+    sha.update(np.ascontiguousarray(image).tobytes())
+    for text in _quad_files(name).values():
+        sha.update(text)
+    return quad_mesh(f"{name}_{sha.hexdigest()[:12]}", image, directory)
 
 
 def tag_mesh_path(tag_id: int) -> Path:

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from models.apriltag import GENERATED_DIR, textured_quad_mesh
+from models.apriltag import GENERATED_DIR, quad_mesh, source_digest
 
 
 def ground_texture_image(seed: int = 0, pixels: int = 4096, finest_texels: int = 2, octaves: int = 8) -> np.ndarray:
@@ -35,8 +35,10 @@ def ground_texture_image(seed: int = 0, pixels: int = 4096, finest_texels: int =
 
 def ground_texture_mesh(seed: int = 0, pixels: int = 4096, finest_texels: int = 2, octaves: int = 8,
                         directory: Path = GENERATED_DIR, shown_pixels: int | None = None) -> Path:
-    """The unit quad OBJ (models/generated, made on first use and named by its parameters) showing
-    `ground_texture_image(...)`; scale it by the ground's side in metres (Drake's Mesh scale).
+    """The unit quad OBJ (models/generated, made on first use and named by its parameters and by
+    `source_digest` of this module, so a change to the texture's code makes it again; the image itself takes
+    seconds to make, too long to name it by its pixels) showing `ground_texture_image(...)`; scale it by
+    the ground's side in metres (Drake's Mesh scale).
     `shown_pixels` (fewer than `pixels`): the same texture averaged down to that side (cv2.INTER_AREA),
     a copy for viewers, since Meshcat sends the texture to every browser and recording."""
     name = f"ground_texture_s{seed}_p{pixels}_f{finest_texels}_o{octaves}"
@@ -44,10 +46,11 @@ def ground_texture_mesh(seed: int = 0, pixels: int = 4096, finest_texels: int = 
         if not 0 < shown_pixels < pixels:
             raise ValueError(f"ground_texture_mesh: shown_pixels must lie in 1..{pixels - 1}, got {shown_pixels}")
         name += f"_shown{shown_pixels}"
+    name += f"_{source_digest(Path(__file__))}"
     obj = directory / f"{name}.obj"
     if obj.exists():
         return obj
     image = ground_texture_image(seed, pixels, finest_texels, octaves)
     if shown_pixels is not None:
         image = cv2.resize(image, (shown_pixels, shown_pixels), interpolation=cv2.INTER_AREA)
-    return textured_quad_mesh(name, image, directory)
+    return quad_mesh(name, image, directory)

@@ -14,7 +14,13 @@ from pydrake.math import RigidTransform
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.sensors import ImageRgba8U
 
-from diagrams.stereo_hover import StereoHoverConfig, add_stereo_altimeter, build_stereo_hover
+import models.ground_texture as ground_texture
+from diagrams.stereo_hover import (
+    StereoHoverConfig,
+    add_stereo_altimeter,
+    build_stereo_hover,
+)
+from models.apriltag import source_digest
 from models.ground_texture import ground_texture_image, ground_texture_mesh
 from systems.config import ConfigError
 from systems.estimators.altitude_kf import (
@@ -126,8 +132,9 @@ def test_the_ground_has_one_geometry_per_role():
                            inspector.GetIllustrationProperties(geometry_id) is not None,
                            Path(inspector.GetShape(geometry_id).source().path()).name,
                            inspector.GetPoseInFrame(geometry_id).translation()[2])
-    assert roles == {"textured_ground": (True, False, "ground_texture_s0_p4096_f2_o8.obj", 0.0),
-                     "textured_ground_shown": (False, True, "ground_texture_s0_p4096_f2_o8_shown1024.obj", 0.01)}
+    name = f"ground_texture_s0_p4096_f2_o8{{}}_{source_digest(Path(ground_texture.__file__))}.obj"
+    assert roles == {"textured_ground": (True, False, name.format(""), 0.0),
+                     "textured_ground_shown": (False, True, name.format("_shown1024"), 0.01)}
 
 
 def test_add_stereo_altimeter_wires_the_pair_into_the_altimeter_and_the_altimeter_into_the_filter():

@@ -7,7 +7,6 @@ Frames: the vehicle frame V is on the ground under the rear axle, x forward, z u
 has its origin at the centre of the pad's top surface, axes parallel to V's.
 """
 
-import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -100,7 +99,7 @@ def pad_texture_mesh(platform: PlatformConfig):
     if platform.pattern == "rqrlp":
         return textured_quad_mesh(rqrlp_texture_name(platform.rqrlp), rqrlp_image(platform.rqrlp))
     image = pad_texture(platform.markers, platform.pad_size_m)
-    return textured_quad_mesh(f"gv_pad_{hashlib.sha1(image.tobytes()).hexdigest()[:12]}", image)
+    return textured_quad_mesh("gv_pad", image)
 
 
 class GroundVehicleGeometry(LeafSystem):
