@@ -24,8 +24,8 @@ def truth_at(t):
     return seam_vector(RigidTransform(), P0 + V * t, V, np.zeros(3), True)
 
 
-def broadcast_system(**settings):
-    system = VehicleBroadcast(RendezvousConfig(source="broadcast", **settings), seed=3)
+def broadcast_system(seed=3, **settings):
+    system = VehicleBroadcast(RendezvousConfig(source="broadcast", **settings), seed=seed)
     context = system.CreateDefaultContext()
     system.GetInputPort("quadrotor_state").FixValue(context, np.zeros(STATE_SIZE))
     system.GetInputPort("X_WB").FixValue(context, RigidTransform())
@@ -121,26 +121,48 @@ def test_the_broadcast_carries_the_gnss_position_error_and_its_rate_as_the_veloc
                                    std * error[:, 0], rtol=0, atol=1e-12)
 
 
+def driving_noise(before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """The 6 standard normal numbers (3 axes x [e, e']) that stepped the GNSS error from `before` to `after` (3 x 2
+    each, as gnss_error gives them), recovered through the default config's second-order Gauss-Markov model
+    (systems/sensors/navigation.py)."""
+    config = RendezvousConfig()
+    model = SecondOrderGaussMarkov(config.position_time_constant_s, 1.0 / config.rate_hz)
+    g = np.column_stack([model.step(np.zeros(6), np.eye(6)[i])[:2] for i in range(2)])  # one axis's noise gain
+    return np.linalg.solve(g, (after - model.step(before, np.zeros(6)).reshape(3, 2)).T).T.ravel()
+
+
 def test_the_gnss_error_is_driven_by_fresh_white_noise_at_every_send():
     """The noise that steps the GNSS error at each send, recovered from its successive states through the
     second-order Gauss-Markov model (systems/sensors/navigation.py), is white and of unit spread over 120 sends,
     not one draw repeated."""
-    config = RendezvousConfig(source="broadcast")
-    model = SecondOrderGaussMarkov(config.position_time_constant_s, 1.0 / config.rate_hz)
-    g = np.column_stack([model.step(np.zeros(6), np.eye(6)[i])[:2] for i in range(2)])  # one axis's noise gain
     system, context = broadcast_system()
     simulator = Simulator(system, context)
     system.GetInputPort("true_relative_state").FixValue(context, truth_at(0.0))
-    errors = [gnss_error(context)]
+    errors, rate_hz = [gnss_error(context)], RendezvousConfig().rate_hz
     for k in range(120):
-        simulator.AdvanceTo(k / config.rate_hz + 0.01)
+        simulator.AdvanceTo(k / rate_hz + 0.01)
         errors.append(gnss_error(context))
-    noise = np.array([np.linalg.solve(g, (after - model.step(before, np.zeros(6)).reshape(3, 2)).T).T
-                      for before, after in zip(errors, errors[1:])]).reshape(120, 6)
+    noise = np.array([driving_noise(before, after) for before, after in zip(errors, errors[1:])])
     np.testing.assert_allclose(noise.std(axis=0), 1.0, rtol=0.25)
     assert np.all(np.abs(noise.mean(axis=0)) < 0.4)
     lag_one = np.mean(noise[1:] * noise[:-1]) / np.mean(noise**2)
     assert abs(lag_one) < 0.15
+
+
+def test_the_first_send_steps_the_gnss_error_with_a_draw_of_its_own_not_the_initial_ones():
+    """Over 100 seeds, the noise that drives the first send's step (at t = 0) is uncorrelated with the initial
+    error, each of its 6 numbers with each of the error's 6 (|r| < 0.5, 5 standard errors of a correlation over 100):
+    a fresh draw, not the one the stationary initial error was made from (which would make them one function of
+    the other)."""
+    initial, first = [], []
+    for seed in range(100):
+        system, context = broadcast_system(seed=seed)
+        system.GetInputPort("true_relative_state").FixValue(context, truth_at(0.0))
+        initial.append(gnss_error(context))
+        Simulator(system, context).AdvanceTo(0.01)
+        first.append(driving_noise(initial[-1], gnss_error(context)))
+    correlation = np.corrcoef(np.reshape(initial, (100, 6)).T, np.array(first).T)[:6, 6:]
+    assert np.abs(correlation).max() < 0.5
 
 
 def test_seam_select_prefers_vision_and_flags_which():

@@ -73,3 +73,30 @@ def test_the_search_moves_the_target_only_after_vision_has_been_lost_for_its_del
 def test_bad_search_settings_are_named(setting, message):
     with pytest.raises(ValueError, match=message):
         RendezvousConfig(source="broadcast", **setting).validate()
+
+
+def test_the_search_spacing_may_equal_the_radius_but_not_exceed_it():
+    RendezvousConfig(source="broadcast", search_spacing_m=8.0, search_radius_m=8.0).validate()  # one turn: allowed
+    with pytest.raises(ValueError, match="rendezvous.search_spacing_m must not exceed rendezvous.search_radius_m"):
+        RendezvousConfig(source="broadcast", search_spacing_m=8.01, search_radius_m=8.0).validate()
+
+
+def test_the_sweep_starts_at_the_spirals_inner_end_the_moment_the_delay_is_over():
+    """Vision never valid (its last sample the start, 0 s): at exactly after_s the target is already moved to the
+    spiral's start (module docstring): r0 = b / (2 pi) out, at theta0 = 2 pi r0 / b = 1 rad, moving at the
+    speed tangentially and, there, as fast radially."""
+    system = RendezvousSearch(SPACING, RADIUS, SPEED, after_s=2.0)
+    context = system.CreateDefaultContext()
+    coarse = seam_vector(RigidTransform(), np.array([6.0, 2.0, 1.6]), np.zeros(3), np.zeros(3), True)
+    vision = coarse.copy()
+    vision[VALID] = 0.0
+    system.GetInputPort("rendezvous").FixValue(context, coarse)
+    system.GetInputPort("vision").FixValue(context, vision)
+    system.GetInputPort("X_WB").FixValue(context, RigidTransform())
+    context.SetTime(2.0)
+    searched = system.get_output_port().Eval(context)
+    r0, theta0 = SPACING / (2 * math.pi), 1.0
+    radial_out, along = np.array([math.cos(theta0), math.sin(theta0)]), np.array([-math.sin(theta0), math.cos(theta0)])
+    np.testing.assert_allclose(searched[P_BP_W], coarse[P_BP_W] + [*(r0 * radial_out), 0.0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(searched[V_WP], [*(SPEED * (radial_out + along)), 0.0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(searched[P_BP_B], searched[P_BP_W], rtol=0, atol=1e-12)  # X_WB: the identity
