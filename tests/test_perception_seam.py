@@ -15,7 +15,17 @@ from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.estimators.estimate import PoseEstimate
 from systems.perception.seam import (
-    A_WP, HEIGHT, P_BP_B, P_BP_W, RELATIVE_STATE_SIZE, V_WP, VALID, EstimateToSeam, SeamConfig, estimate_is_valid,
+    A_WP,
+    HEIGHT,
+    P_BP_B,
+    P_BP_W,
+    RELATIVE_STATE_SIZE,
+    V_WP,
+    VALID,
+    EstimateToSeam,
+    SeamConfig,
+    SeamSplit,
+    estimate_is_valid,
     seam_vector,
 )
 from tests.conftest import wiring
@@ -62,6 +72,37 @@ def test_the_seam_is_the_pad_relative_to_the_uav_in_world_and_body():
 ])
 def test_validity_is_the_estimates_own(estimate, time, valid):
     assert estimate_is_valid(estimate, time, SeamConfig(max_position_std_m=1.0, max_age_s=0.5)) == valid
+
+
+@pytest.mark.parametrize("limit_m, position_std_m, valid", [
+    (2.0, 1.8, True),  # variance 3.24 m^2 over the limit's number, its std within the limit
+    (0.5, 0.6, False),  # std over the limit, variance 0.36 m^2 within its number
+])
+def test_the_position_limit_is_on_the_std_not_the_variance(limit_m, position_std_m, valid):
+    """max_position_std_m bounds sqrt(trace) of the position covariance, in metres: away from a limit of 1 m, where
+    a std and its square agree, the two give opposite answers."""
+    estimate = PoseEstimate(10.0, X_WP, True, covariance(position_std_m))
+    assert estimate_is_valid(estimate, 10.0, SeamConfig(max_position_std_m=limit_m)) == valid
+
+
+@pytest.mark.parametrize("field", ["max_position_std_m", "max_age_s"])
+def test_a_seam_limit_must_be_positive(field):
+    with pytest.raises(ConfigError, match=rf"perception.{field} must be positive, got 0.0"):
+        SeamConfig(**{field: 0.0}).validate()
+
+
+def test_the_split_ports_are_the_seams_named_slots():
+    """A seam of distinct numbers (each slot its own index): every port the controller reads is its slots."""
+    seam = np.arange(RELATIVE_STATE_SIZE, dtype=float)
+    split = SeamSplit()
+    context = split.CreateDefaultContext()
+    split.GetInputPort("relative_state").FixValue(context, seam)
+    expected = {"target_offset": seam[P_BP_W][:2], "target_velocity": seam[V_WP][:2],
+                "target_acceleration": seam[A_WP][:2], "height_above_target": [seam[HEIGHT]],
+                "target_valid": [seam[VALID]], "p_BP_W": seam[P_BP_W], "p_BP_B": seam[P_BP_B]}
+    assert {split.get_output_port(i).get_name() for i in range(split.num_output_ports())} == set(expected)
+    for name, slots in expected.items():
+        np.testing.assert_array_equal(split.GetOutputPort(name).Eval(context), slots, err_msg=name)
 
 
 @pytest.mark.parametrize("rates", [True, False])
