@@ -1,15 +1,18 @@
 """Shared fixtures: built Stewart scenes (a diagram is built once per session; every test takes a
-fresh context from it) and one short simulated run of the stewart-dynamic scenario."""
+fresh context from it) and one short simulated run of the stewart-dynamic scenario; and image helpers (a
+textured plane's pinhole view by its homography, a grey frame as a camera's colour image)."""
 
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram
+from pydrake.systems.sensors import ImageRgba8U
 from scipy.spatial.transform import Rotation
 
 from diagrams.runner import load_scenario
@@ -71,6 +74,32 @@ def pose(xyz, rpy_deg) -> RigidTransform:
     built by SciPy (extrinsic 'xyz'), not by Drake, so the tests' truth is independent of it."""
     return RigidTransform(RotationMatrix(Rotation.from_euler("xyz", rpy_deg, degrees=True).as_matrix()),
                           np.asarray(xyz, dtype=float))
+
+
+def render_plane(texture: np.ndarray, edge_m: float, X_CP: RigidTransform, camera, supersample: int = 4,
+                 background: int = 90) -> np.ndarray:
+    """The square grey `texture`, covering an `edge_m` square of the plane z = 0 of frame P centred on P's origin
+    (P's x to the right and y up in the texture), as a pinhole camera with `camera`'s K and size (a CameraConfig)
+    sees it at X_CP: the plane's homography at `supersample` times the resolution, averaged down (a renderer's
+    antialiasing)."""
+    scale, half = texture.shape[0] / edge_m, edge_m / 2
+    texel_to_P = np.array([[1 / scale, 0, 0.5 / scale - half], [0, -1 / scale, half - 0.5 / scale], [0, 0, 1]])
+    K_big = camera.K.copy()
+    K_big[:2] *= supersample
+    K_big[:2, 2] = (camera.K[:2, 2] + 0.5) * supersample - 0.5
+    R, t = X_CP.rotation().matrix(), X_CP.translation()
+    homography = K_big @ np.column_stack([R[:, 0], R[:, 1], t]) @ texel_to_P
+    size = (camera.width * supersample, camera.height * supersample)
+    big = cv2.warpPerspective(texture, homography, size, flags=cv2.INTER_LINEAR, borderValue=background)
+    return cv2.resize(big, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+
+
+def rgba(grey: np.ndarray) -> ImageRgba8U:
+    """A camera's colour image (ImageRgba8U, alpha 255) of a grey frame."""
+    image = ImageRgba8U(grey.shape[1], grey.shape[0])
+    image.mutable_data[:, :, :3] = grey[:, :, None]
+    image.mutable_data[:, :, 3] = 255
+    return image
 
 
 @dataclass

@@ -11,8 +11,10 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.sensors import ImageRgba8U
 from scipy.spatial.transform import Rotation
 
+from models.apriltag import tag_image, tag_plate_scale
 from systems.config import ConfigError
 from systems.perception.apriltag import AprilTagDetector, TagDetectorSystem
+from systems.perception.aruco import subpix_detector
 from systems.platforms.stewart import TAG_ABOVE_DECK_M
 from systems.sensors.camera import (
     CalibrationErrorConfig,
@@ -29,6 +31,7 @@ from systems.sensors.camera import (
     undistort_pixels,
 )
 from systems.sensors.ground_truth import axis_flow
+from tests.conftest import render_plane, rgba
 
 # Seed 000 Eq. (10).
 K_EQ10 = np.array([[458.5, 0.0, 258.7735], [0.0, 457.855, 252.308], [0.0, 0.0, 1.0]])
@@ -195,9 +198,10 @@ def test_two_copies_of_the_tag_are_not_a_detection():
     assert AprilTagDetector(TAG_ID + 1).detect(image_to_numpy(drawn_tags(40))) is None
 
 
-def tag_outputs(image: ImageRgba8U, time: float):
-    """The tag detector system's three outputs on `image` at `time`: (tag_detection, tag_corners, tag_detected)."""
-    system = TagDetectorSystem(TAG_ID, image.width(), image.height())
+def tag_outputs(image: ImageRgba8U, time: float, lens=None):
+    """The tag detector system's three outputs on `image` at `time`: (tag_detection, tag_corners, tag_detected);
+    `lens`: the system's (K, D)."""
+    system = TagDetectorSystem(TAG_ID, image.width(), image.height(), lens)
     context = system.CreateDefaultContext()
     context.SetTime(time)
     system.get_input_port().FixValue(context, image)
@@ -217,6 +221,43 @@ def test_the_tag_detector_system_outputs_a_tag_and_its_absence():
     assert not detection.detected and detection.time == 2.5
     assert corners.shape == (8,) and np.isnan(corners).all()
     assert list(detected) == [0.0]
+
+
+def test_the_tag_detector_system_gives_the_corners_in_the_pinhole_image_of_its_lens_model():
+    """A 0.5 m tag 2 m in front of the camera and off its axis (models.apriltag's texture on the plane), imaged
+    through a barrel lens (k1 -0.2, remapped onto the pinhole view as NoisyCamera does): the system given the
+    lens puts the corners where the detector finds them in the lens-free view and where the pinhole camera K
+    projects the true ones (cv2.projectPoints; the refinement pulls a square's corners in by about 0.3 px),
+    where the lens has moved them pixels away in the image."""
+    lens = CameraConfig(distortion=[-0.2, 0.0, 0.0, 0.0, 0.0])
+    s = 0.25  # half the black square [m]
+    X_CT = RigidTransform(RotationMatrix.MakeZRotation(0.3), [0.45, 0.35, 2.0])  # facing the camera (R_CT = Rz)
+    X_TP = RigidTransform(RotationMatrix.MakeXRotation(np.pi))  # the plate: y up in the tag's image, z out of it
+    pinhole = render_plane(tag_image(TAG_ID), tag_plate_scale(2 * s), X_CT.multiply(X_TP), lens, background=255)
+    distorted = cv2.remap(pinhole, *distortion_maps(lens), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    corners_T = np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])  # as printed: x right, y down
+    X = X_CT.GetAsMatrix4()
+    expected = cv2.projectPoints(corners_T, cv2.Rodrigues(X[:3, :3])[0], X[:3, 3], lens.K, None)[0].reshape(4, 2)
+    corners = tag_outputs(rgba(distorted), 0.0, lens=(lens.K, lens.D))[0].corners
+    assert np.linalg.norm(corners - AprilTagDetector(TAG_ID).detect(pinhole), axis=1).max() < 0.2
+    assert np.linalg.norm(corners - expected, axis=1).max() < 0.5
+    assert np.linalg.norm(AprilTagDetector(TAG_ID).detect(distorted) - expected, axis=1).max() > 5.0
+
+
+def test_the_tag_detector_finds_a_faint_blurred_tag_opencvs_three_windows_find():
+    """A tag of 25 grey levels from black to white, blurred (sigma 2 px): OpenCV's search over 3, 13 and 23 px
+    threshold windows finds it, and so does the detector's one window (23 px: class docstring), at the drawn
+    corners (the blur pulls the refined ones in by under half a pixel); a 13 px window alone misses it."""
+    grey = image_to_numpy(drawn_tags(40))[..., 0].astype(float)
+    faint = cv2.GaussianBlur(np.round(128 + (grey - 127.5) * 25 / 255).astype(np.uint8), (0, 0), 2.0)
+
+    def found(threshold_window_px):
+        ids = subpix_detector("DICT_APRILTAG_36h11", threshold_window_px).detectMarkers(faint)[1]
+        return ids is not None and TAG_ID in ids.ravel()
+
+    assert found(None) and not found(13)
+    np.testing.assert_allclose(AprilTagDetector(TAG_ID).detect(faint),
+                               [[39.5, 39.5], [119.5, 39.5], [119.5, 119.5], [39.5, 119.5]], atol=0.5)
 
 
 def test_image_to_numpy_is_a_view_without_copying():

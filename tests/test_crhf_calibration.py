@@ -96,44 +96,48 @@ def test_rendered_pad_colours_stay_inside_their_table1_range_only(scene):
     assert not any(segment_colour(floor, colour).any() for colour in PAD_COLOURS)
 
 
-def test_pad_centroids_system_orders_pads_and_flags_missing_ones():
-    system = PadCentroidsSystem(64, 48)
-    context = system.CreateDefaultContext()
-    image = ImageRgba8U(64, 48)
+def two_pads(green_radius_px: int, red_radius_px: int) -> ImageRgba8U:
+    """A 64 x 48 grey frame with a green disc centred at (16, 20) and a red one at (45, 30) (u, v in px)."""
     rgba = np.full((48, 64, 4), 128, np.uint8)
     rgba[..., 3] = 255
-    cv2.circle(rgba, (16, 20), 6, (*PAD_RGB["green"], 255), -1)
-    cv2.circle(rgba, (45, 30), 6, (*PAD_RGB["red"], 255), -1)
+    cv2.circle(rgba, (16, 20), green_radius_px, (*PAD_RGB["green"], 255), -1)
+    cv2.circle(rgba, (45, 30), red_radius_px, (*PAD_RGB["red"], 255), -1)
+    image = ImageRgba8U(64, 48)
     image.mutable_data[:] = rgba
+    return image
+
+
+def pad_pixels(system: PadCentroidsSystem, image: ImageRgba8U) -> np.ndarray:
+    """The system's pad_pixels on `image`, one (u, v) row per colour."""
+    context = system.CreateDefaultContext()
     system.get_input_port().FixValue(context, image)
-    pixels = np.asarray(system.GetOutputPort("pad_pixels").Eval(context)).reshape(4, 2)
+    return np.asarray(system.GetOutputPort("pad_pixels").Eval(context)).reshape(-1, 2)
+
+
+def test_pad_centroids_system_orders_pads_and_flags_missing_ones():
+    pixels = pad_pixels(PadCentroidsSystem(64, 48), two_pads(6, 6))
     np.testing.assert_allclose(pixels[PAD_COLOURS.index("red")], [45, 30], atol=0.2)
     np.testing.assert_allclose(pixels[PAD_COLOURS.index("green")], [16, 20], atol=0.2)
     assert np.isnan(pixels[[PAD_COLOURS.index("yellow"), PAD_COLOURS.index("blue")]]).all()
 
 
+def test_pad_centroids_system_finds_the_colours_it_is_given_in_their_order():
+    """colours ("green", "red"): two pads, green's first, not the default four in PAD_COLOURS' order."""
+    pixels = pad_pixels(PadCentroidsSystem(64, 48, colours=("green", "red")), two_pads(6, 6))
+    np.testing.assert_allclose(pixels, [[16, 20], [45, 30]], atol=0.2)
+
+
 def test_pad_centroids_system_drops_pads_smaller_than_its_min_area():
     """A 13 px green pad and a 49 px red one: the default system (min_area_px 20) finds the red one only, a
     system with min_area_px 10 finds both, each at its disc's centre."""
-    rgba = np.full((48, 64, 4), 128, np.uint8)
-    rgba[..., 3] = 255
-    cv2.circle(rgba, (16, 20), 2, (*PAD_RGB["green"], 255), -1)
-    cv2.circle(rgba, (45, 30), 4, (*PAD_RGB["red"], 255), -1)
-    ycbcr = rgb_to_ycbcr(rgba)
+    image = two_pads(2, 4)
+    ycbcr = rgb_to_ycbcr(image.data)
     assert segment_colour(ycbcr, "green").sum() == 13 and segment_colour(ycbcr, "red").sum() == 49
-    image = ImageRgba8U(64, 48)
-    image.mutable_data[:] = rgba
     green, red = PAD_COLOURS.index("green"), PAD_COLOURS.index("red")
-
-    def pad_pixels(system):
-        context = system.CreateDefaultContext()
-        system.get_input_port().FixValue(context, image)
-        return np.asarray(system.GetOutputPort("pad_pixels").Eval(context)).reshape(4, 2)
-
-    default = pad_pixels(PadCentroidsSystem(64, 48))
+    default = pad_pixels(PadCentroidsSystem(64, 48), image)
     assert np.isnan(default[green]).all()
     np.testing.assert_allclose(default[red], [45, 30], atol=0.2)
-    smaller = pad_pixels(PadCentroidsSystem(64, 48, min_area_px=10))
+    smaller = pad_pixels(PadCentroidsSystem(64, 48, min_area_px=10), image)
     np.testing.assert_allclose(smaller[[green, red]], [[16, 20], [45, 30]], atol=0.2)
 
 

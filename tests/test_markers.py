@@ -11,7 +11,6 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource
-from pydrake.systems.sensors import ImageRgba8U
 from scipy.spatial.transform import Rotation
 
 from systems.config import ConfigError
@@ -28,7 +27,7 @@ from systems.perception.synthetic_markers import (
 )
 from systems.quaternion import drake_to_paper, paper_to_drake
 from systems.sensors.camera import CameraConfig, distortion_maps
-from tests.conftest import pose
+from tests.conftest import pose, render_plane, rgba
 
 CAMERA = CameraConfig()
 K = CAMERA.K
@@ -40,18 +39,8 @@ LOOKING_DOWN = RotationMatrix.MakeXRotation(np.pi)  # R_CP of a level pad under 
 def render_pad(X_CP: RigidTransform, supersample: int = 4, background: int = 90,
                camera: CameraConfig = CAMERA) -> np.ndarray:
     """The pad texture as `camera` (default: the default camera, 512x512) sees it at X_CP (grey): the plane's
-    homography at `supersample` times the resolution, averaged down (a renderer's antialiasing)."""
-    texture = pad_texture(LAYOUT, PAD_M)
-    scale, half = texture.shape[0] / PAD_M, PAD_M / 2
-    texel_to_P = np.array([[1 / scale, 0, 0.5 / scale - half], [0, -1 / scale, half - 0.5 / scale], [0, 0, 1]])
-    K_big = camera.K.copy()
-    K_big[:2] *= supersample
-    K_big[:2, 2] = (camera.K[:2, 2] + 0.5) * supersample - 0.5
-    R, t = X_CP.rotation().matrix(), X_CP.translation()
-    homography = K_big @ np.column_stack([R[:, 0], R[:, 1], t]) @ texel_to_P
-    size = (camera.width * supersample, camera.height * supersample)
-    big = cv2.warpPerspective(texture, homography, size, flags=cv2.INTER_LINEAR, borderValue=background)
-    return cv2.resize(big, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    homography at `supersample` times the resolution, averaged down (a renderer's antialiasing; render_plane)."""
+    return render_plane(pad_texture(LAYOUT, PAD_M), PAD_M, X_CP, camera, supersample, background)
 
 
 def X_CP_at(height_m: float, xy=(0.03, -0.02), yaw_deg: float = 23.0) -> RigidTransform:
@@ -346,15 +335,24 @@ def test_detected_marker_poses_match_the_truth():
         assert m.time == 0.7
 
 
-def test_a_distorted_image_is_measured_through_the_lens_model():
+def measured_by_the_system(grey: np.ndarray, K: np.ndarray, layout: MarkerLayout, D=None) -> list:
+    """MarkerDetectorSystem's measurements of a grey frame given as its colour image."""
+    system = MarkerDetectorSystem(K, layout, grey.shape[1], grey.shape[0], D=D)
+    context = system.CreateDefaultContext()
+    system.get_input_port().FixValue(context, rgba(grey))
+    return system.get_output_port().Eval(context)
+
+
+@pytest.mark.parametrize("measure", [detect_marker_poses, measured_by_the_system])
+def test_a_distorted_image_is_measured_through_the_lens_model(measure):
     # Barrel distortion remapped onto the render, as NoisyCamera applies it: with D the detector undoes it;
-    # without, the markers off the axis come out centimetres off.
+    # without, the markers off the axis come out centimetres off. The detector system passes its D on.
     lens = CameraConfig(distortion=[-0.2, 0.0, 0.0, 0.0, 0.0])
     X_CP = X_CP_at(2.0, xy=(0.35, 0.25))
     distorted = cv2.remap(render_pad(X_CP), *distortion_maps(lens), cv2.INTER_LINEAR)
 
     def worst_error(D):
-        measurements = detect_marker_poses(distorted, K, LAYOUT, D=D)
+        measurements = measure(distorted, K, LAYOUT, D=D)
         assert len(measurements) >= 4
         return max(np.linalg.norm(m.p_CM - true_X_CM(X_CP, m.marker_id).translation()) for m in measurements)
 
@@ -423,14 +421,10 @@ def test_to_grey_reads_rgb_and_rgba_as_rgb():
 
 
 def test_detector_system_reads_the_colour_image():
-    grey = render_pad(X_CP_at(2.0))
-    image = ImageRgba8U(CAMERA.width, CAMERA.height)
-    image.mutable_data[:, :, :3] = grey[:, :, None]
-    image.mutable_data[:, :, 3] = 255
     system = MarkerDetectorSystem(K, LAYOUT, CAMERA.width, CAMERA.height)
     context = system.CreateDefaultContext()
     context.SetTime(1.05)
-    system.get_input_port().FixValue(context, AbstractValue.Make(image))
+    system.get_input_port().FixValue(context, AbstractValue.Make(rgba(render_pad(X_CP_at(2.0)))))
     measurements = system.get_output_port().Eval(context)
     assert sorted(m.marker_id for m in measurements) == LAYOUT.ids
     assert all(m.time == 1.05 for m in measurements)
