@@ -118,6 +118,36 @@ def test_meshcat_sees_the_ground_averaged_down_and_the_cameras_the_whole_texture
         ground_texture_mesh(5, 256, 2, 4, tmp_path, shown_pixels=256)
 
 
+def test_the_ground_texture_is_at_least_64_pixels():
+    with pytest.raises(ValueError, match="pixels >= 64"):
+        ground_texture_image(0, 63, 2, 4)
+    assert ground_texture_image(0, 64, 2, 4).shape == (64, 64)
+
+
+def test_the_ground_texture_is_stretched_to_8_247_with_its_half_per_cent_tails_cut():
+    """The 0.5 % and 99.5 % quantiles go to 8 and 247 (to the 8 bits' truncation); the 0.5 % beyond each lies
+    under 8 and from 247 up, the farthest of it clipped at 0 and 255."""
+    image = ground_texture_image(0, 256, 2, 4)
+    np.testing.assert_allclose(np.percentile(image, [0.5, 99.5]), [8, 247], atol=1.0)
+    np.testing.assert_allclose([np.mean(image < 8), np.mean(image >= 247)], 0.005, atol=0.001)
+    assert image.min() == 0 and image.max() == 255
+
+
+@pytest.mark.parametrize("pixels, finest_texels, octaves", [(256, 4, 1), (512, 2, 4)])
+def test_the_ground_texture_has_every_octaves_squares(pixels, finest_texels, octaves):
+    """Octave k's squares are finest_texels 2^k texels, each its own random level, all octaves the same amplitude
+    (module docstring): two texels d apart along a row or column share octave k's square in a fraction
+    1 - d / side_k of the image (0 once d reaches the side), so the texture's correlation at lag d is that
+    fraction's mean over the octaves (to 0.04: the sampling of a few hundred squares and the clipped tails)."""
+    image = ground_texture_image(0, pixels, finest_texels, octaves).astype(float)
+    sides = finest_texels * 2.0 ** np.arange(octaves)
+    for d in (1, 2, 4, 8, 16):
+        along_rows = np.corrcoef(image[:, :-d].ravel(), image[:, d:].ravel())[0, 1]
+        along_columns = np.corrcoef(image[:-d].ravel(), image[d:].ravel())[0, 1]
+        expected = np.mean(np.clip(1 - d / sides, 0.0, None))
+        assert abs((along_rows + along_columns) / 2 - expected) < 0.04, f"lag {d}"
+
+
 def test_the_ground_has_one_geometry_per_role():
     """The whole texture only for the cameras (perception) in z = 0, the averaged copy only for Meshcat,
     1 cm higher (a browser's depth buffer does not resolve less over the plain ground)."""
