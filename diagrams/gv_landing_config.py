@@ -112,7 +112,11 @@ class MarkerEstimationConfig:
         require(abs(self.camera.period_s - self.ekf.period_s) < 1e-9,
                 f"{prefix}.camera.rate_hz ({self.camera.rate_hz:g}) must be 1 / {prefix}.ekf.period_s "
                 f"({1 / self.ekf.period_s:g} Hz): the camera gives one frame per filter step")
-        require(not self.filters or self.latency_s <= self.ekf.history_s + 1e-9,
+
+    def check_history(self, filter_names: list[str], prefix: str = "estimation") -> None:
+        """The marker filters in the diagram (those that watch and the one that steers) take a sample
+        latency_s late only while it lies within ekf.history_s."""
+        require(not filter_names or self.latency_s <= self.ekf.history_s + 1e-9,
                 f"{prefix}.ekf.history_s ({self.ekf.history_s:g} s) must be at least the stream's latency, "
                 f"{prefix}.latency_periods x the filter step ({self.latency_s:g} s): every sample would arrive "
                 "too late")
@@ -256,6 +260,7 @@ class GvLandingConfig(FlightConfig):
         for name in ("vehicle", "platform", "perception", "estimation", "federated", "hybrid", "wind", "faults",
                      "navigation", "rendezvous", "distractors", "bridge"):
             getattr(self, name).validate(name)
+        self.estimation.check_history(self.filter_names)
         self._validate_steering_lag()
         path = make_path(self.vehicle.path_config(), "vehicle.path")
         self.distractors.check_lanes(path, f"vehicle.path '{self.vehicle.path}'")

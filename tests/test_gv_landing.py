@@ -114,6 +114,20 @@ def test_impossible_configuration_is_a_config_error_naming_the_field(assignment,
         load_scenario("gv-landing", overrides=[assignment])
 
 
+@pytest.mark.parametrize("watching", ["[]", "[ct_ekf]"])
+def test_the_steering_filter_s_history_must_cover_the_stream_s_latency(watching):
+    """estimation.ekf.history_s under the stream's latency (one 35 ms period) leaves every sample too late for the
+    filter that steers as for one that only watches (the check had looked at the watching ones alone, and a run
+    steered by ct_ekf with none watching flew its 20 s on no estimate)."""
+    overrides = ["perception.source=ct_ekf", "estimation.source=synthetic", "estimation.ekf.history_s=0.01",
+                 f"estimation.filters={watching}"]
+    with pytest.raises(ConfigError, match=r"^estimation\.ekf\.history_s \(0\.01 s\) must be at least the stream's "
+                                          r"latency, estimation\.latency_periods x the filter step \(0\.035 s\)"):
+        load_scenario("gv-landing", overrides=overrides)
+    assert load_scenario("gv-landing", overrides=overrides[:2] + [f"estimation.filters={watching}"])[1].filter_names \
+        == ["ct_ekf"]
+
+
 @pytest.mark.parametrize("overrides, named", [
     (["start.xy_m=[0.5, 0.0]"], "start.xy_m [0.5, 0.0] at start.height_m (0 m) is inside the ground vehicle's body"),
     (["start.xy_m=[1.75, 0.0]", "start.height_m=1.5"], "start.xy_m [1.75, 0.0] at start.height_m (1.5 m) is inside"),
