@@ -14,8 +14,10 @@ import os
 import re
 import signal
 import time
+import types
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
+from unittest import mock
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -24,10 +26,12 @@ import pytest
 from diagrams.cli import main
 from diagrams.montecarlo import (
     CAMPAIGNS, FORMAT, CampaignDefinition, RunOutput, RunTask, campaign, campaign_settings, executors,
-    parse_number_case, read_records, run_campaign, run_seed,
+    parse_number_case, read_records, run_campaign, run_seed, write_summary,
 )
 from diagrams.montecarlo.aggregate import aggregate_fields, default_aggregate
+from diagrams.montecarlo.definition import MAX_CASE_BYTES
 from diagrams.montecarlo.records import RunRecord
+from diagrams.montecarlo.settings import PAIRED_SEED_SCHEME
 from diagrams.outputs import save_figure
 from systems.config import ConfigError
 from systems.noise import stream_id
@@ -188,9 +192,14 @@ def test_seeds_are_a_function_of_base_seed_case_and_index():
     ({"cases": []}, "no speed given"),
     ({"runs": 0}, "--runs"),
     ({"base_seed": -1}, "--seed"),
+    ({"base_seed": True}, "--seed"),  # a bool, though Python counts it as 1
     ({"overrides": ["vehicle.speed"]}, "key=value"),
+    ({"overrides": ["=5"]}, "key=value"),  # no key
     ({"cases": ["0"]}, "speed 0 must be a positive number"),  # at rest: no speed case
     ({"cases": ["-3"]}, "speed -3 must be a positive number"),
+    ({"cases": ["inf"]}, "speed inf must be a positive number"),
+    ({"cases": ["nan"]}, "speed nan must be a positive number"),
+    ({"cases": ["1e999"]}, "speed 1e999 must be a positive number"),  # inf once read
 ])
 def test_bad_settings_are_config_errors(kwargs, message):
     with pytest.raises(ConfigError, match=message):
@@ -201,6 +210,17 @@ def test_cases_are_canonical():
     assert settings(cases=["6.0", "3e0"]).cases == ("6", "3")
     assert parse_number_case("12.3456789") == "12.3456789" and parse_number_case("1234567") == "1234567"
     assert parse_number_case("3.0000001") != parse_number_case("3.0000002")  # not rounded into one
+
+
+def test_a_case_names_a_directory_of_at_most_max_case_bytes(tmp_path):
+    """A case is a directory's name under runs/: one of MAX_CASE_BYTES (255, a file name's longest on Linux and
+    macOS) bytes is accepted, and names a directory; one byte more is refused."""
+    definition = toy(known_cases=(), parse_case=str)
+    longest = "a" * MAX_CASE_BYTES
+    assert settings(definition, cases=[longest]).cases == (longest,)
+    (tmp_path / longest).mkdir()
+    with pytest.raises(ConfigError, match=f"is too long to name a directory \\({MAX_CASE_BYTES + 1} bytes"):
+        settings(definition, cases=[longest + "a"])
 
 
 def test_case_key_loads_the_scenario_with_case_overrides_and_seed():
@@ -233,6 +253,21 @@ def test_the_aggregate_is_numpys_statistics_over_the_runs_that_have_each_figure(
     assert out["xy"]["n"] == [2, 1] and out["xy"]["mean"] == pytest.approx([1.5, 4.0])
     assert out["xy"]["rms"] == pytest.approx([np.sqrt(2.5), 4.0])
     assert "ragged" not in out  # lists of different lengths have no elementwise statistics
+
+
+@pytest.mark.parametrize("metrics, figure, expected", [
+    ([{"a": float("nan"), "b": 1.0}, {"a": float("nan"), "b": 2.0}], "a", None),  # no run has a number
+    ([{"v": [1.0, 2.0]}, {"v": float("nan")}], "v", {"n": [1, 1], "mean": [1.0, 2.0]}),  # a NaN for the list
+    ([{"v": [1.0, 2.0]}, {"v": [None]}], "v", {"n": [1, 1], "mean": [1.0, 2.0]}),  # a list with no number
+], ids=["all-nan", "nan-for-a-list", "list-of-nulls"])
+def test_a_figure_a_run_misses_whole_is_none_of_that_runs(metrics, figure, expected):
+    """A NaN, or a list with no number in it, is no figure: it leaves no statistics of its own, and does not
+    stop the other runs' lists of that figure from being aggregated elementwise."""
+    out = aggregate_fields(metrics)
+    if expected is None:
+        assert figure not in out and out["b"]["n"] == 2
+    else:
+        assert {key: out[figure][key] for key in expected} == expected
 
 
 def test_runs_whose_estimators_group_holds_a_figure_are_aggregated_whole():
@@ -321,6 +356,36 @@ def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path):
     assert not out.exists()
 
 
+def test_workers_0_and_a_scheduler_together_are_refused_before_anything_runs(tmp_path):
+    """workers=0 (in this process) is a worker count given, as much as 2 is: with a scheduler it is refused
+    at once, not taken as no count and the scheduler tried."""
+    with pytest.raises(ConfigError, match="give --workers or --scheduler, not both"):
+        run_campaign(TOY, settings(), tmp_path / "out", workers=0, scheduler="tcp://127.0.0.1:9",
+                     connect_timeout_s=1.0, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("abort, wait", [(False, True), (True, False)])
+def test_closing_a_dask_cluster_waits_for_its_runs_unless_aborted(abort, wait):
+    """A campaign that ends closes the Dask executor waiting for what it holds; one aborted (Ctrl-C) does not
+    wait. The client is closed either way."""
+    cluster = object.__new__(executors._DaskCluster)  # no scheduler: the executor and client stand in
+    cluster.executor, cluster.client = mock.Mock(), mock.Mock()
+    cluster.close(abort=abort)
+    cluster.executor.shutdown.assert_called_once_with(wait=wait)
+    cluster.client.close.assert_called_once_with()
+
+
+def test_workers_dying_as_they_start_name_the_main_guard():
+    """A pool whose first task finds it broken (workers of a script without `if __name__ == '__main__':` die as
+    spawn imports it) is reported as such, not as a run function the workers cannot load."""
+    broken = cf.Future()
+    broken.set_exception(BrokenProcessPool("a process in the pool was terminated abruptly"))
+    pool = types.SimpleNamespace(executor=types.SimpleNamespace(submit=lambda fn, *args: broken), workers=1)
+    with pytest.raises(RuntimeError, match=re.escape("`if __name__ == '__main__':`")):
+        executors._check_workers(pool, toy_run)
+
+
 @pytest.mark.parametrize("workers", [True, -1, 1.5])
 def test_a_worker_count_that_is_no_whole_number_is_refused_before_anything_runs(tmp_path, workers):
     """--workers is a whole number of at least 0: True (a bool, though Python counts it as 1), a negative
@@ -352,6 +417,7 @@ def test_closing_the_pool_on_ctrl_c_ends_the_workers_busy_with_a_run(tmp_path):
     ("tcp://127.0.0.1:0", "port 0 is not 1 to 65535"),
     ("tcp://127.0.0.1:65536", "port 65536 is not 1 to 65535"),  # one past the largest port
     ("tcp://127.0.0.1:http", "invalid literal"),
+    ("tcp://", "no host given"),
 ])
 def test_a_scheduler_address_without_a_good_port_is_refused_at_once(capfd, tmp_path, address, problem):
     with pytest.raises(ConfigError, match=f"^bad Dask scheduler address '{re.escape(address)}': .*{problem}"):
@@ -490,6 +556,41 @@ def test_a_run_function_that_cannot_be_pickled_is_refused_up_front(tmp_path):
     with pytest.raises(TypeError, match="picklable"):
         run_campaign(toy(run=lambda task: {}), settings(), tmp_path / "out", workers=1, progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_run_in_this_process_need_not_be_picklable_and_may_return_any_mapping(tmp_path):
+    """workers=0 sends the run function nowhere, so a lambda will do; a run's metrics are any Mapping (here a
+    read-only one), not only a dict."""
+    s = settings(cases=["3"], runs=2)
+    summary = run_campaign(toy(run=lambda task: types.MappingProxyType({"x": float(task.index)})), s, tmp_path,
+                           workers=0, progress=False)
+    assert summary["runs"]["done"] == 2 and summary["runs"]["failed"] == 0
+    assert [r.metrics for r in read_records(tmp_path, s).values()] == [{"x": 0.0}, {"x": 1.0}]
+
+
+def test_the_runs_per_second_are_the_runs_computed_over_the_wall_time(tmp_path):
+    summary = write_summary(TOY, settings(cases=["3"], runs=2), tmp_path, wall_time_s=4.0, computed=2)
+    assert summary["runs_per_s"] == 0.5
+
+
+def test_a_case_summary_is_given_the_number_of_failed_runs(tmp_path):
+    """case_summary gets a case's done runs and how many of its runs failed: 2 done and 1 failed of 3."""
+    definition = toy(run=crashing_run, case_summary=lambda done, failed: {"ended": len(done) + failed,
+                                                                         "failed_seen": failed})
+    summary = run_campaign(definition, settings(definition, cases=["6"], runs=3), tmp_path, workers=0,
+                           progress=False)
+    assert summary["cases"]["6"] == {"requested": 3, "done": 2, "failed": 1, "ended": 3, "failed_seen": 1}
+
+
+def test_a_paired_campaign_gives_run_i_one_seed_in_every_case_and_says_so(tmp_path):
+    definition = toy(paired=True)
+    s = settings(definition, cases=["3", "6"], runs=2)
+    run_campaign(definition, s, tmp_path, workers=0, progress=False)
+    records = read_records(tmp_path, s)
+    assert [records[("3", i)].seed for i in range(2)] == [records[("6", i)].seed for i in range(2)]
+    assert [records[("3", i)].seed for i in range(2)] == [run_seed(0, "", i) for i in range(2)]
+    saved = json.loads((tmp_path / "campaign.json").read_text())
+    assert saved["paired"] is True and saved["seed_scheme"] == PAIRED_SEED_SCHEME
 
 
 def test_the_campaign_chooses_its_aggregation_and_plots(tmp_path):
@@ -713,6 +814,36 @@ def test_runs_that_took_a_pool_down_run_alone_each_and_one_that_dies_alone_is_bl
     assert pool.pools == [[0, 1, 2, 3], [1], [2, 3], [4, 5]]
     assert sorted((task.index, outcome.status) for task, outcome in kept) == [
         (0, "done"), (1, "failed"), (2, "done"), (3, "failed"), (4, "done"), (5, "done")]
+
+
+class KilledWorker(Exception):
+    """Stands for Dask's verdict on a task whose workers kept dying."""
+
+
+class _PoolKillingEveryTask:
+    """An in-process pool whose every task comes back failed with the executor's own verdict (KilledWorker)."""
+
+    workers = 1
+
+    def __init__(self):
+        self.executor = self
+
+    def submit(self, fn, /, *args, **kwargs):
+        future = cf.Future()
+        future.set_exception(KilledWorker("attempted to run the task 3 times and all failed"))
+        return future
+
+    def restart(self) -> None:
+        pass
+
+
+def test_an_executors_verdict_on_a_group_fails_each_of_its_runs():
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(4)]
+    kept = []
+    campaign._drive(_PoolKillingEveryTask(), toy_run, [tuple(tasks[:2]), tuple(tasks[2:])],
+                    lambda task, outcome: kept.append((task, outcome)), run_group=toy_group)
+    assert sorted((task for task, _ in kept), key=lambda task: task.index) == tasks  # each once
+    assert {(outcome.status, outcome.error["type"]) for _, outcome in kept} == {("failed", "KilledWorker")}
 
 
 # ---- records ------------------------------------------------------------------------------------
