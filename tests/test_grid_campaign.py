@@ -12,6 +12,7 @@ from diagrams.cli import main
 from diagrams.landing_campaign import CAMPAIGN, landing_case_summary
 from diagrams.montecarlo import campaign_settings, grid, run_campaign
 from diagrams.montecarlo.grid import grid_cases, grid_settings, parse_case_option
+from diagrams.montecarlo.settings import GRID, RunTask
 from systems.config import ConfigError
 
 pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
@@ -22,6 +23,14 @@ def test_the_grid_is_the_product_of_the_fields_values_in_order():
         "vehicle.speed=3,wind.mean_m_s=0", "vehicle.speed=3,wind.mean_m_s=5", "vehicle.speed=6,wind.mean_m_s=0",
         "vehicle.speed=6,wind.mean_m_s=5", "vehicle.speed=12,wind.mean_m_s=0", "vehicle.speed=12,wind.mean_m_s=5")
     assert parse_case_option("vehicle.speed = 1, 2") == ("vehicle.speed", ["1", "2"])
+    assert parse_case_option("x=1,true") == ("x", ["1", "true"])  # a bool is no number: not the value 1 twice
+
+
+def test_a_grid_runs_scenario_applies_each_of_its_cases_assignments_and_its_seed():
+    task = RunTask("gv-landing", "vehicle.speed=3,start.height_m=2", 0, 7, (), GRID)
+    name, scenario = task.load_scenario()
+    assert name == "gv-landing" and scenario.seed == 7
+    assert (scenario.vehicle.speed, scenario.start.height_m) == (3.0, 2.0)
 
 
 @pytest.mark.parametrize("options, message", [
@@ -29,6 +38,7 @@ def test_the_grid_is_the_product_of_the_fields_values_in_order():
     (["vehicle.speed=3,3"], "given twice"), (["vehicle.speed=3", "vehicle.speed=6"], "a field is given twice"),
     (["vehicle.speed=3,3.0,3e0"], "given twice"),  # one value: one case flown three times on the same seeds
     (["seed=1,2"], "the campaign seeds each run"),  # the run's seed would replace it: two cases, one scenario
+    (["seed = 1, 2"], "the campaign seeds each run"),  # spaces around the key are no other key
 ])
 def test_malformed_case_options_are_config_errors(options, message):
     with pytest.raises(ConfigError, match=message):
