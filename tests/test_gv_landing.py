@@ -4,6 +4,7 @@ the discrete vehicles against the continuous ones, the monitor, Meshcat, and the
 
 import dataclasses
 import json
+import re
 
 import numpy as np
 import pytest
@@ -21,6 +22,7 @@ from diagrams.gv_landing_config import (
     FIXED_STEP_SCHEMES,
     INTEGRATION_SCHEMES,
     GvLandingConfig,
+    IntegrationConfig,
 )
 from diagrams.gv_landing_run import fly, fly_diagram
 from diagrams.rqrlp_maneuvers import build_rqrlp_maneuvers
@@ -103,6 +105,8 @@ def test_unstable_gains_end_as_a_failure_in_the_metrics():
     ("platform.pad_size_m=0.8", "platform.markers"),  # the corner markers hang off a smaller pad
     ("platform.markers.ids=[0, 1, 2, 3, 99]", "platform.markers.ids"),
     ("integration.scheme=runge_kutta9", "integration.scheme"),
+    ("integration.accuracy=1", "integration.accuracy must be in"),  # (0, 1): open at 1
+    ("estimation.sigma_deg=-1", "estimation.sigma_p_m and sigma_deg must not be negative"),
     # The loops nest: the supervisor reads the PID, the flight controller the supervisor (and logs at its rate).
     ("pid.rate_hz=60", "controller.rate_hz >= landing.rate_hz >= pid.rate_hz: they are 200, 50 and 60 Hz"),
     ("landing.rate_hz=250", "controller.rate_hz >= landing.rate_hz >= pid.rate_hz: they are 200, 250 and 4 Hz"),
@@ -126,6 +130,26 @@ def test_the_steering_filter_s_history_must_cover_the_stream_s_latency(watching)
         load_scenario("gv-landing", overrides=overrides)
     assert load_scenario("gv-landing", overrides=overrides[:2] + [f"estimation.filters={watching}"])[1].filter_names \
         == ["ct_ekf"]
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["perception.source=federated", "platform.pattern=rqrlp", "estimation.source=detector"],
+     "perception.source 'federated' brings its own camera: estimation.source detector would add a second one"),
+    (["platform.pattern=rqrlp", "estimation.source=synthetic"],
+     "estimation.source synthetic measures the ArUco markers, and platform.pattern is rqrlp"),
+], ids=["second-camera", "no-markers"])
+def test_a_marker_stream_needs_the_markers_and_no_second_camera(overrides, message):
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        load_scenario("gv-landing", overrides=overrides)
+
+
+def test_a_history_of_exactly_the_streams_latency_covers_it():
+    """Three 35 ms periods of latency with 105 ms of history: the last sample is just in time (3 x 0.035 is a hair
+    over 0.105 in floats, and the check allows for that)."""
+    assert 3 * 0.035 > 0.105
+    _, scenario = load_scenario("gv-marker-ekf", overrides=["estimation.latency_periods=3",
+                                                            "estimation.ekf.history_s=0.105"])
+    assert scenario.filter_names
 
 
 @pytest.mark.parametrize("overrides, named", [
@@ -184,6 +208,8 @@ def test_a_path_tighter_than_the_vehicle_turns_names_its_radius():
     (["vehicle.steering_time_constant_s=0.001"], "0.00151"),  # RK5's fixed 5 ms steps: 5 ms / 3.3066
     (["vehicle.steering_time_constant_s=0.001", "integration.discrete=false"], "0.00151"),  # the Simulator's steps
     (["vehicle.steering_time_constant_s=0.002", "integration.scheme=explicit_euler"], "0.0025"),
+    # exactly at explicit Euler's bound, h / tau = 2: R = 1 - 2 = -1, an error that never decays
+    (["vehicle.steering_time_constant_s=0.0025", "integration.scheme=explicit_euler"], "0.0025"),
     # explicit Euler has no error estimate: its steps stay fixed
     (["vehicle.steering_time_constant_s=0.002", "integration.scheme=explicit_euler", "integration.error_control=true"],
      "0.0025"),
@@ -457,6 +483,16 @@ def test_continuous_vehicles_integrate_as_the_scenario_says(recorded_simulators,
     integrator = recorded_simulators[-1].get_integrator()
     assert type(integrator).__name__ == "RungeKutta2Integrator"
     assert integrator.get_fixed_step_mode() and integrator.get_maximum_step_size() == 0.001
+
+
+def test_the_simulator_integrates_with_the_integration_settings_only_for_continuous_vehicles():
+    """Discrete vehicles step themselves: the Simulator gets no integrator settings. Continuous ones: all of them,
+    error control included."""
+    assert IntegrationConfig().diagram_integrator() is None
+    config = IntegrationConfig(discrete=False, scheme="runge_kutta3", max_step_s=0.002, error_control=True,
+                               accuracy=1e-5).diagram_integrator()
+    assert (config.integration_scheme, config.max_step_size, config.use_error_control, config.accuracy) == (
+        "runge_kutta3", 0.002, True, 1e-5)
 
 
 @pytest.mark.parametrize("scheme", ["explicit_euler", "runge_kutta5"])
