@@ -196,3 +196,7 @@ def test_toward_puts_a_stack_of_quaternions_on_the_references_side():
     np.testing.assert_array_equal(toward(q, q[0]), [q[0], q[0], -q[2]])  # q and -q: one attitude
     stacked = toward(np.broadcast_to(q, (2, 3, 4)), np.array([q[0], -q[0]])[:, None])  # one reference per row
     np.testing.assert_array_equal(stacked[1], -toward(q, q[0]))
+    # a quaternion at right angles to the reference (dot 0: attitudes 180 degrees apart) points away no more than -q
+    # does: it is left as it is
+    np.testing.assert_array_equal(toward(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0])),
+                                  [1.0, 0.0, 0.0, 0.0])
