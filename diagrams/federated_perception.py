@@ -1,7 +1,8 @@
 """Seed 001's perception in a diagram: the camera's stream -> the three vision nodes -> the federated
 filter, driven by the IMU on the UAV's true motion.
 
-    ports = add_federated_perception(builder, config.federated, seed, color_image, X_WB, V_WB, A_WB)
+    ports = add_federated_perception(builder, config.federated, config.platform.rqrlp, seed, color_image,
+                                     X_WB, V_WB, A_WB)
 
 The camera itself is the scene's (systems/sensors/camera.py's `add_camera` with `camera`): the
 gv scenarios add it for `perception.source: federated`, rqrlp-maneuvers always.
