@@ -27,6 +27,7 @@ from systems.perception.rqrlp.nodes import (
 )
 from systems.perception.rqrlp.pattern import RqrlpLayout, rqrlp_image
 from systems.sensors.camera import CalibrationErrorConfig, CameraConfig, distortion_maps
+from tests.conftest import render_plane
 
 LAYOUT = RqrlpLayout()
 TEXTURE = rqrlp_image(LAYOUT)
@@ -43,16 +44,7 @@ def view(X_CP: RigidTransform, supersample: int = 3, ground: int = 200, noise: f
     """The grey image of the pattern at X_CP seen by `camera`: the plane's homography at `supersample` times
     the resolution averaged down, distorted by the lens, with the camera's pixel noise (`noise` levels,
     seeded by the pose)."""
-    scale, half = TEXTURE.shape[0] / LAYOUT.size_m, LAYOUT.size_m / 2
-    texel_to_P = np.array([[1 / scale, 0, 0.5 / scale - half], [0, -1 / scale, half - 0.5 / scale], [0, 0, 1]])
-    K_big = camera.K.copy()
-    K_big[:2] *= supersample
-    K_big[:2, 2] = (camera.K[:2, 2] + 0.5) * supersample - 0.5
-    R, t = X_CP.rotation().matrix(), X_CP.translation()
-    H = K_big @ np.column_stack([R[:, 0], R[:, 1], t]) @ texel_to_P
-    big = cv2.warpPerspective(TEXTURE, H, (camera.width * supersample, camera.height * supersample),
-                              flags=cv2.INTER_LINEAR, borderValue=ground)
-    pinhole = cv2.resize(big, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    pinhole = render_plane(TEXTURE, LAYOUT.size_m, X_CP, camera, supersample, ground)
     maps = MAPS if camera is CAMERA else distortion_maps(camera)
     distorted = cv2.remap(pinhole, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     rng = np.random.default_rng(zlib.crc32(X_CP.GetAsMatrix34().tobytes()))
