@@ -1,18 +1,21 @@
 """deck-landing in the loop (issue 13): the quadrotor lands on the moving Stewart deck on CRHF's estimate,
 scored against the simulation's truth; a covered lens is flagged, coasted and never descended on."""
 
+import re
+
 import numpy as np
 import pytest
 from pydrake.systems.framework import LeafSystem
 
-from diagrams import deck_landing_run
+from diagrams import deck_landing_config, deck_landing_run, perception_sources
+from diagrams.deck_landing import build_deck_landing
 from diagrams.deck_landing_run import fly
 from diagrams.perception_sources import SOURCES, PerceptionSource, SeamPorts
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.control.landing import Mode
 from systems.control.monitor import inside_carrier
-from systems.estimators.deck_tracker import tilt_deg
+from systems.estimators.deck_tracker import DeckTracker, tilt_deg
 from systems.noise import sample_rng
 from systems.perception.seam import HEIGHT, RELATIVE_STATE_SIZE, VALID
 
@@ -128,10 +131,25 @@ def test_with_an_exposure_the_camera_is_smeared_by_the_uav_s_motion_over_the_dec
     (["perception.source=ct_ekf"], "perception.source 'ct_ekf' does not run in deck-landing"),
     (["window.predictor.lag_s=0.05", "window.predictor.history_s=0.65", "window.predictor.min_history_s=0.65"],
      "window.predictor.history_s"),  # never fitted at 20 Hz
+    (["perception.field_of_view_deg=200"], "perception.field_of_view_deg must be in (0, 180]"),  # past a half-space
+    (["perception.max_range_m=0"], "perception.max_range_m"),
+    (["integration.discrete=false"], "integration.discrete must be true in deck-landing"),
+    (["random_deck_time_s=-1"], "random_deck_time_s must not be negative"),
+    (["estimate_latency_frames=-1"], "estimate_latency_frames must not be negative"),
+    # The deck's top is 0.05 + 0.6 + 0.04 = 0.69 m up (base joints, joint planes, deck): 0.69 + LH 0.9 = 1.59 m.
+    (["landing.initial_height_m=1.5"], "landing.initial_height_m (1.5 m above the ground) must be above the deck"),
 ])
 def test_settings_that_cannot_work_are_config_errors(settings, named):
-    with pytest.raises(ConfigError, match=named.replace(".", r"\.")):
+    with pytest.raises(ConfigError, match=re.escape(named)):
         load_scenario("deck-landing", overrides=settings)
+
+
+def test_an_initial_height_just_above_the_deck_s_top_plus_the_landing_height_is_accepted():
+    """The deck's top, 0.69 m (0.05 m base joints + 0.6 m between the joint planes + the 0.04 m deck), plus
+    landing.landing_height_m 0.9: 1.59 m; 1.6 m is above it (1.5 m, under it, is refused above)."""
+    _, config = load_scenario("deck-landing", overrides=["landing.initial_height_m=1.6"])
+    assert config.deck_top_m == pytest.approx(0.05 + 0.6 + 0.04, abs=1e-12)
+    assert config.landing.landing_height_m == 0.9 and config.landing.initial_height_m == 1.6
 
 
 def test_a_start_beside_the_deck_on_the_ground_is_accepted():
@@ -163,6 +181,36 @@ def test_the_random_deck_time_is_drawn_after_the_platforms_own_time_offset():
         assert config.deck().time_offset_s == pytest.approx(5.0 + drawn, abs=1e-12)
     _, config = load_scenario("deck-landing", overrides=["platform.time_offset_s=5.0", "random_deck_time_s=0.0"])
     assert config.deck().time_offset_s == 5.0
+
+
+def test_the_legs_stroke_is_checked_over_the_motion_the_run_meets_after_the_drawn_deck_time(monkeypatch):
+    """Loading checks the legs' stroke on deck(), the platform offset by the seed's draw of random_deck_time_s,
+    not on the platform's own time offset: the run meets the deck's motion from there."""
+    checked = []
+    monkeypatch.setattr(deck_landing_config, "require_within_stroke",
+                        lambda platform, duration_s, seed: checked.append((platform, duration_s, seed)))
+    _, config = load_scenario("deck-landing", overrides=["platform.time_offset_s=5.0"], seed=7)
+    drawn = sample_rng(7, "deck_time", 0).uniform(0.0, config.random_deck_time_s)
+    assert drawn > 1.0  # a draw that tells the two apart
+    [(platform, duration_s, seed)] = checked
+    assert platform.time_offset_s == pytest.approx(5.0 + drawn, abs=1e-12)
+    assert (duration_s, seed) == (config.duration_s, 7)
+
+
+@pytest.mark.parametrize("frames", [0, 2])
+def test_the_deck_tracker_is_told_the_estimate_latency_frames_camera_periods(monkeypatch, frames):
+    """estimate_latency_frames frames, each the camera's period (1 / rate_hz), from exposure to estimate."""
+    latencies = []
+
+    class RecordingTracker(DeckTracker):
+        def __init__(self, config, X_BC, X_TP, period_s, latency_s=0.0):
+            latencies.append(latency_s)
+            super().__init__(config, X_BC, X_TP, period_s, latency_s)
+
+    monkeypatch.setattr(perception_sources, "DeckTracker", RecordingTracker)
+    _, config = load_scenario("deck-landing", overrides=[f"estimate_latency_frames={frames}"])
+    build_deck_landing(config)
+    assert latencies == [pytest.approx(frames / config.camera.rate_hz, abs=1e-12)]
 
 
 @pytest.mark.parametrize("carrier_state", [[0.0, 0.0, 0.0, 0.0], [0.3, -0.2, 0.6, 0.0]])
