@@ -186,19 +186,33 @@ def test_any_gv_scenario_takes_a_perception_source():
         assert s.perception.source == "paper_ekf" and "paper_ekf" in s.filter_names
 
 
+def test_the_hybrid_source_estimates_no_heading_and_a_marker_filter_does():
+    """The hybrid pad estimator (systems/perception/hybrid_pad.py) places the pad from a box's ray and a height:
+    a position alone, its rotation the identity whatever the pad's heading. So its source says it estimates no
+    heading, and perception_metrics scores no heading, rotation or flip for it; a marker filter's estimate has the
+    markers' heading, scored."""
+    assert perception_source("hybrid").estimates_heading is False
+    assert perception_source("ct_ekf").estimates_heading is True
+
+
+SAME_NAMES = {"X_WP_estimate": "X_WP_estimate", "v_WP_estimate": "v_WP_estimate", "a_WP_estimate": "a_WP_estimate"}
+
+
 @pytest.mark.parametrize("scenario, overrides, estimator, ports", [
-    ("gv-landing", ["perception.source=ct_ekf", "estimation.source=synthetic"], "ct_ekf",
-     ("X_WP_estimate", "v_WP_estimate", "a_WP_estimate")),
-    ("gv-landing", ["perception.source=paper_ekf", "estimation.source=synthetic"], "paper_ekf",
-     ("X_WP_estimate", "v_WP_estimate", "a_WP_estimate")),
-    ("open-landing", ["perception.source=federated"], "federated_filter", ("X_WP_estimate", "v_WP_estimate")),
-], ids=["ct_ekf", "paper_ekf", "federated"])
+    ("gv-landing", ["perception.source=ct_ekf", "estimation.source=synthetic"], "ct_ekf", SAME_NAMES),
+    ("gv-landing", ["perception.source=paper_ekf", "estimation.source=synthetic"], "paper_ekf", SAME_NAMES),
+    ("open-landing", ["perception.source=federated"], "federated_filter",
+     {"X_WP_estimate": "X_WP_estimate", "v_WP_estimate": "v_WP_estimate"}),
+    # the hybrid pad's v_WP: its observer's velocity, else its coast's, never NaN (not v_WP_observed)
+    ("ugv-hybrid", [], "hybrid_pad", {"X_WP_estimate": "X_WP_estimate", "v_WP_estimate": "v_WP"}),
+], ids=["ct_ekf", "paper_ekf", "federated", "hybrid"])
 def test_a_source_wires_its_estimators_rates_into_the_seam(scenario, overrides, estimator, ports):
     """The built diagram's adapter (estimate_to_seam) takes the pose and every rate the source's estimator has
-    from it: a marker filter's velocity and acceleration (the PID's feed-forward), the federated filter's
-    velocity (it has no acceleration); the UAV's pose besides."""
+    from it (seam input -> the estimator's output): a marker filter's velocity and acceleration (the PID's
+    feed-forward), the federated filter's and the hybrid pad's velocity (they have no acceleration); the UAV's pose
+    besides."""
     _, config = load_scenario(scenario, overrides=overrides)
     diagram, _ = build_gv_landing(config)
     wired = {port: source for (system, port), source in wiring(diagram).items() if system == "estimate_to_seam"}
     assert wired.pop("X_WB") is not None
-    assert wired == {name: (estimator, name) for name in ports}
+    assert wired == {name: (estimator, output) for name, output in ports.items()}
