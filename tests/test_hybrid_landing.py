@@ -3,6 +3,7 @@ the pad from a box's ray (analytic), the estimator's validity and coasting, the 
 errors, and short rendered flights (marked slow): the estimate against the truth, and invalid out of view."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from pydrake.geometry import SceneGraph
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.framework import DiagramBuilder
 
+from diagrams import hybrid_perception
 from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly, summary_lines
 from diagrams.hybrid_metrics import climb_end_index, true_window_depth
@@ -352,6 +354,8 @@ def test_only_a_box_matched_this_frame_measures(matched):
     assert estimate.valid == matched
     if matched:
         assert np.allclose(estimate.X_RT.translation(), p_WP, atol=1e-6)
+        # a position alone: no heading in it (the hybrid source's estimates_heading is False)
+        assert estimate.X_RT.rotation().IsExactlyIdentity()
 
 
 def test_the_altitude_filter_knows_the_altimeters_nearest_range():
@@ -371,12 +375,55 @@ def test_the_estimator_and_the_logs_read_the_altitudes_they_are_named_for():
     assert wired["hybrid_pad", "altitude"] == ("altitude_filter", "altitude")
     assert wired["hybrid_pad", "altitude_valid"] == ("altitude_filter", "valid")
     assert wired["altitude_filter", "altitude_valid"] == ("stereo_altimeter", "altitude_valid")
+    assert wired["stereo_pad", "left_image"] == ("stereo_left", "color_image")  # the eye X_BL places
     logs = handles.perception.logs
     for name, source in (("stereo_altitude", ("stereo_altimeter", "altitude")),
                          ("stereo_valid", ("stereo_altimeter", "altitude_valid")),
                          ("altitude", ("altitude_filter", "altitude")),
-                         ("altitude_valid", ("altitude_filter", "valid"))):
+                         ("altitude_valid", ("altitude_filter", "valid")),
+                         ("hybrid", ("hybrid_pad", "hybrid_vector")),
+                         ("v_WP", ("hybrid_pad", "v_WP_observed")),  # the observer's own: NaN where it has none
+                         ("v_valid", ("hybrid_pad", "v_valid")),
+                         ("target_box", ("box_tracker", "target_box")),
+                         ("target_valid", ("box_tracker", "target_valid")),
+                         ("lock", ("locked_track", "lock")),
+                         ("detections", ("ugv_detections", "detection_vector"))):
         assert wired[logs[name].get_name(), logs[name].get_input_port().get_name()] == source, name
+
+
+def test_the_hybrid_pad_estimator_is_given_the_pads_height_and_the_left_eyes_mount(monkeypatch):
+    """The estimator meets the box's ray with the pad's plane, z = platform.p_VP's z (ugv-hybrid's 0.5 m body top),
+    and takes the stereo height along the left eye's axis, at stereo.X_BL (the eye the depth is measured in)."""
+    given = []
+
+    class RecordingEstimator(HybridPadEstimator):
+        def __init__(self, fisheye, X_BL, z_pad, *args, **kwargs):
+            given.append((X_BL, z_pad))
+            super().__init__(fisheye, X_BL, z_pad, *args, **kwargs)
+
+    monkeypatch.setattr(hybrid_perception, "HybridPadEstimator", RecordingEstimator)
+    _, scenario = load_scenario("ugv-hybrid")
+    build_gv_landing(scenario)
+    [(X_BL, z_pad)] = given
+    assert scenario.platform.height_m == 0.5 and z_pad == 0.5
+    stereo = scenario.hybrid.stereo
+    assert not np.allclose(stereo.X_BL.translation(), stereo.X_BR.translation())  # the two eyes apart
+    np.testing.assert_array_equal(X_BL.GetAsMatrix4(), stereo.X_BL.GetAsMatrix4())
+
+
+def test_the_textured_ground_the_cameras_see_covers_the_path_just_over_the_plain_ground():
+    """ugv-hybrid's straight path runs 400 m along x from the origin, its plain ground 25 m beyond each end:
+    the 100 m textured squares, on the origin's grid, at x = 0, 100, .., 400 (x -50 to 450 m), each GROUND_LIFT_M
+    over the plain ground (z = 0): the cameras' (perceived) copies."""
+    _, scenario = load_scenario("ugv-hybrid")
+    _, handles = build_gv_landing(scenario)
+    inspector = handles.scene_graph.model_inspector()
+    perceived = {inspector.GetName(g): inspector.GetPoseInFrame(g).translation()
+                 for g in inspector.GetAllGeometryIds()
+                 if inspector.GetName(g).startswith("textured_ground") and inspector.GetPerceptionProperties(g)}
+    assert sorted(perceived) == ["textured_ground", *(f"textured_ground_{k}" for k in range(1, 5))]
+    centres = np.array(sorted(perceived.values(), key=lambda p: p[0]))
+    np.testing.assert_allclose(centres, [[100.0 * k, 0.0, GROUND_LIFT_M] for k in range(5)], atol=1e-12)
 
 
 def test_scenario_loads():
@@ -415,10 +462,24 @@ def test_scenario_loads():
                                             ("hybrid.velocity_observer.rate_hz=20",
                                              "hybrid.velocity_observer.rate_hz"),
                                             ("hybrid.velocity_observer.source=pixel",
-                                             "hybrid.velocity_observer.source must be world")])
+                                             "hybrid.velocity_observer.source must be world"),
+                                            # slower than the fisheye's 10 Hz as well as faster
+                                            ("hybrid.tracker.rate_hz=5",
+                                             "hybrid.tracker.rate_hz (5) must be hybrid.fisheye.rate_hz (10)"),
+                                            ("hybrid.velocity_observer.rate_hz=5",
+                                             "hybrid.velocity_observer.rate_hz (5) must be hybrid.fisheye.rate_hz "
+                                             "(10)")])
 def test_bad_setting_names_the_field(setting, field):
-    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+    with pytest.raises(ConfigError, match=re.escape(field)):
         load_scenario("ugv-hybrid", overrides=[setting])
+
+
+def test_the_defaults_the_docs_state():
+    """hybrid_stereo's docstring and docs/scenarios.md: the stereo pair at the fisheye's 10 Hz; docs/scenarios.md:
+    the velocity observer's `fit` `linear` here (Eq. 18-19's `mean` is VelocityObserverConfig's default)."""
+    config = HybridPerceptionConfig()
+    assert config.stereo.rate_hz == config.fisheye.rate_hz == 10.0
+    assert config.velocity_observer.fit == "linear" and VelocityObserverConfig().fit == "mean"
 
 
 def _hover_flight(xy, duration_s, *overrides):
