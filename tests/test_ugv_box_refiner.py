@@ -226,3 +226,12 @@ def test_bad_settings_name_the_field(setting, named):
 def test_the_scenario_refines_the_learned_detector_only(detector, method, made):
     config = HybridPerceptionConfig(detector=detector, refinement=BoxRefinementConfig(method=method))
     assert type(config.make_detector()) is made
+
+
+@pytest.mark.parametrize("method", ["colour", "none"])
+def test_the_learned_detector_loads_the_model_path_given(method):
+    """model_path, where set, is the network loaded (empty: models/ugv_detector.onnx): a missing file is a
+    ConfigError naming it, not the default model silently."""
+    config = HybridPerceptionConfig(model_path="models/missing.onnx", refinement=BoxRefinementConfig(method=method))
+    with pytest.raises(ConfigError, match=r"model file \S*models/missing\.onnx does not exist"):
+        config.make_detector()
