@@ -2,6 +2,9 @@
 estimate, the same with the lens covered for 1.5 s, and a few of rqrlp-maneuvers' manoeuvres, all
 against the simulation's truth. benchmarks/federated.py runs the full scenes (20 m, 10 seeds)."""
 
+import re
+
+import cv2
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
@@ -11,7 +14,8 @@ from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 from pydrake.systems.sensors import ImageRgba8U
 
 from diagrams.federated_metrics import federated_log
-from diagrams.federated_perception import FederatedPerceptionConfig, add_federated_perception
+from diagrams.federated_perception import FederatedPerceptionConfig, add_federated_perception, seed001_camera
+from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly
 from diagrams.rqrlp_maneuvers import ManeuversConfig
 from diagrams.rqrlp_maneuvers_run import fly as fly_maneuvers
@@ -23,6 +27,7 @@ from systems.estimators.federated.system import FED_BETAS, FED_RELATIVE_STD
 from systems.perception.rqrlp.pattern import RqrlpLayout
 from systems.perception.seam import VALID
 from systems.vehicles.quadrotor import P_WB, V_WB, hover_state
+from tests.conftest import wiring
 
 SHORT = ["start.height_m=6.0", "landing.initial_height_m=6.0"]  # the last 6 m of open-landing's 20
 BLACKOUT_S = (2.0, 3.5)
@@ -268,3 +273,54 @@ def test_the_manoeuvres_command_ramps_the_velocity_and_turns_from_the_start_s_ya
         context.SetTime(t)
         command = controller.GetInputPort("command").Eval(controller.GetMyContextFromRoot(context))
         np.testing.assert_allclose(command, expected(t), atol=1e-12)
+
+
+@pytest.mark.parametrize("setting, named", [
+    ("federated.camera.fx=-640", "federated.camera.fx"),
+    ("federated.imu.gyro_bias_std_deg_h=-1", "federated.imu.gyro_bias_std_deg_h"),
+    ("federated.filter.max_relative_std_m=0", "federated.filter.max_relative_std_m"),
+])
+def test_federated_settings_that_cannot_work_name_the_field(setting, named):
+    """open-landing validates its federated section's camera, IMU and filter, each error naming its field."""
+    with pytest.raises(ConfigError, match=re.escape(named)):
+        load_scenario("open-landing", overrides=[setting])
+
+
+def test_seed001s_camera_has_table_1s_distortion_in_opencvs_order():
+    """Seed 001 Table 1: distortion factor (-0.00908, -0.03128, 0.00109, -0.00198, 0), as OpenCV's (k1, k2, p1, p2,
+    k3): projected with them, a point off the axis moves as the radial and tangential terms say."""
+    table_1 = [-0.00908, -0.03128, 0.00109, -0.00198, 0.0]
+    camera = seed001_camera()
+    assert list(camera.distortion) == table_1
+    k1, k2, p1, p2, k3 = table_1
+    x, y = 0.4, -0.3  # normalised coordinates
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+    expected = [x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+                y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y]
+    projected, _ = cv2.projectPoints(np.array([[x, y, 1.0]]), np.zeros(3), np.zeros(3), np.eye(3),
+                                     np.asarray(camera.distortion, float))
+    np.testing.assert_allclose(projected.reshape(2), expected, atol=1e-12)
+
+
+def test_the_open_landing_federated_perception_is_wired_to_the_truth_and_its_own_nodes():
+    """Built open-landing (federated): the IMU reads the quadrotor's true pose, velocity and acceleration and
+    samples at the IMU's period; each node's measurement goes to the filter's input of its own name (the
+    adjustment node's also to the touchdown node's anchor); the filter is given the camera's mount X_BC (set off
+    centre here), not its inverse."""
+    mount = [0.03, -0.02, -0.1]
+    _, config = load_scenario("open-landing", overrides=[f"federated.camera.mount_xyz_m={mount}"])
+    diagram, _ = build_gv_landing(config)
+    wired = wiring(diagram)
+    for name in ("X_WB", "V_WB", "A_WB"):
+        assert wired["imu", name] == ("quadrotor", name)
+    assert wired["federated_filter", "imu"] == ("imu", "imu")
+    for node in ("approach", "adjustment", "touchdown"):
+        assert wired["federated_filter", node] == (f"{node}_node", "measurement")
+    assert wired["touchdown_node", "anchor"] == ("adjustment_node", "measurement")
+    imu = diagram.GetSubsystemByName("imu")
+    assert imu.GetUniquePeriodicDiscreteUpdateAttribute().period_sec() == pytest.approx(
+        1.0 / config.federated.imu.rate_hz, abs=1e-15)
+    X_BC = diagram.GetSubsystemByName("federated_filter")._X_BC
+    np.testing.assert_allclose(X_BC.translation(), mount, atol=1e-15)
+    np.testing.assert_allclose(X_BC.GetAsMatrix4(), config.federated.camera.X_BC.GetAsMatrix4(), atol=1e-15)
