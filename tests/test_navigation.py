@@ -23,6 +23,7 @@ from systems.sensors.navigation import (
     second_order_model,
 )
 from systems.vehicles.quadrotor import P_WB, V_WB, pose_from_state, quadrotor_state
+from tests.conftest import wiring
 
 pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
 
@@ -186,3 +187,13 @@ def test_the_marker_filters_and_the_vehicle_broadcast_place_the_pad_with_the_nav
     for system in readers:
         X_WB = system.GetInputPort("X_WB").Eval(system.GetMyContextFromRoot(context))
         assert X_WB.IsExactlyEqualTo(navigation), system.get_name()
+
+
+def test_the_controller_flies_on_the_navigation_and_the_referee_judges_the_truth():
+    """With navigation.source gnss_ins the flight controller's state is the navigation's (truth plus its
+    errors), while the landing monitor (the referee: touchdown, crash) reads the quadrotor's true state."""
+    _, s = load_scenario("gv-landing", overrides=["navigation.source=gnss_ins"])
+    diagram, _ = build_gv_landing(s)
+    wired = wiring(diagram)
+    assert wired["flight_controller", "state"] == ("navigation", "state")
+    assert wired["monitor", "quadrotor_state"] == ("quadrotor", "state")

@@ -3,6 +3,7 @@ errors as ConfigError."""
 
 import dataclasses
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -227,6 +228,21 @@ def test_whole_numbers_beyond_a_cpp_int_are_refused_in_lists_and_taken_for_seeds
     with pytest.raises(ConfigError, match=r"platform\.markers\.ids must lie in -2147483648 to 2147483647"):
         load_scenario("gv-landing", overrides=["platform.markers.ids=[0, 1, 2, 3, 2147483648]"])
     assert load_scenario("stewart-hover", seed=2**64)[1].seed == 2**64  # numpy's generators take any size
+
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_a_whole_number_for_a_float_is_taken_up_to_the_largest_float_and_refused_past_it(sign):
+    """A float setting written as a whole number: up to the largest finite float (its own value, a whole number)
+    taken; a 400-digit one, which no float holds (an overflow), refused by name, negative as well as positive."""
+    @dataclasses.dataclass
+    class Length:
+        x_m: float = 0.0
+
+    largest = sign * int(sys.float_info.max)
+    assert float(normalise({"x_m": largest}, Length)["x_m"]) == sign * sys.float_info.max
+    assert float(normalise({"x_m": sign * 10**20}, Length)["x_m"]) == sign * 1e20
+    with pytest.raises(ConfigError, match="x_m must be a finite number, got a whole number of 401 digits"):
+        normalise({"x_m": sign * 10**400}, Length)
 
 
 def test_whole_numbers_at_a_cpp_ints_limits_are_accepted_and_one_beyond_refused():
