@@ -8,6 +8,7 @@ frames), `window` (when the final descent may start), `start`, `integration`, `t
 
 from dataclasses import dataclass, field, replace
 
+import numpy as np
 from pydrake.math import RigidTransform
 
 from diagrams.gv_landing_config import FlightConfig
@@ -75,10 +76,12 @@ class DeckLandingConfig(FlightConfig):
         require(self.landing.initial_height_m > top + self.landing.landing_height_m,
                 f"landing.initial_height_m ({self.landing.initial_height_m:g} m above the ground) must be above the "
                 f"deck's top ({top:.2f} m) plus landing.landing_height_m")
-        over_deck = max(abs(c) for c in self.start.xy_m) <= self.platform.deck_size_m / 2  # the deck's centre at O
-        require(not over_deck or self.start.height_m > top + self.landing.touchdown_height_m,
-                f"start.height_m ({self.start.height_m:g} m) at start.xy_m {list(self.start.xy_m)}, over the deck, "
-                f"must be above its top ({top:.2f} m) plus landing.touchdown_height_m: the UAV would start under it")
+        reach_x, reach_y, highest = self.deck_reach()
+        over_deck = abs(self.start.xy_m[0]) <= reach_x and abs(self.start.xy_m[1]) <= reach_y
+        require(not over_deck or self.start.height_m > highest + self.landing.touchdown_height_m,
+                f"start.height_m ({self.start.height_m:g} m) at start.xy_m {list(self.start.xy_m)}, where the moving "
+                f"deck reaches, must be above the highest its top goes ({highest:.2f} m) plus "
+                f"landing.touchdown_height_m: the UAV would start under it")
 
     def check_motion(self, duration_s: float) -> None:
         """The deck's motion within the legs' stroke over the run (ConfigError naming where it is not)."""
@@ -95,6 +98,22 @@ class DeckLandingConfig(FlightConfig):
     def pad_size_m(self) -> float:
         """The side of the square landed on: the deck's."""
         return self.platform.deck_size_m
+
+    def deck_reach(self) -> tuple[float, float, float]:
+        """Bounds on where the deck's top square goes under its motion (sums of the amplitudes, which also bound a
+        random walk), from O [m]: along x and along y, half its side h turned by the largest yaw, h (cos + sin) up to
+        45 deg, widened by the largest tilt's (roll plus pitch) sin^2 and the axis's sway; up, the nominal top plus
+        the heave and its corner (h sqrt 2 out) lifted by the tilt."""
+        p = self.platform
+        bound = {axis: float(np.sum(np.abs(getattr(p, name)))) for axis, name in (
+            ("x", "x_amplitude_m"), ("y", "y_amplitude_m"), ("z", "z_amplitude_m"), ("roll", "roll_amplitude_deg"),
+            ("pitch", "pitch_amplitude_deg"), ("yaw", "yaw_amplitude_deg"))}
+        yaw = np.radians(min(bound["yaw"], 45.0))
+        tilt = np.radians(min(bound["roll"] + bound["pitch"], 90.0))
+        half = p.deck_size_m / 2
+        side = half * (np.cos(yaw) + np.sin(yaw)) * (1.0 + np.sin(tilt) ** 2)
+        return (float(side + bound["x"]), float(side + bound["y"]),
+                float(self.deck_top_m + bound["z"] + half * np.sqrt(2.0) * np.sin(tilt)))
 
     @property
     def deck_top_m(self) -> float:

@@ -18,6 +18,7 @@ from systems.control.monitor import inside_carrier
 from systems.estimators.deck_tracker import DeckTracker, tilt_deg
 from systems.noise import sample_rng
 from systems.perception.seam import HEIGHT, RELATIVE_STATE_SIZE, VALID
+from systems.platforms.stewart import StewartGeometry, StewartMotion
 
 COMMAND_VZ = 2  # in the supervisor's command [v (3), yaw, a (3)]
 
@@ -157,17 +158,40 @@ def test_a_start_beside_the_deck_on_the_ground_is_accepted():
     assert config.start.height_m == 0.0
 
 
-def test_a_start_just_beside_the_deck_is_accepted_and_one_just_under_its_touchdown_height_refused():
-    """The deck is a square of side deck_size_m centred at O: 0.2 m beyond its edge is beside it; over it, the
-    start must be higher than its top plus landing.touchdown_height_m, half of that is too low."""
+@pytest.mark.parametrize("motion", ["sinusoid", "random_walk"])
+def test_the_deck_reach_bounds_every_corner_of_the_moving_deck(motion):
+    """deck_reach's bounds hold the deck's top corners at every pose of the run's motion (sampled at 20 Hz over
+    deck-landing's 300 s, the seed's drawn time offset included), and are not loose by more than the sways'
+    and tilts' peaks failing to meet (a few centimetres)."""
+    _, config = load_scenario("deck-landing", overrides=[f"platform.motion={motion}"])
+    deck = config.deck()
+    geometry, motion_of = StewartGeometry.from_config(deck), StewartMotion(deck, config.seed)
+    half = deck.deck_size_m / 2
+    corners = np.array([[sx * half, sy * half, 0.0] for sx in (-1, 1) for sy in (-1, 1)]).T
+    reached = np.array([motion_of.X_SP(t, geometry).multiply(corners).T
+                        for t in np.arange(0.0, config.duration_s, 0.05)])
+    reach_x, reach_y, highest = config.deck_reach()
+    assert np.abs(reached[..., 0]).max() <= reach_x and np.abs(reached[..., 1]).max() <= reach_y
+    assert reached[..., 2].max() <= highest
+    assert reach_x - np.abs(reached[..., 0]).max() < 0.08 and highest - reached[..., 2].max() < 0.12
+    assert reach_x > half and highest > config.deck_top_m  # the motion widens both
+
+
+def test_a_start_just_beyond_the_deck_s_reach_is_accepted_and_one_just_under_its_touchdown_height_refused():
+    """Where the moving deck reaches (deck_reach: its square swayed, turned and tilted), the start must be higher
+    than the highest its top goes plus landing.touchdown_height_m; 2 cm beyond the reach it may be on the ground.
+    A start on the ground 2 cm inside the reach, beside the deck's nominal edge, is under the deck at some pose."""
     _, config = load_scenario("deck-landing")
-    beside = config.platform.deck_size_m / 2 + 0.2
-    load_scenario("deck-landing", overrides=["start.height_m=0.0", f"start.xy_m=[{beside!r}, 0.0]"])
-    load_scenario("deck-landing", overrides=["start.height_m=0.0", f"start.xy_m=[0.0, {-beside!r}]"])
-    top, touchdown = config.deck_top_m, config.landing.touchdown_height_m
-    with pytest.raises(ConfigError, match=r"start\.height_m .* over the deck, must be above its top"):
-        load_scenario("deck-landing", overrides=[f"start.height_m={top + 0.5 * touchdown!r}"])
-    load_scenario("deck-landing", overrides=[f"start.height_m={top + 1.5 * touchdown!r}"])
+    reach_x, reach_y, highest = config.deck_reach()
+    load_scenario("deck-landing", overrides=["start.height_m=0.0", f"start.xy_m=[{reach_x + 0.02!r}, 0.0]"])
+    load_scenario("deck-landing", overrides=["start.height_m=0.0", f"start.xy_m=[0.0, {-reach_y - 0.02!r}]"])
+    assert reach_x - 0.02 > config.platform.deck_size_m / 2
+    with pytest.raises(ConfigError, match=r"start\.height_m \(0 m\) .* where the moving deck reaches, must be above"):
+        load_scenario("deck-landing", overrides=["start.height_m=0.0", f"start.xy_m=[{reach_x - 0.02!r}, 0.0]"])
+    touchdown = config.landing.touchdown_height_m
+    with pytest.raises(ConfigError, match=r"must be above the highest its top goes \(0\.94 m\)"):
+        load_scenario("deck-landing", overrides=[f"start.height_m={highest + 0.5 * touchdown!r}"])
+    load_scenario("deck-landing", overrides=[f"start.height_m={highest + 1.5 * touchdown!r}"])
 
 
 def test_the_random_deck_time_is_drawn_after_the_platforms_own_time_offset():
