@@ -121,8 +121,8 @@ def test_impossible_configuration_is_a_config_error_naming_the_field(assignment,
 @pytest.mark.parametrize("watching", ["[]", "[ct_ekf]"])
 def test_the_steering_filter_s_history_must_cover_the_stream_s_latency(watching):
     """estimation.ekf.history_s under the stream's latency (one 35 ms period) leaves every sample too late for the
-    filter that steers as for one that only watches (the check had looked at the watching ones alone, and a run
-    steered by ct_ekf with none watching flew its 20 s on no estimate)."""
+    filter that steers as for one that only watches (the check had looked at the watching ones alone, so a run
+    steered by ct_ekf with none watching loaded)."""
     overrides = ["perception.source=ct_ekf", "estimation.source=synthetic", "estimation.ekf.history_s=0.01",
                  f"estimation.filters={watching}"]
     with pytest.raises(ConfigError, match=r"^estimation\.ekf\.history_s \(0\.01 s\) must be at least the stream's "
