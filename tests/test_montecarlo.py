@@ -623,6 +623,7 @@ def test_command_runs_a_campaign_and_says_where_its_summary_is(capfd, tmp_path, 
 
 @pytest.mark.parametrize("args, named", [
     (["montecarlo", "no-such-scenario"], "no Monte Carlo campaign for scenario 'no-such-scenario'"),
+    (["montecarlo", "deck-landing"], "flies a grid with --case"),
     (["montecarlo", "toy", "--speeds", "3", "7"], "unknown speed '7'"),
     (["montecarlo", "toy", "--runs", "0"], "--runs"),
     (["montecarlo", "toy", "--speeds", "fast"], "'fast' is not a number"),
@@ -631,8 +632,8 @@ def test_command_runs_a_campaign_and_says_where_its_summary_is(capfd, tmp_path, 
     (["montecarlo", "toy", "--scheduler", "tcp://127.0.0.1:9"], "cannot reach the Dask scheduler"),
     (["montecarlo", "toy", "--set", "novalue"], "key=value"),
     (["montecarlo", "toy", "--runs", "many"], "--runs"),
-], ids=["unknown-scenario", "unknown-speed", "zero-runs", "speed-not-a-number", "workers-and-scheduler",
-        "negative-workers", "unreachable-scheduler", "bad-set", "runs-not-a-number"])
+], ids=["unknown-scenario", "landing-scenario-without-case", "unknown-speed", "zero-runs", "speed-not-a-number",
+        "workers-and-scheduler", "negative-workers", "unreachable-scheduler", "bad-set", "runs-not-a-number"])
 def test_command_errors_give_one_line_exit_2_and_write_nothing(capfd, tmp_path, toy_registered, args, named):
     out = tmp_path / "mc"
     code = main(args + ["--out", str(out), "--quiet"])

@@ -75,7 +75,8 @@ def campaign_definition(name: str) -> CampaignDefinition:
     """The campaign of a scenario; ConfigError naming the known ones for any other name."""
     if name not in CAMPAIGNS:
         known = ", ".join(sorted(CAMPAIGNS)) or "none is defined yet"
-        raise ConfigError(f"no Monte Carlo campaign for scenario '{name}' (campaigns: {known})")
+        raise ConfigError(f"no Monte Carlo campaign for scenario '{name}' (campaigns: {known}); a landing scenario "
+                          f"(a gv scenario or deck-landing) flies a grid with --case KEY=V1,V2,...")
     entry = CAMPAIGNS[name]
     if isinstance(entry, str):
         module, _, attribute = entry.partition(":")
