@@ -21,6 +21,7 @@ import benchmarks.motion_blur as motion_blur
 import benchmarks.motion_compensation as motion_compensation
 import benchmarks.stereo as stereo
 import benchmarks.ugv_detection as ugv_detection
+import benchmarks.vision_landing as vision_landing
 from diagrams.fisheye_markers import MARKER_DIRECTIONS_DEG
 from diagrams.landing_metrics import SETTLED_TOLERANCE_M, TARGET_TOUCHDOWN_ERROR_M, TARGET_TOUCHDOWN_REL_SPEED_MPS
 from diagrams.runner import load_scenario
@@ -216,3 +217,23 @@ def test_federated_frame_costs_on_a_descent_s_frames(capsys):
     assert set(costs) == {"render", "approach", "adjustment", "touchdown", "federated_step", "fusion"}
     assert finite(*costs.values()) and min(costs.values()) > 0
     assert "## Cost per frame, 960 x 540 (median of 59 frames, ms)" in capsys.readouterr().out
+
+
+def test_vision_landing_costs_alone_fly_marker_landing_and_write_each_stage(tmp_path, capsys):
+    """vision_landing's part 3 alone (by default parts 1 and 2 fly 30 landings, 60 open-loop runs and the previous
+    commit's campaign in a worktree): marker-landing flown once, landing by vision, then its stages timed alone; the
+    JSON holds the costs, the rest by subtraction."""
+    out = tmp_path / "vision_landing.json"
+    assert vision_landing.main(["--runs", "0", "--open-loop-runs", "0", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"## Cost per camera frame: marker-landing, .*\(real-time factor [\d.]+; landed: ", printed)
+    figures = strict_json(out)
+    assert set(figures) == {"costs"}
+    costs = figures["costs"]
+    stages = costs["stages_ms"]
+    assert set(stages) == {"render", "pixel noise", "detection", "filter paper_ekf", "filter ct_ekf"}
+    assert finite(costs["per_frame_ms"], costs["rest_ms"], costs["realtime_factor"], *stages.values())
+    assert min(stages.values()) > 0 and costs["per_frame_ms"] > 0 and costs["realtime_factor"] > 0
+    assert costs["rest_ms"] == pytest.approx(costs["per_frame_ms"] - sum(stages.values()))
+    ratio = float(re.search(r"ms = (\d+\.\d+) x the render", printed).group(1))
+    assert ratio == pytest.approx(costs["per_frame_ms"] / stages["render"], abs=0.006)
