@@ -742,6 +742,8 @@ def test_bad_depth_config_names_the_field(config, message):
 @pytest.mark.parametrize("config, message", [
     (AltitudeKfConfig(accel_std_mps2=0.0), "altitude_kf.accel_std_mps2 must be positive"),
     (AltitudeKfConfig(measurement_std_m=0.0, measurement_std_per_m2=0.0), "cannot both be zero"),
+    (AltitudeKfConfig(measurement_std_m=-0.01, measurement_std_per_m2=0.0),
+     "altitude_kf.measurement_std_m must not be negative"),
     (AltitudeKfConfig(max_coast_s=-1.0), "altitude_kf.max_coast_s must not be negative"),
     (AltitudeKfConfig(near_band_m=0.0), "altitude_kf.near_band_m must be positive"),
 ])

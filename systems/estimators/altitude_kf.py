@@ -59,9 +59,9 @@ class AltitudeKfConfig:
     def validate(self, prefix: str = "altitude_kf") -> None:
         require_positive(self.accel_std_mps2, f"{prefix}.accel_std_mps2")
         require_non_negative(self.measurement_std_per_m2, f"{prefix}.measurement_std_per_m2")
+        require_non_negative(self.measurement_std_m, f"{prefix}.measurement_std_m")
         require(self.measurement_std_m > 0 or self.measurement_std_per_m2 > 0,
                 f"{prefix}: measurement_std_m and measurement_std_per_m2 cannot both be zero")
-        require_non_negative(self.measurement_std_m, f"{prefix}.measurement_std_m")
         require_positive(self.initial_speed_std_mps, f"{prefix}.initial_speed_std_mps")
         require_non_negative(self.max_coast_s, f"{prefix}.max_coast_s")
         require_positive(self.near_band_m, f"{prefix}.near_band_m")
