@@ -2,8 +2,10 @@
 
 The pose comes from OpenCV's `solvePnP` on the same OpenCV ArUco corners every estimator here
 shares (pupil-apriltags would add a second detector and decode the image twice; the comparison with
-CRHF is fairer on identical corners). The solver is `SOLVEPNP_SQPNP`, the globally optimal
-minimiser of the reprojection error, not `SOLVEPNP_IPPE_SQUARE`: before OpenCV 5.1 (4.10 and 5.0,
+CRHF is fairer on identical corners). The solver is `SOLVEPNP_SQPNP` (Terzakis and Lourakis 2020), the
+global minimiser of the squared reprojection errors in normalised image coordinates each weighted by its
+point's squared depth (for a tag, whose corners lie at nearly one depth, nearly the reprojection error's
+minimiser), not `SOLVEPNP_IPPE_SQUARE`: before OpenCV 5.1 (4.10 and 5.0,
 which the project allows) IPPE_SQUARE returns a wrong pose whenever the tag is exactly parallel to the
 image plane (head-on under a hovering camera both of its solutions reproject 80 px off; yawed 30
 degrees the chosen one is 6.4 degrees off), which `tests/test_atda.py` shows; 5.1 solves it. A planar
