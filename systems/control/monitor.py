@@ -18,7 +18,7 @@ from systems.config import require, require_positive
 from systems.control.landing import Mode
 from systems.perception.seam import HEIGHT, P_BP_W, RELATIVE_STATE_SIZE
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
-from systems.vehicles.quadrotor import STATE_SIZE
+from systems.vehicles.quadrotor import P_WB, STATE_SIZE, V_WB
 
 FAILURE_REASONS = ("crash", "diverged", "target_lost", "timeout", "missed_pad")
 SUPERVISOR_LANDED = "landed: the supervisor reported touchdown"  # how a run ends on the supervisor's LANDED
@@ -106,8 +106,8 @@ class LandingMonitor(LeafSystem):
         if term.stop_on_landed and gear_on_pad(relative, vehicle[GV_HEADING], self._touchdown, platform.pad_size_m,
                                                platform.pad_thickness_m):
             return f"{GEAR_TOUCHED} at t = {t:.2f} s"
-        px, py, pz, vx, vy, vz = (float(quad[i]) for i in (0, 1, 2, 7, 8, 9))
-        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        px, py, pz = (float(p) for p in quad[P_WB])
+        speed = math.sqrt(sum(float(v) ** 2 for v in quad[V_WB]))
         if pz < -term.ground_tolerance_m:
             return f"crash: hit the ground at t = {t:.2f} s, {speed:.1f} m/s"
         if inside_carrier(platform, (px, py, pz), vehicle):
@@ -116,7 +116,7 @@ class LandingMonitor(LeafSystem):
             return f"diverged: speed {speed:.1f} m/s at t = {t:.2f} s"
         if pz > term.max_altitude_m:
             return f"diverged: altitude {pz:.1f} m at t = {t:.2f} s"
-        distance = math.hypot(relative[0], relative[1])
+        distance = math.hypot(*relative[P_BP_W][:2])
         if distance > term.max_distance_m:
             return f"diverged: {distance:.0f} m from the pad at t = {t:.2f} s"
         if t - last_seen > term.lost_timeout_s and not landed:  # flying on after touchdown needs no estimate
