@@ -53,9 +53,12 @@ def output_file(text: str) -> Path:
 
 
 def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+    """The process's umask, read from /proc (Linux 4.7 on) rather than set and restored: os.umask's round trip
+    leaves it 0 for a moment, in which another thread's new file (Meshcat's, a video writer's) gets mode 0666."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("Umask:"):
+            return int(line.split()[1], 8)
+    raise RuntimeError("/proc/self/status has no Umask line (Linux before 4.7?)")
 
 
 def _write_bytes(path: Path, data: bytes) -> None:

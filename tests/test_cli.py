@@ -369,6 +369,21 @@ def test_a_written_file_gets_the_mode_the_umask_gives_not_mkstemps_0600(tmp_path
     assert stat.S_IMODE((tmp_path / "a.json").stat().st_mode) == 0o666 & ~umask
 
 
+def test_writing_a_file_never_sets_the_umask_not_even_for_a_moment(tmp_path, monkeypatch):
+    """The umask is read, not set to 0 and back: meanwhile another thread's new file would get mode 0666."""
+    def no_setting(mask):
+        raise AssertionError(f"os.umask({mask:#o}) called while writing")
+
+    set_umask = os.umask
+    previous = set_umask(0o027)
+    try:
+        monkeypatch.setattr(os, "umask", no_setting)
+        write_json(tmp_path / "a.json", {})
+    finally:
+        set_umask(previous)
+    assert stat.S_IMODE((tmp_path / "a.json").stat().st_mode) == 0o640
+
+
 # ---- exit statuses past bad input: Ctrl-C, an internal error ----
 
 def _raising(exception):
