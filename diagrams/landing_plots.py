@@ -110,13 +110,15 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, touchdown: int | No
     for i, (ax, label) in enumerate(zip(axes, ("x", "y"))):
         ax.plot(t, error[:, i], "-", color="tab:blue", lw=1, label="pad - UAV")
         ax.plot(t[~seen], error[~seen, i], ".", color="tab:red", ms=2, label="no valid estimate")
-        ax.axhspan(-SETTLED_TOLERANCE_M, SETTLED_TOLERANCE_M, color="tab:green", alpha=0.2, label="+-0.01 m")
+        ax.axhspan(-SETTLED_TOLERANCE_M, SETTLED_TOLERANCE_M, color="tab:green", alpha=0.2,
+                   label=f"+-{SETTLED_TOLERANCE_M:g} m")
         _mode_lines(ax, log, touchdown)
         ax.set_yscale("symlog", linthresh=SETTLED_TOLERANCE_M)  # metres and millimetres on one axis
         ax.set_ylabel(f"e{label} (m)")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="best", fontsize=8)
-    axes[0].set_title(f"Horizontal tracking error, symmetric log scale (linear within +-0.01 m; {title})")
+    axes[0].set_title(f"Horizontal tracking error, symmetric log scale "
+                      f"(linear within +-{SETTLED_TOLERANCE_M:g} m; {title})")
     axes[-1].set_xlabel("time (s)")
     save_figure(fig, out_dir / "tracking_error.png")
 
