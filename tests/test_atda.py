@@ -3,9 +3,10 @@
 import itertools
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
-from pydrake.math import RigidTransform
+from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 
 import systems.estimators.atda as atda
@@ -46,17 +47,21 @@ def test_corners_with_a_non_finite_entry_give_no_pose(bad):
 
 
 HEAD_ON = project_points(K, pose([0, 0, 2.0], [0, 0, 0]), tag_corners_T(TAG))
+# HEAD_ON with its bottom-right corner pulled in past the centre, a fifth of the way to the top-left: a concave dart
+# of some 5000 px^2 (far over a square pixel).
+DART = np.vstack([HEAD_ON[:2], HEAD_ON.mean(axis=0) + 0.2 * (HEAD_ON[0] - HEAD_ON.mean(axis=0)), HEAD_ON[3:]])
 
 
 @pytest.mark.parametrize("corners", [np.full((4, 2), 200.0), HEAD_ON[[0, 2, 1, 3]],
                                      np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]]),
                                      np.array([[200.0, 200.0], [200.5, 200.0], [200.5, 200.5], [200.0, 200.5]]),
-                                     HEAD_ON * 1e4], ids=["coincident", "crossed", "collinear", "under-a-pixel",
-                                                          "beyond-a-million-px"])
+                                     HEAD_ON * 1e4, HEAD_ON - 2e7, DART],
+                         ids=["coincident", "crossed", "collinear", "under-a-pixel", "beyond-a-million-px",
+                              "beyond-minus-a-million-px", "concave"])
 def test_corners_that_are_no_tags_image_give_no_pose(corners):
     """Four corners that no tag in front of the camera can project to give no pose: coincident ones made SQPnP
-    raise cv2.error, collinear ones gave a pose of nothing, a crossed order or a quadrilateral under a square
-    pixel is no tag's outline, and corners a million pixels out are beyond any image."""
+    raise cv2.error, collinear ones gave a pose of nothing, a crossed order, a concave quadrilateral or one under a
+    square pixel is no tag's outline, and corners a million pixels out, on either side, are beyond any image."""
     assert atda_pose(corners, K, TAG) is None
 
 
@@ -117,8 +122,6 @@ def test_opencv_ippe_square_fails_head_on_before_5_1_which_is_why_atda_uses_sqpn
     # The reason for the solver choice in atda.py. Measured: OpenCV 4.10.0 and 5.0.0 return two wrong poses
     # for an exactly head-on tag (both 81 px off), 5.1.0 the right one. The project allows OpenCV >= 4.10, so
     # ATDA keeps SQPnP, right on all of them; if the boundary moves, this test says so.
-    import cv2
-
     corners = project_points(K, RigidTransform([0, 0, 2.0]), tag_corners_T(TAG)).reshape(4, 1, 2)
     s = TAG / 2
     square = np.array([[-s, s, 0], [s, s, 0], [s, -s, 0], [-s, -s, 0]])
@@ -127,3 +130,23 @@ def test_opencv_ippe_square_fails_head_on_before_5_1_which_is_why_atda_uses_sqpn
         assert errors.min() > 1.0  # px: both IPPE solutions are wrong
     else:
         assert errors.min() < 1e-6
+
+
+def test_atda_is_sqpnp_not_ippe_square():
+    """ATDA's pose is OpenCV's SQPnP on the tag's corners in OpenCV's marker frame S, turned into T, exactly; on
+    noisy corners (1 px) of a yawed, tilted tag IPPE_SQUARE gives another pose, millimetres away, so this tells the
+    two apart even with OpenCV 5.1, where IPPE_SQUARE is right head-on."""
+    corners = (project_points(K, pose([0.1, -0.05, 1.8], [12, -9, 30]), tag_corners_T(TAG))
+               + np.random.default_rng(0).normal(0.0, 1.0, (4, 2))).reshape(4, 1, 2)
+    object_points_S = atda._X_ST.multiply(tag_corners_T(TAG).T).T
+
+    def opencv_pose(flags):
+        ok, rvec, tvec = cv2.solvePnP(object_points_S, corners, K, None, flags=flags)
+        assert ok
+        return RigidTransform(RotationMatrix(cv2.Rodrigues(rvec)[0]), tvec.ravel()).multiply(atda._X_ST)
+
+    sqpnp, ippe_square = opencv_pose(cv2.SOLVEPNP_SQPNP), opencv_pose(cv2.SOLVEPNP_IPPE_SQUARE)
+    assert np.linalg.norm(sqpnp.translation() - ippe_square.translation()) > 1e-4  # m: the check can tell them apart
+    X = atda_pose(corners.reshape(4, 2), K, TAG)
+    np.testing.assert_allclose(X.translation(), sqpnp.translation(), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(X.rotation().matrix(), sqpnp.rotation().matrix(), rtol=0, atol=1e-9)
