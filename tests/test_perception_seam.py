@@ -122,9 +122,10 @@ def test_the_adapter_system(rates):
     np.testing.assert_allclose(values, expected, atol=1e-12)
 
 
-@pytest.mark.parametrize("covariance", [np.eye(3) * 1e4, np.full(6, 1e4)])
+@pytest.mark.parametrize("covariance", [np.eye(3) * 1e4, np.full(6, 1e4), np.zeros(36), np.zeros((4, 9))])
 def test_an_estimates_covariance_is_6x6_or_none(covariance):
-    # A 3x3 would have passed the seam as a zero position std; a 6-vector raised IndexError mid-flight.
+    # A 3x3 would have passed the seam as a zero position std; a 6-vector raised IndexError mid-flight. 36 entries
+    # are not a 6x6 in any other shape.
     with pytest.raises(ConfigError, match=r"the X_WP estimate's covariance must be 6x6 .*got shape \(" +
                        str(len(covariance))):
         PoseEstimate(10.0, X_WP, True, covariance, "W", "P")
@@ -143,6 +144,15 @@ def test_estimates_name_their_frames_and_the_seam_takes_only_the_pad_in_the_worl
     adapter.GetInputPort("X_WP_estimate").FixValue(context, estimate)
     with pytest.raises(ConfigError, match="needs an estimate of the pad in the world, X_WP; it got X_CT"):
         adapter.get_output_port().Eval(context)
+
+
+def test_an_invalid_estimate_names_its_frames_in_order_at_its_time():
+    """PoseEstimate.invalid(time, reference, target): not valid, stamped `time`, its pose the identity, named
+    X_<reference><target> (invalid(2.0, "W", "P") is the pad in the world, X_WP, not X_PW)."""
+    estimate = PoseEstimate.invalid(2.0, "W", "P")
+    assert (estimate.reference, estimate.target, estimate.frames) == ("W", "P", "X_WP")
+    assert not estimate.valid and estimate.time == 2.0 and estimate.covariance is None
+    assert estimate.X_WP.IsExactlyEqualTo(RigidTransform())
 
 
 def test_the_registry_names_every_source_and_what_it_needs():
