@@ -539,6 +539,13 @@ def test_kf_takes_nan_flagged_valid_as_invalid_and_starts_invalid():
     assert state.valid and state.coast_s == pytest.approx(T) and np.isfinite(state.x).all()
 
 
+@pytest.mark.parametrize("altitude_m, std_m", [(2.0, 0.01 + 0.004 * 2.0**2), (5.0, 0.01 + 0.004 * 5.0**2)])
+def test_kf_measurement_std_grows_with_the_altitudes_square(altitude_m, std_m):
+    """sigma_Z = measurement_std_m + measurement_std_per_m2 * Z^2 (stereo's depth error grows as Z^2)."""
+    config = AltitudeKfConfig(measurement_std_m=0.01, measurement_std_per_m2=0.004)
+    assert config.measurement_std(altitude_m) == pytest.approx(std_m, rel=1e-12)
+
+
 def test_kf_update_covariance_is_the_information_forms():
     """The Joseph form's P after an update equals (P^-1 + H^T R^-1 H)^-1 (left without its K R K^T, a filter
     grows overconfident)."""
@@ -690,6 +697,38 @@ def test_kf_near_the_nearest_range_coasts_through_a_reading_under_it():
     coasted = altitude_kf_step(hovering, NEAREST - 0.05, True, 10 * HYBRID_T, KF, NEAREST)
     assert coasted.valid and coasted.coast_s == pytest.approx(HYBRID_T)
     np.testing.assert_allclose(coasted.x, [hovering.x[0] + HYBRID_T * hovering.x[1], hovering.x[1]], rtol=1e-12)
+
+
+def test_kf_without_a_nearest_range_uses_a_reading_over_near_band_m():
+    """nearest_m 0 (the default: no nearest range) has no near band: a filter hovering at 0.2 m, under near_band_m
+    (0.3 m), uses a reading of 0.5 m (within the band it would coast through it, staying at 0.2 m)."""
+    state = run_near([0.2] * 10 + [0.5], nearest=0.0)[-1]
+    assert state.valid and state.coast_s == 0.0 and state.last_measurement == 0.5
+    assert state.x[0] > 0.3
+
+
+def test_kf_near_band_includes_the_nearest_range():
+    """The near band is [nearest, nearest + near_band_m]: a reading exactly at the nearest range is in it, and used
+    (the first reading of a climb back into range is there)."""
+    state = run_near([NEAREST + 0.1, NEAREST + 0.1, NEAREST])[-1]
+    assert state.valid and state.coast_s == 0.0 and state.last_measurement == NEAREST
+
+
+def test_kf_a_prediction_at_the_near_bands_top_uses_a_reading_over_it():
+    """Only a prediction under the near band's top (nearest + near_band_m) is in the band: one exactly there (a
+    hover at the top, at rest) uses a reading over the band."""
+    top = NEAREST + KF.near_band_m
+    hovering = AltitudeKfState(np.array([top, 0.0]), np.diag([1e-4, 1e-2]), 0.0, top, 0.0, True)
+    state = altitude_kf_step(hovering, top + 0.2, True, HYBRID_T, KF, NEAREST)
+    assert state.valid and state.coast_s == 0.0 and state.last_measurement == top + 0.2
+
+
+def test_kf_lost_near_does_not_start_on_a_reading_far_under_the_last():
+    """Lost near, the next reading starts it only within near_band_m of the last in-band one, either way: one 0.35 m
+    under it (under the nearest range too) does not, and, under the band, leaves no reading to start from."""
+    lost = AltitudeKfState(time=0.0, last_measurement=NEAREST + 0.25, lost_near=True)
+    state = altitude_kf_step(lost, NEAREST - 0.1, True, HYBRID_T, KF, NEAREST)
+    assert not state.valid and state.lost_near and state.last_measurement is None
 
 
 # ---------------------------------------------------------------------------------------------
