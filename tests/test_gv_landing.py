@@ -567,6 +567,22 @@ def test_monitor_names_each_way_a_run_ends():
     assert check(quad=fast).startswith("diverged")
     assert check(t=30.0, last_seen=5.0).startswith("target_lost: no valid estimate for 25.0 s")
     assert check(t=30.0, last_seen=0.0, seen_ever=False).startswith("target_lost: no valid estimate of the pad")
+    # exactly lost_timeout_s (20 s) without an estimate is not yet lost (t - last_seen is exactly 20.0 here)
+    assert check(t=5.0 + config.termination.lost_timeout_s, last_seen=5.0) is None
+    assert check(t=25.5, last_seen=5.0).startswith("target_lost: no valid estimate for 20.5 s")
+    tolerance = config.termination.ground_tolerance_m  # 2 cm: the centre this far under the ground is no crash yet
+    assert check(quad=hover_state(config.quadrotor, [20.0, 0.0, -0.5 * tolerance])) is None
+    assert check(quad=hover_state(config.quadrotor, [20.0, 0.0, -1.5 * tolerance])).startswith(
+        "crash: hit the ground at")
+    far = relative.copy()  # the horizontal distance to the pad against max_distance_m (200 m), not max_altitude_m
+    far[P_BP_W] = [-100.0, 0.0, -3.4]
+    assert check(relative=far) is None
+    far[P_BP_W] = [-150.0, -150.0, -3.4]  # 150 m each way: 212 m
+    assert check(relative=far).startswith("diverged: 212 m from the pad")
+    at_touchdown = relative.copy()  # over the pad's centre, exactly touchdown_height_m above its top: touching
+    at_touchdown[P_BP_W] = [0.0, 0.0, -config.landing.touchdown_height_m]
+    at_touchdown[HEIGHT] = config.landing.touchdown_height_m
+    assert check(relative=at_touchdown).startswith("landed: the gear touched the pad")
 
 
 def test_the_monitor_counts_a_vertical_dive_and_without_stop_on_landed_flies_on_over_the_pad():
@@ -607,10 +623,15 @@ def test_the_stacks_monitor_ends_on_landed_as_the_landing_says_and_the_pid_desce
     assert wired["tracking_pid", "height"] == ("seam", "height_above_target")
 
 
-@pytest.mark.parametrize("valid, ends", [(0.0, True), (1.0, False)])
-def test_the_monitor_ends_a_run_without_a_valid_estimate_as_target_lost(valid, ends):
+@pytest.mark.parametrize("seen_s, message", [
+    (0.0, "target_lost: no valid estimate of the pad"),
+    (0.5, "target_lost: no valid estimate for"),
+    (2.0, ""),
+])
+def test_the_monitor_ends_a_run_without_a_valid_estimate_as_target_lost(seen_s, message):
     """The monitor reads its target_valid input: held at 0 the run ends "target_lost" one check after
-    lost_timeout_s; held at 1 the same hover flies on."""
+    lost_timeout_s, the pad never seen; at 1 until 0.5 s, then 0, it ends so too, saying for how long the pad has
+    been lost; held at 1 the same hover flies on."""
     config = GvLandingConfig()
     termination = dataclasses.replace(config.termination, lost_timeout_s=0.5)
     monitor = LandingMonitor(termination, config.platform, config.landing.touchdown_height_m)
@@ -620,12 +641,16 @@ def test_the_monitor_ends_a_run_without_a_valid_estimate_as_target_lost(valid, e
     monitor.GetInputPort("quadrotor_state").FixValue(context, hover_state(config.quadrotor, [20.0, 0.0, 5.0]))
     monitor.GetInputPort("vehicle_state").FixValue(context, np.zeros(4))
     monitor.GetInputPort("true_relative_state").FixValue(context, relative)
-    monitor.GetInputPort("target_valid").FixValue(context, [valid])
     monitor.GetInputPort("mode").FixValue(context, [float(Mode.FOLLOW)])
-    status = Simulator(monitor, context).AdvanceTo(2.0)
-    if ends:
-        assert status.message().startswith("target_lost: no valid estimate of the pad")
-        assert context.get_time() <= 0.5 + 1.0 / termination.rate_hz + 1e-9
+    simulator = Simulator(monitor, context)
+    if seen_s > 0:
+        monitor.GetInputPort("target_valid").FixValue(context, [1.0])
+        simulator.AdvanceTo(seen_s)
+    monitor.GetInputPort("target_valid").FixValue(context, [0.0])
+    status = simulator.AdvanceTo(2.0)
+    if message:
+        assert status.message().startswith(message)
+        assert context.get_time() <= seen_s + 0.5 + 1.0 / termination.rate_hz + 1e-9
     else:
         assert status.message() == "" and context.get_time() == 2.0
 
