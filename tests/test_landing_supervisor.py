@@ -392,6 +392,22 @@ def test_system_reads_the_landing_window_as_open_then_holds():
     assert system.GetOutputPort("mode").Eval(context)[0] == Mode.WAIT
 
 
+def test_system_takes_a_nan_flag_as_false():
+    """A NaN on target_valid, landing_window or rendezvous_valid is no flag raised (bool(nan) is True): the search
+    goes on, the final descent waits at LH, and the unseen target gives no horizontal command."""
+    system, simulator, context = supervisor_at(7.5, np.nan)
+    system.GetInputPort("rendezvous_valid").FixValue(context, [np.nan])
+    mode, command = system.GetOutputPort("mode"), system.GetOutputPort("command")
+    simulator.AdvanceTo(0.05)  # TAKEOFF -> CLIMB -> SEARCH (nothing seen)
+    assert mode.Eval(context)[0] == Mode.SEARCH
+    np.testing.assert_array_equal(command.Eval(context)[[0, 1, 4, 5]], np.zeros(4))  # no rendezvous to track
+
+    system, simulator, context = approaching_system(window=[np.nan, np.nan])
+    system.GetInputPort("height_above_target").FixValue(context, [CONFIG.landing_height_m - 0.1])
+    simulator.AdvanceTo(0.09)
+    assert system.GetOutputPort("mode").Eval(context)[0] == Mode.WAIT
+
+
 def test_system_coasts_with_the_last_target_velocity_it_kept():
     """The system's memory keeps the last valid target velocity as (x, y): lost above LH, HOLD coasts with exactly
     it (not the NaN of the invalid estimate now, nor its axes swapped)."""

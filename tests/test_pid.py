@@ -149,6 +149,22 @@ def test_feed_forwards_between_samples(latest, acceleration):
     np.testing.assert_allclose(velocity.Eval(context), [0.5, 0.2] if latest else [0.4, 0.1])
 
 
+def test_a_nan_valid_flag_is_an_unseen_target():
+    """NaN on target_valid is no valid flag (bool(nan) is True): no PID term is sampled or held, no acceleration is
+    fed forward; the command is the target's velocity alone."""
+    system = TrackingPid(TrackingPidConfig(acceleration_feed_forward=True))
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    for name, value in (("target_offset", [1.0, 0.0]), ("target_velocity", [0.4, 0.1]),
+                        ("target_acceleration", [0.05, -0.02]), ("height", [6.0]), ("target_valid", [np.nan])):
+        system.GetInputPort(name).FixValue(context, value)
+    simulator.AdvanceTo(0.1)  # the sample at t = 0
+    np.testing.assert_array_equal(system.GetOutputPort("velocity_command").Eval(context), [0.4, 0.1])
+    np.testing.assert_array_equal(system.GetOutputPort("acceleration_command").Eval(context), [0.0, 0.0])
+    system.GetInputPort("target_valid").FixValue(context, [1.0])  # seen now, between samples: no PID term was held
+    np.testing.assert_array_equal(system.GetOutputPort("velocity_command").Eval(context), [0.4, 0.1])
+
+
 def test_a_change_of_source_restarts_the_pid_without_a_derivative_kick():
     # The vision seam hands over to the broadcast 2 m away (its GNSS error): the first sample on the
     # broadcast is Kp e alone, not Kp e + Kd * 2 m; the next one on the same source has its derivative.

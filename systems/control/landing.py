@@ -290,9 +290,9 @@ class LandingSupervisor(LeafSystem):
     """The supervisor sampled at `config.rate_hz`.
 
     Inputs (World x-y where 2-vectors): `altitude` (1, m), `height_above_target` (1, m),
-    `target_valid` (1, nonzero when seen), `target_offset` (2, target - UAV, m),
+    `target_valid` (1, over 0.5 when seen; NaN is not), `target_offset` (2, target - UAV, m),
     `target_velocity` (2, m/s), `tracking_velocity` (2, m/s) and `tracking_acceleration` (2, m/s^2),
-    the TrackingPid outputs, and optionally `landing_window` (2: [open, holds], nonzero when true;
+    the TrackingPid outputs, and optionally `landing_window` (2: [open, holds], over 0.5 when true;
     both true when not connected) and `rendezvous_valid` (1: the PID tracks the rendezvous target where
     the vision one is not valid; false when not connected).
     Outputs: `command` (7, for the FlightController) and `mode` (1, a Mode value), held between
@@ -326,10 +326,10 @@ class LandingSupervisor(LeafSystem):
 
         window_open = window_holds = True
         if self._window.HasValue(context):
-            window_open, window_holds = (bool(flag) for flag in self._window.Eval(context))
-        rendezvous = self._rendezvous.HasValue(context) and bool(scalar(self._rendezvous))
+            window_open, window_holds = (bool(flag > 0.5) for flag in self._window.Eval(context))
+        rendezvous = self._rendezvous.HasValue(context) and scalar(self._rendezvous) > 0.5
         return SupervisorInputs(
-            context.get_time(), scalar(self._altitude), scalar(self._height), bool(scalar(self._valid)),
+            context.get_time(), scalar(self._altitude), scalar(self._height), bool(scalar(self._valid) > 0.5),
             self._offset.Eval(context), self._target_velocity.Eval(context), self._tracking_velocity.Eval(context),
             self._tracking_acceleration.Eval(context), window_open, window_holds, rendezvous)
 

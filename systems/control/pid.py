@@ -131,7 +131,7 @@ class TrackingPid(LeafSystem):
 
     Inputs: `target_offset` (2, target minus UAV position in World x-y [m]), `target_velocity`
     (2, World [m/s]), `target_acceleration` (2, World [m/s^2]), `height` (1, UAV above the target
-    [m]), `target_valid` (1, nonzero when the target is seen), `source` (1, optional: a label of the
+    [m]), `target_valid` (1, over 0.5 when the target is seen; NaN is not), `source` (1, optional: a label of the
     seam the offset comes from; a sample whose label differs from the last one's restarts the PID).
     Outputs: `velocity_command` (2, World x-y [m/s]): Eq. (27), v_ugv + v_ctrl, with v_ctrl held
     between samples and v_ugv the latest target velocity (`latest_feed_forward`) or the sampled one;
@@ -160,7 +160,7 @@ class TrackingPid(LeafSystem):
 
     def _update(self, context, discrete_state):
         memory = context.get_discrete_state(self._memory).get_value()
-        seen = bool(self._valid.Eval(context)[0])
+        seen = self._valid.Eval(context)[0] > 0.5
         source = self._source.Eval(context)[0] if self._source.HasValue(context) else 0.0
         if source != context.get_discrete_state(self._last_source).get_value()[0]:
             memory = initial_memory()  # another seam's offset: no derivative of the jump between them
@@ -177,11 +177,12 @@ class TrackingPid(LeafSystem):
     def _calc_velocity(self, context, output):
         sample = context.get_discrete_state(self._sample).get_value()
         target_velocity = self._velocity.Eval(context) if self._config.latest_feed_forward else sample[2:4]
-        v_ctrl = sample[0:2] if self._valid.Eval(context)[0] else np.zeros(2)  # unseen: the target's velocity alone
+        seen = self._valid.Eval(context)[0] > 0.5
+        v_ctrl = sample[0:2] if seen else np.zeros(2)  # unseen: the target's velocity alone
         output.SetFromVector(feed_forward(v_ctrl, target_velocity, self._config.max_speed_m_s))
 
     def _calc_acceleration(self, context, output):
-        if self._config.acceleration_feed_forward and self._valid.Eval(context)[0]:
+        if self._config.acceleration_feed_forward and self._valid.Eval(context)[0] > 0.5:
             output.SetFromVector(self._acceleration.Eval(context))
         else:
             output.SetFromVector(np.zeros(2))
