@@ -52,8 +52,9 @@ def simulate(diagram, duration_s: float, *, initialize: Callable | None = None,
              simulator_config: SimulatorConfig | None = None, realtime: bool = False, progress: bool = False,
              visualizer=None, record: bool = False, video=None) -> Simulation:
     """Simulates `diagram` for `duration_s` [s] or until a termination event. `initialize(context)`
-    sets the initial conditions; `visualizer` (a MeshcatVisualizer) records when `record`; `video`
-    (a VideoRecorder in the diagram) is finished on success and discarded otherwise."""
+    sets the initial conditions; `visualizer` (a MeshcatVisualizer) records when `record` (published at the end,
+    stopped unpublished on an error); `video` (a VideoRecorder in the diagram) is finished on success and discarded
+    otherwise."""
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     if initialize is not None:
@@ -80,6 +81,8 @@ def simulate(diagram, duration_s: float, *, initialize: Callable | None = None,
                     break
     except BaseException as e:
         if not integrator_failed(e):
+            if recording:
+                visualizer.StopRecording()  # a caller that goes on (Ctrl-C in a notebook) keeps no recorder running
             if video is not None:
                 video.discard()
             raise

@@ -30,17 +30,17 @@ class Blowup(LeafSystem):
 
 
 class Reader(LeafSystem):
-    """Reads its required input `u` every 0.1 s; raises RuntimeError("broken") from t = 0.3 s when `broken`."""
+    """Reads its required input `u` every 0.1 s; raises `broken` (an exception) from t = 0.3 s when given."""
 
-    def __init__(self, broken: bool = False):
+    def __init__(self, broken: BaseException | None = None):
         super().__init__()
         self._u = self.DeclareVectorInputPort("u", 1)
         self._broken = broken
         self.DeclarePeriodicPublishEvent(0.1, 0.0, self._read)
 
     def _read(self, context):
-        if self._broken and context.get_time() > 0.25:
-            raise RuntimeError("broken")
+        if self._broken is not None and context.get_time() > 0.25:
+            raise self._broken
         self._u.Eval(context)
 
 
@@ -55,9 +55,33 @@ class FakeVideo:
         self.ended = "finished"
 
 
+class FakeVisualizer:
+    """The MeshcatVisualizer calls simulate makes, in order."""
+
+    def __init__(self):
+        self.calls = []
+
+    def StartRecording(self):
+        self.calls.append("start")
+
+    def StopRecording(self):
+        self.calls.append("stop")
+
+    def PublishRecording(self):
+        self.calls.append("publish")
+
+
 def _diagram(system):
     builder = DiagramBuilder()
     builder.AddSystem(system)
+    return builder.Build()
+
+
+def _read_one(broken: BaseException | None = None):
+    """A Reader of a constant 1, raising `broken` from t = 0.3 s when given."""
+    builder = DiagramBuilder()
+    source, reader = builder.AddSystem(ConstantVectorSource([1.0])), builder.AddSystem(Reader(broken))
+    builder.Connect(source.get_output_port(), reader.get_input_port())
     return builder.Build()
 
 
@@ -126,12 +150,33 @@ def test_an_unconnected_input_raises_not_diverges():
 
 
 def test_a_systems_own_runtime_error_raises_not_diverges():
-    builder = DiagramBuilder()
-    source, reader = builder.AddSystem(ConstantVectorSource([1.0])), builder.AddSystem(Reader(broken=True))
-    builder.Connect(source.get_output_port(), reader.get_input_port())
     with pytest.raises(RuntimeError, match="broken"):
-        simulate(builder.Build(), 1.0)
+        simulate(_read_one(RuntimeError("broken")), 1.0)
     assert simulate(_diagram(Blowup()), 0.5, initialize=lambda c: c.SetContinuousState([1.0])).status == COMPLETED
+
+
+def test_ctrl_c_discards_the_video_and_passes_on():
+    """KeyboardInterrupt is no Exception: the video is discarded all the same, and the interrupt reaches the
+    caller (the CLI exits 130)."""
+    video = FakeVideo()
+    with pytest.raises(KeyboardInterrupt):
+        simulate(_read_one(KeyboardInterrupt()), 1.0, video=video)
+    assert video.ended == "discarded"
+
+
+@pytest.mark.parametrize("record, broken, calls", [
+    (False, None, []),
+    (True, None, ["start", "stop", "publish"]),
+    (True, RuntimeError("broken"), ["start", "stop"]),
+    (True, KeyboardInterrupt(), ["start", "stop"]),
+], ids=["not-recording", "recorded", "error", "ctrl-c"])
+def test_meshcat_records_only_when_asked_and_stops_unpublished_on_an_error(record, broken, calls):
+    """The visualizer records the run only with `record`, and publishes it at the end; a run that raises stops its
+    recording unpublished (a caller that goes on, in a notebook, keeps no recorder running)."""
+    visualizer = FakeVisualizer()
+    with pytest.raises(type(broken)) if broken is not None else contextlib.nullcontext():
+        simulate(_read_one(broken), 0.5, visualizer=visualizer, record=record)
+    assert visualizer.calls == calls
 
 
 class Unwired(LeafSystem):
