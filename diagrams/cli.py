@@ -54,7 +54,7 @@ def _parser() -> argparse.ArgumentParser:
     mc.add_argument("--case", dest="case_options", metavar="KEY=V1,V2", action="append", default=[],
                     help="a field and its values (repeatable): landings of a landing scenario (a gv scenario that "
                          "lands, deck-landing or deck-landing-hardware) over the grid of their product, e.g. "
-                         "--case vehicle.speed=3,6,12 --case wind.mean_m_s=0,5"),
+                         "--case vehicle.speed=3,6,12 --case wind.mean_m_s=0,5")
     mc.add_argument("--seed", type=int, default=0, help="base seed; run i of a case always gets the same seed")
     mc.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append", default=[],
                     help="override a scenario field in every run (repeatable)")
