@@ -1,6 +1,7 @@
 """The landing-sim command: `list`, a short run and what it leaves behind, and bad input, which must
 give one line on stderr, exit status 2, no traceback and no output files."""
 
+import argparse
 import contextlib
 import io
 import json
@@ -12,12 +13,13 @@ import subprocess
 from pathlib import Path
 
 import cv2
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
 from diagrams import runner
 from diagrams.cli import main
-from diagrams.outputs import write_json
+from diagrams.outputs import output_file, save_figure, write_json
 from diagrams.scenario import scenario_names
 from systems.config import ConfigError
 from tests.conftest import landing_sim_command
@@ -382,6 +384,53 @@ def test_writing_a_file_never_sets_the_umask_not_even_for_a_moment(tmp_path, mon
     finally:
         set_umask(previous)
     assert stat.S_IMODE((tmp_path / "a.json").stat().st_mode) == 0o640
+
+
+def test_a_figures_file_in_a_folder_that_cannot_be_written_is_refused_at_argument_time(tmp_path):
+    """output_file (a benchmark's --json) probes the file's folder: /sys exists but nothing can be created in it,
+    even by root, so the mistake is an argument error before the work, not a failed write after it."""
+    assert Path("/sys").is_dir()
+    with pytest.raises(argparse.ArgumentTypeError, match="cannot write"):
+        output_file("/sys/landing-sim-figures.json")
+    assert output_file(str(tmp_path / "figures.json")) == tmp_path / "figures.json"
+
+
+def test_a_file_is_written_beside_its_target_and_renamed_into_place(tmp_path, monkeypatch):
+    """The partial file lives in the target's folder (not the system's temporary one), so the rename that puts it
+    in place is atomic (one file system)."""
+    renamed, replace = [], os.replace
+
+    def recording(source, target):
+        renamed.append((Path(source), Path(target)))
+        replace(source, target)
+
+    monkeypatch.setattr(os, "replace", recording)
+    write_json(tmp_path / "a.json", {"n": 1})
+    [(source, target)] = renamed
+    assert target == tmp_path / "a.json" and source.parent == tmp_path and source.name.endswith(".partial")
+    assert json.loads(target.read_text()) == {"n": 1}
+
+
+@pytest.mark.parametrize("exception", [KeyboardInterrupt(), RuntimeError("disk full")], ids=["ctrl-c", "error"])
+def test_a_write_that_fails_raises_and_leaves_no_partial_file(tmp_path, monkeypatch, exception):
+    """Any exception (Ctrl-C too) while the file is put in place is raised, and the partial file is removed."""
+    monkeypatch.setattr(os, "replace", _raising(exception))
+    with pytest.raises(type(exception)):
+        write_json(tmp_path / "a.json", {"n": 1})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_write_json_writes_numpy_scalars_as_their_python_values_and_ends_with_a_newline(tmp_path):
+    """An integer stays an integer (not 3.0), a bool a JSON bool (not 1.0); the text ends with a newline."""
+    write_json(tmp_path / "a.json", {"n": np.int64(3), "b": np.bool_(True)})
+    assert (tmp_path / "a.json").read_text() == '{\n  "n": 3,\n  "b": true\n}\n'
+
+
+def test_save_figure_writes_a_png_and_closes_the_figure(tmp_path):
+    fig = plt.figure()
+    save_figure(fig, tmp_path / "a.png")
+    assert not plt.fignum_exists(fig.number)
+    assert (tmp_path / "a.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 # ---- exit statuses past bad input: Ctrl-C, an internal error ----
