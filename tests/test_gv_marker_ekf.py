@@ -8,12 +8,14 @@ summaries with 1 and 2 workers, and bad settings are one-line errors."""
 import dataclasses
 import json
 
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.math import RigidTransform, RollPitchYaw
 
+import diagrams.marker_plots as marker_plots
 from diagrams.cli import main
 from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly_diagram
@@ -22,7 +24,7 @@ from diagrams.marker_metrics import SampledRun, marker_metrics, measurement_metr
 from diagrams.montecarlo import campaign_definition, campaign_settings, run_campaign
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
-from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, ESTIMATE_VECTOR_SIZE
+from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, EST_P_WP, ESTIMATE_VECTOR_SIZE
 from systems.perception.seam import HEIGHT, P_BP_W
 from systems.vehicles.quadrotor import P_WB, quadrotor_state
 
@@ -524,6 +526,22 @@ def test_the_path_plot_names_the_vehicles_reference_path(path, label):
     plt.close(fig)
 
 
+def test_the_heading_plot_wraps_the_truth_the_estimates_and_their_errors_to_plus_minus_180_deg():
+    """The truth at 4 rad, one estimate 0.1 rad past it unwrapped (4.1 rad) and one wrapped (4.1 - 2 pi): each drawn
+    in [-180, 180) deg, and both errors 0.1 rad (5.73 deg), not 0.1 - 2 pi."""
+    fig, axes = plt.subplots(2, 1)
+    wrapped = 4.1 - 2 * np.pi
+    marker_plots.plot_heading(axes, np.array([0.0, 1.0]), np.array([0.0, 4.0]),
+                              {"paper_ekf": np.array([0.1, 4.1]), "ct_ekf": np.array([0.1, wrapped])}, "title")
+    truth, *estimates = axes[0].lines
+    np.testing.assert_allclose(truth.get_ydata(), np.degrees([0.0, 4.0 - 2 * np.pi]))
+    assert len(estimates) == len(axes[1].lines) == 2
+    for estimate, error in zip(estimates, axes[1].lines):
+        np.testing.assert_allclose(estimate.get_ydata(), np.degrees([0.1, wrapped]))
+        np.testing.assert_allclose(error.get_ydata(), np.degrees([0.1, 0.1]))
+    plt.close(fig)
+
+
 def test_run_plots_leave_out_the_estimates_the_filters_flag(monkeypatch, tmp_path):
     import diagrams.marker_plots as marker_plots
 
@@ -545,6 +563,8 @@ def test_run_plots_leave_out_the_estimates_the_filters_flag(monkeypatch, tmp_pat
                  "marker 0": np.asarray(figures["marker_errors.png"].axes[i].lines[0].get_ydata(), dtype=float)}
         for what, y in drawn.items():
             assert np.all(np.isnan(y[flagged])) and np.all(np.isfinite(y[e.valid])), (name, what)
+        # The path drawn is the estimate's x and y (not y and z).
+        np.testing.assert_allclose(path.get_xydata()[e.valid], run.estimates[name][e.valid][:, EST_P_WP][:, :2])
         # On the valid rows each line is the error it names: the heading error in degrees, marker j's own error.
         error = figures["heading.png"].axes[1].lines[i].get_ydata()
         np.testing.assert_allclose(error[e.valid], np.degrees(e.heading[e.valid]), atol=1e-9)
