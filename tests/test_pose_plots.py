@@ -46,6 +46,8 @@ def test_each_pose_plot_draws_the_channel_it_names(tmp_path, monkeypatch):
     for ax, (i, j) in zip(views, ((0, 2), (1, 2), (0, 1))):  # XZ, YZ, XY
         assert (ax.get_xlabel(), ax.get_ylabel()) == (f"{'xyz'[i]} (m)", f"{'xyz'[j]} (m)")
         np.testing.assert_allclose(lines(ax)["truth"].get_xydata(), xyz[:, [i, j]])
+    scene = figures["pose_trajectory.png"].axes[3]  # the 3-D view: x, y, z on their own axes
+    np.testing.assert_allclose(np.array(lines(scene)["truth"].get_data_3d()), xyz.T)
     position, angles = figures["errors_atda.png"].axes
     for k, label in enumerate("xyz"):
         np.testing.assert_allclose(lines(position)[label].get_ydata(), np.full(valid.sum(), [0.1, 0.2, 0.3][k]))
