@@ -24,6 +24,7 @@ from diagrams.federated_metrics import (
 from diagrams.federated_plots import plot_federated, shade_frames
 from diagrams.gv_landing_run import summary_lines
 from systems.estimators.federated.system import (
+    FED_BETAS,
     FED_LOCAL_P,
     FED_LOCAL_THETA,
     FED_LOCAL_TRACES,
@@ -106,6 +107,7 @@ def test_overlap_1_is_shaded_where_both_nodes_measure():
     np.testing.assert_allclose(spans[0], [t[1], t[5], t[9]])
     np.testing.assert_allclose(spans[1], [t[2], t[7], t[9]])
     assert [patch.get_label() for patch in ax.patches][0] == "Overlap 1"
+    assert ax.get_legend_handles_labels()[1] == ["Overlap 1"]  # once, for three bands
     plt.close(fig)
 
 
@@ -288,3 +290,27 @@ def test_each_federated_panel_draws_the_channel_it_names(tmp_path, monkeypatch):
     np.testing.assert_allclose(lines[1]["federated"], np.abs(fused - heights), atol=1e-12)  # 0.01, NaN on frame 7
     np.testing.assert_allclose(lines[4]["federated (valid)"], fused)
     np.testing.assert_allclose(lines[4]["true"], heights)
+
+
+def test_the_federated_figure_draws_each_nodes_trace_and_beta_the_error_floor_and_overlap_1(tmp_path, monkeypatch):
+    """Each local filter's trace (c) and beta (d) are its own node's (distinct per node); an error of zero is drawn at
+    the floor of the log scale (1e-4 m); Overlap 1 (approach and adjustment both measure: _log's frames 2-5, not
+    overlap 2's 5-8) is shaded in (b) and (e)."""
+    log, heights = _log()
+    traces, betas = np.array([1e-3, 2e-3, 3e-3]), np.array([0.2, 0.3, 0.5])
+    log.federated[:, FED_LOCAL_TRACES], log.federated[:, FED_BETAS] = traces, betas
+    adjustment = log.nodes["adjustment"][:, 0] > 0.5
+    log.nodes["adjustment"][:, 3] = heights  # exactly on the true height where it measures
+    figures = []
+    monkeypatch.setattr(federated_plots, "save_figure", lambda fig, path: figures.append(fig))
+    plot_federated(log, CameraConfig().X_BC, tmp_path)
+    axes = figures[0].axes
+    lines = [{line.get_label(): line.get_ydata() for line in ax.get_lines()} for ax in axes]
+    for i, name in enumerate(("approach", "adjustment", "touchdown")):
+        np.testing.assert_allclose(lines[2][f"LF {name}"], np.full(10, traces[i]))
+        np.testing.assert_allclose(lines[3][f"beta {name}"], np.full(10, betas[i]))
+    np.testing.assert_allclose(lines[1]["adjustment"], np.where(adjustment, 1e-4, np.nan))
+    t = log.t
+    for ax in (axes[1], axes[4]):
+        spans = [(patch.get_x(), patch.get_x() + patch.get_width()) for patch in ax.patches]
+        np.testing.assert_allclose(spans, [(t[2], t[5])])

@@ -115,14 +115,14 @@ def test_the_wind_report_gives_the_standard_deviation_and_the_largest_speed():
 
 def test_the_wind_report_gives_the_configured_wind_and_draws_each_axis(tmp_path, monkeypatch):
     """metrics.json's `wind` repeats the configuration (the direction as configured, the number of gusts), and
-    wind.png's line for each W axis is the logged air velocity on that axis."""
+    wind.png's line for each W axis is the logged air velocity on that axis, over the supervisor's modes shaded."""
     from diagrams import wind_report
     from systems.control.landing import Mode
 
     config = WindConfig(mean_m_s=5.0, direction_deg=30.0, turbulence="light",
                         gusts=[GustConfig(start_s=1.0, magnitude_m_s=2.0, direction_deg=90.0)])
     t = np.linspace(0.0, 1.0, 4)
-    log = {"t": t, "mode": np.full(4, int(Mode.FOLLOW)),
+    log = {"t": t, "mode": np.array([int(Mode.FOLLOW)] * 2 + [int(Mode.LAND)] * 2),
            "wind": np.column_stack([1.0 + t, -2.0 * t, 0.5 - t])}
     out = wind_metrics(log, config)
     assert (out["mean_m_s"], out["direction_deg"], out["turbulence"], out["gusts"]) == (5.0, 30.0, "light", 1)
@@ -132,3 +132,4 @@ def test_the_wind_report_gives_the_configured_wind_and_draws_each_axis(tmp_path,
     lines = {line.get_label(): line.get_ydata() for line in figures[0].axes[0].get_lines()}
     for i, axis in enumerate("xyz"):
         np.testing.assert_allclose(lines[f"wind {axis}"], log["wind"][:, i])
+    assert len(figures[0].axes[0].patches) == 2  # the modes shaded: FOLLOW, then LAND
