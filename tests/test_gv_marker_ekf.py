@@ -512,10 +512,6 @@ def test_ensemble_mean_figures_are_the_error_of_the_mean_estimate_after_settling
 
 @pytest.mark.parametrize("path, label", [("sine", "reference (Eq. 13)"), ("circle", "reference (circle)")])
 def test_the_path_plot_names_the_vehicles_reference_path(path, label):
-    import matplotlib.pyplot as plt
-
-    import diagrams.marker_plots as marker_plots
-
     reference = np.c_[np.arange(30.0), np.zeros(30)]
     true_xy = np.c_[np.arange(5.0), 5.0 + np.arange(5.0)]  # reaching x = 4 m (and y = 9 m)
     fig, ax = plt.subplots()
@@ -543,8 +539,6 @@ def test_the_heading_plot_wraps_the_truth_the_estimates_and_their_errors_to_plus
 
 
 def test_run_plots_leave_out_the_estimates_the_filters_flag(monkeypatch, tmp_path):
-    import diagrams.marker_plots as marker_plots
-
     # the camera covered from 1 to 3 s: the filters coast and flag their estimates once the pad's
     # position std passes 0.3 m
     s = scenario(6, 1, "faults.occlusions_s=[[1.0, 3.0]]", "estimation.ekf.max_valid_position_std_m=0.3")
