@@ -10,7 +10,9 @@ import signal
 import socket
 import stat
 import subprocess
+import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import matplotlib.pyplot as plt
@@ -18,9 +20,10 @@ import numpy as np
 import pytest
 
 from diagrams import runner
-from diagrams.cli import main
+from diagrams.cli import DEFAULT_SCENARIO, main
 from diagrams.outputs import output_file, save_figure, write_json
 from diagrams.scenario import scenario_names
+from diagrams.simulate import Simulation
 from systems.config import ConfigError
 from tests.conftest import landing_sim_command
 
@@ -458,3 +461,66 @@ def test_an_internal_error_is_one_line_and_exit_1_and_with_debug_its_traceback(m
                                     "(run with --debug for the traceback)\n")
     with pytest.raises(RuntimeError, match="the integrator diverged"):
         main(["--debug", *args])
+
+
+# ---- what the command and runner.simulate_scene pass on (runner.run and simulate faked) ----
+
+def _fake_run(calls: list):
+    """runner.run noting the scenario name and output folder it gets, with the metrics of a run."""
+    def run(name, scenario, out_dir, options):
+        calls.append((name, out_dir))
+        return {"sim_time_s": 0.0, "wall_time_s": 1.0, "realtime_factor": 0.0}
+    return run
+
+
+def test_run_without_a_name_runs_the_default_scenario_into_results(monkeypatch, capfd, tmp_path):
+    calls = []
+    monkeypatch.setattr(runner, "run", _fake_run(calls))
+    monkeypatch.chdir(tmp_path)
+    code, _, stderr = run_main(capfd, "run", "--quiet")
+    assert code == 0, stderr
+    assert calls == [(DEFAULT_SCENARIO, f"results/{DEFAULT_SCENARIO}")]
+
+
+def test_meshcat_does_not_wait_for_enter_when_stdin_is_no_terminal(monkeypatch, capfd, tmp_path):
+    """With stdin not a terminal (a pipe, /dev/null, a batch job) a --meshcat run ends when it is done instead
+    of asking for Enter (input() would meet end-of-file at once)."""
+    calls = []
+    monkeypatch.setattr(runner, "run", _fake_run(calls))
+    monkeypatch.setattr(sys, "stdin", io.StringIO())
+    code, stdout, stderr = run_main(capfd, "run", "stewart-hover", "--meshcat", "--quiet", "--out", str(tmp_path / "o"))
+    assert code == 0, stderr
+    assert calls == [("stewart-hover", str(tmp_path / "o"))]
+    assert "press Enter" not in stdout
+
+
+def test_no_command_is_a_usage_error_naming_it(capfd):
+    code, stdout, stderr = run_main(capfd)
+    assert code == 2 and stdout == ""
+    assert stderr == "landing-sim: error: the following arguments are required: command\n"
+
+
+@pytest.mark.parametrize("record, meshcat", [(True, False), (False, True)], ids=["record", "meshcat"])
+def test_simulate_scene_records_on_record_paces_on_meshcat_and_reports_the_simulated_time(monkeypatch, record,
+                                                                                          meshcat):
+    """simulate gets `record` from --record and real-time pacing from --meshcat alone; the metrics carry the time
+    simulated (0.3 s of a 2 s scenario: a run ended early) and its ratio to the wall time."""
+    calls = []
+
+    def fake_simulate(diagram, duration_s, **kwargs):
+        calls.append((diagram, duration_s, kwargs))
+        return Simulation("landed: touchdown", 0.3, 0.6, "final context", 0.5)
+
+    monkeypatch.setattr(runner, "simulate", fake_simulate)
+    handles = SimpleNamespace(meshcat_visualizer="visualizer", video="video")
+    scenario = SimpleNamespace(duration_s=2.0, seed=7)
+    ctx = runner.RunContext("a-scene", Path("out"), runner.RunOptions(meshcat=meshcat, record=record,
+                                                                      progress=False), None)
+    metrics, context = runner.simulate_scene("diagram", handles, scenario, ctx)
+    ((diagram, duration_s, kwargs),) = calls
+    assert (diagram, duration_s) == ("diagram", 2.0)
+    assert kwargs == {"realtime": meshcat, "progress": False, "visualizer": "visualizer", "record": record,
+                      "video": "video"}
+    assert metrics == {"scenario": "a-scene", "seed": 7, "sim_time_s": 0.3, "wall_time_s": 0.6,
+                       "realtime_factor": pytest.approx(0.3 / 0.6)}
+    assert context == "final context"

@@ -7,10 +7,11 @@ import io
 
 import pytest
 from pydrake.common.value import AbstractValue
-from pydrake.systems.analysis import SimulatorConfig
+from pydrake.systems.analysis import Simulator, SimulatorConfig
 from pydrake.systems.framework import DiagramBuilder, EventStatus, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource, Integrator
 
+import diagrams.simulate
 from diagrams.cli import main
 from diagrams.perception_sources import SOURCES, PerceptionSource, add_estimate_to_seam
 from diagrams.simulate import COMPLETED, integrator_failed, simulate
@@ -177,6 +178,24 @@ def test_meshcat_records_only_when_asked_and_stops_unpublished_on_an_error(recor
     with pytest.raises(type(broken)) if broken is not None else contextlib.nullcontext():
         simulate(_read_one(broken), 0.5, visualizer=visualizer, record=record)
     assert visualizer.calls == calls
+
+
+@pytest.mark.parametrize("realtime, rate", [(True, 1.0), (False, 0.0)], ids=["realtime", "as-fast-as-it-can"])
+def test_realtime_paces_the_simulator_at_1_and_otherwise_not_at_all(monkeypatch, realtime, rate):
+    """`realtime` (--meshcat) sets the Simulator's target real-time rate to 1; without it the rate stays Drake's
+    default 0, no pacing (read back from the Simulator simulate made, not timed)."""
+    made = []
+
+    class KeptSimulator(Simulator):
+        def __init__(self, diagram):
+            super().__init__(diagram)
+            made.append(self)
+
+    monkeypatch.setattr(diagrams.simulate, "Simulator", KeptSimulator)
+    run = simulate(_read_one(), 0.05, realtime=realtime)
+    assert run.status == COMPLETED
+    (simulator,) = made
+    assert simulator.get_target_realtime_rate() == rate
 
 
 class Unwired(LeafSystem):
