@@ -101,6 +101,13 @@ def wait_for_files(paths: list[Path], limit_s: float = 120.0) -> None:
         time.sleep(0.01)
 
 
+def marker_run(marker: Path, task: RunTask):
+    """Fails until the file `marker` exists (a bug fixed between two invocations), then is `toy_run`."""
+    if not marker.exists():
+        raise ValueError("the filter diverged")
+    return toy_run(task)
+
+
 def dying_run(task: RunTask):
     """A run whose worker process dies (as a segfault in native code would)."""
     if task.case == "6" and task.index == 1:
@@ -651,6 +658,48 @@ def test_command_refuses_a_directory_with_another_campaign(capfd, pool_campaigns
     captured = capfd.readouterr()
     assert code == 2 and captured.err.count("\n") == 1 and "runs: 4 there, 7 asked" in captured.err
     assert snapshot(out) == before
+
+
+def test_command_writes_into_results_scenario_mc_by_default(capfd, tmp_path, monkeypatch, toy_registered):
+    monkeypatch.chdir(tmp_path)
+    code = main(["montecarlo", "toy", "--runs", "1", "--speeds", "3", "--workers", "0", "--quiet"])
+    captured = capfd.readouterr()
+    assert code == 0, captured.err
+    assert (tmp_path / "results" / "toy-mc" / "summary.json").is_file()
+    assert "summary in results/toy-mc/summary.json" in captured.out
+    assert sorted(p.name for p in (tmp_path / "results").iterdir()) == ["toy-mc"]
+
+
+def test_command_base_seed_is_0_unless_given(capfd, tmp_path, toy_registered):
+    """Without --seed the runs get the seeds of --seed 0 (run_seed of base 0); --seed 1 gives others."""
+    seeds = {}
+    for name, args in (("default", []), ("0", ["--seed", "0"]), ("1", ["--seed", "1"])):
+        out = tmp_path / name
+        code = main(["montecarlo", "toy", "--runs", "1", "--speeds", "3", "--workers", "0", "--quiet",
+                     "--out", str(out), *args])
+        assert code == 0, capfd.readouterr().err
+        seeds[name] = json.loads((out / "runs" / "3" / "00000.json").read_text())["seed"]
+    assert seeds == {"default": run_seed(0, "3", 0), "0": run_seed(0, "3", 0), "1": run_seed(1, "3", 0)}
+    assert run_seed(0, "3", 0) != run_seed(1, "3", 0)
+
+
+def test_command_retry_failed_runs_the_failed_runs_again(capfd, tmp_path, monkeypatch, toy_registered):
+    """A failed run stays failed when the command is run again; with --retry-failed it is run again (and, the bug
+    behind it fixed, done)."""
+    marker = tmp_path / "fixed"
+    monkeypatch.setitem(CAMPAIGNS, "toy", toy(run=functools.partial(marker_run, marker)))
+    args = ["montecarlo", "toy", "--runs", "1", "--speeds", "3", "--workers", "0", "--quiet", "--out",
+            str(tmp_path / "mc")]
+    outputs = []
+    for extra in ([], [], ["--retry-failed"]):
+        code = main(args + extra)
+        captured = capfd.readouterr()
+        assert code == 0, captured.err
+        outputs.append(captured.out)
+        marker.touch()  # fixed after the first: only --retry-failed runs it again
+    assert "0 of 1 runs done, 1 failed (1 run now" in outputs[0]
+    assert "0 of 1 runs done, 1 failed (0 run now" in outputs[1]
+    assert "1 of 1 runs done, 0 failed (1 run now" in outputs[2]
 
 
 # ---- runs in groups -----------------------------------------------------------------------------
