@@ -112,6 +112,19 @@ def test_roll_pitch_yaw_and_the_rotation_error_are_drakes():
     np.testing.assert_allclose(angle, drake, atol=1e-9)
 
 
+def test_a_row_with_any_nan_is_all_nan_and_leaves_the_others_whole():
+    """xyz_rpy: a row missing its position or its orientation (a NaN anywhere) is NaN throughout, not half a pose;
+    the finite row between them is Drake's position and roll-pitch-yaw."""
+    X = RigidTransform(RollPitchYaw(0.1, -0.2, 0.3), [1.0, 2.0, 3.0])
+    no_position, whole, no_orientation = pose_vector(X), pose_vector(X), pose_vector(X)
+    no_position[:3] = np.nan
+    no_orientation[3:] = np.nan
+    for rows, missing in (([no_position, whole], 0), ([whole, no_orientation], 1)):
+        out = xyz_rpy(np.array(rows))
+        assert np.isnan(out[missing]).all()
+        np.testing.assert_allclose(out[1 - missing], [1.0, 2.0, 3.0, 0.1, -0.2, 0.3], atol=1e-12)
+
+
 def test_rms_of_finite_leaves_out_nan_and_inf():
     assert rms_of_finite(np.array([0.003, -0.004, np.inf, np.nan, -np.inf])) == np.sqrt((0.003**2 + 0.004**2) / 2)
     assert rms_of_finite(np.array([np.nan, np.inf])) is None and rms_of_finite([]) is None

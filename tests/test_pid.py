@@ -13,6 +13,11 @@ def test_defaults_are_seed_003_table_2_simulation_row():
     assert config.switch_height_m == 4.0
     assert (config.gains_above.kp, config.gains_above.ki, config.gains_above.kd) == (0.80, 0.0, 0.35)
     assert (config.gains_below.kp, config.gains_below.ki, config.gains_below.kd) == (1.50, 0.0, 0.50)
+    # Sec. 3.1.1: AirSim gave 3-5 frames/s, one PID step per frame; Kd acts per frame, so the gains hold at the
+    # middle of that range, 4 Hz.
+    assert 3.0 <= config.rate_hz <= 5.0 and config.rate_hz == 4.0
+    # Not in the paper: the limit must let the UAV follow the fastest ground vehicle of seed 002 (12 m/s).
+    assert config.max_speed_m_s > 12.0
 
 
 def test_hand_worked_sequence():
@@ -56,6 +61,26 @@ def test_the_sum_does_not_wind_up_against_the_speed_limit():
     np.testing.assert_allclose(pid.step([-1.0, 0.0], height=5.0), [-0.7, 0.0])
 
 
+def test_a_command_exactly_at_the_speed_limit_still_integrates():
+    # Kp 0.5, Ki 0.25 on e = (2, 0): Kp e + Ki e = 1.0 + 0.5 = 1.5 m/s, exactly the limit, not beyond it: the error is
+    # integrated (sum 2 m) and the command is 1.5 m/s (clamped, it would be Kp e alone, 1.0 m/s, with a sum of 0).
+    gains = PidGains(kp=0.5, ki=0.25, kd=0.0)
+    pid = HeightScheduledPid(TrackingPidConfig(gains_above=gains, gains_below=gains, max_speed_m_s=1.5))
+    np.testing.assert_allclose(pid.step([2.0, 0.0], height=5.0), [1.5, 0.0], atol=1e-12)
+    np.testing.assert_allclose(pid.memory[0:2], [2.0, 0.0], atol=1e-12)
+
+
+def test_the_command_of_a_clamped_sample_has_the_clamped_sum():
+    # Kp 0.5, Ki 0.2, limit 2 m/s; e = (10, 0) with the target at (0, 1.5) m/s: v_ugv + Kp e + Ki e = (7, 1.5) is
+    # beyond the limit, so x's error is left out of the sum (0) and v_ctrl = Kp e = (5, 0), not (7, 0) with the
+    # unclamped sum. Eq. (27): v_ugv + v_ctrl = (5, 1.5), scaled to 2 m/s.
+    gains = PidGains(kp=0.5, ki=0.2, kd=0.0)
+    pid = HeightScheduledPid(TrackingPidConfig(gains_above=gains, gains_below=gains, max_speed_m_s=2.0))
+    command = pid.step([10.0, 0.0], height=5.0, target_velocity=[0.0, 1.5])
+    np.testing.assert_allclose(command, np.array([5.0, 1.5]) * 2.0 / np.hypot(5.0, 1.5), atol=1e-12)
+    np.testing.assert_allclose(pid.memory[0:2], [0.0, 0.0])
+
+
 def test_a_saturated_command_still_integrates_the_error_against_it():
     # The target's own 20 m/s saturates the command: x's error against it (-1 m) is integrated (it unwinds),
     # y's along its y component (+1 m) is not; the target velocity is part of the limit's test.
@@ -95,6 +120,12 @@ def test_negative_gain_is_rejected_by_name():
     config = yaml_load_typed(schema=TrackingPidConfig, data="gains_below: {kd: -0.1}")
     with pytest.raises(ValueError, match="pid.gains_below.kd"):
         TrackingPid(config)
+
+
+@pytest.mark.parametrize("name", ["rate_hz", "switch_height_m", "max_speed_m_s"])
+def test_a_zero_rate_switch_height_or_speed_limit_is_rejected_by_name(name):
+    with pytest.raises(ValueError, match=f"pid.{name} must be positive, got 0.0"):
+        TrackingPidConfig(**{name: 0.0}).validate()
 
 
 def test_system_matches_pure_pid_at_its_rate_and_restarts_on_loss():
