@@ -1,7 +1,9 @@
 """The CRHF estimator as a system: on rendered scenes against ground truth, and its failure modes."""
 
+import itertools
 import re
 from dataclasses import replace
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -15,7 +17,7 @@ from diagrams.scenario import scenario_names
 from diagrams.stewart_run import collect_log
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import ConfigError
-from systems.estimators.crhf import CrhfConfig, CrhfEstimator, CrhfState, RunningMean
+from systems.estimators.crhf import JUDGED_FROM_DOF, CrhfConfig, CrhfEstimator, CrhfState, RunningMean
 from systems.estimators.crhf_math import crhf_tag_pose, residual_gate
 from systems.estimators.pad_calibration import CalibrationError, CalibrationFlight, PadCalibration
 from systems.estimators.track_filter import Track, TrackFilterParams
@@ -158,6 +160,22 @@ def test_the_system_times_each_frames_step():
     assert system.per_frame_ms(context) > 0
 
 
+def test_per_frame_ms_is_in_milliseconds(monkeypatch):
+    """per_frame_ms is the mean of the frames' step times in ms: with CRHF's clock advancing 2 ms at each reading
+    (start and end of every frame's step), every frame took 2 ms and the mean is 2.0."""
+    clock = itertools.count(0.0, 0.002)  # s
+    monkeypatch.setattr("systems.estimators.crhf.time", SimpleNamespace(perf_counter=lambda: next(clock)))
+    system = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05, CAMERA)
+    simulator = Simulator(system)
+    context = simulator.get_mutable_context()
+    corners, ranges = level_frame(1.5)
+    system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.0, corners))
+    system.GetInputPort("ranges").FixValue(context, ranges)
+    simulator.AdvanceTo(0.12)
+    assert context.get_abstract_state(0).get_value().compute_ms.weight == 3
+    assert system.per_frame_ms(context) == pytest.approx(2.0, rel=1e-9)
+
+
 def test_missing_calibration_and_bad_settings_are_clear_errors(tmp_path):
     with pytest.raises(CalibrationError, match="nope.npz"):
         CrhfEstimator(CrhfConfig(calibration_file=str(tmp_path / "nope.npz")), P_C_SENSORS, 0.5, 0.05, CAMERA)
@@ -268,6 +286,25 @@ def test_residuals_of_corners_that_fit_no_tag_are_not_pooled_once_the_noise_is_k
     state, estimate = crhf.step(state, bad_corners, frames[-1][1], 1.5)
     assert estimate.valid and state.corner_variance == pooled  # judged now: not pooled
     # The residual left out is beyond the F(2, 60) gate of the pool (the first bad frame is in it).
+    residual = crhf.estimate(state.corners, state.ranges.position, state.ranges.P[:4, :4], before).corner_residual_px2
+    assert residual > residual_gate(pooled.weight) * pooled.mean
+
+
+def test_the_pool_judges_residuals_from_exactly_judged_from_dof(crhf):
+    # Ten valid frames pool 2 dof each, unjudged: exactly JUDGED_FROM_DOF. The next frame, one corner 6 px off, is
+    # judged already, and its residual (beyond the F(2, 20) gate of the pool) is left out.
+    frames = noisy_level_frames(10)
+    state = CrhfState()
+    for k, (corners, ranges) in enumerate(frames):
+        state, estimate = crhf.step(state, corners, ranges, 0.05 * k)
+        assert estimate.valid
+    pooled = state.corner_variance
+    assert pooled.weight == JUDGED_FROM_DOF == 20
+    bad_corners = frames[-1][0].copy()
+    bad_corners[0] += [6.0, 0.0]
+    before = state
+    state, estimate = crhf.step(state, bad_corners, frames[-1][1], 0.5)
+    assert estimate.valid and state.corner_variance == pooled  # lifted onto the ranges' plane, not pooled
     residual = crhf.estimate(state.corners, state.ranges.position, state.ranges.P[:4, :4], before).corner_residual_px2
     assert residual > residual_gate(pooled.weight) * pooled.mean
 
@@ -387,12 +424,13 @@ def test_ranges_tilted_the_mirrors_way_do_not_take_over_from_the_corners_the_pre
     assert np.degrees(max(errors[20:])) < 3.0
 
 
-@pytest.mark.parametrize("gap_frames, valid_after", [(1, True), (21, False)])
+@pytest.mark.parametrize("gap_frames, valid_after", [(1, True), (20, True), (21, False)])
 def test_the_last_valid_frames_deck_breaks_the_tie_across_a_short_gap(crhf, gap_frames, valid_after):
     # As above, the ranges then tilted the mirror's way (ambiguous corners, the previous frame's deck decides), until
-    # a sensor drops out (a NaN range) for one frame, or for 21 (1.05 s, over deck_normal_memory_s' 1 s). After one,
-    # the last valid frame's deck still decides and every later frame is valid and right; after 21 nothing does,
-    # and the ambiguous frames are flagged (they would have been, forgetting the deck at the first invalid frame).
+    # a sensor drops out (a NaN range) for one frame, for 20 (exactly deck_normal_memory_s' 1 s, though twenty 0.05 s
+    # steps sum to 1.0000000000000002 s), or for 21 (1.05 s, over it). After one or 20, the last valid frame's deck
+    # still decides and every later frame is valid and right; after 21 nothing does, and the ambiguous frames are
+    # flagged (they would have been, forgetting the deck at the first invalid frame).
     rng = np.random.default_rng(5)
     X_CT, exact, n = tag_tilted_15_deg_and_its_mirror()
     mirror_ranges = ranges_to_plane(n, X_CT.translation())

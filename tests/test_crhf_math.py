@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 from systems.estimators.crhf_math import (
     NORMAL_GATE,
     CornerNormal,
+    PlaneFit,
     arun_rigid_transform,
     corner_normal,
     corners_fit_a_tag,
@@ -22,6 +23,7 @@ from systems.estimators.crhf_math import (
     intersect_pixel_rays_with_plane,
     mirror_corner_normal,
     plane_beyond_gate,
+    plane_through_centroid,
     plane_tilt_covariance,
     principal_point_from_touch_points,
     range_shift,
@@ -120,6 +122,14 @@ def test_a_world_fixed_direction_after_the_cameras_turn_is_the_exact_rotations_t
     assert e2 == pytest.approx(e1 / 4.0, rel=0.1)
 
 
+def test_three_points_fix_a_plane():
+    # Fewer than three points are degenerate; three not on one line fix their plane exactly.
+    plane = fit_plane(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]]))
+    assert not plane.degenerate
+    np.testing.assert_allclose(plane.normal, [0.0, 0.0, 1.0], atol=1e-15)
+    assert plane.offset == pytest.approx(1.0) and plane.rms_residual < 1e-15
+
+
 def test_plane_fit_orients_the_normal_away_from_the_camera():
     points = np.array([[0, 0, 2.0], [1, 0, 2.0], [0, 1, 2.0], [1, 1, 2.0]])
     plane = fit_plane(points)
@@ -205,6 +215,19 @@ def test_given_intrinsics_with_a_negative_focal_length_give_an_invalid_pose(foca
     assert not crhf_tag_pose(*args, intrinsics=(focal_lengths, [CX, CY])).valid
 
 
+def test_given_intrinsics_do_not_validate_a_frame_whose_own_focal_lengths_are_negative():
+    """This frame's own focal lengths must be positive too, even where the corners are lifted with given ones: touch
+    pixels reflected through the principal point measure (u - cx) Z / X = -fx and -fy (the principal point, their
+    mean, stays), and the frame is refused although the given intrinsics would lift its corners."""
+    p_s, p_T = sensor_positions_C(SENSOR_RADIUS), tag_corners_T(TAG_SIZE)
+    ranges = np.full(4, 2.0)
+    uv_corners = project(np.array([RigidTransform([0.0, 0.0, 2.0]).multiply(p) for p in p_T]))
+    reflected = 2.0 * np.array([CX, CY]) - project(touch_points(p_s, ranges))
+    estimate = crhf_tag_pose(p_s, ranges, reflected, uv_corners, p_T, intrinsics=([FX, FY], [CX, CY]))
+    np.testing.assert_allclose(estimate.focal_lengths, [-FX, -FY], rtol=1e-9)
+    assert not estimate.valid and estimate.X_CT.IsExactlyIdentity()
+
+
 def test_ray_plane_intersection_recovers_tag_corners_exactly():
     p_C_corners = np.array([X_CT.multiply(p) for p in tag_corners_T(TAG_SIZE)])
     n, d = deck_plane(X_CT)
@@ -224,6 +247,14 @@ def test_ray_plane_intersection_flags_rays_that_miss():
     np.testing.assert_array_equal(valid, [False, False, True])
     assert np.all(np.isnan(points[:2]))
     assert points[2, 0] == pytest.approx(1.0)
+
+
+def test_ray_plane_intersection_flags_a_plane_behind_the_camera():
+    # The plane z = -1 (normal +z, offset -1): the optical axis' ray is not parallel to it but meets it at depth -1.
+    points, valid = intersect_pixel_rays_with_plane(np.array([[CX, CY]]), [FX, FY], [CX, CY],
+                                                    PlaneFit(np.array([0.0, 0.0, 1.0]), -1.0, 0.0, False))
+    np.testing.assert_array_equal(valid, [False])
+    assert np.all(np.isnan(points))
 
 
 def test_tag_corners_are_in_the_detectors_order_and_the_papers_frame():
@@ -463,6 +494,20 @@ def test_fusing_equally_certain_normals_takes_the_mid_tilt_and_keeps_the_ranges_
     np.testing.assert_allclose(quarter.normal, expected / np.linalg.norm(expected), atol=1e-5)
 
 
+def test_an_exact_corner_normal_within_the_gate_wins_outright():
+    # The gnomonic chart theta = E m / (n . m) maps the corners' normal m to the tilt whose n + E^T theta is
+    # parallel to m; with zero covariance the corners' tilt is the fused one, so the fused normal is m exactly.
+    p_t = touch_points(sensor_positions_C(SENSOR_RADIUS), np.full(4, 2.0))
+    plane = fit_plane(p_t)
+    tilt = np.radians(10.0)
+    m = np.array([np.sin(tilt), 0.0, np.cos(tilt)])
+    # Within the gate: the level plane's tilt variance is 1e-2 / (4 (r / sqrt 2)^2) per axis (the sensors at
+    # (+-r / sqrt 2, +-r / sqrt 2)), so the corners' tilt tan(10 deg) is this many variances squared away.
+    assert np.tan(tilt) ** 2 / (1e-2 / (2.0 * SENSOR_RADIUS**2)) < NORMAL_GATE
+    fused = fuse_normals(plane, p_t, 1e-2 * np.eye(4), CornerNormal(m, np.zeros((3, 3)), 0.0), 1.0)
+    np.testing.assert_allclose(fused.normal, m, atol=1e-9)
+
+
 def test_a_corner_normal_beyond_the_gate_is_not_fused():
     plane, p_t, range_covariance, corners = fusion_case([0.2, 0.0, 1.0])  # 11 degrees off, sigma 10 mrad
     assert 0.2**2 / 2e-4 > NORMAL_GATE
@@ -520,18 +565,27 @@ def test_corners_that_disagree_with_the_ranges_and_have_no_agreeing_mirror_set_t
                                                     abs=1e-12)
 
 
-def test_the_touch_offset_is_the_farthest_touch_point_from_the_plane_taken():
-    # As above, with one range 3 cm long (a sensor reading past the deck's edge): the offset the range gate reads
-    # is that point's, the largest, not the four's mean.
+@pytest.mark.parametrize("sensor, change", [(0, 0.03), (1, -0.03)], ids=["beyond", "camera-side"])
+def test_the_touch_offset_is_the_farthest_touch_point_from_the_plane_taken(sensor, change):
+    # As above, with one range 3 cm long (a sensor reading past the deck's edge), or 3 cm short on the other side
+    # (the farthest point then between the plane and the camera): the offset the range gate reads is that point's
+    # distance, the largest, not the four's mean nor the largest signed one. The plane has the tag's normal
+    # n = (0, -sin 15, cos 15) through the touch points' centroid, which the change moves by change / 4 along z_C:
+    # the changed point, at y = -r / sqrt 2 (long) or +r / sqrt 2 (short), lies r / sqrt 2 sin 15 + 3/4 |change|
+    # cos 15 from it on the side it moved to, the others at most r / sqrt 2 sin 15 + 1/4 |change| cos 15.
     X, uv = tilted_tag_on_the_axis(15.0, 1.2)
     p_s, ranges, _ = ranges_and_touch_pixels(np.array([0.0, 0.0, 1.0]), 1.2)
-    ranges[0] += 0.03
+    ranges[sensor] += change
     estimate = crhf_tag_pose(p_s, ranges, project(touch_points(p_s, ranges)), uv, tag_corners_T(TAG_SIZE),
                              range_covariance=0.005**2 * np.eye(4), corner_variance_px2=0.1)
     assert estimate.valid
+    np.testing.assert_allclose(estimate.plane.normal, X.rotation().matrix()[:, 2], atol=1e-9)
     offsets = np.abs(touch_points(p_s, ranges) @ estimate.plane.normal - estimate.plane.offset)
     assert offsets.max() > 1.2 * offsets.mean()
     assert estimate.touch_offset_m == pytest.approx(offsets.max(), abs=1e-12)
+    tilt = np.radians(15.0)
+    assert estimate.touch_offset_m == pytest.approx(
+        SENSOR_RADIUS / np.sqrt(2.0) * np.sin(tilt) + 0.75 * abs(change) * np.cos(tilt), abs=1e-12)
 
 
 def test_corners_whose_mirror_agrees_with_the_ranges_are_flagged_without_a_previous_frame():
@@ -578,6 +632,16 @@ def test_the_residual_gate_is_the_f_quantile_of_the_pooled_noise_and_tends_to_th
     # 0.030 px^2 pooled from five frames fits (taken as exact, the pool refused it, and the frame was lifted onto the
     # ranges' plane, 11.8 deg off).
     assert corners_fit_a_tag(0.457, 0.030, 10.0) and not corners_fit_a_tag(0.457, 0.030)
+
+
+def test_the_plane_through_the_centroid_reports_the_rms_distance_of_the_points():
+    # A normal of any length is normalised; three points 0.1 below the centroid's depth 1.1, one 0.3 above:
+    # RMS sqrt((3 0.1^2 + 0.3^2) / 4) = sqrt(0.03), not the mean distance 0.15.
+    plane = plane_through_centroid(np.array([0.0, 0.0, 2.0]),
+                                   np.array([[0.1, 0.0, 1.0], [-0.1, 0.0, 1.0], [0.0, 0.1, 1.0], [0.0, -0.1, 1.4]]))
+    np.testing.assert_allclose(plane.normal, [0.0, 0.0, 1.0], atol=1e-15)
+    assert plane.offset == pytest.approx(1.1, abs=1e-12) and not plane.degenerate
+    assert plane.rms_residual == pytest.approx(np.sqrt(0.03), abs=1e-12)
 
 
 def test_without_a_mirror_or_with_corners_facing_the_camera_the_range_plane_stays():
