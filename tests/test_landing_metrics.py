@@ -8,7 +8,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from diagrams.landing_metrics import SETTLED_TOLERANCE_M, SETTLED_WINDOW_S, pad_landing, tracking_metrics
+from diagrams.landing_metrics import SETTLED_TOLERANCE_M, SETTLED_WINDOW_S, impact, pad_landing, tracking_metrics
 from diagrams.simulate import COMPLETED
 from systems.control.landing import LandingConfig, LandingSupervisor, Mode
 from systems.perception.seam import HEIGHT, P_BP_W, RELATIVE_STATE_SIZE, V_WP
@@ -111,14 +111,51 @@ def test_pad_landing_on_a_hand_built_log():
     assert out["waits"] == 1 and out["wait_s"] == pytest.approx(1.3)
 
 
-@pytest.mark.parametrize("p_BP_xy, error_m, meets", [([0.12, -0.16], 0.2, False), ([0.03, 0.04], 0.05, True)])
-def test_the_touchdown_error_target_is_10_cm(p_BP_xy, error_m, meets):
-    """A landing on the 1 m pad with the gear at its touchdown height (no fall), 0.3 m/s down (under the 0.5 m/s
-    target): it meets the targets 0.05 m from the centre, not 0.2 m from it, though on the pad either way."""
-    out, index = _landed(0.0, p_BP_xy, [1.0, 0.0, -0.3])
-    assert index == 4 and out["success"] and out["touchdown_rel_speed_mps"] == pytest.approx(0.3)
+@pytest.mark.parametrize("p_BP_xy, descent_mps, error_m, meets", [
+    ([0.12, -0.16], 0.3, 0.2, False),
+    ([0.03, 0.04], 0.3, 0.05, True),
+    ([0.1, 0.0], 0.3, 0.1, False),  # exactly the 10 cm target: not under it
+    ([0.03, 0.04], 0.5, 0.05, False),  # exactly the 0.5 m/s target: not under it
+])
+def test_the_targets_are_under_10_cm_and_under_0_5_m_s(p_BP_xy, descent_mps, error_m, meets):
+    """A landing on the 1 m pad with the gear at its touchdown height (no fall), descending at descent_mps: it
+    meets the targets under 0.1 m from the centre and under 0.5 m/s (both strict), though on the pad either way."""
+    out, index = _landed(0.0, p_BP_xy, [1.0, 0.0, -descent_mps])
+    assert index == 4 and out["success"] and out["touchdown_rel_speed_mps"] == pytest.approx(descent_mps)
     assert out["touchdown_error_m"] == pytest.approx(error_m)
     assert out["meets_targets"] == meets
+
+
+@pytest.mark.parametrize("gap_m, p_BP_xy", [
+    (0.0, [0.03, 0.04]),  # the gear exactly at its touchdown height
+    (-0.05, [0.03, 0.04]),  # 5 cm under it
+    (0.0, [0.5, 0.0]),  # on the 1 m pad's edge (UAV minus pad (-0.5, 0))
+])
+def test_a_touchdown_at_or_under_the_touchdown_height_is_the_supervisors_without_a_fall(gap_m, p_BP_xy):
+    """The supervisor's LANDED and the gear's touch at the same sample (k = 4): the supervisor's (its motors stop
+    first); with the gear at or under its touchdown height there is nothing to fall (gap 0, impact at t[4] at the
+    0.3 m/s descent), and a touchdown on the pad's edge is on the pad."""
+    out, index = _landed(gap_m, p_BP_xy, [1.0, 0.0, -0.3])
+    assert index == 4 and out["touchdown_by"] == "supervisor"
+    assert out["touchdown_gap_m"] == 0.0 and out["touchdown_height_m"] == pytest.approx(0.1 + gap_m)
+    assert out["time_to_land_s"] == 2.0 and out["touchdown_rel_speed_mps"] == pytest.approx(0.3)
+    assert out["success"] and out["failure_reason"] is None
+    np.testing.assert_allclose(out["touchdown_offset_pad_xy_m"], -np.array(p_BP_xy), atol=1e-12)
+
+
+@pytest.mark.parametrize("status, reason, detail", [
+    ("crash: hit the ground at t = 3.0 s", "crash", "hit the ground at t = 3.0 s"),
+    ("stopped: by hand", "diverged", "stopped: by hand"),  # not a failure reason: "diverged", the whole status
+])
+def test_a_run_ended_without_a_touchdown_fails_for_its_reason(status, reason, detail):
+    n = 4
+    relative = np.zeros((n, RELATIVE_STATE_SIZE))
+    relative[:, HEIGHT] = 3.0
+    log = {"t": np.arange(n) * 0.5, "mode": np.full(n, int(Mode.APPROACH)), "true_relative_state": relative,
+           "quadrotor_state": np.zeros((n, STATE_SIZE))}
+    out, index = pad_landing(log, status, np.zeros(n), 1.0, 0.02, 0.1, 9.81)
+    assert index is None and not out["success"] and not out["meets_targets"]
+    assert (out["failure_reason"], out["failure_detail"]) == (reason, detail)
 
 
 def test_gv_landing_scores_the_contact_sample_in_the_pad_frame():
@@ -150,12 +187,15 @@ def test_gv_landing_scores_the_contact_sample_in_the_pad_frame():
     assert out["vehicle_turn_radius_at_touchdown_m"] == pytest.approx(config.vehicle.wheelbase_m / np.tan(steering))
 
 
-def test_impact_of_a_uav_at_the_pad_is_its_descent_speed_and_zero_when_rising():
-    """At or under the touchdown height the motors stop on the pad: the impact speed is the downward speed,
+@pytest.mark.parametrize("gap_m, vertical_speed, speed", [
+    (0.0, -0.4, 0.4),  # at the touchdown height, descending
+    (-0.01, 0.3, 0.0),  # under it, rising
+    (0.0, 0.3, 0.0),  # at it, rising: no gap, so no rise and fall back
+])
+def test_impact_of_a_uav_at_the_pad_is_its_descent_speed_and_zero_when_rising(gap_m, vertical_speed, speed):
+    """At or under the touchdown height the motors stop on the pad: the impact is at once at the downward speed,
     and none for a UAV moving up at that moment (it lifts off the pad, it does not hit it)."""
-    from diagrams.landing_metrics import impact
-    assert impact(0.0, -0.4, 9.81) == (0.0, pytest.approx(0.4))
-    assert impact(-0.01, 0.3, 9.81) == (0.0, 0.0)
+    assert impact(gap_m, vertical_speed, 9.81) == (0.0, pytest.approx(speed))
 
 
 def test_tracking_metrics_leave_out_an_approach_after_the_final_descent_and_keep_the_window_edge():
@@ -171,3 +211,21 @@ def test_tracking_metrics_leave_out_an_approach_after_the_final_descent_and_keep
     np.testing.assert_allclose(out["approach_max_abs_xy_m"], [0.04, 0.06])
     np.testing.assert_allclose(out["approach_rmse_xy_m"], np.sqrt(np.mean(error[1:4] ** 2, axis=0)))
     np.testing.assert_allclose(out["before_final_descent_max_abs_xy_m"], [0.03, 0.06])  # t = 2.0 = 4.0 - 2.0 in
+
+
+def test_an_error_exactly_at_the_tolerance_is_settled():
+    """The x error 0.5 m in FOLLOW, then exactly SETTLED_TOLERANCE_M (within it: settled from t = 1 s), then 0."""
+    F, A, L = Mode.FOLLOW, Mode.APPROACH, Mode.LAND
+    t = np.arange(4.0)
+    relative = np.zeros((4, RELATIVE_STATE_SIZE))
+    relative[:, P_BP_W.start] = [0.5, SETTLED_TOLERANCE_M, 0.0, 0.0]
+    out = tracking_metrics({"t": t, "mode": np.array([F, A, A, L], dtype=int), "true_relative_state": relative})
+    assert out["settling_time_s"] == 1.0
+
+
+def test_a_follow_only_after_the_final_descent_has_no_settling_figures():
+    """FOLLOW first logged after LAND: nothing before the final descent to settle."""
+    mode = np.array([Mode.APPROACH, Mode.LAND, Mode.FOLLOW], dtype=int)
+    relative = np.zeros((3, RELATIVE_STATE_SIZE))
+    out = tracking_metrics({"t": np.arange(3.0), "mode": mode, "true_relative_state": relative})
+    assert "settling_time_s" not in out and "settled_within_m" not in out
