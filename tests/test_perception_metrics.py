@@ -161,3 +161,17 @@ def test_a_fusion_at_the_touchdown_sample_leaves_no_coast():
     estimate[:, EST_LAST_MEASUREMENT] = t
     out = perception_metrics(_log(np.radians(90.0)), "ct_ekf", touchdown_s=t[25], filter_t=t, filter_estimate=estimate)
     assert out["coast_before_touchdown_s"] == 0.0
+
+
+@pytest.mark.parametrize("last_fusion_s, touchdown_s", [
+    (np.nan, 0.5),  # the filter never fused
+    (0.0, -0.1),  # touchdown before the filter's first sample: none to read
+])
+def test_without_a_fusion_before_touchdown_there_is_no_coast_figure(last_fusion_s, touchdown_s):
+    """No last fusion to count the coast from: no figure (None), not NaN."""
+    t = np.arange(N) * 0.02
+    estimate = np.zeros((N, ESTIMATE_VECTOR_SIZE))
+    estimate[:, EST_LAST_MEASUREMENT] = last_fusion_s
+    out = perception_metrics(_log(np.radians(90.0)), "ct_ekf", touchdown_s=touchdown_s, filter_t=t,
+                             filter_estimate=estimate)
+    assert out["coast_before_touchdown_s"] is None
