@@ -142,11 +142,12 @@ def test_the_local_filters_are_scored_on_the_fused_estimates_valid_frames():
     np.testing.assert_allclose(out["federated"]["rmse_height_m"], 0.01)
 
 
-def test_with_a_touchdown_every_valid_fraction_is_over_the_frames_up_to_it():
-    # Touchdown at frame 5: frames 0-5 are scored, 6-9 (after it) count for no figure.
+def test_with_a_touchdown_every_valid_fraction_and_altitude_band_is_over_the_frames_up_to_it():
+    # Touchdown at frame 5: frames 0-5 are scored, 6-9 (after it) count for no figure, nor for an altitude band.
     n = 10
     t = np.arange(n) * 0.02
     X_PB = np.tile([0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0], (n, 1))
+    X_PB[6:, 2] = 0.2  # the UAV lower after touchdown
     federated = np.full((n, FEDERATED_VECTOR_SIZE), np.nan)
     federated[:, FED_STARTED] = np.arange(n) >= 2  # the local filters from frame 2: 4 of 6 frames, 8 of 10
     federated[:, FED_VALID] = np.arange(n) >= 3  # the fused estimate from frame 3: 3 of 6, 7 of 10
@@ -162,6 +163,7 @@ def test_with_a_touchdown_every_valid_fraction_is_over_the_frames_up_to_it():
     for name in ("local_approach", "local_adjustment", "local_touchdown"):
         np.testing.assert_allclose(out[name]["valid_fraction"], 4 / 6)
     assert out["federated"]["valid_fraction"] == 0.5
+    assert out["adjustment"]["altitude_band_m"] == out["touchdown"]["altitude_band_m"] == [1.0, 1.0]
 
 
 def test_the_truth_is_drakes_X_PB_and_p_CP():
