@@ -9,7 +9,9 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from scipy.spatial.transform import Rotation
 
 from diagrams.hybrid_metrics import (
+    CLIMBED_FRACTION,
     axis_stats,
+    climb_end_index,
     detection_scores,
     hybrid_metrics,
     identity_switches,
@@ -88,12 +90,15 @@ def test_a_detection_at_exactly_the_match_iou_is_a_true_positive():
     assert (scores["true_positives"], scores["false_positives"], scores["false_negatives"]) == (1, 0, 0)
 
 
-def test_identity_switches_count_changes_of_the_locked_id_across_frames_without_a_lock():
-    """LockedTrackVector's log: id -1 without a lock. 3 -> 7 and 7 -> 3 are switches, a gap under one id is not."""
-    ids = [-1, 3, 3, -1, 3, 7, 7, -1, -1, 3]
-    lock = np.column_stack([ids, np.zeros(len(ids))]).astype(float)
-    assert identity_switches(lock) == {"identity_switches": 2, "frames_locked": 6, "tracks_locked": 2}
-    assert identity_switches(lock[:3]) == {"identity_switches": 0, "frames_locked": 2, "tracks_locked": 1}
+@pytest.mark.parametrize("ids, expected", [
+    ([-1, 3, 3, -1, 3, 7, 7, -1, -1, 3], (2, 6, 2)),  # 3 -> 7 and 7 -> 3 switches, a gap under one id not
+    ([-1, 3, 3], (0, 2, 1)),
+    ([0, 0, 1, -1], (1, 3, 2)),  # track ids start at 0: 0 is a lock
+])
+def test_identity_switches_count_changes_of_the_locked_id_across_frames_without_a_lock(ids, expected):
+    """LockedTrackVector's log [id, matched]: id -1 without a lock. expected: (switches, frames locked, tracks)."""
+    lock = np.column_stack([ids, np.greater_equal(ids, 0)]).astype(float)  # matched while locked
+    assert identity_switches(lock) == dict(zip(("identity_switches", "frames_locked", "tracks_locked"), expected))
 
 
 @pytest.mark.parametrize("detection, matched", [(None, 0.0), (0, 1.0)])
@@ -175,6 +180,24 @@ def test_a_ray_from_inside_the_box_enters_it_at_once():
         assert ray_box_entry(np.array([0.2, -0.3, 0.25]), np.array(d), low, high) == 0.0
 
 
+@pytest.mark.parametrize("p, d, low, high, expected", [
+    # straight down beside the box: parallel to its x and y slabs, outside x's (x = 5, not in [-1, 1])
+    ([5.0, 0.0, 3.0], [0.0, 0.0, -1.0], [-1.0, -1.0, 0.0], [1.0, 1.0, 1.0], np.inf),
+    # grazing the edge x = 1, y = 0: in x's slab for s in [1, 2], in y's for s in [0, 1]; they meet at s = 1
+    ([2.0, 1.0, 0.5], [-1.0, -1.0, 0.0], [0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 1.0),
+])
+def test_a_ray_parallel_to_a_slab_outside_it_misses_and_a_grazing_ray_hits(p, d, low, high, expected):
+    assert ray_box_entry(*map(np.array, (p, d, low, high))) == expected
+
+
+def test_the_true_window_depth_is_zero_with_the_eye_inside_the_ugvs_box():
+    """The level UAV placed so that its left eye (X_BL) is at the centre of the UGV's box: the box is met at once."""
+    config, _ = _ugv_hybrid()
+    low, high = ugv_bounds_V(config.platform, config.vehicle.wheelbase_m)
+    p_WB = (low + high) / 2 - config.hybrid.stereo.X_BL.translation()
+    assert true_window_depth(*_hover(p_WB, (0, 0, 0), 0.0), config)[0] == 0.0
+
+
 def test_hybrid_metrics_on_a_constructed_log():
     """The estimate off in z alone (0.2 m): no horizontal error; an invalid frame's far-off estimate left out;
     the stereo altitude's bias is its reading minus the true depth (raw 0.1 m over, filtered 0.05 m under)."""
@@ -232,6 +255,18 @@ def _pad_frames(n, offsets, z=3.0):
     hybrid[:, 0] = hybrid[:, 4] = 1.0
     hybrid[:, 1:4] = quadrotor[:, P_WB] + truth[:, P_BP_W] + offsets
     return quadrotor, vehicle, hybrid, truth
+
+
+def test_a_row_with_any_nan_is_left_out_of_the_axis_stats():
+    """[0.1, -0.2, 0.3] and a row NaN in x alone: one sample, the first row's |error| its MAE."""
+    stats = axis_stats(np.array([[0.1, -0.2, 0.3], [np.nan, 1.0, 1.0]]))
+    assert stats["samples"] == 1
+    np.testing.assert_allclose(stats["mae_xyz"], [0.1, 0.2, 0.3])
+
+
+def test_the_climb_ends_at_the_first_frame_at_exactly_the_climbed_fraction():
+    ih = 10.0
+    assert climb_end_index([0.0, CLIMBED_FRACTION * ih, ih], ih) == 1
 
 
 def test_the_error_after_the_climb_counts_the_frame_that_ends_it():
