@@ -103,7 +103,7 @@ def bad_config(tmp_path):
     (["run", "stewart-dynamic", "--set", "tof.angle_deg=1e-9"], "tof.arm_m and tof.angle_deg give the sensors |y|"),
     (["run", "stewart-hover", "--set", "estimators=[crhf, crhf]"], "estimators: each may be listed once"),
     (["run", "stewart-hover", "--set", "camera.fx=550"], "flown with camera [fx, fy, cx, cy, width, height]"),
-    (["run", "deck-landing", "--set", "tof.arm_m=0.2"], "flown with ToF sensors at (x, y)"),
+    (["run", "deck-landing", "--set", "tof.arm_m=0.2"], "flown with ToF sensors at (x, y, z)"),
     (["run", "ugv-hybrid", "--set", "hybrid.ground.texture_seed=-1"], "hybrid.ground.texture_seed"),
     (["run", "ugv-hybrid", "--set", "hybrid.tracker.cue_px=[1e9,1e9]"], "hybrid.tracker.cue_px"),
     (["run", "deck-landing", "--duration", "-1"], "duration_s"),

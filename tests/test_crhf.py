@@ -194,8 +194,8 @@ def test_missing_calibration_and_bad_settings_are_clear_errors(tmp_path):
 @pytest.mark.parametrize("camera, p_C_sensors, named", [
     (replace(CAMERA, fx=550.0, fy=550.0), P_C_SENSORS, "camera [fx, fy, cx, cy, width, height] [458.5, 457.855"),
     (replace(CAMERA, width=640), P_C_SENSORS, "the scene's [458.5, 457.855, 258.7735, 252.308, 640.0, 512.0] px"),
-    (CAMERA, sensor_positions_C(0.2), "ToF sensors at (x, y) [[-0.095459, -0.095459]"),
-    (CAMERA, sensor_positions_C(0.135, 40.0), "the scene's [[-0.103416, -0.086776]"),
+    (CAMERA, sensor_positions_C(0.2), "ToF sensors at (x, y, z) [[-0.095459, -0.095459, 0.0]"),
+    (CAMERA, sensor_positions_C(0.135, 40.0), "the scene's [[-0.103416, -0.086776, 0.0]"),
 ], ids=["focal-lengths", "width", "arm", "angle"])
 def test_a_calibration_flown_with_another_camera_or_tof_layout_is_refused(camera, p_C_sensors, named):
     with pytest.raises(CalibrationError, match=re.escape(named)) as error:

@@ -267,7 +267,11 @@ def test_the_flight_is_saved_and_loaded_and_compared_within_one_part_in_a_millio
     assert flight.mismatch(loaded) is None
     assert flight.mismatch(CalibrationFlight.of(camera, sensor_positions_C(0.135 * (1 + 1e-7)))) is None
     assert flight.mismatch(CalibrationFlight.of(camera, sensor_positions_C(0.135 * (1 + 1e-5)))).startswith(
-        "ToF sensors at (x, y) [[-0.095459, -0.095459]")
+        "ToF sensors at (x, y, z) [[-0.095459, -0.095459, 0.0]")
+    lower = P_C_SENSORS + [0.0, 0.0, 0.01]  # the same x and y, 1 cm lower: named by the z it differs in
+    assert flight.mismatch(CalibrationFlight.of(camera, lower)).startswith(
+        "ToF sensors at (x, y, z) [[-0.095459, -0.095459, 0.0]")
+    assert "the scene's [[-0.095459, -0.095459, 0.01]" in flight.mismatch(CalibrationFlight.of(camera, lower))
     other_camera = SimpleNamespace(**{**vars(camera), "cy": CY + 0.01})
     assert flight.mismatch(CalibrationFlight.of(other_camera, P_C_SENSORS)) == (
         f"camera [fx, fy, cx, cy, width, height] {[FX, FY, CX, CY, 512.0, 512.0]} px, the scene's "
@@ -344,6 +348,23 @@ def test_load_errors_name_the_file_and_the_problem(tmp_path):
     np.savez(no_lens, **arrays, flight_camera=np.array([FX, FY, CX, CY, 512.0, 512.0]), flight_p_C_sensors=P_C_SENSORS)
     with pytest.raises(CalibrationError, match=re.escape(f"{no_lens}: {message}")):
         PadCalibration.load(no_lens)
+
+
+@pytest.mark.parametrize("bad, problem", [
+    ({"pixels_0": np.array([{"u": 1.0}], dtype=object)}, "is unreadable: Object arrays cannot be loaded"),
+    ({"flight_camera": np.array(["a"] * 6), "flight_distortion": np.zeros(5), "flight_p_C_sensors": P_C_SENSORS},
+     ": could not convert string to float"),
+], ids=["object-array", "flight-of-text"])
+def test_an_array_that_is_no_numbers_is_a_calibration_error_naming_the_file(tmp_path, bad, problem):
+    """An array numpy will not load without pickle (an object array), or a flight array of text of the right shape:
+    a CalibrationError naming the file, not numpy's bare ValueError (CRHF loads the file at build time)."""
+    path = tmp_path / "pads.npz"
+    PadCalibration(calibration().sensors).save(path)
+    with np.load(path) as data:
+        arrays = dict(data)
+    np.savez(path, **{**arrays, **bad})
+    with pytest.raises(CalibrationError, match=re.escape(f"pad calibration file {path}") + ".*" + re.escape(problem)):
+        PadCalibration.load(path)
 
 
 @pytest.mark.parametrize("wrong", [{"flight_camera": np.zeros(5)}, {"flight_distortion": np.zeros(4)},

@@ -105,8 +105,8 @@ class CalibrationFlight:
                                "needs none (it takes the pad pixels as the pinhole image the tag's corners are "
                                "undistorted to)")
         if not close(self.p_C_sensors, scene.p_C_sensors):
-            differences.append(f"ToF sensors at (x, y) {np.round(self.p_C_sensors[:, :2], 6).tolist()} m in C, "
-                               f"the scene's {np.round(scene.p_C_sensors[:, :2], 6).tolist()} m")
+            differences.append(f"ToF sensors at (x, y, z) {np.round(self.p_C_sensors, 6).tolist()} m in C, "
+                               f"the scene's {np.round(scene.p_C_sensors, 6).tolist()} m")
         return "; ".join(differences) or None
 
 
@@ -310,8 +310,11 @@ class PadCalibration:
             raise CalibrationError(f"pad calibration file {path} is unreadable: {error}") from None
         if not isinstance(data, np.lib.npyio.NpzFile):
             raise CalibrationError(f"pad calibration file {path} is not an .npz archive")
-        with data:
-            arrays = dict(data)
+        try:  # the members are read here: an object array, or a damaged member, fails now
+            with data:
+                arrays = dict(data)
+        except (OSError, ValueError, zipfile.BadZipFile) as error:
+            raise CalibrationError(f"pad calibration file {path} is unreadable: {error}") from None
         if "colours" not in arrays:
             raise CalibrationError(f"pad calibration file {path} lacks the array 'colours'")
         colours = [str(c) for c in arrays["colours"]]
@@ -319,15 +322,15 @@ class PadCalibration:
         missing = [key for key in wanted if key not in arrays]
         if missing:
             raise CalibrationError(f"pad calibration file {path} lacks the arrays {missing}")
-        flight = None
         shapes = {"flight_camera": (6,), "flight_distortion": (5,), "flight_p_C_sensors": (len(colours), 3)}
-        if any(key in arrays for key in shapes):  # all three, or (a file from before flights were recorded) none
+        flight_recorded = any(key in arrays for key in shapes)  # all three, or (a file from before flights) none
+        if flight_recorded:
             if any(key not in arrays or arrays[key].shape != shape for key, shape in shapes.items()):
                 raise CalibrationError(f"pad calibration file {path}: the flight needs flight_camera (6,), "
                                        f"flight_distortion (5,) and flight_p_C_sensors ({len(colours)}, 3); "
                                        "re-run `landing-sim run crhf-calibration` to write them")
-            flight = CalibrationFlight(*(arrays[key].astype(float) for key in shapes))
         try:
+            flight = CalibrationFlight(*(arrays[key].astype(float) for key in shapes)) if flight_recorded else None
             return cls(
                 tuple(
                     SensorCalibration(c, arrays[f"ranges_{i}"], arrays[f"pixels_{i}"])
@@ -335,5 +338,5 @@ class PadCalibration:
                 ),
                 flight,
             )
-        except ValueError as error:  # CalibrationError, or arrays of the wrong shape
+        except ValueError as error:  # CalibrationError, or arrays of the wrong shape or of no numbers
             raise CalibrationError(f"pad calibration file {path}: {error}") from None
