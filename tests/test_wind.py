@@ -314,6 +314,8 @@ def test_no_direct_feedthrough_and_no_algebraic_loop():
     # 180 deg up from the horizontal blew the gust against its direction_deg
     ({"gusts": [GustConfig(), GustConfig(elevation_deg=180.0)]}, "wind.gusts[1].elevation_deg must be in [-90, 90]"),
     ({"gusts": [GustConfig(elevation_deg=-90.5)]}, "wind.gusts[0].elevation_deg must be in [-90, 90]"),
+    ({"direction_deg": float("nan")}, "wind.direction_deg must be finite, got nan"),  # the wind would be NaN
+    ({"gusts": [GustConfig(direction_deg=float("inf"))]}, "wind.gusts[0].direction_deg must be finite, got inf"),
 ])
 def test_validation_errors_name_the_field(changes, message):
     config = WindConfig(**changes)

@@ -23,6 +23,7 @@ sigma, L or V: when altitude or airspeed change them, the state stays stationary
 at once. Each sample is discretised exactly over dt (Van Loan 1978) from the current L and V.
 """
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,6 +64,7 @@ class GustConfig:
         require_non_negative(self.start_s, f"{prefix}.start_s")
         require_positive(self.duration_s, f"{prefix}.duration_s")
         require_non_negative(self.magnitude_m_s, f"{prefix}.magnitude_m_s")
+        require(math.isfinite(self.direction_deg), f"{prefix}.direction_deg must be finite, got {self.direction_deg}")
         # Past +-90 deg the gust would move against direction_deg: that is direction_deg + 180.
         require(-90 <= self.elevation_deg <= 90,
                 f"{prefix}.elevation_deg must be in [-90, 90] (turn direction_deg instead), got {self.elevation_deg}")
@@ -96,6 +98,7 @@ class WindConfig:
 
     def validate(self, prefix: str = "wind") -> None:
         require_non_negative(self.mean_m_s, f"{prefix}.mean_m_s")
+        require(math.isfinite(self.direction_deg), f"{prefix}.direction_deg must be finite, got {self.direction_deg}")
         require(self.turbulence in TURBULENCE_LEVELS,
                 f"{prefix}.turbulence '{self.turbulence}' is not one of {', '.join(TURBULENCE_LEVELS)}")
         for name in ("sigma_m_s", "length_scale_m"):
