@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
+from systems.config import ConfigError
 from systems.estimators.deck_tracker import (
     DeckTrack,
     DeckTracker,
@@ -45,6 +46,16 @@ def test_attitude_coordinates_round_trip_drake_rotations():
     np.testing.assert_allclose(attitude_coordinates(RotationMatrix.MakeZRotation(0.7)), [0.0, 0.0, 0.7], atol=1e-12)
 
 
+@pytest.mark.parametrize("rpy", [(5e-4, 0.0, 0.3), (0.0, -5e-4, -2.0), (1e-6, 1e-6, 1.0)])
+def test_a_deck_tilted_by_under_a_milliradian_is_not_taken_for_level(rpy):
+    """Tilts of a milliradian and less round-trip through the attitude coordinates to 1e-12 like larger ones:
+    only an exactly level normal (|n_xy| under 1e-12) skips the tilt rotation."""
+    R = RotationMatrix(RollPitchYaw(rpy))
+    coordinates = attitude_coordinates(R)
+    np.testing.assert_allclose(coordinates[:2], R.col(2)[:2], atol=1e-15)
+    np.testing.assert_allclose(attitude_rotation(coordinates).matrix(), R.matrix(), atol=1e-12)
+
+
 def test_a_deck_heading_across_plus_minus_180_deg_is_tracked():
     """Headings 179.9 deg and -179.9 deg in turn are 0.2 deg apart, not 359.8: each frame's yaw is unwrapped
     next to the track's, so none is gated, every frame counts and the estimate heads 180 deg."""
@@ -74,6 +85,22 @@ def test_the_estimates_covariance_puts_roll_and_pitch_on_the_normals_y_and_x():
     np.testing.assert_allclose(np.diag(covariance)[:3], np.diag(J_inverse @ P_attitude[:3, :3] @ J_inverse.T),
                                rtol=1e-6)
     np.testing.assert_allclose(np.diag(covariance)[3:], [1e-6, 2e-6, 3e-6], rtol=1e-12)
+
+
+@pytest.mark.parametrize("time, expected", [
+    (1.0, [0.01, 0.02, 0.001, 0.002, 0.69, 0.3, 1.0, 0.0]),  # at the frame: the tracks' own values
+    (1.5, [0.0105, 0.021, 0.001, 0.002, 0.84, 0.3, 1.0, 0.0]),  # 0.5 s on: each value moved by its rate
+])
+def test_the_deck_motion_is_the_normals_tilt_and_the_centres_heave_with_their_rates(time, expected):
+    """deck_motion [n_x, n_y, dn_x/dt, dn_y/dt, z, dz/dt, valid, coasted steps] from tracks whose every
+    coordinate and rate differ (p = [0, 0, 0.69], v = [0.1, 0.2, 0.3]; [n_x, n_y, yaw] = [0.01, 0.02, 0.3]
+    at rates [0.001, 0.002, 0.003]): the heave rate is the centre's z rate, not its x or y rate."""
+    track = DeckTrack(1.0, Track(np.array([0.0, 0.0, 0.69, 0.1, 0.2, 0.3]), 1e-6 * np.eye(6)),
+                      Track(np.array([0.01, 0.02, 0.3, 0.001, 0.002, 0.003]), 1e-6 * np.eye(6)), frames_used=3)
+    estimate, v_WP, motion = deck_estimate(track, time, CONFIG)
+    assert estimate.valid
+    np.testing.assert_allclose(motion, expected, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(v_WP, [0.1, 0.2, 0.3], rtol=0, atol=1e-15)
 
 
 def test_predicted_variances_are_those_of_the_constant_velocity_step():
@@ -157,6 +184,23 @@ def test_tracks_lost_by_coasting_are_confirmed_afresh_on_reacquisition():
     assert valid == [False, False, True, True]
 
 
+@pytest.mark.parametrize("short", ["position", "attitude"])
+def test_one_track_lost_ends_the_tracking_though_the_other_coasts_on(short):
+    """One track's max_coast_steps 2, the other's 30: three frames, then three without a pose drop the
+    short one alone; the deck is tracked by both tracks or not at all, so the estimate is invalid."""
+    config = replace(CONFIG, **{short: replace(getattr(CONFIG, short), max_coast_steps=2)})
+    track = DeckTrack()
+    for k in range(6):
+        track = step_deck_track(track, deck_pose(k * PERIOD) if k < 3 else None, k * PERIOD, config, PERIOD)
+        if k == 2:
+            assert track.confirmed(config)
+    long = "attitude" if short == "position" else "position"
+    assert not getattr(track, short).valid and getattr(track, long).valid
+    assert not track.tracking and not track.confirmed(config)
+    estimate, v_WP, motion = deck_estimate(track, 5 * PERIOD, config)
+    assert not estimate.valid and motion[6] == 0.0 and not np.any(v_WP)
+
+
 @pytest.mark.parametrize("nan_in", ["translation", "rotation"])
 def test_a_frame_with_a_nan_is_coasted_and_does_not_count(nan_in):
     """One good frame, then two with a NaN in the translation or the rotation: both tracks coast on them
@@ -173,14 +217,17 @@ def test_a_frame_with_a_nan_is_coasted_and_does_not_count(nan_in):
     assert not estimate.valid and np.all(np.isfinite(motion))
 
 
-def test_the_system_measures_the_deck_through_the_uav_pose():
+@pytest.mark.parametrize("latency_s", [0.0, 0.2])
+def test_the_system_measures_the_deck_through_the_uav_pose(latency_s):
     """Each frame is X_WP = X_WB X_BC X_CT X_TP: the deck pose an X_CT was composed from by Drake comes back, with
     a tag pose on the pad X_PT that is not its own inverse (turned over, tilted, yawed, off centre), so that X_PT
-    taken for X_TP = X_PT^-1 would show."""
+    taken for X_TP = X_PT^-1 would show. Told a latency, the system predicts its one frame latency_s on from the
+    exposure: at rate zero the pose stays, and each variance grows by (latency_s initial_velocity_std)^2."""
     X_BC = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, -0.04])
     X_PT = RigidTransform(RollPitchYaw(math.pi, 0.1, 0.4), [0.03, -0.02, 0.0005])
     assert not X_PT.IsNearlyEqualTo(X_PT.inverse(), 1e-3)
-    tracker = DeckTracker(replace(CONFIG, confirm_frames=1), X_BC, X_PT.inverse(), PERIOD)  # one frame steers
+    tracker = DeckTracker(replace(CONFIG, confirm_frames=1), X_BC, X_PT.inverse(), PERIOD,  # one frame steers
+                          latency_s)
     context = tracker.CreateDefaultContext()
     X_WB = RigidTransform(RollPitchYaw(0.05, -0.03, 0.4), [0.1, -0.2, 2.7])
     X_WP = deck_pose(0.0)
@@ -192,6 +239,17 @@ def test_the_system_measures_the_deck_through_the_uav_pose():
     np.testing.assert_allclose(estimate.X_WP.GetAsMatrix4(), X_WP.GetAsMatrix4(), atol=1e-12)
     motion = tracker.GetOutputPort("deck_motion").Eval(context)
     assert motion[4] == pytest.approx(X_WP.translation()[2]) and motion[6] == 1.0
+    # One frame: each track's variance its measurement's, its rate's initial_velocity_std^2, uncorrelated.
+    variances = [params.measurement_std**2 + (latency_s * params.initial_velocity_std)**2
+                 for params in (CONFIG.attitude, CONFIG.position)]
+    np.testing.assert_allclose(np.diag(estimate.covariance), np.repeat(variances, 3), rtol=1e-12)
+
+
+@pytest.mark.parametrize("confirm_frames, takeover_frames", [(1, 1), (3, 2)])
+def test_a_challenger_must_take_over_confirmed_on_two_frames_or_more(confirm_frames, takeover_frames):
+    with pytest.raises(ConfigError, match=rf"deck_tracker.takeover_frames must be at least 2 and at least "
+                                          rf"deck_tracker.confirm_frames \({confirm_frames}\), got {takeover_frames}"):
+        DeckTrackerConfig(confirm_frames=confirm_frames, takeover_frames=takeover_frames).validate()
 
 
 def test_a_wrong_frame_is_gated_and_the_tracks_keep_the_deck():
