@@ -23,6 +23,7 @@ from systems.estimators.deck_predictor import (
     fit_ar,
     horizon_grid,
     predict_deck,
+    prediction_size,
     predictor_output,
     sample_prediction,
     step_predictor,
@@ -62,6 +63,13 @@ def tracked(scale: float, duration_s: float, seed: int = 0) -> tuple[np.ndarray,
         motions.append(deck_estimate(track, t, tracker)[2])
     first = next(k for k, m in enumerate(motions) if m[6])  # from the tracker's first confirmed frame
     return np.array(motions[first:]), np.array(truth[first:])
+
+
+def sinusoidal_history(frames: int) -> np.ndarray:
+    """(frames, 3) [n_x, n_y, z] at PERIOD of a noiseless deck: one sinusoid per channel (20, 27 and 24 s)."""
+    t = PERIOD * np.arange(frames)
+    return np.column_stack([0.05 * np.sin(2 * np.pi * t / 20), 0.05 * np.cos(2 * np.pi * t / 27),
+                            0.69 + 0.06 * np.sin(2 * np.pi * t / 24)])
 
 
 def tilt_errors(motions, truth, horizon_s=2.0, start_s=40.0, every=10):
@@ -108,6 +116,8 @@ def test_falls_back_to_the_constant_rate_on_a_short_or_broken_history():
     assert not autoregressive
     np.testing.assert_array_equal(prediction, constant_rate_prediction(short[-1], horizons))
     np.testing.assert_allclose(prediction[:, :2], short[-1][:2] + np.outer(horizons, short[-1][2:4]), atol=1e-15)
+    np.testing.assert_allclose(prediction[:, 2], short[-1][4] + horizons * short[-1][5], atol=1e-15)  # z + h dz/dt
+    np.testing.assert_array_equal(prediction[:, 3], short[-1][5])  # dz/dt held
     broken = motions[:, [0, 1, 4]].copy()
     broken[-5, 1] = np.nan
     prediction, autoregressive = predict_deck(broken, motions[-1], horizons, CONFIG, PERIOD)
@@ -129,9 +139,7 @@ def test_a_forecast_is_plausible_within_one_span_of_the_historys_range(beyond, p
     """A forecast may leave the history's range by up to the range's own span (module docstring), no more: a
     model without lags (a_i = 0) forecasts its mean plus c, a constant put `beyond` spans above the heave's
     highest (below its lowest where negative); past one span predict_deck falls back to the constant rate."""
-    t = PERIOD * np.arange(round(CONFIG.history_s / PERIOD))
-    history = np.column_stack([0.05 * np.sin(2 * np.pi * t / 20), 0.05 * np.cos(2 * np.pi * t / 27),
-                               0.69 + 0.06 * np.sin(2 * np.pi * t / 24)])
+    history = sinusoidal_history(round(CONFIG.history_s / PERIOD))
     low, high = history[:, 2].min(), history[:, 2].max()
     target = (high if beyond > 0 else low) + beyond * (high - low)
     mean = history.mean(axis=0)
@@ -145,6 +153,44 @@ def test_a_forecast_is_plausible_within_one_span_of_the_historys_range(beyond, p
         np.testing.assert_allclose(prediction[1:, 2], target, rtol=1e-12)  # from the first frame ahead on
     else:
         np.testing.assert_array_equal(prediction, constant_rate_prediction(motion, horizons))
+
+
+def test_a_lag_under_half_a_frame_is_one_frame():
+    """lag_s 0.02 at 0.05 s frames rounds to no frame: the lag is taken as one frame (the lag_s 0.05 model's
+    prediction), and on a noiseless sinusoidal history it forecasts the sinusoids (each an exact AR recurrence)."""
+    frames = round(CONFIG.history_s / PERIOD)
+    truth = sinusoidal_history(frames + 41)
+    history = truth[:frames]
+    motion = np.array([*history[-1, :2], 0.0, 0.0, history[-1, 2], 0.0, 1.0, 0.0])
+    horizons = np.linspace(0.0, 2.0, 5)
+    prediction, autoregressive = predict_deck(history, motion, horizons, DeckPredictorConfig(lag_s=0.02), PERIOD)
+    assert autoregressive
+    one_frame, _ = predict_deck(history, motion, horizons, DeckPredictorConfig(lag_s=PERIOD), PERIOD)
+    np.testing.assert_array_equal(prediction, one_frame)
+    np.testing.assert_allclose(prediction[:, :3], truth[frames - 1 + 10 * np.arange(5)], atol=1e-6)
+
+
+@pytest.mark.parametrize("horizon_s, samples", [(5.0, 51), (1.0, 11), (0.1, 2)])
+def test_the_output_grid_runs_from_zero_to_the_horizon(horizon_s, samples):
+    """horizon_grid is 0, 0.1, .., horizon_s inclusive (horizon_s / 0.1 + 1 samples), and the output holds
+    [valid, autoregressive] and the four predicted channels over it."""
+    config = DeckPredictorConfig(horizon_s=horizon_s)
+    np.testing.assert_allclose(horizon_grid(config), np.linspace(0.0, horizon_s, samples), rtol=0, atol=1e-12)
+    assert prediction_size(config) == 2 + 4 * samples
+
+
+@pytest.mark.parametrize("time, offset", [(0.03, 0.03), (PERIOD, PERIOD), (1.0, PERIOD)])
+def test_an_output_read_late_is_counted_from_at_most_a_frame_after_the_state(time, offset):
+    """The constant-rate fallback (one frame at 0 s) read at `time`: its grid's horizons are counted from the
+    read, up to one frame late; read later than that (1 s on, where a stepped system has stepped again) it is
+    the output read one frame late, not extrapolated further."""
+    motion = np.array([0.02, -0.01, 0.01, 0.005, 0.69, 0.1, 1.0, 0.0])
+    state = step_predictor(PredictorState(), motion, 0.0, CONFIG, PERIOD)
+    output = predictor_output(state, time, CONFIG, PERIOD)
+    assert output[0] == 1.0 and output[1] == 0.0
+    h = 0.1 * np.arange(51) + offset
+    expected = [0.02 + 0.01 * h, -0.01 + 0.005 * h, 0.69 + 0.1 * h, np.full(51, 0.1)]
+    np.testing.assert_allclose(output[2:].reshape(4, -1), expected, rtol=0, atol=1e-15)
 
 
 def test_the_window_fed_the_fallback_decides_as_at_constant_rate():
@@ -169,20 +215,37 @@ def test_beyond_the_grid_the_fallback_is_extended_at_its_constant_rate():
                                rtol=0, atol=1e-12)
 
 
-def test_a_frame_flagged_invalid_clears_the_history_whatever_its_numbers():
-    """A frame flagged invalid (deck_motion[6] 0) with finite numbers in it (a stale pose): the history is
-    cleared, not extended with them, and the output is all zero; the next valid frame starts a new one."""
+@pytest.mark.parametrize("slot", [None, 0, 1, 2, 3, 4, 5])
+def test_an_invalid_frame_clears_the_history_whatever_its_numbers(slot):
+    """A frame flagged invalid (deck_motion[6] 0) with finite numbers in it (a stale pose), or one flagged valid
+    with a NaN in any of its first six entries (`slot`; a NaN rate too, though the history keeps no rate): the
+    history is cleared, not extended with it, and the output is all zero; the next valid frame starts a new one."""
     state = PredictorState()
     for k in range(10):
         state = step_predictor(state, np.array([0.01 * k, 0.0, 0.2, 0.0, 0.69, 0.0, 1.0, 0.0]), k * PERIOD, CONFIG,
                                PERIOD)
     assert len(state.history) == 10
     invalid = np.array([5.0, 5.0, 0.0, 0.0, 3.0, 0.0, 0.0, 0.0])
+    if slot is not None:
+        invalid = np.array([0.1, 0.0, 0.2, 0.0, 0.69, 0.0, 1.0, 0.0])
+        invalid[slot] = np.nan
     state = step_predictor(state, invalid, 10 * PERIOD, CONFIG, PERIOD)
     assert len(state.history) == 0 and state.model is None
     assert not predictor_output(state, 10 * PERIOD, CONFIG, PERIOD).any()
     state = step_predictor(state, np.array([0.1, 0.0, 0.2, 0.0, 0.69, 0.0, 1.0, 0.0]), 11 * PERIOD, CONFIG, PERIOD)
     np.testing.assert_array_equal(state.history, [[0.1, 0.0, 0.69]])
+
+
+def test_the_history_kept_is_the_last_history_s():
+    """history_s 1.0 at 0.05 s frames: after 30 frames the state holds the last 20, oldest first."""
+    config = DeckPredictorConfig(history_s=1.0, min_history_s=1.0, order=1, lag_s=0.1)
+    config.validate()
+    config.validate_frames(PERIOD)
+    samples = sinusoidal_history(30)
+    state = PredictorState()
+    for k, (n_x, n_y, z) in enumerate(samples):
+        state = step_predictor(state, np.array([n_x, n_y, 0.0, 0.0, z, 0.0, 1.0, 0.0]), k * PERIOD, config, PERIOD)
+    np.testing.assert_array_equal(state.history, samples[10:])
 
 
 def test_the_system_gives_the_functions_numbers():
@@ -208,20 +271,24 @@ def test_the_system_gives_the_functions_numbers():
             motions[:k + 1, [0, 1, 4]], motions[k], [2.0 + offset], config, PERIOD)[0][0], atol=1e-6)
 
 
-def test_a_coasted_frame_appends_the_models_forecast():
+@pytest.mark.parametrize("refit_s", [CONFIG.refit_s, PERIOD])
+def test_a_coasted_frame_appends_the_models_forecast(refit_s):
+    """A coasted frame appends the last frame's forecast, and refits nothing even where the refit is due
+    (refit_s one period: every frame): the model is kept and the frames since its fit count on."""
+    config = DeckPredictorConfig(refit_s=refit_s)
     motions, _ = tracked(1.0, 30.0)
     state = PredictorState()
     for k in range(len(motions) - 1):
-        state = step_predictor(state, motions[k], k * PERIOD, CONFIG, PERIOD)
+        state = step_predictor(state, motions[k], k * PERIOD, config, PERIOD)
     coasting = motions[-1].copy()
     coasting[7] = 1.0
     coasting[0] += 0.1  # the tracker's straight line, far off: not taken
-    forecast, autoregressive = predict_deck(state.history, state.deck_motion, [PERIOD], CONFIG, PERIOD, state.model)
-    after = step_predictor(state, coasting, (len(motions) - 1) * PERIOD, CONFIG, PERIOD)
+    forecast, autoregressive = predict_deck(state.history, state.deck_motion, [PERIOD], config, PERIOD, state.model)
+    after = step_predictor(state, coasting, (len(motions) - 1) * PERIOD, config, PERIOD)
     assert autoregressive
     np.testing.assert_allclose(after.history[-1], forecast[0, :3])
     np.testing.assert_allclose(after.deck_motion[[0, 1, 4]], forecast[0, :3])  # the frame's motion is the forecast
-    assert after.model is state.model
+    assert after.model is state.model and after.frames_since_fit == state.frames_since_fit + 1
 
 
 def test_bad_settings_are_one_line_config_errors():
@@ -235,6 +302,10 @@ def test_bad_settings_are_one_line_config_errors():
         LandingWindowConfig(predictor=DeckPredictorConfig(history_s=-1.0)).validate()
     with pytest.raises(ConfigError, match=r"window.predictor.horizon_s must be at least the grid's step, 0.1 s"):
         LandingWindowConfig(predictor=DeckPredictorConfig(horizon_s=0.05)).validate()
+    # 6 lags 2 s apart span 12 s: the default 20 s minimum holds them but not as many rows beyond them.
+    with pytest.raises(ConfigError, match=r"window.predictor.min_history_s \(20 s\) must be at least twice order x "
+                                          r"lag_s \(12 s\)"):
+        LandingWindowConfig(predictor=DeckPredictorConfig(lag_s=2.0)).validate()
 
 
 @pytest.mark.parametrize("lag_s", [0.05, 0.1, 0.5])
