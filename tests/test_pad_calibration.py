@@ -1,6 +1,8 @@
 """Tests of the colour-pad camera-ToF calibration (seed 000, Sec. 2.3)."""
 
 import re
+import struct
+import zipfile
 from types import SimpleNamespace
 
 import cv2
@@ -8,7 +10,6 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
-from systems.sensors.tof import sensor_positions_C
 from systems.estimators.pad_calibration import (
     FLIGHT_RTOL,
     PAD_COLOURS,
@@ -19,11 +20,13 @@ from systems.estimators.pad_calibration import (
     PadCalibration,
     SensorCalibration,
     blob_centroid,
+    fill_largest_blob,
     fit_hyperbola,
     pad_centroids,
     rgb_to_ycbcr,
     segment_colour,
 )
+from systems.sensors.tof import sensor_positions_C
 
 FX, FY, CX, CY = 458.5, 457.855, 258.7735, 252.308  # seed 000, Eq. 10
 P_C_SENSORS = sensor_positions_C(0.135)
@@ -117,6 +120,29 @@ def test_a_missing_pad_gives_a_nan_row():
     found = pad_centroids(image)
     np.testing.assert_allclose(found[PAD_COLOURS.index("green")], [50, 50], atol=0.15)
     assert np.isnan(np.delete(found, PAD_COLOURS.index("green"), axis=0)).all()
+
+
+def test_the_largest_blob_is_8_connected():
+    """A 30 px diagonal chain (its pixels touch at corners only) beside a 25 px square: 8-connected, the chain is
+    the largest blob, and its convex hull is the chain itself (a segment)."""
+    chain = np.zeros((50, 50), np.uint8)
+    chain[5 + np.arange(30), 5 + np.arange(30)] = 1
+    mask = chain.copy()
+    mask[5:10, 40:45] = 1  # 5 x 5 px in columns 40-44, clear of the chain (columns 5-34)
+    np.testing.assert_array_equal(fill_largest_blob(mask, 1), chain)
+
+
+@pytest.mark.parametrize("min_area_px, kept", [(20, True), (21, False)])
+def test_a_blob_of_exactly_min_area_is_kept(min_area_px, kept):
+    """fill_largest_blob returns None only when no blob has at least min_area_px pixels: a 4 x 5 px rectangle
+    (20 px, its own convex hull) is kept with min_area_px 20 and dropped with 21."""
+    mask = np.zeros((20, 20), np.uint8)
+    mask[3:7, 8:13] = 1
+    filled = fill_largest_blob(mask, min_area_px)
+    if kept:
+        np.testing.assert_array_equal(filled, mask)
+    else:
+        assert filled is None
 
 
 def test_robust_hyperbola_fit_ignores_outliers():
@@ -229,16 +255,21 @@ def test_from_frames_drops_missing_samples_and_merges_repeated_ranges():
         PadCalibration.from_frames(ranges, pixels)
 
 
-@pytest.mark.parametrize("bad_range", [-0.5, 0.0])
-def test_non_positive_ranges_are_dropped(bad_range):
-    """A sensor calibration keeps distinct positive ranges only: a negative or zero range (with a finite pixel)
-    is dropped, and Eq. 18 fits the rest exactly (pixel = 100 / range + 250)."""
+@pytest.mark.parametrize("bad_range, bad_pixel", [
+    (-0.5, [450.0, 450.0]), (0.0, [450.0, 450.0]), (np.inf, [450.0, 450.0]),
+    (0.8, [np.nan, 450.0]), (0.8, [450.0, np.nan]),
+], ids=["negative-range", "zero-range", "infinite-range", "nan-u", "nan-v"])
+def test_non_positive_or_non_finite_samples_are_dropped(bad_range, bad_pixel):
+    """A sensor calibration keeps samples with a finite positive range and both pixel coordinates finite: a
+    negative, zero or infinite range (with a finite pixel), or a pixel with one NaN coordinate (the other 450 px,
+    off the curve), is dropped, and Eq. 18 fits the rest exactly (pixel = 100 / range + 250)."""
     ranges = np.array([bad_range, 0.5, 1.0, 1.5, 2.0])
     pixels = np.column_stack([100.0 / ranges[1:] + 250.0] * 2)
-    sensor = SensorCalibration("red", ranges, np.vstack([[450.0, 450.0], pixels]))
+    sensor = SensorCalibration("red", ranges, np.vstack([bad_pixel, pixels]))
     np.testing.assert_array_equal(sensor.ranges, [0.5, 1.0, 1.5, 2.0])
     np.testing.assert_array_equal(sensor.pixels, pixels)
-    assert sensor.fit_u.a == pytest.approx(100.0, rel=1e-9) and sensor.fit_u.c == pytest.approx(250.0, rel=1e-9)
+    for fit in (sensor.fit_u, sensor.fit_v):
+        assert fit.a == pytest.approx(100.0, rel=1e-9) and fit.c == pytest.approx(250.0, rel=1e-9)
 
 
 def test_save_load_round_trip(tmp_path):
@@ -278,6 +309,16 @@ def test_the_flight_is_saved_and_loaded_and_compared_within_one_part_in_a_millio
         f"{[FX, FY, CX, CY + 0.01, 512.0, 512.0]} px")
     calibration().save(path)
     assert PadCalibration.load(path).flight is None
+
+
+def test_a_scene_with_another_number_of_tof_sensors_is_named():
+    """Three ToF sensors in the scene where the flight had four: the mismatch names both layouts, rather than
+    numpy failing to compare arrays of shapes (4, 3) and (3, 3)."""
+    camera = SimpleNamespace(fx=FX, fy=FY, cx=CX, cy=CY, width=512, height=512, distortion=[0.0] * 5)
+    flight = CalibrationFlight.of(camera, P_C_SENSORS)
+    assert flight.mismatch(CalibrationFlight.of(camera, P_C_SENSORS[:3])) == (
+        f"ToF sensors at (x, y, z) {np.round(P_C_SENSORS, 6).tolist()} m in C, "
+        f"the scene's {np.round(P_C_SENSORS[:3], 6).tolist()} m")
 
 
 @pytest.mark.parametrize("factor, accepted", [(0.5, True), (2.0, False)])
@@ -348,6 +389,47 @@ def test_load_errors_name_the_file_and_the_problem(tmp_path):
     np.savez(no_lens, **arrays, flight_camera=np.array([FX, FY, CX, CY, 512.0, 512.0]), flight_p_C_sensors=P_C_SENSORS)
     with pytest.raises(CalibrationError, match=re.escape(f"{no_lens}: {message}")):
         PadCalibration.load(no_lens)
+
+
+def cut_in_half(path):
+    """A saved calibration truncated to its first half: the zip's magic is there, its central directory is not."""
+    PadCalibration(calibration().sensors).save(path)
+    content = path.read_bytes()
+    path.write_bytes(content[: len(content) // 2])
+
+
+def a_member_damaged(path):
+    """A saved calibration with one bit of pixels_0's last value flipped: the archive opens, the member's CRC-32
+    fails when it is read."""
+    PadCalibration(calibration().sensors).save(path)
+    with zipfile.ZipFile(path) as archive:
+        member = archive.getinfo("pixels_0.npy")
+    content = bytearray(path.read_bytes())
+    name_length, extra_length = struct.unpack("<HH", content[member.header_offset + 26: member.header_offset + 30])
+    content[member.header_offset + 30 + name_length + extra_length + member.compress_size - 1] ^= 1
+    path.write_bytes(bytes(content))
+
+
+def plain_array(path):
+    """One array written by np.save (a .npy file) under the .npz name."""
+    with open(path, "wb") as f:
+        np.save(f, np.ones(3))
+
+
+@pytest.mark.parametrize("write, magic, problem", [
+    (cut_in_half, b"PK\x03\x04", "is unreadable: "),
+    (a_member_damaged, b"PK\x03\x04", "is unreadable: Bad CRC-32 for file 'pixels_0.npy'"),
+    (plain_array, b"\x93NUMPY", "is not an .npz archive"),
+], ids=["cut-in-half", "member-damaged", "plain-array"])
+def test_a_damaged_or_non_npz_file_is_a_calibration_error_naming_the_file(tmp_path, write, magic, problem):
+    """A truncated archive or a damaged member (zipfile's BadZipFile, neither an OSError nor a ValueError, raised
+    by np.load or when the member is read) or a single .npy array (np.load returns an ndarray, not an archive): a
+    CalibrationError naming the file and the problem."""
+    path = tmp_path / "pads.npz"
+    write(path)
+    assert path.read_bytes().startswith(magic)  # np.load takes the first for an archive, the second for an array
+    with pytest.raises(CalibrationError, match=re.escape(f"pad calibration file {path} {problem}")):
+        PadCalibration.load(path)
 
 
 @pytest.mark.parametrize("bad, problem", [
