@@ -294,12 +294,24 @@ def test_no_direct_feedthrough_and_no_algebraic_loop():
 
 # --- validation ---
 
+@pytest.mark.parametrize("elevation_deg", [90.0, -90.0])
+def test_a_gust_straight_up_or_down_is_valid(elevation_deg):
+    """The elevation bounds are inclusive: a gust at exactly +-90 deg validates and blows straight up or down."""
+    config = WindConfig(gusts=[GustConfig(duration_s=2.0, magnitude_m_s=3.0, elevation_deg=elevation_deg)])
+    config.validate()
+    WindSystem(config)
+    np.testing.assert_allclose(gust_velocity_W(config.gusts, 1.0), [0.0, 0.0, np.sign(elevation_deg) * 3.0],
+                               atol=1e-15)
+
+
 @pytest.mark.parametrize("changes, message", [
     ({"mean_m_s": -1.0}, "wind.mean_m_s must not be negative, got -1.0"),
     ({"turbulence": "strong"}, "wind.turbulence 'strong' is not one of none, light, moderate, severe, custom"),
     ({"turbulence": "custom", "length_scale_m": [1.0, 1.0, 1.0]}, "wind.sigma_m_s must be 3 positive values"),
     ({"turbulence": "custom", "sigma_m_s": [1.0, 0.0, 1.0], "length_scale_m": [1.0, 1.0, 1.0]},
      "wind.sigma_m_s must be 3 positive values"),
+    ({"turbulence": "custom", "sigma_m_s": [1.0, 1.0, 1.0, 1.0], "length_scale_m": [1.0, 1.0, 1.0]},
+     "wind.sigma_m_s must be 3 positive values"),  # one too many
     ({"turbulence": "custom", "sigma_m_s": [1.0, 1.0, 1.0], "length_scale_m": [1.0, 1.0]},
      "wind.length_scale_m must be 3 positive values"),
     ({"turbulence": "moderate", "sigma_m_s": [1.0, 1.0, 1.0]},
