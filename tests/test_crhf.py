@@ -147,7 +147,13 @@ def test_the_system_output_is_this_frames_estimate():
     assert not estimate.valid and estimate.time == 0.1
 
 
-def test_the_system_times_each_frames_step():
+@pytest.mark.parametrize("fake_clock", [False, True], ids=["real-clock", "2-ms-clock"])
+def test_the_system_times_each_frames_step_in_milliseconds(monkeypatch, fake_clock):
+    """per_frame_ms is the mean of the frames' step times in ms (None before a frame): positive on the real clock;
+    with CRHF's clock advancing 2 ms at each reading (start and end of every frame's step), exactly 2.0."""
+    if fake_clock:
+        clock = itertools.count(0.0, 0.002)  # s
+        monkeypatch.setattr("systems.estimators.crhf.time", SimpleNamespace(perf_counter=lambda: next(clock)))
     system = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05, CAMERA)
     simulator = Simulator(system)
     context = simulator.get_mutable_context()
@@ -157,23 +163,10 @@ def test_the_system_times_each_frames_step():
     assert system.per_frame_ms(context) is None
     simulator.AdvanceTo(0.12)  # the frames at 0, 0.05 and 0.1 s
     assert context.get_abstract_state(0).get_value().compute_ms.weight == 3
-    assert system.per_frame_ms(context) > 0
-
-
-def test_per_frame_ms_is_in_milliseconds(monkeypatch):
-    """per_frame_ms is the mean of the frames' step times in ms: with CRHF's clock advancing 2 ms at each reading
-    (start and end of every frame's step), every frame took 2 ms and the mean is 2.0."""
-    clock = itertools.count(0.0, 0.002)  # s
-    monkeypatch.setattr("systems.estimators.crhf.time", SimpleNamespace(perf_counter=lambda: next(clock)))
-    system = CrhfEstimator(CrhfConfig(), P_C_SENSORS, 0.5, 0.05, CAMERA)
-    simulator = Simulator(system)
-    context = simulator.get_mutable_context()
-    corners, ranges = level_frame(1.5)
-    system.GetInputPort("tag_detection").FixValue(context, TagDetection(0.0, corners))
-    system.GetInputPort("ranges").FixValue(context, ranges)
-    simulator.AdvanceTo(0.12)
-    assert context.get_abstract_state(0).get_value().compute_ms.weight == 3
-    assert system.per_frame_ms(context) == pytest.approx(2.0, rel=1e-9)
+    if fake_clock:
+        assert system.per_frame_ms(context) == pytest.approx(2.0, rel=1e-9)
+    else:
+        assert system.per_frame_ms(context) > 0
 
 
 def test_missing_calibration_and_bad_settings_are_clear_errors(tmp_path):
@@ -259,11 +252,17 @@ def noisy_level_frames(n, seed=7):
             for _ in range(n)]
 
 
-def test_the_state_remembers_intrinsics_and_the_corner_noise_of_valid_frames(crhf):
+def stepped_valid(crhf, frames) -> CrhfState:
+    """The state after stepping `frames` ((corners, ranges) at 0.05 s) from a fresh one, each frame valid."""
     state = CrhfState()
-    for k, (corners, ranges) in enumerate(noisy_level_frames(40)):
+    for k, (corners, ranges) in enumerate(frames):
         state, estimate = crhf.step(state, corners, ranges, 0.05 * k)
         assert estimate.valid
+    return state
+
+
+def test_the_state_remembers_intrinsics_and_the_corner_noise_of_valid_frames(crhf):
+    state = stepped_valid(crhf, noisy_level_frames(40))
     assert state.intrinsics.weight == 40 and state.corner_variance.weight == 80  # 2 dof a frame
     np.testing.assert_allclose(state.intrinsics.mean, [K[0, 0], K[1, 1], K[0, 2], K[1, 2]], rtol=0.01)
     assert np.sqrt(state.corner_variance.mean) == pytest.approx(0.3, rel=0.3)  # filtered: a bit below
@@ -294,10 +293,7 @@ def test_the_pool_judges_residuals_from_exactly_judged_from_dof(crhf):
     # Ten valid frames pool 2 dof each, unjudged: exactly JUDGED_FROM_DOF. The next frame, one corner 6 px off, is
     # judged already, and its residual (beyond the F(2, 20) gate of the pool) is left out.
     frames = noisy_level_frames(10)
-    state = CrhfState()
-    for k, (corners, ranges) in enumerate(frames):
-        state, estimate = crhf.step(state, corners, ranges, 0.05 * k)
-        assert estimate.valid
+    state = stepped_valid(crhf, frames)
     pooled = state.corner_variance
     assert pooled.weight == JUDGED_FROM_DOF == 20
     bad_corners = frames[-1][0].copy()
@@ -606,10 +602,7 @@ def test_sensors_past_the_decks_edge_once_the_corner_noise_is_known_are_flagged(
     # through the touch points' centroid, 0.3 m too deep: a tag 1.15 times too large passes the tag's check, but
     # two touch points lie 0.3 m from the plane the corners fix, farther than the range gate.
     frames = noisy_level_frames(12)
-    state = CrhfState()
-    for k, (corners, ranges) in enumerate(frames):
-        state, estimate = crhf.step(state, corners, ranges, 0.05 * k)
-        assert estimate.valid
+    state = stepped_valid(crhf, frames)
     corners, ranges = frames[-1]
     state = replace(state, ranges=Track())  # as after a failed check
     state, estimate = crhf.step(state, corners, ranges + [0.0, 0.0, 0.6, 0.6], 0.6)
