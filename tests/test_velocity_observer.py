@@ -573,7 +573,9 @@ def test_system_displacement_source_takes_the_linear_fit():
         np.testing.assert_allclose(v, a * (tk - T / 2), atol=1e-9)
 
 
-def test_system_invalid_altitude_is_no_sighting():
+@pytest.mark.parametrize("invalid_flag", [0.0, np.nan], ids=["zero", "nan"])
+def test_system_invalid_altitude_is_no_sighting(invalid_flag):
+    """altitude_valid 0, or NaN (no valid flag raised), from frame 10 on: no sighting from there."""
     config = VelocityObserverConfig(source="pixel")
     system = VelocityObserverSystem(config, K=K, X_BC=X_BC)
     X_WB = RigidTransform([0.0, 0.0, 7.54])
@@ -581,7 +583,7 @@ def test_system_invalid_altitude_is_no_sighting():
     def inputs(context, k, tk):
         system.GetInputPort("target_pixel").FixValue(context, ground_pixel([0.1 * tk, 0.0, 0.0], X_WB.multiply(X_BC)))
         system.GetInputPort("altitude").FixValue(context, [7.5 if k % 2 == 0 else np.nan])
-        system.GetInputPort("altitude_valid").FixValue(context, [1.0 if k < 10 else 0.0])
+        system.GetInputPort("altitude_valid").FixValue(context, [1.0 if k < 10 else invalid_flag])
         system.GetInputPort("X_WB").FixValue(context, X_WB)
 
     out = drive(system, inputs, np.arange(0.0, 4.0, T))
