@@ -48,6 +48,7 @@ from systems.perception.rqrlp.pattern import RqrlpLayout
 
 G = 9.81
 X_BC = RigidTransform(RollPitchYaw(np.pi, 0.0, 0.0), [0.0, 0.0, -0.04])
+K = np.array([[1280.0, 0.0, 948.9], [0.0, 1280.0, 543.2], [0.0, 0.0, 1.0]])  # the adjustment node's camera
 
 
 def _state(p, P_scale=0.01):
@@ -71,9 +72,12 @@ def test_prediction_turns_with_the_gyroscope():
 
 
 def test_fusion_of_equal_filters_is_their_mean_and_the_betas_are_equal():
-    a, b = _state([1.0, 0.0, 2.0]), _state([1.2, 0.4, 2.0])
+    """Two filters as certain (P = 0.01 I): the fused position and velocity are their means (the first filter,
+    the reference, moving at 1 m/s and the second still: 0.5 m/s), P halved, the shares equal."""
+    a, b = replace(_state([1.0, 0.0, 2.0]), v=np.array([1.0, 0.0, 0.0])), _state([1.2, 0.4, 2.0])
     fused, betas = fuse([a, b])
     np.testing.assert_allclose(fused.p, [1.1, 0.2, 2.0], atol=1e-12)
+    np.testing.assert_allclose(fused.v, [0.5, 0.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(fused.P, a.P / 2, atol=1e-12)
     np.testing.assert_allclose(betas, [0.5, 0.5])
 
@@ -430,18 +434,19 @@ def test_a_first_pose_far_from_what_the_centres_measured_is_left_out_and_the_nex
 def test_a_start_from_a_full_pose_keeps_its_whole_covariance():
     """At 3.8 m the adjustment node's pose errs along the orbit about the pattern: its position and tilt errors
     correlate (+1.00), and the filters started by it carry that covariance whole (before: its diagonal, which
-    understated the orbit's variance 1.8x and the worst direction's 4x)."""
-    K = np.array([[1280.0, 0.0, 948.9], [0.0, 1280.0, 543.2], [0.0, 0.0, 1.0]])
+    understated the orbit's variance 1.8x and the worst direction's 4x); its velocity has the initial covariance."""
     X_PB_true = RigidTransform(RollPitchYaw(0.0, 0.0, 0.7), [0.3, -0.2, 3.8])
     X_CP = X_BC.inverse().multiply(X_PB_true.inverse())
     covariance = body_pose_covariance(PatternView(X_CP, layout_corners(RqrlpLayout()), K, 0.3), X_BC)
     assert abs(covariance[1, 3]) / np.sqrt(covariance[1, 1] * covariance[3, 3]) > 0.99  # theta_y with p_x
-    first = NodeMeasurement(0.0, "adjustment", covariance, X_PB=X_PB_true)
-    state = step(FederatedState(), 0.0, np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0], {"adjustment": first},
-                 FederatedConfig(), X_BC)
+    first, config = NodeMeasurement(0.0, "adjustment", covariance, X_PB=X_PB_true), FederatedConfig()
+    state = step(FederatedState(), 0.0, np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0], {"adjustment": first}, config, X_BC)
     pose, position_first = [0, 1, 2, 6, 7, 8], [3, 4, 5, 0, 1, 2]  # the error state's [dp, dtheta]; the pose's
     np.testing.assert_allclose(state.fused.P[np.ix_(pose, pose)], covariance[np.ix_(position_first, position_first)],
                                rtol=1e-9, atol=1e-15)
+    # the velocity, which a pose does not measure: the initial covariance, uncorrelated with the pose
+    np.testing.assert_allclose(state.fused.P[3:6, 3:6], initial_velocity_covariance(config), rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(state.fused.P[3:6, pose], 0.0, rtol=0, atol=1e-15)
     for local in state.filters:  # each with N times it, so that their fusion has it
         np.testing.assert_allclose(local.P[np.ix_(pose, pose)], len(NODES) * state.fused.P[np.ix_(pose, pose)],
                                    rtol=1e-9, atol=1e-15)
@@ -478,6 +483,30 @@ def test_two_lone_disagreeing_poses_far_apart_are_each_left_out():
     assert after[0].stats[1].gated == 2
 
 
+def test_once_the_heading_is_known_each_pose_is_gated_by_its_own_filter_alone():
+    """The check of a first pose against the centres' estimate is only for a pose that would turn the heading:
+    after a second of exact adjustment poses, a frame with the adjustment pose 40 mm off in height (gated by its
+    filter) and an exact touchdown pose takes the touchdown one (accepted), not leaving both out as a first
+    pose's check would."""
+    R, p = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix(), np.array([0.3, -0.2, 4.0])
+    covariance = np.diag([1e-6] * 3 + [9e-6] * 3)
+
+    def exact(t, X_CP):
+        return NodeMeasurement(t, "adjustment", covariance, X_PB=RigidTransform(R, p))
+
+    t, before = _hover(R, p, 2.0, 136.0, 640.0, exact)[-1]
+    assert before.heading_known and t == 2.0
+    frame = {"adjustment": NodeMeasurement(2.02, "adjustment", covariance, X_PB=RigidTransform(R, p + [0, 0, 0.04])),
+             "touchdown": NodeMeasurement(2.02, "touchdown", covariance, X_PB=RigidTransform(R, p))}
+    after = step(before, 2.02, np.r_[R.inverse().multiply([0.0, 0.0, G]), 0.0, 0.0, 0.0], frame, FederatedConfig(),
+                 X_BC)
+    adjustment, touchdown = NODES.index("adjustment"), NODES.index("touchdown")
+    assert after.stats[adjustment] == replace(before.stats[adjustment], gated=before.stats[adjustment].gated + 1)
+    assert after.stats[touchdown] == NodeStats(before.stats[touchdown].accepted + 1, before.stats[touchdown].gated,
+                                               2.02)
+    assert abs(after.fused.p[2] - 4.0) < 0.002
+
+
 def test_a_non_finite_measurement_is_gated_and_never_starts_the_filters():
     """The first frame's centre is NaN: gated, the filters not started; the next, finite, starts them."""
     config, imu = FederatedConfig(), np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0]
@@ -503,6 +532,19 @@ def test_the_measurement_that_starts_the_filters_counts_as_accepted():
     config, imu = FederatedConfig(), np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0]
     state = step(FederatedState(), 0.0, imu, _centre_frame(0.0), config, X_BC)
     assert state.started and state.stats == (NodeStats(1, 0, 0.0), NodeStats(), NodeStats())
+
+
+def test_a_start_from_the_centre_alone_puts_the_pattern_where_the_mounted_camera_sees_it():
+    """The first centre, p_CP, seen by a camera mounted off the body's axis (X_BC: turned half a turn about x,
+    0.1 m forward, 0.05 m to the side): the fused centre seen from the body is X_BC p_CP = R_x(pi) p_CP + p_BC
+    (with X_BC^-1 p_CP: 0.2 m in x, where the default mount on the axis hides the difference)."""
+    mount = RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.1, 0.05, -0.04])
+    p_CP = np.array([0.3, -0.2, 10.0])
+    first = NodeMeasurement(0.0, "approach", approach_covariance(p_CP, 60.0, 640.0), p_CP=p_CP)
+    state = step(FederatedState(), 0.0, np.r_[0.0, 0.0, G, 0.0, 0.0, 0.0], {"approach": first}, FederatedConfig(),
+                 mount)
+    expected = np.array([0.3, 0.2, -10.0]) + [0.1, 0.05, -0.04]  # R_x(pi) (x, y, z) = (x, -y, -z)
+    np.testing.assert_allclose(centre_in_body(state.fused)[0], expected, atol=1e-12)
 
 
 def test_a_restart_after_max_coast_adds_the_initial_velocity_covariance():
@@ -608,11 +650,36 @@ def test_the_pattern_seen_from_the_camera_brings_a_filter_to_the_true_pose():
     np.testing.assert_allclose(log_so3(state.R @ R_PB.T), 0.0, atol=1e-7)
 
 
+def test_the_engine_takes_a_views_covariance_about_the_filters_own_pattern_in_the_camera():
+    """A started filter, tilted and off the pattern's centre, and the adjustment node's view (seed 001's corners)
+    5 mm and 5 mrad off it: the engine's update is update_pattern_in_camera with the view's covariance
+    linearised about the filter's own pose of the pattern in the camera, X_CP = X_BC^-1 X_PB^-1 (not about
+    the camera's pose in P, X_PB X_BC)."""
+    config = FederatedConfig()
+    R_PB = RollPitchYaw(0.1, -0.05, 0.7).ToRotationMatrix()
+    own = LocalState(np.array([1.5, -1.0, 4.0]), np.zeros(3), R_PB.matrix(),
+                     np.diag([0.05**2] * 3 + [0.1**2] * 3 + [0.02**2] * 3))
+    X_CP = X_BC.inverse().multiply(RigidTransform(R_PB, own.p).inverse())
+    seen = RigidTransform(RotationMatrix(exp_so3([0.005, -0.005, 0.005]) @ X_CP.rotation().matrix()),
+                          X_CP.translation() + [0.005, -0.005, 0.005])
+    measurement = adjustment_measurement(seen, layout_corners(RqrlpLayout()), 0.3, 0.0, X_BC, K)
+    adjustment = NODES.index("adjustment")
+    state = FederatedState(time=0.0, fused=own, filters=(own,) * len(NODES), heading_known=True,
+                           stats=tuple(NodeStats(1, 0, 0.0) for _ in NODES))
+    updated = step(state, 0.0, np.r_[R_PB.inverse().multiply([0.0, 0.0, G]), 0.0, 0.0, 0.0],
+                   {"adjustment": measurement}, config, X_BC).local_estimates[adjustment]
+    expected = update_pattern_in_camera(own, seen.translation(), seen.rotation().matrix(),
+                                        measurement.view.covariance_at(X_CP), X_BC.rotation().matrix(),
+                                        X_BC.translation(), config)
+    assert updated.accepted == 1
+    for name in ("p", "v", "R", "P"):
+        np.testing.assert_allclose(getattr(updated, name), getattr(expected, name), rtol=1e-9, atol=1e-15)
+
+
 def _hover_with_views(height_m: float, seconds: float, rng) -> np.ndarray:
     """`_hover` square-on at height_m over the pattern, the adjustment node's view of the pattern (seed
     001's 36 corners, f 1280 px, 0.3 px) with the error its covariance says, drawn about the truth. The
     fused height's error [m] per frame from 2 s."""
-    K = np.array([[1280.0, 0.0, 948.9], [0.0, 1280.0, 543.2], [0.0, 0.0, 1.0]])
     points_P = layout_corners(RqrlpLayout())
 
     def view(t, X_CP):
