@@ -20,6 +20,7 @@ from systems.estimators.velocity_observer import (
     VelocityObserverSystem,
     camera_to_world,
     gaussian_weights,
+    linear_fit_now,
     ned_to_world,
     observe_velocities,
     paper_rotation_matrix,
@@ -329,6 +330,17 @@ def test_linear_fit_needs_linear_min_samples():
         VelocityObserverConfig(linear_min_samples=1).validate()
 
 
+@pytest.mark.parametrize("ages, velocities, w, expected", [
+    ([0.3], [[1.0, 2.0, 3.0]], [1.0], [1.0, 2.0, 3.0]),
+    ([0.2, 0.2], [[1.0, 2.0, 3.0], [3.0, 2.0, 1.0]], [0.5, 0.5], [2.0, 2.0, 2.0]),
+], ids=["one_sample", "two_of_one_age"])
+def test_linear_fit_without_a_spread_of_ages_is_the_weighted_mean(ages, velocities, w, expected):
+    """No line runs through one age (its slope would be 0 / 0): the fit is the weighted mean then, the one
+    velocity, or (1 + 3) / 2 = 2 on each axis of two equally weighted ones of the same age, not NaN."""
+    v = linear_fit_now(np.array(ages), np.array(velocities), np.array(w))
+    np.testing.assert_allclose(v, expected, atol=1e-12)
+
+
 def test_speed_heading_mode_reads_noise_as_speed():
     """Eq. 18-19 as printed (speed and direction averaged apart) agree with the vector mean on a straight
     run and read a noisy westbound one (headings across +-180 deg) right, but on a standing target with 3 cm of
@@ -422,23 +434,81 @@ def test_validity_history_and_gaps():
     assert not valid and np.all(np.isnan(estimate))
 
 
-@pytest.mark.parametrize("window_s, held", [(1.5, 16), (0.3, 4)])  # ages 0 to window_s a period apart
-def test_min_samples_beyond_what_the_window_holds_is_refused(window_s, held):
+def test_instant_velocities_stamped_after_now_do_not_count():
+    """Three [1, 0, 0] m/s of ages 0.2, 0.1 and 0 s at now = 1.0 s and one [100, 0, 0] stamped 0.1 s after now:
+    that one is not in the window (ages 0 to window_s), so the estimate is the three's mean, [1, 0, 0], and with
+    min_samples 4 there are too few for a valid one."""
+    times = np.array([0.8, 0.9, 1.0, 1.1])
+    velocities = np.array([[1.0, 0.0, 0.0]] * 3 + [[100.0, 0.0, 0.0]])
+    estimate, valid = weighted_velocity(times, velocities, 1.0, VelocityObserverConfig())
+    assert valid
+    np.testing.assert_allclose(estimate, [1.0, 0.0, 0.0], atol=1e-12)
+    estimate, valid = weighted_velocity(times, velocities, 1.0, VelocityObserverConfig(min_samples=4))
+    assert not valid and np.all(np.isnan(estimate))
+
+
+def nan_y_at_frame_5():
+    t = np.arange(10) * T
+    p = np.c_[t, np.zeros((len(t), 2))]
+    p[5, 1] = np.nan
+    return t, p
+
+
+def repeated_time():
+    t = np.array([0.0, 0.1, 0.2, 0.3, 0.3, 0.4, 0.5])
+    return t, np.c_[t, np.zeros((len(t), 2))]
+
+
+@pytest.mark.parametrize("track", [nan_y_at_frame_5, repeated_time])
+def test_a_sighting_that_makes_no_instant_velocity(track):
+    """A target at [t, 0, 0] m (1 m/s along x) with a position NaN in one coordinate only (no sighting: the
+    next frame is differenced with the one before), or seen twice at the same time (no difference over 0 s): no
+    NaN instant velocity enters the window, so the last estimate is a valid [1, 0, 0] and every valid one is
+    finite."""
+    estimates, valid = observe_velocities(*track(), VelocityObserverConfig())
+    assert valid[-1]
+    np.testing.assert_allclose(estimates[-1], [1.0, 0.0, 0.0], atol=1e-12)
+    assert np.all(np.isfinite(estimates[valid]))
+
+
+def test_an_instant_velocity_with_a_nan_coordinate_is_dropped():
+    """Source displacement: four instant velocities [1, 0, 0] m/s, then one [1, NaN, 0] (not known): it is no
+    sample, and the estimate stays a valid [1, 0, 0]."""
+    config, state = VelocityObserverConfig(), ObserverState()
+    for k, v in enumerate([[1.0, 0.0, 0.0]] * 4 + [[1.0, np.nan, 0.0]]):
+        state = step_observer(state, k * T, config, v_W=np.array(v))
+    assert state.valid and len(state.times) == 4
+    np.testing.assert_allclose(state.estimate, [1.0, 0.0, 0.0], atol=1e-12)
+
+
+# ages 0 to window_s a period apart
+@pytest.mark.parametrize("rate_hz, window_s, held", [(10.0, 1.5, 16), (10.0, 0.3, 4), (100.0, 0.29, 30)])
+def test_min_samples_beyond_what_the_window_holds_is_refused(rate_hz, window_s, held):
     """Before: accepted, and the estimate was never valid (or never linear), silently."""
-    t = np.arange(0.0, 30.0, 0.1)
+    t = np.arange(300) / rate_hz
     p = np.c_[t, np.zeros_like(t), np.zeros_like(t)]  # 1 m/s along x, seen every frame
-    full = VelocityObserverConfig(rate_hz=10.0, window_s=window_s, min_samples=held)
+    full = VelocityObserverConfig(rate_hz=rate_hz, window_s=window_s, min_samples=held)
+    assert full.window_capacity == held
     full.validate()
     estimates, valid = observe_velocities(t, p, full)
-    assert valid.sum() == len(t) - held  # valid once the window holds `held` (0.3 s: despite 0.3 * 10 < 3 in floats)
+    # valid once the window holds `held` (0.29 s at 100 Hz: 30, despite 0.29 * 100 < 29 in floats)
+    assert valid.sum() == len(t) - held
     np.testing.assert_allclose(estimates[valid], np.tile([1.0, 0.0, 0.0], (valid.sum(), 1)), atol=1e-9)
     with pytest.raises(ConfigError, match=rf"velocity_observer\.min_samples \({held + 1}\) is more than the window "
                                           rf"holds: {held} instant velocities"):
-        VelocityObserverConfig(rate_hz=10.0, window_s=window_s, min_samples=held + 1).validate()
+        VelocityObserverConfig(rate_hz=rate_hz, window_s=window_s, min_samples=held + 1).validate()
     with pytest.raises(ConfigError, match=rf"hybrid\.velocity_observer\.linear_min_samples \({held + 1}\)"):
-        VelocityObserverConfig(rate_hz=10.0, window_s=window_s, fit="linear",
+        VelocityObserverConfig(rate_hz=rate_hz, window_s=window_s, fit="linear",
                                linear_min_samples=held + 1).validate("hybrid.velocity_observer")
-    VelocityObserverConfig(rate_hz=10.0, window_s=window_s, fit="mean", linear_min_samples=held + 1).validate()
+    VelocityObserverConfig(rate_hz=rate_hz, window_s=window_s, fit="mean", linear_min_samples=held + 1).validate()
+
+
+def test_a_window_of_exactly_one_period_is_accepted():
+    """window_s = 1 / rate_hz (0.1 s at 10 Hz) holds one period: it validates, holding two instant velocities
+    (ages 0 and 0.1 s), enough for min_samples 1."""
+    config = VelocityObserverConfig(rate_hz=10.0, window_s=0.1, min_samples=1)
+    config.validate()
+    assert config.window_capacity == 2
 
 
 def test_bad_configs_name_the_field():
