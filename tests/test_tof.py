@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import Box, FramePoseVector, GeometryFrame, SceneGraph
-from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 from pydrake.systems.sensors import ImageDepth32F
@@ -27,6 +27,7 @@ from systems.sensors.tof import (
     apply_range_limits,
     cone_range,
     flat_target_path_factor,
+    make_tof_camera,
     ray_depths,
     sensor_positions_C,
     tof_camera_view,
@@ -61,6 +62,10 @@ def test_apply_range_limits():
     ranges, valid = apply_range_limits(np.array([0.045, 0.06]), np.array([-0.05, -0.05]), 0.04, 4.0)
     np.testing.assert_array_equal(valid, [0.0, 1.0])
     assert np.isnan(ranges[0]) and ranges[1] == pytest.approx(0.01)
+    # A reading of exactly zero (0.05 - 0.05 is 0.0 in doubles) is no distance either: invalid and NaN.
+    assert 0.05 + -0.05 == 0.0
+    ranges, valid = apply_range_limits(np.array([0.05]), np.array([-0.05]), 0.04, 4.0)
+    assert valid[0] == 0.0 and np.isnan(ranges[0])
 
 
 def camera_image(config: TofConfig, depth_of) -> ImageDepth32F:
@@ -303,6 +308,65 @@ def test_ray_depths_over_a_surface_too_close_to_render_read_zero():
     np.testing.assert_array_equal(s, 0.0)
 
 
+def test_ray_depths_past_the_edge_of_the_only_surface_read_nothing():
+    """A deck 2 m away only for x_C < 0.04 m, nothing beyond: sensor 3's axis (x_C = 0.0955 m) passes it and reads
+    inf. Followed out to the far clipping plane (20 m) its point in K's image, x_C / (back + s), stays beyond the deck's
+    edge there (at 0.04 m / (back + 2 m)); a ray followed to infinity would land on K's centre, where the deck is."""
+    config = TofConfig(cone_deg=27.0)
+    _, f, c = tof_camera_view(config)
+    edge = 0.04
+    depth_K = camera_image(config, lambda x, y: np.where(x * (TOF_CAMERA_BACK_M + 2.0) < edge, 2.0, np.inf) + 0 * y)
+    p_CS = sensor_positions_C(0.135, 45.0)[2:3]
+    # At the far clipping plane the ray is over a pixel of K beyond the deck's edge: both pixels around it see nothing.
+    assert f * (p_CS[0, 0] / (TOF_CAMERA_BACK_M + 20.0) - edge / (TOF_CAMERA_BACK_M + 2.0)) > 1.0
+    s = ray_depths(depth_K.data[..., 0], f, c, p_CS, np.zeros(1), np.zeros(1))
+    assert s[0] == np.inf, s
+
+
+def test_the_shared_depth_camera_sees_every_cone_ray_out_to_twice_the_maximum_range():
+    """K (tof_camera_view) is wide enough for every cone ray from the camera plane out to 2 x max_range_m (8 m) with
+    two pixels of margin: sensor 3's outermost ray towards +x (the 31-pixel grid's last column, half a pixel inside
+    the 13.5 deg half cone) is 2 pixels inside K's image edge at 8 m, and over a plane square to the axis at 7.95 m,
+    just inside that reach, it reads the plane's 7.95 m, not inf."""
+    config = TofConfig(cone_deg=27.0)
+    pixels, f, c = tof_camera_view(config)
+    x_edge = 15 * math.tan(math.radians(13.5)) / 15.5
+    assert np.max(view_geometry(31, 27.0)[0]) == pytest.approx(x_edge, rel=1e-12)
+    p_CS = sensor_positions_C(0.135, 45.0)[2:3]
+    # Pixel centres 0..127: the image's edge is at 127.5, two pixels inside it 125.5.
+    assert c + f * (p_CS[0, 0] + 8.0 * x_edge) / (TOF_CAMERA_BACK_M + 8.0) == pytest.approx(pixels - 0.5 - 2, abs=1e-9)
+    depth_K = camera_image(config, lambda x, y: 7.95 + 0 * x * y)
+    s = ray_depths(depth_K.data[..., 0], f, c, p_CS, np.array([x_edge]), np.zeros(1))
+    np.testing.assert_allclose(s, 7.95, rtol=1e-6)
+
+
+def test_the_shared_depth_camera_sits_behind_the_camera_plane_on_its_axis_with_the_sensors_ranges():
+    """make_tof_camera: K at X_PK = X_PC [I, (0, 0, -TOF_CAMERA_BACK_M)], oriented like C on its axis behind its
+    plane, with tof_camera_view's intrinsics; it clips at the sensors' 5 mm-20 m from the camera plane and reads
+    depths within 5.05 mm-19.8 m of it (0 nearer, inf farther)."""
+    config = TofConfig(cone_deg=27.0)
+    X_PC = RigidTransform(RollPitchYaw(0.3, -0.2, 1.1), [0.4, -0.7, 2.5])
+    sensor = make_tof_camera(SceneGraph().world_frame_id(), X_PC, config)
+    R_PC = X_PC.rotation().matrix()
+    camera = sensor.default_depth_render_camera()
+    np.testing.assert_allclose(camera.core().sensor_pose_in_camera_body().GetAsMatrix4(), np.eye(4), atol=0)
+    X_PK = sensor.default_X_PB()
+    np.testing.assert_allclose(X_PK.rotation().matrix(), R_PC, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(X_PK.translation(), X_PC.translation() - TOF_CAMERA_BACK_M * R_PC[:, 2], rtol=0,
+                               atol=1e-12)
+    pixels, f, c = tof_camera_view(config)
+    intrinsics = camera.core().intrinsics()
+    assert (intrinsics.width(), intrinsics.height()) == (pixels, pixels)
+    # Centred: Drake's principal point is at the image's middle (its pixel centres at +0.5).
+    assert (intrinsics.focal_x(), intrinsics.focal_y(), intrinsics.center_x(), intrinsics.center_y()) == (
+        f, f, pixels / 2, pixels / 2)
+    clipping, depth_range = camera.core().clipping(), camera.depth_range()
+    assert clipping.near() - TOF_CAMERA_BACK_M == pytest.approx(0.005, abs=1e-9)
+    assert clipping.far() - TOF_CAMERA_BACK_M == pytest.approx(20.0, abs=1e-9)
+    assert depth_range.min_depth() - TOF_CAMERA_BACK_M == pytest.approx(0.00505, abs=1e-9)
+    assert depth_range.max_depth() - TOF_CAMERA_BACK_M == pytest.approx(19.8, abs=1e-9)
+
+
 def test_a_cone_that_sees_nothing_is_invalid():
     tof, context = cone_system(lambda x, y: np.inf)
     ranges, valid, _ = outputs(tof, context)
@@ -320,6 +384,31 @@ def test_triggered_by_a_faster_camera_every_frame_draws_its_own_noise():
     assert np.all(np.abs(readings - ranges) < 0.05)
 
 
+def test_on_its_own_clock_every_reading_draws_its_own_noise_whatever_the_camera_period():
+    """trigger own_clock at 30 Hz beside a 20 Hz camera (frame_period_s 0.05 s): the readings are numbered for their
+    noise by their own clock, so the 12 taken at k / 30 s (the periodic update's) have 12 distinct noise draws;
+    numbered by the camera's period, round(k 30 / 20) would give 8 distinct numbers for 12 readings."""
+    ranges = [2.0, 2.0, 2.0, 2.0]
+    config = TofConfig(trigger="own_clock", rate_hz=30.0, noise_std_m=0.01)
+    tof, context = tof_in_scene(quadrant_boxes(ranges), config, frame_period_s=0.05)
+    own = tof.GetMyContextFromRoot(context)
+    readings = []
+    for k in range(12):
+        context.SetTime(k / 30.0)
+        readings.append(tof.EvalUniquePeriodicDiscreteUpdate(own).value()[:4].copy())
+    readings = np.array(readings)
+    assert len(np.unique(readings[:, 0])) == 12
+    assert np.all(np.abs(readings - ranges) < 0.05)
+
+
+def test_on_its_own_clock_the_readings_are_taken_at_its_rate_from_its_offset():
+    config = TofConfig(trigger="own_clock", rate_hz=30.0, time_offset_s=0.01)
+    tof, _ = tof_in_scene(quadrant_boxes([1.0, 1.0, 1.0, 1.0]), config, frame_period_s=0.05)
+    event = tof.GetUniquePeriodicDiscreteUpdateAttribute()
+    assert event.period_sec() == pytest.approx(1.0 / 30.0, rel=1e-15)
+    assert event.offset_sec() == 0.01
+
+
 def test_range_noise_grows_with_range_and_the_bias_offsets_every_reading():
     period, truth = 1.0 / 20.0, np.array([0.5, 1.0, 2.0, 3.0])
     tof, context = tof_system(truth, noise_std_m=0.002, noise_std_per_m=0.004, bias_m=0.01)
@@ -331,6 +420,7 @@ def test_range_noise_grows_with_range_and_the_bias_offsets_every_reading():
 @pytest.mark.parametrize("changes, field", [
     ({"max_range_m": 0.03}, "tof.max_range_m"),
     ({"max_range_m": 25.0}, "tof.max_range_m"),
+    ({"max_range_m": 20.0}, "tof.max_range_m must be below 20.0 m"),  # the render range's far end itself
     ({"noise_std_m": -0.1}, "tof.noise_std_m"),
     ({"rate_hz": 0.0}, "tof.rate_hz"),
     ({"arm_m": -0.1}, "tof.arm_m"),
