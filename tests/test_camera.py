@@ -20,6 +20,7 @@ from systems.sensors.camera import (
     CalibrationErrorConfig,
     CameraConfig,
     NoisyCamera,
+    _pixel_grid,
     add_pixel_noise,
     distortion_folds,
     distortion_maps,
@@ -27,6 +28,7 @@ from systems.sensors.camera import (
     make_camera,
     motion_blur_flow,
     motion_blur_kernel,
+    noise_std_by_level,
     render_margin_px,
     undistort_pixels,
 )
@@ -333,6 +335,15 @@ def test_sensor_noise_is_shot_noise_plus_read_noise():
     assert np.sqrt(200 * gain) > 2.5 * np.sqrt(20 * gain)  # the two levels' noise differs clearly
 
 
+def test_read_noise_is_converted_to_levels_before_squaring():
+    # 255 / 2550 = 0.1 levels per electron: 50 e- of read noise is 5 levels (variance 25, not 50 * 0.1^2). Level
+    # 128 holds 128 / 255 * 2550 = 1280 e-, shot variance 1280 e-^2 * 0.1^2 = 12.8 levels^2, adding to the 25.
+    std = noise_std_by_level(CameraConfig(full_well_e=2550.0, read_noise_e=50.0))
+    assert std.shape == (256,)
+    assert std[0] == pytest.approx(5.0)
+    assert std[128] == pytest.approx(np.sqrt(128 * 0.1 + 5.0**2))
+
+
 def test_analog_gain_amplifies_fewer_electrons_to_the_same_level():
     # At gain 4 a level holds a quarter of the electrons: shot noise (in levels) doubles, read noise quadruples.
     full_well, read, level = 4000.0, 3.0, 120
@@ -444,6 +455,14 @@ def test_a_smear_of_half_a_pixel_or_more_blurs():
     for flow in ([0.51, 0.0], [0.0, 0.51], [1.0, 0.0], [0.6, 0.8]):
         kernel = motion_blur_kernel(np.array(flow))
         assert kernel is not None and kernel.sum() == pytest.approx(1.0)
+    # Exactly half a pixel along u: a kernel, 2 ceil(0.25) + 3 = 5 wide, all on its middle row, symmetric about
+    # its centre (the smear reaches a quarter pixel either side).
+    kernel = motion_blur_kernel(np.array([0.5, 0.0]))
+    assert kernel is not None and kernel.shape == (5, 5)
+    row = kernel[2].astype(float)
+    assert row.sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(row, row[::-1], atol=1e-7)
+    assert row[2] > 0.5 and row[1] > 0 and row[0] == 0
 
 
 def test_the_camera_smears_a_point_along_its_turn_over_the_exposure():
@@ -490,7 +509,10 @@ def test_a_blackout_covers_the_frames_on_its_bounds():
     covered = []
     for k in range(4, 15):
         context.SetTime(k * config.period_s)
-        covered.append(int(image_to_numpy(camera.get_output_port().Eval(context))[..., :3].max()) == 0)
+        frame = image_to_numpy(camera.get_output_port().Eval(context))
+        covered.append(int(frame[..., :3].max()) == 0)
+        if covered[-1]:
+            assert int(frame[..., 3].min()) == 255  # a black frame, still opaque
     assert 12 * config.period_s > 0.6
     assert covered == [False] * 2 + [True] * 7 + [False] * 2  # 0.30 to 0.60 s: 7 frames
 
@@ -520,6 +542,8 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     ({"full_well_e": -1.0}, "camera.full_well_e"),
     ({"exposure_s": -0.001}, "camera.exposure_s"),
     ({"exposure_s": 0.06}, "camera.exposure_s"),
+    ({"exposure_s": 0.05}, "camera.exposure_s must lie within 0 and the frame period (0.05 s)"),  # = 1 / 20 Hz
+    ({"blackouts_s": [[0.3, 0.3]]}, "camera.blackouts_s needs [start, end] pairs"),  # empty: start == end
     ({"read_noise_e": 3.0}, "camera.read_noise_e needs camera.full_well_e"),
     ({"analog_gain": 2.0}, "camera.analog_gain needs camera.full_well_e"),
     ({"analog_gain": 0.5, "full_well_e": 6000.0}, "camera.analog_gain"),
@@ -536,10 +560,24 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     # ... with their own focal lengths: k1 -0.1 at 40 % shorter ones folds at 91 % of the half-diagonal.
     ({"calibration_error": CalibrationErrorConfig(k1=-0.1, fx_pct=-40.0, fy_pct=-40.0)}, "camera.calibration_error"),
     ({"calibration_error": CalibrationErrorConfig(cx_px=1000.0)}, "camera.calibration_error.cx_px"),
+    # 258.7735 + 253 = 511.7735, past the last pixel's edge at 511.5.
+    ({"calibration_error": CalibrationErrorConfig(cx_px=253.0)}, "camera.calibration_error.cx_px"),
+    ({"calibration_error": CalibrationErrorConfig(fx_pct=50.0)}, "camera.calibration_error.fx_pct must be within +-50"),
+    ({"calibration_error": CalibrationErrorConfig(fy_pct=-50.0)}, "calibration_error.fy_pct must be within +-50"),
 ])
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=re.escape(field)):
         CameraConfig(**changes).validate()
+
+
+def test_the_pixel_grid_includes_the_last_row_and_column():
+    # Every 8th of 512 pixels is 0..504 (64); the border's 511 makes 65 per axis.
+    pixels = _pixel_grid(CameraConfig(), 8)
+    expected = np.r_[np.arange(0, 512, 8), 511]
+    assert pixels.shape == (65 * 65, 2)
+    np.testing.assert_array_equal(np.unique(pixels[:, 0]), expected)
+    np.testing.assert_array_equal(np.unique(pixels[:, 1]), expected)
+    assert [511.0, 511.0] in pixels.tolist()
 
 
 def test_distortion_folds_is_where_the_radial_map_turns_back_short_of_the_farthest_corner():
