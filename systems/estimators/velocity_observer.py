@@ -348,7 +348,7 @@ class VelocityObserverSystem(LeafSystem):
         return self._stepped.now.Eval(context)
 
     def _altitude_now(self, context) -> float | None:
-        if self._altitude_valid.HasValue(context) and not self._altitude_valid.Eval(context)[0] > 0.5:  # NaN: not
+        if self._altitude_valid.HasValue(context) and not self._altitude_valid.Eval(context)[0] > 0.5:  # NaN too
             return None
         h = float(self._altitude.Eval(context)[0])
         return h if math.isfinite(h) and h > 0 else None
