@@ -106,8 +106,8 @@ class LandingMonitor(LeafSystem):
         if term.stop_on_landed and gear_on_pad(relative, vehicle[GV_HEADING], self._touchdown, platform.pad_size_m,
                                                platform.pad_thickness_m):
             return f"{GEAR_TOUCHED} at t = {t:.2f} s"
-        px, py, pz = (float(p) for p in quad[P_WB])
-        speed = math.sqrt(sum(float(v) ** 2 for v in quad[V_WB]))
+        px, py, pz = np.asarray(quad)[P_WB].tolist()
+        speed = math.hypot(*np.asarray(quad)[V_WB].tolist())
         if pz < -term.ground_tolerance_m:
             return f"crash: hit the ground at t = {t:.2f} s, {speed:.1f} m/s"
         if inside_carrier(platform, (px, py, pz), vehicle):

@@ -158,9 +158,13 @@ class TrackingPid(LeafSystem):
         self.DeclareVectorOutputPort("velocity_command", 2, self._calc_velocity)
         self.DeclareVectorOutputPort("acceleration_command", 2, self._calc_acceleration)
 
+    def _seen(self, context) -> bool:
+        """target_valid raised: over 0.5 (a NaN is not)."""
+        return self._valid.Eval(context)[0] > 0.5
+
     def _update(self, context, discrete_state):
         memory = context.get_discrete_state(self._memory).get_value()
-        seen = self._valid.Eval(context)[0] > 0.5
+        seen = self._seen(context)
         source = self._source.Eval(context)[0] if self._source.HasValue(context) else 0.0
         if source != context.get_discrete_state(self._last_source).get_value()[0]:
             memory = initial_memory()  # another seam's offset: no derivative of the jump between them
@@ -177,12 +181,11 @@ class TrackingPid(LeafSystem):
     def _calc_velocity(self, context, output):
         sample = context.get_discrete_state(self._sample).get_value()
         target_velocity = self._velocity.Eval(context) if self._config.latest_feed_forward else sample[2:4]
-        seen = self._valid.Eval(context)[0] > 0.5
-        v_ctrl = sample[0:2] if seen else np.zeros(2)  # unseen: the target's velocity alone
+        v_ctrl = sample[0:2] if self._seen(context) else np.zeros(2)  # unseen: the target's velocity alone
         output.SetFromVector(feed_forward(v_ctrl, target_velocity, self._config.max_speed_m_s))
 
     def _calc_acceleration(self, context, output):
-        if self._config.acceleration_feed_forward and self._valid.Eval(context)[0] > 0.5:
+        if self._config.acceleration_feed_forward and self._seen(context):
             output.SetFromVector(self._acceleration.Eval(context))
         else:
             output.SetFromVector(np.zeros(2))
