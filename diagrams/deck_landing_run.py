@@ -28,6 +28,7 @@ from diagrams.stewart_run import pose_from_vector
 from systems.config import require_positive
 from systems.control.monitor import GV_HEADING
 from systems.estimators.deck_tracker import tilt_deg
+from systems.flags import is_set
 from systems.perception.seam import HEIGHT, VALID
 from systems.sensors.ground_truth import pose_vector
 
@@ -139,17 +140,17 @@ def plot_deck_landing(flight: DeckFlight, config: DeckLandingConfig, out_dir) ->
     t = log["t"]
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
     axes[0].plot(t, log["true_relative_state"][:, HEIGHT], "k-", lw=1.2, label="true")
-    steered = np.where(log["relative_state"][:, VALID] > 0.5, log["relative_state"][:, HEIGHT], np.nan)
+    steered = np.where(is_set(log["relative_state"][:, VALID]), log["relative_state"][:, HEIGHT], np.nan)
     axes[0].plot(t, steered, "--", color="tab:red", lw=1, label=f"{config.perception.source} (valid)")
     axes[0].axhline(config.landing.landing_height_m, color="0.5", ls=":", lw=1, label="LH")
     axes[0].set_ylabel("UAV above the deck (m)")
     axes[1].plot(t, tilt_deg(log["true_deck_motion"][:, :2]), "k-", lw=1.2, label="true tilt")
-    tracked = np.where(log["deck_motion"][:, 6] > 0.5, tilt_deg(log["deck_motion"][:, :2]), np.nan)
+    tracked = np.where(is_set(log["deck_motion"][:, 6]), tilt_deg(log["deck_motion"][:, :2]), np.nan)
     axes[1].plot(t, tracked, "--", color="tab:red", lw=1, label="tracked")
     axes[1].axhline(config.window.max_tilt_deg, color="tab:green", ls=":", lw=1, label="commit within")
     axes[1].axhline(config.window.abort_tilt_deg, color="tab:brown", ls=":", lw=1, label="abort beyond")
-    axes[1].fill_between(t, 0, np.where(log["landing_window"][:, 0] > 0.5, axes[1].get_ylim()[1], 0), color="tab:green",
-                         alpha=0.1, step="post", label="window open")
+    axes[1].fill_between(t, 0, np.where(is_set(log["landing_window"][:, 0]), axes[1].get_ylim()[1], 0),
+                         color="tab:green", alpha=0.1, step="post", label="window open")
     axes[1].set_ylabel("deck tilt (deg)")
     offset = np.linalg.norm(log["true_relative_state"][:, :2], axis=1)
     axes[2].plot(t, offset, "k-", lw=1.2)

@@ -24,6 +24,7 @@ from systems.estimators.federated.system import (
     FED_STARTED,
     FED_VALID,
 )
+from systems.flags import is_set
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
 from systems.vehicles.quadrotor import P_WB, Q_WB
 
@@ -68,7 +69,7 @@ def _pose_rows(valid: np.ndarray, p: np.ndarray, wxyz: np.ndarray) -> np.ndarray
 def _paper_figures(truth: np.ndarray, rows: np.ndarray, window: np.ndarray) -> dict:
     """Seed 001's figures over the scored frames: 3-D position RMSE, orientation RMSE (the rotation
     angle's) and the height's (z of p_PB)."""
-    scored = window & (rows[:, 0] > 0.5)
+    scored = window & is_set(rows[:, 0])
     if not scored.any():
         return {}
     error = rows[scored, 1:4] - truth[scored, :3]
@@ -99,7 +100,7 @@ def _estimator_figures(truth: np.ndarray, rows: np.ndarray, scored: np.ndarray, 
     """estimator_metrics and the paper's figures of `rows` (_pose_rows) over the `scored` frames, with
     `valid_fraction` over `window`'s (estimator_metrics' counts every logged frame, after touchdown too)."""
     figures = {**estimator_metrics(truth, rows, scored), **_paper_figures(truth, rows, scored)}
-    figures["valid_fraction"] = _fraction(rows[:, 0] > 0.5, window)
+    figures["valid_fraction"] = _fraction(is_set(rows[:, 0]), window)
     return figures
 
 
@@ -110,7 +111,7 @@ def node_metrics(log: FederatedLog, X_BC: RigidTransform, window: np.ndarray) ->
     out = {}
     for name in NODES:
         rows = log.nodes[name]
-        present = rows[:, 0] > 0.5
+        present = is_set(rows[:, 0])
         figures = {"present_fraction": _fraction(present, window),
                    "altitude_band_m": _band(heights, present & window)}
         if name == "approach":
@@ -133,8 +134,8 @@ def filter_metrics(log: FederatedLog, window: np.ndarray) -> dict:
     filters are scored on the frames where the fused estimate is valid, as the overlaps are, so that each
     of their figures compares with the fused one's (a coasting stretch counts against neither)."""
     fed = log.federated
-    started = fed[:, FED_STARTED] > 0.5
-    valid = fed[:, FED_VALID] > 0.5
+    started = is_set(fed[:, FED_STARTED])
+    valid = is_set(fed[:, FED_VALID])
     out = {}
     for i, name in enumerate(NODES):
         p = fed[:, FED_LOCAL_P][:, 3 * i:3 * i + 3]
@@ -155,7 +156,7 @@ OVERLAPS = {"overlap_1": ("approach", "adjustment"), "overlap_2": ("adjustment",
 
 def measured_by_all(log: FederatedLog, nodes) -> np.ndarray:
     """(N,) bool: the frames where every one of `nodes` measured."""
-    return np.logical_and.reduce([log.nodes[n][:, 0] > 0.5 for n in nodes])
+    return np.logical_and.reduce([is_set(log.nodes[n][:, 0]) for n in nodes])
 
 
 def overlap_metrics(log: FederatedLog, window: np.ndarray) -> dict:
@@ -168,7 +169,7 @@ def overlap_metrics(log: FederatedLog, window: np.ndarray) -> dict:
     fed, heights = log.federated, log.X_PB[:, 2]
     out = {}
     for name, nodes in OVERLAPS.items():
-        both = window & (fed[:, FED_VALID] > 0.5) & measured_by_all(log, nodes)
+        both = window & is_set(fed[:, FED_VALID]) & measured_by_all(log, nodes)
         figures = {"nodes": list(nodes), "frames": int(both.sum()), "altitude_band_m": _band(heights, both)}
         if both.any():
             z = {f"local_{n}": fed[both, FED_LOCAL_P][:, 3 * i + 2] for i, n in enumerate(NODES)}

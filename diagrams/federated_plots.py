@@ -14,6 +14,7 @@ from diagrams.federated_metrics import OVERLAPS, FederatedLog, measured_by_all, 
 from diagrams.outputs import save_figure
 from systems.estimators.federated.engine import NODES
 from systems.estimators.federated.system import FED_BETAS, FED_LOCAL_P, FED_LOCAL_TRACES, FED_P_PB, FED_VALID
+from systems.flags import is_set
 
 COLOURS = {"approach": "tab:blue", "adjustment": "tab:green", "touchdown": "tab:orange", "federated": "tab:red"}
 
@@ -31,12 +32,12 @@ def plot_federated(log: FederatedLog, X_BC: RigidTransform, out_dir) -> None:
     """federated.png in out_dir for a run whose camera is at X_BC in the body."""
     t, true_height, fed = log.t, log.X_PB[:, 2], log.federated
     true_depth = true_p_CP(log, X_BC)[:, 2]  # the approaching node's
-    fused = np.where(fed[:, FED_VALID:FED_VALID + 1] > 0.5, fed[:, FED_P_PB], np.nan)[:, 2]
+    fused = np.where(is_set(fed[:, FED_VALID:FED_VALID + 1]), fed[:, FED_P_PB], np.nan)[:, 2]
     fig, axes = plt.subplots(5, 1, figsize=(10, 13), sharex=True)
     axes[0].plot(t, true_height, "-", color="k", lw=1.2, label="true")
     for name in NODES:
         rows = log.nodes[name]
-        height = np.where(rows[:, 0] > 0.5, rows[:, 3], np.nan)
+        height = np.where(is_set(rows[:, 0]), rows[:, 3], np.nan)
         axes[0].plot(t, height, ".", color=COLOURS[name], ms=2, label=name)
         truth = true_depth if name == "approach" else true_height
         axes[1].semilogy(t, np.maximum(np.abs(height - truth), 1e-4), ".", color=COLOURS[name], ms=2, label=name)

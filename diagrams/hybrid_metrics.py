@@ -10,6 +10,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 
 from diagrams.hybrid_perception import GROUND_LIFT_M
 from diagrams.ugv_detection_scenes import box_surface_points, projected_box, ugv_bounds_V
+from systems.flags import is_set
 from systems.perception.box_tracker import count_identity_switches, iou
 from systems.perception.hybrid_pad import HYBRID_VECTOR_SIZE
 from systems.perception.seam import P_BP_W, V_WP
@@ -93,7 +94,7 @@ def detection_scores(detections: np.ndarray, truth: list) -> dict:
     `match_truth`), every other detection a false positive, counted or logged."""
     tp = fp = fn = 0
     for row, true_box in zip(detections, truth):
-        boxes = [row[5 * k + 2:5 * k + 6] for k in range((len(row) - 1) // 5) if row[5 * k + 1] > 0.5]
+        boxes = [row[5 * k + 2:5 * k + 6] for k in range((len(row) - 1) // 5) if is_set(row[5 * k + 1])]
         hit = int(true_box is not None and any(iou(box, true_box) >= IOU_MATCH for box in boxes))
         tp, fp, fn = tp + hit, fp + int(row[0]) - hit, fn + int(true_box is not None and not hit)
     precision = tp / (tp + fp) if tp + fp else None
@@ -120,14 +121,14 @@ def hybrid_metrics(log: dict, config, end_s: float | None) -> dict:
     truth = log["true_relative_state"][keep]
     quad, vehicle = log["quadrotor_state"][keep], log["vehicle_state"][keep]
     p_WP_true = quad[:, P_WB] + truth[:, P_BP_W]
-    valid = hybrid[:, 0] > 0.5
+    valid = is_set(hybrid[:, 0])
     p_error = np.where(valid[:, None], hybrid[:, 1:4] - p_WP_true, np.nan)
-    v_valid = log["v_valid"][keep][:, 0] > 0.5
+    v_valid = is_set(log["v_valid"][keep][:, 0])
     v_error = np.where(v_valid[:, None], log["v_WP"][keep] - truth[:, V_WP], np.nan)
     boxes = true_ugv_boxes(quad, vehicle, config)
     in_view = np.array([b is not None for b in boxes], bool)
     out = {"frames": len(t[keep]), "valid_fraction": float(valid.mean()) if len(valid) else 0.0,
-           "measured_fraction": float((hybrid[:, 4] > 0.5).mean()) if len(valid) else 0.0,
+           "measured_fraction": float(is_set(hybrid[:, 4]).mean()) if len(valid) else 0.0,
            "stereo_pad_fraction": float((hybrid[:, 4] > 1.5).mean()) if len(valid) else 0.0,
            "valid_fraction_in_view": float(valid[in_view].mean()) if in_view.any() else None,
            "velocity_valid_fraction": float(v_valid.mean()) if len(valid) else 0.0,
@@ -143,7 +144,7 @@ def hybrid_metrics(log: dict, config, end_s: float | None) -> dict:
     depth_true = true_window_depth(quad, vehicle, config)
     stereo = {}
     for name, value, ok in (("raw", "stereo_altitude", "stereo_valid"), ("filtered", "altitude", "altitude_valid")):
-        good = log[ok][keep][:, 0] > 0.5
+        good = is_set(log[ok][keep][:, 0])
         e = log[value][keep][good, 0] - depth_true[good]
         e = e[np.isfinite(e)]
         stereo[name] = {"valid_fraction": float(good.mean()) if len(good) else 0.0,
@@ -165,7 +166,7 @@ def plot_hybrid(log: dict, config, out_dir) -> None:
 
     t, hybrid, truth, quad = log["t"], log["hybrid"], log["true_relative_state"], log["quadrotor_state"]
     p_true = quad[:, P_WB] + truth[:, P_BP_W]
-    valid = hybrid[:, 0] > 0.5
+    valid = is_set(hybrid[:, 0])
     p = np.where(valid[:, None], hybrid[:, 1:4], np.nan)
     fig, axes = plt.subplots(4, 1, figsize=(10, 11), sharex=True)
     for k, (axis, colour) in enumerate((("x", "tab:blue"), ("y", "tab:orange"))):
@@ -174,9 +175,9 @@ def plot_hybrid(log: dict, config, out_dir) -> None:
     axes[1].plot(t, np.linalg.norm(p[:, :2] - p_true[:, :2], axis=1), ".", ms=2, color="tab:red")
     axes[2].plot(t, true_window_depth(quad, log["vehicle_state"], config), "-", color="k", lw=1,
                  label="depth at the window's centre (truth)")
-    axes[2].plot(t, np.where(log["stereo_valid"][:, 0] > 0.5, log["stereo_altitude"][:, 0], np.nan), ".", ms=2,
+    axes[2].plot(t, np.where(is_set(log["stereo_valid"][:, 0]), log["stereo_altitude"][:, 0], np.nan), ".", ms=2,
                  label="stereo (raw)")
-    axes[2].plot(t, np.where(log["altitude_valid"][:, 0] > 0.5, log["altitude"][:, 0], np.nan), "-", lw=1,
+    axes[2].plot(t, np.where(is_set(log["altitude_valid"][:, 0]), log["altitude"][:, 0], np.nan), "-", lw=1,
                  label="stereo filter")
     axes[3].plot(t, log["lock"][:, 0], ".", ms=2, label="locked track id")
     axes[3].plot(t, hybrid[:, 4], "-", lw=0.8, label="measured")

@@ -10,6 +10,7 @@ from diagrams.metrics import quaternion_yaw
 from diagrams.outputs import save_figure
 from diagrams.perception_metrics import carrier_heading
 from systems.control.landing import Mode
+from systems.flags import is_set
 from systems.perception.seam import HEIGHT, P_BP_W, V_WP, VALID
 from systems.vehicles.quadrotor import P_WB, V_WB
 
@@ -106,7 +107,7 @@ def plot_flight(log: dict[str, np.ndarray], config, out_dir, touchdown: int | No
 
     fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     error = log["true_relative_state"][:, P_BP_W]
-    seen = log["relative_state"][:, VALID] > 0.5  # what steered
+    seen = is_set(log["relative_state"][:, VALID])  # what steered
     for i, (ax, label) in enumerate(zip(axes, ("x", "y"))):
         ax.plot(t, error[:, i], "-", color="tab:blue", lw=1, label="pad - UAV")
         ax.plot(t[~seen], error[~seen, i], ".", color="tab:red", ms=2, label="no valid estimate")
@@ -140,7 +141,7 @@ def plot_perception(log: dict[str, np.ndarray], source: str, out_dir, heading: b
     steering estimate had them against the truth; the samples without a valid estimate ticked on the last panel (at zero
     heading error, or at the position error's floor), the supervisor's modes shaded."""
     t, quad = log["t"], log["quadrotor_state"]
-    valid = log["relative_state"][:, VALID] > 0.5
+    valid = is_set(log["relative_state"][:, VALID])
     estimate = quad[:, P_WB] + np.where(valid[:, None], log["relative_state"][:, P_BP_W], np.nan)
     truth = quad[:, P_WB] + log["true_relative_state"][:, P_BP_W]
     heading = heading and "steering_estimate" in log  # not for a source whose estimate is a position alone

@@ -18,6 +18,7 @@ from diagrams.metrics import estimator_metrics, level_poses
 from systems.control.monitor import GV_HEADING
 from systems.estimators.marker_ekf import FILTERS
 from systems.estimators.marker_ekf.engine import EST_P_WP, EST_Q_WP, EST_VALID, EST_YAW
+from systems.flags import is_set
 from systems.geometry import wrap_angle
 from systems.perception.markers import MarkerLayout
 from systems.quaternion import quat_conjugate, quat_multiply, rotation_from_quaternion
@@ -132,7 +133,7 @@ def filter_errors(run: SampledRun, truth: PadTruth, name: str, layout: MarkerLay
     estimate = run.estimates[name]
     return FilterErrors(estimate[:, EST_P_WP] - truth.p_WP, wrap_angle(estimate[:, EST_YAW] - truth.yaw),
                         np.linalg.norm(run.p_WM[name] - true_marker_positions(truth, layout), axis=-1),
-                        estimate[:, EST_VALID] > 0.5)
+                        is_set(estimate[:, EST_VALID]))
 
 
 def filter_metrics(run: SampledRun, truth: PadTruth, name: str, errors: FilterErrors, settle_s: float) -> dict:

@@ -3,6 +3,8 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from systems.flags import is_set
+
 FLIP_THRESHOLD_DEG = 10.0  # a frame whose rotation error exceeds this counts as a pose flip
 
 
@@ -41,7 +43,7 @@ def pose_errors(truth: np.ndarray, estimate: np.ndarray):
     (M,) in deg) for the M valid frames; errors are estimate minus truth, angle differences wrapped
     to [-180, 180).
     """
-    valid = estimate[:, 0] > 0.5
+    valid = is_set(estimate[:, 0])
     difference = xyz_rpy(estimate[valid, 1:]) - xyz_rpy(truth[valid])
     rpy = (np.rad2deg(difference[:, 3:]) + 180.0) % 360.0 - 180.0
     angle = ((rotations(truth[valid, 3:]).inv() * rotations(estimate[valid, 4:])).magnitude()
@@ -75,7 +77,7 @@ def estimator_metrics(truth: np.ndarray, estimate: np.ndarray, window: np.ndarra
     if window is not None:
         scored[~window, 0] = 0.0
     valid, xyz, rpy, angle = pose_errors(truth, scored)
-    out = {"valid_fraction": float(np.mean(estimate[:, 0] > 0.5)) if len(estimate) else 0.0,
+    out = {"valid_fraction": float(np.mean(is_set(estimate[:, 0]))) if len(estimate) else 0.0,
            "flips": int(np.sum(angle > FLIP_THRESHOLD_DEG)), "frames_scored": int(valid.sum())}
     if valid.any():
         out.update(axis_errors(xyz, rpy))

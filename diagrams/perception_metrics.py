@@ -11,6 +11,7 @@ import numpy as np
 from diagrams.metrics import estimator_metrics, level_poses, quaternion_yaw
 from systems.control.monitor import GV_HEADING
 from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT
+from systems.flags import is_set
 from systems.perception.seam import P_BP_W, VALID
 from systems.vehicles.quadrotor import P_WB
 
@@ -38,7 +39,7 @@ def perception_metrics(log: dict[str, np.ndarray], source: str, touchdown_s: flo
     source's), or where no estimate steered (the truth: no `steering_estimate` in the log, as perception.png
     has it), only positions are scored: no heading, rotation or flip figures."""
     t, seam, truth = log["t"], log["relative_state"], log["true_relative_state"]
-    valid = seam[:, VALID] > 0.5
+    valid = is_set(seam[:, VALID])
     p_WB = log["quadrotor_state"][:, P_WB]
     true_yaw = carrier_heading(log)
     heading = heading and "steering_estimate" in log

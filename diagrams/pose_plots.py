@@ -6,6 +6,7 @@ import numpy as np
 
 from diagrams.metrics import pose_errors, xyz_rpy
 from diagrams.outputs import save_figure
+from systems.flags import is_set
 
 _STYLES = {"truth": dict(color="k", lw=1.2), "atda": dict(color="tab:red", lw=0.8),
            "crhf": dict(color="tab:blue", lw=0.8)}
@@ -22,7 +23,7 @@ def plot_pose_estimates(t: np.ndarray, truth: np.ndarray, estimates: dict[str, n
 
     truth: (N, 7) [x, y, z, qw, qx, qy, qz]; estimates: name -> (N, 8) [valid, x, y, z, qw, qx, qy, qz]."""
     series = {"truth": xyz_rpy(truth)}
-    series.update({name: xyz_rpy(np.where(e[:, :1] > 0.5, e[:, 1:], np.nan)) for name, e in estimates.items()})
+    series.update({name: xyz_rpy(np.where(is_set(e[:, :1]), e[:, 1:], np.nan)) for name, e in estimates.items()})
     for columns, filename, title in (((0, 1, 2), "pose_translation.png", "Translation (Fig. 24)"),
                                      ((3, 4, 5), "pose_angles.png", "Roll, pitch, yaw (Fig. 25)")):
         fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)

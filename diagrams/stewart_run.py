@@ -13,6 +13,7 @@ from diagrams.pose_plots import plot_pose_estimates
 from diagrams.scenario import RunSettings
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import require_positive
+from systems.flags import is_set
 from systems.perception.apriltag import project_points
 from systems.platforms.stewart import require_within_stroke
 from systems.sensors.ground_truth import pose_vector
@@ -54,14 +55,14 @@ def collect_log(handles, context, config: StewartSceneConfig) -> dict[str, np.nd
 
 def range_errors(log: dict[str, np.ndarray]) -> np.ndarray:
     """(N, 4) each ToF reading less the true range [m], NaN where the reading is flagged invalid."""
-    return np.where(log["ranges_valid"] > 0.5, log["ranges"] - log["true_ranges"], np.nan)
+    return np.where(is_set(log["ranges_valid"]), log["ranges"] - log["true_ranges"], np.nan)
 
 
 def scene_metrics(log: dict[str, np.ndarray]) -> dict:
     """Perception, sensor and platform figures of a run (no estimators in the bare scene)."""
     detected = np.all(np.isfinite(log["tag_corners"]), axis=1)
     corner_error = np.linalg.norm((log["tag_corners"] - log["true_tag_corners"]).reshape(-1, 4, 2), axis=2)
-    valid = log["ranges_valid"] > 0.5
+    valid = is_set(log["ranges_valid"])
     return {
         "perception": {
             "tag_detected_fraction": float(np.mean(detected)),

@@ -10,6 +10,7 @@ from pydrake.geometry import Meshcat, Rgba
 from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
+from systems.flags import is_set
 from systems.sensors.camera import image_to_numpy
 
 
@@ -35,7 +36,7 @@ class MeshcatTrail(LeafSystem):
     def _publish(self, context):
         position = self._position.Eval(context)
         p = position[self._slice]
-        if np.all(np.isfinite(p)) and (self._valid_index is None or position[self._valid_index] > 0.5):
+        if np.all(np.isfinite(p)) and (self._valid_index is None or is_set(position[self._valid_index])):
             self._points.append(p.copy())
         if len(self._points) >= 2:
             self._meshcat.SetLine(self._path, np.array(self._points).T, 2.0, self._rgba)
@@ -123,7 +124,7 @@ def draw_boxes(rgb: np.ndarray, detections, target_box: np.ndarray, target_valid
         cv2.putText(out, f"{score:.2f}", (x, max(y - 3, 8)), cv2.FONT_HERSHEY_PLAIN, 0.8, (255, 220, 0), 1)
     if target_valid and np.all(np.isfinite(target_box)):
         x, y, w, h = (round(float(v)) for v in target_box)
-        colour = (0, 230, 0) if lock[1] > 0.5 else (255, 140, 0)
+        colour = (0, 230, 0) if is_set(lock[1]) else (255, 140, 0)
         cv2.rectangle(out, (x, y), (x + w - 1, y + h - 1), colour, 2)
         cv2.putText(out, f"id {int(lock[0])}", (x, y + h + 12), cv2.FONT_HERSHEY_PLAIN, 1.0, colour, 1)
     return out
@@ -145,7 +146,7 @@ class TrackOverlay(LeafSystem):
 
     def _calc(self, context, output):
         drawn = draw_boxes(image_to_numpy(self._image.Eval(context)), self._detections.Eval(context),
-                           self._box.Eval(context), self._valid.Eval(context)[0] > 0.5, self._lock.Eval(context))
+                           self._box.Eval(context), is_set(self._valid.Eval(context)[0]), self._lock.Eval(context))
         image = output.get_mutable_value()
         image.mutable_data[..., :3] = drawn
         image.mutable_data[..., 3] = 255

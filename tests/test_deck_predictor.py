@@ -215,11 +215,12 @@ def test_beyond_the_grid_the_fallback_is_extended_at_its_constant_rate():
                                rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("slot", [None, 0, 1, 2, 3, 4, 5])
+@pytest.mark.parametrize("slot", [None, 0, 1, 2, 3, 4, 5, 6])
 def test_an_invalid_frame_clears_the_history_whatever_its_numbers(slot):
     """A frame flagged invalid (deck_motion[6] 0) with finite numbers in it (a stale pose), or one flagged valid
-    with a NaN in any of its first six entries (`slot`; a NaN rate too, though the history keeps no rate): the
-    history is cleared, not extended with it, and the output is all zero; the next valid frame starts a new one."""
+    with a NaN in any of its first six entries (`slot`; a NaN rate too, though the history keeps no rate), or a
+    NaN in the flag itself (slot 6, read as not set): the history is cleared, not extended with it, and the
+    output is all zero; the next valid frame starts a new one."""
     state = PredictorState()
     for k in range(10):
         state = step_predictor(state, np.array([0.01 * k, 0.0, 0.2, 0.0, 0.69, 0.0, 1.0, 0.0]), k * PERIOD, CONFIG,

@@ -67,6 +67,9 @@ def test_heave_rate_closes_it_and_no_estimate_closes_everything():
     assert window_flags(motion(heave_rate=0.25), 2.0, CONFIG) == (False, False)
     assert window_flags(motion(valid=False), 2.0, CONFIG) == (False, False)
     assert window_flags(motion(valid=False), 0.5, CONFIG) == (False, False)
+    nan_flag = motion()
+    nan_flag[6] = np.nan  # a broken tracker's flag is no estimate either, whatever its other numbers say
+    assert window_flags(nan_flag, 2.0, CONFIG) == (False, False)
     # heaving down as fast: the same (the rate's size decides, not its sign)
     assert window_flags(motion(heave_rate=-0.15), 2.0, CONFIG) == (False, True)
     assert window_flags(motion(heave_rate=-0.25), 2.0, CONFIG) == (False, False)
@@ -80,11 +83,12 @@ def test_the_heave_rate_is_the_largest_over_the_touchdown_window_not_at_its_end(
     assert window_flags(motion(), 2.0, CONFIG, np.r_[1.0, 1.0, values.ravel()]) == (False, False)
 
 
-def test_a_prediction_flagged_invalid_is_not_used():
-    """The deck predictor's output with its valid flag 0 (its other entries a lively deck's): the window is the
-    constant rate's, open over a level, still deck."""
+@pytest.mark.parametrize("flag", [0.0, np.nan])
+def test_a_prediction_flagged_invalid_is_not_used(flag):
+    """The deck predictor's output with its valid flag 0 or NaN (its other entries a lively deck's): the window is
+    the constant rate's, open over a level, still deck."""
     prediction = np.full(prediction_size(CONFIG.predictor), 0.5)
-    prediction[0] = 0.0
+    prediction[0] = flag
     assert window_flags(motion(), 1.0, CONFIG, prediction) == (True, True)
     prediction[0] = 1.0  # the same numbers, valid: n_xy 0.5 is a 30 deg deck
     assert window_flags(motion(), 1.0, CONFIG, prediction)[0] is False

@@ -53,6 +53,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from systems.config import require, require_positive
+from systems.flags import is_set
 
 
 class Mode(IntEnum):
@@ -326,10 +327,10 @@ class LandingSupervisor(LeafSystem):
 
         window_open = window_holds = True
         if self._window.HasValue(context):
-            window_open, window_holds = (bool(flag > 0.5) for flag in self._window.Eval(context))
-        rendezvous = self._rendezvous.HasValue(context) and scalar(self._rendezvous) > 0.5
+            window_open, window_holds = (bool(is_set(flag)) for flag in self._window.Eval(context))
+        rendezvous = self._rendezvous.HasValue(context) and is_set(scalar(self._rendezvous))
         return SupervisorInputs(
-            context.get_time(), scalar(self._altitude), scalar(self._height), bool(scalar(self._valid) > 0.5),
+            context.get_time(), scalar(self._altitude), scalar(self._height), is_set(scalar(self._valid)),
             self._offset.Eval(context), self._target_velocity.Eval(context), self._tracking_velocity.Eval(context),
             self._tracking_acceleration.Eval(context), window_open, window_holds, rendezvous)
 

@@ -35,6 +35,7 @@ from systems.estimators.deck_predictor import (
     sample_prediction,
 )
 from systems.estimators.deck_tracker import DECK_MOTION_SIZE, tilt_deg
+from systems.flags import is_set
 
 WINDOW_SAMPLES = 5  # predictions over tau +- the margin
 PREDICTIONS = ("constant_rate", "autoregressive")
@@ -70,11 +71,11 @@ def window_flags(deck_motion: np.ndarray, time_to_touchdown_s: float, config: La
     the time left to touchdown [s]; both False without a valid estimate. `prediction`: the deck predictor's
     output (systems/estimators/deck_predictor.py, prediction_size), used where given and valid for the tilt
     and the heave rate over tau +- the margin; None: the constant rate."""
-    if deck_motion[6] < 0.5 or not math.isfinite(time_to_touchdown_s):
+    if not is_set(deck_motion[6]) or not math.isfinite(time_to_touchdown_s):
         return False, False
     tau = max(time_to_touchdown_s, 0.0)
     horizon = np.linspace(max(tau - config.timing_margin_s, 0.0), tau + config.timing_margin_s, WINDOW_SAMPLES)
-    if prediction is not None and prediction[0] >= 0.5:
+    if prediction is not None and is_set(prediction[0]):
         predicted = sample_prediction(prediction, horizon)
     else:
         predicted = constant_rate_prediction(deck_motion, horizon)

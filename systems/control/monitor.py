@@ -16,6 +16,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from systems.config import require, require_positive
 from systems.control.landing import Mode
+from systems.flags import is_set
 from systems.perception.seam import HEIGHT, P_BP_W, RELATIVE_STATE_SIZE
 from systems.vehicles.ground_vehicle_geometry import PlatformConfig
 from systems.vehicles.quadrotor import P_WB, STATE_SIZE, V_WB
@@ -128,7 +129,7 @@ class LandingMonitor(LeafSystem):
     def _update(self, context, discrete_state):
         t = context.get_time()
         last_seen, seen_ever = context.get_discrete_state(self._last_seen).get_value()
-        if self._valid.Eval(context)[0] > 0.5:
+        if is_set(self._valid.Eval(context)[0]):
             last_seen, seen_ever = t, 1.0
         discrete_state.set_value(self._last_seen, [last_seen, seen_ever])
         message = self.check(t, self._quad.Eval(context), self._vehicle.Eval(context), self._relative.Eval(context),

@@ -35,6 +35,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from systems.config import require, require_positive
+from systems.flags import is_set
 
 # Layout of the PID memory vector.
 ERROR_SUM = slice(0, 2)
@@ -160,7 +161,7 @@ class TrackingPid(LeafSystem):
 
     def _seen(self, context) -> bool:
         """target_valid raised: over 0.5 (a NaN is not)."""
-        return self._valid.Eval(context)[0] > 0.5
+        return is_set(self._valid.Eval(context)[0])
 
     def _update(self, context, discrete_state):
         memory = context.get_discrete_state(self._memory).get_value()

@@ -41,6 +41,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from systems.config import require, require_non_negative, require_positive
+from systems.flags import is_set
 from systems.stepped import SteppedValue
 
 
@@ -192,7 +193,7 @@ class AltitudeFilterSystem(LeafSystem):
 
     def _step(self, context, state: AltitudeKfState) -> AltitudeKfState:
         z = float(self._altitude.Eval(context)[0])
-        return altitude_kf_step(state, z, self._valid.Eval(context)[0] > 0.5, context.get_time(), self.config,
+        return altitude_kf_step(state, z, is_set(self._valid.Eval(context)[0]), context.get_time(), self.config,
                                 self.nearest_m)
 
     def _predicted(self, context) -> np.ndarray:

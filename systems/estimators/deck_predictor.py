@@ -41,6 +41,7 @@ from pydrake.systems.framework import LeafSystem
 
 from systems.config import require, require_positive
 from systems.estimators.deck_tracker import DECK_MOTION_SIZE
+from systems.flags import is_set
 from systems.stepped import SteppedValue
 
 PREDICTION_STEP_S = 0.1  # the output grid's spacing: horizons 0, 0.1, ..., horizon_s
@@ -252,7 +253,7 @@ def step_predictor(state: PredictorState, deck_motion: np.ndarray, time: float, 
     pose: deck_motion[7] > 0) appends the last frame's forecast of it where there is one (iterating on, as
     if unseen), not the tracker's straight line, and refits nothing."""
     deck_motion = np.array(deck_motion, dtype=float)
-    if deck_motion[6] < 0.5 or not np.all(np.isfinite(deck_motion[:6])):
+    if not is_set(deck_motion[6]) or not np.all(np.isfinite(deck_motion[:6])):
         return PredictorState(time, deck_motion=deck_motion)
     sample = deck_motion[[0, 1, 4]]
     coasted = deck_motion[7] > 0 and state.trajectory is not None
@@ -273,7 +274,7 @@ def predictor_output(state: PredictorState, time: float, config: DeckPredictorCo
     """DeckPredictor's output (prediction_size) at `time` [s] from its state at the last frame: the
     state's forecast (as predict_deck's with the state's model), or the constant rate."""
     out = np.zeros(prediction_size(config))
-    if state.time is None or state.deck_motion[6] < 0.5:
+    if state.time is None or not is_set(state.deck_motion[6]):
         return out
     horizons = horizon_grid(config) + min(max(time - state.time, 0.0), period_s)
     if state.trajectory is None:

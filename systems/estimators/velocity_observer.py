@@ -55,6 +55,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
 from systems.config import require, require_positive
+from systems.flags import is_set
 from systems.geometry import ray_to_plane
 from systems.stepped import SteppedValue
 
@@ -348,7 +349,7 @@ class VelocityObserverSystem(LeafSystem):
         return self._stepped.now.Eval(context)
 
     def _altitude_now(self, context) -> float | None:
-        if self._altitude_valid.HasValue(context) and not self._altitude_valid.Eval(context)[0] > 0.5:  # NaN too
+        if self._altitude_valid.HasValue(context) and not is_set(self._altitude_valid.Eval(context)[0]):
             return None
         h = float(self._altitude.Eval(context)[0])
         return h if math.isfinite(h) and h > 0 else None
@@ -356,7 +357,7 @@ class VelocityObserverSystem(LeafSystem):
     def _step(self, context, state: ObserverState) -> ObserverState:
         t, source = context.get_time(), self._config.source
         if source == "world":
-            precise = not self._precise.HasValue(context) or self._precise.Eval(context)[0] > 0.5
+            precise = not self._precise.HasValue(context) or is_set(self._precise.Eval(context)[0])
             return step_observer(state, t, self._config, p_W=self._p_WT.Eval(context), precise=precise)
         target, h = self._target.Eval(context), self._altitude_now(context)
         if h is None or not np.all(np.isfinite(target)):

@@ -50,6 +50,7 @@ from pydrake.systems.framework import LeafSystem
 from systems.config import require, require_non_negative, require_positive
 from systems.estimators.estimate import PoseEstimate
 from systems.estimators.velocity_observer import ObserverState, VelocityObserverConfig, step_observer
+from systems.flags import is_set
 from systems.geometry import ray_to_plane
 from systems.perception.box_tracker import Detection, box_centre_pixel
 from systems.sensors.fisheye import FisheyeConfig, in_field_of_view, pixel_rays
@@ -290,15 +291,15 @@ class HybridPadEstimator(LeafSystem):
             output.SetFromVector(np.zeros(3))
 
     def _step(self, context, state: HybridPadState) -> HybridPadState:
-        seen = self._box_valid.Eval(context)[0] > 0.5
+        seen = is_set(self._box_valid.Eval(context)[0])
         if self._lock.HasValue(context):  # only a box matched with this frame's detection measures
-            seen = seen and self._lock.Eval(context)[1] > 0.5
+            seen = seen and is_set(self._lock.Eval(context)[1])
         fix = self._pad_fix.Eval(context) if self._pad_fix.HasValue(context) else None
         X_WB = self._X_WB.Eval(context)
         h = camera_height(float(self._altitude.Eval(context)[0]), X_WB, self._X_BL, self._fisheye.X_BC)
         return hybrid_step(state, context.get_time(), self._box.Eval(context), seen, h,
-                           self._altitude_valid.Eval(context)[0] > 0.5, X_WB, self._fisheye, self._z_pad, self._config,
-                           self._observer_config, fix)
+                           is_set(self._altitude_valid.Eval(context)[0]), X_WB, self._fisheye, self._z_pad,
+                           self._config, self._observer_config, fix)
 
 
 class DetectionsToTracker(LeafSystem):

@@ -19,6 +19,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
 from systems.config import require, require_non_negative, require_positive
+from systems.flags import is_set
 from systems.noise import sample_index, sample_rng
 from systems.perception.seam import P_BP_W, RELATIVE_STATE_SIZE, V_WP, VALID, seam_vector
 from systems.sensors.navigation import SecondOrderGaussMarkov
@@ -128,5 +129,5 @@ class SeamSelect(LeafSystem):
 
     def _calc(self, context, output):
         vision = self._vision.Eval(context)
-        output.SetFromVector(vision if vision[VALID] > 0.5 else self._rendezvous.Eval(context))
+        output.SetFromVector(vision if is_set(vision[VALID]) else self._rendezvous.Eval(context))
 

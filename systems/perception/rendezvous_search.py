@@ -19,6 +19,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
+from systems.flags import is_set
 from systems.perception.seam import P_BP_B, P_BP_W, RELATIVE_STATE_SIZE, V_WP, VALID
 
 
@@ -55,13 +56,13 @@ class RendezvousSearch(LeafSystem):
         self.DeclareVectorOutputPort("relative_state", RELATIVE_STATE_SIZE, self._calc)
 
     def _update(self, context, discrete_state):
-        if self._vision.Eval(context)[VALID] > 0.5:
+        if is_set(self._vision.Eval(context)[VALID]):
             discrete_state.set_value(self._last_seen, [context.get_time()])
 
     def _calc(self, context, output):
         seam = self._rendezvous.Eval(context).copy()
         tau = context.get_time() - context.get_discrete_state(self._last_seen).get_value()[0] - self._after
-        if seam[VALID] > 0.5 and tau >= 0.0:
+        if is_set(seam[VALID]) and tau >= 0.0:
             offset, rate = spiral_offset(tau, *self._pattern)
             seam[P_BP_W][:2] += offset  # pad minus UAV: the target moved by the offset
             seam[P_BP_B] = self._X_WB.Eval(context).rotation().inverse().multiply(seam[P_BP_W])
