@@ -23,6 +23,7 @@ from systems.estimators.marker_ekf.engine import (
     EST_V_WP,
     EST_VALID,
     EST_YAW,
+    FilterStats,
 )
 from systems.perception.latency import MeasurementLatency
 from systems.perception.markers import MarkerLayout, MarkerMeasurement
@@ -221,6 +222,30 @@ def test_markers_seen_as_q_and_minus_q_start_the_filter_at_the_pads_attitude():
     q = drake_to_paper(RotationMatrix(RollPitchYaw(0.1, -0.05, 0.7)).ToQuaternion())
     x, _ = ekf.initial_state(np.array([0, 1]), np.array([[1.0, 2.0, 0.5], [1.3, 2.1, 0.5]]), np.array([q, -q]))
     assert abs(x[ekf._q] @ q) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_the_estimates_yaw_is_the_heading_of_a_pitched_pads_x_axis():
+    """The paper filter estimates the pad's whole attitude: pitched 60 deg and yawed 45 deg, its x axis points at
+    45 deg in W's xy plane, the yaw Drake's RollPitchYaw gives, not atan(cos 60) = 26.6 deg."""
+    marker_filter = make(PaperMarkerEkf)
+    X_WP = RigidTransform(RollPitchYaw(0.0, np.radians(60.0), np.radians(45.0)), [5.0, -3.0, 1.6])
+    assert RollPitchYaw(X_WP.rotation()).yaw_angle() == pytest.approx(np.radians(45.0), abs=1e-12)
+    vector, _, _ = marker_filter.estimate_vectors(state_from_truth(PaperMarkerEkf, X_WP), 0.01, 0.0)
+    assert vector[EST_YAW] == pytest.approx(np.radians(45.0), abs=1e-12)
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_a_filter_started_under_a_tilted_uav_starts_at_the_pads_attitude(cls):
+    """Exact measurements of a pad yawed 30 deg from a UAV rolled, pitched and yawed (the camera's attitude in W not
+    a half-turn about one axis, as it nearly is under a level UAV): the first estimate's attitude is the pad's."""
+    marker_filter = make(cls)
+    X_WP = RigidTransform(RotationMatrix.MakeZRotation(np.radians(30.0)), [5.0, -3.0, 1.6])
+    X_WB = RigidTransform(RollPitchYaw(0.4, -0.3, 1.0), [5.5, -3.2, 4.6])
+    X_CP = X_WB.multiply(X_BC).InvertAndCompose(X_WP)
+    marker_filter.step(0.0, X_WB, synthetic_marker_measurements(X_CP, LAYOUT, np.random.default_rng(0), 0.0, 0.0))
+    estimate = marker_filter.estimate()
+    assert estimate.vector[EST_YAW] == pytest.approx(np.radians(30.0), abs=1e-9)
+    np.testing.assert_allclose(estimate.X_WP.X_RT.rotation().matrix(), X_WP.rotation().matrix(), atol=1e-9)
 
 
 def test_the_stacked_innovations_take_q_and_minus_q_as_one_attitude():
@@ -495,14 +520,25 @@ def test_an_estimate_with_a_figure_not_finite_is_invalid(cls):
 
 
 @pytest.mark.parametrize("cls", BOTH)
-def test_the_estimates_position_std_is_the_square_root_of_its_variance(cls):
-    """The pad position's variance 0.36 m^2 is a std of 0.6 m: reported so, and over a 0.5 m limit invalid."""
+@pytest.mark.parametrize("variance, std, valid", [(0.36, 0.6, 0.0), (0.25, 0.5, 1.0), (0.16, 0.4, 1.0)])
+def test_the_estimates_position_std_is_the_square_root_of_its_variance(cls, variance, std, valid):
+    """The pad position's variance 0.36 m^2 is a std of 0.6 m: reported so, and over a 0.5 m limit invalid; 0.25 m^2
+    is exactly the limit (sqrt(0.25) = 0.5 in floating point), at most it, so valid, as 0.4 m is."""
     marker_filter = make(cls, max_valid_position_std_m=0.5)
     x = state_from_truth(cls, pose([12, -4, 1.6], [0, 0, 35]))
-    vector, _, _ = marker_filter.estimate_vectors(x, 0.36, 1.0)
-    assert vector[EST_POSITION_STD] == pytest.approx(0.6, abs=1e-12) and vector[EST_VALID] == 0.0
-    vector, _, _ = marker_filter.estimate_vectors(x, 0.16, 1.0)  # 0.4 m: within the limit
-    assert vector[EST_POSITION_STD] == pytest.approx(0.4, abs=1e-12) and vector[EST_VALID] == 1.0
+    vector, _, _ = marker_filter.estimate_vectors(x, variance, 1.0)
+    assert vector[EST_POSITION_STD] == pytest.approx(std, abs=1e-12) and vector[EST_VALID] == valid
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_no_measurement_fused_yet_is_a_nan_time_in_the_estimate(cls):
+    """A newest-measurement time of -inf (none yet, as a stack's records hold before the start) is reported NaN,
+    beside a finite one, and the estimate stays valid (the time is not one of its figures)."""
+    marker_filter = make(cls)
+    x = state_from_truth(cls, pose([12, -4, 1.6], [0, 0, 35]))
+    vectors, _, _ = marker_filter.estimate_vectors(np.stack([x, x]), np.array([0.01, 0.01]), np.array([-np.inf, 1.0]))
+    assert np.isnan(vectors[0, EST_LAST_MEASUREMENT]) and vectors[1, EST_LAST_MEASUREMENT] == 1.0
+    assert vectors[:, EST_VALID].tolist() == [1.0, 1.0]
 
 
 def test_an_estimate_with_a_marker_position_not_finite_is_invalid():
@@ -551,6 +587,30 @@ def test_the_newest_measurement_fused_is_not_a_later_gated_one(cls):
     assert (after.accepted - before.accepted, after.gated - before.gated) == (5, 5)
     assert marker_filter.estimate_vector()[0][EST_LAST_MEASUREMENT] == pytest.approx(t - TS / 2, abs=1e-12)
     assert marker_filter.estimate().vector[EST_LAST_MEASUREMENT] == pytest.approx(t - TS / 2, abs=1e-12)
+
+
+@pytest.mark.parametrize("offset, fused", [(0.65, 5), (0.75, 4)])
+def test_the_gate_weighs_each_marker_by_its_own_innovation_covariance(offset, fused):
+    """A still pad seen exactly, the filter started on it (velocities, yaw rate and process noise made negligible):
+    at the next step its position covariance is 0.1^2 I, so marker 0's (at P's origin: no yaw in its position)
+    innovation covariance in p_CM is 0.01 + 0.1^2 = 0.02 on each axis. Marker 0 alone moved `offset` along the
+    camera's x: its NIS offset^2 / 0.02 is 21.1 at 0.65 m, under the gate chi2.ppf(0.9999, 6) = 27.9, fused;
+    28.1 at 0.75 m, gated. Weighed with the other markers' rows, which share the pad's position, it would not be
+    its own NIS: (100 (I - 1 1^T / 6))_00 0.65^2 = 35.2 at 0.65 m, gated."""
+    marker_filter = make(ConstantTurnEkf, initial_velocity_std_mps=1e-6, initial_angular_velocity_std_radps=1e-6,
+                         acceleration_psd=1e-9, vertical_acceleration_psd=1e-9, angular_acceleration_psd=1e-9)
+    assert marker_filter._gate == pytest.approx(chi2.ppf(0.9999, 6))
+    assert 0.65**2 / 0.02 < chi2.ppf(0.9999, 6) < 0.75**2 / 0.02
+    np.testing.assert_array_equal(LAYOUT.p_PM[0], 0.0)
+    X_WP = RigidTransform(RotationMatrix.MakeZRotation(np.radians(30.0)), [5.0, -3.0, 1.6])
+    X_WB = uav_over(X_WP, 0.0)
+    X_CP = X_WB.multiply(X_BC).InvertAndCompose(X_WP)
+    rng = np.random.default_rng(0)
+    marker_filter.step(0.0, X_WB, synthetic_marker_measurements(X_CP, LAYOUT, rng, 0.0, 0.0, 0.0))
+    exact = synthetic_marker_measurements(X_CP, LAYOUT, rng, 0.0, 0.0, TS)
+    moved = MarkerMeasurement(TS, exact[0].marker_id, exact[0].p_CM + [offset, 0.0, 0.0], exact[0].q_CM)
+    marker_filter.step(TS, X_WB, [moved] + exact[1:])
+    assert marker_filter.stats == FilterStats(accepted=5 + fused, gated=5 - fused)
 
 
 def test_the_paper_filters_gate_has_the_six_degrees_of_freedom_of_a_pose():
@@ -609,6 +669,22 @@ def test_late_measurements_are_fused_as_if_they_had_arrived_on_time(cls):
         late.step(t, uav_over(truth(t), t), arriving.get(k, []))
     assert_same_belief(on_time, late, atol=1e-9)
     assert late.stats == on_time.stats
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_a_steps_measurements_in_any_order_give_the_same_belief(cls):
+    """One step brings a frame taken half a step before it and one taken at it: handed over in either order, the
+    filter fuses them in time order, the same belief."""
+    truth, rng = straight(6.0), np.random.default_rng(0)
+    a, b = make(cls), make(cls)
+    first = measure(truth, 0.0, rng)
+    for marker_filter in (a, b):
+        marker_filter.step(0.0, uav_over(truth(0.0), 0.0), first)
+    mid, now = measure(truth, TS / 2, rng, time=TS / 2), measure(truth, TS, rng)
+    a.step(TS, uav_over(truth(TS), TS), mid + now)
+    b.step(TS, uav_over(truth(TS), TS), now + mid)
+    assert_same_belief(a, b)
+    assert a.stats == b.stats == FilterStats(accepted=15)
 
 
 @pytest.mark.parametrize("cls", BOTH)
