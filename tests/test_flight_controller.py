@@ -9,12 +9,13 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, TrajectorySource, VectorLogSink
 from pydrake.trajectories import PiecewisePolynomial
 
+from systems.config import ConfigError
 from systems.control.flight_controller import (
-    COMMAND_SIZE, FlightController, FlightControllerConfig, FlightLaw, SymbolicFlightController, flight_command,
-    make_flight_controller, rotor_speed_commands,
+    COMMAND_SIZE, MAX_RATE_HZ, FlightController, FlightControllerConfig, FlightLaw, SymbolicFlightController,
+    flight_command, make_flight_controller, rotor_speed_commands,
 )
 from systems.vehicles.quadrotor import (
-    P_WB, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state, pose_from_state,
+    P_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state, pose_from_state,
 )
 
 # pydrake filters numpy's "invalid value" warnings from symbolic object arrays when imported;
@@ -77,13 +78,25 @@ def test_attitude_gains_place_the_designed_poles():
     ("rate_hz", 30.0, r"rate_hz \(30 Hz\) must be at least 1 / flight_controller.rotor_time_constant_s \(40 Hz\)"),
     ("rate_hz", 1e9, r"rate_hz \(1e\+09 Hz\) must be at most 10000 Hz"),
     ("max_tilt_deg", 95.0, "max_tilt_deg"),
+    ("max_tilt_deg", 0.0, r"max_tilt_deg must be in \(0, 90\)"),  # no tilt: no horizontal control
     ("max_vertical_accel_m_s2", 10.0,
      r"^flight_controller.max_vertical_accel_m_s2 \(10 m/s\^2\) must be below quadrotor.gravity_m_s2 \(9.81 m/s\^2\)$"),
+    # A full sink at a_max = g commands no thrust at all.
+    ("max_vertical_accel_m_s2", 9.81, r"max_vertical_accel_m_s2 \(9.81 m/s\^2\) must be below"),
     ("attitude_frequency_rad_s", 40.0, "attitude_frequency_rad_s is too fast"),
+    # 2 zeta w_n = 2 (0.8) 40 = 64 rad/s, past 1 / tau_a = 40 rad/s: yaw's real pole would be unstable too.
+    ("yaw_frequency_rad_s", 40.0, "yaw_frequency_rad_s is too fast"),
+    ("velocity_gain_z", 0.0, "velocity_gain_z must be positive"),
 ])
 def test_bad_config_is_rejected_by_name(field, value, message):
     with pytest.raises(ValueError, match=message):
         FlightController(QUAD, FlightControllerConfig(**{field: value}))
+
+
+@pytest.mark.parametrize("rate_hz", [40.0, MAX_RATE_HZ])
+def test_the_rate_limits_themselves_are_accepted(rate_hz):
+    """The rate's bounds are inclusive: 1 / tau_a (40 Hz; 40 x 0.025 is 1.0 exactly in floats) and MAX_RATE_HZ."""
+    FlightControllerConfig(rate_hz=rate_hz).validate(quad=QUAD)
 
 
 def test_law_accepts_symbolic_expressions():
@@ -130,19 +143,62 @@ def test_the_two_backends_compute_the_same_law(held):
         np.testing.assert_allclose(outputs[1], outputs[0], rtol=1e-10)
 
 
+@pytest.mark.parametrize("motor_gain", [1.0, 2.0])
 @pytest.mark.parametrize("backend", ["python", "symbolic"])
-def test_the_held_command_starts_at_hover(backend):
+def test_the_held_command_starts_at_hover(backend, motor_gain):
     """Held, both backends put out the hover command, sqrt(m g / 4 k_t) / k_m per rotor, from initialize until
     their first sample, whatever the law would give at the inputs."""
-    controller = make_flight_controller(QUAD, CONFIG, backend)
+    quad = QuadrotorParams(motor_gain=motor_gain)
+    controller = make_flight_controller(quad, CONFIG, backend)
     context = controller.CreateDefaultContext()
     controller.initialize(context)
     state, command = next(random_states_and_commands(1))
     controller.GetInputPort("state").FixValue(context, state)
     controller.GetInputPort("command").FixValue(context, command)
-    hover = np.sqrt(QUAD.mass_kg * QUAD.gravity_m_s2 / (4 * QUAD.thrust_coefficient)) / QUAD.motor_gain
+    hover = np.sqrt(quad.mass_kg * quad.gravity_m_s2 / (4 * quad.thrust_coefficient)) / motor_gain
     np.testing.assert_allclose(controller.GetOutputPort("rotor_speed_commands").Eval(context), np.full(4, hover),
                                rtol=1e-12)
+
+
+@pytest.mark.parametrize("backend, cls", [("symbolic", SymbolicFlightController), ("python", FlightController)])
+def test_make_flight_controller_builds_the_named_backend_held_or_not(backend, cls):
+    """Not held, the controller's output is the law at its inputs from the start (no initialize, no sample)."""
+    controller = make_flight_controller(QUAD, CONFIG, backend, held=False)
+    assert isinstance(controller, cls)
+    context = controller.CreateDefaultContext()
+    for state, command in random_states_and_commands(3):
+        controller.GetInputPort("state").FixValue(context, state)
+        controller.GetInputPort("command").FixValue(context, command)
+        np.testing.assert_allclose(controller.GetOutputPort("rotor_speed_commands").Eval(context),
+                                   FlightLaw(QUAD, CONFIG)(state, command), rtol=1e-10)
+
+
+def test_an_unknown_backend_is_a_config_error_naming_the_known_ones():
+    with pytest.raises(ConfigError, match="flight controller backend 'cpp' is not one of symbolic, python"):
+        make_flight_controller(QUAD, CONFIG, "cpp")
+
+
+@pytest.mark.parametrize("backend", ["python", "symbolic"])
+def test_the_collective_thrust_is_the_thrust_along_the_body_z_axis(backend):
+    """Pitched 30 deg (z_B = (sin 30, 0, cos 30)) and at rest, commanded a saturated forward speed and the sink
+    v_z = g (cos 30 - 1) / K_v,z: the desired thrust is f_W = m (g + a_z)(tan 30, 0, 1) = m g (sin 30, 0, cos 30),
+    along z_B (the desired attitude is the present one: no torque), so the collective thrust f_W . z_B is the weight
+    m g, not f_W's vertical part m g cos 30. With the rotors at w_h = sqrt(m g / 4 k_t) each (the inverse mixer
+    shares a collective thrust equally) they are kept there: commanded w_h / k_m."""
+    F, pitch = QUAD.mass_kg * QUAD.gravity_m_s2, np.radians(30.0)
+    state = hover_state(QUAD, [0, 0, 5])
+    state[3:7] = RotationMatrix(RollPitchYaw(0.0, pitch, 0.0)).ToQuaternion().wxyz()
+    w_h = np.sqrt(F / (4 * QUAD.thrust_coefficient))
+    state[ROTOR_SPEEDS] = w_h
+    command = flight_command([50.0, 0.0, QUAD.gravity_m_s2 * (np.cos(pitch) - 1) / CONFIG.velocity_gain_z])
+    np.testing.assert_allclose(FlightLaw(QUAD, CONFIG).thrust(state[V_WB], command[:3], command[4:7]),
+                               F * np.array([np.sin(pitch), 0.0, np.cos(pitch)]), rtol=1e-12, atol=1e-12)
+    controller = make_flight_controller(QUAD, CONFIG, backend, held=False)
+    context = controller.CreateDefaultContext()
+    controller.GetInputPort("state").FixValue(context, state)
+    controller.GetInputPort("command").FixValue(context, command)
+    np.testing.assert_allclose(controller.GetOutputPort("rotor_speed_commands").Eval(context),
+                               np.full(4, w_h / QUAD.motor_gain), rtol=1e-12)
 
 
 def test_the_two_backends_fly_alike():
