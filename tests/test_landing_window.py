@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from systems.config import ConfigError
 from systems.control.landing_window import (
     LandingWindow,
     LandingWindowConfig,
@@ -15,6 +16,7 @@ from systems.estimators.deck_predictor import PREDICTED, PREDICTION_STEP_S, cons
 from systems.estimators.deck_tracker import tilt_deg
 
 CONFIG = LandingWindowConfig()
+GRID_SIZE = (prediction_size(CONFIG.predictor) - 2) // PREDICTED  # the deck predictor's horizons
 
 
 def motion(n_xy=(0.0, 0.0), n_rate=(0.0, 0.0), heave_rate=0.0, valid=True):
@@ -25,6 +27,11 @@ def sin_deg(deg):
     return math.sin(math.radians(deg))
 
 
+def autoregressive(values):
+    """The deck predictor's output, valid and autoregressive, with `values` (PREDICTED, GRID_SIZE) on its grid."""
+    return np.r_[1.0, 1.0, values.ravel()]
+
+
 def test_predicted_tilt_is_the_normal_moved_at_its_rate():
     m = motion((sin_deg(3.0), 0.0), (-sin_deg(3.0) / 2.0, 0.0))  # back to level in 2 s
     tilt = tilt_deg(constant_rate_prediction(m, np.array([0.0, 1.0, 2.0, 4.0]))[:, :2])
@@ -33,6 +40,16 @@ def test_predicted_tilt_is_the_normal_moved_at_its_rate():
 
 def test_a_level_still_deck_opens_the_window():
     assert window_flags(motion(), 2.0, CONFIG) == (True, True)
+
+
+@pytest.mark.parametrize("deck, config", [
+    # tilt_deg's own arithmetic, degrees(asin(|n_xy|)): the threshold is that tilt to the last bit
+    (motion((0.03, 0.0)), LandingWindowConfig(max_tilt_deg=math.degrees(math.asin(0.03)))),
+    (motion(heave_rate=CONFIG.max_heave_rate_m_s), CONFIG),
+], ids=["tilt", "heave_rate"])
+def test_the_window_opens_at_its_limits_themselves(deck, config):
+    """A still deck tilted exactly max_tilt_deg, or heaving at exactly max_heave_rate_m_s: open."""
+    assert window_flags(deck, 2.0, config) == (True, True)
 
 
 def test_the_tilt_at_touchdown_decides_not_the_tilt_now():
@@ -75,12 +92,15 @@ def test_heave_rate_closes_it_and_no_estimate_closes_everything():
     assert window_flags(motion(heave_rate=-0.25), 2.0, CONFIG) == (False, False)
 
 
-def test_the_heave_rate_is_the_largest_over_the_touchdown_window_not_at_its_end():
-    """An autoregressive prediction whose dz/dt peaks at tau = 2 s and is zero at tau +- the margin: closed."""
-    size = prediction_size(CONFIG.predictor)
-    values = np.zeros((PREDICTED, (size - 2) // PREDICTED))
-    values[3, round(2.0 / PREDICTION_STEP_S)] = 0.3
-    assert window_flags(motion(), 2.0, CONFIG, np.r_[1.0, 1.0, values.ravel()]) == (False, False)
+@pytest.mark.parametrize("tau, peak_s", [(2.0, 2.0), (1.95, 1.8)])
+def test_the_heave_rate_is_the_largest_over_the_touchdown_window_not_at_its_end(tau, peak_s):
+    """An autoregressive prediction whose dz/dt peaks (0.3 m/s, on one grid sample) inside tau +- the margin m
+    (0.3 s) and is zero at its ends: closed. Peaking at tau, or at tau - m / 2: 1.8 s with tau 1.95 s, between the
+    window's samples tau - m (1.65 s) and tau (1.95 s) and more than a grid step (0.1 s) from each, so only a
+    window sampled as finely as m / 2 sees it."""
+    values = np.zeros((PREDICTED, GRID_SIZE))
+    values[3, round(peak_s / PREDICTION_STEP_S)] = 0.3
+    assert window_flags(motion(), tau, CONFIG, autoregressive(values)) == (False, False)
 
 
 @pytest.mark.parametrize("flag", [0.0, np.nan])
@@ -90,7 +110,7 @@ def test_a_prediction_flagged_invalid_is_not_used(flag):
     prediction = np.full(prediction_size(CONFIG.predictor), 0.5)
     prediction[0] = flag
     assert window_flags(motion(), 1.0, CONFIG, prediction) == (True, True)
-    prediction[0] = 1.0  # the same numbers, valid: n_xy 0.5 is a 30 deg deck
+    prediction[0] = 1.0  # the same numbers, valid: n_xy (0.5, 0.5) is a 45 deg deck
     assert window_flags(motion(), 1.0, CONFIG, prediction)[0] is False
 
 
@@ -105,11 +125,37 @@ def test_the_system_times_touchdown_from_the_seam_height():
     assert window.get_output_port().Eval(context)[0] == 0.0
 
 
-def test_bad_thresholds_are_config_errors():
-    from systems.config import ConfigError
+def test_the_system_uses_the_deck_prediction_when_given():
+    """A level, still tracked deck 2 s from touchdown, but a valid prediction of a 30 deg deck (n_x 0.5):
+    closed, not to be committed to nor held."""
+    window = LandingWindow(CONFIG, touchdown_height_m=0.1, landing_speed_m_s=0.4)
+    context = window.CreateDefaultContext()
+    window.GetInputPort("deck_motion").FixValue(context, motion())
+    window.GetInputPort("height_above_target").FixValue(context, [0.9])
+    np.testing.assert_array_equal(window.get_output_port().Eval(context), [1.0, 1.0])  # the tracked deck's
+    values = np.zeros((PREDICTED, GRID_SIZE))
+    values[0] = 0.5
+    window.GetInputPort("deck_prediction").FixValue(context, autoregressive(values))
+    np.testing.assert_array_equal(window.get_output_port().Eval(context), [0.0, 0.0])
 
-    with pytest.raises(ConfigError, match="abort_tilt_deg"):
-        LandingWindowConfig(max_tilt_deg=3.0, abort_tilt_deg=2.0).validate()
+
+@pytest.mark.parametrize("fields, message", [
+    (dict(max_tilt_deg=3.0, abort_tilt_deg=2.0), "abort_tilt_deg must be at least max_tilt_deg"),
+    (dict(max_heave_rate_m_s=0.0), "max_heave_rate_m_s must be positive"),
+])
+def test_bad_thresholds_are_config_errors(fields, message):
+    """Also from the system itself."""
+    with pytest.raises(ConfigError, match=message):
+        LandingWindowConfig(**fields).validate()
+    with pytest.raises(ConfigError, match=message):
+        LandingWindow(LandingWindowConfig(**fields), touchdown_height_m=0.1, landing_speed_m_s=0.4)
+
+
+@pytest.mark.parametrize("fields", [dict(abort_tilt_deg=CONFIG.max_tilt_deg), dict(timing_margin_s=0.0),
+                                    dict(no_return_s=0.0)])
+def test_thresholds_at_their_limits_are_valid(fields):
+    """No hysteresis, no timing margin, no point of no return: valid (the limits are inclusive)."""
+    LandingWindowConfig(**fields).validate()
 
 
 def test_time_to_touchdown_is_that_of_a_first_order_descent():
@@ -123,6 +169,7 @@ def test_time_to_touchdown_is_that_of_a_first_order_descent():
     assert time_to_touchdown(h, V, 0.0, T) == pytest.approx(t, abs=0.01)  # exp(-tau / T) ~ 0.1 % here
     assert time_to_touchdown(h, V, V, T) == pytest.approx(h / V)  # at speed: no lag
     assert time_to_touchdown(h, V, 2 * V, T) == pytest.approx(h / V)  # taken within [0, V]
+    assert time_to_touchdown(h, V, -V, T) == pytest.approx(h / V + T)  # climbing: as from a hover
 
 
 def test_the_window_counts_the_descents_lag_when_it_knows_the_vertical_velocity():
