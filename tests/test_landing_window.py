@@ -151,6 +151,17 @@ def test_bad_thresholds_are_config_errors(fields, message):
         LandingWindow(LandingWindowConfig(**fields), touchdown_height_m=0.1, landing_speed_m_s=0.4)
 
 
+@pytest.mark.parametrize("touchdown, speed, response, message", [
+    (0.1, 0.0, 0.0, "landing_speed_m_s must be positive"),  # tau divides by it
+    (0.1, np.nan, 0.0, "landing_speed_m_s must be positive"),
+    (0.0, 0.4, 0.0, "touchdown_height_m must be positive"),
+    (0.1, 0.4, -0.1, "response_time_s must not be negative"),
+])
+def test_the_systems_own_arguments_are_checked(touchdown, speed, response, message):
+    with pytest.raises(ConfigError, match=message):
+        LandingWindow(CONFIG, touchdown_height_m=touchdown, landing_speed_m_s=speed, response_time_s=response)
+
+
 @pytest.mark.parametrize("fields", [dict(abort_tilt_deg=CONFIG.max_tilt_deg), dict(timing_margin_s=0.0),
                                     dict(no_return_s=0.0)])
 def test_thresholds_at_their_limits_are_valid(fields):

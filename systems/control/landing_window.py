@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from systems.config import require, require_positive
+from systems.config import require, require_non_negative, require_positive
 from systems.estimators.deck_predictor import (
     DeckPredictorConfig,
     constant_rate_prediction,
@@ -105,6 +105,9 @@ class LandingWindow(LeafSystem):
                  response_time_s: float = 0.0):
         super().__init__()
         config.validate()
+        require_positive(touchdown_height_m, "landing_window touchdown_height_m")
+        require_positive(landing_speed_m_s, "landing_window landing_speed_m_s")
+        require_non_negative(response_time_s, "landing_window response_time_s")
         self._config, self._touchdown, self._speed = config, touchdown_height_m, landing_speed_m_s
         self._response = response_time_s
         self._motion = self.DeclareVectorInputPort("deck_motion", DECK_MOTION_SIZE)
