@@ -10,6 +10,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from scipy.spatial.transform import Rotation, Slerp
 from scipy.stats import chi2
 
+from systems.config import ConfigError
 from systems.estimators.federated.engine import (
     NODES,
     X_PB,
@@ -197,6 +198,35 @@ def test_a_start_from_the_centre_alone_knows_the_relative_position_whatever_the_
     # x = -(R p_BP_B)_x moves by 15 m per radian of pitch and 0.3 m per radian of heading
     tilt, yaw = np.radians(config.initial_tilt_std_deg), np.radians(config.initial_yaw_std_deg)
     assert state.P[0, 0] == pytest.approx(0.1**2 + (15.0 * tilt) ** 2 + (0.3 * yaw) ** 2, rel=1e-9)
+
+
+def test_a_start_on_a_tilted_body_levels_it_with_the_accelerometer_and_puts_the_pattern_where_it_was_seen():
+    """Rolled by a = 0.2 rad, the hovering body's accelerometer reads f_B = g [0, sin a, cos a]: R_PB is the
+    shortest rotation taking that direction to P's z, a turn by +a about x (axis f_B x z along +x); p_PB = -R_PB
+    p_BP_B, so that the centre the state predicts in the body is the one measured (a transposed R, or a p turned
+    by R_PB^T, level a body tilted the other way or move the pattern)."""
+    a = 0.2
+    f_B = G * np.array([0.0, np.sin(a), np.cos(a)])
+    p_BP_B = np.array([0.4, -0.3, -15.0])
+    state = initial_state(p_BP_B, 0.01 * np.eye(3), f_B, LocalFilterConfig())
+    R_x = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+    np.testing.assert_allclose(R_x, RotationMatrix.MakeXRotation(a).matrix(), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(state.R, R_x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(state.R @ f_B / G, [0.0, 0.0, 1.0], rtol=0, atol=1e-12)
+    # -R_x p_BP_B: x kept, y = -(cos a (-0.3) - sin a (-15)), z = -(sin a (-0.3) + cos a (-15))
+    expected_p = [-0.4, 0.3 * np.cos(a) - 15.0 * np.sin(a), 0.3 * np.sin(a) + 15.0 * np.cos(a)]
+    np.testing.assert_allclose(state.p, expected_p, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(centre_in_body(state)[0], p_BP_B, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("refused, accepted", [(0.0, 1e-9), (1.0, 1 - 1e-9)])
+def test_a_gate_probability_outside_the_open_unit_interval_is_refused(refused, accepted):
+    """chi2.ppf(1, k) is infinite (a gate that rejects nothing) and chi2.ppf(0, k) zero (one that rejects
+    everything): either end is a ConfigError naming the field, while a probability just inside is accepted."""
+    assert chi2.ppf(1.0, 6) == np.inf and chi2.ppf(0.0, 6) == 0.0
+    with pytest.raises(ConfigError, match=r"federated\.gate_probability must be in \(0, 1\)"):
+        LocalFilterConfig(gate_probability=refused).validate()
+    LocalFilterConfig(gate_probability=accepted).validate()
 
 
 def _truth(t):

@@ -13,7 +13,18 @@ from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.estimators.federated.engine import NODES, X_PB, FederatedConfig, FederatedState, NodeStats, step
 from systems.estimators.federated.local_filter import LocalState, exp_so3, log_so3
-from systems.estimators.federated.system import FED_LOCAL_TRACES, FED_STARTED, FED_VALID, FederatedFilterSystem
+from systems.estimators.federated.system import (
+    FED_LOCAL_P,
+    FED_LOCAL_THETA,
+    FED_LOCAL_TRACES,
+    FED_P_PB,
+    FED_Q_PB,
+    FED_RELATIVE_STD,
+    FED_STARTED,
+    FED_V_PB,
+    FED_VALID,
+    FederatedFilterSystem,
+)
 from systems.perception.rqrlp.measurements import approach_measurement
 
 G = 9.81
@@ -75,6 +86,15 @@ def test_the_camera_period_must_be_whole_imu_periods():
     with pytest.raises(ConfigError,
                        match=r"federated\.camera\.rate_hz \(80\) must divide federated\.imu\.rate_hz \(200\)"):
         FederatedFilterSystem(FederatedConfig(), X_BC, 0.005, 0.0125)
+
+
+def test_a_camera_at_the_imus_rate_is_accepted_and_one_faster_is_refused():
+    """Camera and IMU at 50 Hz (a ratio of one IMU period per frame) is a valid system; a camera at 200 Hz
+    over a 50 Hz IMU (a quarter of an IMU period, no whole number of steps) is not."""
+    FederatedFilterSystem(FederatedConfig(), X_BC, 0.02, 0.02)
+    with pytest.raises(ConfigError,
+                       match=r"federated\.camera\.rate_hz \(200\) must divide federated\.imu\.rate_hz \(50\)"):
+        FederatedFilterSystem(FederatedConfig(), X_BC, 0.02, 0.005)
 
 
 @pytest.mark.parametrize("override, periods", [("federated.imu.rate_hz=70.0", (1 / 70, CAMERA_PERIOD)),
@@ -244,3 +264,45 @@ def test_before_any_measurement_every_output_says_there_is_nothing_yet():
     vector = federated.GetOutputPort("federated_vector").Eval(context)
     assert vector[FED_VALID] == 0.0 and vector[FED_STARTED] == 0.0
     assert np.isnan(np.delete(vector, [FED_VALID, FED_STARTED])).all()
+
+
+@pytest.mark.parametrize("P_scale, valid", [(0.01, True), (1.0, False)])
+def test_a_started_estimate_too_uncertain_is_invalid_in_every_output(P_scale, valid):
+    """Started, a node measured at t (the coast limit is not the reason), P = P_scale I: p_BP_B = -R^T p's
+    covariance is P_scale (I + R^T [p]x [p]x^T R), whose trace is P_scale (3 + 2 |p|^2), so its std is
+    0.61 m (within FederatedConfig's 1 m: valid) or 6.07 m (over it: invalid). X_PB_estimate, X_WP_estimate and
+    the vector's FED_VALID all say so, the vector's FED_STARTED 1 either way."""
+    p = np.array([0.8, -0.5, 4.0])
+    fused = LocalState(p, np.zeros(3), exp_so3([0.15, -0.1, 0.7]), P_scale * np.eye(9))
+    expected_std = np.sqrt(P_scale * (3.0 + 2.0 * p @ p))
+    assert (expected_std <= FederatedConfig().max_relative_std_m) == valid
+    federated, context = _system_at(fused, True, (fused,) * len(NODES), np.zeros(6))
+    assert federated.GetOutputPort("X_PB_estimate").Eval(context).valid == valid
+    assert federated.GetOutputPort("X_WP_estimate").Eval(context).valid == valid
+    vector = federated.GetOutputPort("federated_vector").Eval(context)
+    assert vector[FED_RELATIVE_STD] == pytest.approx(expected_std, rel=1e-12)
+    assert vector[FED_VALID] == float(valid) and vector[FED_STARTED] == 1.0
+
+
+def test_the_vector_logs_the_fused_estimate_and_each_local_filters_pose_in_its_slots():
+    """federated_vector's layout with three distinct local filters and a fused estimate unlike any: p_PB and v_PB
+    (m, m/s, in P), q_PB (wxyz: [cos(|theta|/2), sin(|theta|/2) theta/|theta|] of its rotation vector theta),
+    each filter's p_PB and its R_PB as the rotation vector it was made from (|theta| < pi, so the log returns it)
+    in NODES' order, what diagrams/federated_metrics.py scores the filters from."""
+    rng = np.random.default_rng(6)
+    positions = [[0.7, -0.4, 4.1], [0.9, -0.6, 3.9], [-0.2, 0.3, 5.0]]
+    thetas = [[0.0, 0.2, -0.3], [-0.1, 0.0, 1.2], [0.5, -0.4, 0.1]]
+    locals_ = tuple(LocalState(np.array(p), np.array([0.1, 0.0, -0.2]), exp_so3(theta), _random_covariance(rng))
+                    for p, theta in zip(positions, thetas))
+    theta = np.array([0.15, -0.1, 0.7])
+    fused = LocalState(np.array([0.8, -0.5, 4.0]), np.array([0.2, -0.1, 0.05]), exp_so3(theta),
+                       _random_covariance(rng))
+    federated, context = _system_at(fused, True, locals_, np.zeros(6))
+    vector = federated.GetOutputPort("federated_vector").Eval(context)
+    np.testing.assert_allclose(vector[FED_P_PB], [0.8, -0.5, 4.0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(vector[FED_V_PB], [0.2, -0.1, 0.05], rtol=0, atol=1e-12)
+    angle = np.linalg.norm(theta)
+    np.testing.assert_allclose(vector[FED_Q_PB], np.r_[np.cos(angle / 2), np.sin(angle / 2) * theta / angle],
+                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(vector[FED_LOCAL_P], np.concatenate(positions), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(vector[FED_LOCAL_THETA], np.concatenate(thetas), rtol=0, atol=1e-12)

@@ -51,6 +51,22 @@ def test_output_holds_the_last_sample():
                                atol=1e-12)
 
 
+def test_the_first_sample_is_taken_at_t_zero_and_then_every_period():
+    """At 100 Hz, rolled 90 deg about x (the body's y axis up) and turning at 0.5 rad/s about the world's z: the
+    reading f_B = R_BW [0, 0, g] = [0, g, 0], w_B = R_BW [0, 0, 0.5] = [0, 0.5, 0]. By t = 0.004 s the output is
+    the t = 0 sample (not the level placeholder [0, 0, g, 0, 0, 0]), and by 0.123 s 13 samples were taken
+    (t = 0, 0.01, ..., 0.12)."""
+    imu, context = imu_with_inputs(ideal_config(rate_hz=100.0), R_WB=RotationMatrix.MakeXRotation(math.pi / 2),
+                                   w_WB_W=(0.0, 0.0, 0.5))
+    simulator = Simulator(imu, context)
+    simulator.AdvanceTo(0.004)
+    np.testing.assert_allclose(imu.get_output_port().Eval(simulator.get_context()), [0, G, 0, 0, 0.5, 0],
+                               rtol=0, atol=1e-12)
+    assert simulator.get_num_discrete_updates() == 1
+    simulator.AdvanceTo(0.123)
+    assert simulator.get_num_discrete_updates() == 13
+
+
 @pytest.mark.parametrize("gravity", [G, 3.71])
 def test_before_its_first_sample_the_output_is_a_level_body_at_rest(gravity):
     """At t = 0 after Initialize (the t = 0 sample is seen only after t = 0) the output already reads a level body
