@@ -86,7 +86,21 @@ def test_drops_and_outliers_at_their_rates_with_their_errors():
     is_outlier = np.linalg.norm(moved, axis=1) > 0
     assert is_outlier.mean() == pytest.approx(0.2, abs=0.015)
     assert moved[is_outlier].std(axis=0) == pytest.approx([0.5] * 3, rel=0.08)
+    # an outlier is moved by the error, not put at it: its displacement averages zero (~2700 outliers of 13500
+    # measurements kept, standard error 0.5 / sqrt(2700) ~ 0.01 m per axis, so 0.05 m is ~5 sigma)
+    assert is_outlier.sum() > 2400
+    assert moved[is_outlier].mean(axis=0) == pytest.approx([0.0] * 3, abs=0.05)
     assert np.sqrt(np.mean(angles[is_outlier] ** 2)) == pytest.approx(20.0, rel=0.08)  # |N(0, 20 deg)|
+
+
+@pytest.mark.parametrize("name, left", [("drop_probability", 0), ("outlier_probability", 3)])
+def test_a_probability_of_one_is_allowed_and_hits_every_sample(name, left):
+    """A drop or outlier probability of 1 is within [0, 1]: every frame dropped, or every measurement an outlier."""
+    config = FaultsConfig(**{name: 1.0})
+    config.validate()
+    frames = [apply_faults(FRAME, k, T, config, seed=0) for k in range(50)]
+    assert [len(frame) for frame in frames] == [left] * 50
+    assert all(np.linalg.norm(m.p_CM - f.p_CM) > 0 for frame in frames for m, f in zip(frame, FRAME))
 
 
 @pytest.mark.parametrize("q_CM", [[np.nan, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 0.0]])
@@ -102,6 +116,8 @@ def test_an_outlier_leaves_a_measurement_without_a_rotation_as_it_is(q_CM):
 @pytest.mark.parametrize("assignment, field", [
     ("faults.occlusions_s=[[2.0, 1.0]]", r"faults\.occlusions_s\[0\]"),
     ("faults.occlusions_s=[[1.0, 1.0]]", r"faults\.occlusions_s\[0\] must be \[start, end\] with 0 <= start < end"),
+    ("faults.occlusions_s=[[1.0, 2.0, 3.0]]", r"faults\.occlusions_s\[0\] must be \[start, end\]"),
+    ("faults.outlier_deg=-1", r"faults\.outlier_deg must be positive"),
     ("faults.drop_probability=1.5", r"faults\.drop_probability"),
     ("faults.occlusion_duration_s=0", r"faults\.occlusion_duration_s"),
     ("faults.occlusions_s=[[0.0, 500.0]]", "longer than the run"),
@@ -129,6 +145,24 @@ def test_the_faults_system_refuses_a_burst_rate_above_one_per_sample():
         MarkerFaults(FaultsConfig(occlusion_rate_hz=100.0), T)
 
 
+def test_the_faults_system_checks_its_settings():
+    with pytest.raises(ConfigError, match=r"faults\.drop_probability must be within \[0, 1\], got 1\.5"):
+        MarkerFaults(FaultsConfig(drop_probability=1.5), T)
+
+
+def test_an_occlusion_may_last_the_whole_run():
+    FaultsConfig(occlusions_s=[[0.0, 4.0]]).check_within(4.0)
+    with pytest.raises(ConfigError, match=r"an occlusion of 4 s is longer than the run \(3\.5 s\)"):
+        FaultsConfig(occlusions_s=[[0.0, 4.0]]).check_within(3.5)
+
+
+def test_the_burst_length_limits_the_run_only_when_there_are_bursts():
+    assert FaultsConfig().occlusion_duration_s == 0.5  # the default burst length, longer than the run below
+    FaultsConfig().check_within(0.3)  # no bursts at rate 0
+    with pytest.raises(ConfigError, match=r"faults: an occlusion of 0\.5 s is longer than the run \(0\.3 s\)"):
+        FaultsConfig(occlusion_rate_hz=1.0).check_within(0.3)
+
+
 def test_the_faults_system_applies_the_faults_of_the_sample_at_its_time():
     """MarkerFaults at t_k = k T gives sample k's faults, apply_faults(..., k, ...), also where k T / T is not k in
     floating point (k = 63, 119, 125, 126 at 35 ms: 118.99999999999999 for 119), where a cover of [4.15, 4.17] s
@@ -149,9 +183,13 @@ def test_the_faults_system_applies_the_faults_of_the_sample_at_its_time():
     assert outputs[119] == []  # covered
 
 
-def test_faults_need_a_stream():
+@pytest.mark.parametrize("fault", ["drop_probability", "outlier_probability"])
+def test_faults_need_a_stream(fault):
+    """Either fault alone makes the faults active (gv_landing leaves MarkerFaults out otherwise: outliers alone
+    would silently never apply), and faults need a marker stream."""
+    assert FaultsConfig(**{fault: 0.1}).active
     with pytest.raises(ConfigError, match="estimation.source"):
-        load_scenario("gv-landing", overrides=["faults.drop_probability=0.1"])
+        load_scenario("gv-landing", overrides=[f"faults.{fault}=0.1"])
 
 
 @pytest.mark.slow

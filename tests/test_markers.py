@@ -268,6 +268,17 @@ def test_the_latency_delays_one_value_or_a_vector_too():
     assert one.get_output_port().Eval(one_context) == [1]  # acquired at t_1, due from t_3 until t_4
 
 
+def test_without_delay_the_output_follows_a_new_input_at_the_same_time():
+    # delay 0 passes the input through: the output depends on the input, not only on the time, so a new input at
+    # the same time is the new output, not a stale cached one
+    latency = MeasurementLatency(0.035, 0)
+    context = latency.CreateDefaultContext()
+    latency.get_input_port().FixValue(context, AbstractValue.Make([1]))
+    assert latency.get_output_port().Eval(context) == [1]
+    latency.get_input_port().FixValue(context, AbstractValue.Make([2]))
+    assert latency.get_output_port().Eval(context) == [2]
+
+
 @pytest.mark.parametrize("delay_steps", [1, 2])
 def test_the_latency_holds_between_samples_and_after_their_update(delay_steps):
     # Read at any time t in [t_k, t_{k+1}), before or after the update at t_k: what was acquired at t_{k-d}.
