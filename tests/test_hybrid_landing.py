@@ -5,6 +5,7 @@ errors, and short rendered flights (marked slow): the estimate against the truth
 import math
 import re
 
+import cv2
 import numpy as np
 import pytest
 from pydrake.geometry import SceneGraph
@@ -68,6 +69,15 @@ def test_pad_from_box_rejects_oblique_and_outside():
     far = np.array([(h - Z_PAD) * math.tan(math.radians(70)), 0.0, Z_PAD])
     assert pad_from_box(box_around(far, X_WB), h, X_WB, FISHEYE, Z_PAD) is None
     assert pad_from_box(np.array([600.0, 600.0, 10.0, 10.0]), h, X_WB, FISHEYE, Z_PAD) is None  # outside the circle
+    # 3 px outside the field of view's circle, inside the image, on the diagonal: the ray undistortion gives that
+    # pixel (about 76 deg off the axis) still points down by more than a min_ray_down of 0.2, but it is out of view
+    d = (FISHEYE.radius_px + 3.0) / math.sqrt(2)
+    uv = np.array([FISHEYE.cx + d, FISHEYE.cy + d])
+    assert np.all(uv < [FISHEYE.width, FISHEYE.height])
+    ray = cv2.fisheye.undistortPoints(uv.reshape(1, 1, 2), FISHEYE.K, FISHEYE.D).reshape(2)
+    assert 0.2 < 1 / math.hypot(*ray, 1.0) < math.cos(FISHEYE.theta_max)  # -r_W,z: the camera looks straight down
+    box = np.array([uv[0] + 0.5 - 10.0, uv[1] + 0.5 - 10.0, 20.0, 20.0])
+    assert pad_from_box(box, h, X_WB, FISHEYE, Z_PAD, min_ray_down=0.2) is None
     assert pad_from_box(box_around(np.zeros(3) + [0, 0, Z_PAD], X_WB), 0.3, X_WB, FISHEYE, Z_PAD) is None  # below
 
 
@@ -183,10 +193,13 @@ def test_coast_above_the_landing_zone_is_short(height_m, approach_coast_s, valid
     assert valid and max(valid) == pytest.approx(valid_after_s)
 
 
-@pytest.mark.parametrize("over_pad_m, measures", [(1.2, True), (0.8, False)])
+@pytest.mark.parametrize("over_pad_m, measures", [(1.2, True), (1.0, True), (0.8, False)])
 def test_box_does_not_measure_close_over_the_pad(over_pad_m, measures):
-    """Below box_min_height_m (1 m) of camera height over the pad's plane the fisheye's box is not a measurement."""
+    """Below box_min_height_m (1 m) of camera height over the pad's plane the fisheye's box is not a measurement;
+    at exactly 1 m it is."""
+    assert HybridPadConfig().box_min_height_m == 1.0
     height_m = Z_PAD + over_pad_m - FISHEYE.X_BC.translation()[2]
+    assert RigidTransform([0.0, 0.0, height_m]).multiply(FISHEYE.X_BC).translation()[2] - Z_PAD == over_pad_m  # exactly
     p = np.array([0.05, 0.0, Z_PAD])
     states = _run([(0.1 * k, True, True, p) for k in range(3)], height_m=height_m)
     assert states[-1].estimate.valid == measures
@@ -203,8 +216,10 @@ def test_oblique_ray_measures_only_above_the_landing_zone(height_m, measures):
     assert state.estimate.valid == measures
     if measures:
         assert np.allclose(state.estimate.X_RT.translation(), p, atol=1e-6)
-        std = math.sqrt(state.estimate.covariance[3, 3])
-        assert std == pytest.approx(HybridPadConfig().position_std_m / math.cos(math.radians(70)), rel=1e-5)
+        config = HybridPadConfig()
+        variances = np.diag(state.estimate.covariance)[3:]  # [roll, pitch, yaw; x, y, z]
+        std = config.position_std_m / math.cos(math.radians(70))
+        assert variances == pytest.approx([std**2, std**2, config.height_std_m**2], rel=1e-5)
 
 
 @pytest.mark.parametrize("over_pad_m, measures", [(1.8, False), (2.1, True)])
@@ -215,6 +230,22 @@ def test_the_landing_zone_is_counted_from_the_pads_plane(over_pad_m, measures):
     p = np.array([over_pad_m * math.tan(math.radians(70)), 0.0, Z_PAD])
     state = _run([(0.1 * k, True, True, p) for k in range(3)], height_m=height_m)[-1]
     assert state.estimate.valid == measures and state.measured == measures
+
+
+def test_the_landing_zone_is_judged_by_the_navigations_height_not_the_stereos():
+    """1.5 m over the pad by the navigation, in the landing zone, while the stereo height spikes to 5 m (valid): a
+    UGV 70 deg off the vertical is beyond the landing zone's min_ray_down (60 deg) and not measured, though the
+    spike puts the camera 4.5 m over the pad, above the zone."""
+    X_WB = RigidTransform([0.0, 0.0, Z_PAD + 1.5 - FISHEYE.X_BC.translation()[2]])
+    over_pad_m = X_WB.multiply(FISHEYE.X_BC).translation()[2] - Z_PAD
+    config = HybridPadConfig()
+    assert over_pad_m == pytest.approx(1.5) and config.box_min_height_m < 1.5 < config.landing_zone_m < 5.0 - Z_PAD
+    assert config.approach_min_ray_down < math.cos(math.radians(70)) < config.min_ray_down
+    p = np.array([over_pad_m * math.tan(math.radians(70)), 0.0, Z_PAD])
+    state = hybrid_step(HybridPadState(), 0.0, box_around(p, X_WB), True, 5.0, True, X_WB, FISHEYE, Z_PAD, config,
+                        VelocityObserverConfig())
+    assert state.height_source == 1 and state.height_m == 5.0
+    assert not state.estimate.valid and not state.measured
 
 
 def test_carried_altitude_follows_the_navigations_descent():
@@ -245,13 +276,14 @@ def test_the_carried_height_expires_altitude_coast_s_after_the_last_valid_stereo
     assert states[15].height_source == 2 and states[16].height_source == 0  # 0.5 s exactly, then past it
 
 
-@pytest.mark.parametrize("camera_height_m", [-0.3, 0.0])
-def test_a_stereo_height_not_above_the_ground_is_not_a_height(camera_height_m):
-    """A stereo height at or below zero, flagged valid, is no camera height: none is used (source 0, NaN) and
-    the estimate of a box in view is not valid."""
+@pytest.mark.parametrize("camera_height_m, altitude_valid", [(-0.3, True), (0.0, True), (3.95, False)])
+def test_a_stereo_height_not_above_the_ground_or_not_valid_is_not_a_height(camera_height_m, altitude_valid):
+    """A stereo height at or below zero, flagged valid, or the true one (3.95 m: the camera 5 cm below the body)
+    flagged not valid, is no camera height: none is used (source 0, NaN) and the estimate of a box in view is not
+    valid."""
     X_WB = RigidTransform([0.0, 0.0, 4.0])
     box = box_around(np.array([0.0, 0.0, Z_PAD]), X_WB)
-    state = hybrid_step(HybridPadState(), 0.0, box, True, camera_height_m, True, X_WB, FISHEYE, Z_PAD,
+    state = hybrid_step(HybridPadState(), 0.0, box, True, camera_height_m, altitude_valid, X_WB, FISHEYE, Z_PAD,
                         HybridPadConfig(), VelocityObserverConfig())
     assert state.height_source == 0 and math.isnan(state.height_m) and state.anchor is None
     assert not state.estimate.valid
