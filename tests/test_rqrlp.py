@@ -5,7 +5,7 @@ import pytest
 
 from systems.config import ConfigError
 from systems.perception.rqrlp.nodes import location_markers
-from systems.perception.rqrlp.pattern import MARKERS, RqrlpLayout, rqrlp_image
+from systems.perception.rqrlp.pattern import MARKERS, RqrlpLayout, rqrlp_image, rqrlp_texture_name, texture_blocks
 
 LAYOUT = RqrlpLayout()
 
@@ -110,3 +110,45 @@ def test_a_layout_of_whole_texture_pixels_is_valid(size_m, pixels):
                          texture_cell_m=pixel)
     layout.validate()
     assert layout.texture_px(pixel) == 1.0 and layout.texture_px(2 * pixel) == 2.0
+
+
+def test_the_outline_corners_are_half_the_size_from_the_centre():
+    """The default 0.85 m pattern's outer corners at +-0.425 m, in marker_corners_P's order (top-left,
+    bottom-left, bottom-right, top-right)."""
+    expected = 0.425 * np.array([[-1, 1, 0], [-1, -1, 0], [1, -1, 0], [1, 1, 0]])
+    np.testing.assert_allclose(LAYOUT.outline_corners_P, expected, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("marker_m, fits", [(0.25, False), (0.24, True)])
+def test_location_markers_that_touch_do_not_fit(marker_m, fits):
+    """A 1 m pattern, 12.5 cm of border and of margin: two 25 cm markers side by side span 1 - 2 (0.125 + 0.125)
+    = 0.5 m, exactly the room between the margins: they touch, and do not fit (every other check passes: 250 px
+    of border, 71 px modules, 20 px cells, 80 px blocks). 24 cm markers leave a gap and fit."""
+    layout = RqrlpLayout(size_m=1.0, border_m=0.125, margin_m=0.125, marker_m=marker_m, pixels=2000)
+    if fits:
+        layout.validate()
+    else:
+        with pytest.raises(ConfigError, match="do not fit"):
+            layout.validate()
+
+
+@pytest.mark.parametrize("pixels, valid", [(256, True), (255, False)])
+def test_the_texture_needs_256_pixels_at_least(pixels, valid):
+    layout = RqrlpLayout(pixels=pixels)
+    if valid:
+        layout.validate()
+    else:
+        with pytest.raises(ConfigError, match=r"platform\.rqrlp\.pixels must be at least 256"):
+            layout.validate()
+
+
+def test_a_texture_of_a_single_largest_block_is_valid():
+    """10 cm texture cells on the default 1700 px texture: a 4-cell block is 40 cm, 800 px a side, and
+    int((1700 / 800)^2 * 0.35) = int(1.58) = 1 of them is drawn: one is enough."""
+    layout = RqrlpLayout(texture_cell_m=0.1)
+    assert texture_blocks(layout)[0] == (800, 1)
+    layout.validate()
+
+
+def test_the_texture_name_changes_with_the_texture_seed():
+    assert rqrlp_texture_name(RqrlpLayout(texture_seed=1)) != rqrlp_texture_name(RqrlpLayout(texture_seed=2))
