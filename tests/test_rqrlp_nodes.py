@@ -19,6 +19,8 @@ from systems.perception.rqrlp.homography import (
 from systems.perception.rqrlp.measurements import approach_covariance
 from systems.perception.rqrlp.node_systems import adjustment_node, approach_node
 from systems.perception.rqrlp.nodes import (
+    EDGE_MARGIN_PX,
+    MAX_ASPECT,
     TouchdownTracker,
     adjustment,
     approach,
@@ -26,7 +28,7 @@ from systems.perception.rqrlp.nodes import (
     layout_corners,
 )
 from systems.perception.rqrlp.pattern import RqrlpLayout, rqrlp_image
-from systems.sensors.camera import CalibrationErrorConfig, CameraConfig, distortion_maps
+from systems.sensors.camera import CalibrationErrorConfig, CameraConfig, distortion_maps, undistort_pixels
 from tests.conftest import render_plane
 
 LAYOUT = RqrlpLayout()
@@ -176,13 +178,15 @@ def test_adjustment_needs_the_markers_resolved():
     assert adjustment(view(X_CP_at(1.0, xy=(0.6, 0.0))), K, D, LAYOUT) is None  # a marker out of view
 
 
-@pytest.mark.parametrize("inner", [[(50, 50, 60, 60)], [(41, 41, 69, 69), (32, 32, 35, 35)]],
-                         ids=["out_of_proportion", "two_squares_in_its_hole"])
+@pytest.mark.parametrize("inner", [[(50, 50, 60, 60)], [(45, 45, 65, 65)], [(41, 41, 69, 69), (32, 32, 35, 35)]],
+                         ids=["out_of_proportion", "inner_square_just_out_of_proportion", "two_squares_in_its_hole"])
 def test_location_markers_pass_over_nested_squares_that_are_no_marker(inner):
     """Beside the pattern (2.5 m below), dark, light and dark nested squares that are no location marker:
-    sides 71 : 51 : 11 px (areas 1 : 0.52 : 0.02, not 49 : 25 : 9), or a marker's 71 : 51 : 29 with a second
-    square in its hole. The candidates are the pattern's three markers, each where its centre projects,
-    and the pose is found (a fourth candidate lost it)."""
+    sides 71 : 51 : 11 px (areas 1 : 0.52 : 0.02, not 49 : 25 : 9); 71 : 51 : 21 px, whose outer and inner contours'
+    70 and 20 px sides give the inner square 400 / 4900 * 49 / 9 - 1 = -56 % of a marker's area ratio, outside
+    AREA_RATIO_TOLERANCE (35 %) but inside twice it; or a marker's 71 : 51 : 29 with a second square in its hole.
+    The candidates are the pattern's three markers, each where its centre projects, and the pose is found (a
+    fourth candidate lost it)."""
     X_CP = X_CP_at(2.5, xy=(0.3, 0.0), yaw_deg=10.0)
     grey = view(X_CP)
     cv2.rectangle(grey, (20, 20), (90, 90), 10, -1)
@@ -402,3 +406,110 @@ def test_the_peak_is_the_centroid_of_its_part_above_half_its_height():
     profiles = np.array([tent, tent[::-1]])
     peak = np.argmax(profiles, axis=1)
     np.testing.assert_allclose(nodes._peak_centroid(profiles, peak, offsets), [-1 / 6, 1 / 6], atol=1e-12)
+
+
+RING_K = np.array([[640.0, 0.0, 150.0], [0.0, 640.0, 100.0], [0.0, 0.0, 1.0]])
+
+
+def ring_image(col: int, row: int, width: int, height: int, thickness: int = 2) -> np.ndarray:
+    """A 300 x 200 px grey (230) image with a dark (20) rectangular ring `thickness` px wide, its outer pixels the
+    columns col to col + width - 1 and rows row to row + height - 1, light (230) inside."""
+    grey = np.full((200, 300), 230, np.uint8)
+    grey[row:row + height, col:col + width] = 20
+    grey[row + thickness:row + height - thickness, col + thickness:col + width - thickness] = 230
+    return grey
+
+
+@pytest.mark.parametrize("first_col, found", [
+    (EDGE_MARGIN_PX, False), (EDGE_MARGIN_PX + 1, True),  # its first dark column
+    (300 - 1 - EDGE_MARGIN_PX - 99, False), (300 - 2 - EDGE_MARGIN_PX - 99, True),  # its last: 297, 296
+])
+def test_approach_refuses_an_outline_within_edge_margin_px_of_the_images_side(first_col, found):
+    """A 100 px ring whose outer dark column is EDGE_MARGIN_PX from the image's left side, or whose last is
+    EDGE_MARGIN_PX from its right (width - 1 - EDGE_MARGIN_PX), may be cut by it: refused. One column further
+    in, it is the outline, its corners on the ring's outer edge (half a pixel outside its outer pixels)."""
+    result = approach(ring_image(first_col, 50, 100, 100), RING_K, None, LAYOUT)
+    assert (result is not None) == found
+    if found:
+        box = np.r_[result.corners_px.min(axis=0), result.corners_px.max(axis=0)]
+        np.testing.assert_allclose(box, [first_col - 0.5, 49.5, first_col + 99.5, 149.5], atol=0.25)
+
+
+@pytest.mark.parametrize("width, height", [(81, 51), (51, 81)])
+def test_approach_takes_an_outline_of_exactly_max_aspect(width, height):
+    """A ring of 81 x 51 px: its contour, through its outer pixels' centres, has sides 80 and 50 px, in the ratio
+    MAX_ASPECT exactly (a square seen ~50 deg off its normal): square-ish enough, it is the outline."""
+    long, short = max(width, height) - 1, min(width, height) - 1
+    assert long == MAX_ASPECT * short
+    result = approach(ring_image(100, 60, width, height), RING_K, None, LAYOUT)
+    assert result is not None
+
+
+def test_approach_takes_the_largest_hull_not_the_largest_region():
+    """A broken thin outline (a 60 px ring 2 px wide, a 5 px gap in its top side that closing does not bridge),
+    far off, around a solid dark 25 px square: the ring's region is smaller (its contour's area 228 px^2) than
+    the square's (576), but its hull is the largest: the outline, 60 px a side (the contour's 59 + 1; its border,
+    2 px, too narrow for its sides to be refined), not the square's 25."""
+    grey = ring_image(120, 70, 60, 60)
+    grey[70:72, 148:153] = 230  # the gap
+    grey[87:112, 137:162] = 20  # the solid square, inside the ring
+    result = approach(grey, RING_K, None, LAYOUT)
+    assert result is not None and result.side_px == 60.0
+
+
+def test_approachs_centre_is_where_the_diagonals_cross():
+    """The pattern tilted 30 deg, 2 m away: its centre projects 12.9 px from its corners' mean (perspective). The
+    rough position's bearing is the centre's, within a pixel."""
+    X_CP = X_CP_at(2.0, tilt_deg=(30, 0))
+    points = np.vstack([LAYOUT.outline_corners_P, np.zeros(3)])
+    projected = cv2.projectPoints(points, cv2.Rodrigues(X_CP.rotation().matrix())[0], X_CP.translation(), K,
+                                  None)[0].reshape(-1, 2)
+    assert np.linalg.norm(projected[:4].mean(axis=0) - projected[4]) > 10.0
+    found = approach(view(X_CP), K, D, LAYOUT)
+    assert found is not None
+    bearing, true = found.p_CP[:2] / found.p_CP[2], X_CP.translation()[:2] / X_CP.translation()[2]
+    assert np.linalg.norm(bearing - true) < 1.0 / CAMERA.fx
+
+
+def test_corners_are_ordered_only_when_each_is_its_own():
+    """A square along the image's axes (x right, up = -y in the image) comes back top-left, bottom-left,
+    bottom-right, top-right; a diamond, its corners on the axes, ties (x - up and x + up are each greatest at two
+    corners) and one corner comes out both bottom-right and top-right: None."""
+    square = np.array([[10.0, 10.0], [0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+    ordered = nodes._ordered(square, np.array([1.0, 0.0]), np.array([0.0, -1.0]))
+    np.testing.assert_array_equal(ordered, [[0.0, 0.0], [0.0, 10.0], [10.0, 10.0], [10.0, 0.0]])
+    diamond = np.array([[10.0, 0.0], [0.0, 10.0], [-10.0, 0.0], [0.0, -10.0]])
+    assert nodes._ordered(diamond, np.array([1.0, 0.0]), np.array([0.0, -1.0])) is None
+
+
+def test_the_peaks_run_goes_on_through_samples_at_exactly_half():
+    """A profile [0, 2, 4, 2, 3, 0] peaking at index 2 (half 2): the run ends where it dips under the half, at
+    indices 0 and 5, so holds 1 to 4, weighed by their heights above the half, 0, 2, 0 and 1: its centroid is
+    (2 * 2 + 1 * 4) / 3 = 8/3, the sample at 4 counted though the one at 3 is no higher than the half."""
+    centroid = nodes._peak_centroid(np.array([[0.0, 2.0, 4.0, 2.0, 3.0, 0.0]]), np.array([2]), np.arange(6.0))
+    np.testing.assert_allclose(centroid, [8 / 3], rtol=1e-12)
+
+
+def test_touchdown_features_are_taken_on_the_pattern_only():
+    """A checkerboard (corners stronger than any of the texture's) beside the pattern, 1.5 m below: the tracker
+    anchored there tracks features inside the pattern's outline only, as its homography maps it."""
+    X_CP = X_CP_at(1.5)
+    grey = view(X_CP)
+    cells = (np.arange(80) // 10) % 2
+    grey[:80, :80] = np.where(cells[:, None] ^ cells[None, :], 255, 0)
+    tracker = TouchdownTracker(K, D, LAYOUT).anchored(grey, X_CP)
+    outline = cv2.perspectiveTransform(LAYOUT.outline_corners_P[:, None, :2], tracker.H).reshape(-1, 2)
+    assert len(tracker.points) >= tracker.min_features
+    for point in undistort_pixels(tracker.points, K, D):
+        assert cv2.pointPolygonTest(outline.astype(np.float32), tuple(map(float, point)), True) >= -2.0, point
+
+
+def test_anchoring_starts_the_chain_afresh():
+    """Anchored, tracked a frame (a chain of 1), and anchored again on that frame: its chain is 0 frames long (the
+    touchdown measurement widens its covariance with it)."""
+    poses = [X_CP_at(1.2), X_CP_at(1.15, xy=(0.054, -0.033), yaw_deg=31.5)]
+    images = [view(X) for X in poses]
+    tracker = TouchdownTracker(K, D, LAYOUT).anchored(images[0], poses[0])
+    tracker, estimate, _ = tracker.track(images[1])
+    assert estimate is not None and tracker.chained == 1
+    assert tracker.anchored(images[1], poses[1]).chained == 0
