@@ -97,17 +97,15 @@ class PaperMarkerEkf(MarkerFilter):
         return Q
 
     def constant_parts(self, dt):
-        """F and Q of Eq. (11) without the quaternion's blocks, which depend on the state, and the
-        angular velocity's [[dt^3/3, dt^2/2], [dt^2/2, dt]] psd they are made of."""
+        """F and Q of Eq. (11) without the attitude's blocks ([q, omega] of Q, q's of F), which depend on the
+        state, and the angular velocity's [[dt^3/3, dt^2/2], [dt^2/2, dt]] psd they are made of (attitude_noise)."""
         c, m = self.config, len(self.p_PM)
         F = np.eye(self.n)
         F[:6 * m, :6 * m] = np.kron(np.eye(m), np.kron([[1.0, dt], [0.0, 1.0]], np.eye(3)))
         psd = np.diag([c.acceleration_psd, c.acceleration_psd, c.vertical_acceleration_psd])
         Q = np.zeros((self.n, self.n))
         Q[:6 * m, :6 * m] = np.kron(np.eye(m), np.kron(cv_noise(1.0, dt), psd))
-        rotation = cv_noise(c.angular_acceleration_psd, dt)
-        Q[self._w, self._w] = rotation[1, 1] * np.eye(3)
-        return F, Q, rotation
+        return F, Q, cv_noise(c.angular_acceleration_psd, dt)
 
     def predict_measurements(self, x, slots, camera):
         m = len(self.p_PM)
