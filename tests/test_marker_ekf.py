@@ -12,6 +12,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 from scipy.linalg import expm
+from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from systems.config import ConfigError
@@ -187,15 +188,38 @@ def test_the_platform_attitude_covariance_is_that_of_twice_the_quaternions_vecto
     np.testing.assert_allclose(np.diag(ekf.platform_covariance(x, P))[:3], (2 * 0.01) ** 2, rtol=1e-12)
 
 
-def started_from_markers_1_and_2(cls):
+def test_the_paper_filters_platform_covariance_is_marker_0s_position_and_the_attitudes():
+    """A full random P and a pad yawed 0.5 rad: the position block of [roll, pitch, yaw, x, y, z] is marker 0's
+    (the pad frame's origin, x[:3]), and the attitude's blocks are those of the small rotation in P, whose Jacobian
+    in q is taken here by central differences of SciPy's rotation vector of R(q0)^T R(q) (q normalised)."""
+    ekf = make(PaperMarkerEkf)
+    A = np.random.default_rng(1).standard_normal((ekf.n, ekf.n))
+    P = A @ A.T
+    x = np.zeros(ekf.n)
+    q0 = drake_to_paper(RotationMatrix.MakeZRotation(0.5))
+    x[30:34] = q0
+    eps = 1e-6
+
+    def rotation_in_p(q):  # SciPy's quaternions are [x, y, z, w] of R_WP, as the paper's q^{P/R} is
+        return (Rotation.from_quat(q0).inv() * Rotation.from_quat(q)).as_rotvec()
+
+    J = np.column_stack([(rotation_in_p(q0 + eps * e) - rotation_in_p(q0 - eps * e)) / (2 * eps) for e in np.eye(4)])
+    covariance = ekf.platform_covariance(x, P)
+    np.testing.assert_allclose(covariance[3:, 3:], P[:3, :3], rtol=1e-12)
+    np.testing.assert_allclose(covariance[:3, 3:], J @ P[30:34, :3], atol=1e-7)
+    np.testing.assert_allclose(covariance[3:, :3], covariance[:3, 3:].T, rtol=1e-12)
+    np.testing.assert_allclose(covariance[:3, :3], J @ P[30:34, 30:34] @ J.T, atol=1e-7)
+
+
+def started_from_markers_1_and_2(cls, moved=(0.0, 0.0, 0.0)):
     """(filter, its first state, p_WP, R_WP): `cls` started from markers 1 and 2 alone, seen exactly on a pad at
-    p_WP yawed 30 deg."""
+    p_WP yawed 30 deg, but for marker 2 seen `moved` [m] (in W) from there."""
     ekf = cls(MarkerLayout(), CameraConfig().X_BC)
     R_WP = RotationMatrix.MakeZRotation(np.radians(30.0))
     p_WP = np.array([5.0, 2.0, 1.6])
     slots = np.array([1, 2])
     q_MR = np.tile(drake_to_paper(R_WP.ToQuaternion()), (2, 1))
-    x, _ = ekf.initial_state(slots, p_WP + ekf.p_PM[slots] @ R_WP.matrix().T, q_MR)
+    x, _ = ekf.initial_state(slots, p_WP + ekf.p_PM[slots] @ R_WP.matrix().T + [[0.0, 0.0, 0.0], moved], q_MR)
     return ekf, x, p_WP, R_WP
 
 
@@ -205,6 +229,19 @@ def test_markers_not_seen_at_the_start_begin_where_the_layout_puts_them():
     ekf, x, p_WP, R_WP = started_from_markers_1_and_2(PaperMarkerEkf)
     m = len(ekf.p_PM)
     np.testing.assert_allclose(x[:6 * m].reshape(m, 6)[:, :3], p_WP + ekf.p_PM @ R_WP.matrix().T, atol=1e-12)
+
+
+def test_markers_seen_at_the_start_begin_where_they_were_seen():
+    """The paper filter started from markers 1 and 2, marker 2 seen 0.1 m along x from where the layout puts it:
+    markers 1 and 2 begin exactly where seen; markers 0, 3 and 4 where the layout puts them from the pad's origin
+    the seen markers give, their mean less their offsets: p_WP moved 0.05 m along x."""
+    ekf, x, p_WP, R_WP = started_from_markers_1_and_2(PaperMarkerEkf, moved=(0.1, 0.0, 0.0))
+    X_WP = RigidTransform(R_WP, p_WP)
+    p_WM = x[:6 * len(LAYOUT.p_PM)].reshape(-1, 6)[:, :3]
+    np.testing.assert_allclose(p_WM[1], X_WP.multiply(LAYOUT.p_PM[1]), atol=1e-12)
+    np.testing.assert_allclose(p_WM[2], X_WP.multiply(LAYOUT.p_PM[2]) + [0.1, 0.0, 0.0], atol=1e-12)
+    origin = RigidTransform(R_WP, p_WP + [0.05, 0.0, 0.0])
+    np.testing.assert_allclose(p_WM[[0, 3, 4]], origin.multiply(LAYOUT.p_PM[[0, 3, 4]].T).T, atol=1e-12)
 
 
 def test_the_constant_turn_filter_starts_at_the_pads_origin_from_any_markers():
@@ -327,6 +364,20 @@ def test_the_paper_filters_platform_velocity_is_marker_0s():
     v, a = marker_filter.platform_rates(x)
     np.testing.assert_array_equal(v, velocities[0])
     np.testing.assert_array_equal(a, 0.0)
+
+
+@pytest.mark.parametrize("v_WP, omega_z, a_WP", [
+    ((3.0, 0.0, 0.0), 0.2, (0.0, 0.6, 0.0)),  # heading +x, turning left: toward +y
+    ((3.0, -1.0, 0.1), 0.2, (0.2, 0.6, 0.0)),
+    ((0.0, 2.0, 0.0), -0.5, (1.0, 0.0, 0.0)),  # heading +y, turning right: toward +x
+])
+def test_the_constant_turn_filters_platform_acceleration_turns_its_velocity_at_the_yaw_rate(v_WP, omega_z, a_WP):
+    """v_xy(t) = R_z(omega t) v_xy(0): a = d/dt at t = 0 = omega [-v_y, v_x], the z velocity constant; the
+    velocity is the state's."""
+    x = state_from_truth(ConstantTurnEkf, pose([1, 2, 1.6], [0, 0, 20]), v_WP, omega_z)
+    v, a = make(ConstantTurnEkf).platform_rates(x)
+    np.testing.assert_array_equal(v, v_WP)
+    np.testing.assert_allclose(a, a_WP, rtol=1e-12, atol=1e-15)
 
 
 @pytest.mark.parametrize("cls", BOTH)
