@@ -1,4 +1,5 @@
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -211,6 +212,12 @@ def test_lost_below_lh_climbs_out_whatever_the_mode():
     mode, _, vz = script.step(altitude=3.0, height=1.4, seen=False)
     assert mode == Mode.ABORT and vz == CONFIG.climb_speed_m_s
 
+    # "Below LH" is strictly below: a FOLLOW or APPROACH whose last valid height was exactly LH holds when lost.
+    for mode in (Mode.FOLLOW, Mode.APPROACH):
+        memory = SupervisorMemory(mode, 0.0, 3.0, (0.0, 0.0), CONFIG.landing_height_m)
+        inputs = SupervisorInputs(1.0, 3.0, CONFIG.landing_height_m, False)
+        assert next_mode(memory, inputs, CONFIG) == Mode.HOLD, mode.name
+
 
 def test_abort_climbs_towards_ih_and_stops_there():
     """ABORT climbs at the climb speed while far below IH, slows on the altitude hold's P loop near it (as SEARCH)
@@ -289,14 +296,26 @@ def test_reaching_lh_off_centre_follows_rather_than_lands(offset_m, mode):
     (Mode.APPROACH, CONFIG.off_centre_radius_m, 5.0, Mode.APPROACH),  # off centre only beyond off_centre_radius_m
     (Mode.APPROACH, 0.0, CONFIG.landing_height_m, Mode.LAND),  # height above target <= LH
     (Mode.LAND, 0.0, CONFIG.touchdown_height_m, Mode.LANDED),  # touchdown at touchdown_height_m
-], ids=["centred", "off-centre", "lh", "touchdown"])
+    (Mode.FOLLOW, 0.8, 5.0, Mode.FOLLOW),  # the hysteresis band: beyond centred_radius_m, not yet off centre
+], ids=["centred", "off-centre", "lh", "touchdown", "band"])
 def test_each_threshold_exactly_at_its_limit_takes_the_documented_transition(mode, offset_m, height_m, expected):
     """The supervisor's limits as the module docstring and LandingConfig give them: the target exactly
     centred_radius_m off is centred, exactly off_centre_radius_m off is not yet off centre, a height above the
-    target exactly LH lands and exactly touchdown_height_m is touchdown."""
+    target exactly LH lands and exactly touchdown_height_m is touchdown; FOLLOW with the target in the band
+    between the two radii (0.8 m, between 0.5 and 1) does not start the descent."""
     memory = SupervisorMemory(mode, 0.0, height_m, (0.0, 0.0), height_m)
     inputs = SupervisorInputs(1.0, height_m, height_m, True, np.array([offset_m, 0.0]))
     assert next_mode(memory, inputs, CONFIG) == expected
+
+
+@pytest.mark.parametrize("altitude_m", [7.25, 7.75])
+@pytest.mark.parametrize("seen, expected", [(True, Mode.FOLLOW), (False, Mode.SEARCH)], ids=["seen", "unseen"])
+def test_climb_reaches_ih_exactly_altitude_tolerance_m_away(altitude_m, seen, expected):
+    """CLIMB has reached IH (7.5 m) within altitude_tolerance_m, the limit included: 0.25 m below or above it
+    (all exactly representable) it follows a seen target or searches for an unseen one."""
+    config = LandingConfig(altitude_tolerance_m=0.25)
+    inputs = SupervisorInputs(1.0, altitude_m, altitude_m, seen)
+    assert next_mode(SupervisorMemory(Mode.CLIMB), inputs, config) == expected
 
 
 def test_waits_and_wave_offs_are_counted():
@@ -321,6 +340,7 @@ def test_a_wave_off_is_land_back_to_wait_only(modes, aborts):
     ("landing_height_m: 8.0", r"must be above landing.landing_height_m \(LH = 8.0\)"),
     ("climb_speed_m_s: 0.0", "landing.climb_speed_m_s must be positive"),
     ("off_centre_radius_m: 0.2", "landing.off_centre_radius_m must be at least"),
+    ("takeoff_height_m: 7.5", "landing.takeoff_height_m must be below landing.initial_height_m"),  # IH itself
     ("land_acceptance_radius_m: -0.1", "landing.land_acceptance_radius_m must not be negative"),
     ("rate_hz: 0.5", r"landing.rate_hz \(0.5 Hz\) must be at least landing.altitude_gain \(1 /s\)"),
 ])
@@ -330,10 +350,15 @@ def test_bad_config_is_rejected_by_name(yaml, message):
         LandingSupervisor(config)
 
 
-def supervisor_at(height_m: float, valid: float):
-    """A LandingSupervisor in a Simulator, its inputs fixed: altitude and height above the target `height_m`,
-    target_valid `valid`, the target centred, TARGET_VELOCITY and the tracking commands."""
-    system = LandingSupervisor(CONFIG)
+def test_equal_centred_and_off_centre_radii_are_accepted():
+    """off_centre_radius_m must be at least centred_radius_m: equal (no hysteresis band) is allowed."""
+    LandingConfig(centred_radius_m=0.5, off_centre_radius_m=0.5).validate()
+
+
+def supervisor_at(height_m: float, valid: float, config: LandingConfig = CONFIG):
+    """A LandingSupervisor (`config`) in a Simulator, its inputs fixed: altitude and height above the target
+    `height_m`, target_valid `valid`, the target centred, TARGET_VELOCITY and the tracking commands."""
+    system = LandingSupervisor(config)
     simulator = Simulator(system)
     context = simulator.get_mutable_context()
     for name, value in (("altitude", [height_m]), ("height_above_target", [height_m]), ("target_valid", [valid]),
@@ -362,6 +387,19 @@ def test_system_wraps_the_state_machine():
     system.GetInputPort("target_valid").FixValue(context, [0.0])
     simulator.AdvanceTo(0.09)
     assert mode.Eval(context)[0] == Mode.ABORT  # its memory kept the last valid height, 0 m: below LH
+
+
+def test_the_commanded_yaw_is_yaw_deg_in_radians():
+    """The command's yaw (index 3) is LandingConfig.yaw_deg in radians: 90 deg is pi / 2, from the state machine,
+    and from the system both before its first sample and after it."""
+    config = LandingConfig(yaw_deg=90.0)
+    command = LandingStateMachine(config).step(SupervisorInputs(0.0, 0.0, 0.0, False))
+    assert command[3] == pytest.approx(math.pi / 2)
+    system, simulator, context = supervisor_at(0.0, 0.0, config)
+    command = system.GetOutputPort("command")
+    assert command.Eval(context)[3] == pytest.approx(math.pi / 2)
+    simulator.AdvanceTo(0.01)  # the sample at t = 0
+    np.testing.assert_allclose(command.Eval(context), [0, 0, config.climb_speed_m_s, math.pi / 2, 0, 0, 0])
 
 
 def approaching_system(window=None):
@@ -525,6 +563,7 @@ def test_final_descent_holds_its_height_while_the_target_is_beyond_the_acceptanc
     assert machine.mode == Mode.LAND and command[2] == 0.0
     np.testing.assert_allclose(command[:2], TRACKING)
     assert step(0.02, (0.1, 0.1))[2] == -config.landing_speed_m_s  # 0.14 m: descend
+    assert step(0.03, (0.15, 0.0))[2] == -config.landing_speed_m_s  # exactly the radius: within it, descend
     command = step(0.04, (0.0, 0.2), height=0.05)  # at touchdown height 0.2 m off
     assert machine.mode == Mode.LANDED
     assert command[2] == 0.0  # contact: waits there for the pad; estimate: the motors stop

@@ -22,7 +22,7 @@ from systems.sensors.navigation import (
     navigation_state,
     second_order_model,
 )
-from systems.vehicles.quadrotor import P_WB, V_WB, pose_from_state, quadrotor_state
+from systems.vehicles.quadrotor import P_WB, Q_WB, V_WB, pose_from_state, quadrotor_state
 from tests.conftest import wiring
 
 pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
@@ -101,19 +101,38 @@ def test_the_attitude_error_has_the_configured_tilt_and_yaw_sizes_and_time_const
         assert correlation == pytest.approx(math.exp(-lag * 0.01 / tau), abs=0.08)
 
 
-def test_the_errors_start_from_their_stationary_distribution():
-    """At t = 0, across 150 seeds, the position and attitude errors already have their configured sizes."""
-    config = NavigationConfig(source="gnss_ins", position_std_m=2.0, tilt_std_deg=0.5, yaw_std_deg=2.0)
-    position, attitude = [], []
-    for seed in range(150):
+def _initial_states(config: NavigationConfig, seeds) -> np.ndarray:
+    """The navigation's state at t = 0 (before any step) over the truth TRUE, one row per seed."""
+    states = []
+    for seed in seeds:
         navigation = NavigationSystem(config, seed)
         context = navigation.CreateDefaultContext()
         navigation.get_input_port().FixValue(context, TRUE)
-        state = navigation.GetOutputPort("state").Eval(context)
-        position.append(state[P_WB] - TRUE[P_WB])
-        attitude.append(_attitude_errors([state])[0])
+        states.append(navigation.GetOutputPort("state").Eval(context))
+    return np.array(states)
+
+
+def test_the_errors_start_from_their_stationary_distribution():
+    """At t = 0, across 150 seeds, the position and attitude errors already have their configured sizes."""
+    config = NavigationConfig(source="gnss_ins", position_std_m=2.0, tilt_std_deg=0.5, yaw_std_deg=2.0)
+    states = _initial_states(config, range(150))
+    position, attitude = states[:, P_WB] - TRUE[P_WB], _attitude_errors(states)
     np.testing.assert_allclose(np.std(position, axis=0), [2.0] * 3, rtol=0.2)
     np.testing.assert_allclose(np.degrees(np.std(attitude, axis=0)), [0.5, 0.5, 2.0], rtol=0.2)
+
+
+def test_the_initial_attitude_error_is_drawn_apart_from_the_velocity_error():
+    """At t = 0, across 200 seeds, the standardised velocity error (over position_std_m / position_time_constant_s,
+    its stationary size) and attitude error (over [tilt, tilt, yaw] std) are uncorrelated per axis: each has
+    its own normal numbers (from the same ones they would be equal)."""
+    config = NavigationConfig(source="gnss_ins")
+    states = _initial_states(config, range(200))
+    velocity = (states[:, V_WB] - TRUE[V_WB]) / (config.position_std_m / config.position_time_constant_s)
+    attitude = _attitude_errors(states) / np.radians([config.tilt_std_deg, config.tilt_std_deg, config.yaw_std_deg])
+    np.testing.assert_allclose(velocity.std(axis=0), 1.0, rtol=0.2)
+    np.testing.assert_allclose(attitude.std(axis=0), 1.0, rtol=0.2)
+    for axis in range(3):
+        assert abs(np.corrcoef(velocity[:, axis], attitude[:, axis])[0, 1]) < 0.3
 
 
 def test_each_step_draws_noise_of_its_own_not_the_initial_states():
@@ -146,6 +165,18 @@ def test_the_second_order_model_is_exact():
     np.testing.assert_allclose(phi @ P @ phi.T + g @ g.T, P, atol=1e-12)  # stationary under the step
     lag = 300  # 3 s: R(t) / R(0) = (1 + t / tau) e^(-t / tau)
     assert (np.linalg.matrix_power(phi, lag) @ P)[0, 0] == pytest.approx((1 + 3.0 / 5.0) * math.exp(-3.0 / 5.0))
+
+
+def test_zero_error_sizes_are_allowed_and_give_the_truth():
+    """position_std_m, tilt_std_deg and yaw_std_deg may be zero (not negative): the errors are then zero times
+    their draws, so the navigation is the truth, at t = 0 and after its steps."""
+    config = NavigationConfig(source="gnss_ins", position_std_m=0.0, tilt_std_deg=0.0, yaw_std_deg=0.0)
+    config.validate()
+    state = _initial_states(config, [0])[0]
+    np.testing.assert_array_equal(np.delete(state, Q_WB), np.delete(TRUE, Q_WB))  # exactly: plus zero
+    np.testing.assert_allclose(state[Q_WB], TRUE[Q_WB], rtol=0, atol=1e-15)  # its round trip through R_WB
+    states = _simulate(0, config, 0.1)
+    np.testing.assert_allclose(states, np.tile(TRUE, (len(states), 1)), rtol=0, atol=1e-15)
 
 
 def test_navigation_settings_name_their_mistakes():
