@@ -214,6 +214,19 @@ def test_nearest_with_a_hint_searches_across_a_closed_paths_closing_point():
         assert (found - s_true + path.length / 2) % path.length - path.length / 2 == pytest.approx(0.0, abs=1e-3)
 
 
+@pytest.mark.parametrize("name", ["circle", "figure-eight"])
+@pytest.mark.parametrize("s_hint", [None, -0.2, 0.2])
+def test_a_point_within_half_a_spacing_of_the_closing_point_is_found_on_either_side_of_it(name, s_hint):
+    """The first and last samples of a closed path are one point: a point 0.03 m before it (the spacing is about
+    0.1 m) lies on the closing chord, not at s = 0, and one 0.03 m after it on the first chord, with or without a
+    hint either side."""
+    path = make_path(PathConfig(name=name))
+    assert path.spacing > 2 * 0.03
+    for s_true in (path.length - 0.03, 0.03):
+        found = path.nearest(path.position(s_true), s_hint=None if s_hint is None else s_hint % path.length)
+        assert (found - s_true + path.length / 2) % path.length - path.length / 2 == pytest.approx(0.0, abs=1e-6)
+
+
 def test_the_rectangle_is_side_m_by_half_of_it_with_rounded_corners():
     """PathConfig: the rectangle's long straight is side_m, the short one side_m / 2, joined by quarter circles of
     radius_m: its extent is side_m + 2 radius_m by side_m / 2 + 2 radius_m."""

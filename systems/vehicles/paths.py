@@ -100,8 +100,8 @@ class Path:
         return tuple(v[i] + f * (v[i + 1] - v[i]) for v in lists)
 
     def polyline(self, max_length_m: float = 400.0) -> np.ndarray:
-        """(N, 2) points along the path in W [m], about 2000 at most: all of a closed path, the first
-        `max_length_m` of an open one."""
+        """(N, 2) points along the path in W [m], every k-th sample with k = max(1, samples // 2000) (under 4000
+        points): all of a closed path, the first `max_length_m` of an open one."""
         s = self.s if self.closed else self.s[self.s <= max_length_m]
         return self.xy[np.searchsorted(self.s, s)][:: max(1, len(s) // 2000)]
 
@@ -125,10 +125,14 @@ class Path:
         return self._project_on_neighbours(px, py, first + int(np.argmin(d)))
 
     def _project_on_neighbours(self, px: float, py: float, i: int) -> float:
-        """Refines sample i to the nearest point on its two adjacent chords."""
+        """Refines sample i to the nearest point on its two adjacent chords; on a closed path the first and last
+        samples are one point, so the chords on either side of it are the first and the last (closing) one."""
         best_s, best_d = float(self.s[i]), np.inf
+        last = len(self.s) - 1
         for j in (i - 1, i):
-            if j < 0 or j + 1 >= len(self.s):
+            if self.closed:
+                j = last - 1 if j < 0 else 0 if j >= last else j
+            elif j < 0 or j >= last:
                 continue
             ax, ay = self.xy[j].tolist()
             bx, by = self.xy[j + 1].tolist()
