@@ -2,6 +2,7 @@
 intersections with a tilted box and a cylinder, rays along a face, from inside, and past everything."""
 
 import numpy as np
+import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import Box, Cylinder, FramePoseVector, SceneGraph
 from pydrake.math import RigidTransform, RotationMatrix
@@ -56,11 +57,14 @@ def test_rays_meet_a_cylinder_where_the_quadratic_says():
     np.testing.assert_allclose(cast_rays(qo, p, d, 20.0), expected, rtol=0, atol=1e-6)
 
 
-def test_a_ray_along_a_face_passes_it_and_ignored_or_far_geometry_is_not_seen():
-    # A deck (top at z = 1, edge at x = 0) over a floor (top at z = 0); rays straight down.
+@pytest.mark.parametrize("floor_first", [False, True])
+def test_a_ray_along_a_face_passes_it_and_ignored_or_far_geometry_is_not_seen(floor_first):
+    """A deck (top at z = 1, edge at x = 0) over a floor (top at z = 0); rays straight down. Registered either
+    way round: a ray stops on the nearer surface it meets, whichever geometry the query lists first."""
     deck = (RigidTransform([-1.0, 0.0, 0.95]), Box(2.0, 2.0, 0.1))
     floor = (RigidTransform([0.0, 0.0, -0.05]), Box(5.0, 5.0, 0.1))
-    qo, (deck_id, _) = query_object([deck, floor])
+    qo, ids = query_object([floor, deck] if floor_first else [deck, floor])
+    deck_id = ids[1] if floor_first else ids[0]
     down = np.tile([0.0, 0.0, -1.0], (5, 1))
     p = np.array([[-1e-3, 0, 2], [1e-6, 0, 2], [1e-3, 0, 2], [-0.5, 0, 0.97], [-0.5, 0, 3]])
     # A micrometre (10 tolerances) beside the edge the ray runs along the deck's side and on to the floor.

@@ -201,11 +201,12 @@ def quadrotor_state(z_m=10.0, v_WB=(0.0, 0.0, 0.0)) -> np.ndarray:
     return state
 
 
-def simulate(config: WindConfig, seed: int, duration_s: float, state=None):
-    """The logged wind_velocity_W (3 x n) at every turbulence sample time from 0 to duration_s."""
+def simulate(config: WindConfig, seed: int | None, duration_s: float, state=None):
+    """The logged wind_velocity_W (3 x n) at every turbulence sample time from 0 to duration_s (seed None: the
+    WindSystem's default)."""
     builder = DiagramBuilder()
     source = builder.AddSystem(ConstantVectorSource(quadrotor_state() if state is None else state))
-    wind = builder.AddSystem(WindSystem(config, seed))
+    wind = builder.AddSystem(WindSystem(config) if seed is None else WindSystem(config, seed))
     builder.Connect(source.get_output_port(), wind.get_input_port())
     logger = LogVectorOutput(wind.get_output_port(), builder, publish_period=config.period_s)
     simulator = Simulator(builder.Build())
@@ -260,6 +261,30 @@ def test_same_seed_same_series_other_seed_differs():
     _, other = simulate(config, 4, 2.0)
     np.testing.assert_array_equal(first, again)
     assert np.abs(first - other).max() > 0.1
+
+
+def test_the_default_seed_is_zero():
+    config = WindConfig(mean_m_s=5.0, direction_deg=90.0, turbulence="moderate")
+    _, default = simulate(config, None, 0.2)
+    _, zero = simulate(config, 0, 0.2)
+    _, one = simulate(config, 1, 0.2)
+    np.testing.assert_array_equal(default, zero)
+    assert np.abs(default - one).max() > 0.1  # the seed shows in the output
+
+
+def test_a_gust_alone_follows_the_context_time():
+    """Without turbulence there are no discrete updates: the output still depends on the time (a 1-cosine gust
+    of 4 m/s toward +x over [0, 1] s: 2 (1 - cos(2 pi t)), 0 at t = 0 and 4 at t = 0.5), not cached on the
+    discrete state alone."""
+    gust = GustConfig(start_s=0.0, duration_s=1.0, magnitude_m_s=4.0, direction_deg=0.0)
+    wind = WindSystem(WindConfig(gusts=[gust]))
+    context = wind.CreateDefaultContext()
+    wind.get_input_port().FixValue(context, quadrotor_state())
+    np.testing.assert_allclose(wind.get_output_port().Eval(context), [0.0, 0.0, 0.0], atol=1e-14)
+    context.SetTime(0.5)
+    np.testing.assert_allclose(wind.get_output_port().Eval(context), [4.0, 0.0, 0.0], atol=1e-14)
+    context.SetTime(0.25)
+    np.testing.assert_allclose(wind.get_output_port().Eval(context), [2.0, 0.0, 0.0], atol=1e-14)
 
 
 def test_calm_air_is_exactly_zero():
