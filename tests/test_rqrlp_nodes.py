@@ -226,15 +226,34 @@ def test_a_larger_dark_region_that_is_no_quadrilateral_does_not_hide_the_outline
     assert found is not None and np.linalg.norm(found.p_CP - clean.p_CP) < 0.01
 
 
-def test_the_approach_node_weighs_its_centre_by_the_estimators_focal_length():
-    """With a 5 % focal-length calibration error the node finds the outline with the estimators' intrinsics and
-    takes the centre's covariance with their focal length, 672 px, not the renderer's 640."""
-    camera = replace(CAMERA, calibration_error=CalibrationErrorConfig(fx_pct=5.0, fy_pct=5.0))
+@pytest.mark.parametrize("fx_pct, fy_pct", [(5.0, 5.0), (5.0, 0.0)])
+def test_the_approach_node_weighs_its_centre_by_the_estimators_focal_length(fx_pct, fy_pct):
+    """With a focal-length calibration error the node finds the outline with the estimators' intrinsics and
+    takes the centre's covariance with their focal length, sqrt(fx fy): 672 px at 5 % on both axes, not the
+    renderer's 640; sqrt(672 * 640) = 655.8 px at 5 % on x alone, not fx's 672."""
+    camera = replace(CAMERA, calibration_error=CalibrationErrorConfig(fx_pct=fx_pct, fy_pct=fy_pct))
     grey = view(X_CP_at(10.0, xy=(0.8, -0.5)))
     found = approach(grey, camera.K_estimated, camera.D_estimated, LAYOUT)
     measurement = approach_node(grey, 0.0, camera, LAYOUT)
-    np.testing.assert_allclose(measurement.covariance, approach_covariance(found.p_CP, found.side_px, 672.0),
+    focal_px = np.sqrt(640.0 * (1 + fx_pct / 100) * 640.0 * (1 + fy_pct / 100))
+    np.testing.assert_allclose(measurement.covariance, approach_covariance(found.p_CP, found.side_px, focal_px),
                                rtol=1e-12)
+
+
+def test_the_adjustment_node_fits_and_weighs_with_the_estimators_intrinsics():
+    """With a 5 % focal-length calibration error the node's pose is `adjustment`'s with the estimators' K and D
+    (about 5 % deeper than the truth, as the renderer's K would not give), and its covariance is taken through
+    their K."""
+    camera = replace(CAMERA, calibration_error=CalibrationErrorConfig(fx_pct=5.0, fy_pct=5.0))
+    X_CP = X_CP_at(2.5, tilt_deg=(3, -2))
+    grey = view(X_CP)
+    found = adjustment(grey, camera.K_estimated, camera.D_estimated, LAYOUT)
+    measurement = adjustment_node(grey, 0.0, camera, LAYOUT)
+    np.testing.assert_array_equal(measurement.view.K, camera.K_estimated)
+    np.testing.assert_allclose(measurement.view.X_CP.GetAsMatrix34(), found.X_CP.GetAsMatrix34(), rtol=1e-12)
+    depth, true_depth = found.X_CP.translation()[2], X_CP.translation()[2]
+    assert depth / true_depth - 1 == pytest.approx(0.05, abs=0.01)
+    assert abs(adjustment(grey, K, D, LAYOUT).X_CP.translation()[2] / true_depth - 1) < 0.01
 
 
 def test_approach_depth_takes_the_focal_length_of_both_axes():
