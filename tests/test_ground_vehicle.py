@@ -4,11 +4,17 @@ from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, TrajectorySource, VectorLogSink
+from scipy.optimize import minimize_scalar
 
 from systems.vehicles.ground_vehicle import (
-    GroundVehicle, GroundVehicleConfig, ground_pose, make_bicycle_dynamics,
+    GroundVehicle,
+    GroundVehicleConfig,
+    PathFollower,
+    ground_pose,
+    make_bicycle_dynamics,
+    steering_command,
 )
-from systems.vehicles.paths import PATH_NAMES, PathConfig, make_path
+from systems.vehicles.paths import MAX_SIZE_M, PATH_NAMES, PathConfig, make_path
 
 # pydrake filters numpy's "invalid value" warnings from symbolic object arrays when imported;
 # pytest resets warning filters per test, so restore that one here.
@@ -113,6 +119,17 @@ def test_steering_lag_and_limit():
      r"vehicle.speed 12 m/s / vehicle.follower.rate_hz 20 Hz, plus the path's 0.1 m sample spacing: 0.7 m$"),
     ("{speed_schedule_times_s: [0, 5], speed_schedule_m_s: [0, 10], follower: {search_window_m: 0.45, rate_hz: 25}}",
      r"vehicle.speed_schedule_m_s's top 10 m/s / vehicle.follower.rate_hz 25 Hz, .*: 0.5 m$"),
+    # The top speed counts, not the last: 10 m/s / 25 Hz + 0.1 m = 0.5 m (the last, 2 m/s, would need 0.18 m).
+    ("{speed_schedule_times_s: [0, 5, 10], speed_schedule_m_s: [0, 10, 2], "
+     "follower: {search_window_m: 0.45, rate_hz: 25}}",
+     r"vehicle.speed_schedule_m_s's top 10 m/s / vehicle.follower.rate_hz 25 Hz, .*: 0.5 m$"),
+    # The window must exceed what is needed: 12 m/s / 20 Hz + 0.1 m is 0.7 m exactly (in floats too), refused.
+    ("{path: straight, speed: 12.0, follower: {search_window_m: 0.7}}",
+     r"^vehicle.follower.search_window_m \(0.7 m\) must exceed .*: 0.7 m$"),
+    # Eq. (13)'s first 100 m bend right only, tightest at x = 59.4 m: a 45.8 m radius, under 3.5 m / tan(3 deg)
+    ("{path: sine, path_length_m: 100.0, max_steering_deg: 3.0}",
+     r"vehicle.path 'sine' turns on a 45.8 m radius at its tightest, under the vehicle's minimum turning radius "
+     r"66.8 m"),
 ])
 def test_bad_config_is_rejected_by_name(yaml, message):
     config = yaml_load_typed(schema=GroundVehicleConfig, data=yaml)
@@ -136,6 +153,19 @@ def test_a_circle_is_refused_just_under_the_minimum_turning_radius_and_accepted_
                                          r"vehicle's minimum turning radius 9.6 m"):
         GroundVehicleConfig(path="circle", path_radius_m=0.99 * radius).validate()
     GroundVehicleConfig(path="circle", path_radius_m=1.01 * radius).validate()
+
+
+def test_a_circle_of_exactly_the_minimum_turning_radius_is_accepted():
+    """The path's tightest radius may equal the vehicle's minimum turning radius R = d / tan(theta_max) (only under it
+    is refused): the default 3.5 m wheelbase at 20 deg, a circle of that R (its curvature 1 / R times R is 1 in
+    floats too)."""
+    radius = 3.5 / np.tan(np.radians(20.0))
+    assert (1.0 / radius) * radius == 1.0
+    GroundVehicleConfig(path="circle", path_radius_m=radius).validate()
+
+
+def test_a_path_as_long_as_the_largest_size_is_accepted():
+    PathConfig(name="straight", length_m=MAX_SIZE_M).validate()
 
 
 @pytest.mark.parametrize("name", ["sine", "straight"])
@@ -165,6 +195,21 @@ def test_max_curvature_is_the_tightest_bend():
     dy, ddy = 30 * a * np.cos(a * x) + 20 * b * np.cos(b * x), -30 * a**2 * np.sin(a * x) - 20 * b**2 * np.sin(b * x)
     assert make_path(PathConfig(name="sine")).max_curvature == pytest.approx(
         np.abs(ddy / (1 + dy**2) ** 1.5).max(), rel=1e-4)
+
+
+def test_max_curvature_counts_a_right_bend():
+    """Eq. (13)'s first 100 m of arc (to x = 86 m) bend right only (y'' < 0): the tightest bend is the largest
+    |curvature|, 1 / 45.8 m at x = 59.4 m, found here by minimising y'' / (1 + y'^2)^1.5 over x."""
+    a, b = 2 * np.pi / 500, 2 * np.pi / 200
+
+    def curvature(x):
+        dy = 30 * a * np.cos(a * x) + 20 * b * np.cos(b * x)
+        ddy = -30 * a**2 * np.sin(a * x) - 20 * b**2 * np.sin(b * x)
+        return ddy / (1 + dy**2) ** 1.5
+
+    tightest = minimize_scalar(curvature, bounds=(0.0, 80.0), method="bounded", options={"xatol": 1e-9})
+    assert tightest.fun < 0.0 and 50.0 < tightest.x < 70.0  # a right bend, inside the first 100 m
+    assert make_path(PathConfig(name="sine", length_m=100.0)).max_curvature == pytest.approx(-tightest.fun, rel=1e-4)
 
 
 def test_sine_path_is_seed_002_eq_13():
@@ -227,6 +272,40 @@ def test_a_point_within_half_a_spacing_of_the_closing_point_is_found_on_either_s
         assert (found - s_true + path.length / 2) % path.length - path.length / 2 == pytest.approx(0.0, abs=1e-6)
 
 
+@pytest.mark.parametrize("s", [10.0, 12.0, -1.0])
+def test_sample_of_an_open_path_is_held_at_its_ends(s):
+    """sample() at an open path's end or past either end (the follower's look-ahead reaches past it) is its end
+    point: (x, y, heading, curvature) of the straight 10 m path at x = 10 m, or at x = 0 before its start."""
+    path = make_path(PathConfig(name="straight", length_m=10.0))
+    end = min(max(s, 0.0), 10.0)
+    assert path.sample(s) == pytest.approx((end, 0.0, 0.0, 0.0), abs=1e-12)
+
+
+def test_nearest_past_an_open_paths_end_is_its_end():
+    path = make_path(PathConfig(name="straight", length_m=10.0))
+    assert path.nearest([12.0, 0.0]) == pytest.approx(10.0, abs=1e-12)
+
+
+def test_nearest_with_a_hint_searches_the_whole_window():
+    """window_m 0.25 over the 0.1 m samples reaches the third sample (0.3 m) past the hint 0: the point at 0.35 m
+    lies on the chord after it, and is found there."""
+    path = make_path(PathConfig(name="straight"))
+    assert path.spacing == pytest.approx(0.1, rel=1e-12)
+    assert path.nearest([0.35, 0.0], s_hint=0.0, window_m=0.25) == pytest.approx(0.35, abs=1e-9)
+
+
+def test_the_s_shape_turns_left_then_right():
+    """MANOEUVRE_TURNS: after the 20 m lead a left half-circle of R = 15 m (centre (20, 15)) to (20, 30) heading pi,
+    then a right one (centre (20, 45)) to (20, 60) heading 0: 10 m on, at (30, 60) heading 0; the second half-circle's
+    curvature is -1 / R."""
+    path = make_path(PathConfig(name="s-shape"))
+    lead, radius = 20.0, 15.0
+    s = lead + 2 * np.pi * radius + 10.0
+    np.testing.assert_allclose(path.position(s), [30.0, 60.0], atol=1e-3)
+    assert path.heading(s) == pytest.approx(0.0, abs=1e-6)
+    assert path.curvature(lead + np.pi * radius + 1.0) == pytest.approx(-1.0 / radius, rel=1e-9)
+
+
 def test_the_rectangle_is_side_m_by_half_of_it_with_rounded_corners():
     """PathConfig: the rectangle's long straight is side_m, the short one side_m / 2, joined by quarter circles of
     radius_m: its extent is side_m + 2 radius_m by side_m / 2 + 2 radius_m."""
@@ -278,6 +357,46 @@ def test_the_narrowest_search_window_accepted_keeps_up_with_the_vehicle():
     path = make_path(config.path_config())
     assert cross_track_errors(path, states).max() < 0.1
     assert_progress(progress, 240.0, path, config, speed=12.0)
+
+
+def test_the_follower_searches_near_its_last_point_where_the_figure_eight_crosses():
+    """The figure-eight (R = 15 m, length L = 4 R + 3 pi R) crosses itself at the origin: at s = 0 heading 45 deg, and
+    at s = L / 2 heading 45 - 270 = -225 deg. A vehicle 0.1 m left of the second branch 2 cm past the crossing is
+    2 cm from the first branch (at s = L - 0.1 m); the follower, last at L / 2, keeps to the second."""
+    config = GroundVehicleConfig(path="figure-eight")
+    path = make_path(config.path_config())
+    R = 15.0
+    L = 4 * R + 3 * np.pi * R
+    assert path.length == pytest.approx(L, rel=1e-9)
+    heading = np.pi / 4 - 1.5 * np.pi
+    along, left = np.array([np.cos(heading), np.sin(heading)]), np.array([-np.sin(heading), np.cos(heading)])
+    position = 0.02 * along + 0.1 * left
+    follower = PathFollower(path, config)
+    context = follower.CreateDefaultContext()
+    follower.GetInputPort("state").FixValue(context, [*position, heading, 0.0])
+    follower.GetInputPort("speed").FixValue(context, [2.0])
+    context.SetDiscreteState(0, [L / 2])  # path_progress
+    progress = follower.EvalUniquePeriodicDiscreteUpdate(context).get_vector(0).GetAtIndex(0)
+    assert progress == pytest.approx(L / 2 + 0.02, abs=1e-3)
+
+
+@pytest.mark.parametrize("speed", [10.0, 2.0])
+def test_the_follower_places_the_three_poles_at_minus_a(speed):
+    """The module docstring's linearised model about a straight path, per distance travelled, state (e, psi, theta):
+    e' = psi, psi' = theta / d, theta' = (theta_cmd - theta) / (v tau_s), with the command's gains on e (y here),
+    psi (alpha) and theta by finite differences; its characteristic polynomial is (s + a)^3,
+    a = 1 / max(preview_time_s v, min_preview_m) (1 / 10 m at 10 m/s, 1 / 5 m at 2 m/s)."""
+    config = GroundVehicleConfig(wheelbase_m=3.5, steering_time_constant_s=1.0)
+    path = make_path(config.path_config())
+    d, lag = 3.5, speed * 1.0
+    a = 1.0 / max(config.follower.preview_time_s * speed, config.follower.min_preview_m)
+    assert a == {10.0: 0.1, 2.0: 0.2}[speed]  # the defaults: 1 s, 5 m
+    state, h = np.array([5.0, 0.0, 0.0, 0.0]), 1e-4
+    command0 = steering_command(state, speed, path, 5.0, config)
+    gradient = np.array([(steering_command(state + h * np.eye(4)[i], speed, path, 5.0, config) - command0) / h
+                         for i in (1, 2, 3)])  # d command / d (e, psi, theta)
+    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0 / d], (gradient - [0.0, 0.0, 1.0]) / lag])
+    np.testing.assert_allclose(np.poly(A), [1.0, 3 * a, 3 * a**2, a**3], rtol=1e-6)
 
 
 def test_discretised_vehicle_drives_as_the_continuous_one():
