@@ -84,6 +84,22 @@ def test_scene_graph_poses_them_from_the_time():
         assert query.GetPoseInWorld(frame).IsNearlyEqualTo(distractor_pose(path, vehicle, d, 12.0), 1e-12)
 
 
+def test_each_box_stands_on_its_frame_length_along_x():
+    """register_box: each distractor frame D holds one Box, its (width, depth, height) along (x_D, y_D, z_D) the
+    draw's (length, width, height), centred half its height above D's origin (on the ground)."""
+    scene_graph = SceneGraph()
+    vehicle = GroundVehicleConfig()
+    distractors = draw_distractors(CONFIG, 0)
+    traffic = Traffic(scene_graph, make_path(vehicle.path_config()), vehicle, distractors)
+    inspector = scene_graph.model_inspector()
+    for frame, d in zip(traffic._frames, distractors):
+        (geometry,) = inspector.GetGeometries(frame)
+        box = inspector.GetShape(geometry)
+        assert d.size_m[0] != d.size_m[1]  # length and width tell apart
+        assert (box.width(), box.depth(), box.height()) == d.size_m
+        np.testing.assert_array_equal(inspector.GetPoseInFrame(geometry).translation(), [0.0, 0.0, d.size_m[2] / 2])
+
+
 def test_under_a_speed_schedule_they_keep_their_factor_of_the_ugvs_speed():
     """Each distractor drives its factor times the UGV's distance; they had moved at vehicle.speed (0.5 m/s)
     times it while the schedule drove the UGV at 2 m/s."""
@@ -138,6 +154,37 @@ def test_the_ground_reaches_the_ugv_when_every_distractor_is_slower():
     furthest = max(d.s0_m + d.speed_factor * driven for d in draw_distractors(config, 0))
     assert furthest < driven  # the UGV is the furthest thing on the path
     assert vehicle.ground_length_m(duration, config.lead()) >= driven
+
+
+def test_without_distractors_the_ground_is_the_ugvs():
+    """lead() is (1, 0) without distractors (not the default range's 1.4 and ahead_max_m 15 m): the ground of a
+    100 s run at 10 m/s on the straight path reaches the 1000 m the UGV drives."""
+    config = DistractorsConfig()
+    assert config.count == 0 and config.lead() == (1.0, 0.0)
+    vehicle = GroundVehicleConfig(path="straight", speed=10.0)
+    assert vehicle.ground_length_m(100.0, config.lead()) == pytest.approx(1000.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("settings, field, expected", [
+    ({"ahead_max_m": 0.0}, "s0_m", 0.0),
+    ({"speed_factor_range": [1.0, 1.0]}, "speed_factor", 1.0),
+    ({"size_low_m": [1.4, 1.0, 0.5], "size_high_m": [1.4, 1.0, 0.5]}, "size_m", (1.4, 1.0, 0.5)),
+])
+def test_a_range_of_one_value_is_accepted_and_drawn(settings, field, expected):
+    """Each range's limits may meet: ahead_max_m 0 (all start with the UGV), speed_factor_range [1, 1], size_low_m =
+    size_high_m; every draw is then that value."""
+    config = DistractorsConfig(count=5, **settings)
+    config.validate()
+    assert [getattr(d, field) for d in draw_distractors(config, 0)] == [expected] * 5
+
+
+def test_without_distractors_any_lane_width_passes():
+    """check_lanes refuses lanes wider than the path's tightest radius only when there are distractors to drive
+    them: 30 m lanes on the 15 m circle pass with count 0, are refused with 4."""
+    path = make_path(GroundVehicleConfig(path="circle").path_config())
+    DistractorsConfig(count=0, lane_min_m=20.0, lane_max_m=30.0).check_lanes(path, "vehicle.path 'circle'")
+    with pytest.raises(ConfigError, match=r"lane_max_m \(30 m\) must be under the tightest radius"):
+        DistractorsConfig(count=4, lane_min_m=20.0, lane_max_m=30.0).check_lanes(path, "vehicle.path 'circle'")
 
 
 def test_a_lane_wider_than_the_paths_tightest_radius_is_refused():
