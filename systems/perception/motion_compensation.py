@@ -274,7 +274,10 @@ def ground_homography(src: np.ndarray, dst: np.ndarray, shape: tuple[int, ...], 
     src, dst = src[inlier], dst[inlier]
     if previous_grey is not None and grey is not None and config.refine_window_px and len(src) >= config.min_inliers:
         src, dst = refine_matches(previous_grey, grey, H, src, dst, config.refine_window_px, config.refine_max_shift_px)
-        H, inlier = ransac_homography(src, dst, config) if len(src) >= 4 else (None, np.zeros(len(src), bool))
+        if len(src) < 4:
+            return GroundMotion(nan, matches, 0, 0.0, 0.0, False,
+                                f"{len(src)} matches left after refinement (a homography needs 4)")
+        H, inlier = ransac_homography(src, dst, config)
         if H is None:
             return GroundMotion(nan, matches, 0, 0.0, 0.0, False, "RANSAC found no homography in the refined matches")
         src, dst = src[inlier], dst[inlier]
