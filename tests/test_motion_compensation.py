@@ -493,7 +493,7 @@ def test_refinement_that_leaves_fewer_than_4_matches_says_so(case):
     config = MotionCompensationConfig(min_matches=4, min_inliers=4)
     corners = [[50, 50], [350, 50], [350, 350], [50, 350]]
     if case == "4 matches":
-        del corners[2]  # not (50, 50) or (350, 350): with (420, 420) on one line, RANSAC's H would be degenerate
+        del corners[2]  # (350, 350): left in, it and (50, 50), (420, 420) lie on one line (a degenerate H)
     src = np.float32(corners + [[420, 420]])
     dst = src + np.float32([3, 2])
     H, inlier = ransac_homography(src, dst, config)
