@@ -73,32 +73,57 @@ def test_a_box_without_the_classical_detection_in_its_window_keeps_its_box():
     np.testing.assert_array_equal(box, [20.0, 20.0, 40.0, 50.0])
 
 
-@pytest.mark.parametrize("body_px, kept", [(0, False), (4, False), (5, True), (40, True)])
-def test_a_box_without_the_body_colour_is_dropped(body_px, kept):
+@pytest.mark.parametrize("body_px, min_body_px, kept", [(0, 5, False), (4, 5, False), (5, 5, True), (40, 5, True),
+                                                       (0, 1, False), (1, 1, True)])
+def test_a_box_without_the_body_colour_is_dropped(body_px, min_body_px, kept):
     """A learned box over another colour's vehicle holding `body_px` pixels of the UGV's colour: dropped under
-    min_body_px (5), the UGV's own box beside it kept either way; with min_body_px 0 every box is kept."""
+    min_body_px (the default 5, or 1: one pixel is enough, none is not), the UGV's own box beside it kept either
+    way; with min_body_px 0 every box is kept."""
     image = ground()
     truth = draw_ugv(image, 200, 120)
     image[30:80, 30:70] = (40, 90, 200)  # a blue vehicle
     for k in range(body_px):  # in rows of 5
         image[30 + k // 5, 30 + k % 5] = BODY
     detections = [([28.0, 28.0, 44.0, 54.0], 0.8), ([198.0, 118.0, 44.0, 54.0], 0.9)]
-    out = refined(detections, image)
+    out = refined(detections, image, min_body_px=min_body_px)
     assert [score for _, score in out] == ([0.8, 0.9] if kept else [0.9])
     np.testing.assert_array_equal(centre(out[-1][0]), centre(truth))
     assert len(refined(detections, image, min_body_px=0)) == 2
 
 
-def test_with_min_body_px_0_even_a_box_off_the_image_is_kept():
-    """min_body_px 0 keeps every learned box: one wholly outside the frame (no pixel to count) comes back as it
-    was, beside the UGV's own, refined."""
+@pytest.mark.parametrize("outside", [[-80.0, 20.0, 40.0, 50.0], [-60.0, 20.0, 40.0, 50.0], [340.0, 20.0, 40.0, 50.0],
+                                     [20.0, -75.0, 40.0, 50.0], [20.0, 225.0, 40.0, 50.0]],
+                         ids=["left", "left-window-at-edge", "right", "top", "bottom"])
+def test_with_min_body_px_0_even_a_box_off_the_image_is_kept(outside):
+    """min_body_px 0 keeps every learned box: one wholly outside the 300 x 200 px frame (no pixel to count) comes
+    back as it was, beside the UGV's own, refined. Its window (the box grown by 20 px left and right, 25 px up and
+    down) lies off the image too, ending at its left or top edge (x or y 0) or starting at its right or bottom one
+    (x 320 > 300, y 200): no pixel to search."""
     image = ground()
     truth = draw_ugv(image, 200, 120)
-    outside = [-80.0, 20.0, 40.0, 50.0]
     out = refined([(outside, 0.7), ([198.0, 118.0, 44.0, 54.0], 0.9)], image, min_body_px=0)
     assert [score for _, score in out] == [0.7, 0.9]
     np.testing.assert_array_equal(out[0][0], outside)
     np.testing.assert_array_equal(centre(out[1][0]), centre(truth))
+
+
+@pytest.mark.parametrize("box", [[300.0, 20.0, 40.0, 50.0], [-40.0, 20.0, 40.0, 50.0], [20.0, 200.0, 40.0, 50.0],
+                                 [20.0, -50.0, 40.0, 50.0]], ids=["right", "left", "bottom", "top"])
+def test_a_box_just_beyond_the_image_edge_has_no_body_pixels(box):
+    """A learned box starting at the 300 x 200 px frame's right or bottom edge, or ending at its left or top one:
+    clipped to the image, no pixel left to count, so dropped by the default min_body_px."""
+    assert refined([(box, 0.8)], ground()) == []
+
+
+@pytest.mark.parametrize("box", [[29.5, 30.0, 20.0, 30.0], [10.0, 30.0, 19.5, 30.0]], ids=["left", "right"])
+@pytest.mark.parametrize("body", [True, False])
+def test_a_pixel_the_box_covers_in_part_is_counted(box, body):
+    """Ten body-coloured pixels in column 29 only (rows 40-49): a box starting at x = 29.5 or ending at x = 29.5
+    covers half of that column, whose pixels count: kept; the same box on plain ground is dropped."""
+    image = ground()
+    if body:
+        image[40:50, 29] = BODY
+    assert len(refined([(box, 0.8)], image)) == (1 if body else 0)
 
 
 @pytest.mark.parametrize("x, kept", [(30.0, False), (50.0, True)])
@@ -155,10 +180,11 @@ def test_a_colour_box_cut_on_any_other_side_is_not_taken(side, detection):
     np.testing.assert_array_equal(box, detection)
 
 
-def test_the_window_grows_the_box_by_margin_of_its_own_width_and_height():
+@pytest.mark.parametrize("config", [BoxRefinementConfig(margin=0.5, min_margin_px=8), BoxRefinementConfig()],
+                         ids=["given", "default"])
+def test_the_window_grows_the_box_by_margin_of_its_own_width_and_height(config):
     """margin 0.5 of a 40 x 10 px box: 20 px left and right, 5 (so min_margin_px, 8) above and below; outwards to whole
-    pixels, clipped to the image."""
-    config = BoxRefinementConfig(margin=0.5, min_margin_px=8)
+    pixels, clipped to the image. The defaults are those: margin 0.5, min_margin_px 8."""
     refiner = ColourRefinedDetector(FixedDetector(), ColourPadDetector(), config)
     assert refiner.window(np.array([100.0, 50.0, 40.0, 10.0]), (200, 300)) == (80, 42, 160, 68)
     assert refiner.window(np.array([100.5, 50.5, 40.0, 10.0]), (200, 300)) == (80, 42, 161, 69)
@@ -203,6 +229,32 @@ def test_a_box_over_max_box_px_keeps_its_own(turn):
     np.testing.assert_array_equal(centre(box), centre(truth))
 
 
+@pytest.mark.parametrize("width, refined_", [(76, True), (84, False)])
+def test_a_box_up_to_the_default_max_box_px_is_refined(width, refined_):
+    """The default max_box_px, 80: a UGV `width` px wide (50 high) and a learned box 4 px wider and 8 px higher
+    around it, 2 px left and up of its centre, 80 px wide (at the limit: refined, its centre the roof's) or 88 px
+    (over it: kept as it came)."""
+    image = ground(400, 400)
+    truth = draw_ugv(image, 100, 80, width=width)
+    detection = truth + [-4.0, -6.0, 4.0, 8.0]
+    (box, _), = refined([(detection, 0.9)], image)
+    np.testing.assert_array_equal(centre(box), centre(truth if refined_ else detection))
+    np.testing.assert_array_equal(box[2:], detection[2:])
+
+
+@pytest.mark.parametrize("detection, expected", [([100.0, 80.0, 40.0, 40.0], [100.0, 85.0, 40.0, 40.0]),
+                                                 ([102.0, 80.0, 30.0, 50.0], [102.0, 80.0, 30.0, 50.0])],
+                         ids=["0.8-inside", "0.75-inside"])
+def test_the_colour_box_must_lie_at_least_min_inside_within_the_box(detection, expected):
+    """The default min_inside, 0.8: the roof's box [100, 80, 40, 50] lies 1600 / 2000 = 0.8 within a learned box over
+    its top 40 rows (taken: the box's centre moves 5 px down onto the roof's) and 30 x 50 / 2000 = 0.75 within one
+    over 30 of its 40 columns (not taken, the box kept)."""
+    image = ground()
+    draw_ugv(image, 100, 80)
+    (box, _), = refined([(detection, 0.9)], image)
+    np.testing.assert_array_equal(box, expected)
+
+
 def test_every_detection_is_refined_on_its_own():
     image = ground()
     first, second = draw_ugv(image, 30, 30), draw_ugv(image, 200, 120)
@@ -212,12 +264,37 @@ def test_every_detection_is_refined_on_its_own():
     assert [score for _, score in out] == [0.9, 0.6]
 
 
+def _validate(config: BoxRefinementConfig) -> None:
+    config.validate()
+
+
+def _make_refiner(config: BoxRefinementConfig) -> None:
+    ColourRefinedDetector(FixedDetector(), ColourPadDetector(), config)
+
+
+@pytest.mark.parametrize("check", [_validate, _make_refiner], ids=["validate", "refiner"])
 @pytest.mark.parametrize("setting, named", [({"method": "yolo"}, "method"), ({"margin": -1.0}, "margin"),
                                             ({"min_inside": 0.0}, "min_inside"), ({"max_box_px": 0.0}, "max_box_px"),
                                             ({"min_body_px": -1}, "min_body_px")])
-def test_bad_settings_name_the_field(setting, named):
+def test_bad_settings_name_the_field(setting, named, check):
+    """A bad setting is a ConfigError naming it, from validate() and from the refiner built with it."""
     with pytest.raises(ConfigError, match=f"hybrid.refinement.{named}"):
-        BoxRefinementConfig(**setting).validate()
+        check(BoxRefinementConfig(**setting))
+
+
+@pytest.mark.parametrize("setting", [{"min_inside": 1.0}, {"margin": 0.0, "min_margin_px": 0}, {"min_body_px": 0}])
+def test_settings_at_their_bounds_are_valid(setting):
+    """min_inside may be 1 (the colour box wholly within), margin and min_margin_px 0, min_body_px 0 (keep all)."""
+    _make_refiner(BoxRefinementConfig(**setting))
+
+
+def test_an_rgba_frame_gives_its_rgb_boxes():
+    """The camera's stream is RGBA: its alpha channel ignored, the boxes those of its RGB channels."""
+    image = ground()
+    truth = draw_ugv(image, 100, 80)
+    rgba = np.dstack([image, np.full(image.shape[:2], 255, np.uint8)])
+    (box, _), = refined([([103.5, 76.0, 46.0, 55.0], 0.83)], rgba)
+    np.testing.assert_array_equal(centre(box), centre(truth))
 
 
 @pytest.mark.parametrize("detector, method, made", [("learned", "colour", ColourRefinedDetector),
