@@ -13,6 +13,7 @@ from pydrake.systems.sensors import ImageRgba8U
 from diagrams.gv_landing import build_gv_landing
 from diagrams.hybrid_perception import hybrid_stereo
 from diagrams.runner import load_scenario
+from systems.config import ConfigError
 from systems.estimators.velocity_observer import VelocityObserverConfig
 from systems.perception.hybrid_pad import HybridPadConfig, HybridPadState, hybrid_step
 from systems.perception.marker_detector import detect_marker_poses
@@ -84,16 +85,18 @@ def test_no_markers_no_fix():
     assert pad_centre_in_eye(np.full((EYE.height, EYE.width), 120, np.uint8), EYE.K, LAYOUT) is None
 
 
-def _finder_view(z_pad: float, config: StereoPadConfig | None = None):
-    """The finder and the view of a pad whose centre is at p_WP = [2, 1, 0.5], the left eye 1 m over it."""
-    X_LP = X_CP_at(1.0, (0.1, -0.05), 30.0)
+def _finder_view(z_pad: float, config: StereoPadConfig | None = None, height_m: float = 1.0):
+    """The finder and the view of a pad whose centre is at p_WP = [2, 1, 0.5], the left eye height_m over it."""
+    X_LP = X_CP_at(height_m, (0.1, -0.05), 30.0)
     X_WP = RigidTransform([2.0, 1.0, Z_PAD])
     X_WB = X_WP.multiply(X_LP.inverse()).multiply(STEREO.X_BL.inverse())
     return StereoPadFinder(STEREO, LAYOUT, z_pad, config), render_pad(X_LP, camera=EYE), X_WB
 
 
-def test_finder_places_the_pad_in_world():
-    finder, image, X_WB = _finder_view(Z_PAD)
+@pytest.mark.parametrize("config", [None, StereoPadConfig(threshold_window_px=0)], ids=["default", "opencv-windows"])
+def test_finder_places_the_pad_in_world(config):
+    """With the default config and with threshold_window_px 0 (OpenCV's own three windows)."""
+    finder, image, X_WB = _finder_view(Z_PAD, config)
     assert np.allclose(finder.find(image, X_WB), [2.0, 1.0, Z_PAD], atol=0.01)
 
 
@@ -111,6 +114,60 @@ def test_finder_keeps_a_fix_within_the_height_tolerance_of_the_plane(off_m, kept
     assert np.allclose(p_WP, [2.0, 1.0, Z_PAD], atol=0.01) if kept else np.all(np.isnan(p_WP))
 
 
+@pytest.mark.parametrize("side", [1.0, -1.0], ids=["below", "above"])
+@pytest.mark.parametrize("beyond, kept", [(False, True), (True, False)])
+def test_a_fix_exactly_height_tolerance_m_off_the_plane_is_kept(side, beyond, kept):
+    """The finder's plane exactly height_tolerance_m (0.125 m, a power of two: the difference exact) below or above
+    the fix keeps it; one ulp further off, NaN."""
+    finder, image, X_WB = _finder_view(Z_PAD)
+    p_WP = finder.find(image, X_WB)
+    z_pad = p_WP[2] - side * 0.125
+    if beyond:
+        z_pad = np.nextafter(z_pad, -side * np.inf)
+    assert abs(p_WP[2] - z_pad) > 0.125 if beyond else abs(p_WP[2] - z_pad) == 0.125
+    found = StereoPadFinder(STEREO, LAYOUT, z_pad, StereoPadConfig(height_tolerance_m=0.125)).find(image, X_WB)
+    np.testing.assert_array_equal(found, p_WP if kept else np.full(3, np.nan))
+
+
+@pytest.mark.parametrize("config, window", [(None, 23), (StereoPadConfig(threshold_window_px=0), None),
+                                            (StereoPadConfig(threshold_window_px=13), 13)])
+def test_finder_thresholds_with_its_configured_window(monkeypatch, config, window):
+    """The ArUco threshold window the finder asks for: by default one of 23 px (docs/results.md, Table 7), 0 for
+    OpenCV's three (None), or the one given."""
+    asked = []
+
+    def spy(image, K, layout, threshold_window_px=None):
+        asked.append(threshold_window_px)
+        return []
+
+    monkeypatch.setattr("systems.perception.stereo_pad.detect_marker_poses", spy)
+    blank = np.full((EYE.height, EYE.width), 120, np.uint8)
+    assert np.all(np.isnan(StereoPadFinder(STEREO, LAYOUT, Z_PAD, config).find(blank, RigidTransform())))
+    assert asked == [window]
+
+
+@pytest.mark.parametrize("window", [0, 3, 23])
+def test_threshold_windows_that_validate(window):
+    """0 (OpenCV's three windows) or an odd number of pixels, at least 3."""
+    StereoPadConfig(threshold_window_px=window).validate()
+
+
+def _validate(config: StereoPadConfig) -> None:
+    config.validate()
+
+
+def _make_finder(config: StereoPadConfig) -> None:
+    StereoPadFinder(STEREO, LAYOUT, Z_PAD, config)
+
+
+@pytest.mark.parametrize("check", [_validate, _make_finder], ids=["validate", "finder"])
+@pytest.mark.parametrize("window", [1, 4, -3])
+def test_bad_threshold_windows_name_the_field(window, check):
+    """1 (under 3), 4 (even) or negative: a ConfigError naming the field, from validate() and the finder built."""
+    with pytest.raises(ConfigError, match="hybrid.stereo_pad.threshold_window_px"):
+        check(StereoPadConfig(threshold_window_px=window))
+
+
 @pytest.mark.parametrize("enabled", [True, False])
 def test_disabled_fix_is_not_in_the_diagram(enabled):
     _, scenario = load_scenario("ugv-hybrid", overrides=[f"hybrid.stereo_pad.enabled={str(enabled).lower()}"])
@@ -118,10 +175,11 @@ def test_disabled_fix_is_not_in_the_diagram(enabled):
     assert diagram.HasSubsystemNamed("stereo_pad") == enabled
 
 
-def _finder_output(max_height_m: float) -> np.ndarray:
-    """The finder system's output (p_WP [m], NaN for none) with the left eye 1 m over the pad, searching up to
-    max_height_m over it."""
-    finder, image, X_WB = _finder_view(Z_PAD, StereoPadConfig(max_height_m=max_height_m))
+def _finder_output(max_height_m: float | None, height_m: float = 1.0) -> np.ndarray:
+    """The finder system's output (p_WP [m], NaN for none) with the left eye height_m over the pad, searching up
+    to max_height_m over it (None: the default)."""
+    config = StereoPadConfig() if max_height_m is None else StereoPadConfig(max_height_m=max_height_m)
+    finder, image, X_WB = _finder_view(Z_PAD, config, height_m)
     context = finder.CreateDefaultContext()
     frame = ImageRgba8U(EYE.width, EYE.height)
     frame.mutable_data[..., :3] = image[..., None]
@@ -131,10 +189,22 @@ def _finder_output(max_height_m: float) -> np.ndarray:
     return finder.get_output_port().Eval(context)
 
 
-@pytest.mark.parametrize("max_height_m, found", [(3.0, True), (0.5, False)])
-def test_finder_system_searches_only_low_over_the_pad(max_height_m, found):
-    """The system's output: the fix with the eye 1 m over the pad, NaN when that is above max_height_m."""
-    p_WP = _finder_output(max_height_m)
+@pytest.mark.parametrize("max_height_m, height_m, found", [(3.0, 1.0, True), (0.5, 1.0, False), (None, 2.9, True),
+                                                            (None, 3.1, False)])
+def test_finder_system_searches_only_low_over_the_pad(max_height_m, height_m, found):
+    """The system's output: the fix with the eye height_m over the pad, NaN when that is above max_height_m (the
+    default: 3 m)."""
+    p_WP = _finder_output(max_height_m, height_m)
+    assert np.allclose(p_WP, [2.0, 1.0, Z_PAD], atol=0.01 * height_m) if found else np.all(np.isnan(p_WP))
+
+
+@pytest.mark.parametrize("below, found", [(False, True), (True, False)])
+def test_finder_system_searches_with_the_eye_exactly_at_max_height_m(below, found):
+    """max_height_m exactly the eye's height over the pad (the same sum as the finder's): searched, the fix
+    found; one ulp lower, NaN."""
+    _, _, X_WB = _finder_view(Z_PAD)
+    eye_m = X_WB.multiply(STEREO.X_BL).translation()[2] - Z_PAD
+    p_WP = _finder_output(np.nextafter(eye_m, 0.0) if below else eye_m)
     assert np.allclose(p_WP, [2.0, 1.0, Z_PAD], atol=0.01) if found else np.all(np.isnan(p_WP))
 
 
