@@ -6,6 +6,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, TrajectorySource, VectorLogSink
 from scipy.optimize import minimize_scalar
 
+from systems.config import ConfigError
 from systems.vehicles.ground_vehicle import (
     GroundVehicle,
     GroundVehicleConfig,
@@ -483,3 +484,10 @@ def test_the_state_does_not_feed_through_from_the_speed(time_period):
     vehicle = GroundVehicle(GroundVehicleConfig(), time_period)
     speed, state = vehicle.GetInputPort("speed").get_index(), vehicle.GetOutputPort("state").get_index()
     assert not vehicle.HasDirectFeedthrough(speed, state)
+
+
+@pytest.mark.parametrize("time_period", [0.0, -0.005])
+def test_a_time_period_that_is_not_positive_is_a_config_error(time_period):
+    """Unchecked, DiscreteTimeApproximation fails its time_period > 0 check: pydrake raises SystemExit."""
+    with pytest.raises(ConfigError, match="ground vehicle time_period must be positive"):
+        GroundVehicle(GroundVehicleConfig(), time_period)

@@ -9,6 +9,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Adder, ConstantVectorSource, Sine
 
+from systems.config import ConfigError
 from systems.vehicles.quadrotor import (
     P_WB, Q_WB, ROTOR_SPEEDS, STATE_SIZE, V_WB, W_WB_B, Quadrotor, QuadrotorParams, hover_state,
     mixer_matrix, pose_from_state, quadrotor_state, quadrotor_state_derivative,
@@ -85,6 +86,34 @@ def test_paper_inertia_as_printed_is_rejected():
 def test_motor_limit_below_hover_is_rejected():
     with pytest.raises(ValueError, match="max_rotor_speed_rad_s"):
         QuadrotorParams(max_rotor_speed_rad_s=400.0).validate()
+
+
+@pytest.mark.parametrize("inertia", [(0.03, 0.015, 0.015), (0.015, 0.03, 0.015), (0.015, 0.015, 0.03)])
+def test_a_flat_lamina_on_the_triangle_inequality_is_accepted(inertia):
+    """The inequality allows equality (each moment at most the sum of the others): a flat plate in the plane normal
+    to one axis has that moment equal to the sum of the other two (0.015 + 0.015 == 0.03 exactly in floats)."""
+    assert inertia[0] + inertia[1] + inertia[2] == 2 * max(inertia)
+    QuadrotorParams(**dict(zip(["inertia_xx_kg_m2", "inertia_yy_kg_m2", "inertia_zz_kg_m2"], inertia))).validate()
+
+
+def test_a_motor_limit_exactly_at_the_hover_speed_cannot_hover():
+    """Four rotors at w_max only just carry the weight, with nothing to climb or steer with: refused."""
+    w_hover = np.sqrt(PARAMS.mass_kg * PARAMS.gravity_m_s2 / (4 * PARAMS.thrust_coefficient))
+    with pytest.raises(ConfigError, match="max_rotor_speed_rad_s = .* cannot hover"):
+        QuadrotorParams(max_rotor_speed_rad_s=float(w_hover)).validate()
+
+
+def test_the_default_motor_limit_gives_the_documented_thrust_to_weight_ratio():
+    """QuadrotorParams' comment: w_max = 700 rad/s gives a thrust-to-weight ratio of 2.1, 4 k_t w_max^2 / (m g)."""
+    ratio = 4 * PARAMS.thrust_coefficient * PARAMS.max_rotor_speed_rad_s ** 2 / (PARAMS.mass_kg * PARAMS.gravity_m_s2)
+    assert ratio == pytest.approx(2.1, abs=0.05)
+
+
+@pytest.mark.parametrize("time_period", [0.0, -0.005])
+def test_a_time_period_that_is_not_positive_is_a_config_error(time_period):
+    """Unchecked, DiscreteTimeApproximation fails its time_period > 0 check: pydrake raises SystemExit."""
+    with pytest.raises(ConfigError, match="quadrotor time_period must be positive"):
+        Quadrotor(PARAMS, time_period)
 
 
 def test_yaml_loaded_params_are_validated_when_built():
@@ -176,6 +205,15 @@ def test_motor_gain_scales_the_command():
     state0 = hover_state(params, p_WB=[1.0, -2.0, 10.0])
     np.testing.assert_allclose(quadrotor_state_derivative(state0, np.full(4, params.hover_rotor_speed() / 2), params),
                                np.zeros(STATE_SIZE), atol=1e-12)
+
+
+def test_the_motor_limit_applies_to_the_gained_command():
+    """The target speed is k_m times the command, clipped to [0, w_max]: with k_m = 2, a 400 rad/s command asks
+    for 800 rad/s, held at w_max = 700, so rotors at rest accelerate at (700 - 0) / tau_m = 7000 rad/s^2 (clipping
+    the command before the gain would ask for 800)."""
+    params = QuadrotorParams(motor_gain=2.0)
+    derivative = quadrotor_state_derivative(quadrotor_state(p_WB=[0, 0, 50]), np.full(4, 400.0), params)
+    np.testing.assert_allclose(derivative[ROTOR_SPEEDS], np.full(4, 700.0 / 0.1))
 
 
 class DrakeQuadrotorInputs(LeafSystem):
