@@ -99,6 +99,7 @@ class LandingMonitor(LeafSystem):
               seen_ever: bool = True) -> str | None:
         """The termination message for these values (`relative` the true relative state), or None."""
         term, platform = self._termination, self._platform
+        quad = np.asarray(quad, dtype=float)
         if not (np.isfinite(quad).all() and np.isfinite(vehicle).all()):
             return f"diverged: non-finite state at t = {t:.2f} s"
         landed = mode == Mode.LANDED and self._ends_on_landed
@@ -107,8 +108,8 @@ class LandingMonitor(LeafSystem):
         if term.stop_on_landed and gear_on_pad(relative, vehicle[GV_HEADING], self._touchdown, platform.pad_size_m,
                                                platform.pad_thickness_m):
             return f"{GEAR_TOUCHED} at t = {t:.2f} s"
-        px, py, pz = np.asarray(quad)[P_WB].tolist()
-        speed = math.hypot(*np.asarray(quad)[V_WB].tolist())
+        px, py, pz = quad[P_WB].tolist()
+        speed = math.hypot(*quad[V_WB].tolist())
         if pz < -term.ground_tolerance_m:
             return f"crash: hit the ground at t = {t:.2f} s, {speed:.1f} m/s"
         if inside_carrier(platform, (px, py, pz), vehicle):

@@ -160,7 +160,7 @@ class TrackingPid(LeafSystem):
         self.DeclareVectorOutputPort("acceleration_command", 2, self._calc_acceleration)
 
     def _seen(self, context) -> bool:
-        """target_valid raised: over 0.5 (a NaN is not)."""
+        """Whether target_valid is set (systems.flags.is_set)."""
         return is_set(self._valid.Eval(context)[0])
 
     def _update(self, context, discrete_state):
