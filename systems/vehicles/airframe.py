@@ -22,7 +22,9 @@ from systems.geometry import register_visual
 @dataclass
 class AirframeConfig:
     """Visual dimensions of the quadrotor (m): rotors sit at 45 degrees, `rotor_arm_m` from the
-    camera axis, so the ToF sensors of seed 000 (Fig. 20) hang under the propellers."""
+    camera axis, so the ToF sensors of seed 000 (Fig. 20) hang under the propellers. This is the
+    airframe the camera and Meshcat see; the flight dynamics' mixer has its own arms
+    (`QuadrotorParams`, seed 002's Table 1)."""
 
     body_size_m: float = 0.12
     body_height_m: float = 0.05
