@@ -678,3 +678,23 @@ def test_box_tracker_system_without_image_tracks_boxes():
     np.testing.assert_allclose(system.GetOutputPort("target_box").Eval(context), [250.0, 250.0, 10.0, 10.0])
     with pytest.raises(ConfigError, match=r"box_tracker\.rate_hz"):
         BoxTrackerSystem(BoxTrackerConfig(rate_hz=-1.0))
+
+
+def test_a_track_started_without_an_image_takes_its_appearance_when_images_arrive():
+    """A track and lock born on a frame without an image have no appearance (all zeros). When images
+    arrive the track is matched on its box (colour cost 0 for an unseen appearance), takes the first
+    histogram and keeps the lock; it is not gated out, coasted to death and replaced by a new id."""
+    box = np.array([100.0, 100.0, 20.0, 20.0])
+    image = np.full((200, 300, 3), 110, np.uint8)
+    image[100:120, 100:120] = RED
+    tracker = BoxTracker(BoxTrackerConfig(min_hits=1))
+    assert tracker.step([Detection(box)], None, 0.0).lock.track_id == 0
+    for k in range(1, 21):
+        state = tracker.step([Detection(box)], image, 0.1 * k)
+    assert [t.id for t in state.tracks] == [0]
+    assert state.lock.track_id == 0
+    np.testing.assert_allclose(state.track(0).histogram, colour_histogram(image, box), atol=1e-6)
+    unseen = np.zeros(HISTOGRAM_SIZE, np.float32)
+    red, blue = colour_histogram(image, box), colour_histogram(patch([BLUE]), [0, 0, 30, 20])
+    np.testing.assert_allclose(colour_cost_matrix(np.array([unseen, red]), np.array([blue, unseen])),
+                               [[0.0, 0.0], [1.0, 0.0]], atol=1e-6)

@@ -35,7 +35,9 @@ Ours, where the paper is silent:
   for the re-acquisition when it reappears. A detection that another track's gate takes is that track's
   whole view, not a fragment (a smaller vehicle seen over a larger one).
 - A track's appearance is a running mean of its matched detections' histograms (`appearance_update`
-  the weight of the newest), so one frame of a box overlapping another object moves it little.
+  the weight of the newest), so one frame of a box overlapping another object moves it little. A track
+  started on a frame without an image has no appearance yet (all zeros, colour cost 0 against anything)
+  and takes its first matched detection's histogram.
 - The target: the paper lands on "the" UGV; here the target is locked once, on the track nearest a cue
   (`cue_px`, the image centre when empty; the first track without either) as soon as that track is
   confirmed (a distractor confirmed first is not taken), and kept while its track lives. When
@@ -213,10 +215,13 @@ def histogram_similarity(h1: np.ndarray, h2: np.ndarray) -> float:
 
 def colour_cost_matrix(track_histograms: np.ndarray, detection_histograms: np.ndarray) -> np.ndarray:
     """(p, q) Eq. 4 costs 1 - sum_k min(c_i^k, c_j^k) (the intersection vectorised; equal to
-    1 - histogram_similarity pair by pair)."""
+    1 - histogram_similarity pair by pair where both are seen). A histogram of all zeros is an appearance
+    not yet seen (a track started on a frame without an image, a box covering no pixel): its pairs cost 0,
+    judged on their boxes alone, so the track takes its first histogram when it is next matched."""
     t = np.reshape(track_histograms, (-1, HISTOGRAM_SIZE))[:, None, :]
     d = np.reshape(detection_histograms, (-1, HISTOGRAM_SIZE))[None, :, :]
-    return 1.0 - np.minimum(t, d).sum(axis=-1)
+    seen = t.any(axis=-1) & d.any(axis=-1)
+    return np.where(seen, 1.0 - np.minimum(t, d).sum(axis=-1), 0.0)
 
 
 def combined_cost(iou_values: np.ndarray, colour_costs: np.ndarray, config: BoxTrackerConfig) -> np.ndarray:
