@@ -281,6 +281,19 @@ def test_the_shortest_random_walk_knot_interval_accepted_is_checked_against_the_
     assert stroke_violation(config, 0.5) is not None
 
 
+def test_a_walk_at_the_shortest_knot_interval_gives_its_rates_at_t_0_first():
+    """The rates' central difference first reads the walk at t = -RATE_STEP_S: at a knot interval of exactly that
+    step no knot was drawn for it (TypeError from the missing interpolant). The rates at t = 0 are the same whether
+    asked first or after a later time built the walk."""
+    config = StewartPlatformConfig(motion="random_walk", z_amplitude_m=[0.02], random_walk_knot_interval_s=1e-3)
+    first = StewartMotion(config, seed=3).translation_rates(0.0)
+    later = StewartMotion(config, seed=3)
+    later(1.0)
+    for a, b in zip(first, later.translation_rates(0.0)):
+        np.testing.assert_array_equal(a, b)
+    assert np.all(np.isfinite(first)) and np.any(first[0] != 0.0)
+
+
 def test_a_motion_too_long_or_fast_to_check_against_the_stroke_is_refused():
     """The check samples the motion 40 times a period of its fastest sinusoid over the whole run: at 1 GHz or over
     1e9 s that was a MemoryError (87 TiB); now one line."""

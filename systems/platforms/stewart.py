@@ -190,7 +190,7 @@ class StewartMotion:
         # An Ornstein-Uhlenbeck walk with unit stationary variance, sampled at knots, extended in
         # chunks drawn in order from the seed, interpolated shape-preservingly, and squashed into
         # +-bound by tanh so the deck never leaves its configured envelope.
-        while t > (len(self._knots) - 2) * self._h:
+        while self._interpolant is None or t > (len(self._knots) - 2) * self._h:
             chunk = len(self._knots) // 256
             rng = sample_rng(self._seed, "stewart_random_walk", chunk)
             decay = np.exp(-self._h / self._tau)
