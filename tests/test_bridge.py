@@ -66,6 +66,8 @@ def test_deck_and_piers_span_the_boxes_the_config_describes():
                                               ("bridge.at_m=-50", "bridge.at_m must not be negative"),  # clipped
                                               ("bridge.at_m=2001", "beyond the end of the vehicle's straight path"),
                                               ("bridge.pier_m=3", "bridge.width_m (6 m) must exceed twice"),
+                                              ("bridge.pier_m=0", "bridge.pier_m must be positive"),
+                                              ("bridge.pier_m=-0.4", "bridge.pier_m must be positive"),
                                               ("bridge.width_m=1.7", "narrower than its body"),  # piers on the road
                                               # 1.8 - 2 x 0.4: the gap is the 1 m body's width, no room to pass
                                               ("bridge.width_m=1.8", "leave 1 m (bridge.width_m - 2 bridge.pier_m) "

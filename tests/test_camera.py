@@ -32,7 +32,7 @@ from systems.sensors.camera import (
     render_margin_px,
     undistort_pixels,
 )
-from systems.sensors.ground_truth import axis_flow
+from systems.sensors.ground_truth import CameraVelocity, axis_flow
 from tests.conftest import render_plane, rgba
 
 # Seed 000 Eq. (10).
@@ -686,8 +686,6 @@ def test_a_barrel_lens_images_the_scene_out_to_its_rim(D, size):
 
 
 def test_camera_velocity_adds_the_lever_arm_and_turns_into_the_camera_frame():
-    from systems.sensors.ground_truth import CameraVelocity
-
     X_BC = RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.1, 0.0, -0.04])
     system = CameraVelocity(X_BC)
     context = system.CreateDefaultContext()
@@ -701,3 +699,14 @@ def test_camera_velocity_adds_the_lever_arm_and_turns_into_the_camera_frame():
     np.testing.assert_allclose(R_WC.multiply(V_WC_C[3:]), [-0.1, 0.0, -0.4], atol=1e-12)
     assert V_WC_C[5] == pytest.approx(0.4)
     np.testing.assert_allclose(V_WC_C[:3], [0.0, 0.0, -1.0], atol=1e-12)  # the yaw about W +z is about C -z
+
+
+def test_camera_velocity_is_turned_by_the_inverse_of_the_camera_s_rotation():
+    """A camera on B's origin, B yawed +90 deg: R_CW = Rz(-90 deg) takes W's +x to C's -y and W's +y to C's +x
+    (a rotation that is not its own inverse, unlike the X-rotation by pi of the test above)."""
+    system = CameraVelocity(RigidTransform())
+    context = system.CreateDefaultContext()
+    system.GetInputPort("X_WB").FixValue(context, RigidTransform(RollPitchYaw(0.0, 0.0, np.pi / 2), [1.0, 2.0, 3.0]))
+    system.GetInputPort("V_WB").FixValue(context, [0.0, 2.0, 0.0, 1.0, 0.0, 0.0])  # w along W +y, v along W +x
+    np.testing.assert_allclose(system.GetOutputPort("V_WC_C").Eval(context), [2.0, 0.0, 0.0, 0.0, -1.0, 0.0],
+                               atol=1e-12)

@@ -19,6 +19,7 @@ from systems.platforms.stewart import (
     StewartPlatform,
     StewartPlatformConfig,
     leg_lengths,
+    stroke_step_s,
     stroke_violation,
     within_stroke,
 )
@@ -240,6 +241,9 @@ def test_random_walk_is_continuous():
     ({"base_joint_angles_deg": [0.0] * 5}, "platform.base_joint_angles_deg"),
     ({"motion": "sinusoid", "roll_amplitude_deg": [5.0]}, "platform.roll_amplitude_deg"),
     ({"motion": "sinusoid", "y_amplitude_m": [0.1], "y_frequency_hz": [-1.0]}, "platform.y_frequency_hz"),
+    # one phase for two sinusoids: neither empty nor one a sinusoid
+    ({"motion": "sinusoid", "z_amplitude_m": [0.01, 0.02], "z_frequency_hz": [0.1, 0.2], "z_phase_deg": [30.0]},
+     "platform.z_phase_deg must be empty or have one entry per sinusoid"),
     ({"tag_id": 587}, "platform.tag_id"),
     ({"tag_id": -1}, "platform.tag_id"),  # unchecked: cv2.error from the tag's mesh
     # unchecked: a random walk at t = -1 s raised TypeError
@@ -304,6 +308,17 @@ def test_a_motion_too_long_or_fast_to_check_against_the_stroke_is_refused():
             stroke_violation(config, duration_s)
 
 
+@pytest.mark.parametrize("knot_interval_s, step_s", [
+    (0.25, 0.025),  # the default knots: a tenth of one, under the 0.05 s cap
+    (0.1, 0.01),
+    (1.0, 0.05),  # a tenth of a knot is 0.1 s: the cap
+])
+def test_the_stroke_check_samples_a_random_walk_ten_times_a_knot(knot_interval_s, step_s):
+    config = StewartPlatformConfig(motion="random_walk", z_amplitude_m=[0.02],
+                                   random_walk_knot_interval_s=knot_interval_s)
+    assert stroke_step_s(config) == pytest.approx(step_s, rel=1e-12)
+
+
 def moving_platform(**motion):
     config = StewartPlatformConfig(motion="sinusoid", **motion)
     platform = StewartPlatform(config, SceneGraph())
@@ -365,6 +380,16 @@ def test_deck_motion_and_carrier_state_describe_the_tilted_yawed_deck():
     assert motion[6] == 1.0
     np.testing.assert_allclose(platform.GetOutputPort("carrier_state").Eval(context), [0.0, 0.0, yaw, 0.0],
                                atol=1e-12)
+
+
+@pytest.mark.parametrize("yaw_deg", [150.0, -120.0])
+def test_the_carrier_heading_is_the_deck_s_yaw_beyond_a_quarter_turn(yaw_deg):
+    """A constant yaw (0 Hz, phase 90 deg: amplitude x sin(90 deg)) with the deck's x axis pointing backwards
+    (cos(yaw) < 0): the heading is the yaw itself, not its mirror across W's y axis."""
+    platform, context = moving_platform(yaw_amplitude_deg=[yaw_deg], yaw_frequency_hz=[0.0], yaw_phase_deg=[90.0])
+    context.SetTime(1.0)
+    np.testing.assert_allclose(platform.GetOutputPort("carrier_state").Eval(context),
+                               [0.0, 0.0, math.radians(yaw_deg), 0.0], atol=1e-12)
 
 
 def test_a_level_downward_camera_over_the_level_deck_sees_the_tag_frame_unturned():
