@@ -580,6 +580,10 @@ def test_low_scores_and_bad_boxes_are_not_used():
     detections = [Detection(np.array([0.0, 0.0, 10.0, 10.0]), 0.2), Detection(np.array([5.0, 5.0, 0.0, 4.0])),
                   Detection(np.array([np.nan, 0.0, 10.0, 10.0]))]
     assert step_tracker(TrackerState(), detections, None, 0.0, config).tracks == ()
+    # A score of exactly min_score is used: ColourPadDetector scores 0.5 at its acceptance limits.
+    assert config.min_score == 0.5
+    at_limit = [Detection(np.array([0.0, 0.0, 10.0, 10.0]), 0.5)]
+    assert len(step_tracker(TrackerState(), at_limit, None, 0.0, replace(config, min_hits=1)).tracks) == 1
 
 
 def test_a_tracks_detection_indexes_the_frames_own_list():
@@ -600,6 +604,66 @@ def test_a_box_of_no_height_or_width_is_not_used():
     for box in ([5.0, 5.0, 4.0, 0.0], [5.0, 5.0, 4.0, -3.0], [5.0, 5.0, 0.0, 4.0], [5.0, 5.0, -3.0, 4.0]):
         state = step_tracker(TrackerState(), [Detection(np.array(box), 0.9)], None, 0.0, BoxTrackerConfig(min_hits=1))
         assert state.tracks == (), box
+
+
+def ground_with(box, colour) -> np.ndarray:
+    """A (200, 300, 3) grey image (110) with the integer box [x, y, w, h] painted in `colour`."""
+    image = np.full((200, 300, 3), 110, np.uint8)
+    x, y, w, h = (int(v) for v in box)
+    image[y:y + h, x:x + w] = colour
+    return image
+
+
+def test_a_differently_coloured_box_in_the_same_place_is_gated_by_colour_alone():
+    """The same box red (255, 0, 0), then blue (0, 0, 255): their histograms share only G's bin 0 (1/3 of each),
+    a colour cost of 2/3 over max_colour_cost 0.5, while IOU 1 makes the combined cost 0.5 * 2/3 = 1/3, under
+    max_cost 0.75: the colour gate alone keeps the blue box from the red track, which coasts."""
+    box = np.array([100.0, 100.0, 20.0, 20.0])
+    tracker = BoxTracker(BoxTrackerConfig(min_hits=1))
+    tracker.step([Detection(box)], ground_with(box, (255, 0, 0)), 0.0)
+    state = tracker.step([Detection(box)], ground_with(box, (0, 0, 255)), 0.1)
+    assert [t.id for t in state.tracks] == [0, 1]
+    assert (state.track(0).detection, state.track(0).misses) == (None, 1)
+    assert state.track(1).detection == 0
+
+
+def test_a_pair_over_max_cost_is_not_assigned():
+    """Without images, a 10 px box moved 5 px: IOU 50 / 150 = 1/3, combined cost 0.5 (1 - 1/3) = 1/3, over
+    max_cost 0.3 (the innovation gate passes, chi-square about 0.23): not assigned, a new track starts."""
+    tracker = BoxTracker(BoxTrackerConfig(min_hits=1, max_cost=0.3))
+    tracker.step([Detection(np.array([100.0, 100.0, 10.0, 10.0]))], None, 0.0)
+    state = tracker.step([Detection(np.array([105.0, 100.0, 10.0, 10.0]))], None, 0.1)
+    assert [t.id for t in state.tracks] == [0, 1]
+    assert state.track(0).detection is None
+
+
+def test_lock_takes_a_track_scoring_exactly_lock_min_score():
+    state = BoxTracker(BoxTrackerConfig(min_hits=1, lock_min_score=0.8)).step(
+        [Detection(np.array([250.0, 250.0, 10.0, 10.0]), 0.8)], None, 0.0)
+    assert state.lock.track_id == 0
+
+
+def test_a_narrower_box_mostly_outside_the_track_is_matched_not_a_partial_view():
+    """A 40 x 30 px track, then a 16 px wide box (under 0.6 of 40) overlapping it by 10 columns: 300 / 480 = 0.625
+    of it inside the predicted box, under PARTIAL_INSIDE 0.8, so it is a whole view: matched (IOU 300 / 1380,
+    combined cost 0.39), the track does not coast."""
+    tracker = BoxTracker(BoxTrackerConfig(min_hits=1))
+    tracker.step([Detection(np.array([100.0, 100.0, 40.0, 30.0]))], None, 0.0)
+    state = tracker.step([Detection(np.array([130.0, 100.0, 16.0, 30.0]))], None, 0.1)
+    assert [t.id for t in state.tracks] == [0]
+    assert (state.track(0).detection, state.track(0).misses) == (0, 0)
+
+
+def test_a_frame_earlier_than_the_last_predicts_nothing():
+    """A frame whose time goes back to an earlier one is taken as dt = 0, not |dt|: a moving track (over
+    10 px/s) coasts in place, its box exactly the last frame's."""
+    tracker = BoxTracker(BoxTrackerConfig(min_hits=1))
+    tracker.step([Detection(np.array([100.0, 100.0, 10.0, 10.0]))], None, 1.0)
+    last = tracker.step([Detection(np.array([110.0, 100.0, 10.0, 10.0]))], None, 1.1)
+    assert last.track(0).detection == 0 and last.track(0).velocity[0] > 10.0
+    state = tracker.step([], None, 1.0)
+    assert state.track(0).detection is None
+    np.testing.assert_array_equal(state.track(0).box, last.track(0).box)
 
 
 def test_bad_configs_name_the_field():
@@ -685,8 +749,7 @@ def test_a_track_started_without_an_image_takes_its_appearance_when_images_arriv
     arrive the track is matched on its box (colour cost 0 for an unseen appearance), takes the first
     histogram and keeps the lock; it is not gated out, coasted to death and replaced by a new id."""
     box = np.array([100.0, 100.0, 20.0, 20.0])
-    image = np.full((200, 300, 3), 110, np.uint8)
-    image[100:120, 100:120] = RED
+    image = ground_with(box, RED)
     tracker = BoxTracker(BoxTrackerConfig(min_hits=1))
     assert tracker.step([Detection(box)], None, 0.0).lock.track_id == 0
     for k in range(1, 21):
