@@ -42,6 +42,7 @@ from systems.perception.ugv_detector import (
     _Part,
     match_truth,
     non_maximum_suppression,
+    to_rgb,
 )
 from systems.sensors.fisheye import FisheyeConfig, theta_distorted
 
@@ -169,6 +170,13 @@ def test_nms_keeps_the_best_and_drops_only_what_overlaps_a_kept_box():
         == [0, 1]
 
 
+def test_nms_keeps_a_box_whose_iou_equals_the_threshold():
+    """A box goes only when its IOU exceeds the threshold: [0, 0, 10, 5] inside [0, 0, 10, 10] has IOU 50 / 100 =
+    0.5, so at 0.5 it stays."""
+    boxes, scores = np.array([[0, 0, 10, 10], [0, 0, 10, 5]]), np.array([0.9, 0.8])
+    assert list(non_maximum_suppression(boxes, scores, 0.5)) == [0, 1]
+
+
 def test_nms_keeps_at_most_max_keep_boxes_the_best_first():
     boxes = np.array([[0, 0, 10, 10], [20, 0, 10, 10], [40, 0, 10, 10], [60, 0, 10, 10]])  # none overlapping
     scores = np.array([0.5, 0.9, 0.7, 0.8])
@@ -207,6 +215,11 @@ def test_bad_classical_settings_name_the_field(field, value, message):
     ColourPadConfig(max_strip_angle_deg=90.0, min_part_px=1, min_box_px=1, min_shaped_part_px=0.0).validate()
 
 
+def test_detectors_refuse_an_image_that_is_not_uint8():
+    with pytest.raises(ConfigError, match="uint8 image, got \\(4, 4, 3\\) float32"):
+        to_rgb(np.zeros((4, 4, 3), np.float32))
+
+
 # ---------------------------------------------------------------- the classical detector on hand cases
 
 BODY = (191, 77, 38)  # GroundVehicleGeometry's (0.75, 0.3, 0.15)
@@ -222,14 +235,35 @@ def strip(x: float, y: float, length: float, width: float, angle: float = 0.0) -
     (strip(0, 0, 30, 8), strip(0, 30, 30, 8, math.pi / 2), False),  # at right angles (over 27 deg)
     (strip(0, 0, 30, 8), strip(40, 0, 30, 8), False),  # end to end: the offset runs along the strips
     (strip(0, 0, 30, 28), strip(0, 30, 30, 28), False),  # squares, not strips (elongation 1.07 < 1.6)
+    (strip(0, 0, 20, 5), strip(0, 20, 12, 10), False),  # one a strip (4), the other not (1.2 < 1.6)
     (strip(0, 0, 30, 8), strip(0, 3, 30, 8), False),  # 3 px apart: under 0.3 of their length
     (strip(0, 0, 30, 8), strip(0, 45, 90, 8), False),  # lengths 1 : 3 (over 2.5)
-], ids=["pair", "crossed", "end-to-end", "not-elongated", "too-close", "unequal"])
+], ids=["pair", "crossed", "end-to-end", "not-elongated", "one-not-elongated", "too-close", "unequal"])
 def test_each_strip_test_alone_rejects_a_pair(p, q, paired):
     """ColourPadConfig's strip tests, one failing at a time on parts that pass all the others."""
     detector = ColourPadDetector()
     assert detector._strip_pair(p, q) is paired
     assert detector._strip_pair(q, p) is paired
+
+
+TURNED = math.pi / 4
+SLANT, ACROSS = 0.2, 0.2 + math.radians(35.0)
+
+
+@pytest.mark.parametrize("p, q", [
+    (strip(0, 0, 20, 5, TURNED), strip(-20 * math.sin(TURNED), 20 * math.cos(TURNED), 20, 5, TURNED)),
+    (strip(0, 0, 20, 5, SLANT), strip(20 * math.cos(ACROSS), 20 * math.sin(ACROSS), 20, 5, SLANT)),
+    (strip(0, 0, 20, 5), strip(0, 14, 8, 4)),
+], ids=["turned-45-deg", "offset-35-deg-off-across", "length-ratio-2.5"])
+def test_strips_pair_turned_off_the_image_axes_and_at_the_limits(p, q):
+    """Pairs that pass every strip test: parallel strips at 45 deg side by side (their angle apart 0, not their
+    sum's 90 deg); parallel strips at 0.2 rad whose offset is 35 deg off straight across (along their mean
+    axis 20 cos 35 deg = 16.4 <= 0.85 * 20 = 17 px; not the 45 deg axis of cos 2a - cos 2b = 0, along which it
+    would be 20.0 px); lengths 20 : 8, exactly max_length_ratio 2.5."""
+    detector = ColourPadDetector()
+    assert detector.config.max_length_ratio == 2.5
+    assert detector._strip_pair(p, q) is True
+    assert detector._strip_pair(q, p) is True
 
 
 @pytest.mark.parametrize("p, q, paired", [
@@ -261,6 +295,26 @@ def test_a_drawn_body_rectangle_is_one_part_of_its_pixel_extent(rows, cols, leng
     assert (part.length, part.width) == (length, width)
     np.testing.assert_allclose(part.centre, [(cols[0] + cols[1] - 1) / 2, (rows[0] + rows[1] - 1) / 2])
     assert abs(math.sin(part.angle)) == pytest.approx(1.0 if vertical else 0.0, abs=1e-9)
+
+
+def test_a_dark_pixel_of_the_bodys_hue_is_not_body():
+    """RGB (10, 4, 2): hue 15 deg (OpenCV's 7-8) and saturation 204 inside the body's band, value 10 under
+    min_value 20: too dark to be the body."""
+    image = np.full((3, 3, 3), (10, 4, 2), np.uint8)
+    h, s, v = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)[0, 0].tolist()
+    config = ColourPadConfig()
+    assert config.hue_low <= h <= config.hue_high and s >= config.min_saturation and v < config.min_value
+    assert not ColourPadDetector(config).masks(image)[0].any()
+
+
+@pytest.mark.parametrize("length, count", [(2, 0), (3, 1)])
+def test_a_part_needs_min_part_px_pixels(length, count):
+    """A one-pixel line of `length` px (unchanged by the 3 x 3 closing) is a part from min_part_px (3) pixels."""
+    body = np.zeros((20, 20), np.uint8)
+    body[10, 5:5 + length] = 255
+    detector = ColourPadDetector()
+    assert detector.config.min_part_px == 3
+    assert len(detector.parts(body)) == count
 
 
 def test_a_strip_belongs_to_one_ugv_only():
