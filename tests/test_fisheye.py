@@ -6,6 +6,8 @@ import cv2
 import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_load_typed
+from pydrake.geometry import SceneGraph
+from pydrake.math import RollPitchYaw
 from pydrake.systems.sensors import ImageRgba8U
 
 from diagrams.fisheye_markers import BACKGROUND, MarkerScene, blob_centroids, marker_points_C, projection_errors
@@ -13,10 +15,14 @@ from systems.config import ConfigError
 from systems.sensors.fisheye import (
     BLACK,
     FACE_MARGIN_PX,
+    FACE_NAMES,
     FisheyeCamera,
     FisheyeConfig,
+    distortion_fold_deg,
+    face_rotations,
     fisheye_layout,
     in_field_of_view,
+    make_face_sensor,
     pixel_rays,
     project_points,
     rectified_K,
@@ -90,6 +96,29 @@ def test_the_field_of_view_circle_is_centred_on_the_principal_point():
         inside = in_field_of_view(project_points(rays, config), config)
         assert np.all(inside == expected), np.degrees(phi[inside != expected])
 
+
+def test_a_pixel_exactly_on_the_circle_is_in_view():
+    """The circle's radius is the module docstring's f theta_d(75 deg) = 253.6 px (by hand), and a pixel exactly
+    that far from the principal point, right of it or above it, is within the field of view (<=, not <)."""
+    config = FisheyeConfig()
+    theta = np.radians(75.0)
+    assert config.radius_px == pytest.approx(200.0 * theta * (1 - 0.02 * theta**2 + 0.001 * theta**4), rel=1e-12)
+    assert config.radius_px == pytest.approx(253.596, abs=1e-3)
+    on_circle = [[config.cx + config.radius_px, config.cy], [config.cx, config.cy - config.radius_px]]
+    assert in_field_of_view(on_circle, config).all()
+
+
+def test_a_distortion_whose_slope_reaches_zero_at_the_rim_folds_there():
+    """With k2 = 0 and k1 = -1 / (3 theta_max^2), theta_d = theta (1 + k1 theta^2) has slope 1 + 3 k1 theta^2 = 0
+    exactly at the field's edge, 75 deg (the float sum is exactly 0.0 there): theta_d stops growing at the rim, a
+    fold (slope <= 0, not only < 0), and the config is refused."""
+    config = FisheyeConfig(k2=0.0)
+    config.k1 = -1 / (3 * config.theta_max**2)  # about -0.1945
+    assert 1 + 3 * config.k1 * config.theta_max**2 == 0.0
+    assert distortion_fold_deg(config) == pytest.approx(75.0)
+    with pytest.raises(ConfigError, match="fold"):
+        config.validate()
+
 # ---------------------------------------------------------------- the faces and the composition
 
 
@@ -108,6 +137,30 @@ def test_every_pixel_of_the_circle_has_a_face_and_none_outside():
                 and uv[:, 1].max() <= face.height - 1 - FACE_MARGIN_PX + 1e-9)
     # Far fewer pixels rendered than five full cube faces.
     assert sum(face.width * face.height for face in layout.faces) < 0.5 * 5 * config.face_px**2
+
+
+def test_the_faces_look_down_and_towards_the_images_right_bottom_left_and_top():
+    """The module docstring: `down` along the optical axis (+z_C), the side faces side_axis_deg (60) off it towards
+    the image's right (+x_C), bottom (+y_C), left (-x_C) and top (-y_C), in FACE_NAMES' order."""
+    s, c = np.sin(np.radians(60.0)), np.cos(np.radians(60.0))
+    expected = {"down": [0.0, 0.0, 1.0], "right": [s, 0.0, c], "bottom": [0.0, s, c], "left": [-s, 0.0, c],
+                "top": [0.0, -s, c]}
+    rotations = face_rotations(FisheyeConfig())
+    assert len(rotations) == len(FACE_NAMES) == 5
+    for name, R_CF in zip(FACE_NAMES, rotations):
+        np.testing.assert_allclose(R_CF.col(2), expected[name], atol=1e-12, err_msg=name)
+
+
+def test_each_face_sensor_sits_at_the_fisheyes_centre_turned_by_its_face_rotation():
+    """Each face's RgbdSensor pose on the body is X_BF = X_BC [R_CF, 0] (not [R_CF, 0] X_BC): its origin is the
+    fisheye's mount point and its axes are R_BC R_CF, with a mount both turned and moved off the body origin."""
+    config = FisheyeConfig(mount_xyz_m=[0.1, -0.2, 0.3], mount_rpy_deg=[170.0, 10.0, 30.0])
+    R_BC = RollPitchYaw(np.radians([170.0, 10.0, 30.0])).ToRotationMatrix().matrix()
+    body = SceneGraph().world_frame_id()
+    for face in fisheye_layout(config).faces:
+        X_BF = make_face_sensor(face, config, body).default_X_PB()
+        np.testing.assert_allclose(X_BF.translation(), [0.1, -0.2, 0.3], atol=1e-12, err_msg=face.name)
+        np.testing.assert_allclose(X_BF.rotation().matrix(), R_BC @ face.R_CF.matrix(), atol=1e-12, err_msg=face.name)
 
 
 def fixed_camera(config, face_images):
@@ -159,14 +212,16 @@ def test_rectified_view_is_the_pinhole_view_with_the_new_K(config):
 def test_the_optical_axis_lands_on_the_rectified_image_centre(config):
     """A blob on the fisheye's optical axis (at its principal point) appears at the rectified view's centre,
     ((width - 1) / 2, (height - 1) / 2) in OpenCV's pixel coordinates (pixel centres at integers), wherever the
-    fisheye's own principal point lies."""
+    fisheye's own principal point lies; the rectified view is width x height (not height x width)."""
     u, v = np.meshgrid(np.arange(config.width, dtype=float), np.arange(config.height, dtype=float))
     dip = np.exp(-((u - config.cx) ** 2 + (v - config.cy) ** 2) / (2 * 2.0**2))  # a Gaussian, sigma 2 px
     fisheye = np.zeros((config.height, config.width, 4), np.uint8)
     fisheye[..., :3], fisheye[..., 3] = BACKGROUND, 255
     fisheye[..., 1] = np.rint(BACKGROUND[1] * (1 - dip))  # blob_centroids weighs the green channel's dip
     centre = np.array([(config.width - 1) / 2, (config.height - 1) / 2])
-    found = blob_centroids(rectify(fisheye, rectify_maps(config)), [centre])[0]
+    rectified = rectify(fisheye, rectify_maps(config))
+    assert rectified.shape[:2] == (config.height, config.width)
+    found = blob_centroids(rectified, [centre])[0]
     # The blob and the maps are symmetric about the axis, so the centroid stays put (to 1e-13 px here); 0.1 px is
     # room for the maps' 1/32 px rounding. A principal point at width / 2 (pixel-index space) puts it 0.5 px off.
     np.testing.assert_allclose(found, centre, atol=0.1)
@@ -235,6 +290,12 @@ def test_bad_config_raises_naming_the_field(change, field):
     config = FisheyeConfig(**change)
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         config.validate()
+
+
+@pytest.mark.parametrize("change", [{"face_px": 16}, {"side_axis_deg": 30.0}, {"side_axis_deg": 90.0}])
+def test_config_at_its_limits_is_valid(change):
+    """The limits themselves are allowed: faces of 16 px, side axes 30 or 90 deg off the optical axis."""
+    FisheyeConfig(**change).validate()
 
 
 def test_config_loads_from_yaml():

@@ -38,8 +38,10 @@ from systems.perception.stereo_depth import (
     StereoDepthConfig,
     central_window,
     depth_from_disparity,
+    disparity,
     make_matcher,
     window_altitude,
+    window_crop,
 )
 from systems.sensors.stereo import StereoConfig, add_stereo_pair
 from tests.conftest import wiring
@@ -265,7 +267,12 @@ def test_the_hover_scenes_seed_seeds_the_eyes_noise():
 def test_defaults_are_the_paper_camera():
     c = StereoConfig()
     assert (c.width, c.height, c.baseline_m, c.rate_hz) == (752, 480, 0.12, 60.0)
+    assert c.period_s == pytest.approx(1 / 60)
     assert c.focal_length_px == pytest.approx(F_PX)
+    # The docstring's mount: the pair's centre under the body origin, 5 cm down, the baseline along +x_B.
+    left, right = c.X_BL.translation(), c.X_BR.translation()
+    np.testing.assert_allclose((left + right) / 2, [0.0, 0.0, -0.05], atol=1e-12)
+    np.testing.assert_allclose(right - left, [BASELINE, 0.0, 0.0], atol=1e-12)
     assert StereoDepthConfig().disparities_for(c) == 64  # 350 * 0.12 / 0.7 = 60 px, rounded up to 16s
     assert StereoAltitudeEstimator(c).nearest_m == pytest.approx(F_PX * BASELINE / 63)  # 0.667 m: 0-63 px searched
     assert central_window((480, 752), (c.cx, c.cy), 100, 100) == (slice(190, 290), slice(326, 426))
@@ -299,6 +306,28 @@ def test_the_window_is_centred_on_any_centre(cx, cols):
     assert abs(columns.start + (cols - 1) / 2 - cx) <= 0.5
 
 
+@pytest.mark.parametrize("centre_xy, rows, cols, expected", [
+    ((375.5, 239.5), 480, 752, (slice(0, 480), slice(0, 752))),  # the whole frame
+    ((740.0, 470.0), 100, 100, (slice(380, 480), slice(652, 752))),  # pushed back inside at the bottom right
+    ((3.0, 2.0), 100, 100, (slice(0, 100), slice(0, 100))),  # and at the top left
+])
+def test_the_window_is_clipped_to_the_image(centre_xy, rows, cols, expected):
+    """A window that would cross the image's edge is moved back inside it, ending on its last row and column."""
+    assert central_window((480, 752), centre_xy, rows, cols) == expected
+
+
+@pytest.mark.parametrize("window, expected", [
+    # 190 - 24, 290 + 24; 326 - 24 - 64, 426 + 24
+    ((slice(190, 290), slice(326, 426)), (slice(166, 314), slice(238, 450))),
+    ((slice(0, 100), slice(30, 130)), (slice(0, 124), slice(0, 154))),  # clipped at the top and left
+    ((slice(400, 480), slice(700, 752)), (slice(376, 480), slice(612, 752))),  # and at the bottom and right
+])
+def test_the_crop_is_the_window_with_its_margin_and_the_search_to_its_left(window, expected):
+    """window_crop with 64 disparities and a 24 px margin: the margin on every side, the 64 searched columns
+    further left, clipped to the 752 x 480 image."""
+    assert window_crop((480, 752), window, 64, 24) == expected
+
+
 def test_window_of_takes_the_windows_pixels_out_of_the_matched_region():
     """Through the crop and back: an image of each pixel's index, cropped to the matched region, gives the
     window's indices of the full frame."""
@@ -329,6 +358,61 @@ def test_a_window_exactly_min_valid_fraction_matched_is_valid():
     depth.flat[59] = np.nan
     altitude, valid, fraction = window_altitude(depth, 0.6)
     assert not valid and math.isnan(altitude) and fraction == pytest.approx(0.59)
+
+
+def test_an_altitude_exactly_at_max_altitude_m_is_valid_and_an_empty_window_is_not():
+    """Invalid only beyond max_altitude_m: a window all at 8 m with an 8 m range is valid, all of it matched. A
+    window of no pixels has none matched (fraction 0) and no altitude."""
+    assert window_altitude(np.full((2, 2), 8.0), 0.6, "mean", 8.0) == (8.0, True, 1.0)
+    altitude, valid, fraction = window_altitude(np.empty((0, 0)), 0.6)
+    assert math.isnan(altitude) and not valid and fraction == 0.0
+
+
+def test_the_default_altimeter_refuses_a_window_55_per_cent_matched():
+    """The default min_valid_fraction, 0.6 (StereoDepthConfig: under it the window is refused): a window of 21 px
+    (2 m) matched over 55 % of its pixels is invalid, over 60 % valid."""
+    estimator = StereoAltitudeEstimator(StereoConfig())
+    window = np.full((100, 100), np.nan)
+    window.flat[:5500] = 21.0
+    refused = estimator.altitude(window)
+    assert not refused.valid and math.isnan(refused.altitude_m) and refused.valid_fraction == pytest.approx(0.55)
+    window.flat[:6000] = 21.0
+    accepted = estimator.altitude(window)
+    assert accepted.valid and accepted.altitude_m == pytest.approx(F_PX * BASELINE / 21.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("config", [StereoDepthConfig(),
+                                    StereoDepthConfig(block_size=7, uniqueness_ratio=5, speckle_window_size=50,
+                                                      speckle_range=1, disp12_max_diff=3)])
+def test_the_matcher_has_the_configured_settings(config):
+    """make_matcher passes every setting of the config to cv2.StereoSGBM (both configs' values differ from OpenCV's
+    defaults: blockSize 3, the others 0) and searches disparities 0 to 63 in the full SGBM mode."""
+    matcher = make_matcher(64, config)
+    assert (matcher.getMinDisparity(), matcher.getNumDisparities()) == (0, 64)
+    assert matcher.getBlockSize() == config.block_size
+    assert matcher.getDisp12MaxDiff() == config.disp12_max_diff
+    assert matcher.getUniquenessRatio() == config.uniqueness_ratio
+    assert (matcher.getSpeckleWindowSize(), matcher.getSpeckleRange()) == (config.speckle_window_size,
+                                                                           config.speckle_range)
+    assert matcher.getMode() == cv2.STEREO_SGBM_MODE_SGBM
+
+
+class FixedMatcher:
+    """A stand-in for cv2.StereoSGBM whose compute returns the given fixed-point (1/16 px) disparities."""
+
+    def __init__(self, raw: np.ndarray):
+        self.raw = raw
+
+    def compute(self, left, right):
+        return self.raw.copy()
+
+
+def test_disparity_is_sgbms_fixed_point_over_16_and_none_where_not_positive():
+    """SGBM's 1/16 px disparities: -16 (its invalid mark with minDisparity 0) and 0 (infinitely far) are no match,
+    8 and 32 are 0.5 and 2 px."""
+    d = disparity(None, None, FixedMatcher(np.array([[-16, 0, 8, 32]], np.int16)))
+    assert d.dtype == np.float32
+    np.testing.assert_array_equal(d, [[np.nan, np.nan, 0.5, 2.0]])
 
 
 @pytest.mark.parametrize("block_size", [3, 5, 11])
@@ -747,6 +831,7 @@ def test_kf_lost_near_does_not_start_on_a_reading_far_under_the_last():
     # 376 px * 0.5 m / 0.5 m = 376 px: exactly half the 752 px width is not under it.
     (StereoConfig(focal_length_px=376.0, baseline_m=0.5, min_altitude_m=0.5), "must be under half the image width"),
     (StereoConfig(max_altitude_m=60.0), "must lie within the clipping range"),
+    (StereoConfig(max_altitude_m=50.0), "must lie within the clipping range"),  # on the far plane (far_m 50)
     (StereoConfig(near_m=1.0, min_altitude_m=0.7), "must lie within the clipping range"),
     (StereoConfig(near_m=0.7, min_altitude_m=0.7), "must lie within the clipping range"),  # on the near plane
 ])
@@ -776,6 +861,21 @@ def test_add_stereo_pair_validates():
 def test_bad_depth_config_names_the_field(config, message):
     with pytest.raises(ConfigError, match=message):
         config.validate(camera=StereoConfig())
+
+
+@pytest.mark.parametrize("config", [StereoDepthConfig(block_size=1), StereoDepthConfig(block_size=11),
+                                    StereoDepthConfig(window_cols=624)])
+def test_depth_config_at_its_limits_is_valid(config):
+    """Block sizes 1 and 11 (OpenCV's SGBM takes any odd size from 1); a 624 px window, which with the default
+    camera starts at column round(375.5 - 312 + 0.5) = 64, the first that the 64 disparities leave matched."""
+    config.validate(camera=StereoConfig())
+
+
+def test_a_window_reaching_into_the_unmatched_columns_is_refused():
+    """626 px wide, the window starts at column round(375.5 - 313 + 0.5) = 63, one of the first 64 that SGBM
+    leaves unmatched."""
+    with pytest.raises(ConfigError, match="reaches column 63 of the image, inside the first 64"):
+        StereoDepthConfig(window_cols=626).validate(camera=StereoConfig())
 
 
 @pytest.mark.parametrize("config, message", [
