@@ -33,7 +33,7 @@ class StereoDepthConfig:
     the MYNT EYE down to 0.7 m)."""
 
     num_disparities: int = 0
-    block_size: int = 5  # odd, 3..11 is OpenCV's usual range for SGBM
+    block_size: int = 5  # odd, 1..11 (OpenCV takes any odd size; 3..11 is the usual range for SGBM)
     uniqueness_ratio: int = 10  # per cent; OpenCV's docs: 5-15 is usually good enough
     speckle_window_size: int = 100  # OpenCV's docs: 50-200
     speckle_range: int = 2  # OpenCV's docs: 1 or 2 (times 16 inside)
