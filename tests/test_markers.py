@@ -62,7 +62,9 @@ def angle_between(R_a: RotationMatrix, R_b: RotationMatrix) -> float:
     (dict(dictionary="DICT_NOPE"), "dictionary"),
     (dict(ids=[0, 1, 2, 3, 3]), "ids"),
     (dict(ids=[0, 1, 2, 3, 50]), "ids"),
+    (dict(ids=[], offsets_m=[], sizes_m=[]), "ids"),  # no marker at all, not even the pad frame's
     (dict(sizes_m=[0.2, 0.3, 0.3, 0.3]), "sizes_m"),
+    (dict(sizes_m=[0.0, 0.3, 0.3, 0.3, 0.3]), "sizes_m"),  # a size of 0 is not positive
     (dict(offsets_m=[[0.1, 0, 0], [0.3, 0.3, 0], [-0.3, 0.3, 0], [-0.3, -0.3, 0], [0.3, -0.3, 0]]), "offsets_m"),
 ])
 def test_layout_validation_names_the_field(change, message):
@@ -70,10 +72,17 @@ def test_layout_validation_names_the_field(change, message):
         MarkerLayout(**change).validate()
 
 
-def test_layout_must_fit_the_pad_with_its_margins():
-    LAYOUT.validate(pad_size_m=PAD_M)  # corner markers' margins reach the pad's edge exactly
-    with pytest.raises(ConfigError, match="marker 1 with its margin reaches 0.500 m from the centre, off the 0.99 m pad"):
-        LAYOUT.validate(pad_size_m=0.99)
+@pytest.mark.parametrize("layout, marker_id", [
+    (LAYOUT, 1),
+    # the corner at (-0.3, -0.3) alone: its reach is |x| (|y|) + half its 0.3 m edge + one cell (a sixth of the edge),
+    # 0.3 + 0.15 + 0.05 = 0.5 m, on either side of the centre
+    (MarkerLayout(ids=[0, 3], offsets_m=[[0.0, 0.0, 0.0], [-0.3, -0.3, 0.0]], sizes_m=[0.2, 0.3]), 3),
+])
+def test_layout_must_fit_the_pad_with_its_margins(layout, marker_id):
+    layout.validate(pad_size_m=PAD_M)  # corner markers' margins reach the pad's edge exactly
+    with pytest.raises(ConfigError, match=f"marker {marker_id} with its margin reaches 0.500 m from the centre, "
+                                          "off the 0.99 m pad"):
+        layout.validate(pad_size_m=0.99)
 
 
 CORNERS = [[0.3, 0.3, 0.0], [-0.3, 0.3, 0.0], [-0.3, -0.3, 0.0], [0.3, -0.3, 0.0]]
@@ -118,6 +127,14 @@ def test_pad_texture_places_each_marker_where_the_layout_says():
         assert edge == pytest.approx(LAYOUT.sizes_m[i], abs=1.5 / scale)
         # upright: ArUco's first corner (top-left of the marker) is up and left in the image
         assert c[0, 0] < c[1, 0] and c[0, 1] < c[3, 1]
+
+
+def test_a_marker_may_fill_the_whole_pad():
+    """One 1 m marker on the 1 m pad: the texture is OpenCV's image of the marker, edge to edge."""
+    texture = pad_texture(MarkerLayout(ids=[0], offsets_m=[[0.0, 0.0, 0.0]], sizes_m=[1.0]), 1.0, 1200)
+    marker = cv2.aruco.generateImageMarker(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), 0, 1200,
+                                           borderBits=1)
+    np.testing.assert_array_equal(texture, marker)
 
 
 # ---- synthetic measurements (seed 002 Sec. 4) ------------------------------------------------
@@ -201,18 +218,24 @@ def fixed_pose_source(source: SyntheticMarkerSource, X_WB: RigidTransform, X_WP:
     return context
 
 
-def test_synthetic_source_system_samples_seeded_noise_per_sample():
+@pytest.mark.parametrize("settings, time, seed, sample", [
+    (dict(period_s=0.035, seed=3), 0.35, 3, 10),
+    # the defaults: seed 0 and seed 002's T_s of 35 ms (Sec. 4: 25 ms to acquire a frame, 10 to process it), so
+    # 0.105 s is sample 3
+    (dict(), 0.105, 0, 3),
+])
+def test_synthetic_source_system_samples_seeded_noise_per_sample(settings, time, seed, sample):
     X_WB, X_WP = pose([1.0, 2.0, 5.0], [2, -3, 40]), pose([1.2, 1.9, 1.6], [0, 0, 10])
-    source = SyntheticMarkerSource(LAYOUT, CAMERA.X_BC, period_s=0.035, seed=3)
+    source = SyntheticMarkerSource(LAYOUT, CAMERA.X_BC, **settings)
     context = fixed_pose_source(source, X_WB, X_WP)
-    context.SetTime(0.35)
+    context.SetTime(time)
     measurements = source.get_output_port().Eval(context)
     X_CP = X_WB.multiply(CAMERA.X_BC).InvertAndCompose(X_WP)
-    expected = synthetic_marker_measurements(X_CP, LAYOUT, sample_rng(3, STREAM, 10), time=0.35)
+    expected = synthetic_marker_measurements(X_CP, LAYOUT, sample_rng(seed, STREAM, sample), time=time)
     for m, e in zip(measurements, expected, strict=True):
         np.testing.assert_allclose(m.p_CM, e.p_CM, atol=1e-12)
         np.testing.assert_allclose(m.q_CM, e.q_CM, atol=1e-12)
-        assert m.time == 0.35
+        assert m.time == time
 
 
 class SampleCounter(LeafSystem):
