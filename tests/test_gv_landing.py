@@ -320,10 +320,32 @@ def test_the_truth_gives_the_true_relative_state_and_the_split_names_its_parts()
     assert truth.get_output_port().Eval(context)[VALID] == 0.0
 
 
+@pytest.mark.parametrize("p_WB, roll_rad, valid", [
+    ([11.0, 2.0, 5.0], 0.0, 1.0),
+    # rolled 1.4 rad, the pad at (10, 1.75, 1.6) lies 84.6 deg off -z_B: outside the 150 deg cone, inside 180 deg
+    ([11.0, 2.0, 5.0], 1.4, 0.0),
+    ([11.0, 2.0, 40.0], 0.0, 0.0),  # 38.4 m from the pad, beyond 30 m
+])
+def test_the_truths_default_view_is_the_150_deg_cone_out_to_30_m(p_WB, roll_rad, valid):
+    """RelativeStateTruth without view arguments: the perception config's defaults, seed 003's fisheye."""
+    config = GvLandingConfig()
+    truth = RelativeStateTruth(config.vehicle, config.platform)
+    context = truth.CreateDefaultContext()
+    # At rest at (10, 0) heading +y: the pad 1.75 m ahead of the rear axle, at (10, 1.75, 1.6)
+    truth.GetInputPort("vehicle_state").FixValue(context, [10.0, 0.0, np.pi / 2, 0.0])
+    truth.GetInputPort("vehicle_speed").FixValue(context, [0.0, 0.0])
+    truth.GetInputPort("vehicle_steering_command").FixValue(context, [0.0])
+    truth.GetInputPort("X_WB").FixValue(context, pose_from_state(quadrotor_state(
+        p_WB=p_WB, R_WB=RotationMatrix(RollPitchYaw(roll_rad, 0, 0)))))
+    assert truth.get_output_port().Eval(context)[VALID] == valid
+
+
 @pytest.mark.parametrize("p_BP_B, seen", [
     ([0.0, 0.0, -3.0], True),  # straight below
     ([0.0, 0.0, 3.0], False),  # straight above
+    ([0.0, 0.0, 0.0], True),  # at the camera: no direction, but no distance either
     ([0.0, 0.0, -29.0], True), ([0.0, 0.0, -31.0], False),  # either side of the 30 m range
+    ([0.0, 0.0, -30.0], True),  # at the range
     # 74 and 76 deg off -z_B, either side of the cone's 75 deg half angle
     ([5.0 * np.sin(np.radians(74.0)), 0.0, -5.0 * np.cos(np.radians(74.0))], True),
     ([0.0, -5.0 * np.sin(np.radians(76.0)), -5.0 * np.cos(np.radians(76.0))], False),
@@ -333,19 +355,23 @@ def test_the_pad_is_in_view_inside_the_downward_cone_and_range(p_BP_B, seen):
     assert in_view(np.array(p_BP_B), 150.0, 30.0) == seen
 
 
+@pytest.mark.parametrize("view", [(150.0, 30.0), ()], ids=["given", "default"])
 @pytest.mark.parametrize("p_WB, roll_deg, valid", [([0.0, 0.0, 5.0], 0.0, 1.0), ([0.0, 0.0, 5.0], 80.0, 0.0),
                                                    ([0.0, 0.0, 40.0], 0.0, 0.0)])
-def test_the_given_pad_motions_truth_is_valid_only_in_view(p_WB, roll_deg, valid):
-    """PadMotionTruth (the Stewart deck's seam): valid level 5 m over the pad, not rolled 80 deg (the pad 80 deg off
-    -z_B, outside the 150 deg cone) nor 40 m over it (beyond 30 m)."""
-    truth = PadMotionTruth(150.0, 30.0)
+def test_the_given_pad_motions_truth_is_valid_only_in_view(p_WB, roll_deg, valid, view):
+    """PadMotionTruth (the Stewart deck's seam), given the view or by default: valid level 5 m over the pad, not rolled
+    80 deg (the pad 80 deg off -z_B, outside the 150 deg cone) nor 40 m over it (beyond 30 m). The pad's motion
+    [p; v; a] gives the seam's position, velocity and acceleration."""
+    truth = PadMotionTruth(*view)
     context = truth.CreateDefaultContext()
-    truth.GetInputPort("pad_motion").FixValue(context, np.zeros(9))
+    truth.GetInputPort("pad_motion").FixValue(context, [0.0, 0.0, 0.0, 1.0, 2.0, 0.0, 3.0, 4.0, 0.0])
     truth.GetInputPort("X_WB").FixValue(context, pose_from_state(quadrotor_state(
         p_WB=p_WB, R_WB=RotationMatrix(RollPitchYaw(np.radians(roll_deg), 0, 0)))))
     relative = truth.get_output_port().Eval(context)
     assert relative[VALID] == valid
     np.testing.assert_allclose(relative[P_BP_W], -np.array(p_WB), atol=1e-12)
+    np.testing.assert_array_equal(relative[V_WP], [1.0, 2.0, 0.0])
+    np.testing.assert_array_equal(relative[A_WP], [3.0, 4.0, 0.0])
 
 
 def test_the_pads_acceleration_is_the_rate_of_its_velocity():
