@@ -14,6 +14,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from systems.perception.rqrlp import nodes
 from systems.perception.rqrlp.homography import (
     homography_from_pose,
+    plane_pose,
     pose_from_homography,
 )
 from systems.perception.rqrlp.measurements import approach_covariance
@@ -71,6 +72,25 @@ def test_eq_2_recovers_a_pose_from_its_homography():
     H = homography_from_pose(X_CP, K)
     position, angle = errors(pose_from_homography(H * -2.5, K), X_CP)  # any scale, either sign
     assert position < 1e-12 and angle < 1e-9
+
+
+def test_eq_2s_scale_is_the_mean_of_both_columns_norms():
+    """H = K [r1, 1.1 r2, t] (its second column 10 % long, as noise may make it): K^-1 H's first two columns have
+    norms 1 and 1.1, so the scale 2 / (1 + 1.1) shortens t to t 2 / 2.1."""
+    X_CP = X_CP_at(3.0, tilt_deg=(8.0, -5.0))
+    R, t = X_CP.rotation().matrix(), X_CP.translation()
+    H = K @ np.column_stack([R[:, 0], 1.1 * R[:, 1], t])
+    np.testing.assert_allclose(pose_from_homography(H, K).translation(), t * 2.0 / 2.1, rtol=1e-12)
+
+
+def test_a_plane_pose_needs_four_points():
+    """Three points fit no homography: no pose, where cv2.findHomography would raise."""
+    X_CP = X_CP_at(3.0)
+    points = layout_corners(LAYOUT)[:4]  # one square's corners
+    rvec = cv2.Rodrigues(X_CP.rotation().matrix())[0]
+    pixels = cv2.projectPoints(points, rvec, X_CP.translation(), K, None)[0].reshape(-1, 2)
+    assert plane_pose(points[:3], pixels[:3], K) is None
+    assert plane_pose(points, pixels, K) is not None
 
 
 def test_eq_1_is_opencvs_homography_of_the_projected_pattern():
