@@ -71,6 +71,18 @@ def test_decode_keeps_a_peak_at_min_score_and_drops_one_under_it():
     assert decode(heat_map({(10, 10): 0.49}), 4, 0.5) == []
 
 
+def test_the_detector_drops_a_box_overlapping_a_better_one_by_default(monkeypatch):
+    """detect decodes at the detector's nms_iou, 0.3 by default: the network's two peaks of
+    test_decode_drops_a_box_overlapping_a_better_one (IOU 0.33) give one detection, the better."""
+    detector = CnnDetector()
+    out = heat_map({(10, 10): 0.9, (10, 12): 0.8}, cells=512 // detector.stride)
+    monkeypatch.setattr(detector, "_forward", lambda rgb: out)
+    found = detector.detect(np.zeros((512, 512, 3), np.uint8))
+    assert len(found) == 1 and found[0][1] == pytest.approx(0.9)
+    s = detector.stride
+    np.testing.assert_allclose(found[0][0], [8 * s, 8 * s, 4 * s, 4 * s], atol=1e-5)  # 4 x 4 cells about (10, 10)
+
+
 def draw_ugv(image: np.ndarray, row: int, col: int) -> None:
     """A UGV drawn on `image` from its top-left pixel (row, col): 40 px wide, two 10 px strips of its colour with the
     pad's white 30 px between."""
@@ -180,6 +192,15 @@ def test_network_input_is_opencvs_blob_of_the_frame():
     opencv = np.asarray(detector.net.forward())[0]
     np.testing.assert_array_equal(ours, opencv)
     np.testing.assert_array_equal(from_view, opencv)
+
+
+@pytest.mark.parametrize("shape", [(4, 128, 128), (5, 170, 170), (5, 128, 64)],
+                         ids=["four-outputs", "no-whole-stride", "not-square"])
+def test_a_network_of_another_output_shape_is_refused(monkeypatch, shape):
+    """The probe's blank frame must give (5, 512 / s, 512 / s) for a whole stride s."""
+    monkeypatch.setattr(CnnDetector, "_forward", lambda self, rgb: np.zeros(shape, np.float32))
+    with pytest.raises(ConfigError, match=rf"gives outputs of shape \({shape[0]}, {shape[1]}, {shape[2]}\)"):
+        CnnDetector()
 
 
 def test_missing_model_file_is_one_config_error_line_naming_it(tmp_path):
