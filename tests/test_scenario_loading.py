@@ -211,6 +211,7 @@ def test_a_group_given_a_scalar_is_named_without_a_trailing_dot():
     ("platform.motion=wobble", "platform.motion"),
     ("tof.max_range_m=0.01", "tof.max_range_m"),
     ("hover.height_above_deck_m=0.05", "hover.height_above_deck_m"),
+    ("hover.height_above_deck_m=0.1", "hover.height_above_deck_m must exceed 0.1 m"),  # the bound itself
     ("imu.rate_hz=0", "imu.rate_hz"),
     ("duration_s=0", "duration_s"),
     ("duration_s=.inf", "duration_s must be a finite number"),
@@ -222,6 +223,12 @@ def test_a_group_given_a_scalar_is_named_without_a_trailing_dot():
 def test_values_out_of_range_name_the_field(assignment, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         load_scenario("stewart-hover", overrides=[assignment])
+
+
+def test_a_stewart_deck_motion_beyond_the_legs_stroke_is_refused():
+    """A 0.5 m heave takes the legs (0.5 to 0.85 m long) beyond their stroke: the scenario, not the run, says so."""
+    with pytest.raises(ConfigError, match="stroke"):
+        load_scenario("stewart-hardware", overrides=["platform.z_amplitude_m=[0.5]"])
 
 
 def test_whole_numbers_beyond_a_cpp_int_are_refused_in_lists_and_taken_for_seeds():

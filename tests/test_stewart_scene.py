@@ -1,14 +1,20 @@
 """The stewart-dynamic scenario's diagram simulated for 2 s: logs, detection and ground truth."""
 
 import math
+import re
 
 import numpy as np
 import pytest
 from pydrake.common.eigen_geometry import Quaternion
+from pydrake.geometry import SceneGraph
 from pydrake.math import RigidTransform, RotationMatrix
 from scipy.spatial.transform import Rotation
 
-from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene, hover_pose
+from diagrams.stewart_run import scene_metrics
+from diagrams.stewart_scene import HoverConfig, StewartSceneConfig, build_stewart_scene, hover_pose
+from systems.estimators.pad_calibration import CalibrationError
+from systems.platforms.stewart import StewartPlatform
+from systems.sensors.tof import TofConfig
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 
@@ -297,3 +303,53 @@ def test_the_stroke_exceeded_fraction_is_the_fraction_of_frames():
            "true_ranges": np.full((n, 4), 2.0), "ranges_valid": np.ones((n, 4)),
            "stroke_exceeded": np.array([[0.0], [1.0], [0.0], [0.0]]), "leg_lengths": np.full((n, 6), 0.5)}
     assert scene_metrics(log)["platform"]["stroke_exceeded_fraction"] == 0.25
+
+
+@pytest.mark.parametrize("tilt, axis", [("roll_deg", "x"), ("pitch_deg", "y")])
+def test_the_hover_pose_is_offset_over_the_deck_and_tilted_about_its_own_axis(tilt, axis):
+    """hover_pose puts the body offset_xy_m from the deck's nominal centre and height_above_deck_m less the
+    camera's mount height over its top; roll about W's x, pitch about its y."""
+    config = StewartSceneConfig(hover=HoverConfig(offset_xy_m=[0.3, -0.2], **{tilt: 10.0}))
+    platform = StewartPlatform(config.platform, SceneGraph(), config.seed)
+    X_WB = hover_pose(config, platform)
+    expected = platform.geometry.X_SP0.translation() + [0.3, -0.2, 2.0 - config.camera.mount_xyz_m[2]]
+    np.testing.assert_allclose(X_WB.translation(), expected, atol=1e-12)
+    np.testing.assert_allclose(X_WB.rotation().matrix(), Rotation.from_euler(axis, 10.0, degrees=True).as_matrix(),
+                               atol=1e-12)
+
+
+def test_with_a_cone_the_tof_sensors_read_the_deck_through_their_depth_render():
+    """A 27 deg cone (a VL53L1X's) wires the ToF sensors to their depth camera: the scene builds and, hovering 2 m
+    over the level deck, each sensor reads a valid range near its true one."""
+    diagram, handles = build_stewart_scene(StewartSceneConfig(tof=TofConfig(cone_deg=27.0)))
+    context = diagram.CreateDefaultContext()
+    tof_context = handles.tof.GetMyContextFromRoot(context)
+    ranges, valid, true = (handles.tof.GetOutputPort(name).Eval(tof_context)
+                           for name in ("ranges", "ranges_valid", "true_ranges"))
+    np.testing.assert_array_equal(valid, 1.0)
+    np.testing.assert_allclose(ranges, true, atol=0.02)
+    assert np.all((true > 1.9) & (true < 2.1))
+
+
+def test_crhf_refuses_a_scene_whose_tof_sensors_sit_at_another_angle_than_its_calibration():
+    """The committed pad calibration was flown with the sensors at 45 deg on a 0.135 m arm: at 40 deg the first
+    sits at -0.135 (cos 40, sin 40) = (-0.103416, -0.086776) m in C, and CRHF is refused naming it."""
+    config = StewartSceneConfig(estimators=["crhf"], tof=TofConfig(angle_deg=40.0))
+    with pytest.raises(CalibrationError, match=re.escape("the scene's [[-0.103416, -0.086776, 0.0]")):
+        build_stewart_scene(config)
+
+
+def test_scene_metrics_score_the_frames_with_all_four_corners_and_each_sensors_valid_share():
+    """Frame 0: corners (1, 1) and (3, 4) px off, two exact; frame 1 misses a corner (not a detection). Sensor 0
+    valid in both frames, the others in the first only."""
+    nan = np.nan
+    log = {"tag_corners": np.array([[1.0, 1.0, 3.0, 4.0, 0.0, 0.0, 0.0, 0.0], [nan, nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]]),
+           "true_tag_corners": np.zeros((2, 8)), "ranges": np.zeros((2, 4)), "true_ranges": np.zeros((2, 4)),
+           "ranges_valid": np.array([[1.0, 1.0, 1.0, 1.0], [1.0, 0.0, 0.0, 0.0]]),
+           "stroke_exceeded": np.zeros((2, 1)), "leg_lengths": np.ones((2, 6))}
+    metrics = scene_metrics(log)
+    perception = metrics["perception"]
+    assert perception["tag_detected_fraction"] == 0.5
+    assert perception["corner_error_px_mean"] == pytest.approx((math.sqrt(2.0) + 5.0 + 0.0 + 0.0) / 4)
+    assert perception["corner_error_px_max"] == pytest.approx(5.0)
+    assert metrics["sensors"]["tof_valid_fraction"] == [1.0, 0.5, 0.5, 0.5]
