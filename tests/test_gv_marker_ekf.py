@@ -14,6 +14,7 @@ import pytest
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.systems.analysis import Simulator
 
 import diagrams.marker_plots as marker_plots
 from diagrams.cli import main
@@ -27,6 +28,7 @@ from systems.config import ConfigError
 from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, EST_P_WP, ESTIMATE_VECTOR_SIZE
 from systems.perception.seam import HEIGHT, P_BP_W
 from systems.vehicles.quadrotor import P_WB, quadrotor_state
+from systems.viewers import MeshcatTrail
 
 SHORT = ["duration_s=4"]
 
@@ -313,10 +315,6 @@ def test_meshcat_records_the_flight_and_shows_the_estimates():
 def test_a_trail_leaves_out_flagged_and_non_finite_estimates():
     """MeshcatTrail draws its line only through samples with a finite position and, given valid_index, the
     valid flag set: fed only estimates the filter flags, or only NaN positions, it draws nothing."""
-    from pydrake.systems.analysis import Simulator
-
-    from systems.viewers import MeshcatTrail
-
     meshcat = Meshcat(params=MeshcatParams(host="localhost"))
     for path, position, drawn in (("/valid", [1.0, 2.0, 3.0, 1.0], True), ("/flagged", [1.0, 2.0, 3.0, 0.0], False),
                                   ("/nan", [np.nan, 2.0, 3.0, 1.0], False)):
@@ -325,6 +323,23 @@ def test_a_trail_leaves_out_flagged_and_non_finite_estimates():
         trail.get_input_port().FixValue(simulator.get_mutable_context(), position)
         simulator.AdvanceTo(0.5)  # six samples at 10 Hz
         assert meshcat.HasPath(path) == drawn, path
+
+
+def test_a_trail_needs_two_samples_and_starts_afresh_when_re_initialised():
+    """One sample (at t = 0, 10 Hz) is no line: nothing is drawn. A trail run for 0.5 s and then initialised
+    again (a new Simulator) forgets its samples: its first new sample alone draws nothing either."""
+    meshcat = Meshcat(params=MeshcatParams(host="localhost"))
+    trail = MeshcatTrail(meshcat, "/trail")
+    simulator = Simulator(trail)
+    trail.get_input_port().FixValue(simulator.get_mutable_context(), [1.0, 2.0, 3.0])
+    simulator.AdvanceTo(0.05)
+    assert not meshcat.HasPath("/trail")
+    simulator.AdvanceTo(0.5)
+    assert meshcat.HasPath("/trail")
+    again = Simulator(trail)
+    trail.get_input_port().FixValue(again.get_mutable_context(), [1.0, 2.0, 3.0])
+    again.AdvanceTo(0.05)
+    assert not meshcat.HasPath("/trail")
 
 
 def campaign(tmp_path, workers, runs=2, speeds=("3", "12")):

@@ -91,17 +91,43 @@ def test_an_arrows_barbs_lie_on_either_side_of_its_shaft():
 
 
 def test_an_arrow_for_a_vector_under_min_norm_is_hidden():
-    """MeshcatArrow hides the arrow, drawing nothing, for a vector under min_norm (0.05, here 0.03), and draws
-    and shows it for one over it."""
+    """MeshcatArrow hides the arrow, drawing nothing, for a vector under min_norm (0.05, here 0.03) or from a
+    non-finite position, and draws and shows it for one at or over it."""
     meshcat = Meshcat(params=MeshcatParams(host="localhost"))
-    for path, vector, shown in (("/calm", [0.03, 0.0, 0.0], False), ("/wind", [1.0, 0.0, 0.0], True)):
+    for path, position, vector, shown in (("/calm", [0.0, 0.0, 1.0], [0.03, 0.0, 0.0], False),
+                                          ("/wind", [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], True),
+                                          ("/edge", [0.0, 0.0, 1.0], [0.05, 0.0, 0.0], True),  # min_norm: shown
+                                          ("/nowhere", [np.nan, 0.0, 1.0], [1.0, 0.0, 0.0], False)):  # no tail
         arrow = MeshcatArrow(meshcat, path)
         simulator = Simulator(arrow)
-        arrow.GetInputPort("position").FixValue(simulator.get_mutable_context(), [0.0, 0.0, 1.0])
+        arrow.GetInputPort("position").FixValue(simulator.get_mutable_context(), position)
         arrow.GetInputPort("vector").FixValue(simulator.get_mutable_context(), vector)
         simulator.AdvanceTo(0.3)
         assert msgpack.unpackb(meshcat._GetPackedProperty(path, "visible"))["value"] is shown, path
         assert bool(meshcat._GetPackedObject(path)) is shown, path  # the line, drawn or not
+
+
+def test_an_arrow_is_drawn_scale_metres_per_unit_of_its_vector():
+    """A 5 m/s wind at scale 0.4 (the class's example) is a 2 m arrow: the line runs from the position to
+    position + 0.4 * vector."""
+    meshcat = Meshcat(params=MeshcatParams(host="localhost"))
+    arrow = MeshcatArrow(meshcat, "/wind", scale=0.4)
+    simulator = Simulator(arrow)
+    arrow.GetInputPort("position").FixValue(simulator.get_mutable_context(), [1.0, 2.0, 3.0])
+    arrow.GetInputPort("vector").FixValue(simulator.get_mutable_context(), [0.0, 5.0, 0.0])
+    simulator.AdvanceTo(0.05)
+    line = msgpack.unpackb(meshcat._GetPackedObject("/wind"))["object"]["geometries"][0]
+    points = np.frombuffer(line["data"]["attributes"]["position"]["array"].data, np.float32).reshape(-1, 3)
+    np.testing.assert_allclose(points[:2], [[1.0, 2.0, 3.0], [1.0, 4.0, 3.0]], atol=1e-6)
+
+
+def test_a_vertical_arrows_barbs_lie_along_x():
+    """Along z the cross product with z that sides the barbs vanishes: they lie in the x-z plane, 0.2 of the
+    1 m arrow at 25 deg off it behind the tip, at (+-0.2 sin 25 deg, 0, 1 - 0.2 cos 25 deg)."""
+    points = arrow_polyline(np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    out, back = 0.2 * np.sin(np.radians(25)), 0.2 * np.cos(np.radians(25))
+    np.testing.assert_allclose(sorted(points[[2, 4]].tolist()), [[-out, 0.0, 1.0 - back], [out, 0.0, 1.0 - back]],
+                               atol=1e-12)
 
 
 def test_the_wind_report_gives_the_standard_deviation_and_the_largest_speed():

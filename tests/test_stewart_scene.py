@@ -343,7 +343,8 @@ def test_scene_metrics_score_the_frames_with_all_four_corners_and_each_sensors_v
     """Frame 0: corners (1, 1) and (3, 4) px off, two exact; frame 1 misses a corner (not a detection). Sensor 0
     valid in both frames, the others in the first only."""
     nan = np.nan
-    log = {"tag_corners": np.array([[1.0, 1.0, 3.0, 4.0, 0.0, 0.0, 0.0, 0.0], [nan, nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]]),
+    corners = np.array([[1.0, 1.0, 3.0, 4.0, 0.0, 0.0, 0.0, 0.0], [nan, nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    log = {"tag_corners": corners,
            "true_tag_corners": np.zeros((2, 8)), "ranges": np.zeros((2, 4)), "true_ranges": np.zeros((2, 4)),
            "ranges_valid": np.array([[1.0, 1.0, 1.0, 1.0], [1.0, 0.0, 0.0, 0.0]]),
            "stroke_exceeded": np.zeros((2, 1)), "leg_lengths": np.ones((2, 6))}

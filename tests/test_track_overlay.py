@@ -25,6 +25,8 @@ def test_draw_boxes_marks_each_box_and_leaves_the_input():
     predicted = draw_boxes(image, [], np.array([60.0, 40.0, 20.0, 20.0]), True, np.array([3.0, 0.0]))
     assert tuple(predicted[40, 70]) == ORANGE
     assert np.all(draw_boxes(image, [], np.full(4, np.nan), False, np.array([-1.0, 0.0])) == 50)
+    # a finite box whose track is not valid (a lost target's last box) is not drawn either
+    assert np.all(draw_boxes(image, [], np.array([60.0, 40.0, 20.0, 20.0]), False, np.array([3.0, 1.0])) == 50)
 
 
 def test_overlay_system_outputs_the_drawn_frame():
