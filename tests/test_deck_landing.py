@@ -6,6 +6,7 @@ import re
 import numpy as np
 import pytest
 from pydrake.systems.framework import LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource
 
 from diagrams import deck_landing_config, deck_landing_run, perception_sources
 from diagrams.deck_landing import build_deck_landing
@@ -15,7 +16,7 @@ from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.control.landing import Mode
 from systems.control.monitor import inside_carrier
-from systems.estimators.deck_tracker import DeckTracker, tilt_deg
+from systems.estimators.deck_tracker import DECK_MOTION_SIZE, DeckTracker, tilt_deg
 from systems.noise import sample_rng
 from systems.perception.seam import HEIGHT, RELATIVE_STATE_SIZE, VALID
 from systems.platforms.stewart import StewartGeometry, StewartMotion
@@ -137,6 +138,7 @@ def test_with_an_exposure_the_camera_is_smeared_by_the_uav_s_motion_over_the_dec
     (["integration.discrete=false"], "integration.discrete must be true in deck-landing"),
     (["random_deck_time_s=-1"], "random_deck_time_s must not be negative"),
     (["estimate_latency_frames=-1"], "estimate_latency_frames must not be negative"),
+    (["duration_s=0"], "duration_s must be positive"),  # a run that ends before it starts
     # The deck's top is 0.05 + 0.6 + 0.04 = 0.69 m up (base joints, joint planes, deck): 0.69 + LH 0.9 = 1.59 m.
     (["landing.initial_height_m=1.5"], "landing.initial_height_m (1.5 m above the ground) must be above the deck"),
 ])
@@ -205,6 +207,16 @@ def test_the_random_deck_time_is_drawn_after_the_platforms_own_time_offset():
         assert config.deck().time_offset_s == pytest.approx(5.0 + drawn, abs=1e-12)
     _, config = load_scenario("deck-landing", overrides=["platform.time_offset_s=5.0", "random_deck_time_s=0.0"])
     assert config.deck().time_offset_s == 5.0
+
+
+def test_the_metrics_give_the_deck_time_the_run_met_the_platforms_offset_plus_the_drawn_time():
+    """metrics.json's deck.time_offset_s is deck()'s, platform.time_offset_s plus the seed's draw from the
+    "deck_time" stream, uniform in [0, random_deck_time_s), not the platform's own offset."""
+    _, config = load_scenario("deck-landing", overrides=["platform.time_offset_s=5.0"], seed=7)
+    drawn = sample_rng(7, "deck_time", 0).uniform(0.0, config.random_deck_time_s)
+    assert drawn > 1.0
+    metrics, _ = fly(config, 0.2)
+    assert metrics["deck"]["time_offset_s"] == pytest.approx(5.0 + drawn, abs=1e-12)
 
 
 def test_the_legs_stroke_is_checked_over_the_motion_the_run_meets_after_the_drawn_deck_time(monkeypatch):
@@ -288,6 +300,42 @@ def test_a_source_registered_for_the_deck_steers_deck_landing(monkeypatch):
     steered, truth = flight.log["relative_state"], flight.log["true_relative_state"]
     np.testing.assert_allclose(steered[:, HEIGHT] - truth[:, HEIGHT], 1.0, atol=1e-12)
     assert metrics["perception"]["source"] == "higher"
+
+
+TRACKED_DECK = np.array([0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0])  # a valid deck tilted along x, at rest
+
+
+def _add_seam_with_a_constant_deck(builder, inputs):
+    deck = builder.AddNamedSystem("tracked_deck", ConstantVectorSource(TRACKED_DECK))
+    return SeamPorts(_add_higher_seam(builder, inputs).relative_state, deck_motion=deck.get_output_port())
+
+
+def test_the_landing_window_and_the_deck_predictor_read_the_sources_deck_motion_not_the_platforms(monkeypatch):
+    """Both read SeamPorts.deck_motion, the deck as the source estimates it, never the platform's true motion."""
+    monkeypatch.setitem(SOURCES, "constant_deck", PerceptionSource(_add_seam_with_a_constant_deck, scenes=("deck",)))
+    _, config = load_scenario("deck-landing", overrides=["perception.source=constant_deck"])
+    assert config.window.prediction == "autoregressive" and TRACKED_DECK.size == DECK_MOTION_SIZE
+    diagram, handles = build_deck_landing(config)
+    context = diagram.CreateDefaultContext()
+    handles.initialize(context)
+    true_deck = handles.platform.GetOutputPort("deck_motion").Eval(handles.platform.GetMyContextFromRoot(context))
+    assert not np.allclose(true_deck, TRACKED_DECK)  # the two told apart
+    for name in ("landing_window", "deck_predictor"):
+        system = diagram.GetSubsystemByName(name)
+        read = system.GetInputPort("deck_motion").Eval(system.GetMyContextFromRoot(context))
+        np.testing.assert_array_equal(read, TRACKED_DECK, err_msg=name)
+
+
+@pytest.mark.parametrize("prediction, predicted", [("autoregressive", True), ("constant_rate", False)])
+def test_the_deck_predictor_feeds_the_landing_window_only_for_an_autoregressive_prediction(prediction, predicted):
+    """window.prediction autoregressive (deck-landing's): a deck predictor feeds the window's deck_prediction;
+    constant_rate: none, the window predicts at constant rate itself (its deck_prediction left unconnected)."""
+    _, config = load_scenario("deck-landing", overrides=[f"window.prediction={prediction}"])
+    diagram, _ = build_deck_landing(config)
+    assert diagram.HasSubsystemNamed("deck_predictor") == predicted
+    window = diagram.GetSubsystemByName("landing_window")
+    inputs = {window.get_input_port(i).get_name() for (system, i) in diagram.connection_map() if system is window}
+    assert ("deck_prediction" in inputs) == predicted and "deck_motion" in inputs
 
 
 def test_a_deck_source_without_its_own_deck_motion_is_refused_not_given_the_truths(monkeypatch, capfd, tmp_path):
@@ -378,6 +426,37 @@ def test_a_touchdown_on_a_deck_tilted_past_the_target_misses_the_targets_and_the
     assert metrics["success"] and metrics["deck_tilt_at_touchdown_deg"] == pytest.approx(5.0, abs=1e-9)
     assert not metrics["meets_targets"]
     assert metrics["deck_heave_rate_at_touchdown_m_s"] == 0.3
+
+
+@pytest.mark.parametrize("uav_x_m, heading_rad", [(0.15, 0.0), (0.6, np.pi / 4)])
+def test_a_touchdown_off_the_deck_s_centre_is_on_its_1_m_square_turned_with_the_carrier_but_misses_the_targets(
+        uav_x_m, heading_rad):
+    """The deck is platform.deck_size_m (1 m) square, turned by the carrier_state's heading: a touchdown 0.15 m
+    off its centre is on it, as is one 0.6 m off along W x on a deck turned 45 deg (the UAV at
+    0.6 (cos 45, -sin 45) = (0.42, -0.42) m in the deck's frame, inside its +-0.5 m); both are further than the
+    0.10 m the targets allow."""
+    _, config = load_scenario("deck-landing")
+    assert config.platform.deck_size_m == 1.0
+    flight = _contact_flight()
+    flight.log["true_relative_state"][:, 0] = -uav_x_m  # pad minus UAV: the UAV uav_x_m along W x of the centre
+    flight.log["carrier_state"][:, 2] = heading_rad  # [x, y, heading, steering]
+    metrics = deck_landing_run.deck_landing_metrics(flight, config)
+    assert metrics["success"] and metrics["failure_reason"] is None
+    assert metrics["touchdown_error_m"] == pytest.approx(uav_x_m, abs=1e-12)
+    c, s = np.cos(heading_rad), np.sin(heading_rad)
+    np.testing.assert_allclose(metrics["touchdown_offset_pad_xy_m"], [c * uav_x_m, -s * uav_x_m], atol=1e-12)
+    assert not metrics["meets_targets"]
+
+
+def test_a_deck_tilted_exactly_at_the_target_misses_it(monkeypatch):
+    """The deck's tilt at touchdown must be under TARGET_TILT_DEG: exactly at it misses the targets."""
+    _, config = load_scenario("deck-landing")
+    tilted = _contact_flight()
+    tilted.log["true_deck_motion"][:, 0] = np.sin(np.radians(5.0))
+    monkeypatch.setattr(deck_landing_run, "TARGET_TILT_DEG", float(tilt_deg(tilted.log["true_deck_motion"][3, :2])))
+    metrics = deck_landing_run.deck_landing_metrics(tilted, config)
+    assert metrics["success"] and metrics["touchdown_error_m"] == 0.0 and metrics["touchdown_rel_speed_mps"] < 0.5
+    assert not metrics["meets_targets"]
 
 
 def test_crhf_is_told_the_camera_s_velocity_at_the_frame_s_exposure():
