@@ -24,7 +24,7 @@ from diagrams.gv_landing_config import (
     GvLandingConfig,
     IntegrationConfig,
 )
-from diagrams.gv_landing_run import fly, fly_diagram
+from diagrams.gv_landing_run import fly, fly_diagram, summary_lines
 from diagrams.rqrlp_maneuvers import build_rqrlp_maneuvers
 from diagrams.rqrlp_maneuvers_run import fly as fly_maneuvers
 from diagrams.runner import load_scenario
@@ -430,17 +430,21 @@ def test_the_pad_velocity_is_the_rate_of_the_pad_pose():
     np.testing.assert_allclose(V_WP[3:], (after.translation() - before.translation()) / (2 * dt), atol=1e-6)
 
 
-@pytest.mark.parametrize("overrides, reported", [
-    ([], {"speed_m_s": 0.5}),
+@pytest.mark.parametrize("overrides, reported, speed", [
+    ([], {"speed_m_s": 0.5}, 0.5),
     (["vehicle.speed_schedule_times_s=[0, 10, 12]", "vehicle.speed_schedule_m_s=[0, 0, 2]"],
-     {"speed_schedule_times_s": [0.0, 10.0, 12.0], "speed_schedule_m_s": [0.0, 0.0, 2.0]}),
+     {"speed_schedule_times_s": [0.0, 10.0, 12.0], "speed_schedule_m_s": [0.0, 0.0, 2.0]}, 0.0),
 ])
-def test_metrics_report_the_speed_the_vehicle_drives(overrides, reported):
-    """A schedule replaces vehicle.speed: metrics.json had reported vehicle.speed (0.5 m/s) under it."""
+def test_metrics_report_the_speed_the_vehicle_drives(overrides, reported, speed):
+    """A schedule replaces vehicle.speed: metrics.json had reported vehicle.speed (0.5 m/s) under it. The log's
+    vehicle_speed is the speed [m/s] at each sample (not its rate): 0.5 m/s, or the schedule's 0 over its first
+    10 s."""
     _, scenario = load_scenario("gv-landing", overrides=overrides)
-    metrics, _ = fly(scenario, 0.2)
+    metrics, flight = fly(scenario, 0.2)
     assert metrics["vehicle"] == {"path": "straight", **reported}
     json.dumps(metrics)
+    assert flight.log["vehicle_speed"].shape == flight.log["t"].shape and len(flight.log["t"]) > 1
+    np.testing.assert_array_equal(flight.log["vehicle_speed"], speed)
 
 
 def test_the_run_lays_the_ground_under_all_it_drives():
@@ -453,6 +457,7 @@ def test_the_run_lays_the_ground_under_all_it_drives():
     centre, size = inspector.GetPoseInFrame(ground).translation(), inspector.GetShape(ground).size()
     end = handles.vehicle.path.position(500.0)  # x 441 m
     assert np.all(np.abs(end - centre[:2]) <= size[:2] / 2 - 20.0)
+    assert centre[2] + size[2] / 2 == pytest.approx(0.0, abs=1e-12)  # its top at z = 0, the wheels' ground
 
 
 def test_the_ground_reaches_as_far_as_the_distractors_drive():
@@ -728,3 +733,19 @@ def test_video_without_a_camera_is_a_one_line_error(capfd, tmp_path):
     _, err = capfd.readouterr()
     assert code == 2 and "gv-landing has none" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_a_video_path_for_a_scene_without_a_camera_is_a_config_error(tmp_path):
+    """build_gv_landing refuses a video_path where nothing renders (gv-landing: truth, no marker detector)."""
+    _, scenario = load_scenario("gv-landing")
+    assert not scenario.has_video
+    with pytest.raises(ConfigError, match="a video records the camera, and this scene has none"):
+        build_gv_landing(scenario, video_path=tmp_path / "camera.mp4")
+    assert not (tmp_path / "camera.mp4").exists()
+
+
+def test_the_summary_of_a_run_that_did_not_land_gives_its_failure():
+    landing = {"success": False, "failure_reason": "timeout", "failure_detail": "no touchdown by t = 3.0 s",
+               "touchdown_error_m": None, "touchdown_rel_speed_mps": None, "time_to_land_s": None}
+    lines = summary_lines("gv-landing", {"landing": landing, "perception": {"source": "truth"}})
+    assert lines == ["gv-landing: no landing (timeout: no touchdown by t = 3.0 s)"]
