@@ -200,10 +200,12 @@ def test_in_the_loop_the_controller_flies_on_the_navigation():
 
 
 def test_the_marker_filters_and_the_vehicle_broadcast_place_the_pad_with_the_navigations_pose():
-    """The marker filters and the vehicle's broadcast (which turn what they measure into World) take the UAV's
-    pose from its navigation, as the controller does, not the true pose the camera and the referee keep: at
-    t = 0 their X_WB inputs are the navigation's, which is off the truth by its starting error."""
-    _, s = load_scenario("gv-marker-ekf", overrides=["navigation.source=gnss_ins", "rendezvous.source=broadcast"])
+    """The marker filters, the vehicle's broadcast and its search pattern, and the steering filter's seam (which
+    turn what they measure into World, or World into the body frame) take the UAV's pose from its navigation, as
+    the controller does, not the true pose the camera and the referee keep: at t = 0 their X_WB inputs are the
+    navigation's, which is off the truth by its starting error."""
+    _, s = load_scenario("gv-marker-ekf", overrides=["navigation.source=gnss_ins", "rendezvous.source=broadcast",
+                                                     "rendezvous.search_spacing_m=2.0", "perception.source=ct_ekf"])
     diagram, handles = build_gv_landing(s)
     context = diagram.CreateDefaultContext()
     handles.initialize(context)
@@ -213,8 +215,9 @@ def test_the_marker_filters_and_the_vehicle_broadcast_place_the_pad_with_the_nav
 
     navigation, truth = output(diagram.GetSubsystemByName("navigation"), "X_WB"), output(handles.quadrotor, "X_WB")
     assert np.linalg.norm(navigation.translation() - truth.translation()) > 1e-3
-    readers = [*handles.filters.values(), diagram.GetSubsystemByName("vehicle_broadcast")]
-    assert len(readers) == 3
+    readers = [*handles.filters.values(), *(diagram.GetSubsystemByName(name) for name in (
+        "vehicle_broadcast", "rendezvous_search", "estimate_to_seam"))]
+    assert len(readers) == 5
     for system in readers:
         X_WB = system.GetInputPort("X_WB").Eval(system.GetMyContextFromRoot(context))
         assert X_WB.IsExactlyEqualTo(navigation), system.get_name()
