@@ -29,6 +29,7 @@ from systems.estimators.marker_ekf.engine import EST_LAST_MEASUREMENT, EST_P_WP,
 from systems.perception.seam import HEIGHT, P_BP_W
 from systems.vehicles.quadrotor import P_WB, quadrotor_state
 from systems.viewers import MeshcatTrail
+from tests.conftest import wiring
 
 SHORT = ["duration_s=4"]
 
@@ -100,6 +101,28 @@ def test_both_filters_get_the_identical_stream_one_period_late():
         last = together.estimates[name][:, EST_LAST_MEASUREMENT]
         assert np.isnan(last[0])
         np.testing.assert_allclose(last[1:], together.t[:-1], atol=1e-12)
+
+
+def test_the_run_is_sampled_at_the_filter_steps():
+    """The sampled run (stream, truth, estimates) is logged every filter step T_s = 35 ms (1 / 28.57 Hz), not at
+    the flight controller's rate."""
+    s = scenario()
+    assert s.estimation.ekf.period_s == pytest.approx(0.035, abs=1e-12) and s.period_s != s.estimation.ekf.period_s
+    diagram, handles = build_gv_landing(s)
+    flight = fly_diagram(diagram, handles, 1.0)
+    assert len(flight.sampled.t) > 20
+    np.testing.assert_allclose(np.diff(flight.sampled.t), 0.035, atol=1e-9)
+
+
+@pytest.mark.parametrize("extra, acquired_by", [
+    ((), "marker_source"), (("faults.drop_probability=0.5",), "marker_faults")])
+def test_the_logged_stream_is_the_one_acquired_before_its_latency(extra, acquired_by):
+    """The sampled run's `measurements` are the stream as acquired (with its faults), at its own step: the
+    source's, or the faults' output, not the latency's delayed copy the filters read."""
+    diagram, _ = build_gv_landing(scenario(12, 0, *extra))
+    stream = diagram.GetSubsystemByName("stream_vector")
+    source, _ = wiring(diagram)["stream_vector", stream.get_input_port().get_name()]
+    assert source == acquired_by
 
 
 def test_metrics_score_each_filters_own_attitude_estimate(monkeypatch):
