@@ -99,6 +99,19 @@ def test_marker_landing_lands_by_vision_on_the_rendered_camera():
     assert metrics["measurements"]["source"] == "detector" and set(metrics["estimators"]) == {"paper_ekf", "ct_ekf"}
 
 
+@pytest.mark.parametrize("name, source", [("marker-landing", "detector"), ("gv-marker-ekf", "synthetic")])
+def test_the_measurements_section_gives_the_noise_of_the_stream_s_source(name, source):
+    """The detector's noise is the camera's pixel noise; the synthetic stream's, its sigma_p_m and sigma_deg."""
+    _, s = load_scenario(name)
+    metrics, _ = fly(s, 0.2)
+    measurements, est = metrics["measurements"], s.estimation
+    assert measurements["source"] == source == est.source
+    expected = ({"pixel_noise_std": est.camera.pixel_noise_std} if source == "detector"
+                else {"sigma_p_m": est.sigma_p_m, "sigma_deg": est.sigma_deg})
+    assert {key: measurements.get(key) for key in ("pixel_noise_std", "sigma_p_m", "sigma_deg")} == {
+        "pixel_noise_std": None, "sigma_p_m": None, "sigma_deg": None, **expected}
+
+
 @pytest.fixture
 def registry_restored():
     """The example registers its source in the process-wide SOURCES: put the registry back as it was after the
