@@ -2,14 +2,17 @@
 age), and the registry behind `perception.source` with its one-line errors and its sources' wiring."""
 
 import copy
+import dataclasses
 import pickle
 
 import numpy as np
 import pytest
 from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.systems.primitives import LogVectorOutput
 
 from diagrams.cli import main
 from diagrams.gv_landing import build_gv_landing
+from diagrams.gv_landing_run import fly
 from diagrams.perception_sources import SOURCES, PerceptionSource, perception_source
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
@@ -188,6 +191,30 @@ def test_a_source_that_needs_the_camera_says_so(monkeypatch):
         load_scenario("gv-landing", overrides=["perception.source=on_images", "estimation.source=synthetic"])
     _, s = load_scenario("gv-landing", overrides=["perception.source=on_images", "estimation.source=detector"])
     assert s.perception.source == "on_images"
+
+
+def _add_logged_truth(builder, inputs):
+    """The truth's seam, its relative state logged by the source itself every 0.05 s."""
+    ports = SOURCES["truth"].add(builder, inputs)
+    return dataclasses.replace(ports, logs={"seam": LogVectorOutput(ports.relative_state, builder, 0.05)})
+
+
+def test_a_sources_own_metrics_of_its_own_logs_are_in_the_estimators_section(monkeypatch):
+    """A source with logs and a metrics callable: fly gives the callable the source's logs (with their times)
+    and the scenario, and puts what it returns in metrics["estimators"]."""
+    given = []
+
+    def metrics_of(arrays, config, touchdown_s):
+        given.append((arrays, config, touchdown_s))
+        return {"logged": {"samples": len(arrays["t"])}}
+
+    monkeypatch.setitem(SOURCES, "logged", PerceptionSource(_add_logged_truth, metrics=metrics_of))
+    _, s = load_scenario("gv-landing", overrides=["perception.source=logged"])
+    metrics, flight = fly(s, 0.2)
+    [(arrays, config, touchdown_s)] = given
+    assert arrays is flight.source_log and config is s and touchdown_s is None  # not landed in 0.2 s
+    assert arrays["seam"].shape == (len(arrays["t"]), RELATIVE_STATE_SIZE) and len(arrays["t"]) >= 4
+    assert metrics["estimators"]["logged"] == {"samples": len(arrays["t"])}
 
 
 def test_any_gv_scenario_takes_a_perception_source():
