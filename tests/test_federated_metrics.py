@@ -130,6 +130,18 @@ def test_a_run_prints_overlap_1s_figures_beside_the_papers():
     assert not any("Overlap" in line for line in summary_lines("open-landing", metrics))
 
 
+def test_a_run_prints_the_local_filters_and_the_fused_estimate_but_not_the_nodes():
+    """The nodes' own measurements (approach, adjustment, touchdown) are not printed; the local filters
+    (local_<node>) and the fused estimate are."""
+    figures = {"rmse_position_m": 0.01, "rmse_orientation_rad": 0.02, "rmse_height_m": 0.03, "valid_fraction": 0.5}
+    names = ("approach", "adjustment", "touchdown", "local_approach", "local_adjustment", "local_touchdown",
+             "federated")
+    metrics = {"perception": {"source": "federated"}, "estimators": {name: dict(figures) for name in names}}
+    assert summary_lines("open-landing", metrics) == [
+        f"open-landing: {name}: RMSE position 0.0100 m, orientation 0.0200 rad, height 0.0300 m, valid 50.0%"
+        for name in ("local_approach", "local_adjustment", "local_touchdown", "federated")]
+
+
 def test_the_local_filters_are_scored_on_the_fused_estimates_valid_frames():
     # Frame 7's fused estimate is invalid: it counts against neither it nor the local filters.
     log, heights = _log()

@@ -749,3 +749,12 @@ def test_the_summary_of_a_run_that_did_not_land_gives_its_failure():
                "touchdown_error_m": None, "touchdown_rel_speed_mps": None, "time_to_land_s": None}
     lines = summary_lines("gv-landing", {"landing": landing, "perception": {"source": "truth"}})
     assert lines == ["gv-landing: no landing (timeout: no touchdown by t = 3.0 s)"]
+
+
+@pytest.mark.parametrize("source, steered", [("truth", False), ("ct_ekf", True)])
+def test_the_summary_says_what_steered_only_for_an_estimate(source, steered):
+    """The truth steering scores RMS 0 against itself: no "steered by" line for it, one for an estimator."""
+    perception = {"source": source, "rms_position_m": 0.0, "valid_fraction": 1.0, "longest_invalid_s": 0.0}
+    lines = summary_lines("gv-landing", {"perception": perception})
+    assert lines == ([f"gv-landing: steered by {source}: RMS position 0.000 m over the flight, valid 100%, longest "
+                      "without a valid estimate 0.00 s"] if steered else [])
