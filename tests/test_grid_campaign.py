@@ -8,9 +8,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from diagrams import landing_campaign
 from diagrams.cli import main
-from diagrams.landing_campaign import CAMPAIGN, landing_case_summary
-from diagrams.montecarlo import campaign_settings, grid, run_campaign
+from diagrams.landing_campaign import CAMPAIGN, landing_case_summary, run_task
+from diagrams.montecarlo import campaign_definition, campaign_settings, grid, run_campaign
 from diagrams.montecarlo.grid import grid_cases, grid_settings, parse_case_option
 from diagrams.montecarlo.settings import GRID, RunTask
 from systems.config import ConfigError
@@ -37,6 +38,8 @@ def test_a_grid_runs_scenario_applies_each_of_its_cases_assignments_and_its_seed
     (["vehicle.speed"], "--case expects KEY=VALUE"), (["vehicle.speed=3,,6"], "--case expects KEY=VALUE"),
     (["vehicle.speed=3,3"], "given twice"), (["vehicle.speed=3", "vehicle.speed=6"], "a field is given twice"),
     (["vehicle.speed=3,3.0,3e0"], "given twice"),  # one value: one case flown three times on the same seeds
+    (["vehicle.speed=3,3.0"], "given twice"),  # an int and a float of one value
+    ([" =1,2"], "--case expects KEY=VALUE"),  # a key of spaces is no key
     (["seed=1,2"], "the campaign seeds each run"),  # the run's seed would replace it: two cases, one scenario
     (["seed = 1, 2"], "the campaign seeds each run"),  # spaces around the key are no other key
 ])
@@ -49,6 +52,7 @@ def test_malformed_case_options_are_config_errors(options, message):
     ("gv-landing", ["vehicle.sped=3,6"], [], r"unknown key 'vehicle\.sped'"),
     ("gv-landing", ["vehicle.speed=3,fast"], [], r"vehicle\.speed must be a number"),
     ("gv-landing", ["vehicle.speed=3,6"], ["vehicle.speed=1"], r"--set vehicle\.speed: a --case sets it"),
+    ("gv-landing", ["vehicle.speed = 3,6"], ["vehicle.speed=1"], r"--set vehicle\.speed: a --case sets it"),
     ("stewart-dynamic", ["seed=1,2"], [], "not a landing scenario"),
     ("gv-marker-ekf", ["vehicle.speed=3,6"], [], "not a landing scenario"),  # a gv scenario that flies no landing
     ("rqrlp-maneuvers", ["seed=1,2"], [], "not a landing scenario"),  # it flies, and lands nowhere
@@ -102,6 +106,27 @@ def test_a_grid_campaign_lands_every_case_and_summarises_each(tmp_path):
     assert again["runs"]["computed_now"] == 0 and again["cases"] == summary["cases"]
 
 
+def test_a_landing_run_keeps_its_seed_and_the_landing_sections_of_what_it_flew(monkeypatch):
+    flown = []
+
+    def fly(scenario, duration_s):
+        flown.append(scenario)
+        return {"landing": {"x": 1}, "junk": 2}, None
+
+    monkeypatch.setattr(landing_campaign, "_run_module", lambda diagram: SimpleNamespace(fly=fly))
+    assert run_task(RunTask("gv-landing", "vehicle.speed=3", 2, 7, (), GRID)) == {"seed": 7, "landing": {"x": 1}}
+    assert [(scenario.seed, scenario.vehicle.speed) for scenario in flown] == [(7, 3.0)]
+
+
+def test_a_sources_campaign_flies_run_i_of_every_source_on_one_seed():
+    """As the command builds it (`--cases truth ct_ekf --runs 2`): the sources are compared on the same noise."""
+    settings = campaign_settings(campaign_definition("marker-landing"), "marker-landing", ["truth", "ct_ekf"], 2, 0)
+    seeds = {}
+    for task in settings.tasks():
+        seeds.setdefault(task.case, []).append(task.seed)
+    assert seeds["truth"] == seeds["ct_ekf"] and len(set(seeds["truth"])) == 2
+
+
 def a_landing(error_m: float | None, speed_mps: float | None, xy_m=None) -> SimpleNamespace:
     """A run record's metrics as a landing campaign writes them; None: no touchdown."""
     landed = error_m is not None
@@ -116,6 +141,11 @@ def test_a_run_that_raised_counts_against_the_success_rate():
     assert summary["success_rate"] == 0.5 and (summary["landed"], summary["ended"]) == (2, 4)
     assert summary["failure_reasons"] == {"timeout": 1, "run_failed": 1}
     assert summary["touchdown_error_m"]["max"] == 0.02
+
+
+def test_a_case_with_no_run_ended_has_no_success_rate():
+    summary = landing_case_summary([])
+    assert summary["success_rate"] is None and (summary["landed"], summary["ended"]) == (0, 0)
 
 
 def test_a_cases_touchdowns_aborts_targets_and_waits_are_each_over_the_runs_they_name():

@@ -198,6 +198,7 @@ def test_seeds_are_a_function_of_base_seed_case_and_index():
     ({"cases": ["6", "6.0"]}, "speed 6 is given twice"),
     ({"cases": []}, "no speed given"),
     ({"runs": 0}, "--runs"),
+    ({"runs": True}, "--runs"),  # a bool, though Python counts it as 1
     ({"base_seed": -1}, "--seed"),
     ({"base_seed": True}, "--seed"),  # a bool, though Python counts it as 1
     ({"overrides": ["vehicle.speed"]}, "key=value"),
@@ -230,6 +231,14 @@ def test_a_case_names_a_directory_of_at_most_max_case_bytes(tmp_path):
         settings(definition, cases=[longest + "a"])
 
 
+@pytest.mark.parametrize("case", ["..", "-x"])
+def test_a_case_that_does_not_start_with_a_letter_or_digit_cannot_name_a_directory(case):
+    """A case's directory name starts with a letter or a digit: not '..' (the directory above runs/) nor a name
+    a command would read as an option."""
+    with pytest.raises(ConfigError, match=f"speed '{re.escape(case)}' cannot name a directory"):
+        settings(toy(known_cases=(), parse_case=str), cases=[case])
+
+
 def test_case_key_loads_the_scenario_with_case_overrides_and_seed():
     definition = toy(case_key="camera.pixel_noise_std", cases=("1", "2"), known_cases=())
     s = campaign_settings(definition, "stewart-hover", overrides=["hover.height_above_deck_m=3"])
@@ -246,8 +255,8 @@ def test_case_key_loads_the_scenario_with_case_overrides_and_seed():
 # ---- executors give identical summaries --------------------------------------------------------
 
 def test_the_aggregate_is_numpys_statistics_over_the_runs_that_have_each_figure():
-    metrics = [{"a": 1.0, "ok": True, "xy": [1.0, None], "group": {"b": 2.0}, "ragged": [1.0, 2.0]},
-               {"a": 3.0, "ok": False, "xy": [2.0, 4.0], "group": {"b": float("nan")}, "ragged": [1.0]},
+    metrics = [{"a": 1.0, "ok": True, "xy": [1.0, None], "group": {"b": 2.0}, "ragged": [1.0, 2.0], "mixed": 1.0},
+               {"a": 3.0, "ok": False, "xy": [2.0, 4.0], "group": {"b": float("nan")}, "ragged": [1.0], "mixed": [2.0]},
                {"a": -2.0, "ok": True, "xy": [None, None], "group": {"b": 5.0}, "ragged": [3.0, 4.0]}]
     out = aggregate_fields(metrics)
     a = np.array([1.0, 3.0, -2.0])
@@ -260,6 +269,7 @@ def test_the_aggregate_is_numpys_statistics_over_the_runs_that_have_each_figure(
     assert out["xy"]["n"] == [2, 1] and out["xy"]["mean"] == pytest.approx([1.5, 4.0])
     assert out["xy"]["rms"] == pytest.approx([np.sqrt(2.5), 4.0])
     assert "ragged" not in out  # lists of different lengths have no elementwise statistics
+    assert "mixed" not in out  # nor a number in one run and a list in another (of one element or more)
 
 
 @pytest.mark.parametrize("metrics, figure, expected", [
@@ -381,6 +391,60 @@ def test_closing_a_dask_cluster_waits_for_its_runs_unless_aborted(abort, wait):
     cluster.close(abort=abort)
     cluster.executor.shutdown.assert_called_once_with(wait=wait)
     cluster.client.close.assert_called_once_with()
+
+
+@pytest.fixture
+def fake_client(monkeypatch):
+    """dask.distributed.Client replaced by a mock (no scheduler reached) whose cluster has no worker yet."""
+    client = mock.Mock()
+    client.nthreads.return_value = {}
+    make = mock.Mock(return_value=client)
+    monkeypatch.setattr("dask.distributed.Client", make)
+    return make
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:1", "tcp://127.0.0.1:65535"])
+def test_a_dask_cluster_with_no_worker_yet_keeps_one_run_in_flight(fake_client, address):
+    """The ports 1 and 65535 (the range's ends) are addresses to try; a cluster whose workers have not joined yet
+    counts as one worker, so that the campaign's window of runs in flight is not empty."""
+    cluster = executors._DaskCluster(address, 1.0)
+    fake_client.assert_called_once_with(address, timeout=1.0, set_as_default=False)
+    assert cluster.workers == 1
+
+
+@pytest.mark.parametrize("timeout_s, expected_s", [(None, executors.DEFAULT_CONNECT_TIMEOUT_S), (0.0, 0.0), (2.5, 2.5)])
+def test_only_no_connect_timeout_is_the_default_one(fake_client, timeout_s, expected_s):
+    executors._open_executor(None, "tcp://127.0.0.1:8786", timeout_s)
+    fake_client.assert_called_once_with("tcp://127.0.0.1:8786", timeout=expected_s, set_as_default=False)
+
+
+@pytest.mark.parametrize("workers, kind", [(0, executors._Inline), (1, executors._ProcessPool),
+                                           (2, executors._ProcessPool)])
+def test_only_workers_0_runs_in_this_process(workers, kind):
+    """One worker is a worker process (isolated from this one), as two are; no process starts before a task."""
+    pool = executors._open_executor(workers, None, None)
+    try:
+        assert type(pool) is kind and pool.workers == max(workers, 1)
+    finally:
+        pool.close()
+
+
+def test_cores_are_those_this_process_may_use_else_all(monkeypatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 8)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)  # 2 of the 8 cores
+    assert executors.default_workers() == 2
+    monkeypatch.delattr(os, "sched_getaffinity")  # macOS, Windows: no affinity
+    assert executors.default_workers() == 8
+
+
+def test_no_worker_taking_the_first_task_in_time_is_an_error_and_the_task_cancelled():
+    future = mock.Mock()
+    future.result.side_effect = cf.TimeoutError
+    pool = types.SimpleNamespace(executor=types.SimpleNamespace(submit=lambda fn, *args: future), workers=1)
+    with pytest.raises(RuntimeError, match=f"^no worker took a task within {executors.PING_TIMEOUT_S:g} s$"):
+        executors._check_workers(pool, toy_run)
+    future.result.assert_called_once_with(timeout=executors.PING_TIMEOUT_S)
+    future.cancel.assert_called_once_with()
 
 
 def test_workers_dying_as_they_start_name_the_main_guard():
