@@ -4,6 +4,7 @@ PadCentroidsSystem, a short calibration run, scenario validation and the command
 import dataclasses
 import json
 import subprocess
+from operator import attrgetter
 from pathlib import Path
 
 import cv2
@@ -13,6 +14,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.sensors import ImageRgba8U
 
 from diagrams.crhf_calibration import (
+    PAD_THICKNESS_M,
     build_calibration_scene,
     calibration_metrics,
     leave_one_out_residuals,
@@ -77,6 +79,23 @@ def test_the_logged_true_pad_pixels_are_the_pads_projection(scene):
     for h in (handles, off_axis):
         expected = [projected_pad_centres(scenario, h, t) for t in times]
         np.testing.assert_allclose(true_pad_pixels(h, scenario.camera.K, times), expected, rtol=0, atol=1e-9)
+
+
+def test_the_camera_climbs_from_start_height_m_above_the_pads_at_climb_speed_m_s():
+    """Without rendering: the pads' top faces lie PAD_THICKNESS_M above the floor (z = 0), the camera
+    start_height_m + climb_speed_m_s t above them at time t, and that is the range each ToF sensor's ideal
+    ray (cast on the scene's geometry) reads down to its pad."""
+    _, scenario = load_scenario("crhf-calibration")
+    diagram, handles = build_calibration_scene(scenario)
+    context = diagram.CreateDefaultContext()
+    true_ranges = handles.tof.GetOutputPort("true_ranges")
+    np.testing.assert_array_equal(handles.p_W_pads[:, 2], PAD_THICKNESS_M)
+    for t in (0.0, 1.0, 2.5):
+        height = 0.3 + 0.15 * t  # start_height_m 0.3 m, climb_speed_m_s 0.15 m/s
+        context.SetTime(t)
+        assert handles.X_WC(t).translation()[2] == pytest.approx(PAD_THICKNESS_M + height, abs=1e-12)
+        np.testing.assert_allclose(true_ranges.Eval(handles.tof.GetMyContextFromRoot(context)), np.full(4, height),
+                                   rtol=0, atol=1e-6)
 
 
 def test_rendered_pad_colours_stay_inside_their_table1_range_only(scene):
@@ -167,10 +186,13 @@ def test_calibration_metrics_against_the_true_camera():
     p_C = sensor_positions_C(scenario.tof.arm_m, scenario.tof.angle_deg)
     ranges = np.tile(np.linspace(0.3, 2.3, 41)[:, None], (1, 4))
 
-    def metrics(fx, fy, cx, cy):
+    def metrics(fx, fy, cx, cy, u_lost=None):
         pixels = np.stack([fx * p_C[:, 0] / ranges + cx, fy * p_C[:, 1] / ranges + cy], axis=-1)
         calibration = PadCalibration.from_frames(ranges, pixels, PAD_COLOURS)
-        return calibration_metrics(calibration, {"pad_pixels": pixels.reshape(-1, 8)}, scenario, p_C)
+        logged = pixels.copy()
+        if u_lost is not None:
+            logged[0, u_lost, 0] = np.nan  # that pad's u lost in the first frame, its v still there
+        return calibration_metrics(calibration, {"pad_pixels": logged.reshape(-1, 8)}, scenario, p_C)
 
     exact = metrics(*EQ10)
     for colour in PAD_COLOURS:
@@ -184,12 +206,16 @@ def test_calibration_metrics_against_the_true_camera():
     for colour in PAD_COLOURS:
         assert off["pads"][colour]["implied_error_percent"] == pytest.approx(expected, rel=1e-6)
     assert off["implied_error_percent_mean"] == pytest.approx(expected, rel=1e-6)
+    # a pad is found in a frame only with both of its coordinates: one lost u of 41 frames leaves it 40 / 41
+    half_found = metrics(*EQ10, u_lost=1)
+    assert [half_found["pads"][c]["detected_fraction"] for c in PAD_COLOURS] == [1.0, 40 / 41, 1.0, 1.0]
 
 
 @pytest.mark.slow
 def test_a_short_calibration_climb_implies_the_camera_intrinsics(tmp_path):
     name, scenario = load_scenario("crhf-calibration", overrides=["climb_speed_m_s=1.0"], duration_s=2.0)
     metrics = run(name, scenario, tmp_path, RunOptions(progress=False))
+    assert metrics["height_m"] == pytest.approx([0.3, 2.3], abs=1e-9)  # from 0.3 m, 2 s at 1 m/s
     calibration = PadCalibration.load(tmp_path / "pad_calibration.npz")
     assert [s.colour for s in calibration.sensors] == list(PAD_COLOURS)
     assert all(len(s.ranges) == 41 for s in calibration.sensors)  # 2 s at 20 Hz, both ends
@@ -223,20 +249,40 @@ def test_a_short_calibration_climb_implies_the_camera_intrinsics(tmp_path):
 @pytest.mark.parametrize("override, field", [
     ("end_height_m=4.5", "end_height_m"),  # beyond tof.max_range_m
     ("start_height_m=3.95", "start_height_m"),  # not below end_height_m
-    ("start_height_m=0.02", "start_height_m"),  # below tof.min_range_m
+    ("start_height_m=3.9", "must be below end_height_m"),  # equal to end_height_m
+    ("start_height_m=0.02", "is below tof.min_range_m"),  # below tof.min_range_m (0.04 m)
+    ("camera.near_m=0.3", "must exceed camera.near_m"),  # start_height_m on the near plane
     ("duration_s=60", "duration_s"),  # runs past end_height_m
     ("duration_s=0.05", "duration_s"),  # fewer than three frames
     ("climb_speed_m_s=0", "climb_speed_m_s"),
-    ("pad_radius_m=0.12", "pad_radius_m"),  # neighbouring pads overlap
+    ("pad_radius_m=0.12", "overlap"),  # neighbouring pads overlap
+    # 0.2 m across, neighbouring sensors 2 * 0.135 sin 45 deg = 0.191 m apart (opposite ones 0.27 m)
+    ("pad_radius_m=0.1", "overlap"),
     ("pad_radius_m=0.02", "pad_radius_m"),  # too small to segment at the top
     ("start_height_m=0.1", "the pads do not fit in the image"),  # the outer pads' rims off the image's edges
     ("camera.cx=100", "principal point 100, "),  # the left pads off the image: the message names the camera
+    # the right pads' rims at 289 + 458.5 (0.135 sin 45 deg + 0.05) / 0.3 = 511.31 px, past the last pixel's 511
+    ("camera.cx=289", "do not fit in the image"),
+    # 380 px * 0.05 m / 3.9 m = 4.87 px at the top in v (458.5 px in u would give 5.88)
+    ("camera.fy=380", "is too small"),
     ("tof.noise_std_m=-1", "tof.noise_std_m"),
     ("pad_radius=0.1", "pad_radius"),  # unknown key
 ])
 def test_bad_scenario_values_are_config_errors_naming_the_field(override, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         load_scenario("crhf-calibration", overrides=[override])
+
+
+@pytest.mark.parametrize("override", [
+    "tof.min_range_m=0.3",  # start_height_m (0.3 m) on the ToF's minimum range
+    # on tof.max_range_m: the climb takes 3.7 / 0.15 = 24.67 s >= the 24 s flown, a pad 457.855 * 0.05 / 4 = 5.72 px
+    "end_height_m=4.0",
+    "duration_s=0.1",  # exactly the 3 camera frames (2 periods at 20 Hz) a calibration needs
+])
+def test_scenario_values_on_their_limits_are_accepted(override):
+    _, scenario = load_scenario("crhf-calibration", overrides=[override])
+    key, value = override.split("=")
+    assert attrgetter(key)(scenario) == float(value)
 
 
 @pytest.mark.slow
