@@ -16,8 +16,11 @@ from pydrake.systems.sensors import ImageRgba8U
 
 import models.ground_texture as ground_texture
 from diagrams.stereo_hover import (
+    GROUND_SHOWN_LIFT_M,
+    GroundConfig,
     StereoHoverConfig,
     add_stereo_altimeter,
+    add_textured_ground,
     build_stereo_hover,
 )
 from models.apriltag import source_digest
@@ -150,23 +153,50 @@ def test_the_ground_texture_has_every_octaves_squares(pixels, finest_texels, oct
         assert abs((along_rows + along_columns) / 2 - expected) < 0.04, f"lag {d}"
 
 
-def test_the_ground_has_one_geometry_per_role():
-    """The whole texture only for the cameras (perception) in z = 0, the averaged copy only for Meshcat,
-    1 cm higher (a browser's depth buffer does not resolve less over the plain ground)."""
-    diagram, _ = build_stereo_hover(StereoHoverConfig())
-    scene_graph = next(s for s in diagram.GetSystems() if isinstance(s, SceneGraph))
+def ground_geometries(scene_graph: SceneGraph) -> dict:
+    """{name: (perceived, illustrated, mesh file name, mesh scale, z [m])} of the textured ground's geometries."""
     inspector = scene_graph.model_inspector()
     roles = {}
     for geometry_id in inspector.GetAllGeometryIds():
         name = inspector.GetName(geometry_id)
         if name.startswith("textured_ground"):
+            shape = inspector.GetShape(geometry_id)
             roles[name] = (inspector.GetPerceptionProperties(geometry_id) is not None,
                            inspector.GetIllustrationProperties(geometry_id) is not None,
-                           Path(inspector.GetShape(geometry_id).source().path()).name,
+                           Path(shape.source().path()).name, shape.scale(),
                            inspector.GetPoseInFrame(geometry_id).translation()[2])
-    name = f"ground_texture_s0_p4096_f2_o8{{}}_{source_digest(Path(ground_texture.__file__))}.obj"
-    assert roles == {"textured_ground": (True, False, name.format(""), 0.0),
-                     "textured_ground_shown": (False, True, name.format("_shown1024"), 0.01)}
+    return roles
+
+
+def ground_mesh_name(pixels: int, shown: str = "") -> str:
+    """The file name ground_texture_mesh gives the seed 0 texture of `pixels` a side (default texels, octaves)."""
+    return f"ground_texture_s0_p{pixels}_f2_o8{shown}_{source_digest(Path(ground_texture.__file__))}.obj"
+
+
+def test_the_ground_has_one_geometry_per_role():
+    """The whole texture only for the cameras (perception) in z = 0, the averaged copy only for Meshcat,
+    1 cm higher (a browser's depth buffer does not resolve less over the plain ground); both 20 m a side."""
+    diagram, _ = build_stereo_hover(StereoHoverConfig())
+    scene_graph = next(s for s in diagram.GetSystems() if isinstance(s, SceneGraph))
+    assert ground_geometries(scene_graph) == {
+        "textured_ground": (True, False, ground_mesh_name(4096), 20.0, 0.0),
+        "textured_ground_shown": (False, True, ground_mesh_name(4096, "_shown1024"), 20.0, 0.01)}
+
+
+def test_the_hover_scene_has_the_configured_ground():
+    """A 7 m ground of a 64 px texture (no averaged copy under GROUND_SHOWN_PIXELS): both geometries that mesh,
+    scaled to 7 m."""
+    diagram, _ = build_stereo_hover(StereoHoverConfig(ground=GroundConfig(size_m=7.0, texture_pixels=64)))
+    scene_graph = next(s for s in diagram.GetSystems() if isinstance(s, SceneGraph))
+    assert ground_geometries(scene_graph) == {"textured_ground": (True, False, ground_mesh_name(64), 7.0, 0.0),
+                                              "textured_ground_shown": (False, True, ground_mesh_name(64), 7.0, 0.01)}
+
+
+def test_a_raised_ground_is_at_its_height_for_the_cameras_and_lifted_for_meshcat():
+    scene_graph = SceneGraph()
+    add_textured_ground(scene_graph, GroundConfig(texture_pixels=64), height_m=0.5)
+    z = {name: geometry[-1] for name, geometry in ground_geometries(scene_graph).items()}
+    assert z == pytest.approx({"textured_ground": 0.5, "textured_ground_shown": 0.5 + GROUND_SHOWN_LIFT_M}, abs=1e-12)
 
 
 def test_add_stereo_altimeter_wires_the_pair_into_the_altimeter_and_the_altimeter_into_the_filter():
@@ -838,6 +868,21 @@ def test_kf_lost_near_does_not_start_on_a_reading_far_under_the_last():
 def test_bad_stereo_config_names_the_field(config, message):
     with pytest.raises(ConfigError, match=message):
         config.validate("stereo")
+
+
+@pytest.mark.parametrize("config, message", [
+    (GroundConfig(size_m=0.0), "ground.size_m must be positive"),
+    (GroundConfig(texture_pixels=63), "ground.texture_pixels must lie in 64..8192"),
+    (GroundConfig(texture_pixels=8193), "ground.texture_pixels must lie in 64..8192"),
+])
+def test_bad_ground_config_names_the_field(config, message):
+    with pytest.raises(ConfigError, match=message):
+        config.validate("ground")
+
+
+@pytest.mark.parametrize("pixels", [64, 8192])
+def test_ground_texture_pixels_at_their_limits_are_valid(pixels):
+    GroundConfig(texture_pixels=pixels).validate("ground")
 
 
 def test_add_stereo_pair_validates():
