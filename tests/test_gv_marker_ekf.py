@@ -7,6 +7,7 @@ summaries with 1 and 2 workers, and bad settings are one-line errors."""
 
 import dataclasses
 import json
+from types import SimpleNamespace
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -508,9 +509,39 @@ def test_a_campaign_run_the_batch_path_cannot_replay_is_the_diagrams(override):
         _assert_same_figures(output.metrics["estimators"], expected)
 
 
-def test_campaign_rms_is_over_every_scored_step_of_every_run():
-    from types import SimpleNamespace
+def test_a_groups_wall_time_is_shared_equally_among_its_runs(monkeypatch):
+    """batch_runs stepping a group of two runs' filters for 10 s (on a stand-in clock that only it advances):
+    each run's estimation_wall_time_s is 10 s / 2."""
+    import diagrams.gv_marker_ekf_mc as mc
+    import diagrams.marker_batch as marker_batch
+    from diagrams.gv_marker_ekf_mc import CAMPAIGN, run_group
 
+    clock = [100.0]
+    monkeypatch.setattr(mc, "time", SimpleNamespace(perf_counter=lambda: clock[0]))
+    batch_runs = marker_batch.batch_runs
+
+    def ten_seconds(*args):
+        clock[0] += 10.0
+        return batch_runs(*args)
+
+    monkeypatch.setattr(marker_batch, "batch_runs", ten_seconds)
+    s = campaign_settings(CAMPAIGN, "gv-marker-ekf", cases=["12"], runs=2, overrides=SHORT)
+    outputs = run_group(s.tasks(CAMPAIGN.case_key))
+    assert [o.metrics["estimation_wall_time_s"] for o in outputs] == [5.0, 5.0]
+
+
+def test_a_runs_output_keeps_every_decimate_th_step_from_the_first_and_ends_at_its_last():
+    from diagrams.gv_marker_ekf_mc import DECIMATE, _output, sampled
+
+    s = scenario(12, 3)
+    run = sampled(s)
+    output = _output(s, run, 0.0)
+    np.testing.assert_array_equal(output.arrays["t"], run.t[::DECIMATE].astype(np.float32))
+    assert output.arrays["t"][0] == run.t[0] and len(output.arrays["t"]) == (len(run.t) + DECIMATE - 1) // DECIMATE
+    assert output.metrics["sim_time_s"] == run.t[-1] == pytest.approx(4.0, abs=0.2)  # duration_s 4
+
+
+def test_campaign_rms_is_over_every_scored_step_of_every_run():
     from diagrams.gv_marker_ekf_mc import _output, aggregate, sampled
 
     # two runs scoring very different numbers of steps: from 0.5 s and from 3.5 s of 4 s
@@ -535,17 +566,17 @@ def test_campaign_rms_is_over_every_scored_step_of_every_run():
         np.testing.assert_allclose(figures["rms_marker_position_m"], np.sqrt(np.mean(markers**2, axis=0)), rtol=1e-9)
 
 
-def _ensemble_record(t, true_xy, true_yaw, xy, yaw, marker_error, measurements):
+def _ensemble_record(t, true_xy, true_yaw, xy, yaw, marker_error, measurements, per_frame_ms=1.0,
+                     measured_fraction=(1.0,) * 5):
     """A campaign record of one filter "f" holding the given decimated arrays (as `_output` keeps them: NaN
-    where the filter flags its estimate) and measurement counts."""
-    from types import SimpleNamespace
-
+    where the filter flags its estimate), measurement counts, time per frame and measured fraction per marker."""
     arrays = dict(t=t, true_xy=true_xy, true_yaw=true_yaw, f_xy=xy, f_yaw=yaw, f_marker_error=marker_error)
     arrays = {k: np.asarray(v, dtype=np.float32) for k, v in arrays.items()}
     m = {"rms_position_m": 1.0, "rms_heading_deg": 1.0, "rms_position_xy_m": 1.0, "rms_marker_position_m": [1.0] * 5,
-         "frames_scored": len(t), "per_frame_ms": 1.0, "measurements": measurements}
+         "frames_scored": len(t), "per_frame_ms": per_frame_ms, "measurements": measurements}
     return SimpleNamespace(metrics={"settle_s": 1.0, "estimators": {"f": m},
-                                    "measurements": {"measured_fraction": [1.0] * 5}}, arrays=lambda: arrays)
+                                    "measurements": {"measured_fraction": list(measured_fraction)}},
+                           arrays=lambda: arrays)
 
 
 def test_ensemble_mean_figures_are_the_error_of_the_mean_estimate_after_settling():
@@ -571,8 +602,13 @@ def test_ensemble_mean_figures_are_the_error_of_the_mean_estimate_after_settling
     for part in (3, 4, 5):  # the first run flags its estimate at the last step
         records[0][part] = np.array(records[0][part], dtype=float)
         records[0][part][-1] = np.nan
-    records = [_ensemble_record(*r) for r in records]
-    out = aggregate({"6": records})["f"]["6"]
+    frame_ms, fractions = (2.0, 6.0), ((0.2, 0.4, 0.6, 0.8, 1.0), (0.4, 0.4, 0.0, 1.0, 0.5))
+    records = [_ensemble_record(*r, ms, f) for r, ms, f in zip(records, frame_ms, fractions)]
+    summary = aggregate({"6": records, "12": []})  # a case with no run ended has no figures
+    assert list(summary) == ["f"] and list(summary["f"]) == ["6"]
+    out = summary["f"]["6"]
+    assert out["per_frame_ms"] == pytest.approx(4.0)  # the mean over the runs of 2 and 6 ms
+    assert out["measured_fraction"] == pytest.approx([0.3, 0.4, 0.3, 0.9, 0.75])  # per marker, over the runs
     # Scored steps 2-4: mean offset (0.3, 0.4), 0.5 m, and mean heading error 0.2 rad (the circular mean of
     # 0.1 and 0.3); step 5, the second run alone: (0.4, 0.5) and 0.3 rad.
     assert out["ensemble_mean_position_xy_m"] == pytest.approx(np.sqrt((3 * 0.5**2 + 0.4**2 + 0.5**2) / 4), rel=1e-6)
