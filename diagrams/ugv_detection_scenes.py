@@ -45,6 +45,7 @@ from diagrams.stereo_hover import GroundConfig, add_textured_ground
 from systems.config import require
 from systems.geometry import ray_to_plane
 from systems.noise import sample_rng
+from systems.sensors.camera import motion_blur_kernel
 from systems.sensors.fisheye import FisheyeConfig, add_fisheye_camera, project_points
 from systems.vehicles.ground_vehicle_geometry import GroundVehicleGeometry, PlatformConfig
 from systems.vehicles.traffic import DISTRACTOR_COLOURS, DISTRACTOR_SIZE_HIGH_M, DISTRACTOR_SIZE_LOW_M, register_box
@@ -117,27 +118,14 @@ def projected_box(p_C: np.ndarray, config: FisheyeConfig, min_box_px: float = 3.
     return np.array([x0, y0, x1 - x0, y1 - y0])
 
 
-def motion_blur_kernel(length_px: float, angle_rad: float) -> np.ndarray:
-    """A normalised line kernel of `length_px` along the image direction `angle_rad` (from +x towards
-    +y), anti-aliased; the identity for lengths under one pixel."""
-    if length_px < 1.0:
-        return np.ones((1, 1), np.float32)
-    size = int(np.ceil(length_px)) | 1
-    scale = 8  # drawn at 8x and shrunk: sub-pixel ends and direction
-    big = np.zeros((size * scale, size * scale), np.float32)
-    c = (size * scale - 1) / 2
-    d = (length_px - 1) * scale / 2 * np.array([np.cos(angle_rad), np.sin(angle_rad)])
-    cv2.line(big, tuple(np.round((c - d) * 16).astype(int)), tuple(np.round((c + d) * 16).astype(int)), 1.0,
-             thickness=scale, lineType=cv2.LINE_AA, shift=4)
-    kernel = cv2.resize(big, (size, size), interpolation=cv2.INTER_AREA)
-    return kernel / kernel.sum()
-
-
 def motion_blur(image: np.ndarray, length_px: float, angle_rad: float) -> np.ndarray:
-    """The image smeared along a line (cv2.filter2D with `motion_blur_kernel`)."""
-    if length_px < 1.0:
+    """The image smeared over `length_px` along the image direction `angle_rad` (from +x towards +y): the
+    camera's exposure smear (systems/sensors/camera.py's `motion_blur_kernel`, cv2.filter2D); unchanged under
+    half a pixel."""
+    kernel = motion_blur_kernel(length_px * np.array([np.cos(angle_rad), np.sin(angle_rad)]))
+    if kernel is None:
         return image
-    return cv2.filter2D(image, -1, motion_blur_kernel(length_px, angle_rad), borderType=cv2.BORDER_REFLECT)
+    return cv2.filter2D(image, -1, kernel, borderType=cv2.BORDER_REFLECT)
 
 
 @dataclass
@@ -447,7 +435,7 @@ class UgvDataset:
 
 
 def _cache_key(config: UgvSceneConfig, seeds: list[int]) -> str:
-    text = json.dumps({"config": asdict(config), "seeds": seeds, "version": 2}, sort_keys=True, default=str)
+    text = json.dumps({"config": asdict(config), "seeds": seeds, "version": 3}, sort_keys=True, default=str)
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 

@@ -25,7 +25,6 @@ from diagrams.ugv_detection_scenes import (
     distractor_pool,
     load_or_render_dataset,
     motion_blur,
-    motion_blur_kernel,
     pad_centre_pixel,
     projected_box,
     sample_scene,
@@ -149,14 +148,26 @@ def test_sampled_scenes_keep_their_placement_rules():
                 assert np.linalg.norm(a - b) >= config.min_separation_m - 1e-9, f"seed {seed}: centres too close"
 
 
-def test_motion_blur_kernel_is_a_normalised_line_of_the_given_length():
-    kernel = motion_blur_kernel(9.0, math.pi / 2)  # along +y (image down)
-    assert kernel.sum() == pytest.approx(1.0, abs=1e-6)
-    rows, cols = np.mgrid[:kernel.shape[0], :kernel.shape[1]] - (kernel.shape[0] - 1) / 2
-    # A uniform segment of length L has standard deviation L / sqrt(12) along it; across it, under a pixel.
-    assert math.sqrt((kernel * rows**2).sum()) == pytest.approx(9 / math.sqrt(12), rel=0.1)
-    assert math.sqrt((kernel * cols**2).sum()) < 0.6
-    assert motion_blur_kernel(0.5, 1.0).shape == (1, 1)
+@pytest.mark.parametrize("length_px, angle_rad", [(8.0, 0.0), (9.0, math.pi / 2), (1.5, math.pi), (6.0, 0.7)])
+def test_motion_blur_smears_a_point_evenly_along_its_direction_about_itself(length_px, angle_rad):
+    """A point's smear keeps its brightness and its centroid (the exposure's middle), spreads as a uniform segment
+    of length L along the direction and stays on its line: a smear along a row leaves the other rows dark (the
+    line kernel drawn before leaked a tenth of it into the next row, 0.1 px off centre)."""
+    image = np.zeros((31, 31), np.float32)
+    image[15, 15] = 1.0
+    smear = motion_blur(image, length_px, angle_rad)
+    rows, cols = np.mgrid[:31, :31] - 15.0
+    direction = np.array([math.cos(angle_rad), math.sin(angle_rad)])
+    along, across = cols * direction[0] + rows * direction[1], -cols * direction[1] + rows * direction[0]
+    assert smear.sum() == pytest.approx(1.0, abs=1e-5)
+    assert (smear * cols).sum() == pytest.approx(0.0, abs=1e-5)
+    assert (smear * rows).sum() == pytest.approx(0.0, abs=1e-5)
+    # the segment's L^2 / 12 and the bilinear sharing of its sub-pixel positions, a (1 - a) on average 1 / 6 px^2
+    assert math.sqrt((smear * along**2).sum()) == pytest.approx(math.sqrt(length_px**2 / 12 + 1 / 6), rel=0.1)
+    assert math.sqrt((smear * across**2).sum()) < 0.6
+    if angle_rad in (0.0, math.pi):
+        assert not smear[np.arange(31) != 15].any()
+    assert motion_blur(image, 0.4, 1.0) is image  # under half a pixel: no smear
 
 
 def test_nms_keeps_the_best_and_drops_only_what_overlaps_a_kept_box():
