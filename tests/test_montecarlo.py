@@ -15,6 +15,7 @@ import re
 import signal
 import time
 import types
+from collections import Counter
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from unittest import mock
@@ -623,6 +624,75 @@ def test_a_non_empty_directory_that_is_no_campaign_is_an_error(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]
 
 
+@pytest.mark.parametrize("change, named", [
+    (lambda saved: [], r"\(scenario: None there, toy asked; "),  # no object: none of the settings
+    (lambda saved: {**saved, "scenario": "other"}, r"\(scenario: other there, toy asked\)"),
+    (lambda saved: {key: value for key, value in saved.items() if key != "cases"},
+     r"\(cases: None there, \[3\] asked\)"),
+], ids=["no-object", "other-scenario", "no-cases"])
+def test_a_campaign_json_of_other_settings_is_another_campaign_and_untouched(tmp_path, change, named):
+    s = settings(cases=["3"], runs=1)
+    run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    saved = json.loads((tmp_path / "campaign.json").read_text())
+    (tmp_path / "campaign.json").write_text(json.dumps(change(saved)))
+    before = snapshot(tmp_path)
+    with pytest.raises(ConfigError, match=named):
+        run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    assert snapshot(tmp_path) == before
+
+
+def test_cases_compare_as_a_set_of_text():
+    """The saved cases in another order, or as numbers, are the same cases; a missing case or none is another
+    campaign."""
+    s = settings(cases=["3", "6"])
+    saved = s.to_json()
+    assert s.differences({**saved, "cases": ["6", "3"]}) == [] and s.differences({**saved, "cases": [6, 3]}) == []
+    assert s.differences({**saved, "cases": ["3"]}) == ["cases: [3] there, [3, 6] asked"]
+    assert s.differences({key: value for key, value in saved.items() if key != "cases"}) == [
+        "cases: None there, [3, 6] asked"]
+
+
+def test_overrides_are_kept_in_the_order_given_and_another_order_is_another_campaign(tmp_path):
+    """A later `--set` of a key wins over an earlier one, so the order of the overrides is part of the campaign."""
+    run_campaign(TOY, settings(cases=["3"], runs=1, overrides=["b=1", "a=2"]), tmp_path, workers=0, progress=False)
+    assert json.loads((tmp_path / "campaign.json").read_text())["overrides"] == ["b=1", "a=2"]
+    with pytest.raises(ConfigError, match=r"\(overrides: \[b=1, a=2\] there, \[a=2, b=1\] asked\)"):
+        run_campaign(TOY, settings(cases=["3"], runs=1, overrides=["a=2", "b=1"]), tmp_path, workers=0,
+                     progress=False)
+
+
+def test_a_finished_campaign_run_again_reaches_no_executor(tmp_path):
+    """With no run left to compute, the campaign opens no executor: an unreachable scheduler is not tried, and the
+    summary is written again from the records."""
+    s = settings(cases=["3"], runs=1)
+    run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    summary = run_campaign(TOY, s, tmp_path, scheduler="tcp://127.0.0.1:9", connect_timeout_s=1.0, progress=False)
+    assert summary["runs"] == {"requested": 1, "done": 1, "failed": 0, "computed_now": 0}
+
+
+def test_a_resumed_campaign_keeps_its_campaign_json(tmp_path):
+    """campaign.json is written once, when the campaign starts: a resume that computes a run leaves the file as it
+    was (the same inode: not written again, atomically or not)."""
+    s = settings(cases=["3"], runs=2)
+    run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    (tmp_path / "runs" / "3" / "00001.json").unlink()
+    saved = (tmp_path / "campaign.json").stat()
+    summary = run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    assert summary["runs"]["computed_now"] == 1
+    again = (tmp_path / "campaign.json").stat()
+    assert (again.st_ino, again.st_mtime_ns) == (saved.st_ino, saved.st_mtime_ns)
+
+
+def test_a_resumed_campaigns_progress_counts_the_failed_runs_on_record(tmp_path, capfd):
+    """The progress bar of a resumed campaign starts from the failed runs it holds records of: 1 (run 2 of case 6)."""
+    definition = toy(run=crashing_run)
+    s = settings(definition, cases=["6"], runs=3)
+    run_campaign(definition, s, tmp_path, workers=0, progress=False)
+    capfd.readouterr()
+    run_campaign(definition, s, tmp_path, workers=0, progress=True)
+    assert set(re.findall(r"failed=(\d+)", capfd.readouterr().err)) == {"1"}
+
+
 def test_a_run_function_that_cannot_be_pickled_is_refused_up_front(tmp_path):
     with pytest.raises(TypeError, match="picklable"):
         run_campaign(toy(run=lambda task: {}), settings(), tmp_path / "out", workers=1, progress=False)
@@ -639,9 +709,11 @@ def test_a_run_in_this_process_need_not_be_picklable_and_may_return_any_mapping(
     assert [r.metrics for r in read_records(tmp_path, s).values()] == [{"x": 0.0}, {"x": 1.0}]
 
 
-def test_the_runs_per_second_are_the_runs_computed_over_the_wall_time(tmp_path):
-    summary = write_summary(TOY, settings(cases=["3"], runs=2), tmp_path, wall_time_s=4.0, computed=2)
-    assert summary["runs_per_s"] == 0.5
+@pytest.mark.parametrize("computed, wall_time_s, runs_per_s", [(2, 4.0, 0.5), (0, 4.0, None), (2, 0.0, None)])
+def test_the_runs_per_second_are_the_runs_computed_over_the_wall_time(tmp_path, computed, wall_time_s, runs_per_s):
+    """None when no run was computed now (a finished campaign run again) or no time was measured."""
+    summary = write_summary(TOY, settings(cases=["3"], runs=2), tmp_path, wall_time_s=wall_time_s, computed=computed)
+    assert summary["runs_per_s"] == runs_per_s
 
 
 def test_a_case_summary_is_given_the_number_of_failed_runs(tmp_path):
@@ -786,8 +858,9 @@ def test_runs_in_groups_give_the_runs_one_by_one_a_record_each(tmp_path, workers
     assert summary["filters"] == one_by_one["filters"]
     records = read_records(tmp_path / "grouped", settings(grouped))
     assert len(records) == RUNS * len(SPEEDS)
-    # groups of up to 3 consecutive runs of one case: 3 + 1 runs in each case (a run alone by `run`)
-    assert sorted(r.metrics.get("group", 1) for r in records.values()) == [1] * 3 + [3] * 9
+    # groups of up to 3 consecutive runs of one case: 3 + 1 runs in each case (a run alone by `run`, which marks no
+    # group size)
+    assert Counter(r.metrics.get("group") for r in records.values()) == {3: 9, None: 3}
 
 
 def test_a_failed_group_runs_one_by_one(tmp_path):
@@ -801,18 +874,20 @@ def test_a_failed_group_runs_one_by_one(tmp_path):
 class _PoolDyingBetweenRuns:
     """An in-process pool (one worker) whose executor turns out broken at the submissions numbered in
     `broken_at` (from 1), when every run it held has already finished (a worker that dies after its last
-    result came in)."""
+    result came in); at the submissions numbered in `given`, the future given there stands for the run."""
 
     workers = 1
 
-    def __init__(self, broken_at: set[int]):
+    def __init__(self, broken_at: set[int], given: dict[int, cf.Future] | None = None):
         self.executor = self
-        self.submissions, self.broken_at, self.restarts = 0, broken_at, 0
+        self.submissions, self.broken_at, self.given, self.restarts = 0, broken_at, given or {}, 0
 
     def submit(self, fn, /, *args, **kwargs):
         self.submissions += 1
         if self.submissions in self.broken_at:
             raise BrokenProcessPool("a process in the pool was terminated abruptly")
+        if self.submissions in self.given:
+            return self.given[self.submissions]
         return executors._InlineExecutor().submit(fn, *args, **kwargs)
 
     def restart(self) -> None:
@@ -840,6 +915,25 @@ def test_pool_deaths_with_runs_finishing_between_them_never_stop_the_campaign():
     campaign._drive(pool, toy_run, [(task,) for task in tasks], lambda task, outcome: kept.append((task, outcome)))
     assert sorted((task for task, _ in kept), key=lambda task: task.index) == tasks  # each once
     assert {outcome.status for _, outcome in kept} == {"done"} and pool.restarts == deaths
+
+
+def broken_future() -> cf.Future:
+    """The future of a run whose worker process died."""
+    future = cf.Future()
+    future.set_exception(BrokenProcessPool("a process in the pool was terminated abruptly"))
+    return future
+
+
+def test_a_pool_found_dead_at_a_submission_with_a_run_in_flight_is_replaced_once_for_both():
+    """The first run's worker dies, and the pool is found dead at the second submission: the second run goes back
+    to the queue and the pool is replaced once, when the first run's death comes in (it is blamed, alone in the
+    pool); the second run is then done in the new pool."""
+    pool = _PoolDyingBetweenRuns(broken_at={2}, given={1: broken_future()})
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(2)]
+    kept = []
+    campaign._drive(pool, toy_run, [(task,) for task in tasks],
+                    lambda task, outcome: kept.append((task.index, outcome.status, (outcome.error or {}).get("type"))))
+    assert kept == [(0, "failed", "WorkerDied"), (1, "done", None)] and pool.restarts == 1
 
 
 class _PoolDeadAtEverySubmission:
@@ -890,6 +984,37 @@ def test_runs_that_finished_before_an_interrupt_are_kept():
     assert kept == [(next(task for task in tasks[:2] if task not in interrupted), "done")]
 
 
+class _FutureInFlight(cf.Future):
+    """A run's future: asking one still in flight for its exception would wait for the run, so that fails the test
+    instead."""
+
+    def exception(self, timeout=None):
+        if not self.done():
+            pytest.fail("waited for the exception of a run still in flight")
+        return super().exception(timeout)
+
+
+@pytest.mark.parametrize("second", ["in-flight", "worker-died"])
+def test_on_ctrl_c_runs_that_did_not_finish_are_dropped_and_those_in_flight_cancelled(second):
+    """Ctrl-C while the first of two runs is kept: the second, still in flight or its worker dead, is not kept,
+    raises nothing in place of the interrupt, and is cancelled (it is redone on resume)."""
+    future = _FutureInFlight()
+    if second == "worker-died":
+        future.set_exception(BrokenProcessPool("a process in the pool was terminated abruptly"))
+    pool = _PoolDyingBetweenRuns(broken_at=set(), given={2: future})
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(2)]
+    kept = []
+
+    def keep(task, outcome):
+        kept.append(task)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        campaign._drive(pool, toy_run, [(task,) for task in tasks], keep)
+    assert kept == tasks[:1] and pool.submissions == 2
+    assert future.cancelled() == (second == "in-flight") and future.done()
+
+
 class _PoolOfDyingRuns:
     """An in-process pool (two workers) whose every run in `dying` takes the pool down with the runs
     submitted to it after that run; notes the runs each pool (between restarts) was given."""
@@ -928,6 +1053,46 @@ def test_runs_that_took_a_pool_down_run_alone_each_and_one_that_dies_alone_is_bl
     assert pool.pools == [[0, 1, 2, 3], [1], [2, 3], [4, 5]]
     assert sorted((task.index, outcome.status) for task, outcome in kept) == [
         (0, "done"), (1, "failed"), (2, "done"), (3, "failed"), (4, "done"), (5, "done")]
+
+
+def test_runs_blamed_alone_are_progress_between_deaths_of_a_full_pool():
+    """Every run takes its pool down: each full pool (the window, 4 runs) dies, then each of its runs dies alone
+    and is blamed. A blamed run is progress, so the MAX_POOL_DEATHS + 1 deaths of full pools are each the first in
+    a row and never stop the campaign: every run is kept as failed, after a replacement per death."""
+    deaths = campaign.MAX_POOL_DEATHS + 1
+    window = 2 * _PoolOfDyingRuns.workers
+    pool = _PoolOfDyingRuns(dying=set(range(window * deaths)))
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(window * deaths)]
+    kept = []
+    campaign._drive(pool, toy_run, [(task,) for task in tasks], lambda task, outcome: kept.append((task, outcome)))
+    assert [(task.index, outcome.error["type"]) for task, outcome in kept] == [
+        (i, "WorkerDied") for i in range(len(tasks))]
+    assert len(pool.pools) - 1 == deaths + len(tasks)  # a replacement per full pool and per run alone
+
+
+def test_the_window_opens_again_once_every_suspect_has_run_alone(monkeypatch):
+    """Run 1 takes the pool of runs 0-3 down: 1, 2 and 3 then run alone one after the other (1 is blamed), and once
+    3 has finished, runs 4 and 5 are in flight together again."""
+    in_flight = []
+    wait = cf.wait
+    monkeypatch.setattr(campaign.cf, "wait", lambda fs, **kwargs: in_flight.append(len(fs)) or wait(fs, **kwargs))
+    pool = _PoolOfDyingRuns(dying={1})
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(6)]
+    kept = []
+    campaign._drive(pool, toy_run, [(task,) for task in tasks], lambda task, outcome: kept.append(task.index))
+    assert in_flight == [4, 1, 1, 1, 2] and sorted(kept) == list(range(6))
+
+
+def test_the_groups_a_dead_pool_held_run_again_a_run_each():
+    """Run 1 takes down the pool holding the groups (0, 1) and (2, 3): each of the four runs then runs alone (by
+    `run`), so that run 1 alone is blamed and 0, 2 and 3 are done."""
+    pool = _PoolOfDyingRuns(dying={1})
+    tasks = [RunTask("toy", "3", i, run_seed(0, "3", i)) for i in range(4)]
+    kept = []
+    campaign._drive(pool, toy_run, [tuple(tasks[:2]), tuple(tasks[2:])],
+                    lambda task, outcome: kept.append((task.index, outcome.status, outcome.metrics.get("group"))),
+                    run_group=toy_group)
+    assert sorted(kept) == [(0, "done", None), (1, "failed", None), (2, "done", None), (3, "done", None)]
 
 
 class KilledWorker(Exception):
@@ -977,6 +1142,28 @@ def test_a_record_of_another_seed_or_unfinished_is_redone_on_resume(tmp_path):
     assert summary["runs"]["computed_now"] == 3 and summary["runs"]["done"] == 4
     records = read_records(tmp_path, s)
     assert [records[("3", i)].seed for i in range(4)] == [run_seed(0, "3", i) for i in range(4)]
+
+
+def test_a_record_that_is_no_object_of_a_run_is_redone_on_resume(tmp_path):
+    """A record that is a JSON object without a run's fields ("{}") or no object ("[]") cannot be read: read_records
+    leaves it out, and a resumed campaign runs it again."""
+    s = settings(cases=["3"], runs=3)
+    run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    (tmp_path / "runs" / "3" / "00001.json").write_text("{}")
+    (tmp_path / "runs" / "3" / "00002.json").write_text("[]")
+    assert sorted(read_records(tmp_path, s)) == [("3", 0)]
+    summary = run_campaign(TOY, s, tmp_path, workers=0, progress=False)
+    assert summary["runs"]["computed_now"] == 2 and summary["runs"]["done"] == 3
+
+
+@pytest.mark.parametrize("error, reason", [
+    (None, None),
+    ({"type": "WorkerDied", "message": "the worker died", "traceback": None}, "WorkerDied: the worker died"),
+])
+def test_a_records_reason_is_its_errors_type_and_message(error, reason):
+    record = RunRecord(case="3", index=0, seed=0, status="done" if error is None else "failed", metrics={},
+                       error=error, wall_time_s=0.0, path=Path("00000.json"), has_arrays=False)
+    assert record.reason == reason
 
 
 def test_a_run_returning_a_dict_has_no_arrays(tmp_path):
