@@ -28,6 +28,7 @@ from diagrams.ugv_detection_scenes import (
     pad_centre_pixel,
     projected_box,
     sample_scene,
+    seed003_ugv_platform,
     ugv_bounds_V,
     ugv_box,
 )
@@ -81,6 +82,123 @@ def test_pad_centre_pixel_matches_the_hand_projection(heading, direction):
     assert pad_centre_pixel(dataclasses.replace(scene, ugv_state=None), config) is None
     far = dataclasses.replace(scene, ugv_state=np.array([60.0, 0.0, 0.0, 0.0]))  # 83 deg off the axis
     assert pad_centre_pixel(far, config) is None
+    # Just past the 75 deg rim: the pad 30.45 m out and 7 m down, atan(30.45 / 7) = 77.05 deg off the axis.
+    just_beyond = dataclasses.replace(scene, ugv_state=np.array([30.0, 0.0, 0.0, 0.0]))
+    assert math.degrees(math.atan(30.45 / 7.0)) > config.fisheye.fov_deg / 2
+    assert pad_centre_pixel(just_beyond, config) is None
+
+
+@pytest.mark.parametrize("changes, low, high", [
+    ({}, [-0.25, -0.55, 0.0], [1.15, 0.55]),
+    ({"rear_overhang_m": 0.05, "body_length_m": 1.0}, [-0.12, -0.55, 0.0], [1.02, 0.55]),
+], ids=["seed003", "wheels-outside-the-body"])
+def test_ugv_bounds_enclose_body_wheels_and_pad(changes, low, high):
+    """Seed 003's UGV (1.4 x 1.0 m body from 0.25 m behind V's origin, the 1.0 m pad centred 0.45 m ahead,
+    0.12 m wheels on axles at x 0 and the 0.9 m wheelbase, half their 0.1 m width outside the body): x from
+    the body's rear -0.25 to its front 1.15, y +-(0.5 + 0.05). With the body 1.0 m long from 0.05 m behind
+    the axle, the wheels stick out: x from the rear wheel's -0.12 to the front wheel's 0.9 + 0.12 = 1.02.
+    Up to the pad's top, height_m (0.5 m) (within a mm)."""
+    platform = dataclasses.replace(seed003_ugv_platform(), **changes)
+    lower, upper = ugv_bounds_V(platform, wheelbase_m=0.9)
+    np.testing.assert_allclose(lower, low, atol=1e-12)
+    np.testing.assert_allclose(upper[:2], high, atol=1e-12)
+    assert platform.height_m <= upper[2] <= platform.height_m + 0.002
+
+
+def test_a_box_under_min_box_px_in_one_direction_only_is_none():
+    """A 1.0 x 0.002 m bar 2 m down the axis: f theta_d(atan(0.25)) either side, about 98 px wide, but 0.2 px
+    tall (under min_box_px 3 px): None. Turned 90 deg: None too."""
+    config = FisheyeConfig()
+    assert 2 * config.f * theta_distorted(math.atan(0.25), config.k1, config.k2) > 90
+    assert projected_box(box_surface_points([-0.5, -0.001, 2.0], [0.5, 0.001, 2.0]), config) is None
+    assert projected_box(box_surface_points([-0.001, -0.5, 2.0], [0.001, 0.5, 2.0]), config) is None
+
+
+def test_a_distractor_under_the_lens_is_centred_on_the_principal_point():
+    """A pool box (longer than wide) at the origin, heading 0, the lens 7.5 m up looking straight down: its
+    base centred on D's origin, so its box is centred on the principal point (cx + 0.5 in pixel-index space),
+    wider (along x) than tall."""
+    config = UgvSceneConfig()
+    pool = distractor_pool(config)
+    index = 0
+    assert pool[index].size_m[0] > pool[index].size_m[1]
+    X_WC = RigidTransform(RollPitchYaw(math.pi, 0.0, 0.0), [0.0, 0.0, 7.5])
+    scene = UgvScene(0, X_WC.multiply(config.fisheye.X_BC.inverse()), None, [(index, RigidTransform())], 0.0, 0.0,
+                     False)
+    [(x, y, w, h)] = distractor_boxes(scene, config, pool)
+    f = config.fisheye
+    np.testing.assert_allclose([x + w / 2, y + h / 2], [f.cx + 0.5, f.cy + 0.5], atol=1e-6)
+    assert w > h
+
+
+@pytest.mark.parametrize("changes", [
+    {"height_range_m": [5.0, 5.0]}, {"small_height_range_m": [8.0, 8.0]}, {"small_off_axis_range_deg": [60.0, 60.0]},
+    {"small_fraction": 0.5, "empty_fraction": 0.5}, {"small_fraction": 1.0, "empty_fraction": 0.0},
+    {"max_distractors": 18}, {"max_distractors": 0}, {"tilt_max_deg": 0.0},
+    {"max_off_axis_deg": 74.9}, {"distractor_off_axis_max_deg": 74.9}, {"small_off_axis_range_deg": [55.0, 74.9]},
+])
+def test_scene_settings_at_their_limits_are_accepted(changes):
+    """Equal low and high; fractions summing to exactly 1; one distractor per pool box (18: 2 of 9 colours);
+    angles just inside the fisheye's 75 deg half field of view."""
+    assert len(distractor_pool(UgvSceneConfig())) == 18
+    UgvSceneConfig(**changes).validate()
+
+
+@pytest.mark.parametrize("changes, name", [
+    ({"height_range_m": [5.0, 4.0]}, "height_range_m"), ({"height_range_m": [0.0, 4.0]}, "height_range_m"),
+    ({"small_fraction": 0.6, "empty_fraction": 0.6}, "small_fraction"), ({"small_fraction": 1.1}, "small_fraction"),
+    ({"max_distractors": 19}, "max_distractors"), ({"max_distractors": -1}, "max_distractors"),
+    ({"max_off_axis_deg": 75.0}, "max_off_axis_deg"), ({"max_off_axis_deg": 0.0}, "max_off_axis_deg"),
+    ({"distractor_off_axis_max_deg": 75.0}, "distractor_off_axis_max_deg"),
+    ({"small_off_axis_range_deg": [55.0, 75.0]}, "small_off_axis_range_deg"), ({"tilt_max_deg": 45.0}, "tilt_max_deg"),
+    ({"max_blur_px": -1.0}, "max_blur_px"),
+])
+def test_scene_settings_past_their_limits_name_the_field(changes, name):
+    with pytest.raises(ConfigError, match=rf"ugv_scenes\.{name}"):
+        UgvSceneConfig(**changes).validate()
+
+
+def test_sampled_scenes_follow_the_documented_draws():
+    """Over 300 held-out draws: a small-target frame always shows the UGV; the other frames' UGV centres are
+    uniform in solid angle up to max_off_axis_deg (62 deg), so (1 - cos 31) / (1 - cos 62) = 0.27 of them lie
+    within 31 deg (uniform in angle: 0.5); some frame shows a distractor of the UGV's own colour; blur never
+    exceeds max_blur_px and rarely reaches it (speed x exposure x f / height passes 15 px only for speeds over
+    7.5 m/s at heights under 2.1 m), and with max_blur_px 3 it caps some frames; the UAV anywhere over the
+    ground's middle (0.3 of its size either way)."""
+    config = UgvSceneConfig()
+    pool = distractor_pool(config)
+    low, high = ugv_bounds_V(config.platform)
+    centre_V = np.array([*(low[:2] + high[:2]) / 2, config.platform.height_m / 2])
+    near, far, same_colour, blurred, capped = 0, 0, 0, 0, 0
+    reach = 0.3 * config.ground.size_m
+    positions = []
+    for seed in HELD_OUT_SEEDS[:300]:
+        scene = sample_scene(seed, config, pool)
+        positions.append(scene.X_WB.translation()[:2])
+        if scene.small:
+            assert scene.ugv_state is not None, f"seed {seed}: a small-target frame without the UGV"
+        elif scene.ugv_state is not None:
+            x, y, heading, _ = scene.ugv_state
+            p_Wcentre = RigidTransform(RollPitchYaw(0.0, 0.0, heading), [x, y, 0.0]).multiply(centre_V)
+            p_C = scene.X_WB.multiply(config.fisheye.X_BC).inverse().multiply(p_Wcentre)
+            if math.degrees(math.atan2(math.hypot(p_C[0], p_C[1]), p_C[2])) < 31.0:
+                near += 1
+            else:
+                far += 1
+        same_colour += any(pool[index].colour == "ugv" for index, _ in scene.distractors)
+        assert 0.0 <= scene.blur_px <= config.max_blur_px, f"seed {seed}"
+        blurred += scene.blur_px > 0
+        capped += scene.blur_px == config.max_blur_px
+    expected = (1 - math.cos(math.radians(31))) / (1 - math.cos(math.radians(62)))
+    assert expected == pytest.approx(0.27, abs=0.005)
+    assert 0.17 <= near / (near + far) <= 0.37
+    assert same_colour > 0
+    assert blurred > 0 and capped < 0.1 * blurred
+    assert np.abs(positions).max() <= reach
+    assert np.all(np.min(positions, axis=0) < -0.5 * reach) and np.all(np.max(positions, axis=0) > 0.5 * reach)
+    low_cap = dataclasses.replace(config, max_blur_px=3.0)
+    blur = np.array([sample_scene(seed, low_cap, pool).blur_px for seed in HELD_OUT_SEEDS[:300]])
+    assert blur.max() == low_cap.max_blur_px
 
 
 def test_true_box_is_clipped_to_the_field_of_view_and_none_behind_the_lens():
