@@ -21,6 +21,7 @@ import diagrams.marker_plots as marker_plots
 from diagrams.cli import main
 from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly_diagram
+from diagrams.gv_marker_ekf import LONG_WAVE_M, Scenario
 from diagrams.marker_batch import batch_run, flight_samples
 from diagrams.marker_metrics import SampledRun, marker_metrics, measurement_metrics, pad_truth, true_marker_poses_C
 from diagrams.montecarlo import campaign_definition, campaign_settings, run_campaign
@@ -431,6 +432,16 @@ def test_a_camera_faster_than_the_filter_is_refused_as_a_slower_one_is():
             scenario(12, 0, f"estimation.camera.rate_hz={rate!r}")
 
 
+def test_scenario_defaults_are_the_papers_setup():
+    """Without a scenario file: the UAV starts at seed 002's r_0 = (0, 0, 10) m, duration_s 0 (500 m of driving),
+    and the paper's synthetic stream feeds the paper's EKF and the constant-turn EKF."""
+    s = Scenario()
+    assert s.start.xy_m == [0.0, 0.0] and s.start.height_m == 10.0
+    assert s.duration_s == 0.0 and s.run_length_s == pytest.approx(LONG_WAVE_M / s.vehicle.speed)
+    assert s.estimation.source == "synthetic" and s.estimation.filters == ["paper_ekf", "ct_ekf"]
+    assert s.diagram == "gv_marker_ekf"
+
+
 def test_bad_scenario_values():
     with pytest.raises(ConfigError, match="estimation.filters"):
         scenario(12, 0, "estimation.filters=[nope]")
@@ -443,8 +454,18 @@ def test_bad_scenario_values():
     with pytest.raises(ConfigError, match=r"estimation.ekf.history_s \(0.03 s\) must be at least the stream's "
                                           r"latency, estimation.latency_periods x the filter step \(0.035 s\)"):
         scenario(12, 0, "estimation.ekf.history_s=0.03")
-    with pytest.raises(ConfigError, match="gv-marker-ekf needs a measurement stream"):
-        scenario(12, 0, "estimation.source=none", "estimation.filters=[]")
+    for stream in (["estimation.source=none", "estimation.filters=[]"], ["estimation.filters=[]"]):
+        with pytest.raises(ConfigError, match="gv-marker-ekf needs a measurement stream"):
+            scenario(12, 0, *stream)
+    # The UAV starts at 10 m (the scenario file's start): the pad and the hold height must be below it (a start
+    # 20 m to the side: a pad at 10 m would have the UAV start inside the vehicle's body, refused before).
+    assert scenario(12, 0).start.height_m == 10.0
+    for below in ("landing.initial_height_m=12", "landing.initial_height_m=10", "platform.height_m=10",
+                  "platform.height_m=11"):
+        with pytest.raises(ConfigError, match=r"landing.initial_height_m must be below start.height_m \(10.0 m\)"):
+            scenario(12, 0, below, "start.xy_m=[0.0, 20.0]")
+    with pytest.raises(ConfigError, match=r"vehicle.speed_schedule_\* is not used by gv-marker-ekf"):
+        scenario(12, 0, "vehicle.speed_schedule_times_s=[0.0, 2.0]", "vehicle.speed_schedule_m_s=[12.0, 6.0]")
     # nothing would be scored: settle_s at or past the run's length (duration_s, or 500 m of driving)
     for settle, duration in ((4, 4), (42, 0)):
         with pytest.raises(ConfigError, match=rf"estimation.settle_s \({settle} s\) must be below the run's length"):
