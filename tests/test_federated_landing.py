@@ -2,6 +2,7 @@
 estimate, the same with the lens covered for 1.5 s, and a few of rqrlp-maneuvers' manoeuvres, all
 against the simulation's truth. benchmarks/federated.py runs the full scenes (20 m, 10 seeds)."""
 
+import json
 import re
 
 import cv2
@@ -13,11 +14,13 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 from pydrake.systems.sensors import ImageRgba8U
 
+from diagrams.cli import main
 from diagrams.federated_metrics import federated_log
 from diagrams.federated_perception import FederatedPerceptionConfig, add_federated_perception, seed001_camera
 from diagrams.gv_landing import build_gv_landing
+from diagrams.gv_landing_config import StartConfig
 from diagrams.gv_landing_run import fly
-from diagrams.rqrlp_maneuvers import ManeuversConfig
+from diagrams.rqrlp_maneuvers import ManeuversConfig, build_rqrlp_maneuvers
 from diagrams.rqrlp_maneuvers_run import fly as fly_maneuvers
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
@@ -129,7 +132,7 @@ def test_the_manoeuvres_command_what_they_say(maneuvers):
 
 def test_over_manoeuvres_the_federated_pose_beats_every_node(maneuvers):
     """A 9 s excerpt (benchmarks/federated.py scores the whole flight against seed 001's figures)."""
-    (metrics, _), _ = maneuvers
+    (metrics, _), config = maneuvers
     estimators = metrics["estimators"]
     fused = estimators["federated"]
     assert fused["valid_fraction"] == 1.0
@@ -138,6 +141,57 @@ def test_over_manoeuvres_the_federated_pose_beats_every_node(maneuvers):
         assert fused["rmse_position_m"] < estimators[node]["rmse_position_m"]
         assert fused["rmse_orientation_rad"] < estimators[node]["rmse_orientation_rad"]
     assert fused["rmse_orientation_rad"] <= 0.0818  # seed 001's figure
+    assert metrics["sim_time_s"] == pytest.approx(config.run_length_s)  # the rows' 2 + 3 + 4 s
+
+
+def test_the_paper_manoeuvres_go_each_way_and_spin_whole_turns():
+    """Sec. 5.1's manoeuvres (ManeuversConfig's default): forward, backward, left, right, up and down, each
+    axis ending where it started (the pattern stays in view), and whole 360 deg spins; the command's yaw ends
+    at the start's yaw plus the rows' turns, and a scenario with duration_s 0 runs the rows' total length."""
+    config = ManeuversConfig()
+    config.validate()
+    rows = np.array(config.manoeuvres)
+    durations, velocities, rates = rows[:, 0], rows[:, 1:4], rows[:, 4]
+    for axis in range(3):  # forward (+x) before backward, left (+y) before right, up (+z) before down
+        moving = velocities[velocities[:, axis] != 0, axis]
+        assert moving[0] > 0 and (moving < 0).any()
+    np.testing.assert_allclose(durations @ velocities, 0.0, atol=1e-12)
+    turns = durations[rates != 0] * rates[rates != 0] / 360.0
+    assert len(turns) >= 2
+    np.testing.assert_allclose(np.abs(turns), 1.0)
+    command = config.command_trajectory()
+    assert command.end_time() == pytest.approx(durations.sum())
+    np.testing.assert_allclose(command.value(command.end_time()).ravel(),
+                               [0.0, 0.0, 0.0, np.radians(config.start.yaw_deg + durations @ rates)], atol=1e-12)
+    # Turns add up from start.yaw_deg: 90 deg/s for 4 s, then hold, then -45 deg/s for 2 s ends at 30 + 270 deg.
+    turning = ManeuversConfig(start=StartConfig(xy_m=[0.0, 0.0], height_m=2.5, yaw_deg=30.0),
+                              manoeuvres=[[4.0, 0, 0, 0, 90.0], [1.0, 0, 0, 0, 0], [2.0, 0, 0, 0, -45.0]])
+    for t, yaw_deg in ((0.0, 30.0), (4.0, 390.0), (5.0, 390.0), (7.0, 300.0)):
+        assert turning.command_trajectory().value(t).ravel()[3] == pytest.approx(np.radians(yaw_deg), abs=1e-12)
+    for duration, length in ((0.0, durations.sum()), (5.0, 5.0)):
+        _, scenario = load_scenario("rqrlp-maneuvers", duration_s=duration)
+        assert scenario.manoeuvres == config.manoeuvres
+        assert scenario.run_length_s == pytest.approx(length)
+
+
+def test_the_pattern_lies_at_the_worlds_origin():
+    """The pattern's centre at W's origin on the ground, pad and pattern centred on the posed frame."""
+    config = ManeuversConfig()
+    diagram, _ = build_rqrlp_maneuvers(config)
+    pose = diagram.GetSubsystemByName("pattern_pose")
+    state = pose.get_output_port().Eval(pose.GetMyContextFromRoot(diagram.CreateDefaultContext()))
+    np.testing.assert_array_equal(state, np.zeros(4))
+    np.testing.assert_allclose(config.platform.X_WP(state).translation(), [0.0, 0.0, config.platform.height_m],
+                               atol=1e-12)
+    assert config.platform.height_m < 0.05  # lying on the ground
+
+
+def test_a_manoeuvres_run_flies_the_rows_length(tmp_path):
+    """`landing-sim run rqrlp-maneuvers` with duration_s 0 flies the rows' 0.06 s."""
+    out = tmp_path / "run"
+    assert main(["run", "rqrlp-maneuvers", "--set", "manoeuvres=[[0.06, 0, 0, 0, 0]]", "--out", str(out),
+                 "--quiet"]) == 0
+    assert json.loads((out / "metrics.json").read_text())["sim_time_s"] == pytest.approx(0.06)
 
 
 @pytest.mark.slow  # renders
@@ -174,16 +228,27 @@ def test_a_negative_manoeuvres_duration_is_refused():
 
 @pytest.mark.parametrize("row", [[2.0, np.nan, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, -np.inf, 0.0],
                                  [2.0, 0.0, 0.0, 0.0, np.inf], [np.inf, 0.2, 0.0, 0.0, 0.0],
-                                 [0.0, 0.2, 0.0, 0.0, 0.0], [2.0, 0.2, 0.0, 0.0]])
+                                 [0.0, 0.2, 0.0, 0.0, 0.0], [2.0, 0.2, 0.0, 0.0],
+                                 [3.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
 def test_a_manoeuvre_is_five_finite_numbers_its_duration_positive(row):
     # A non-finite one had passed into the command trajectory (a NaN velocity, or an endless manoeuvre).
     config = ManeuversConfig(manoeuvres=[[3.0, 0.0, 0.0, 0.0, 0.0], row])
     with pytest.raises(ConfigError, match=r"manoeuvres\[1\] is .*: a row is 5 finite numbers"):
         config.validate()
+    with pytest.raises(ConfigError, match=r"manoeuvres\[0\] is .*: a row is 5 finite numbers"):
+        ManeuversConfig(manoeuvres=[row]).validate()
+
+
+def test_manoeuvres_need_rows_and_a_start_above_the_pattern():
+    with pytest.raises(ConfigError, match="manoeuvres needs rows"):
+        ManeuversConfig(manoeuvres=[]).validate()
+    height = ManeuversConfig().platform.height_m
+    with pytest.raises(ConfigError, match="start.height_m must be above the pattern"):
+        ManeuversConfig(start=StartConfig(xy_m=[0.0, 0.0], height_m=height)).validate()
+    ManeuversConfig(start=StartConfig(xy_m=[0.0, 0.0], height_m=height + 0.01)).validate()
 
 
 def test_the_manoeuvres_camera_exposure_is_fed_the_patterns_flow():
-    from diagrams.rqrlp_maneuvers import build_rqrlp_maneuvers
     from systems.sensors.camera import NoisyCamera
 
     _, config = load_scenario("rqrlp-maneuvers", overrides=["federated.camera.exposure_s=0.01"])
