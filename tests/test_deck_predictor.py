@@ -21,6 +21,7 @@ from systems.estimators.deck_predictor import (
     PredictorState,
     constant_rate_prediction,
     fit_ar,
+    forecast_trajectory,
     horizon_grid,
     predict_deck,
     prediction_size,
@@ -153,6 +154,27 @@ def test_a_forecast_is_plausible_within_one_span_of_the_historys_range(beyond, p
         np.testing.assert_allclose(prediction[1:, 2], target, rtol=1e-12)  # from the first frame ahead on
     else:
         np.testing.assert_array_equal(prediction, constant_rate_prediction(motion, horizons))
+
+
+def test_a_forecast_needs_the_lag_and_one_frame_of_history():
+    """Order 1 at lag_s 0.5 (L = 10 frames of 0.05 s) with a model that repeats the history one lag on
+    (x[i] = x[i - L]): the heave rate at frame 0 is taken across the lag from z[-L], the history's frame L + 1
+    from the end, so 10 frames give no forecast (the constant rate), 11 one: the last 10 frames again, and the
+    rate (z[0] - z[-10]) / (2 L T)."""
+    config = DeckPredictorConfig(order=1)
+    lag = round(config.lag_s / PERIOD)
+    model = ArModel(np.zeros(3), np.tile([0.0, 1.0], (3, 1)))
+    history = sinusoidal_history(lag + 1)
+    horizons = PERIOD * np.arange(lag + 1)
+    short = history[1:]
+    motion = np.array([*short[-1, :2], 0.01, -0.02, short[-1, 2], 0.03, 1.0, 0.0])
+    assert forecast_trajectory(short, config, PERIOD, lag, model) is None
+    prediction, autoregressive = predict_deck(short, motion, horizons, config, PERIOD, model)
+    assert not autoregressive
+    np.testing.assert_array_equal(prediction, constant_rate_prediction(motion, horizons))
+    trajectory = forecast_trajectory(history, config, PERIOD, lag, model)
+    np.testing.assert_allclose(trajectory[:, :3], np.vstack([history[-1:], history[-lag:]]), rtol=1e-12)
+    assert trajectory[0, 3] == pytest.approx((history[-1, 2] - history[0, 2]) / (2 * lag * PERIOD), rel=1e-12)
 
 
 def test_a_lag_under_half_a_frame_is_one_frame():

@@ -18,6 +18,7 @@ from systems.estimators.deck_tracker import (
     deck_estimate,
     predicted,
     step_deck_track,
+    tilt_deg,
 )
 from systems.estimators.estimate import PoseEstimate
 from systems.estimators.track_filter import Track
@@ -44,6 +45,16 @@ def test_attitude_coordinates_round_trip_drake_rotations():
         np.testing.assert_allclose(attitude_rotation(coordinates).matrix(), R.matrix(), atol=1e-12)
     # A level deck: the heading alone.
     np.testing.assert_allclose(attitude_coordinates(RotationMatrix.MakeZRotation(0.7)), [0.0, 0.0, 0.7], atol=1e-12)
+
+
+@pytest.mark.filterwarnings("error")  # arcsin of more than 1 warns (and is NaN)
+@pytest.mark.parametrize("n_xy, expected", [
+    ([0.8, 0.7], 90.0),  # |n_xy| = sqrt(1.13) > 1: noise past the horizontal
+    ([[0.6, 0.0], [1.2, 0.0]], [math.degrees(math.asin(0.6)), 90.0]),  # along the last axis
+])
+def test_the_tilt_of_a_normal_whose_xy_exceeds_one_is_90_deg(n_xy, expected):
+    """|n_xy| = sin(tilt) is at most 1 for a unit normal; a predicted one may pass it, and is read as 90 deg."""
+    assert tilt_deg(np.array(n_xy)) == pytest.approx(expected, rel=1e-12)
 
 
 @pytest.mark.parametrize("rpy", [(5e-4, 0.0, 0.3), (0.0, -5e-4, -2.0), (1e-6, 1e-6, 1.0)])
@@ -201,6 +212,40 @@ def test_one_track_lost_ends_the_tracking_though_the_other_coasts_on(short):
     assert not estimate.valid and motion[6] == 0.0 and not np.any(v_WP)
 
 
+def test_an_attitude_track_lost_alone_restarts_on_the_next_frame():
+    """Attitude max_coast_steps 2, position 30: three frames, three without a pose drop the attitude track
+    alone; the next frame starts it afresh beside the coasting position track (no heading to unwrap next to),
+    and both track again."""
+    config = replace(CONFIG, attitude=replace(CONFIG.attitude, max_coast_steps=2))
+    X = RigidTransform(RotationMatrix.MakeZRotation(0.17), [0.0, 0.0, 1.0])
+    track = DeckTrack()
+    for k in range(7):
+        track = step_deck_track(track, None if 3 <= k <= 5 else X, k * PERIOD, config, PERIOD)
+        if k == 5:
+            assert track.position.valid and not track.attitude.valid
+    assert track.tracking and track.attitude.coasted_steps == 0
+    np.testing.assert_allclose(track.attitude.x[:3], [0.0, 0.0, 0.17], atol=1e-12)  # the frame's own
+
+
+def test_a_position_track_lost_alone_leaves_the_heading_unwrapped_next_to_the_attitude_tracks():
+    """Position max_coast_steps 2, attitude 30: three frames heading 179.9 deg, three without a pose drop the
+    position track alone, then three heading -179.9 deg (0.2 deg on, across +-180): each is unwrapped next to
+    the coasting attitude track's heading, so the restarted tracks confirm on them (confirm_frames, 3) and the
+    estimate heads 180 deg."""
+    config = replace(CONFIG, position=replace(CONFIG.position, max_coast_steps=2))
+    track = DeckTrack()
+    for k in range(9):
+        yaw = math.pi - 0.002 if k < 3 else -math.pi + 0.002
+        X = None if 3 <= k <= 5 else RigidTransform(RotationMatrix.MakeZRotation(yaw), [0.0, 0.0, 1.0])
+        track = step_deck_track(track, X, k * PERIOD, config, PERIOD)
+        if k == 5:
+            assert not track.position.valid and track.attitude.valid
+    estimate, _, _ = deck_estimate(track, 8 * PERIOD, config)
+    assert estimate.valid
+    heading = estimate.X_WP.rotation().multiply(RotationMatrix.MakeZRotation(-math.pi))  # 180 deg off it
+    assert heading.ToAngleAxis().angle() < math.radians(0.5)
+
+
 @pytest.mark.parametrize("nan_in", ["translation", "rotation"])
 def test_a_frame_with_a_nan_is_coasted_and_does_not_count(nan_in):
     """One good frame, then two with a NaN in the translation or the rotation: both tracks coast on them
@@ -221,11 +266,13 @@ def test_a_frame_with_a_nan_is_coasted_and_does_not_count(nan_in):
 def test_the_system_measures_the_deck_through_the_uav_pose(latency_s):
     """Each frame is X_WP = X_WB X_BC X_CT X_TP: the deck pose an X_CT was composed from by Drake comes back, with
     a tag pose on the pad X_PT that is not its own inverse (turned over, tilted, yawed, off centre), so that X_PT
-    taken for X_TP = X_PT^-1 would show. Told a latency, the system predicts its one frame latency_s on from the
-    exposure: at rate zero the pose stays, and each variance grows by (latency_s initial_velocity_std)^2."""
-    X_BC = RigidTransform(RotationMatrix.MakeXRotation(math.pi), [0.0, 0.0, -0.04])
+    taken for X_TP = X_PT^-1 would show, and a camera mount X_BC that is not its own inverse either (tilted and
+    yawed off looking straight down, off centre), so that X_BC^-1 taken for it would show. Told a latency, the
+    system predicts its one frame latency_s on from the exposure: at rate zero the pose stays, and each variance
+    grows by (latency_s initial_velocity_std)^2."""
+    X_BC = RigidTransform(RollPitchYaw(math.pi, 0.05, 0.1), [0.05, 0.0, -0.04])
     X_PT = RigidTransform(RollPitchYaw(math.pi, 0.1, 0.4), [0.03, -0.02, 0.0005])
-    assert not X_PT.IsNearlyEqualTo(X_PT.inverse(), 1e-3)
+    assert not X_BC.IsNearlyEqualTo(X_BC.inverse(), 1e-3) and not X_PT.IsNearlyEqualTo(X_PT.inverse(), 1e-3)
     tracker = DeckTracker(replace(CONFIG, confirm_frames=1), X_BC, X_PT.inverse(), PERIOD,  # one frame steers
                           latency_s)
     context = tracker.CreateDefaultContext()

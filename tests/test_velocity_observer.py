@@ -187,6 +187,16 @@ def test_weights_of_samples_many_sigma_old_do_not_underflow():
     assert math.log(w[2]) == pytest.approx(-(50**2 - 40**2) / 2)
 
 
+def test_weights_of_a_young_and_a_many_sigma_old_sample_are_taken_relative_to_the_youngest():
+    """Ages 0 and 50 sigma (1 s at sigma 0.02 s): relative to the youngest (x^2 = 0) the weights are e^0 and
+    e^-1250, which underflows to 0, so the youngest takes all the weight. Relative to the oldest (x^2 = 2500)
+    the youngest's would overflow, e^1250, and the normalisation give inf / inf."""
+    assert math.exp(-0.5 * 50**2) == 0.0
+    w = gaussian_weights([0.0, 1.0], 0.02)
+    assert np.all(np.isfinite(w))
+    np.testing.assert_array_equal(w, [1.0, 0.0])
+
+
 def test_constant_velocity_from_noisy_positions():
     """1.3 m/s (x 1.2, y -0.5) with 3 cm of position noise, 60 s at 10 Hz: unbiased, and the scatter is the
     weights' noise gain (1.54 per metre: 4.6 cm/s per axis), with Eq. 18-19's weighted mean."""
@@ -312,6 +322,25 @@ def test_linear_fit_only_on_a_window_of_precise_sightings():
     np.testing.assert_allclose(flagged[60:77], averaged[60:77], atol=1e-12)
     np.testing.assert_allclose(flagged[77:], lined[77:], atol=1e-12)
     assert np.abs(lined[70] - averaged[70]).max() > 0.01  # the two fits differ here
+
+
+def test_imprecise_instant_velocities_do_not_feed_the_line():
+    """Source displacement (instant velocities given, step_observer's v_W) on a constant acceleration,
+    v = 0.5 t, every frame flagged imprecise: the line is taken only where every instant velocity in the
+    window is precise (module docstring), so fit linear gives the weighted mean, exactly; the line's value
+    now, 0.5 x 1.9 = 0.95 m/s at t = 1.9 s, comes only from the same frames flagged precise."""
+    def run(config, precise):
+        state = ObserverState()
+        for k in range(20):
+            state = step_observer(state, k * T, config, v_W=[0.5 * k * T, 0.0, 0.0], precise=precise)
+        assert state.valid
+        return state.estimate
+
+    linear, mean = VelocityObserverConfig(fit="linear"), VelocityObserverConfig(fit="mean")
+    imprecise = run(linear, False)
+    np.testing.assert_allclose(imprecise, run(mean, False), atol=1e-12)
+    np.testing.assert_allclose(run(linear, True), [0.5 * 19 * T, 0.0, 0.0], atol=1e-9)  # the line, precise
+    assert abs(imprecise[0] - 0.5 * 19 * T) > 0.1  # the mean lags the line
 
 
 def test_linear_fit_needs_linear_min_samples():
