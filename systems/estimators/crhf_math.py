@@ -377,7 +377,8 @@ def intersect_pixel_rays_with_plane(
     Z = d / (n . r), which is Eq. 46-49 with the normalised coordinates written as (u - cx)/fx;
     X = Z (u - cx)/fx and Y = Z (v - cy)/fy is Eq. 50-53.
     Returns (points (N, 3), valid (N,)); a row is invalid (and NaN) when the plane is degenerate,
-    the input is non-finite, or the ray is parallel to the plane or meets it behind the camera.
+    the input is non-finite, or the ray is parallel to the plane or meets it behind the camera (the plane
+    as `PlaneFit` holds it: its normal away from the camera, offset >= 0).
     """
     uv = np.asarray(uv, dtype=float)
     rays = np.column_stack(
@@ -424,7 +425,8 @@ class CrhfEstimate:
     `plane_beyond_gate` chose (the touch points' plane where it could not choose). touch_residual_m: RMS
     distance of the touch points from their own least-squares plane (`fit_plane`), m; NaN when they do not fix one.
     focal_lengths (fx, fy) and principal_point (cx, cy): pixels, measured this frame from the
-    touch points (Eq. 40-45), whichever intrinsics the corners were lifted with.
+    touch points (Eq. 40-45), whichever intrinsics the corners were lifted with; NaN when the touch points
+    fix no plane or a touch or corner pixel is not finite (the frame is then not measured at all).
     p_C_corners: (4, 3) tag corners in C, metres (NaN rows where a ray missed the plane).
     corner_residual_px2: the corners' PnP reprojection residual, px^2, 2 degrees of freedom (NaN
     when the corners' normal was not computed).
