@@ -171,6 +171,14 @@ def test_intrinsics_from_touch_points_recover_the_camera_on_a_tilted_deck():
     np.testing.assert_allclose(f, [FX, FY], atol=1e-9)
 
 
+def test_focal_lengths_are_the_mean_of_the_touch_points_not_their_median():
+    # Eq. 44 averages: per point fx = (u - cx) Z / X = 400, 400, 400, 440 and fy = 400 each, so fx = 1640 / 4 = 410
+    # (a median would give 400).
+    p_t = np.array([[0.1, 0.1, 2.0], [-0.1, 0.1, 2.0], [-0.1, -0.1, 2.0], [0.1, -0.1, 2.0]])
+    uv = np.array([[340.0, 260.0], [300.0, 260.0], [300.0, 220.0], [342.0, 220.0]])
+    np.testing.assert_allclose(focal_lengths_from_touch_points(p_t, uv, [320.0, 240.0]), [410.0, 400.0], atol=1e-9)
+
+
 def test_focal_length_needs_sensors_off_the_axes():
     p_t = np.array([[0.0, 0.1, 1.0], [-0.1, 0.1, 1.0], [0.1, 0.1, 1.0], [0.1, -0.1, 1.0]])
     with pytest.raises(ValueError, match="axis"):
@@ -253,6 +261,16 @@ def test_ray_plane_intersection_flags_a_plane_behind_the_camera():
     # The plane z = -1 (normal +z, offset -1): the optical axis' ray is not parallel to it but meets it at depth -1.
     points, valid = intersect_pixel_rays_with_plane(np.array([[CX, CY]]), [FX, FY], [CX, CY],
                                                     PlaneFit(np.array([0.0, 0.0, 1.0]), -1.0, 0.0, False))
+    np.testing.assert_array_equal(valid, [False])
+    assert np.all(np.isnan(points))
+
+
+def test_ray_plane_intersection_flags_a_ray_nearly_parallel_to_the_plane():
+    # The plane x = 1 and a ray 1e-13 rad off parallel to it: it meets the plane at a finite depth of about 1e13 m in
+    # front of the camera, but its n . r is below 1e-12, so the row is invalid (and NaN).
+    plane = PlaneFit(np.array([1.0, 0.0, 0.0]), 1.0, 0.0, False)
+    points, valid = intersect_pixel_rays_with_plane(np.array([[320.0 + 4e-11, 240.0]]), [400.0, 400.0],
+                                                    [320.0, 240.0], plane)
     np.testing.assert_array_equal(valid, [False])
     assert np.all(np.isnan(points))
 
@@ -382,7 +400,20 @@ def test_crhf_pipeline_flags_a_missing_range_without_raising():
     assert estimate.X_CT.IsExactlyIdentity() and np.isnan(estimate.tag_residual_m)
 
 
-@pytest.mark.parametrize("normal", [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.3, -0.2, 0.9], [-0.6, 0.7, 0.2]])
+def test_non_finite_corners_give_an_invalid_pose_before_any_intrinsics():
+    # A NaN corner pixel: the early return, with neither focal lengths nor a principal point measured.
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    n, d = deck_plane(X_CT)
+    p_t = touch_points(p_s, ranges_to_plane(p_s, n, d))
+    uv_corners = project(np.array([X_CT.multiply(p) for p in tag_corners_T(TAG_SIZE)]))
+    uv_corners[0, 0] = np.nan
+    estimate = crhf_tag_pose(p_s, p_t[:, 2], project(p_t), uv_corners, tag_corners_T(TAG_SIZE))
+    assert not estimate.valid
+    assert np.all(np.isnan(estimate.focal_lengths)) and np.all(np.isnan(estimate.principal_point))
+
+
+@pytest.mark.parametrize("normal", [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.3, -0.2, 0.9], [-0.6, 0.7, 0.2],
+                                    [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 def test_tangent_basis_is_orthonormal_and_perpendicular_to_the_normal(normal):
     n = np.asarray(normal) / np.linalg.norm(normal)
     E = tangent_basis(n)
@@ -516,6 +547,27 @@ def test_a_corner_normal_beyond_the_gate_is_not_fused():
     assert fuse_normals(plane, p_t, range_covariance, corners, noisier) is not None
 
 
+@pytest.mark.parametrize("corner_direction", [[0.0, 0.0, -1.0], [0.02, 0.0, -1.0]])
+def test_a_corner_normal_facing_the_camera_is_not_fused(corner_direction):
+    # The corners' normal in the other half-space from the ranges' is not the tag's plane: no fusion, even where its
+    # tilt through the chart (0 here, or 0.02 flipped) would be within the gate.
+    plane, p_t, range_covariance, corners = fusion_case(corner_direction)
+    assert fuse_normals(plane, p_t, range_covariance, corners, 1.0) is None
+
+
+def test_the_corners_tilt_variance_grows_by_sec4_of_their_tilt_through_the_chart():
+    # Corners tilted a = 30 deg about y: the chart's row along the tilt, (e - tan a n) / cos a, maps their unit
+    # tilt to sec^2 a, so a corner variance of 1000 cos^4 a px^2 gives them a tilt variance of
+    # 1e-4 * 1000 = 0.1 rad^2, the ranges' at 1000 times fusion_case's covariance. Equally certain: the mid tilt
+    # tan(a) / 2, the normal (tan(a) / 2, 0, 1) normalised. (Without the chart's -theta n^T term the corners' variance
+    # is 0.1 cos^4 a and they would take 0.64 of the tilt.)
+    a = np.radians(30.0)
+    plane, p_t, range_covariance, corners = fusion_case([np.tan(a), 0.0, 1.0])
+    fused = fuse_normals(plane, p_t, 1000.0 * range_covariance, corners, 1000.0 * np.cos(a) ** 4)
+    expected = np.array([np.tan(a) / 2.0, 0.0, 1.0])
+    np.testing.assert_allclose(fused.normal, expected / np.linalg.norm(expected), atol=1e-9)
+
+
 def tilted_tag_on_the_axis(tilt_deg, height):
     """X_CT of a tag centred on the optical axis, tilted about x_C, and its exact corner pixels."""
     X = RigidTransform(RollPitchYaw(np.radians(tilt_deg), 0.0, 0.0), [0.0, 0.0, height])
@@ -621,6 +673,19 @@ def test_ambiguous_corners_take_whichever_plane_is_nearer_the_previous_frames():
     np.testing.assert_allclose(corners.X_CT.GetAsMatrix4(), X.GetAsMatrix4(), atol=1e-8)
     ranges_kept = crhf_tag_pose(*args, previous_normal=turned @ mirror_normal, **options)
     np.testing.assert_allclose(ranges_kept.plane.normal, mirror_normal, atol=1e-9)
+
+
+def test_on_a_tie_with_the_previous_normal_ambiguous_corners_keep_the_ranges_plane():
+    # The ranges' plane tilted 0.2 rad one way, the corners' the other, and their mirror the ranges': ambiguous. The
+    # previous deck straight ahead is equally near both (cosine cos 0.2 each): the ranges' plane is kept.
+    s, c = np.sin(0.2), np.cos(0.2)
+    plane = PlaneFit(np.array([s, 0.0, c]), 2.0 * c, 0.0, False)
+    p_s = sensor_positions_C(SENSOR_RADIUS)
+    p_t = touch_points(p_s, ranges_to_plane(p_s, plane.normal, 2.0 * c))
+    corners = CornerNormal(np.array([-s, 0.0, c]), np.zeros((3, 3)), 0.0)
+    mirror = CornerNormal(plane.normal, np.zeros((3, 3)), 0.0)
+    kept = plane_beyond_gate(plane, p_t, 1e-6 * np.eye(4), corners, mirror, 1.0, previous_normal=[0.0, 0.0, 1.0])
+    assert kept is plane
 
 
 def test_the_residual_gate_is_the_f_quantile_of_the_pooled_noise_and_tends_to_the_chi_square_one():
