@@ -18,7 +18,7 @@ from diagrams.stewart_run import collect_log
 from diagrams.stewart_scene import StewartSceneConfig, build_stewart_scene
 from systems.config import ConfigError
 from systems.estimators.crhf import JUDGED_FROM_DOF, CrhfConfig, CrhfEstimator, CrhfState, RunningMean
-from systems.estimators.crhf_math import crhf_tag_pose, residual_gate
+from systems.estimators.crhf_math import NORMAL_GATE, crhf_tag_pose, residual_gate
 from systems.estimators.pad_calibration import CalibrationError, CalibrationFlight, PadCalibration
 from systems.estimators.track_filter import Track, TrackFilterParams
 from systems.perception.apriltag import TagDetection, project_points, tag_corners_T
@@ -540,6 +540,58 @@ def test_the_first_frames_corner_noise_is_its_residual_over_its_two_degrees_of_f
     _, pooled = crhf.step(CrhfState(corner_variance=state.corner_variance), corners, ranges, 0.0)
     assert first.X_RT.rotation().inverse().multiply(pooled.X_RT.rotation()).ToAngleAxis().angle() < 1e-12
     np.testing.assert_allclose(first.X_RT.translation(), pooled.X_RT.translation(), atol=1e-12)
+
+
+def one_corner_off_frame(crhf, tilt_deg):
+    """A tag 2 m ahead tilted tilt_deg about x_C with one corner 1 px off, over level ranges: (corners, ranges, the
+    state after its first frame, the corners' PnP residual (px^2) in that frame from a fresh state)."""
+    corners = project_points(K, pose([0.0, 0.0, 2.0], [tilt_deg, 0.0, 0.0]), tag_corners_T(0.5))
+    corners[0] += [1.0, 0.0]
+    ranges = np.full(4, 2.0)
+    state, _ = crhf.step(CrhfState(), corners, ranges, 0.0)
+    residual = crhf.estimate(state.corners, state.ranges.position, state.ranges.P[:4, :4],
+                             CrhfState()).corner_residual_px2
+    return corners, ranges, state, residual
+
+
+def test_the_corners_are_judged_by_the_pools_own_degrees_of_freedom(crhf):
+    # A corner noise pooled over 2 dof of r / 30: the F(2, 2) gate (1998) accepts a residual r 30 times it, the
+    # exact-variance one (13.8) would not. The corners are fused: the normal leaves the ranges' level plane.
+    corners, ranges, state, residual = one_corner_off_frame(crhf, 3.0)
+    assert NORMAL_GATE < 30.0 < residual_gate(2.0)
+    pooled = CrhfState(corner_variance=RunningMean().add(residual / 30.0, 2.0))
+    result = crhf.estimate(state.corners, state.ranges.position, state.ranges.P[:4, :4], pooled)
+    assert result.valid and result.corner_residual_px2 == pytest.approx(residual)
+    assert np.degrees(np.arccos(min(1.0, result.plane.normal @ [0.0, 0.0, 1.0]))) > 0.5
+
+
+def test_a_residual_within_the_pools_f_gate_but_beyond_the_chi_square_one_is_pooled(crhf):
+    # A pool of 20 dof (judged) at r / 16: r is within its F(2, 20) gate (19.9) though beyond the exact-variance
+    # one (13.8), so the frame adds r / 2 over 2 dof: weight 22, mean (20 r / 16 + 2 r / 2) / 22.
+    corners, ranges, _, residual = one_corner_off_frame(crhf, 0.0)
+    assert NORMAL_GATE < 16.0 < residual_gate(JUDGED_FROM_DOF)
+    pooled = CrhfState(corner_variance=RunningMean().add(residual / 16.0, JUDGED_FROM_DOF))
+    state, estimate = crhf.step(pooled, corners, ranges, 0.0)
+    assert estimate.valid
+    assert state.corner_variance.weight == JUDGED_FROM_DOF + 2.0
+    assert state.corner_variance.mean == pytest.approx((20.0 * residual / 16.0 + residual) / 22.0, rel=1e-12)
+
+
+def test_ranges_off_one_plane_drop_the_range_track_even_when_the_frame_is_flagged_already(crhf):
+    # The first frame, ranges on the mirror's plane: the corners are ambiguous with no previous deck, so the frame
+    # is flagged invalid. A twist of 3 cm keeps the fitted normal but puts the touch points 0.03 cos 15 = 0.029 m
+    # off it, beyond max_plane_residual_m (0.02): the ranges are not the deck, and no range track is started.
+    X_CT, exact, n = tag_tilted_15_deg_and_its_mirror()
+    ranges = ranges_to_plane(n, X_CT.translation()) + 0.03 * np.array([1.0, -1.0, 1.0, -1.0])
+    state, estimate = crhf.step(CrhfState(), exact, ranges, 0.0)
+    assert not estimate.valid and not state.ranges.valid
+
+
+def test_raw_ranges_with_a_nan_give_no_estimate():
+    raw = CrhfEstimator(CrhfConfig(filter_ranges=False), P_C_SENSORS, 0.5, 0.05, CAMERA)
+    corners, ranges = level_frame()
+    state, _ = raw.step(CrhfState(), corners, ranges, 0.0)
+    assert raw.estimate(state.corners, np.array([2.0, np.nan, 2.0, 2.0]), 1e-4 * np.eye(4), state) is None
 
 
 @pytest.mark.parametrize("next_range, accepted", [(2.0 - 0.05 * 2.5, True), (2.0, False)])
