@@ -320,9 +320,10 @@ def plane_beyond_gate(
     - but the corners are ambiguous when their other solution (a planar PnP's mirror pose) agrees with the
       ranges within `NORMAL_GATE`. Then either the corners chose the wrong one of their two poses (a small tag
       seen square-on) or the ranges see a plane tilted the mirror's way (cones averaging the deck's surroundings),
-      and the one nearer the previous frame's normal is taken, as deck and camera turn little in a frame. Without a
-      previous normal (the first frame, or over `CrhfConfig.deck_normal_memory_s` after the last valid one) nothing
-      tells them apart: None, and the frame is flagged invalid rather than given a plane that may be 10-30 deg off.
+      and the one nearer the previous frame's normal is taken (the ranges' on a tie), as deck and camera turn
+      little in a frame. Without a previous normal (the first frame, or over `CrhfConfig.deck_normal_memory_s`
+      after the last valid one) nothing tells them apart: None, and the frame is flagged invalid rather than
+      given a plane that may be 10-30 deg off.
     The range plane is also kept when the corners' normal points into the other half-space, or when there
     is no mirror to judge the corners by.
     """
