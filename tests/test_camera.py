@@ -485,6 +485,33 @@ def test_the_camera_smears_a_point_along_its_turn_over_the_exposure():
         NoisyCamera(CameraConfig()).get_input_port(i) for i in range(NoisyCamera(CameraConfig()).num_input_ports()))]
 
 
+def test_the_smear_replicates_the_image_s_border():
+    """A 4 px smear along u over an image lit (255) in its first column only: beyond the image's edge the scene is
+    taken to go on as its border pixel (cv2.BORDER_REPLICATE), so the lit column keeps most of its light (about
+    158 of 255, and its neighbour 97) rather than mirroring the dark columns (OpenCV's default: 62 in both). The
+    output is the kernel's correlation with the edge-padded image, rounded."""
+    config = CameraConfig(width=96, height=96, cx=48, cy=48, exposure_s=0.01)
+    image = ImageRgba8U(96, 96)
+    image.mutable_data[...] = 0
+    image.mutable_data[:, 0, :3] = 255
+    image.mutable_data[..., 3] = 255
+    camera = NoisyCamera(config)
+    context = camera.CreateDefaultContext()
+    camera.GetInputPort("rendered_image").FixValue(context, image)
+    axis_flow = [4.0 / (config.fx * config.exposure_s), 0.0]
+    camera.GetInputPort("axis_flow").FixValue(context, axis_flow)
+    out = image_to_numpy(camera.get_output_port().Eval(context)).astype(float)
+    kernel = motion_blur_kernel(motion_blur_flow(config.K, np.array(axis_flow), config.exposure_s)).astype(float)
+    half = kernel.shape[0] // 2
+    padded = np.pad(image_to_numpy(image)[..., 0].astype(float), half, mode="edge")
+    expected = sum(kernel[i, j] * padded[i:i + 96, j:j + 96] for i in range(kernel.shape[0])
+                   for j in range(kernel.shape[1]))
+    assert expected[0, 0] > 150 and expected[0, 1] > 90
+    for channel in range(3):
+        np.testing.assert_allclose(out[..., channel], expected, rtol=0, atol=0.51)
+    np.testing.assert_array_equal(out[..., 3], 255)
+
+
 def test_same_seed_and_time_give_identical_noise():
     _, a = noisy_output(3.0, 0.25, seed=1)
     _, b = noisy_output(3.0, 0.25, seed=1)
@@ -528,6 +555,28 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     assert 0.3 < np.mean(noisy[32:, :, :3] == 0) < 0.7
 
 
+def test_pixel_noise_has_the_requested_std_to_a_tenth_of_a_percent():
+    """A grey 2048 x 2048 image at level 128 with noise std 40 (the draws' tails, 2.9 sigma, stay within 12..244:
+    nothing saturates): the 12.6 M draws give their std to about 0.02 %; rounding to whole levels adds 1 / 12
+    level^2 of variance. Alpha untouched."""
+    rgba = np.full((2048, 2048, 4), 128, np.uint8)
+    noisy = add_pixel_noise(rgba, 40.0, np.random.default_rng(0))
+    noise = noisy[..., :3].astype(float) - 128
+    assert noise.min() > -128 and noise.max() < 127
+    assert np.std(noise) == pytest.approx(np.sqrt(40.0**2 + 1 / 12), rel=1e-3)
+    assert abs(np.mean(noise)) < 0.06
+    np.testing.assert_array_equal(noisy[..., 3], 128)
+
+
+@pytest.mark.parametrize("shape", [(3, 3, 4), (1, 1, 4), (5, 7, 4)])
+def test_add_pixel_noise_takes_images_of_any_size(shape):
+    """Random bytes come 8 to a 64-bit word: an image whose byte count is no multiple of 8 (36, 4, 140) takes the
+    words that cover it."""
+    noisy = add_pixel_noise(np.full(shape, 128, np.uint8), 2.0, np.random.default_rng(0))
+    assert noisy.shape == shape and noisy.dtype == np.uint8
+    np.testing.assert_array_equal(noisy[..., 3], 128)
+
+
 @pytest.mark.parametrize("changes, field", [
     ({"fx": 0.0}, "camera.fx"),
     ({"rate_hz": -1.0}, "camera.rate_hz"),
@@ -536,6 +585,7 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     # Drake's own limits (before: its RuntimeError at build time): the principal point within the image's pixels,
     # and the depth range, 1 % inside the clipping range at each end, not empty.
     ({"cx": 511.6}, "camera.cx must lie inside the image (-0.5 < cx < width - 0.5"),
+    ({"cx": 511.5}, "camera.cx must lie inside the image"),  # the last pixel's outer edge itself
     ({"cy": -0.5}, "camera.cy must lie inside the image"),
     ({"near_m": 1.0, "far_m": 1.015}, "camera.far_m must exceed camera.near_m by over 2 %"),
     ({"pixel_noise_std": -1.0}, "camera.pixel_noise_std"),
@@ -562,6 +612,11 @@ def test_add_pixel_noise_saturates_instead_of_wrapping():
     ({"calibration_error": CalibrationErrorConfig(cx_px=1000.0)}, "camera.calibration_error.cx_px"),
     # 258.7735 + 253 = 511.7735, past the last pixel's edge at 511.5.
     ({"calibration_error": CalibrationErrorConfig(cx_px=253.0)}, "camera.calibration_error.cx_px"),
+    # 239.5 + 245 = 484.5, past the last row's edge at 479.5 (though inside the width's 639.5).
+    ({"width": 640, "height": 480, "cx": 319.5, "cy": 239.5, "calibration_error": CalibrationErrorConfig(cy_px=245.0)},
+     "camera.calibration_error.cx_px and cy_px must keep"),
+    ({"calibration_error": CalibrationErrorConfig(k1=1.0)}, "camera.calibration_error.k1 must be within +-1"),
+    ({"calibration_error": CalibrationErrorConfig(k2=-1.0)}, "camera.calibration_error.k2 must be within +-1"),
     ({"calibration_error": CalibrationErrorConfig(fx_pct=50.0)}, "camera.calibration_error.fx_pct must be within +-50"),
     ({"calibration_error": CalibrationErrorConfig(fy_pct=-50.0)}, "calibration_error.fy_pct must be within +-50"),
 ])
@@ -601,6 +656,49 @@ def test_distortion_folds_is_where_the_radial_map_turns_back_short_of_the_farthe
         assert distortion_folds(CameraConfig(), D) == 0.0
 
 
+def test_a_k3_that_holds_the_radial_map_up_does_not_fold_it():
+    """k1 -0.5, k3 0.5: the slope of r_d = r (1 - 0.5 r^2 + 0.5 r^6), 1 - 1.5 r^2 + 3.5 r^6, is least at r^4 = 1 / 7,
+    0.62, and r_d reaches the half-diagonal (0.80) near r = 0.91; without k3's 7 k3 r^6 the slope would reach 0 at
+    r = 0.82, short of it. The lens folds nothing and passes."""
+    D = [-0.5, 0.0, 0.0, 0.0, 0.5]
+    r_least = 7.0**-0.25
+    assert 1 - 1.5 * r_least**2 + 3.5 * r_least**6 > 0.6
+    assert distortion_folds(CameraConfig(), D) == 0.0
+    CameraConfig(distortion=D).validate()
+
+
+def test_distortion_folds_takes_each_axis_through_its_own_focal_length():
+    """fx 500, fy 250, the principal point at 255.5 on a 512 square: the farthest corner is at (256.5 / 500,
+    256.5 / 250) in normalised coordinates, radius 1.147 (through fx alone 0.725, which k1 -0.18 reaches before it
+    turns). k1 -0.18 turns back at r* = 1 / sqrt(0.54), r_d = 2 r* / 3 = 0.907: at 79 % of the half-diagonal."""
+    D = [-0.18, 0.0, 0.0, 0.0, 0.0]
+    changes = {"fx": 500.0, "fy": 250.0, "cx": 255.5, "cy": 255.5}
+    r_star = 1.0 / np.sqrt(3 * 0.18)
+    expected = 2.0 * r_star / 3.0 / np.hypot(256.5 / 500.0, 256.5 / 250.0)
+    assert distortion_folds(CameraConfig(**changes), D) == pytest.approx(expected, abs=1e-3)
+    with pytest.raises(ConfigError, match=re.escape(
+            f"camera.distortion folds the image (its radial map turns back at {expected:.0%} of the half-diagonal)")):
+        CameraConfig(distortion=D, **changes).validate()
+
+
+def test_the_render_margin_covers_the_rows_below_a_high_principal_point():
+    """640 x 480, the principal point 100 px from the top, k1 -0.1: the bottom corners, farthest from it, sample
+    the pinhole image farthest beyond its edge, below its last row (a barrel lens' undistortion grows with the
+    radius, so along each border the corners go farthest). Each corner's pinhole radius r solves
+    r (1 + k1 r^2) = r_d (its smallest positive root); the margin is the whole pixels beyond, plus one."""
+    k1, f, cx, cy, w, h = -0.1, 500.0, 319.5, 100.0, 640, 480
+    config = CameraConfig(width=w, height=h, fx=f, fy=f, cx=cx, cy=cy, distortion=[k1, 0.0, 0.0, 0.0, 0.0])
+    corners = np.array([[0.0, 0.0], [w - 1.0, 0.0], [0.0, h - 1.0], [w - 1.0, h - 1.0]])
+    x_d = (corners - [cx, cy]) / f
+    r_d = np.linalg.norm(x_d, axis=1)
+    r = [min(root.real for root in np.roots([k1, 0.0, 1.0, -rd]) if abs(root.imag) < 1e-12 and root.real > 0)
+         for rd in r_d]
+    x, y = ([cx, cy] + f * x_d * (np.array(r) / r_d)[:, None]).T
+    below = y.max() - (h - 1)
+    assert below > max(-x.min(), x.max() - (w - 1), -y.min())  # the bottom rows need the widest margin
+    assert render_margin_px(config) == np.ceil(below) + 1
+
+
 @pytest.mark.parametrize("changes", [{"cx": 511.45}, {"cx": -0.45, "cy": 511.45}, {"near_m": 1.0, "far_m": 1.0203}])
 def test_drake_builds_the_camera_at_the_limits_the_check_lets_through(changes):
     config = CameraConfig(**changes)
@@ -608,7 +706,8 @@ def test_drake_builds_the_camera_at_the_limits_the_check_lets_through(changes):
     make_camera(config, SceneGraph().world_frame_id(), RigidTransform())
 
 
-@pytest.mark.parametrize("D", [[-0.2, 0.0, 0.0, 0.0, 0.0], [0.3, 0.0, 0.0, 0.0, 0.0], [-0.6, 0.2, 0.0, 0.0, 0.0]])
+@pytest.mark.parametrize("D", [[-0.2, 0.0, 0.0, 0.0, 0.0], [0.3, 0.0, 0.0, 0.0, 0.0], [-0.6, 0.2, 0.0, 0.0, 0.0],
+                               [-0.5, 0.0, 0.0, 0.0, 0.5]])
 def test_a_lens_that_passes_maps_every_pixel_back_onto_itself(D):
     """Barrel (k1 -0.2: the corner pixels sample the pinhole image at r 0.93, where the map still grows),
     pincushion and a strong barrel lens that does not fold (k1 -0.6, k2 0.2: the radial map's slope stays

@@ -192,6 +192,10 @@ def test_same_seed_same_readings_other_seed_other_readings():
     ({"accel_range_m_s2": 1.0}, "imu.accel_range_m_s2 must exceed imu.gravity_m_s2"),
     ({"accel_range_m_s2": 9.81}, "imu.accel_range_m_s2 must exceed imu.gravity_m_s2"),
     ({"gyro_noise_density_deg_s_rthz": -0.1}, "imu.gyro_noise_density_deg_s_rthz"),
+    # Every noise density and bias std is checked, not the gyroscope's noise alone.
+    ({"accel_noise_density_ug_rthz": -1.0}, "imu.accel_noise_density_ug_rthz must not be negative"),
+    ({"gyro_bias_std_deg_h": -1.0}, "imu.gyro_bias_std_deg_h must not be negative"),
+    ({"accel_bias_std_ug": -1.0}, "imu.accel_bias_std_ug must not be negative"),
     # g points down the world's z: a negative g would read -g up at rest (an upside-down world).
     ({"gravity_m_s2": -9.81}, "imu.gravity_m_s2 must be positive"),
 ])

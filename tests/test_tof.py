@@ -19,6 +19,7 @@ from scipy.integrate import dblquad
 from diagrams.stewart_scene import StewartSceneConfig
 from systems.config import ConfigError
 from systems.geometry import register_collision
+from systems.noise import sample_rng
 from systems.platforms.stewart import TAG_ABOVE_DECK_M
 from systems.sensors.tof import (
     TOF_CAMERA_BACK_M,
@@ -246,15 +247,34 @@ def test_a_cone_over_a_tilted_plane_reads_its_calibrated_power_weighted_mean_pat
     assert cone_range(depth, 27.0) - h == pytest.approx(expected - h, rel=0.02)
 
 
+def deck_before_ground(x, y):
+    """The shared depth camera's z-depth (`camera_image`) of a deck 1 m away up to x_C = 0.045 m and the ground
+    2 m away beyond."""
+    return np.where(x * (TOF_CAMERA_BACK_M + 1.0) < 0.045, 1.0, 2.0) + 0 * y
+
+
 def test_a_cone_partly_over_an_edge_reads_between_the_two_surfaces_nearer_the_near_one():
     # A deck 1 m away up to x_C = 0.045 m, the ground 2 m away beyond: the cones of sensors 3 and 4
     # (x_C = +0.095 m) see the deck on their rays more than 0.05 m off their axes towards -x (about 0.37 of
     # the cone), and it returns 4 times the power per patch; their axes see the ground.
-    edge = 0.045
-    tof, context = cone_system(lambda x, y: np.where(x * (TOF_CAMERA_BACK_M + 1.0) < edge, 1.0, 2.0) + 0 * y)
+    tof, context = cone_system(deck_before_ground)
     ranges, _, truth = outputs(tof, context)
     assert np.all((ranges[2:] > 1.1) & (ranges[2:] < 1.5)), ranges
     np.testing.assert_allclose(truth[2:], 2.0, rtol=0, atol=1e-9)
+
+
+def test_a_cone_s_range_noise_grows_with_its_reading_not_with_its_axis_range():
+    """noise_std_per_m scales the noise by the cone's noise-free reading (what it ranges), not by its axis' true
+    range: over the deck's edge sensors 3 and 4 read 1.1-1.5 m while their axes see the ground at 2 m. Each
+    reading is the noise-free one plus its std, noise_std_per_m times that reading, times the k = 0 draw of the
+    "tof" noise stream (seed 0)."""
+    clean, _, truth = outputs(*cone_system(deck_before_ground))
+    noisy, valid, _ = outputs(*cone_system(deck_before_ground, noise_std_per_m=0.01))
+    assert np.all(clean[2:] < 1.5) and np.all(truth[2:] == 2.0)
+    z = sample_rng(0, "tof", 0).standard_normal(4)
+    assert np.all(np.abs(z[2:]) > 0.2)  # draws large enough to tell a std scaled by 1.2 m from one by 2 m
+    np.testing.assert_array_equal(valid, 1.0)
+    np.testing.assert_allclose(noisy, clean * (1 + 0.01 * z), rtol=1e-12, atol=0)
 
 
 def test_ray_depths_on_a_plane_tilted_about_x_are_the_ray_plane_depths():
@@ -409,6 +429,17 @@ def test_on_its_own_clock_the_readings_are_taken_at_its_rate_from_its_offset():
     assert event.offset_sec() == 0.01
 
 
+def test_on_its_own_clock_before_its_first_reading_it_outputs_nan_invalid_and_inf():
+    """Before the first reading (time_offset_s 0.01 s) the held outputs are no reading: ranges NaN, valid 0 and
+    true ranges inf (nothing seen), as the class documents, though the boxes are 1 m under the sensors."""
+    config = TofConfig(trigger="own_clock", rate_hz=30.0, time_offset_s=0.01)
+    tof, context = tof_in_scene(quadrant_boxes([1.0, 1.0, 1.0, 1.0]), config)
+    ranges, valid, truth = outputs(tof, context, 0.0)
+    assert np.all(np.isnan(ranges))
+    np.testing.assert_array_equal(valid, 0.0)
+    assert np.all(np.isposinf(truth)), truth
+
+
 def test_range_noise_grows_with_range_and_the_bias_offsets_every_reading():
     period, truth = 1.0 / 20.0, np.array([0.5, 1.0, 2.0, 3.0])
     tof, context = tof_system(truth, noise_std_m=0.002, noise_std_per_m=0.004, bias_m=0.01)
@@ -419,12 +450,15 @@ def test_range_noise_grows_with_range_and_the_bias_offsets_every_reading():
 
 @pytest.mark.parametrize("changes, field", [
     ({"max_range_m": 0.03}, "tof.max_range_m"),
+    ({"min_range_m": 0.0}, "tof.min_range_m must be positive"),
+    ({"min_range_m": 1.0, "max_range_m": 1.0}, "tof.max_range_m must exceed tof.min_range_m"),  # an empty range
     ({"max_range_m": 25.0}, "tof.max_range_m"),
     ({"max_range_m": 20.0}, "tof.max_range_m must be below 20.0 m"),  # the render range's far end itself
     ({"noise_std_m": -0.1}, "tof.noise_std_m"),
     ({"rate_hz": 0.0}, "tof.rate_hz"),
     ({"arm_m": -0.1}, "tof.arm_m"),
     ({"cone_deg": 120.0}, "tof.cone_deg"),
+    ({"cone_deg": 90.01}, "tof.cone_deg must lie within 0-90 deg"),
     ({"noise_std_per_m": -0.01}, "tof.noise_std_per_m"),
     ({"trigger": "free"}, "tof.trigger"),
     ({"trigger": "own_clock", "time_offset_s": 0.05}, "tof.time_offset_s"),
@@ -437,6 +471,16 @@ def test_range_noise_grows_with_range_and_the_bias_offsets_every_reading():
 def test_invalid_configuration_names_the_field(changes, field):
     with pytest.raises(ConfigError, match=re.escape(field)):
         TofSensors(TofConfig(**changes))
+
+
+def test_the_checks_accept_their_bounds():
+    """A 90 deg cone, and sensors exactly 1 mm off an axis: at 45 deg an arm of sqrt(2) mm puts them at |y| = 1 mm
+    to the last bit (|x| one bit more)."""
+    arm_m = 0.0014142135623730952
+    offsets_m = np.abs(sensor_positions_C(arm_m, 45.0)[0, :2])
+    assert offsets_m[1] == 1e-3 and offsets_m[0] >= 1e-3
+    TofConfig(arm_m=arm_m, angle_deg=45.0).validate()
+    TofConfig(cone_deg=90.0).validate()
 
 
 def analytic_ranges(scene, X_WP=None):
