@@ -13,7 +13,10 @@ the predicted tilt stays within `max_tilt_deg` over tau +- `timing_margin_s` and
 `max_heave_rate_m_s`; a descent already committed holds while the prediction stays within the looser
 `abort_tilt_deg` and twice the heave rate (the hysteresis keeps one noisy frame from aborting it), and
 always within `no_return_s` of touchdown, where climbing out would take longer than landing (and where
-the tag leaves the camera's view, and the deck tracker coasts on its constant-velocity prediction).
+the tag leaves the camera's view, and the deck tracker coasts on its constant-velocity prediction), but
+only while the deck's estimate is valid: without one neither flag is set, there too, since the supervisor
+never descends on an invalid estimate (the tracker coasts `max_coast_steps`, 1.5 s at 20 Hz, before it
+turns invalid, longer than the last half metre takes).
 
 With `prediction: autoregressive` the tilt and the heave rate come instead from the deck predictor's
 output (systems/estimators/deck_predictor.py: an autoregressive model of the tracked deck's recent history,
