@@ -17,6 +17,7 @@ from systems.control.landing import (
     SupervisorMemory,
     hold_rate,
     next_mode,
+    supervisor_step,
 )
 from systems.perception.seam import HEIGHT
 
@@ -280,6 +281,15 @@ def test_the_altitude_hold_is_limited_to_the_descent_speed_down_and_the_climb_sp
     assert hold_rate(-0.25, config) == pytest.approx(-0.25 * config.altitude_gain)
 
 
+def test_approach_descends_at_the_descent_speed_not_the_landing_speed():
+    """APPROACH, above LH, comes down at descent_speed_m_s; landing_speed_m_s is LAND's, below LH (the two set
+    apart, as open-landing.yaml does: 1.0 and 0.3 m/s)."""
+    config = LandingConfig(descent_speed_m_s=1.0, landing_speed_m_s=0.3)
+    memory, command = supervisor_step(SupervisorMemory(mode=Mode.APPROACH, last_height_m=5.0),
+                                      SupervisorInputs(0.0, 5.0, 5.0, True), config)
+    assert memory.mode == Mode.APPROACH and command[2] == -1.0
+
+
 @pytest.mark.parametrize("offset_m, mode", [(0.3, Mode.LAND), (1.2, Mode.FOLLOW), (5.0, Mode.FOLLOW)])
 def test_reaching_lh_off_centre_follows_rather_than_lands(offset_m, mode):
     """APPROACH reaching LH with the target beyond off_centre_radius_m (1 m) follows it again; before, LAND came
@@ -343,6 +353,8 @@ def test_a_wave_off_is_land_back_to_wait_only(modes, aborts):
     ("takeoff_height_m: 7.5", "landing.takeoff_height_m must be below landing.initial_height_m"),  # IH itself
     ("land_acceptance_radius_m: -0.1", "landing.land_acceptance_radius_m must not be negative"),
     ("rate_hz: 0.5", r"landing.rate_hz \(0.5 Hz\) must be at least landing.altitude_gain \(1 /s\)"),
+    ("touchdown_height_m: 1.5", "landing.touchdown_height_m must be below landing.landing_height_m"),  # LH itself
+    ("initial_height_m: 1.5", r"landing.initial_height_m \(IH = 1.5\) must be above"),  # LH itself
 ])
 def test_bad_config_is_rejected_by_name(yaml, message):
     config = yaml_load_typed(schema=LandingConfig, data=yaml)
@@ -350,9 +362,12 @@ def test_bad_config_is_rejected_by_name(yaml, message):
         LandingSupervisor(config)
 
 
-def test_equal_centred_and_off_centre_radii_are_accepted():
-    """off_centre_radius_m must be at least centred_radius_m: equal (no hysteresis band) is allowed."""
-    LandingConfig(centred_radius_m=0.5, off_centre_radius_m=0.5).validate()
+@pytest.mark.parametrize("fields", [dict(centred_radius_m=0.5, off_centre_radius_m=0.5),
+                                    dict(rate_hz=1.0, altitude_gain=1.0)], ids=["radii", "rate"])
+def test_configs_at_their_limits_are_accepted(fields):
+    """off_centre_radius_m must be at least centred_radius_m: equal (no hysteresis band) is allowed; rate_hz must
+    be at least altitude_gain: equal (the hold closes all its error in one sample, no overshoot) is allowed."""
+    LandingConfig(**fields).validate()
 
 
 def supervisor_at(height_m: float, valid: float, config: LandingConfig = CONFIG):

@@ -52,6 +52,17 @@ def test_the_window_opens_at_its_limits_themselves(deck, config):
     assert window_flags(deck, 2.0, config) == (True, True)
 
 
+@pytest.mark.parametrize("deck, config", [
+    # tilt_deg's own arithmetic, degrees(asin(|n_xy|)): the threshold is that tilt to the last bit
+    (motion((0.05, 0.0)), LandingWindowConfig(abort_tilt_deg=math.degrees(math.asin(0.05)))),
+    (motion(heave_rate=2 * CONFIG.max_heave_rate_m_s), CONFIG),
+], ids=["tilt", "heave_rate"])
+def test_a_committed_descent_holds_at_the_abort_limits_themselves(deck, config):
+    """3 s from touchdown (past no_return_s), a still deck tilted exactly abort_tilt_deg (2.87 deg, over
+    max_tilt_deg), or heaving at exactly twice max_heave_rate_m_s: closed to a commit, but a descent holds."""
+    assert window_flags(deck, 3.0, config) == (False, True)
+
+
 def test_the_tilt_at_touchdown_decides_not_the_tilt_now():
     # 4 deg now, levelling at 2 deg/s: level in 2 s, when the UAV would touch down.
     levelling = motion((sin_deg(4.0), 0.0), (-sin_deg(4.0) / 2.0, 0.0))
@@ -181,6 +192,14 @@ def test_time_to_touchdown_is_that_of_a_first_order_descent():
     assert time_to_touchdown(h, V, V, T) == pytest.approx(h / V)  # at speed: no lag
     assert time_to_touchdown(h, V, 2 * V, T) == pytest.approx(h / V)  # taken within [0, V]
     assert time_to_touchdown(h, V, -V, T) == pytest.approx(h / V + T)  # climbing: as from a hover
+
+
+@pytest.mark.parametrize("descent, tau", [(0.5, -0.2), (0.0, 0.3)])
+def test_a_height_under_the_touchdown_height_gives_the_formulas_tau_not_a_clamped_one(descent, tau):
+    """h / V + T (1 - v / V) for h -0.1 m (the seam's height already 0.1 m under touchdown_height_m), V 0.5 m/s and
+    T 0.5 s: at speed -0.2 s (window_flags clamps a negative tau, itself); from a hover the lag less the 0.2 s,
+    0.3 s, not the lag alone."""
+    assert time_to_touchdown(-0.1, 0.5, descent, 0.5) == pytest.approx(tau)
 
 
 def test_the_window_counts_the_descents_lag_when_it_knows_the_vertical_velocity():

@@ -10,7 +10,14 @@ from pydrake.systems.analysis import Simulator
 from diagrams.gv_landing import build_gv_landing
 from diagrams.gv_landing_run import fly
 from diagrams.runner import load_scenario
-from systems.control.landing import LandingConfig, LandingStateMachine, Mode, SupervisorInputs
+from systems.control.landing import (
+    LandingConfig,
+    LandingStateMachine,
+    Mode,
+    SupervisorInputs,
+    SupervisorMemory,
+    supervisor_step,
+)
 from systems.perception.rendezvous import RendezvousConfig, SeamSelect, VehicleBroadcast
 from systems.perception.seam import P_BP_W, V_WP, VALID, seam_vector
 from systems.sensors.navigation import SecondOrderGaussMarkov
@@ -217,6 +224,32 @@ def test_the_supervisor_tracks_the_rendezvous_target_unseen_and_never_descends_o
     assert machine.mode == Mode.SEARCH and not command[:2].any() and not command[4:].any()
     step(0.06, config.initial_height_m, seen=True)
     assert machine.mode == Mode.FOLLOW  # the camera has it: the vision takes over
+
+
+def test_the_rendezvous_target_steers_but_is_not_remembered_as_the_vision_target():
+    """Only the vision estimate is kept for coasting and for the low-abort rule: tracking the rendezvous target
+    (vision invalid, its velocity NaN) keeps the last vision velocity, which the coast uses once the rendezvous
+    is lost too; and a FOLLOW last seen 5 m above the target that loses it while the rendezvous (whose height
+    input reads 1 m, below LH) is valid holds, rather than aborting as if the last valid estimate were low."""
+    config = LandingConfig()
+    memory = SupervisorMemory(mode=Mode.HOLD, mode_since_s=0.0, altitude_hold_m=5.0,
+                              last_target_velocity_m_s=(0.6, -0.2), last_height_m=5.0)
+
+    def step(memory, t, rendezvous):
+        return supervisor_step(memory, SupervisorInputs(t, 5.0, 5.0, False, target_velocity_m_s=np.full(2, np.nan),
+                                                        tracking_velocity_m_s=np.array([0.9, -0.3]),
+                                                        rendezvous_valid=rendezvous), config)
+
+    memory, command = step(memory, 0.1, True)
+    assert memory.mode == Mode.HOLD and memory.last_target_velocity_m_s == (0.6, -0.2)
+    np.testing.assert_array_equal(command[:2], [0.9, -0.3])  # the PID on the rendezvous target
+    memory, command = step(memory, 0.12, False)
+    assert memory.mode == Mode.HOLD
+    np.testing.assert_array_equal(command[:2], [0.6, -0.2])  # coasting on the last vision velocity
+
+    memory, _ = supervisor_step(SupervisorMemory(mode=Mode.FOLLOW, altitude_hold_m=5.0, last_height_m=5.0),
+                                SupervisorInputs(0.0, 5.0, 1.0, False, rendezvous_valid=True), config)
+    assert memory.mode == Mode.HOLD and memory.last_height_m == 5.0
 
 
 @pytest.mark.parametrize("source, lands", [("none", False), ("broadcast", True)])
