@@ -30,7 +30,13 @@ from diagrams.rqrlp_maneuvers_run import fly as fly_maneuvers
 from diagrams.runner import load_scenario
 from systems.config import ConfigError
 from systems.control.landing import Mode
-from systems.control.monitor import FAILURE_REASONS, LandingMonitor, gear_on_pad, pad_offset
+from systems.control.monitor import (
+    FAILURE_REASONS,
+    LandingMonitor,
+    TerminationConfig,
+    gear_on_pad,
+    pad_offset,
+)
 from systems.perception.seam import A_WP, HEIGHT, P_BP_B, P_BP_W, RELATIVE_STATE_SIZE, V_WP, VALID, SeamSplit
 from systems.perception.truth import PadMotionTruth, PadPose, PadVelocity, RelativeStateTruth, in_view, pad_motion
 from systems.vehicles.ground_vehicle import bicycle_state_derivative
@@ -562,7 +568,7 @@ def test_monitor_names_each_way_a_run_ends():
     relative = np.zeros(14)
     relative[P_BP_W], relative[HEIGHT] = [-18.25, 0.0, -3.4], 3.4  # the true relative state of `quad`
 
-    def check(quad=quad, mode=Mode.FOLLOW, last_seen=1.0, t=1.0, seen_ever=True, relative=relative):
+    def check(quad=quad, mode=Mode.FOLLOW, last_seen=1.0, t=1.0, seen_ever=True, relative=relative, vehicle=vehicle):
         return monitor.check(t, quad, vehicle, relative, mode, last_seen, seen_ever)
 
     assert check() is None
@@ -573,6 +579,12 @@ def test_monitor_names_each_way_a_run_ends():
     beside = touching.copy()
     beside[P_BP_W] = [0.9, 0.0, -0.08]  # as low, but off the 1 m pad: no touchdown
     assert check(relative=beside) is None
+    # The pad turns with the vehicle's heading (not its steering): headed 45 deg, 0.6 m along World x from the centre
+    # is (0.6 cos 45, -0.6 sin 45) = (0.42, -0.42) m in the pad frame, on the 1 m pad (0.6 m along P's x is off it).
+    touching45 = relative.copy()
+    touching45[P_BP_W], touching45[HEIGHT] = [-0.6, 0.0, -0.08], 0.08
+    assert check(relative=touching45, vehicle=np.array([0.0, 0.0, np.pi / 4, 0.0])).startswith(
+        "landed: the gear touched the pad")
     under = touching.copy()  # over the pad's footprint, under the vehicle's body: not a touchdown, a crash
     under[P_BP_W], under[HEIGHT] = [0.3, -0.2, 1.0], -1.0
     assert check(quad=hover_state(config.quadrotor, [2.0, 0.3, 0.6]), relative=under).startswith(
@@ -591,6 +603,7 @@ def test_monitor_names_each_way_a_run_ends():
     nan = quad.copy()
     nan[8] = np.nan
     assert check(quad=nan).startswith("diverged")
+    assert check(vehicle=np.array([np.nan, 0.0, 0.0, 0.0])).startswith("diverged: non-finite state")
     assert check(quad=hover_state(config.quadrotor, [20.0, 0.0, -0.5])).startswith("crash: hit the ground")
     assert check(quad=hover_state(config.quadrotor, [2.0, 0.3, 1.0])).startswith("crash: hit the ground vehicle")
     fast = quad.copy()
@@ -610,10 +623,46 @@ def test_monitor_names_each_way_a_run_ends():
     assert check(relative=far) is None
     far[P_BP_W] = [-150.0, -150.0, -3.4]  # 150 m each way: 212 m
     assert check(relative=far).startswith("diverged: 212 m from the pad")
+    high_far = relative.copy()  # 195 m behind the pad, 50 m above it: 201 m away, but only 195 m horizontally
+    high_far[P_BP_W], high_far[HEIGHT] = [-195.0, 0.0, -50.0], 50.0
+    assert check(quad=hover_state(config.quadrotor, [195.0, 0.0, 51.6]), relative=high_far) is None
     at_touchdown = relative.copy()  # over the pad's centre, exactly touchdown_height_m above its top: touching
     at_touchdown[P_BP_W] = [0.0, 0.0, -config.landing.touchdown_height_m]
     at_touchdown[HEIGHT] = config.landing.touchdown_height_m
     assert check(relative=at_touchdown).startswith("landed: the gear touched the pad")
+
+
+@pytest.mark.parametrize("limit", ["altitude", "speed", "distance"])
+def test_the_monitor_s_divergence_limits_themselves_are_not_diverged(limit):
+    """Diverged is beyond max_altitude_m, max_speed_m_s or max_distance_m (60 m, 40 m/s, 200 m): exactly at one
+    (each exactly representable) the run goes on."""
+    config = GvLandingConfig()
+    term = config.termination
+    monitor = LandingMonitor(term, config.platform, config.landing.touchdown_height_m)
+    quad = hover_state(config.quadrotor, [20.0, 0.0, term.max_altitude_m if limit == "altitude" else 5.0])
+    relative = np.zeros(RELATIVE_STATE_SIZE)
+    relative[P_BP_W], relative[HEIGHT] = [-18.25, 0.0, -3.4], 3.4  # far from the pad's gear
+    if limit == "speed":
+        quad[V_WB] = [term.max_speed_m_s, 0.0, 0.0]
+    if limit == "distance":
+        relative[P_BP_W] = [-term.max_distance_m, 0.0, -3.4]
+    assert monitor.check(1.0, quad, np.zeros(4), relative, Mode.FOLLOW, 1.0) is None
+
+
+def test_the_pads_underside_is_not_its_top():
+    """The gear touches the pad from above its underside, pad_thickness_m (2 cm) under the top, exclusive: exactly
+    at the underside (under the pad, not on it) is no touch, a centimetre above it is."""
+    thickness = GvLandingConfig().platform.pad_thickness_m
+    relative = np.zeros(RELATIVE_STATE_SIZE)
+    relative[P_BP_W], relative[HEIGHT] = [0.3, -0.2, thickness], -thickness
+    assert not gear_on_pad(relative, 0.0, 0.1, 1.0, thickness)
+    relative[HEIGHT] = -0.5 * thickness
+    assert gear_on_pad(relative, 0.0, 0.1, 1.0, thickness)
+
+
+def test_a_ground_tolerance_of_zero_is_valid():
+    """ground_tolerance_m must not be negative: zero (a crash at the ground itself) is allowed."""
+    TerminationConfig(ground_tolerance_m=0.0).validate()
 
 
 def test_the_monitor_counts_a_vertical_dive_and_without_stop_on_landed_flies_on_over_the_pad():
@@ -654,15 +703,17 @@ def test_the_stacks_monitor_ends_on_landed_as_the_landing_says_and_the_pid_desce
     assert wired["tracking_pid", "height"] == ("seam", "height_above_target")
 
 
-@pytest.mark.parametrize("seen_s, message", [
-    (0.0, "target_lost: no valid estimate of the pad"),
-    (0.5, "target_lost: no valid estimate for"),
-    (2.0, ""),
+@pytest.mark.parametrize("seen_s, lost_flag, message", [
+    (0.0, 0.0, "target_lost: no valid estimate of the pad"),
+    (0.0, np.nan, "target_lost: no valid estimate of the pad"),
+    (0.5, 0.0, "target_lost: no valid estimate for"),
+    (0.5, np.nan, "target_lost: no valid estimate for"),
+    (2.0, 0.0, ""),
 ])
-def test_the_monitor_ends_a_run_without_a_valid_estimate_as_target_lost(seen_s, message):
+def test_the_monitor_ends_a_run_without_a_valid_estimate_as_target_lost(seen_s, lost_flag, message):
     """The monitor reads its target_valid input: held at 0 the run ends "target_lost" one check after
     lost_timeout_s, the pad never seen; at 1 until 0.5 s, then 0, it ends so too, saying for how long the pad has
-    been lost; held at 1 the same hover flies on."""
+    been lost; held at 1 the same hover flies on. A NaN flag (a broken estimator's) is not valid either, as 0."""
     config = GvLandingConfig()
     termination = dataclasses.replace(config.termination, lost_timeout_s=0.5)
     monitor = LandingMonitor(termination, config.platform, config.landing.touchdown_height_m)
@@ -677,7 +728,7 @@ def test_the_monitor_ends_a_run_without_a_valid_estimate_as_target_lost(seen_s, 
     if seen_s > 0:
         monitor.GetInputPort("target_valid").FixValue(context, [1.0])
         simulator.AdvanceTo(seen_s)
-    monitor.GetInputPort("target_valid").FixValue(context, [0.0])
+    monitor.GetInputPort("target_valid").FixValue(context, [lost_flag])
     status = simulator.AdvanceTo(2.0)
     if message:
         assert status.message().startswith(message)
