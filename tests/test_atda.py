@@ -55,13 +55,15 @@ DART = np.vstack([HEAD_ON[:2], HEAD_ON.mean(axis=0) + 0.2 * (HEAD_ON[0] - HEAD_O
 @pytest.mark.parametrize("corners", [np.full((4, 2), 200.0), HEAD_ON[[0, 2, 1, 3]],
                                      np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]]),
                                      np.array([[200.0, 200.0], [200.5, 200.0], [200.5, 200.5], [200.0, 200.5]]),
+                                     np.array([[200.0, 200.0], [202.0, 200.0], [202.0, 202.0], [200.0, 202.0]]),
                                      HEAD_ON * 1e4, HEAD_ON - 2e7, DART],
-                         ids=["coincident", "crossed", "collinear", "under-a-pixel", "beyond-a-million-px",
+                         ids=["coincident", "crossed", "collinear", "under-a-pixel", "two-pixels", "beyond-a-million-px",
                               "beyond-minus-a-million-px", "concave"])
 def test_corners_that_are_no_tags_image_give_no_pose(corners):
     """Four corners that no tag in front of the camera can project to give no pose: coincident ones made SQPnP
     raise cv2.error, collinear ones gave a pose of nothing, a crossed order, a concave quadrilateral or one under a
-    square pixel is no tag's outline, and corners a million pixels out, on either side, are beyond any image."""
+    square pixel is no tag's outline, a square of 2 px (4 px^2, 0.004 of the focal length a side) is one SQPnP
+    refuses with cv2.error, and corners a million pixels out, on either side, are beyond any image."""
     assert atda_pose(corners, K, TAG) is None
 
 

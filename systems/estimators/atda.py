@@ -34,7 +34,8 @@ MAX_CORNER_PX = 1e6
 def atda_pose(corners_px: np.ndarray, K: np.ndarray, tag_size_m: float) -> RigidTransform | None:
     """X_CT from the tag's four corners (4x2 px, ArUco order), or None where they cannot be a tag's image: a
     corner not finite or beyond `MAX_CORNER_PX`, the four not a convex quadrilateral of at least a square pixel
-    (coincident corners make SQPnP raise, collinear ones give it a pose of nothing), or PnP fails."""
+    (coincident corners make SQPnP raise, collinear ones give it a pose of nothing), or PnP fails or refuses them
+    (SQPnP raises cv2.error on points too close together in normalised coordinates: a square of 2 px at f 458 px)."""
     corners = np.asarray(corners_px, dtype=float).reshape(4, 1, 2)
     if not np.all(np.abs(corners) < MAX_CORNER_PX):  # False for NaN too
         return None
@@ -42,7 +43,10 @@ def atda_pose(corners_px: np.ndarray, K: np.ndarray, tag_size_m: float) -> Rigid
     if not cv2.isContourConvex(quad) or cv2.contourArea(quad) < 1.0:
         return None
     object_points_S = _X_ST.multiply(tag_corners_T(tag_size_m).T).T
-    ok, rvec, tvec = cv2.solvePnP(object_points_S, corners, K, None, flags=cv2.SOLVEPNP_SQPNP)
+    try:
+        ok, rvec, tvec = cv2.solvePnP(object_points_S, corners, K, None, flags=cv2.SOLVEPNP_SQPNP)
+    except cv2.error:
+        return None
     if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
         return None
     R_CS, _ = cv2.Rodrigues(rvec)
