@@ -761,3 +761,24 @@ def test_a_track_started_without_an_image_takes_its_appearance_when_images_arriv
     red, blue = colour_histogram(image, box), colour_histogram(patch([BLUE]), [0, 0, 30, 20])
     np.testing.assert_allclose(colour_cost_matrix(np.array([unseen, red]), np.array([blue, unseen])),
                                [[0.0, 0.0], [1.0, 0.0]], atol=1e-6)
+
+
+def test_reacquire_measures_from_where_the_target_was_last_seen_not_where_its_track_coasted():
+    """A target locked while moving right at 100 px/s vanishes; its track coasts on at that rate for max_misses
+    (20) frames and dies over 200 px on. A confirmed track (a box twice the target's, outside its gate) sits
+    where the target was last seen: the lock passes to it, though the dead track's coasted box lies farther from
+    it than reacquire_radius_px (150 px)."""
+    config = BoxTrackerConfig(max_misses=20)
+    tracker, dt = BoxTracker(config), 0.1
+    for k in range(8):
+        state = tracker.step([Detection(np.array([100.0 + 10.0 * k, 100.0, 20.0, 20.0]))], None, dt * k)
+    target_id, last_seen = state.target.id, state.target.box.copy()
+    stand_in = np.array([last_seen[0] - 10.0, last_seen[1] - 10.0, 40.0, 40.0])  # centred on the last seen box
+    k = 8
+    while state.track(target_id) is not None:
+        coasted = state.track(target_id).box
+        state = tracker.step([Detection(stand_in)], None, dt * k)
+        k += 1
+    assert np.linalg.norm(centre_form(coasted)[:2] - centre_form(stand_in)[:2]) > config.reacquire_radius_px
+    assert state.target is not None and state.target.id != target_id
+    np.testing.assert_allclose(centre_form(state.target.box)[:2], centre_form(stand_in)[:2], atol=1.0)

@@ -41,9 +41,10 @@ Ours, where the paper is silent:
 - The target: the paper lands on "the" UGV; here the target is locked once, on the track nearest a cue
   (`cue_px`, the image centre when empty; the first track without either) as soon as that track is
   confirmed (a distractor confirmed first is not taken), and kept while its track lives. When
-  the locked track dies, the lock passes to the confirmed track nearest the target's last box
-  (within `reacquire_radius_px`) whose colour matches the target's (`max_colour_cost`): a new id, which
-  `count_identity_switches` counts as a switch. Either way only a track one of whose detections scored at
+  the locked track dies, the lock passes to the confirmed track nearest the target's last measured box
+  (where a detection last placed it, not where the track's coasting carried it: a track that took jumpy boxes
+  for motion coasts off at their rate) within `reacquire_radius_px` whose colour matches the target's
+  (`max_colour_cost`): a new id, which `count_identity_switches` counts as a switch. Either way only a track one of whose detections scored at
   least `lock_min_score` is taken (a detector's confident boxes are the target, its marginal ones often
   false alarms).
 
@@ -271,7 +272,8 @@ class BoxTrack:
 @dataclass(frozen=True)
 class TargetLock:
     """The target's identity. track_id: the locked track, or None (never locked, or lost and not yet
-    re-acquired). box, histogram: the target's last box and appearance (for re-acquiring it)."""
+    re-acquired). box, histogram: the target's last measured box (its track's filtered box in the last frame a
+    detection matched it) and appearance (for re-acquiring it)."""
 
     track_id: int | None = None
     box: np.ndarray | None = None
@@ -373,7 +375,8 @@ def _update_lock(lock: TargetLock, tracks: tuple[BoxTrack, ...], image: np.ndarr
         if not candidates or not candidates[0].confirmed:
             return lock
         locked = candidates[0]
-    return TargetLock(locked.id, locked.box, locked.histogram.copy())
+    box = locked.box if locked.detection is not None or lock.box is None else lock.box  # the last measured one
+    return TargetLock(locked.id, box, locked.histogram.copy())
 
 
 def partial_views(tracks: Sequence[BoxTrack], boxes: np.ndarray, config: BoxTrackerConfig) -> dict[int, int]:
