@@ -57,8 +57,8 @@ DART = np.vstack([HEAD_ON[:2], HEAD_ON.mean(axis=0) + 0.2 * (HEAD_ON[0] - HEAD_O
                                      np.array([[200.0, 200.0], [200.5, 200.0], [200.5, 200.5], [200.0, 200.5]]),
                                      np.array([[200.0, 200.0], [202.0, 200.0], [202.0, 202.0], [200.0, 202.0]]),
                                      HEAD_ON * 1e4, HEAD_ON - 2e7, DART],
-                         ids=["coincident", "crossed", "collinear", "under-a-pixel", "two-pixels", "beyond-a-million-px",
-                              "beyond-minus-a-million-px", "concave"])
+                         ids=["coincident", "crossed", "collinear", "under-a-pixel", "two-pixels",
+                              "beyond-a-million-px", "beyond-minus-a-million-px", "concave"])
 def test_corners_that_are_no_tags_image_give_no_pose(corners):
     """Four corners that no tag in front of the camera can project to give no pose: coincident ones made SQPnP
     raise cv2.error, collinear ones gave a pose of nothing, a crossed order, a concave quadrilateral or one under a
