@@ -45,8 +45,8 @@ Ours, where the paper is silent:
   (where a detection last placed it, not where the track's coasting carried it: a track that took jumpy boxes
   for motion coasts off at their rate) within `reacquire_radius_px` whose colour matches the target's
   (`max_colour_cost`): a new id, which `count_identity_switches` counts as a switch. Either way only a track
-  one of whose detections scored at least `lock_min_score` is taken (a detector's confident boxes are the target, its marginal ones often
-  false alarms).
+  one of whose detections scored at least `lock_min_score` is taken (a detector's confident boxes are the
+  target, its marginal ones often false alarms).
 
 `step_tracker` is a pure function of (TrackerState, detections, image, time, config); `BoxTracker` holds
 the state for scripts; `BoxTrackerSystem` (box_tracker_system.py) holds it in a Drake context.
