@@ -14,8 +14,8 @@ Data: rendered fisheye frames (diagrams/ugv_detection_scenes.py) over the traini
 scene seeds TRAIN_SEEDS[:frames]; the decision threshold (the best F1) is chosen on VALIDATION_SEEDS
 (`--validation-frames`) through OpenCV's dnn module, as the detector runs; the held-out frames (benchmarks/ugv_detection.py: other seeds,
 another ground texture) are never seen. Frames are rendered once and cached under results/ (4800 frames:
-about 10 min of rendering, 3.6 GB in memory). The shipped model: the defaults, 34 min of training on two
-cores here.
+about 10 min of rendering, 3.6 GB in memory). The shipped model (2026-12-07, on the frames smeared by the
+camera's exposure kernel): the defaults, 41 min of training on two cores here, its first half beside other work.
 
 Training: 320 x 320 crops (2 in 3 holding the UGV), turned by multiples of 90 deg and mirrored (the fisheye
 is symmetric about its centre: a turned frame is a frame), brightness and contrast jittered; the
