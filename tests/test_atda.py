@@ -56,15 +56,31 @@ DART = np.vstack([HEAD_ON[:2], HEAD_ON.mean(axis=0) + 0.2 * (HEAD_ON[0] - HEAD_O
                                      np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]]),
                                      np.array([[200.0, 200.0], [200.5, 200.0], [200.5, 200.5], [200.0, 200.5]]),
                                      np.array([[200.0, 200.0], [202.0, 200.0], [202.0, 202.0], [200.0, 202.0]]),
-                                     HEAD_ON * 1e4, HEAD_ON - 2e7, DART],
+                                     HEAD_ON * 1e4, HEAD_ON - 2e7, HEAD_ON + [0.0, 2e6], DART],
                          ids=["coincident", "crossed", "collinear", "under-a-pixel", "two-pixels",
-                              "beyond-a-million-px", "beyond-minus-a-million-px", "concave"])
+                              "beyond-a-million-px", "beyond-minus-a-million-px", "beyond-a-million-px-in-v",
+                              "concave"])
 def test_corners_that_are_no_tags_image_give_no_pose(corners):
     """Four corners that no tag in front of the camera can project to give no pose: coincident ones made SQPnP
     raise cv2.error, collinear ones gave a pose of nothing, a crossed order, a concave quadrilateral or one under a
     square pixel is no tag's outline, a square of 2 px (4 px^2, 0.004 of the focal length a side) is one SQPnP
-    refuses with cv2.error, and corners a million pixels out, on either side, are beyond any image."""
+    refuses with cv2.error, and corners a million pixels out, on either side and in either coordinate (v alone: the
+    head-on square moved 2e6 px down, still convex in float32), are beyond any image."""
     assert atda_pose(corners, K, TAG) is None
+
+
+@pytest.mark.parametrize("bad", ["rvec", "tvec"])
+def test_a_pnp_solution_that_is_not_finite_gives_no_pose(monkeypatch, bad):
+    """Where solvePnP reports success with a rotation or a translation that is not finite, atda_pose gives no pose."""
+    solve_pnp = cv2.solvePnP
+
+    def non_finite_pnp(*args, **kwargs):
+        ok, rvec, tvec = solve_pnp(*args, **kwargs)
+        assert ok
+        return (ok, np.full_like(rvec, np.nan), tvec) if bad == "rvec" else (ok, rvec, np.full_like(tvec, np.nan))
+
+    monkeypatch.setattr(atda.cv2, "solvePnP", non_finite_pnp)
+    assert atda_pose(HEAD_ON, K, TAG) is None
 
 
 def test_the_system_flags_a_missing_detection_invalid():
@@ -91,6 +107,22 @@ def test_the_systems_estimate_is_stamped_with_the_frames_time():
     system.get_input_port().FixValue(context, TagDetection(0.1, None))
     estimate = system.get_output_port().Eval(context)
     assert not estimate.valid and estimate.time == 0.1
+
+
+def test_the_systems_estimate_is_the_tag_in_the_camera_at_the_contexts_time():
+    """The output is X_CT (reference C, target T), stamped with the context's time, not the detection's: the same
+    detection (of time 0) evaluated again at 0.05 s is a new estimate, of 0.05 s."""
+    system = AtdaEstimator(K, TAG, 0.05)
+    context = system.CreateDefaultContext()
+    system.get_input_port().FixValue(context, TagDetection(0.0, HEAD_ON))
+    estimate = system.get_output_port().Eval(context)
+    assert estimate.valid and estimate.time == 0.0
+    assert (estimate.reference, estimate.target) == ("C", "T")
+    assert np.allclose(estimate.X_RT.translation(), [0.0, 0.0, 2.0], atol=1e-6)
+    context.SetTime(0.05)
+    estimate = system.get_output_port().Eval(context)
+    assert estimate.valid and estimate.time == 0.05
+    assert (estimate.reference, estimate.target) == ("C", "T")
 
 
 def test_the_system_times_each_frames_pose():
