@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 from pydrake.geometry import SceneGraph
-from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import DiagramBuilder
 
 from diagrams import hybrid_perception
@@ -248,6 +248,24 @@ def test_the_landing_zone_is_judged_by_the_navigations_height_not_the_stereos():
     assert not state.estimate.valid and not state.measured
 
 
+def test_the_box_floor_is_judged_by_the_navigations_height_not_the_stereos():
+    """1.2 m over the pad by the navigation, above box_min_height_m (1 m), while the stereo window sees the UGV's roof
+    (at the pad's plane) and its height reads z_P low, 0.7 m over the pad: the box still measures, its ray cut at
+    the stereo's 0.7 m below the camera."""
+    X_WB = RigidTransform([0.0, 0.0, Z_PAD + 1.2 - FISHEYE.X_BC.translation()[2]])
+    p_WC = X_WB.multiply(FISHEYE.X_BC).translation()
+    h = p_WC[2] - Z_PAD  # the camera's height over the roof
+    config = HybridPadConfig()
+    assert p_WC[2] - Z_PAD == pytest.approx(1.2) and h - Z_PAD < config.box_min_height_m < p_WC[2] - Z_PAD
+    p = np.array([0.05, 0.0, Z_PAD])
+    state = hybrid_step(HybridPadState(), 0.0, box_around(p, X_WB), True, h, True, X_WB, FISHEYE, Z_PAD, config,
+                        VelocityObserverConfig())
+    assert state.height_source == 1 and state.height_m == h
+    assert state.estimate.valid and state.measured and not state.fixed
+    xy = p_WC[:2] + (h - Z_PAD) / (p_WC[2] - Z_PAD) * (p - p_WC)[:2]  # the ray to p, 0.7 m down instead of 1.2 m
+    assert np.allclose(state.estimate.X_RT.translation(), [*xy, Z_PAD], atol=1e-6)
+
+
 def test_carried_altitude_follows_the_navigations_descent():
     """The stereo altitude valid at 6 m, then invalid while the UAV descends to 4 m: the camera's height is carried
     on from the last valid one by the navigation's change in height (source 2), so it stays the true height and an
@@ -312,6 +330,15 @@ def test_camera_height_puts_the_left_eyes_depth_vertical(rpy_deg, mount_z_m):
 def test_camera_height_is_nan_when_the_eye_looks_up():
     X_WB = RigidTransform(RollPitchYaw(math.pi, 0.0, 0.0), [0.0, 0.0, 5.0])
     assert math.isnan(camera_height(3.0, X_WB, HybridPerceptionConfig().stereo.X_BL, FISHEYE.X_BC))
+
+
+def test_camera_height_is_nan_when_the_eye_looks_exactly_level():
+    """A left eye whose axis is exactly horizontal (90 deg about x, exact: R_WL's z row has a 0 there) does not look
+    down, so it gives no height (the offsets alone would say 5.1 - 4.95 = 0.15 m)."""
+    X_WB = RigidTransform([0.0, 0.0, 5.0])
+    X_BL = RigidTransform(RotationMatrix(np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])), [0, 0, -0.05])
+    assert X_WB.multiply(X_BL).rotation().matrix()[2, 2] == 0.0
+    assert math.isnan(camera_height(2.0, X_WB, X_BL, RigidTransform([0.0, 0.0, 0.1])))
 
 
 def test_the_estimator_takes_the_tilted_stereo_depth_to_the_pad():
@@ -480,6 +507,11 @@ def test_scenario_loads():
                                             ("hybrid.stereo_pad.threshold_window_px=4",
                                              "hybrid.stereo_pad.threshold_window_px"),
                                             ("hybrid.estimator.min_ray_down=2", "hybrid.estimator.min_ray_down"),
+                                            # 0 would let a horizontal ray measure: the range is (0, 1]
+                                            ("hybrid.estimator.min_ray_down=0",
+                                             "hybrid.estimator.min_ray_down must lie in (0, 1]"),
+                                            ("hybrid.estimator.approach_min_ray_down=0",
+                                             "hybrid.estimator.approach_min_ray_down must lie in (0, 1]"),
                                             ("hybrid.fisheye.fov_deg=200", "hybrid.fisheye.fov_deg"),
                                             ("hybrid.fisheye.width=640", "hybrid.fisheye.width"),
                                             ("hybrid.refinement.method=yolo", "hybrid.refinement.method"),
@@ -666,6 +698,18 @@ def test_the_stereo_pad_fix_is_not_gated():
                         X_WB, FISHEYE, Z_PAD, config, VelocityObserverConfig(), pad_fix=fix)
     assert state.fixed and state.measured and state.gated == 0
     assert np.allclose(state.estimate.X_RT.translation(), [0.5, 1.5, Z_PAD])
+
+
+@pytest.mark.parametrize("fix", [[1.0, 2.0, np.nan], [np.nan, 2.0, Z_PAD]], ids=["nan-z", "nan-x"])
+def test_a_pad_fix_with_a_nan_entry_is_no_fix(fix):
+    """A stereo eye's fix with any entry NaN is no fix: the box measures, and the estimate is its point."""
+    X_WB = RigidTransform([0.0, 0.0, 5.0])
+    h = X_WB.multiply(FISHEYE.X_BC).translation()[2]
+    p = np.array([0.3, -0.2, Z_PAD])
+    state = hybrid_step(HybridPadState(), 0.0, box_around(p, X_WB), True, h, True, X_WB, FISHEYE, Z_PAD,
+                        HybridPadConfig(), VelocityObserverConfig(), pad_fix=np.array(fix))
+    assert state.estimate.valid and state.measured and not state.fixed
+    assert np.allclose(state.estimate.X_RT.translation(), p, atol=1e-6)
 
 
 def test_the_hybrid_vector_codes_what_measured_the_frame():
