@@ -21,6 +21,7 @@ from systems.perception.box_tracker import (
     Detection,
     TrackerState,
     _filter_params,
+    associate,
     box_centre_pixel,
     box_corners,
     box_pixels,
@@ -31,6 +32,7 @@ from systems.perception.box_tracker import (
     corner_form,
     count_identity_switches,
     histogram_similarity,
+    initial_state,
     iou,
     iou_matrix,
     locked_truth_id,
@@ -666,6 +668,48 @@ def test_a_frame_earlier_than_the_last_predicts_nothing():
     np.testing.assert_array_equal(state.track(0).box, last.track(0).box)
 
 
+def image_with(box: np.ndarray, colour) -> np.ndarray:
+    """A WIDTH x HEIGHT RGBA frame, black but for `box` [x, y, w, h] (integers) painted `colour`."""
+    image = np.zeros((HEIGHT, WIDTH, 4), np.uint8)
+    x, y, w, h = (int(v) for v in box)
+    image[y:y + h, x:x + w, :3] = colour
+    return image
+
+
+@pytest.mark.parametrize("shift_px, colour, recovered", [(0.0, RED, True), (-10.0, RED, True),
+                                                         (-11.0, RED, False), (0.0, BLUE, False)],
+                         ids=["where-last-seen", "iou-0.33", "iou-0.29", "other-colour"])
+def test_a_target_that_stops_dead_is_recovered_from_its_last_observed_box(shift_px, colour, recovered):
+    """A red 20 px target crosses at 200 px/s for 8 frames, then stops dead. Its constant-velocity prediction runs
+    20 px on, outside the innovation gate (asserted: the first association refuses the detection). Recovery pairs
+    the track with a detection of its colour whose IOU with its last observed box (x = 240) is at least 0.3: one
+    where it was last seen, or 10 px back (IOU 10/30 = 0.33); its state restarts there, velocity 0. 11 px back
+    (IOU 9/31 = 0.29), or blue where it was last seen, starts a new track and the target's coasts."""
+    config = BoxTrackerConfig(cue_px=[110.0, 110.0])
+    tracker, dt = BoxTracker(config), 0.1
+    for k in range(8):
+        box = np.array([100.0 + 20.0 * k, 100.0, 20.0, 20.0])
+        state = tracker.step([Detection(box)], image_with(box, RED), dt * k)
+    target = state.target
+    assert target is not None and np.allclose(target.velocity, [200.0, 0.0], atol=5.0)
+    stopped = np.array([240.0 + shift_px, 100.0, 20.0, 20.0])
+    predicted = predict_track(target, dt, config)
+    assert associate([predicted], stopped[None], None, None, config) == []
+    state = tracker.step([Detection(stopped)], image_with(stopped, colour), dt * 8)
+    track = state.track(target.id)
+    assert state.target is track and (track.detection == 0) == recovered
+    if recovered:
+        x, P = initial_state(stopped, config)
+        np.testing.assert_array_equal(track.x, x)
+        np.testing.assert_array_equal(track.P, P)
+        np.testing.assert_array_equal(track.observed, stopped)
+        assert len(state.tracks) == 1
+    else:
+        assert track.misses == 1 and track.velocity[0] > 150.0
+        np.testing.assert_array_equal(track.observed, target.observed)
+        assert [t.detection for t in state.tracks if t.id != target.id] == [0]
+
+
 def test_bad_configs_name_the_field():
     for kwargs, field_name in (({"iou_weight": 0.7}, "box_tracker.iou_weight + box_tracker.colour_weight"),
                                ({"min_hits": 0}, "box_tracker.min_hits"),
@@ -673,6 +717,8 @@ def test_bad_configs_name_the_field():
                                ({"rate_hz": 0.0}, "box_tracker.rate_hz"),
                                ({"gate_chi2": -1.0}, "box_tracker.gate_chi2"),
                                ({"appearance_update": 0.0}, "box_tracker.appearance_update"),
+                               ({"recovery_min_iou": 0.0}, "box_tracker.recovery_min_iou"),
+                               ({"recovery_min_iou": 1.5}, "box_tracker.recovery_min_iou"),
                                ({"cue_px": [1.0, 2.0, 3.0]}, "box_tracker.cue_px")):
         with pytest.raises(ConfigError, match=field_name.replace(".", r"\.").replace("+", r"\+")):
             BoxTrackerConfig(**kwargs).validate()

@@ -25,6 +25,13 @@ Ours, where the paper is silent:
   exceeds `max_cost`. The Hungarian algorithm otherwise pairs every track with some detection, however
   far; the colour term (its gate, and its half of Eq. 5's cost) is what keeps a differently coloured
   newcomer from taking a coasting track (tests/test_box_tracker.py).
+- Recovery, OC-SORT's observation-centric recovery (Cao et al., CVPR 2023, Sec. 3.3): a second association
+  of the tracks and detections the first one left unmatched, on each track's last observed box (the detection
+  it last matched) in place of its prediction, gated by IOU >= `recovery_min_iou` and the colour and cost
+  gates, not the innovation's. A recovered track's kinematics restart at the detection (a new track's state
+  and covariance), since its velocity is what failed: the UAV's own rotation jerks the target's box back
+  and forth by tens of pixels a frame, a constant-velocity filter takes the jerks for motion, and its
+  prediction runs off while the target stays where it was last seen.
 - Life cycle (SORT's): an unmatched detection starts a tentative track; `min_hits` matched frames
   confirm it; a tentative track dies at its first miss, a confirmed one after more than `max_misses`.
   Detections scoring under `min_score` are not used.
@@ -102,6 +109,7 @@ class BoxTrackerConfig:
     cue_px: list[float] = field(default_factory=list)  # [u, v] px in the image, near the target at first; empty: centre
     cue_radius_px: float = 120.0  # the locked track must start this close to the cue (a quarter of the fisheye's width)
     reacquire_radius_px: float = 150.0  # a lost target is re-locked on a track this close to its last box
+    recovery_min_iou: float = 0.3  # a track is recovered by a detection this close to its last one (OC-SORT's 0.3)
 
     def validate(self, prefix: str = "box_tracker", width: int | None = None, height: int | None = None) -> None:
         """ConfigError naming the field for a setting the tracker cannot run with; with the image's `width` x
@@ -122,6 +130,8 @@ class BoxTrackerConfig:
         for name in ("min_score", "lock_min_score"):  # a score above 1 drops every detection
             require(getattr(self, name) <= 1, f"{prefix}.{name} must lie in [0, 1] (a detector's score), got "
                     f"{getattr(self, name)}")
+        require(0 < self.recovery_min_iou <= 1,
+                f"{prefix}.recovery_min_iou must lie in (0, 1], got {self.recovery_min_iou}")
         require(0 < self.appearance_update <= 1,
                 f"{prefix}.appearance_update must lie in (0, 1], got {self.appearance_update}")
         require(len(self.cue_px) in (0, 2), f"{prefix}.cue_px needs 2 numbers [u, v] or none, got {len(self.cue_px)}")
@@ -241,7 +251,8 @@ class BoxTrack:
     hits: matched frames; misses: consecutive unmatched frames; confirmed once hits reached min_hits.
     histogram: the (75,) appearance (zeros without images). detection: index, in that frame's detection
     list, of the detection it was matched with, or None (coasting). score: the best detector score among
-    its matched detections (what the lock asks of a track, `lock_min_score`)."""
+    its matched detections (what the lock asks of a track, `lock_min_score`). observed: the last matched
+    detection's box [x, y, w, h] px (what recovery measures from); None for a track built without one."""
 
     id: int
     x: np.ndarray
@@ -252,6 +263,7 @@ class BoxTrack:
     histogram: np.ndarray = field(default_factory=lambda: np.zeros(HISTOGRAM_SIZE, np.float32))
     detection: int | None = None
     score: float = 0.0
+    observed: np.ndarray | None = None
 
     @property
     def box(self) -> np.ndarray:
@@ -321,11 +333,32 @@ def innovation_chi2(track: BoxTrack, boxes: np.ndarray, config: BoxTrackerConfig
     return np.einsum("qi,qi->q", r, np.linalg.solve(S, r.T).T)
 
 
+def initial_state(box: np.ndarray, config: BoxTrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """A new track's (x, P) at a detection box [x, y, w, h] px: its centre form, rates 0, their variances."""
+    std = np.r_[np.full(4, config.measurement_std_px), np.full(4, config.initial_velocity_std_px_s)]
+    return np.r_[centre_form(box), np.zeros(4)], np.diag(std**2)
+
+
 def new_track(track_id: int, box: np.ndarray, histogram: np.ndarray, detection: int,
               config: BoxTrackerConfig, score: float = 0.0) -> BoxTrack:
-    std = np.r_[np.full(4, config.measurement_std_px), np.full(4, config.initial_velocity_std_px_s)]
-    return BoxTrack(track_id, np.r_[centre_form(box), np.zeros(4)], np.diag(std**2), hits=1,
-                    confirmed=config.min_hits <= 1, histogram=histogram, detection=detection, score=score)
+    x, P = initial_state(box, config)
+    return BoxTrack(track_id, x, P, hits=1, confirmed=config.min_hits <= 1, histogram=histogram,
+                    detection=detection, score=score, observed=np.array(box, dtype=float))
+
+
+def _costs(track_boxes: np.ndarray, boxes: np.ndarray, track_histograms: np.ndarray | None,
+           detection_histograms: np.ndarray | None, config: BoxTrackerConfig):
+    """(IOU, colour cost, Eq. 5's D), each (p, q), of p track boxes against q detection boxes [x, y, w, h] px."""
+    ious = iou_matrix(track_boxes, boxes)
+    colour = (np.zeros_like(ious) if track_histograms is None or detection_histograms is None
+              else colour_cost_matrix(track_histograms, detection_histograms))
+    return ious, colour, combined_cost(ious, colour, config)
+
+
+def _assign(feasible: np.ndarray, D: np.ndarray) -> list[tuple[int, int]]:
+    """The Hungarian algorithm's (row, column) pairs on the costs D, the infeasible ones left out."""
+    rows, cols = linear_sum_assignment(np.where(feasible, D, _INFEASIBLE))
+    return [(int(r), int(c)) for r, c in zip(rows, cols) if feasible[r, c]]
 
 
 def associate(tracks: Sequence[BoxTrack], boxes: np.ndarray, track_histograms: np.ndarray,
@@ -335,14 +368,23 @@ def associate(tracks: Sequence[BoxTrack], boxes: np.ndarray, track_histograms: n
     Hungarian algorithm. Histograms: (p, 75) and (q, 75), or None to use the boxes alone (a2's term 0)."""
     if not len(tracks) or not len(boxes):
         return []
-    ious = iou_matrix(np.array([t.box for t in tracks]), boxes)
-    colour = (np.zeros_like(ious) if track_histograms is None or detection_histograms is None
-              else colour_cost_matrix(track_histograms, detection_histograms))
-    D = combined_cost(ious, colour, config)
+    _, colour, D = _costs(np.array([t.box for t in tracks]), boxes, track_histograms, detection_histograms, config)
     chi2 = np.array([innovation_chi2(t, boxes, config) for t in tracks])
-    feasible = (chi2 <= config.gate_chi2) & (colour <= config.max_colour_cost) & (D <= config.max_cost)
-    rows, cols = linear_sum_assignment(np.where(feasible, D, _INFEASIBLE))
-    return [(int(r), int(c)) for r, c in zip(rows, cols) if feasible[r, c]]
+    return _assign((chi2 <= config.gate_chi2) & (colour <= config.max_colour_cost) & (D <= config.max_cost), D)
+
+
+def recover(tracks: Sequence[BoxTrack], boxes: np.ndarray, track_histograms: np.ndarray | None,
+            detection_histograms: np.ndarray | None, config: BoxTrackerConfig) -> list[tuple[int, int]]:
+    """(track index, detection index) pairs of OC-SORT's observation-centric recovery (module docstring) among
+    the tracks and detections the first association left unmatched: `associate` on the tracks' last observed
+    boxes, gated by IOU >= recovery_min_iou in place of the innovation. A track without one takes none."""
+    if not len(tracks) or not len(boxes):
+        return []
+    seen = np.array([t.observed is not None for t in tracks])
+    observed = np.array([t.observed if t.observed is not None else np.zeros(4) for t in tracks])
+    ious, colour, D = _costs(observed, boxes, track_histograms, detection_histograms, config)
+    return _assign(seen[:, None] & (ious >= config.recovery_min_iou) & (colour <= config.max_colour_cost)
+                   & (D <= config.max_cost), D)
 
 
 def _cue(config: BoxTrackerConfig, image: np.ndarray | None) -> np.ndarray | None:
@@ -405,8 +447,8 @@ def partial_views(tracks: Sequence[BoxTrack], boxes: np.ndarray, config: BoxTrac
 
 def step_tracker(state: TrackerState, detections: Sequence[Detection], image: np.ndarray | None, time: float,
                  config: BoxTrackerConfig) -> TrackerState:
-    """One frame at `time` [s]: predict every track to it, associate (Eq. 3-6), update, start, confirm and
-    end tracks, and keep the target's lock. image: the frame (rows, cols, 3 or 4) uint8 the boxes were
+    """One frame at `time` [s]: predict every track to it, associate (Eq. 3-6), recover, update, start, confirm
+    and end tracks, and keep the target's lock. image: the frame (rows, cols, 3 or 4) uint8 the boxes were
     detected in, for the histograms; None to track on boxes alone. Pure: `state` is not changed."""
     dt = 0.0 if state.time is None else max(0.0, time - state.time)
     use_colour = image is not None and config.colour_weight > 0
@@ -422,12 +464,19 @@ def step_tracker(state: TrackerState, detections: Sequence[Detection], image: np
     pairs = associate(predicted, boxes[whole], track_histograms, histograms[whole] if use_colour else None, config)
 
     matched = {k: whole[j] for k, j in pairs}
+    lost = [k for k in range(len(predicted)) if k not in matched]
+    left = [j for j in whole if j not in matched.values()]
+    recovered = {lost[k]: left[j] for k, j in recover(
+        [predicted[k] for k in lost], boxes[left], track_histograms[lost] if track_histograms is not None else None,
+        histograms[left] if use_colour else None, config)}
+    matched.update(recovered)
     _, _, H, R = constant_velocity_model(_filter_params(config, dt), 4)
     tracks = []
     for k, track in enumerate(predicted):
         if k in matched:
             j = matched[k]
-            x, P = kalman_update(track.x, track.P, centre_form(boxes[j]), H, R)
+            x, P = (initial_state(boxes[j], config) if k in recovered
+                    else kalman_update(track.x, track.P, centre_form(boxes[j]), H, R))
             histogram = track.histogram
             if use_colour:
                 a = config.appearance_update
@@ -435,7 +484,7 @@ def step_tracker(state: TrackerState, detections: Sequence[Detection], image: np
             hits = track.hits + 1
             tracks.append(replace(track, x=x, P=P, hits=hits, misses=0, confirmed=track.confirmed or
                                   hits >= config.min_hits, histogram=histogram, detection=used[j],
-                                  score=max(track.score, detections[used[j]].score)))
+                                  score=max(track.score, detections[used[j]].score), observed=boxes[j].copy()))
         elif track.confirmed and track.misses < config.max_misses:
             tracks.append(replace(track, misses=track.misses + 1))
     next_id = state.next_id
