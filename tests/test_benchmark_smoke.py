@@ -175,6 +175,7 @@ def test_hybrid_one_short_run(tmp_path, monkeypatch, capsys):
     assert not run["success"] and run["failure"] == "timeout" and run["touchdown_error_m"] is None
     assert run["sim_time_s"] == pytest.approx(0.2)
     assert 0.0 <= run["hybrid_valid_fraction"] <= 1.0 and finite(run["wall_s"])
+    assert run["identity_switches"] == 0  # 0.2 s on the ground: the UGV is not yet in view, nothing locked
 
 
 def test_landing_sweep_one_run_lands_within_the_targets():
