@@ -6,15 +6,21 @@ fisheye frames (diagrams/ugv_detection_scenes.py: heights 2-10 m, distractor veh
 own colour in 30 % of frames, motion blur in 40 %, small far off-axis targets in 20 %, no UGV in 10 %).
 
     .venv/bin/python benchmarks/ugv_detection.py [--frames 400] [--json FILE]
+        [--split validation --first 300] [--min-body-px N] [--model FILE]
+
+`--split validation` scores validation frames instead (for choosing settings without touching the held-out
+ones; the trainer picks its threshold on the validation split's first 300, so start past them with
+`--first 300`); `--min-body-px` sets the colour check of the refined detector's boxes (0 keeps every box).
 
 Scoring, per frame: a detection with IOU >= 0.5 against the true UGV box is a true positive (the
 highest-scoring one, if several); every other detection is a false positive (on a distractor or not);
 a frame whose UGV is seen and not matched is a false negative. Precision, recall and F1 over all frames,
 against Table 3's totals (P 99.62 %, R 99.59 %, F1 99.60 %), and by kind of frame; the true positives'
-centres' distance from the pad's centre in px (the hybrid estimate takes a box's centre for it). Per-frame cost:
+centres' distance from the pad's centre in px (the hybrid estimate takes a box's centre for it); the scores of the
+true and of the false positives (what the tracker's `lock_min_score` separates). Per-frame cost:
 median and mean wall time of `detect` on one 512 x 512 RGB frame, OpenCV on one thread, against Table 7's
 detection (51.24 +- 55.69 ms, YOLOv3 on a Jetson TX2's GPU). The frames are rendered once and cached under
-results/; the held-out seeds and ground texture are never used in training (models/train_ugv_cnn.py).
+results/; the held-out seeds and ground texture are never used in training or validation (models/train_ugv_cnn.py).
 """
 
 import argparse
@@ -28,6 +34,7 @@ import numpy as np
 from diagrams.outputs import output_file, write_json
 from diagrams.ugv_detection_scenes import (
     HELD_OUT_SEEDS,
+    VALIDATION_SEEDS,
     UgvDataset,
     UgvSceneConfig,
     distractor_pool,
@@ -37,26 +44,28 @@ from diagrams.ugv_detection_scenes import (
 )
 from systems.config import ConfigError
 from systems.perception.box_tracker import box_centre_pixel, iou_matrix
-from systems.perception.ugv_box_refiner import ColourRefinedDetector
+from systems.perception.ugv_box_refiner import BoxRefinementConfig, ColourRefinedDetector
 from systems.perception.ugv_cnn_detector import DEFAULT_MODEL_PATH, CnnDetector
 from systems.perception.ugv_detector import ColourPadDetector, match_truth
 
 TABLE3 = {"precision": 0.9962, "recall": 0.9959, "f1": 0.9960}  # seed 003 Table 3, "Total"
 TABLE7_DETECTION_MS = (51.24, 55.69)  # seed 003 Table 7: mean, standard deviation
+SPLITS = {"held-out": HELD_OUT_SEEDS, "validation": VALIDATION_SEEDS}
 
 
 def score_frame(detections, truth: np.ndarray | None, distractors: np.ndarray, pad_px: np.ndarray | None) -> dict:
     """TP/FP/FN counts of one frame's detections (module docstring), how many false positives lie on a
-    distractor (IOU >= 0.3 with one's box), and the true positive's centre distance from the pad's centre
-    `pad_px` [px] (the point the hybrid estimate takes it for)."""
-    boxes, _, matched = match_truth(detections, truth)
+    distractor (IOU >= 0.3 with one's box), the true positive's centre distance from the pad's centre
+    `pad_px` [px] (the point the hybrid estimate takes it for), and the true and false positives' scores."""
+    boxes, scores, matched = match_truth(detections, truth)
     on_distractor = 0
     for box in boxes[~matched]:
         if len(distractors) and np.any(iou_matrix(box, distractors) >= 0.3):
             on_distractor += 1
     centre_px = [float(np.hypot(*(box_centre_pixel(box) - pad_px))) for box in boxes[matched] if pad_px is not None]
     return {"tp": int(matched.sum()), "fp": int((~matched).sum()), "fn": int(truth is not None and not matched.any()),
-            "fp_on_distractor": on_distractor, "centre_px": centre_px}
+            "fp_on_distractor": on_distractor, "centre_px": centre_px,
+            "tp_scores": scores[matched].tolist(), "fp_scores": scores[~matched].tolist()}
 
 
 def summary(counts: list[dict]) -> dict:
@@ -67,11 +76,16 @@ def summary(counts: list[dict]) -> dict:
     recall = tp / (tp + fn) if tp + fn else None
     f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else None
     centre_px = [d for c in counts for d in c["centre_px"]]
+    tp_scores, fp_scores = ([s for c in counts for s in c[k]] for k in ("tp_scores", "fp_scores"))
     return {"frames": len(counts), "targets": tp + fn, "tp": tp, "fp": fp, "fn": fn,
             "fp_on_distractor": sum(c["fp_on_distractor"] for c in counts),
             "precision": precision, "recall": recall, "f1": f1,
             "centre_error_px": {"median": float(np.median(centre_px)) if centre_px else None,
-                                "p95": float(np.percentile(centre_px, 95)) if centre_px else None}}
+                                "p95": float(np.percentile(centre_px, 95)) if centre_px else None},
+            "scores": {"tp_median": float(np.median(tp_scores)) if tp_scores else None,
+                       "tp_p10": float(np.percentile(tp_scores, 10)) if tp_scores else None,
+                       "fp_median": float(np.median(fp_scores)) if fp_scores else None,
+                       "fp_max": float(np.max(fp_scores)) if fp_scores else None}}
 
 
 def percent(score: float | None, sign: str = "%") -> str:
@@ -107,13 +121,23 @@ def run(detector, dataset: UgvDataset, pads: list) -> tuple[list[dict], np.ndarr
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--frames", type=int, default=400, help="held-out frames")
+    parser.add_argument("--frames", type=int, default=400, help="frames of the split")
+    parser.add_argument("--split", choices=SPLITS, default="held-out")
+    parser.add_argument("--first", type=int, default=0, help="the split's first frame scored (its index)")
+    parser.add_argument("--min-body-px", type=int, default=BoxRefinementConfig().min_body_px,
+                        help="the refined detector's colour check: body-coloured pixels a box needs (0: none)")
     parser.add_argument("--model", type=Path, default=DEFAULT_MODEL_PATH)
     parser.add_argument("--cache-dir", type=Path, default=None)
     parser.add_argument("--json", type=output_file, help="write the figures here")
     args = parser.parse_args(argv)
-    if not 1 <= args.frames <= len(HELD_OUT_SEEDS):
-        parser.error(f"--frames must lie in 1..{len(HELD_OUT_SEEDS)} (the held-out seeds), got {args.frames}")
+    seeds = SPLITS[args.split]
+    if not 0 <= args.first < len(seeds):
+        parser.error(f"--first must lie in 0..{len(seeds) - 1} (the {args.split} seeds), got {args.first}")
+    if not 1 <= args.frames <= len(seeds) - args.first:
+        parser.error(f"--frames must lie in 1..{len(seeds) - args.first} (the {args.split} seeds from --first "
+                     f"{args.first}), got {args.frames}")
+    if args.min_body_px < 0:
+        parser.error(f"--min-body-px must be 0 or more, got {args.min_body_px}")
     cv2.setNumThreads(1)  # one core, as Table 7's comparison here counts it
     try:
         learned = CnnDetector(args.model)
@@ -122,8 +146,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     config = UgvSceneConfig()
     t0 = time.perf_counter()
-    dataset = load_or_render_dataset(HELD_OUT_SEEDS[:args.frames], config, args.cache_dir)
-    print(f"{len(dataset)} held-out frames (seeds {HELD_OUT_SEEDS.start}-{HELD_OUT_SEEDS.start + len(dataset) - 1}, "
+    dataset = load_or_render_dataset(seeds[args.first:args.first + args.frames], config, args.cache_dir)
+    first = seeds[args.first]
+    print(f"{len(dataset)} {args.split} frames (seeds {first}-{first + len(dataset) - 1}, "
           f"ground texture {config.ground.texture_seed}), loaded or rendered in {time.perf_counter() - t0:.1f} s; "
           f"{int(np.sum(~np.isnan(dataset.ugv_boxes[:, 0])))} with the UGV in view")
     print(f"learned model: {args.model}")
@@ -131,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     pool = distractor_pool(config)
     pads = [pad_centre_pixel(sample_scene(int(seed), config, pool), config) for seed in dataset.seeds]
     results = {}
-    detectors = {"learned_cnn": learned, "learned_refined": ColourRefinedDetector(learned, ColourPadDetector()),
+    refined = ColourRefinedDetector(learned, ColourPadDetector(), BoxRefinementConfig(min_body_px=args.min_body_px))
+    detectors = {"learned_cnn": learned, "learned_refined": refined,
                  "classical_colour_pad": ColourPadDetector()}
     for name, detector in detectors.items():
         counts, times = run(detector, dataset, pads)
@@ -159,9 +185,15 @@ def main(argv: list[str] | None = None) -> int:
             line += (f" | {name}: {percent(k['precision'], ''):>6s} / {percent(k['recall'], ''):>6s} / "
                      f"{percent(k['f1'], ''):>6s}, {k['targets']:3d}, {k['fp']:2d}")
         print(line)
+    print("\nscores (true positives: median, 10th percentile | false positives: median, max):")
+    for name, r in results.items():
+        sc = r["scores"]
+        print(f"  {name:20s} {number(sc['tp_median'])}, {number(sc['tp_p10'])} | "
+              f"{number(sc['fp_median'])}, {number(sc['fp_max'])}")
     if args.json:
-        write_json(args.json, {"frames": len(dataset), "table3": TABLE3, "table7_detection_ms":
-                               TABLE7_DETECTION_MS, "detectors": results})
+        write_json(args.json, {"frames": len(dataset), "split": args.split, "first_seed": first,
+                               "min_body_px": args.min_body_px, "table3": TABLE3,
+                               "table7_detection_ms": TABLE7_DETECTION_MS, "detectors": results})
     return 0
 
 

@@ -87,7 +87,8 @@ def test_ugv_detection_one_frame_scores_the_three_detectors(tmp_path):
     assert ugv_detection.main(["--frames", "1", "--cache-dir", str(tmp_path / "cache"), "--json", str(out)]) == 0
     assert list((tmp_path / "cache").iterdir())  # the rendered frame cached here, not under results/
     figures = strict_json(out)
-    assert figures["frames"] == 1
+    assert (figures["frames"], figures["split"], figures["first_seed"]) == (1, "held-out", 1_000_000)
+    assert figures["min_body_px"] == 5  # the refiner's default
     assert figures["table3"] == ugv_detection.TABLE3
     assert set(figures["detectors"]) == {"learned_cnn", "learned_refined", "classical_colour_pad"}
     for name, r in figures["detectors"].items():
@@ -100,6 +101,20 @@ def test_ugv_detection_one_frame_scores_the_three_detectors(tmp_path):
         ms = r["per_frame_ms"]
         assert finite(*ms.values()) and ms["median"] > 0 and ms["std"] == 0, name  # one frame
         assert len(r["by_kind"]) == 5 and sum(k["frames"] for k in r["by_kind"].values()) <= 5, name
+        scores = r["scores"]
+        assert (scores["tp_median"] is None) == (r["tp"] == 0) and (scores["fp_max"] is None) == (r["fp"] == 0), name
+        assert all(v is None or 0.0 <= v <= 1.0 for v in scores.values()), name
+
+
+def test_ugv_detection_on_validation_frames_past_the_trainers(tmp_path):
+    """`--split validation --first 300`: the frames after those the trainer chose its threshold on, scored with the
+    colour check off."""
+    out = tmp_path / "ugv.json"
+    assert ugv_detection.main(["--split", "validation", "--first", "300", "--frames", "1", "--min-body-px", "0",
+                               "--cache-dir", str(tmp_path / "cache"), "--json", str(out)]) == 0
+    figures = strict_json(out)
+    assert (figures["frames"], figures["split"], figures["first_seed"]) == (1, "validation", 500_300)
+    assert figures["min_body_px"] == 0
 
 
 def test_stereo_one_frame_and_a_two_height_sweep(tmp_path, capsys):
