@@ -21,6 +21,7 @@ from diagrams.runner import load_scenario
 from diagrams.stereo_hover import add_textured_ground, ground_tiles
 from systems.config import ConfigError
 from systems.estimators.velocity_observer import VelocityObserverConfig
+from systems.perception.box_tracker import iou
 from systems.perception.hybrid_pad import (
     HybridPadConfig,
     HybridPadEstimator,
@@ -30,7 +31,6 @@ from systems.perception.hybrid_pad import (
     hybrid_vector,
     pad_from_box,
 )
-from systems.perception.box_tracker import iou
 from systems.perception.seam import P_BP_W, VALID, SeamConfig, estimate_is_valid
 from systems.perception.stereo_depth import StereoAltimeter
 from systems.sensors.camera import add_renderer
