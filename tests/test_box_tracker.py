@@ -16,6 +16,7 @@ from systems.estimators.track_filter import constant_velocity_model
 from systems.noise import sample_rng
 from systems.perception.box_tracker import (
     HISTOGRAM_SIZE,
+    BoxTrack,
     BoxTracker,
     BoxTrackerConfig,
     Detection,
@@ -37,6 +38,7 @@ from systems.perception.box_tracker import (
     iou_matrix,
     locked_truth_id,
     predict_track,
+    recover,
     step_tracker,
     target_box,
 )
@@ -708,6 +710,19 @@ def test_a_target_that_stops_dead_is_recovered_from_its_last_observed_box(shift_
         assert track.misses == 1 and track.velocity[0] > 150.0
         np.testing.assert_array_equal(track.observed, target.observed)
         assert [t.detection for t in state.tracks if t.id != target.id] == [0]
+
+
+def test_recovery_pairs_only_tracks_with_an_observed_box():
+    """`recover` on two tracks whose predictions lie far off, one detection on each's last observed box: both
+    paired; a track built without an observed box (by hand, as BoxTrack allows) takes none."""
+    config = BoxTrackerConfig()
+    seen = [np.array([10.0, 10.0, 20.0, 20.0]), np.array([200.0, 10.0, 20.0, 20.0])]
+    tracks = [BoxTrack(k, np.r_[500.0, 500.0, 20.0, 20.0, np.zeros(4)], np.eye(8), observed=box)
+              for k, box in enumerate(seen)]
+    boxes = np.array(seen[::-1])
+    assert sorted(recover(tracks, boxes, None, None, config)) == [(0, 1), (1, 0)]
+    assert recover([tracks[0], replace(tracks[1], observed=None)], boxes, None, None, config) == [(0, 1)]
+    assert recover(tracks, np.zeros((0, 4)), None, None, config) == []
 
 
 def test_bad_configs_name_the_field():

@@ -377,14 +377,13 @@ def recover(tracks: Sequence[BoxTrack], boxes: np.ndarray, track_histograms: np.
             detection_histograms: np.ndarray | None, config: BoxTrackerConfig) -> list[tuple[int, int]]:
     """(track index, detection index) pairs of OC-SORT's observation-centric recovery (module docstring) among
     the tracks and detections the first association left unmatched: `associate` on the tracks' last observed
-    boxes, gated by IOU >= recovery_min_iou in place of the innovation. A track without one takes none."""
+    boxes, gated by IOU >= recovery_min_iou in place of the innovation. A track without one takes none (an empty
+    box stands in for it: IOU 0 with every box)."""
     if not len(tracks) or not len(boxes):
         return []
-    seen = np.array([t.observed is not None for t in tracks])
     observed = np.array([t.observed if t.observed is not None else np.zeros(4) for t in tracks])
     ious, colour, D = _costs(observed, boxes, track_histograms, detection_histograms, config)
-    return _assign(seen[:, None] & (ious >= config.recovery_min_iou) & (colour <= config.max_colour_cost)
-                   & (D <= config.max_cost), D)
+    return _assign((ious >= config.recovery_min_iou) & (colour <= config.max_colour_cost) & (D <= config.max_cost), D)
 
 
 def _cue(config: BoxTrackerConfig, image: np.ndarray | None) -> np.ndarray | None:
