@@ -74,6 +74,7 @@ BINS_PER_CHANNEL = 25  # Sec. 2.2.1: "each color channel using 25 bins"
 HISTOGRAM_SIZE = 3 * BINS_PER_CHANNEL  # n = 75, Eq. 4
 _INFEASIBLE = 1e6  # cost of a gated pair in the assignment
 PARTIAL_INSIDE = 0.8  # a partial view lies at least this fraction of its area within the track's predicted box
+PARTIAL_WHOLE_EXTENT = 0.8  # ... and keeps at least this fraction of the box's extent across the cut
 
 
 @dataclass(frozen=True)
@@ -431,8 +432,9 @@ def partial_views(tracks: Sequence[BoxTrack], boxes: np.ndarray, config: BoxTrac
     predicted = np.array([tracks[k].box for k in confirmed])
     inter, _, area = intersection_matrix(predicted, boxes)
     inside = np.divide(inter, area, out=np.zeros_like(inter), where=area > 0) >= PARTIAL_INSIDE
-    smaller = ((boxes[None, :, 2] < config.min_size_ratio * predicted[:, None, 2])
-               | (boxes[None, :, 3] < config.min_size_ratio * predicted[:, None, 3]))
+    w_ratio, h_ratio = boxes[None, :, 2] / predicted[:, None, 2], boxes[None, :, 3] / predicted[:, None, 3]
+    smaller = (((w_ratio < config.min_size_ratio) & (h_ratio >= PARTIAL_WHOLE_EXTENT))
+               | ((h_ratio < config.min_size_ratio) & (w_ratio >= PARTIAL_WHOLE_EXTENT)))
     candidates = list(zip(*np.nonzero(inside & smaller)))
     if not candidates:  # the usual frame: no gate to evaluate (associate evaluates it for the whole views)
         return {}
