@@ -398,6 +398,21 @@ def test_partial_view_is_not_measured_and_starts_no_track(fragment):
     assert state.target.id == target_id and state.target.detection == 0 and state.target.misses == 0
 
 
+def test_a_box_smaller_both_ways_is_the_targets_whole_view_not_a_fragment():
+    """A still target boxed 100 x 110 px for 8 frames (the learned detector's oversized first boxes near the ground),
+    then 50 x 70 px inside it (half the width, under two thirds of the height: no cut leaves that): the locked track
+    measures it under its id and takes its size, and no other track starts."""
+    tracker, big, true = BoxTracker(BoxTrackerConfig()), np.array([100.0, 100.0, 100.0, 110.0]), \
+        np.array([125.0, 120.0, 50.0, 70.0])
+    for k in range(8):
+        state = tracker.step([Detection(big)], None, 0.1 * k)
+    target_id = state.target.id
+    for k in range(8, 12):
+        state = tracker.step([Detection(true)], None, 0.1 * k)
+        assert [t.id for t in state.tracks] == [target_id] and state.target.detection == 0
+    assert iou(state.target.box, true) > 0.9
+
+
 def test_a_partial_view_in_an_image_leaves_the_other_detections_to_their_tracks():
     """With images, a red target's fragment listed before a distant blue vehicle: the target coasts, and the
     vehicle's track is matched with the vehicle's own detection and keeps a blue appearance, 1/3 in each of

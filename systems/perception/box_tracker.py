@@ -35,12 +35,16 @@ Ours, where the paper is silent:
 - Life cycle (SORT's): an unmatched detection starts a tentative track; `min_hits` matched frames
   confirm it; a tentative track dies at its first miss, a confirmed one after more than `max_misses`.
   Detections scoring under `min_score` are not used.
-- A partial view: a detection lying within a confirmed track's predicted box and narrower or shorter than
-  `min_size_ratio` of it (the target half under a bridge, or cut by the image's edge: its centre is not the
-  target's) is neither associated nor starts a track: the track coasts as if unseen (and dies after
+- A partial view: a detection lying within a confirmed track's predicted box, narrower or shorter than
+  `min_size_ratio` of it and keeping at least PARTIAL_WHOLE_EXTENT of its extent the other way (the target half
+  under a bridge, or cut by the image's edge: the cut leaves the extent across it whole, and the fragment's
+  centre is not the target's) is neither associated nor starts a track: the track coasts as if unseen (and dies after
   `max_misses`), nothing measures from the fragment, and the track's appearance stays the whole target's,
   for the re-acquisition when it reappears. A detection that another track's gate takes is that track's
-  whole view, not a fragment (a smaller vehicle seen over a larger one).
+  whole view, not a fragment (a smaller vehicle seen over a larger one). A box smaller both ways is a whole
+  view too: the target seen smaller than the track's box (the learned detector's first boxes near the ground
+  are oversized, and the true ones after them lie inside, half its width and under two thirds of its height: taken
+  for fragments, they left the locked track unmeasured until it died, measured in ugv-hybrid's climb).
 - A track's appearance is a running mean of its matched detections' histograms (`appearance_update`
   the weight of the newest), so one frame of a box overlapping another object moves it little. A track
   started on a frame without an image has no appearance yet (all zeros, colour cost 0 against anything)
@@ -423,7 +427,8 @@ def _update_lock(lock: TargetLock, tracks: tuple[BoxTrack, ...], image: np.ndarr
 
 def partial_views(tracks: Sequence[BoxTrack], boxes: np.ndarray, config: BoxTrackerConfig) -> dict[int, int]:
     """{detection index: track index}: detections (q, 4) lying at least PARTIAL_INSIDE within a confirmed
-    track's predicted box and narrower or shorter than `min_size_ratio` of it (module docstring), unless
+    track's predicted box, narrower or shorter than `min_size_ratio` of it and at least PARTIAL_WHOLE_EXTENT of
+    it the other way (module docstring), unless
     another track's gate (`innovation_chi2`) takes it: then it is that track's whole view, a smaller object
     seen over the larger one."""
     confirmed = [k for k, t in enumerate(tracks) if t.confirmed]
