@@ -167,6 +167,20 @@ def test_a_tight_pose_brings_a_turned_filter_onto_its_attitude():
     np.testing.assert_allclose(log_so3(R_measured @ after.R.T), 0.0, atol=1e-6)
 
 
+def test_a_poses_covariance_over_attitude_then_position_weighs_each_part_of_the_error_state():
+    """update_pose's covariance is over [dtheta, dp] (the nodes' order), the error state's [dp, dv, dtheta]: from
+    P = 0.01 I, attitude noise 1e-4 and position noise 4e-4 make independent scalar updates, the position's variance
+    0.01 * 4e-4 / 0.0104 and the attitude's 0.01 * 1e-4 / 0.0101, a 0.1 m innovation in x moving p by the gain
+    0.01 / 0.0104; the velocity, unmeasured and uncorrelated, keeps its 0.01."""
+    state = _state([0.0, 0.0, 5.0])
+    after = update_pose(state, np.array([0.1, 0.0, 5.0]), np.eye(3), np.diag([1e-4] * 3 + [4e-4] * 3),
+                        LocalFilterConfig())
+    assert after.accepted == 1
+    expected = np.diag([0.01 * 4e-4 / 0.0104] * 3 + [0.01] * 3 + [0.01 * 1e-4 / 0.0101] * 3)
+    np.testing.assert_allclose(after.P, expected, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(after.p, [0.1 * 0.01 / 0.0104, 0.0, 5.0], rtol=1e-9, atol=1e-15)
+
+
 def test_a_started_filter_takes_its_velocity_covariance_from_the_horizontal_and_vertical_stds():
     """The velocity's initial covariance in P (z up): the horizontal std on x and y, the vertical on z, as the
     config names them, in initial_velocity_covariance and in a filter started from the centre."""
@@ -227,6 +241,17 @@ def test_a_gate_probability_outside_the_open_unit_interval_is_refused(refused, a
     with pytest.raises(ConfigError, match=r"federated\.gate_probability must be in \(0, 1\)"):
         LocalFilterConfig(gate_probability=refused).validate()
     LocalFilterConfig(gate_probability=accepted).validate()
+
+
+@pytest.mark.parametrize("name", ["accel_noise_psd", "gyro_noise_psd", "initial_velocity_std_mps",
+                                  "initial_vertical_velocity_std_mps", "initial_tilt_std_deg", "initial_yaw_std_deg",
+                                  "max_coast_s", "max_relative_std_m", "gravity_m_s2"])
+def test_every_noise_density_std_and_bound_must_be_positive(name):
+    """Each positive field of the local filters' config (LocalFilterConfig) and of the engine's (FederatedConfig)
+    at 0: a ConfigError naming it, while the defaults pass."""
+    FederatedConfig().validate()
+    with pytest.raises(ConfigError, match=rf"federated\.{name} must be positive, got 0"):
+        replace(FederatedConfig(), **{name: 0.0}).validate()
 
 
 def _truth(t):
@@ -461,6 +486,66 @@ def test_a_first_pose_far_from_what_the_centres_measured_is_left_out_and_the_nex
     assert np.abs(height[t >= 1.02] - 4.0).max() < 0.005
 
 
+def _started_by_centres(R: np.ndarray, P: np.ndarray, v=(0.0, 0.0, 0.0)) -> FederatedState:
+    """Filters the approaching node's centres started (the heading unknown), at 1 s, its last centre accepted then:
+    the fused estimate p_PB (0.3, -0.2, 4) m, R_PB R, v_PB v, covariance P; each filter with N P (their fusion's P)."""
+    local = LocalState(np.array([0.3, -0.2, 4.0]), np.asarray(v, dtype=float), R, len(NODES) * P,
+                       q_scale=float(len(NODES)))
+    return FederatedState(time=1.0, fused=replace(local, P=P, q_scale=1.0), filters=(local,) * len(NODES),
+                          local_estimates=(local,) * len(NODES),
+                          stats=(NodeStats(50, 0, 1.0), NodeStats(), NodeStats()))
+
+
+def _first_pose(state: FederatedState, measured: RigidTransform) -> FederatedState:
+    """`state` stepped, at its own time (nothing predicted), with the adjustment node's pose X_PB `measured` (1 mrad,
+    3 mm claimed): the first full pose."""
+    frame = {"adjustment": NodeMeasurement(state.time, "adjustment", np.diag([1e-6] * 3 + [9e-6] * 3), X_PB=measured)}
+    return step(state, state.time, np.r_[state.fused.R.T @ [0.0, 0.0, G], 0.0, 0.0, 0.0], frame, FederatedConfig(),
+                X_BC)
+
+
+@pytest.mark.parametrize("offset, agrees", [([0.6, 0.0, 0.0], True), ([0.0, 0.6, 0.0], False)])
+def test_a_first_pose_is_checked_against_the_centres_covariance_turned_to_its_heading(offset, agrees):
+    """The centres' estimate, at heading 0, knows p_PB's x to 0.1 m and its y to 1 m; the first pose says the heading
+    is pi/2, which turns y's 1 m onto x. A pose 0.6 m off the turned estimate along x (NIS 0.6^2 / (1 + 9e-6),
+    0.36) agrees and restarts the filters on it; along y (0.36 / (0.01 + 9e-6), 36, over the gate's 27.9) it is
+    left out. The covariance left unturned would swap the two."""
+    assert 0.36 / (1.0 + 9e-6) < chi2.ppf(FederatedConfig().gate_probability, 6) < 0.36 / (0.01 + 9e-6)
+    state = _started_by_centres(np.eye(3), np.diag([0.01, 1.0, 0.01, 0.1, 0.1, 0.04, 1e-4, 1e-4, 1e-4]))
+    R_z = RotationMatrix.MakeZRotation(np.pi / 2)
+    measured = RigidTransform(R_z, R_z.multiply(state.fused.p) + offset)
+    after = _first_pose(state, measured)
+    assert after.heading_known == agrees
+    assert after.stats[NODES.index("adjustment")] == (NodeStats(1, 0, 1.0) if agrees else NodeStats(0, 1, None))
+    np.testing.assert_allclose(after.fused.p, measured.translation() if agrees else state.fused.p, rtol=0, atol=1e-12)
+
+
+def test_the_heading_of_a_first_pose_on_a_tilted_body_is_its_turn_about_the_vertical_of_the_pattern():
+    """The centres' estimate rolled 0.3 rad at heading 0, the first pose (1 mrad) the same roll turned pi/2 about
+    P's z: R_PB' R_PB^T is that turn exactly, and the estimate turned by it agrees (the pose restarts the filters).
+    The turn in the body's axes, R_PB^T R_PB', is pi/2 about the tilted (0, sin 0.3, cos 0.3): the heading from its
+    entries, atan2(2 cos 0.3, sin^2 0.3), is 45.7 mrad short, and the pose would be gated."""
+    R = RotationMatrix.MakeXRotation(0.3)
+    state = _started_by_centres(R.matrix(), np.diag([1e-4] * 3 + [0.1, 0.1, 0.04] + [1e-6] * 3))
+    R_z = RotationMatrix.MakeZRotation(np.pi / 2)
+    measured = RigidTransform(R_z.multiply(R), R_z.multiply(state.fused.p))
+    after = _first_pose(state, measured)
+    assert after.heading_known and after.stats[NODES.index("adjustment")] == NodeStats(1, 0, 1.0)
+    np.testing.assert_allclose(after.fused.R, measured.rotation().matrix(), rtol=0, atol=1e-12)
+
+
+def test_a_heading_restart_turns_the_velocity_and_its_covariance_into_the_new_heading():
+    """The centres' estimate, at heading 0, moving 0.2 m/s along its x, knows the velocity to 0.71 m/s along x and
+    0.32 m/s along y; the first pose turns the heading a quarter turn: the restart keeps the body's velocity, now
+    along P's y, (0, 0.2, 0), and its covariance with x's and y's variances swapped, diag(0.1, 0.5, 0.04)."""
+    state = _started_by_centres(np.eye(3), np.diag([1e-4] * 3 + [0.5, 0.1, 0.04] + [1e-6] * 3), v=[0.2, 0.0, 0.0])
+    R_z = RotationMatrix.MakeZRotation(np.pi / 2)
+    after = _first_pose(state, RigidTransform(R_z, R_z.multiply(state.fused.p)))
+    assert after.heading_known
+    np.testing.assert_allclose(after.fused.v, [0.0, 0.2, 0.0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(after.fused.P[3:6, 3:6], np.diag([0.1, 0.5, 0.04]), rtol=1e-9, atol=1e-15)
+
+
 def test_a_start_from_a_full_pose_keeps_its_whole_covariance():
     """At 3.8 m the adjustment node's pose errs along the orbit about the pattern: its position and tilt errors
     correlate (+1.00), and the filters started by it carry that covariance whole (before: its diagonal, which
@@ -495,22 +580,65 @@ def test_first_poses_that_go_on_disagreeing_restart_the_filters_after_max_coast(
     assert abs(height[restart] - 4.04) < 0.005  # from the pose, which the centres then pull back
 
 
+def _lone_disagreeing_poses(when_s: tuple[float, ...], seconds: float) -> dict:
+    """`_hover` at p_PB (0.3, -0.2, 4) m with the heading 2 rad for `seconds`, the adjustment node's pose (3 mm
+    claimed) 40 mm high in the frames at `when_s` and none in the others. Returns {t: state} after each frame."""
+    R, p = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix(), np.array([0.3, -0.2, 4.0])
+
+    def pose(t, X_CP):
+        lone = any(abs(t - when) < 1e-9 for when in when_s)
+        return NodeMeasurement(t, "adjustment", np.diag([1e-6] * 3 + [9e-6] * 3),
+                               X_PB=RigidTransform(R, p + [0.0, 0.0, 0.04])) if lone else None
+
+    return dict(_hover(R, p, seconds, 136.0, 640.0, pose))
+
+
 def test_two_lone_disagreeing_poses_far_apart_are_each_left_out():
     """A disagreeing pose at 1 s and the next pose, disagreeing too, at 3 s (none in between): each is a run of
     its own, shorter than max_coast_s, so the second is left out as the first was, not taken whole because
     the first was 2 s before."""
-    R, p = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix(), np.array([0.3, -0.2, 4.0])
-
-    def pose(t, X_CP):
-        lone = any(abs(t - when) < 1e-9 for when in (1.0, 3.0))
-        return NodeMeasurement(t, "adjustment", np.diag([1e-6] * 3 + [9e-6] * 3),
-                               X_PB=RigidTransform(R, p + [0.0, 0.0, 0.04])) if lone else None
-
-    frames = _hover(R, p, 3.1, 136.0, 640.0, pose)
-    after = [state for t, state in frames if t >= 3.0]
+    frames = _lone_disagreeing_poses((1.0, 3.0), 3.1)
+    after = [state for t, state in frames.items() if t >= 3.0]
     assert not any(state.heading_known for state in after)
     assert max(abs(state.fused.p[2] - 4.0) for state in after) < 0.005
     assert after[0].stats[1].gated == 2
+
+
+def test_a_disagreeing_pose_max_coast_after_the_last_one_goes_on_its_run():
+    """Disagreeing poses at 1 s and 1.5 s, exactly max_coast_s (0.5 s, the frames' times exact in binary) apart: a
+    run ends only once more than max_coast_s has passed since its last pose, so the second goes on the first's run,
+    which has then lasted max_coast_s: the filters restart from it (a run of its own would leave it out)."""
+    assert FederatedConfig().max_coast_s == 0.5
+    frames = _lone_disagreeing_poses((1.0, 1.5), 1.52)
+    assert not frames[1.48].heading_known and frames[1.48].stats[1] == NodeStats(0, 1, None)
+    assert frames[1.5].heading_known and frames[1.5].stats[1] == NodeStats(1, 1, 1.5)
+    assert abs(frames[1.5].fused.p[2] - 4.04) < 0.005  # from the pose
+
+
+def test_a_centre_that_restarts_lost_filters_leaves_the_heading_unknown_until_the_next_pose():
+    """Hovering at heading 2 rad with exact centres and poses (the heading known), then 0.6 s of frames with nothing
+    (lost: over max_coast_s), then a centre alone: it restarts the filters at heading 0 (initial_state: a centre
+    cannot tell it), so the heading is unknown again, and the next exact pose turns it back to 2 rad."""
+    R, p = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix(), np.array([0.3, -0.2, 4.0])
+    covariance = np.diag([1e-6] * 3 + [9e-6] * 3)
+
+    def exact(t, X_CP):
+        return NodeMeasurement(t, "adjustment", covariance, X_PB=RigidTransform(R, p))
+
+    t, state = _hover(R, p, 1.5, 136.0, 640.0, exact)[-1]
+    assert state.heading_known and t == 1.5
+    config, imu = FederatedConfig(), np.r_[R.inverse().multiply([0.0, 0.0, G]), 0.0, 0.0, 0.0]
+    for k in range(1, 31):  # frames every 20 ms with nothing, to 2.1 s
+        state = step(state, (300 + 4 * k) / 200, imu, {}, config, X_BC)
+    X_CP = X_BC.inverse().multiply(RigidTransform(R, p).inverse())
+    centre = NodeMeasurement(2.12, "approach", approach_covariance(X_CP.translation(), 136.0, 640.0),
+                             p_CP=X_CP.translation())
+    restarted = step(state, 2.12, imu, {"approach": centre}, config, X_BC)
+    assert restarted.stats[0].last_accepted_s == 2.12 and is_valid(restarted, config)
+    assert not restarted.heading_known
+    assert abs(RollPitchYaw(restarted.fused.R).yaw_angle()) < 1e-9
+    turned = step(restarted, 2.14, imu, {"adjustment": exact(2.14, X_CP)}, config, X_BC)
+    assert turned.heading_known and abs(RollPitchYaw(turned.fused.R).yaw_angle() - 2.0) < 1e-3
 
 
 def test_once_the_heading_is_known_each_pose_is_gated_by_its_own_filter_alone():
@@ -567,7 +695,9 @@ def test_the_measurement_that_starts_the_filters_counts_as_accepted():
 def test_a_start_from_the_centre_alone_puts_the_pattern_where_the_mounted_camera_sees_it():
     """The first centre, p_CP, seen by a camera mounted off the body's axis (X_BC: turned half a turn about x,
     0.1 m forward, 0.05 m to the side): the fused centre seen from the body is X_BC p_CP = R_x(pi) p_CP + p_BC
-    (with X_BC^-1 p_CP: 0.2 m in x, where the default mount on the axis hides the difference)."""
+    (with X_BC^-1 p_CP: 0.2 m in x, where the default mount on the axis hides the difference), and its covariance
+    is the centre's turned into the body, R_BC C R_BC^T (initial_state's heading and tilt terms cancel in it; C
+    untouched would keep the signs of its x-y and x-z terms, which R_x(pi) flips)."""
     mount = RigidTransform(RotationMatrix.MakeXRotation(np.pi), [0.1, 0.05, -0.04])
     p_CP = np.array([0.3, -0.2, 10.0])
     first = NodeMeasurement(0.0, "approach", approach_covariance(p_CP, 60.0, 640.0), p_CP=p_CP)
@@ -575,6 +705,8 @@ def test_a_start_from_the_centre_alone_puts_the_pattern_where_the_mounted_camera
                  mount)
     expected = np.array([0.3, 0.2, -10.0]) + [0.1, 0.05, -0.04]  # R_x(pi) (x, y, z) = (x, -y, -z)
     np.testing.assert_allclose(centre_in_body(state.fused)[0], expected, atol=1e-12)
+    J, R_BC = relative_jacobian(state.fused), mount.rotation().matrix()
+    np.testing.assert_allclose(J @ state.fused.P @ J.T, R_BC @ first.covariance @ R_BC.T, rtol=1e-9, atol=1e-15)
 
 
 def test_a_restart_after_max_coast_adds_the_initial_velocity_covariance():
@@ -621,6 +753,18 @@ def test_an_estimate_whose_relative_position_is_too_uncertain_is_invalid():
         inflated = replace(state, fused=replace(state.fused, P=state.fused.P * scale))
         assert relative_std_m(inflated.fused) == pytest.approx(ratio * config.max_relative_std_m)
         assert is_valid(inflated, config) == valid
+
+
+def test_an_estimate_whose_relative_position_is_exactly_as_uncertain_as_allowed_is_valid():
+    """is_valid's bound on p_BP_B's std is inclusive: level (R_PB = I) with the attitude certain, p_BP_B's covariance
+    is p_PB's, whose trace 0.25 + 0.25 + 0.5 = 1 m^2 (exact in binary) puts the std at exactly max_relative_std_m."""
+    P = np.zeros((9, 9))
+    P[0:3, 0:3] = np.diag([0.25, 0.25, 0.5])
+    P[3:6, 3:6] = 0.01 * np.eye(3)
+    fused = LocalState(np.array([0.0, 0.0, 4.0]), np.zeros(3), np.eye(3), P)
+    state = FederatedState(time=1.0, fused=fused, stats=(NodeStats(1, 0, 1.0), NodeStats(), NodeStats()))
+    assert relative_std_m(fused) == 1.0
+    assert is_valid(state, FederatedConfig(max_relative_std_m=1.0))
 
 
 @pytest.mark.parametrize("dt", [0.005, 0.1])
