@@ -79,6 +79,7 @@ def test_attitude_gains_place_the_designed_poles():
     ("rate_hz", 1e9, r"rate_hz \(1e\+09 Hz\) must be at most 10000 Hz"),
     ("max_tilt_deg", 95.0, "max_tilt_deg"),
     ("max_tilt_deg", 0.0, r"max_tilt_deg must be in \(0, 90\)"),  # no tilt: no horizontal control
+    ("max_tilt_deg", 90.0, r"max_tilt_deg must be in \(0, 90\)"),  # horizontal thrust: tan 90 deg, no weight held
     ("max_vertical_accel_m_s2", 10.0,
      r"^flight_controller.max_vertical_accel_m_s2 \(10 m/s\^2\) must be below quadrotor.gravity_m_s2 \(9.81 m/s\^2\)$"),
     # A full sink at a_max = g commands no thrust at all.
@@ -86,6 +87,9 @@ def test_attitude_gains_place_the_designed_poles():
     ("attitude_frequency_rad_s", 40.0, "attitude_frequency_rad_s is too fast"),
     # 2 zeta w_n = 2 (0.8) 40 = 64 rad/s, past 1 / tau_a = 40 rad/s: yaw's real pole would be unstable too.
     ("yaw_frequency_rad_s", 40.0, "yaw_frequency_rad_s is too fast"),
+    # At the bound itself, 2 (0.8) 25 = 40 rad/s = 1 / tau_a (both 40.0 in floats), the real pole is at 0: refused.
+    ("attitude_frequency_rad_s", 25.0, "attitude_frequency_rad_s is too fast"),
+    ("yaw_frequency_rad_s", 25.0, "yaw_frequency_rad_s is too fast"),
     ("velocity_gain_z", 0.0, "velocity_gain_z must be positive"),
 ])
 def test_bad_config_is_rejected_by_name(field, value, message):
@@ -238,6 +242,39 @@ def test_at_the_desired_attitude_the_torque_is_damping_plus_the_gyroscopic_term(
     identity = np.eye(3).ravel().tolist()
     np.testing.assert_allclose(law.torque(identity, identity, w_B), -J * k_w * w_B + np.cross(w_B, J * w_B),
                                rtol=1e-12)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_an_attitude_error_about_each_axis_is_corrected_with_that_axis_gain(axis):
+    """At rest (w_B = 0) rotated 0.2 rad about body axis `axis` from R_des = I: e_R = vee(R - R^T) / 2 is
+    sin(0.2) along that axis, so T_B = -J_i k_R[i] sin(0.2) on it alone (roll, pitch and yaw each their own k_R)."""
+    law = FlightLaw(QUAD, CONFIG)
+    k_R, _ = CONFIG.attitude_gains()
+    J = QUAD.inertia_diagonal
+    R = [RotationMatrix.MakeXRotation, RotationMatrix.MakeYRotation, RotationMatrix.MakeZRotation][axis](0.2)
+    identity = np.eye(3).ravel().tolist()
+    expected = np.zeros(3)
+    expected[axis] = -J[axis] * k_R[axis] * np.sin(0.2)
+    np.testing.assert_allclose(law.torque(R.matrix().ravel().tolist(), identity, [0.0, 0.0, 0.0]), expected,
+                               rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("z_desired, yaw", [
+    ([np.sin(np.radians(30.0)), 0.0, np.cos(np.radians(30.0))], 0.0),  # pitched 30 deg toward the heading
+    ([0.3, -0.4, np.sqrt(1 - 0.25)], 1.0),
+])
+def test_the_desired_rotation_of_a_tilted_thrust_is_a_rotation(z_desired, yaw):
+    """y_B desired is the unit vector normal to z_desired and to the heading (cos yaw, sin yaw, 0), by numpy; with it
+    R_WB_des (columns y x z, y, z) is orthonormal with det 1. Pitched 30 deg toward a heading of 0, y is (0, 1, 0),
+    not z x heading's (0, cos 30, 0)."""
+    law = FlightLaw(QUAD, CONFIG)
+    normal = np.cross(z_desired, [np.cos(yaw), np.sin(yaw), 0.0])
+    y = law.lateral_axis(z_desired, yaw)
+    np.testing.assert_allclose(y, normal / np.linalg.norm(normal), rtol=1e-12, atol=1e-15)
+    R = np.array(law.desired_rotation(y, z_desired)).reshape(3, 3)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(R[:, 2], z_desired, rtol=1e-12)
 
 
 def test_a_rotor_asked_for_negative_thrust_is_commanded_to_stop():

@@ -274,7 +274,8 @@ def test_the_estimates_yaw_is_the_heading_of_a_pitched_pads_x_axis():
 @pytest.mark.parametrize("cls", BOTH)
 def test_a_filter_started_under_a_tilted_uav_starts_at_the_pads_attitude(cls):
     """Exact measurements of a pad yawed 30 deg from a UAV rolled, pitched and yawed (the camera's attitude in W not
-    a half-turn about one axis, as it nearly is under a level UAV): the first estimate's attitude is the pad's."""
+    a half-turn about one axis, as it nearly is under a level UAV): the first estimate's attitude is the pad's, and
+    so are its position and the markers' (the camera's 4 cm offset from B, turned into W, included)."""
     marker_filter = make(cls)
     X_WP = RigidTransform(RotationMatrix.MakeZRotation(np.radians(30.0)), [5.0, -3.0, 1.6])
     X_WB = RigidTransform(RollPitchYaw(0.4, -0.3, 1.0), [5.5, -3.2, 4.6])
@@ -283,6 +284,18 @@ def test_a_filter_started_under_a_tilted_uav_starts_at_the_pads_attitude(cls):
     estimate = marker_filter.estimate()
     assert estimate.vector[EST_YAW] == pytest.approx(np.radians(30.0), abs=1e-9)
     np.testing.assert_allclose(estimate.X_WP.X_RT.rotation().matrix(), X_WP.rotation().matrix(), atol=1e-9)
+    np.testing.assert_allclose(estimate.X_WP.X_RT.translation(), X_WP.translation(), atol=1e-9)
+    np.testing.assert_allclose(estimate.p_WM, X_WP.multiply(LAYOUT.p_PM.T).T, atol=1e-9)
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_an_unstarted_filters_estimate_is_invalid_at_the_time_asked(cls):
+    """Before its start a filter has no pose, but its invalid estimate is stamped at the time asked for (the Drake
+    system reads it at the context's time), 0 when none is."""
+    marker_filter = make(cls)
+    estimate = marker_filter.estimate(2.5)
+    assert not estimate.X_WP.valid and estimate.X_WP.time == 2.5
+    assert marker_filter.estimate().X_WP.time == 0.0
 
 
 def test_the_stacked_innovations_take_q_and_minus_q_as_one_attitude():
@@ -413,6 +426,25 @@ def test_the_constant_turn_platform_covariance_is_its_yaw_and_position():
     np.testing.assert_allclose(covariance[2:, 2:], P[np.ix_(kept, kept)], rtol=1e-12)
 
 
+@pytest.mark.parametrize("cls", BOTH)
+def test_a_prediction_over_a_period_0_4_ms_longer_uses_its_own_dt(cls):
+    """A filter stepped at T_s (its constants for dt = T_s made) then predicting over dt = T_s + 0.4 ms predicts as a
+    fresh filter does. Marker 0 (the pad's origin) at constant velocity along x (v_y = 0 and omega = 0: the turn's
+    terms vanish), from P = I: P[0, 0] = 1 + dt^2 + acceleration_psd dt^3 / 3 (white acceleration's dt^3 / 3)."""
+    marker_filter, truth = make(cls), straight(6.0)
+    rng = np.random.default_rng(0)
+    for t in (0.0, TS):
+        marker_filter.step(t, uav_over(truth(t), t), measure(truth, t, rng))
+    dt = TS + 0.0004
+    x = state_from_truth(cls, pose([1, 2, 1.6], [0, 0, 0]), v_WP=(3.0, 0.0, 0.0), omega_z=0.0)
+    P = np.eye(marker_filter.n)
+    x_fresh, P_fresh = make(cls).predict(x, P, dt)
+    x_warm, P_warm = marker_filter.predict(x, P, dt)
+    np.testing.assert_allclose(x_warm, x_fresh, atol=1e-12, rtol=0)
+    np.testing.assert_allclose(P_warm, P_fresh, atol=1e-12, rtol=0)
+    assert P_warm[0, 0] == pytest.approx(1.0 + dt**2 + marker_filter.config.acceleration_psd * dt**3 / 3, abs=1e-12)
+
+
 def test_paper_process_is_eq_11():
     marker_filter = make(PaperMarkerEkf)
     x = state_from_truth(PaperMarkerEkf, pose([1, 2, 1.6], [0, 0, 20]))
@@ -539,6 +571,21 @@ def test_a_quaternion_norm_tolerance_of_one_or_more_is_refused(error):
     """At 1 a zero quaternion, | |q| - 1 | = 1, would pass the screening."""
     with pytest.raises(ConfigError, match=r"estimation\.ekf\.max_quaternion_norm_error must be in \(0, 1\)"):
         MarkerEkfConfig(max_quaternion_norm_error=error).validate("estimation.ekf")
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("reset_after_rejected_steps", 0, r"estimation\.ekf\.reset_after_rejected_steps must be at least 1"),
+    ("history_s", -0.01, r"estimation\.ekf\.history_s must not be negative"),
+])
+def test_a_config_out_of_range_is_refused_by_name(field, value, message):
+    with pytest.raises(ConfigError, match=message):
+        MarkerEkfConfig(**{field: value}).validate("estimation.ekf")
+
+
+@pytest.mark.parametrize("field, value", [("reset_after_rejected_steps", 1), ("history_s", 0.0)])
+def test_the_configs_bounds_themselves_are_accepted(field, value):
+    """A restart after a single fully gated step, and no history (late measurements all too late), are legitimate."""
+    MarkerEkfConfig(**{field: value}).validate("estimation.ekf")
 
 
 @pytest.mark.parametrize("cls", BOTH)
@@ -700,6 +747,23 @@ def test_measurements_rejected_for_many_steps_restart_the_filter(cls):
 
 
 @pytest.mark.parametrize("cls", BOTH)
+def test_steps_with_only_some_measurements_gated_do_not_restart_the_filter(cls):
+    """reset_after_rejected_steps steps in a row in which marker 2 is seen 5 m off and the other four right: every
+    step fused some, so none counts toward a restart; marker 2 gated each time, the others accepted."""
+    marker_filter = converged(cls, steps=30)
+    truth, rng = straight(6.0), np.random.default_rng(1)
+    steps = marker_filter.config.reset_after_rejected_steps
+    before = marker_filter.stats
+    for k in range(30, 30 + steps):
+        t = k * TS
+        frame = measure(truth, t, rng)
+        frame[2] = MarkerMeasurement(t, frame[2].marker_id, frame[2].p_CM + [5.0, 0.0, 0.0], frame[2].q_CM)
+        marker_filter.step(t, uav_over(truth(t), t), frame)
+    after = marker_filter.stats
+    assert (after.resets, after.gated - before.gated, after.accepted - before.accepted) == (0, steps, 4 * steps)
+
+
+@pytest.mark.parametrize("cls", BOTH)
 def test_late_measurements_are_fused_as_if_they_had_arrived_on_time(cls):
     truth = circle(6.0, 41.0)
     on_time, late = make(cls), make(cls)
@@ -758,6 +822,25 @@ def test_a_measurement_between_steps_is_fused_at_its_own_time(cls, before):
         stepped_there.step(t, uav(t), [])
         on_grid.step(t, uav(t), measurements)
     assert_same_belief(stepped_there, on_grid, atol=1e-9)
+
+
+@pytest.mark.parametrize("cls", BOTH)
+def test_a_measurement_exactly_history_s_late_is_fused(cls):
+    """history_s = 3 T_s: frame 8 held back and handed in at step 11 with frame 11, exactly history_s late. The
+    step it was taken in is still kept, so it is fused as if it had arrived on time: the belief of a filter given
+    every frame on time, all 12 frames' 60 marker measurements accepted, none too late."""
+    truth, rng = straight(6.0), np.random.default_rng(0)
+    on_time, late = make(cls, history_s=3 * TS), make(cls, history_s=3 * TS)
+    held = []
+    for k in range(12):
+        t = k * TS
+        frame = measure(truth, t, rng)
+        on_time.step(t, uav_over(truth(t), t), frame)
+        if k == 8:
+            held, frame = frame, []
+        late.step(t, uav_over(truth(t), t), held + frame if k == 11 else frame)
+    assert late.stats == on_time.stats == FilterStats(accepted=60)
+    assert_same_belief(on_time, late, atol=1e-9)
 
 
 @pytest.mark.parametrize("cls", BOTH)
