@@ -580,17 +580,25 @@ def test_first_poses_that_go_on_disagreeing_restart_the_filters_after_max_coast(
     assert abs(height[restart] - 4.04) < 0.005  # from the pose, which the centres then pull back
 
 
+HEADED_R, HEADED_P = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix(), np.array([0.3, -0.2, 4.0])  # a hover's X_PB
+
+
+def _headed_pose(t: float, node: str = "adjustment", offset_m=(0.0, 0.0, 0.0)) -> NodeMeasurement:
+    """`node`'s pose at t [s] of the hover at HEADED_P with the heading 2 rad, moved by offset_m in P (1 mrad and 3 mm
+    claimed: the covariance over [dtheta, dp])."""
+    return NodeMeasurement(t, node, np.diag([1e-6] * 3 + [9e-6] * 3),
+                           X_PB=RigidTransform(HEADED_R, HEADED_P + np.asarray(offset_m)))
+
+
 def _lone_disagreeing_poses(when_s: tuple[float, ...], seconds: float) -> dict:
-    """`_hover` at p_PB (0.3, -0.2, 4) m with the heading 2 rad for `seconds`, the adjustment node's pose (3 mm
-    claimed) 40 mm high in the frames at `when_s` and none in the others. Returns {t: state} after each frame."""
-    R, p = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix(), np.array([0.3, -0.2, 4.0])
+    """`_hover` at HEADED_P with the heading 2 rad for `seconds`, the adjustment node's pose 40 mm high in the frames
+    at `when_s` and none in the others. Returns {t: state} after each frame."""
 
     def pose(t, X_CP):
         lone = any(abs(t - when) < 1e-9 for when in when_s)
-        return NodeMeasurement(t, "adjustment", np.diag([1e-6] * 3 + [9e-6] * 3),
-                               X_PB=RigidTransform(R, p + [0.0, 0.0, 0.04])) if lone else None
+        return _headed_pose(t, offset_m=(0.0, 0.0, 0.04)) if lone else None
 
-    return dict(_hover(R, p, seconds, 136.0, 640.0, pose))
+    return dict(_hover(HEADED_R, HEADED_P, seconds, 136.0, 640.0, pose))
 
 
 def test_two_lone_disagreeing_poses_far_apart_are_each_left_out():
@@ -619,13 +627,8 @@ def test_a_centre_that_restarts_lost_filters_leaves_the_heading_unknown_until_th
     """Hovering at heading 2 rad with exact centres and poses (the heading known), then 0.6 s of frames with nothing
     (lost: over max_coast_s), then a centre alone: it restarts the filters at heading 0 (initial_state: a centre
     cannot tell it), so the heading is unknown again, and the next exact pose turns it back to 2 rad."""
-    R, p = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix(), np.array([0.3, -0.2, 4.0])
-    covariance = np.diag([1e-6] * 3 + [9e-6] * 3)
-
-    def exact(t, X_CP):
-        return NodeMeasurement(t, "adjustment", covariance, X_PB=RigidTransform(R, p))
-
-    t, state = _hover(R, p, 1.5, 136.0, 640.0, exact)[-1]
+    R, p = HEADED_R, HEADED_P
+    t, state = _hover(R, p, 1.5, 136.0, 640.0, lambda t, X_CP: _headed_pose(t))[-1]
     assert state.heading_known and t == 1.5
     config, imu = FederatedConfig(), np.r_[R.inverse().multiply([0.0, 0.0, G]), 0.0, 0.0, 0.0]
     for k in range(1, 31):  # frames every 20 ms with nothing, to 2.1 s
@@ -637,7 +640,7 @@ def test_a_centre_that_restarts_lost_filters_leaves_the_heading_unknown_until_th
     assert restarted.stats[0].last_accepted_s == 2.12 and is_valid(restarted, config)
     assert not restarted.heading_known
     assert abs(RollPitchYaw(restarted.fused.R).yaw_angle()) < 1e-9
-    turned = step(restarted, 2.14, imu, {"adjustment": exact(2.14, X_CP)}, config, X_BC)
+    turned = step(restarted, 2.14, imu, {"adjustment": _headed_pose(2.14)}, config, X_BC)
     assert turned.heading_known and abs(RollPitchYaw(turned.fused.R).yaw_angle() - 2.0) < 1e-3
 
 
@@ -646,16 +649,10 @@ def test_once_the_heading_is_known_each_pose_is_gated_by_its_own_filter_alone():
     after a second of exact adjustment poses, a frame with the adjustment pose 40 mm off in height (gated by its
     filter) and an exact touchdown pose takes the touchdown one (accepted), not leaving both out as a first
     pose's check would."""
-    R, p = RollPitchYaw(0.0, 0.0, 2.0).ToRotationMatrix(), np.array([0.3, -0.2, 4.0])
-    covariance = np.diag([1e-6] * 3 + [9e-6] * 3)
-
-    def exact(t, X_CP):
-        return NodeMeasurement(t, "adjustment", covariance, X_PB=RigidTransform(R, p))
-
-    t, before = _hover(R, p, 2.0, 136.0, 640.0, exact)[-1]
+    R, p = HEADED_R, HEADED_P
+    t, before = _hover(R, p, 2.0, 136.0, 640.0, lambda t, X_CP: _headed_pose(t))[-1]
     assert before.heading_known and t == 2.0
-    frame = {"adjustment": NodeMeasurement(2.02, "adjustment", covariance, X_PB=RigidTransform(R, p + [0, 0, 0.04])),
-             "touchdown": NodeMeasurement(2.02, "touchdown", covariance, X_PB=RigidTransform(R, p))}
+    frame = {"adjustment": _headed_pose(2.02, offset_m=(0.0, 0.0, 0.04)), "touchdown": _headed_pose(2.02, "touchdown")}
     after = step(before, 2.02, np.r_[R.inverse().multiply([0.0, 0.0, G]), 0.0, 0.0, 0.0], frame, FederatedConfig(),
                  X_BC)
     adjustment, touchdown = NODES.index("adjustment"), NODES.index("touchdown")
