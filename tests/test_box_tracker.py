@@ -754,6 +754,7 @@ def test_bad_configs_name_the_field():
             BoxTrackerConfig(**kwargs).validate()
     with pytest.raises(ConfigError, match=r"tracker\.min_score"):
         BoxTrackerConfig(min_score=-0.1).validate("tracker")
+    BoxTrackerConfig(recovery_min_iou=1.0).validate()  # (0, 1]: an IOU of 1, the same box, is a valid demand
 
 
 def test_a_cue_outside_the_image_or_nan_is_refused():
@@ -858,3 +859,48 @@ def test_reacquire_measures_from_where_the_target_was_last_seen_not_where_its_tr
     assert np.linalg.norm(centre_form(coasted)[:2] - centre_form(stand_in)[:2]) > config.reacquire_radius_px
     assert state.target is not None and state.target.id != target_id
     np.testing.assert_allclose(centre_form(state.target.box)[:2], centre_form(stand_in)[:2], atol=1.0)
+
+
+@pytest.mark.parametrize("shift_px, pairs", [(7.0, [(0, 0)]), (8.0, [])], ids=["iou-exactly-0.3", "iou-0.24"])
+def test_recovery_takes_an_iou_of_exactly_recovery_min_iou(shift_px, pairs):
+    """A 13 x 20 px last observed box and a detection 7 px along: 6 of 13 columns shared, IOU 120 / (260 + 260 - 120)
+    = 0.3, exactly recovery_min_iou: paired. 8 px along: 100 / 420 = 0.24, not."""
+    config = BoxTrackerConfig()
+    observed = np.array([100.0, 100.0, 13.0, 20.0])
+    track = BoxTrack(0, np.r_[500.0, 500.0, 13.0, 20.0, np.zeros(4)], np.eye(8), observed=observed)
+    detection = observed + [shift_px, 0.0, 0.0, 0.0]
+    assert recover([track], detection[None], None, None, config) == pairs
+
+
+def test_recovery_maps_its_pairs_back_to_the_frames_tracks_and_detections():
+    """Track 0 at rest on its detection (d0), track 1 whose prediction ran 100 px off its last observed box (outside
+    the innovation gate) with a detection there (d1), and d2 10 px along from track 0 (IOU 1/3 with its box). The first
+    association gives track 0 d0; recovery, among the tracks and detections it left (track 1; d1, d2), gives
+    track 1 d1, its state restarted there; d2 starts track 2. A matched track is not offered to recovery again."""
+    config = BoxTrackerConfig(min_hits=1)
+    a, b = np.array([100.0, 100.0, 20.0, 20.0]), np.array([200.0, 100.0, 20.0, 20.0])
+    x_a, P_a = initial_state(a, config)
+    x_b, P_b = initial_state(b + [100.0, 0.0, 0.0, 0.0], config)
+    tracks = (BoxTrack(0, x_a, P_a, confirmed=True, observed=a), BoxTrack(1, x_b, P_b, confirmed=True, observed=b))
+    d2 = a + [10.0, 0.0, 0.0, 0.0]
+    state = step_tracker(TrackerState(0.0, tracks, 2), [Detection(a), Detection(b), Detection(d2)], None, 0.1, config)
+    assert [(t.id, t.detection, t.misses) for t in state.tracks] == [(0, 0, 0), (1, 1, 0), (2, 2, 0)]
+    np.testing.assert_array_equal(state.track(1).x, initial_state(b, config)[0])
+    np.testing.assert_array_equal(state.track(0).observed, a)
+
+
+@pytest.mark.parametrize("box, partial", [
+    ([100.0, 103.0, 16.0, 24.0], True),  # 0.4 of the width, 24 / 30 = exactly PARTIAL_WHOLE_EXTENT of the height
+    ([104.0, 100.0, 32.0, 12.0], True),  # 0.4 of the height, 32 / 40 = exactly PARTIAL_WHOLE_EXTENT of the width
+    ([100.0, 100.0, 24.0, 30.0], False),  # 24 / 40 = exactly min_size_ratio of the width: not narrower
+    ([100.0, 100.0, 40.0, 18.0], False),  # 18 / 30 = exactly min_size_ratio of the height: not shorter
+], ids=["narrower-keeping-0.8", "shorter-keeping-0.8", "width-0.6", "height-0.6"])
+def test_partial_view_bounds_are_inclusive_of_the_whole_extent_and_exclusive_of_the_size_ratio(box, partial):
+    """A still 40 x 30 px confirmed track (its predicted box exactly its last), then a box inside it: a fragment keeping
+    exactly 0.8 of one extent and under 0.6 of the other is a partial view (the track coasts); one exactly 0.6 of an
+    extent is a whole view, measured (IOU 0.6, within the innovation gate)."""
+    tracker = BoxTracker(BoxTrackerConfig(min_hits=1))
+    tracker.step([Detection(np.array([100.0, 100.0, 40.0, 30.0]))], None, 0.0)
+    state = tracker.step([Detection(np.array(box))], None, 0.1)
+    assert [t.id for t in state.tracks] == [0]
+    assert (state.track(0).detection, state.track(0).misses) == ((None, 1) if partial else (0, 0))
