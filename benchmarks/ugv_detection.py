@@ -8,9 +8,10 @@ own colour in 30 % of frames, motion blur in 40 %, small far off-axis targets in
     .venv/bin/python benchmarks/ugv_detection.py [--frames 400] [--json FILE]
         [--split validation --first 300] [--min-body-px N] [--model FILE]
 
-`--split validation` scores validation frames instead (for choosing settings without touching the held-out
-ones; the trainer picks its threshold on the validation split's first 300, so start past them with
-`--first 300`); `--min-body-px` sets the colour check of the refined detector's boxes (0 keeps every box).
+`--split validation` scores validation frames instead, on the training ground as the trainer renders them (for
+choosing settings without touching the held-out frames or their ground; the trainer picks its threshold on the
+validation split's first 300, so start past them with `--first 300`); `--min-body-px` sets the colour check of the
+refined detector's boxes (0 keeps every box).
 
 Scoring, per frame: a detection with IOU >= 0.5 against the true UGV box is a true positive (the
 highest-scoring one, if several); every other detection is a false positive (on a distractor or not);
@@ -41,6 +42,7 @@ from diagrams.ugv_detection_scenes import (
     load_or_render_dataset,
     pad_centre_pixel,
     sample_scene,
+    training_scene_config,
 )
 from systems.config import ConfigError
 from systems.perception.box_tracker import box_centre_pixel, iou_matrix
@@ -144,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(e, file=sys.stderr)
         return 2
-    config = UgvSceneConfig()
+    config = UgvSceneConfig() if args.split == "held-out" else training_scene_config()  # the trainer's validation
     t0 = time.perf_counter()
     dataset = load_or_render_dataset(seeds[args.first:args.first + args.frames], config, args.cache_dir)
     first = seeds[args.first]
@@ -192,6 +194,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{number(sc['fp_median'])}, {number(sc['fp_max'])}")
     if args.json:
         write_json(args.json, {"frames": len(dataset), "split": args.split, "first_seed": first,
+                               "ground_texture_seed": config.ground.texture_seed,
                                "min_body_px": args.min_body_px, "table3": TABLE3,
                                "table7_detection_ms": TABLE7_DETECTION_MS, "detectors": results})
     return 0

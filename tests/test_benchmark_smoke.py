@@ -25,6 +25,7 @@ import benchmarks.vision_landing as vision_landing
 from diagrams.fisheye_markers import MARKER_DIRECTIONS_DEG
 from diagrams.landing_metrics import SETTLED_TOLERANCE_M, TARGET_TOUCHDOWN_ERROR_M, TARGET_TOUCHDOWN_REL_SPEED_MPS
 from diagrams.runner import load_scenario
+from diagrams.ugv_detection_scenes import TRAIN_TEXTURE_SEED, UgvSceneConfig
 from tests.conftest import InlinePool
 
 pytestmark = pytest.mark.slow
@@ -88,6 +89,7 @@ def test_ugv_detection_one_frame_scores_the_three_detectors(tmp_path):
     assert list((tmp_path / "cache").iterdir())  # the rendered frame cached here, not under results/
     figures = strict_json(out)
     assert (figures["frames"], figures["split"], figures["first_seed"]) == (1, "held-out", 1_000_000)
+    assert figures["ground_texture_seed"] == UgvSceneConfig().ground.texture_seed != TRAIN_TEXTURE_SEED
     assert figures["min_body_px"] == 5  # the refiner's default
     assert figures["table3"] == ugv_detection.TABLE3
     assert set(figures["detectors"]) == {"learned_cnn", "learned_refined", "classical_colour_pad"}
@@ -107,13 +109,14 @@ def test_ugv_detection_one_frame_scores_the_three_detectors(tmp_path):
 
 
 def test_ugv_detection_on_validation_frames_past_the_trainers(tmp_path):
-    """`--split validation --first 300`: the frames after those the trainer chose its threshold on, scored with the
-    colour check off."""
+    """`--split validation --first 300`: the frames after those the trainer chose its threshold on, on its training
+    ground, scored with the colour check off."""
     out = tmp_path / "ugv.json"
     assert ugv_detection.main(["--split", "validation", "--first", "300", "--frames", "1", "--min-body-px", "0",
                                "--cache-dir", str(tmp_path / "cache"), "--json", str(out)]) == 0
     figures = strict_json(out)
     assert (figures["frames"], figures["split"], figures["first_seed"]) == (1, "validation", 500_300)
+    assert figures["ground_texture_seed"] == TRAIN_TEXTURE_SEED
     assert figures["min_body_px"] == 0
 
 
