@@ -289,8 +289,8 @@ class BoxTrack:
 @dataclass(frozen=True)
 class TargetLock:
     """The target's identity. track_id: the locked track, or None (never locked, or lost and not yet
-    re-acquired). box, histogram: the target's last measured box (its track's filtered box in the last frame a
-    detection matched it) and appearance (for re-acquiring it)."""
+    re-acquired). box, histogram: the target's last measured box (its track's last observed box, the detection it
+    last matched) and appearance (for re-acquiring it)."""
 
     track_id: int | None = None
     box: np.ndarray | None = None
@@ -421,7 +421,7 @@ def _update_lock(lock: TargetLock, tracks: tuple[BoxTrack, ...], image: np.ndarr
         if not candidates or not candidates[0].confirmed:
             return lock
         locked = candidates[0]
-    box = locked.box if locked.detection is not None or lock.box is None else lock.box  # the last measured one
+    box = locked.observed if locked.observed is not None else locked.box  # the last measured one
     return TargetLock(locked.id, box, locked.histogram.copy())
 
 
