@@ -15,10 +15,9 @@ pixels), the detection keeps its own box.
 
 A learned detection whose own box holds fewer than `min_body_px` pixels of the UGV's body colour (the classical
 detector's HSV band) is dropped: the network's false alarms lie on vehicles of other colours and on the ground. On
-800 validation frames (seeds 500300-501099, the training ground; not the held-out ones) 14 of the network's 19
-false positives held no such pixel, its 717 true boxes at least 12 (9 under 20); the veto at 5 px (any from 3 to
-11 the same) dropped those 14 and no true box (docs/results.md; `benchmarks/ugv_detection.py --split validation
---first 300 --frames 800 --min-body-px N` gives the same for N = 5 and 11).
+800 validation frames (seeds 500300-501099, the training ground; not the held-out ones: `benchmarks/ugv_detection.py
+--split validation --first 300 --frames 800 --min-body-px N`) the veto at 5 px drops 14 of the 23 false positives
+the refined boxes would have and no true box; 11 px the same (docs/results.md).
 
 Only the centre moves: the two detectors box different extents in an oblique view (the roof, 41 x 44 px, inside
 the network's 67 x 65 px), and a box whose size jumped between them from frame to frame gave the box tracker's
